@@ -1,0 +1,191 @@
+//! The linear Kalman filter with a Joseph-form update.
+
+#![allow(non_snake_case)]
+
+use nalgebra::{DMatrix, DVector};
+
+use super::{Estimate, Filter, FilterError, Innovation};
+use crate::linalg::{cholesky, mahalanobis_sq, symmetrize};
+use crate::model::Measurement;
+
+/// Linear Kalman filter for `x_k = F x_{k−1} + w`, `z_k = H x_k + v`, with the filter's own
+/// Q and R (which may differ from the truth's: that is what is being tested).
+#[derive(Debug, Clone)]
+pub struct KalmanFilter {
+    /// State transition, n × n.
+    pub F: DMatrix<f64>,
+    /// Measurement matrix, m × n.
+    pub H: DMatrix<f64>,
+    /// Process noise covariance per step, n × n.
+    pub Q: DMatrix<f64>,
+    /// Measurement noise covariance, m × m.
+    pub R: DMatrix<f64>,
+    /// Initial estimate, n.
+    pub x0: DVector<f64>,
+    /// Initial covariance, n × n (positive definite).
+    pub P0: DMatrix<f64>,
+}
+
+impl KalmanFilter {
+    /// Covariance prediction `P⁻ = F P F' + Q`, symmetrized.
+    pub fn predict_covariance(&self, P: &DMatrix<f64>) -> DMatrix<f64> {
+        let mut Pp = &self.F * P * self.F.transpose() + &self.Q;
+        symmetrize(&mut Pp);
+        Pp
+    }
+
+    /// The covariance half of an update from the prior `P⁻`: returns the gain K (n × m),
+    /// `S = H P⁻ H' + R`, its Cholesky factor, and the Joseph-form posterior
+    /// `P = (I − K H) P⁻ (I − K H)' + K R K'`, symmetrized. K solves `S K' = H P⁻` by
+    /// Cholesky; no inverse is formed.
+    pub fn update_covariance(&self, Pp: &DMatrix<f64>, step: usize) -> Result<CovarianceUpdate, FilterError> {
+        let HP = &self.H * Pp;
+        let mut S = &HP * self.H.transpose() + &self.R;
+        symmetrize(&mut S);
+        let chol = cholesky(&S).ok_or(FilterError::NotPositiveDefinite { which: "S", step })?;
+        let K = chol.solve(&HP).transpose();
+        let n = Pp.nrows();
+        let IKH = DMatrix::identity(n, n) - &K * &self.H;
+        let mut P = &IKH * Pp * IKH.transpose() + &K * &self.R * K.transpose();
+        symmetrize(&mut P);
+        if P.iter().any(|v| !v.is_finite()) {
+            return Err(FilterError::NotPositiveDefinite { which: "P", step });
+        }
+        Ok(CovarianceUpdate { K, S, chol, P, IKH })
+    }
+}
+
+/// The data-independent half of a Kalman update.
+#[derive(Debug, Clone)]
+pub struct CovarianceUpdate {
+    /// Gain, n × m.
+    pub K: DMatrix<f64>,
+    /// Innovation covariance, m × m.
+    pub S: DMatrix<f64>,
+    /// Cholesky factor of S.
+    pub chol: nalgebra::Cholesky<f64, nalgebra::Dyn>,
+    /// Posterior covariance, n × n.
+    pub P: DMatrix<f64>,
+    /// `I − K H`, n × n.
+    pub IKH: DMatrix<f64>,
+}
+
+impl Filter for KalmanFilter {
+    fn n_x(&self) -> usize {
+        self.F.nrows()
+    }
+
+    fn sensor_dims(&self) -> Vec<usize> {
+        vec![self.H.nrows()]
+    }
+
+    fn initial(&self) -> Estimate {
+        let n = self.n_x();
+        Estimate {
+            x: self.x0.clone(),
+            P: self.P0.clone(),
+            error_map: DMatrix::identity(n, n),
+        }
+    }
+
+    fn predict(&self, _k: usize, est: &mut Estimate) -> Result<(), FilterError> {
+        est.x = &self.F * &est.x;
+        est.P = self.predict_covariance(&est.P);
+        est.error_map = self.F.clone();
+        Ok(())
+    }
+
+    fn update(&self, k: usize, est: &mut Estimate, meas: &Measurement) -> Result<Innovation, FilterError> {
+        let m = self.H.nrows();
+        if meas.sensor != 0 || meas.z.len() != m {
+            return Err(FilterError::BadMeasurement {
+                sensor: meas.sensor,
+                got: meas.z.len(),
+                expected: if meas.sensor == 0 { m } else { 0 },
+            });
+        }
+        let cu = self.update_covariance(&est.P, k)?;
+        let nu = &meas.z - &self.H * &est.x;
+        est.x += &cu.K * &nu;
+        est.P = cu.P;
+        est.error_map = &cu.IKH * &est.error_map;
+        let nis = mahalanobis_sq(&cu.chol, &nu);
+        Ok(Innovation { nu, S: cu.S, nis })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use approx::assert_relative_eq;
+
+    fn cv1d() -> KalmanFilter {
+        KalmanFilter {
+            F: DMatrix::from_row_slice(2, 2, &[1.0, 1.0, 0.0, 1.0]),
+            H: DMatrix::from_row_slice(1, 2, &[1.0, 0.0]),
+            Q: crate::params::dwna_block(1.0) * 0.3,
+            R: DMatrix::from_element(1, 1, 2.0),
+            x0: DVector::from_column_slice(&[0.0, 1.0]),
+            P0: DMatrix::from_diagonal(&DVector::from_column_slice(&[10.0, 4.0])),
+        }
+    }
+
+    #[test]
+    fn joseph_update_matches_textbook_form() {
+        // For the optimal gain, (I − KH)P⁻ equals the Joseph form; both must agree.
+        let kf = cv1d();
+        let Pp = kf.predict_covariance(&kf.P0);
+        let cu = kf.update_covariance(&Pp, 1).unwrap();
+        let simple = (DMatrix::identity(2, 2) - &cu.K * &kf.H) * &Pp;
+        assert_relative_eq!(cu.P, simple, max_relative = 1e-12);
+        // K = P⁻ H' S⁻¹ computed with an explicit inverse for the check only.
+        let k_ref = &Pp * kf.H.transpose() * cu.S.clone().try_inverse().unwrap();
+        assert_relative_eq!(cu.K, k_ref, max_relative = 1e-12);
+    }
+
+    #[test]
+    fn update_keeps_covariance_symmetric_and_reports_nis() {
+        let kf = cv1d();
+        let mut est = kf.initial();
+        kf.predict(1, &mut est).unwrap();
+        let z = Measurement {
+            sensor: 0,
+            z: DVector::from_column_slice(&[3.0]),
+        };
+        let prior_x = est.x.clone();
+        let inn = kf.update(1, &mut est, &z).unwrap();
+        assert!(crate::linalg::asymmetry(&est.P).is_none());
+        assert_relative_eq!(inn.nu[0], 3.0 - prior_x[0]);
+        assert_relative_eq!(inn.nis, inn.nu[0] * inn.nu[0] / inn.S[(0, 0)], max_relative = 1e-14);
+    }
+
+    #[test]
+    fn indefinite_innovation_covariance_is_an_error_not_nan() {
+        let mut kf = cv1d();
+        kf.R[(0, 0)] = -1e6;
+        let mut est = kf.initial();
+        kf.predict(1, &mut est).unwrap();
+        let z = Measurement {
+            sensor: 0,
+            z: DVector::from_column_slice(&[0.0]),
+        };
+        assert_eq!(
+            kf.update(1, &mut est, &z).unwrap_err(),
+            FilterError::NotPositiveDefinite { which: "S", step: 1 }
+        );
+    }
+
+    #[test]
+    fn wrong_measurement_dimension_is_rejected() {
+        let kf = cv1d();
+        let mut est = kf.initial();
+        let z = Measurement {
+            sensor: 0,
+            z: DVector::from_column_slice(&[0.0, 1.0]),
+        };
+        assert!(matches!(
+            kf.update(1, &mut est, &z),
+            Err(FilterError::BadMeasurement { .. })
+        ));
+    }
+}

@@ -1,0 +1,188 @@
+//! Small dense linear-algebra helpers shared by the filter, model and parameter code.
+//!
+//! Everything here works on nalgebra's dynamic matrices, because dimensions come from
+//! problem files at run time.
+
+use nalgebra::{Cholesky, DMatrix, DVector, Dyn, SymmetricEigen};
+
+/// Relative tolerance for symmetry and positive-semidefiniteness checks on user input.
+///
+/// Problem files are typed by hand with a handful of significant digits, so anything
+/// tighter than about 1e-9 relative would reject matrices that are symmetric "as written".
+pub const SYMMETRY_RTOL: f64 = 1e-9;
+
+/// Replace `m` by `(m + m') / 2`, removing the asymmetry that rounding leaves after
+/// covariance updates.
+pub fn symmetrize(m: &mut DMatrix<f64>) {
+    let n = m.nrows();
+    for i in 0..n {
+        for j in (i + 1)..n {
+            let v = 0.5 * (m[(i, j)] + m[(j, i)]);
+            m[(i, j)] = v;
+            m[(j, i)] = v;
+        }
+    }
+}
+
+/// The largest absolute entry of `m` (0 for an empty matrix).
+pub fn max_abs(m: &DMatrix<f64>) -> f64 {
+    m.iter().fold(0.0_f64, |a, v| a.max(v.abs()))
+}
+
+/// Whether `m` is square and symmetric to [`SYMMETRY_RTOL`] relative to its largest entry.
+/// Returns the first offending `(row, col)` when it is not.
+pub fn asymmetry(m: &DMatrix<f64>) -> Option<(usize, usize)> {
+    let scale = max_abs(m).max(f64::MIN_POSITIVE);
+    let n = m.nrows();
+    for i in 0..n {
+        for j in (i + 1)..n {
+            if (m[(i, j)] - m[(j, i)]).abs() > SYMMETRY_RTOL * scale {
+                return Some((i, j));
+            }
+        }
+    }
+    None
+}
+
+/// A factor `L` (n × r) of a symmetric positive-semidefinite matrix, `L L' = M`, where r is
+/// the numerical rank. Used to draw Gaussian samples with a possibly singular covariance
+/// (a DWNA process noise has rank 1 per axis) from only r standard normals.
+///
+/// Returns `Err(lambda_min)` when `M` has an eigenvalue below `-SYMMETRY_RTOL·max|λ|`.
+pub fn psd_factor(m: &DMatrix<f64>) -> Result<DMatrix<f64>, f64> {
+    let n = m.nrows();
+    if n == 0 {
+        return Ok(DMatrix::zeros(0, 0));
+    }
+    let mut sym = m.clone();
+    symmetrize(&mut sym);
+    let eig = SymmetricEigen::new(sym);
+    let lmax = eig.eigenvalues.iter().fold(0.0_f64, |a, v| a.max(v.abs()));
+    let tol = SYMMETRY_RTOL * lmax.max(f64::MIN_POSITIVE);
+    let lmin = eig.eigenvalues.iter().fold(f64::INFINITY, |a, &v| a.min(v));
+    if lmin < -tol {
+        return Err(lmin);
+    }
+    let keep: Vec<usize> = (0..n).filter(|&i| eig.eigenvalues[i] > tol).collect();
+    let mut l = DMatrix::zeros(n, keep.len());
+    for (c, &i) in keep.iter().enumerate() {
+        let s = eig.eigenvalues[i].sqrt();
+        for r in 0..n {
+            l[(r, c)] = eig.eigenvectors[(r, i)] * s;
+        }
+    }
+    Ok(l)
+}
+
+/// The smallest eigenvalue of the symmetric part of `m`.
+pub fn min_eigenvalue(m: &DMatrix<f64>) -> f64 {
+    let mut sym = m.clone();
+    symmetrize(&mut sym);
+    SymmetricEigen::new(sym)
+        .eigenvalues
+        .iter()
+        .fold(f64::INFINITY, |a, &v| a.min(v))
+}
+
+/// Cholesky factorization that refuses matrices with non-finite entries.
+pub fn cholesky(m: &DMatrix<f64>) -> Option<Cholesky<f64, Dyn>> {
+    if m.iter().any(|v| !v.is_finite()) {
+        return None;
+    }
+    Cholesky::new(m.clone())
+}
+
+/// `v' M^{-1} v` from the Cholesky factor `L` of `M`, by one triangular solve:
+/// `|L^{-1} v|²`.
+pub fn mahalanobis_sq(chol: &Cholesky<f64, Dyn>, v: &DVector<f64>) -> f64 {
+    let w = chol
+        .l_dirty()
+        .solve_lower_triangular(v)
+        .expect("a Cholesky factor has a nonzero diagonal");
+    w.norm_squared()
+}
+
+/// The inverse of the lower-triangular Cholesky factor, `L^{-1}`, so that
+/// `v' M^{-1} v = |L^{-1} v|²` costs one matrix-vector product when `M` is shared.
+pub fn inverse_cholesky_factor(chol: &Cholesky<f64, Dyn>) -> DMatrix<f64> {
+    let l = chol.l();
+    let n = l.nrows();
+    l.solve_lower_triangular(&DMatrix::identity(n, n))
+        .expect("a Cholesky factor has a nonzero diagonal")
+}
+
+/// Matrix exponential `e^M` of a square matrix (Padé approximation with scaling and
+/// squaring, as implemented by nalgebra).
+pub fn expm(m: &DMatrix<f64>) -> DMatrix<f64> {
+    m.clone().exp()
+}
+
+/// Van Loan's method: the discrete covariance `∫₀^dt e^{Aτ} Qc e^{A'τ} dτ` of white noise
+/// with spectral density `Qc` driving `ẋ = A x`, over one sample period `dt` (s).
+pub fn van_loan(a: &DMatrix<f64>, qc: &DMatrix<f64>, dt: f64) -> DMatrix<f64> {
+    let n = a.nrows();
+    let mut m = DMatrix::zeros(2 * n, 2 * n);
+    m.view_mut((0, 0), (n, n)).copy_from(&(-a * dt));
+    m.view_mut((0, n), (n, n)).copy_from(&(qc * dt));
+    m.view_mut((n, n), (n, n)).copy_from(&(a.transpose() * dt));
+    let e = expm(&m);
+    let f_t = e.view((n, n), (n, n)).clone_owned();
+    let upper = e.view((0, n), (n, n)).clone_owned();
+    let mut q = f_t.transpose() * upper;
+    symmetrize(&mut q);
+    q
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use approx::assert_relative_eq;
+
+    #[test]
+    fn psd_factor_reproduces_singular_matrix() {
+        // DWNA block: rank one.
+        let g = DMatrix::from_column_slice(2, 1, &[0.5, 1.0]);
+        let q = &g * g.transpose() * 3.0;
+        let l = psd_factor(&q).unwrap();
+        assert_eq!(l.ncols(), 1);
+        assert_relative_eq!(&l * l.transpose(), q, epsilon = 1e-12);
+    }
+
+    #[test]
+    fn psd_factor_rejects_indefinite() {
+        let m = DMatrix::from_row_slice(2, 2, &[1.0, 2.0, 2.0, 1.0]);
+        let err = psd_factor(&m).unwrap_err();
+        assert_relative_eq!(err, -1.0, epsilon = 1e-12);
+    }
+
+    #[test]
+    fn van_loan_matches_cwna_closed_form() {
+        // ẋ = [[0,1],[0,0]] x + [0,1]' w, spectral density q: Q = q [[dt³/3, dt²/2],[dt²/2, dt]].
+        let a = DMatrix::from_row_slice(2, 2, &[0.0, 1.0, 0.0, 0.0]);
+        let qc = DMatrix::from_row_slice(2, 2, &[0.0, 0.0, 0.0, 2.0]);
+        let dt = 0.1;
+        let q = van_loan(&a, &qc, dt);
+        let want = DMatrix::from_row_slice(
+            2,
+            2,
+            &[
+                2.0 * dt.powi(3) / 3.0,
+                2.0 * dt.powi(2) / 2.0,
+                2.0 * dt.powi(2) / 2.0,
+                2.0 * dt,
+            ],
+        );
+        assert_relative_eq!(q, want, max_relative = 1e-10);
+    }
+
+    #[test]
+    fn mahalanobis_matches_explicit_inverse() {
+        let m = DMatrix::from_row_slice(2, 2, &[4.0, 1.0, 1.0, 3.0]);
+        let v = DVector::from_column_slice(&[1.0, -2.0]);
+        let chol = cholesky(&m).unwrap();
+        let want = (v.transpose() * m.try_inverse().unwrap() * &v)[(0, 0)];
+        assert_relative_eq!(mahalanobis_sq(&chol, &v), want, max_relative = 1e-13);
+        let w = inverse_cholesky_factor(&chol) * &v;
+        assert_relative_eq!(w.norm_squared(), want, max_relative = 1e-13);
+    }
+}

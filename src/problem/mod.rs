@@ -1,0 +1,576 @@
+//! Problem files: the TOML schema, validation with errors that name the file and field,
+//! and construction of the truth model, the filter and the parameter space.
+
+#![allow(non_snake_case)]
+
+pub mod spec;
+
+use std::fmt;
+use std::path::{Path, PathBuf};
+
+use nalgebra::{DMatrix, DVector};
+use sha2::{Digest, Sha256};
+
+use crate::filter::KalmanFilter;
+use crate::linalg::{asymmetry, expm, min_eigenvalue, psd_factor, van_loan};
+use crate::model::LinearGaussianModel;
+use crate::montecarlo::Settings;
+use crate::params::{Coef, CovModel, CovTerm, ParamDef, ParamSpace, cwna_block, dwna_block, embed};
+pub use spec::ProblemSpec;
+use spec::{MatrixSpec, TermKind, TermSpec};
+
+/// A bad problem file (or bad option value): which file, which field, what is wrong.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ProblemError {
+    /// The file.
+    pub file: PathBuf,
+    /// Dotted path of the field, e.g. `truth.Q[1].indices` (empty if the whole file).
+    pub field: String,
+    /// Line in the file, where known.
+    pub line: Option<usize>,
+    /// What is wrong, on one line.
+    pub message: String,
+}
+
+impl fmt::Display for ProblemError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{}", self.file.display())?;
+        if let Some(l) = self.line {
+            write!(f, ":{l}")?;
+        }
+        if !self.field.is_empty() {
+            write!(f, ": {}", self.field)?;
+        }
+        write!(f, ": {}", self.message)
+    }
+}
+
+impl std::error::Error for ProblemError {}
+
+/// Monte Carlo and test settings from `[montecarlo]`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct McConfig {
+    /// Runs N.
+    pub runs: usize,
+    /// Steps T.
+    pub steps: usize,
+    /// Base seed.
+    pub seed: u64,
+    /// Significance level α.
+    pub alpha: f64,
+    /// Largest autocorrelation lag.
+    pub lags: usize,
+}
+
+impl McConfig {
+    /// The engine's settings.
+    pub fn engine(&self) -> Settings {
+        Settings {
+            runs: self.runs,
+            steps: self.steps,
+            seed: self.seed,
+            lags: self.lags,
+        }
+    }
+}
+
+/// The filter's model with Q and R as functions of the parameters.
+#[derive(Debug, Clone)]
+pub struct FilterModel {
+    /// State transition, n × n.
+    pub F: DMatrix<f64>,
+    /// Measurement matrix, m × n.
+    pub H: DMatrix<f64>,
+    /// Initial estimate.
+    pub x0: DVector<f64>,
+    /// Initial covariance (positive definite).
+    pub P0: DMatrix<f64>,
+    /// Process noise as a function of the parameters.
+    pub q: CovModel,
+    /// Measurement noise as a function of the parameters.
+    pub r: CovModel,
+}
+
+/// A validated problem: everything the engine needs.
+#[derive(Debug, Clone)]
+pub struct Problem {
+    /// Name (from the file, or its stem).
+    pub name: String,
+    /// One-line description.
+    pub description: String,
+    /// The file it was read from.
+    pub path: PathBuf,
+    /// SHA-256 of the file's bytes, hex.
+    pub hash: String,
+    /// Sample period, s.
+    pub dt: f64,
+    /// State component names, n.
+    pub state_names: Vec<String>,
+    /// Measurement component names, m.
+    pub measurement_names: Vec<String>,
+    /// Monte Carlo settings.
+    pub mc: McConfig,
+    /// The truth.
+    pub truth: LinearGaussianModel,
+    /// The filter's model.
+    pub filter: FilterModel,
+    /// Named parameters.
+    pub params: ParamSpace,
+}
+
+impl Problem {
+    /// Read and validate a problem file.
+    pub fn load(path: &Path) -> Result<Problem, ProblemError> {
+        let bytes = std::fs::read(path).map_err(|e| ProblemError {
+            file: path.to_path_buf(),
+            field: String::new(),
+            line: None,
+            message: format!("cannot read: {e}"),
+        })?;
+        let text = String::from_utf8(bytes).map_err(|_| ProblemError {
+            file: path.to_path_buf(),
+            field: String::new(),
+            line: None,
+            message: "not UTF-8 text".into(),
+        })?;
+        Problem::from_toml(&text, path)
+    }
+
+    /// Validate problem-file text; `path` names it in errors.
+    pub fn from_toml(text: &str, path: &Path) -> Result<Problem, ProblemError> {
+        let spec = parse_toml::<ProblemSpec>(text, path)?;
+        let mut p = Validator { file: path }.problem(spec)?;
+        p.hash = sha256_hex(text.as_bytes());
+        Ok(p)
+    }
+
+    /// The Kalman filter with parameters `theta` (one value per parameter, in order).
+    pub fn filter_at(&self, theta: &[f64]) -> KalmanFilter {
+        KalmanFilter {
+            F: self.filter.F.clone(),
+            H: self.filter.H.clone(),
+            Q: self.filter.q.build(theta),
+            R: self.filter.r.build(theta),
+            x0: self.filter.x0.clone(),
+            P0: self.filter.P0.clone(),
+        }
+    }
+
+    /// State dimension.
+    pub fn n_x(&self) -> usize {
+        self.filter.F.nrows()
+    }
+
+    /// Measurement dimension.
+    pub fn n_z(&self) -> usize {
+        self.filter.H.nrows()
+    }
+}
+
+/// SHA-256 of bytes as lowercase hex.
+pub fn sha256_hex(bytes: &[u8]) -> String {
+    Sha256::digest(bytes).iter().map(|b| format!("{b:02x}")).collect()
+}
+
+/// Deserialize TOML into `T`, turning syntax and schema errors into a [`ProblemError`]
+/// with the field path and line.
+pub fn parse_toml<T: serde::de::DeserializeOwned>(text: &str, path: &Path) -> Result<T, ProblemError> {
+    let line_of = |span: Option<std::ops::Range<usize>>| {
+        span.map(|s| text[..s.start.min(text.len())].matches('\n').count() + 1)
+    };
+    let one_line = |m: &str| m.trim().replace('\n', "; ");
+    let de = toml::de::Deserializer::parse(text).map_err(|e| ProblemError {
+        file: path.to_path_buf(),
+        field: String::new(),
+        line: line_of(e.span()),
+        message: format!("malformed TOML: {}", one_line(e.message())),
+    })?;
+    serde_path_to_error::deserialize(de).map_err(|e| {
+        let field = e.path().to_string();
+        let inner = e.into_inner();
+        ProblemError {
+            file: path.to_path_buf(),
+            field: if field == "." { String::new() } else { field },
+            line: line_of(inner.span()),
+            message: one_line(inner.message()),
+        }
+    })
+}
+
+struct Validator<'a> {
+    file: &'a Path,
+}
+
+type VResult<T> = Result<T, ProblemError>;
+
+impl Validator<'_> {
+    fn err<T>(&self, field: impl Into<String>, message: impl Into<String>) -> VResult<T> {
+        Err(ProblemError {
+            file: self.file.to_path_buf(),
+            field: field.into(),
+            line: None,
+            message: message.into(),
+        })
+    }
+
+    fn finite(&self, field: &str, v: f64) -> VResult<f64> {
+        if v.is_finite() {
+            Ok(v)
+        } else {
+            self.err(field, format!("{v} is not a finite number"))
+        }
+    }
+
+    fn matrix(&self, field: &str, m: &MatrixSpec, rows: Option<usize>, cols: Option<usize>) -> VResult<DMatrix<f64>> {
+        if m.is_empty() {
+            return self.err(field, "matrix has no rows");
+        }
+        if let Some(r) = rows
+            && m.len() != r
+        {
+            return self.err(field, format!("has {} rows, expected {r}", m.len()));
+        }
+        let c = cols.unwrap_or(m[0].len());
+        if c == 0 {
+            return self.err(field, "matrix has no columns");
+        }
+        for (i, row) in m.iter().enumerate() {
+            if row.len() != c {
+                return self.err(format!("{field}[{i}]"), format!("row has {} entries, expected {c}", row.len()));
+            }
+            for (j, &v) in row.iter().enumerate() {
+                self.finite(&format!("{field}[{i}][{j}]"), v)?;
+            }
+        }
+        Ok(DMatrix::from_fn(m.len(), c, |i, j| m[i][j]))
+    }
+
+    fn vector(&self, field: &str, v: &[f64], len: usize) -> VResult<DVector<f64>> {
+        if v.len() != len {
+            return self.err(field, format!("has {} entries, expected {len}", v.len()));
+        }
+        for (i, &x) in v.iter().enumerate() {
+            self.finite(&format!("{field}[{i}]"), x)?;
+        }
+        Ok(DVector::from_column_slice(v))
+    }
+
+    fn symmetric_psd(&self, field: &str, m: &DMatrix<f64>, definite: bool) -> VResult<()> {
+        if let Some((i, j)) = asymmetry(m) {
+            return self.err(
+                field,
+                format!("not symmetric: entry [{i}][{j}] = {} but [{j}][{i}] = {}", m[(i, j)], m[(j, i)]),
+            );
+        }
+        let lmin = min_eigenvalue(m);
+        let scale = crate::linalg::max_abs(m).max(f64::MIN_POSITIVE);
+        if psd_factor(m).is_err() {
+            return self.err(field, format!("not positive semidefinite (smallest eigenvalue {lmin:.3e})"));
+        }
+        if definite && lmin <= 1e-12 * scale {
+            return self.err(field, format!("not positive definite (smallest eigenvalue {lmin:.3e})"));
+        }
+        Ok(())
+    }
+
+    fn dynamics(&self, section: &str, F: &Option<MatrixSpec>, A: &Option<MatrixSpec>, dt: f64, n: Option<usize>) -> VResult<Option<(DMatrix<f64>, Option<DMatrix<f64>>)>> {
+        match (F, A) {
+            (Some(_), Some(_)) => self.err(format!("{section}.A"), "give either F (discrete) or A (continuous), not both"),
+            (Some(f), None) => {
+                let m = self.matrix(&format!("{section}.F"), f, n, n)?;
+                if m.nrows() != m.ncols() {
+                    return self.err(format!("{section}.F"), format!("must be square, is {}×{}", m.nrows(), m.ncols()));
+                }
+                Ok(Some((m, None)))
+            }
+            (None, Some(a)) => {
+                let m = self.matrix(&format!("{section}.A"), a, n, n)?;
+                if m.nrows() != m.ncols() {
+                    return self.err(format!("{section}.A"), format!("must be square, is {}×{}", m.nrows(), m.ncols()));
+                }
+                let f = expm(&(&m * dt));
+                if f.iter().any(|v| !v.is_finite()) {
+                    return self.err(format!("{section}.A"), "e^(A dt) overflows");
+                }
+                Ok(Some((f, Some(m))))
+            }
+            (None, None) => Ok(None),
+        }
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    fn cov_model(
+        &self,
+        field: &str,
+        terms: &[TermSpec],
+        dim: usize,
+        is_q: bool,
+        dt: f64,
+        a: Option<&DMatrix<f64>>,
+        params: Option<&ParamSpace>,
+    ) -> VResult<CovModel> {
+        if terms.is_empty() {
+            return self.err(field, "needs at least one term");
+        }
+        let mut out = Vec::with_capacity(terms.len());
+        for (t, term) in terms.iter().enumerate() {
+            let tf = format!("{field}[{t}]");
+            let indices = |needed: Option<usize>| -> VResult<Vec<usize>> {
+                let Some(ix) = &term.indices else {
+                    return self.err(format!("{tf}.indices"), format!("kind '{}' needs indices", kind_name(term.kind)));
+                };
+                if let Some(k) = needed
+                    && ix.len() != k
+                {
+                    return self.err(format!("{tf}.indices"), format!("needs exactly {k} indices (position, velocity), got {}", ix.len()));
+                }
+                if ix.is_empty() {
+                    return self.err(format!("{tf}.indices"), "needs at least one index");
+                }
+                let mut v = Vec::with_capacity(ix.len());
+                for &i in ix {
+                    if i < 0 || i as usize >= dim {
+                        return self.err(format!("{tf}.indices"), format!("index {i} out of range 0..{dim}"));
+                    }
+                    if v.contains(&(i as usize)) {
+                        return self.err(format!("{tf}.indices"), format!("index {i} repeated"));
+                    }
+                    v.push(i as usize);
+                }
+                Ok(v)
+            };
+            let unexpected = |name: &str, present: bool| -> VResult<()> {
+                if present {
+                    self.err(format!("{tf}.{name}"), format!("not used by kind '{}'", kind_name(term.kind)))
+                } else {
+                    Ok(())
+                }
+            };
+            if !is_q && matches!(term.kind, TermKind::Dwna | TermKind::Cwna | TermKind::Continuous) {
+                return self.err(format!("{tf}.kind"), format!("kind '{}' describes process noise; R takes diag or matrix", kind_name(term.kind)));
+            }
+            let basis = match term.kind {
+                TermKind::Dwna | TermKind::Cwna => {
+                    unexpected("matrix", term.matrix.is_some())?;
+                    unexpected("input", term.input.is_some())?;
+                    let ix = indices(Some(2))?;
+                    let block = if term.kind == TermKind::Dwna { dwna_block(dt) } else { cwna_block(dt) };
+                    embed(dim, &ix, &block)
+                }
+                TermKind::Diag => {
+                    unexpected("matrix", term.matrix.is_some())?;
+                    unexpected("input", term.input.is_some())?;
+                    let ix = indices(None)?;
+                    let mut m = DMatrix::zeros(dim, dim);
+                    for i in ix {
+                        m[(i, i)] = 1.0;
+                    }
+                    m
+                }
+                TermKind::Matrix => {
+                    unexpected("indices", term.indices.is_some())?;
+                    unexpected("input", term.input.is_some())?;
+                    let Some(ms) = &term.matrix else {
+                        return self.err(format!("{tf}.matrix"), "kind 'matrix' needs matrix");
+                    };
+                    let m = self.matrix(&format!("{tf}.matrix"), ms, Some(dim), Some(dim))?;
+                    self.symmetric_psd(&format!("{tf}.matrix"), &m, false)?;
+                    m
+                }
+                TermKind::Continuous => {
+                    unexpected("indices", term.indices.is_some())?;
+                    unexpected("matrix", term.matrix.is_some())?;
+                    let Some(a) = a else {
+                        return self.err(format!("{tf}.kind"), "kind 'continuous' needs the model's continuous-time A");
+                    };
+                    let Some(g) = &term.input else {
+                        return self.err(format!("{tf}.input"), "kind 'continuous' needs input (the noise input vector g)");
+                    };
+                    let g = self.vector(&format!("{tf}.input"), g, dim)?;
+                    van_loan(a, &(&g * g.transpose()), dt)
+                }
+            };
+            let coef = match (&term.param, term.value) {
+                (Some(_), Some(_)) => return self.err(format!("{tf}.value"), "give either param or value, not both"),
+                (None, None) => return self.err(tf.clone(), "needs param (a named parameter) or value (a fixed number)"),
+                (None, Some(v)) => {
+                    self.finite(&format!("{tf}.value"), v)?;
+                    if v < 0.0 {
+                        return self.err(format!("{tf}.value"), format!("{v} is negative; a variance must be ≥ 0"));
+                    }
+                    Coef::Fixed(v)
+                }
+                (Some(name), None) => {
+                    let Some(ps) = params else {
+                        return self.err(format!("{tf}.param"), "the truth takes fixed values: use value");
+                    };
+                    match ps.index(name) {
+                        Some(i) => Coef::Param(i),
+                        None => {
+                            let known = ps.names().join(", ");
+                            return self.err(format!("{tf}.param"), format!("unknown parameter '{name}' (defined in [params]: {known})"));
+                        }
+                    }
+                }
+            };
+            out.push(CovTerm { coef, basis });
+        }
+        Ok(CovModel { dim, terms: out })
+    }
+
+    fn params(&self, spec: &indexmap::IndexMap<String, spec::ParamSpec>) -> VResult<ParamSpace> {
+        let mut params = Vec::with_capacity(spec.len());
+        for (name, p) in spec {
+            let f = format!("params.{name}");
+            if name.is_empty() || !name.chars().all(|c| c.is_ascii_alphanumeric() || c == '_') {
+                return self.err(f, "parameter names use letters, digits and _ only");
+            }
+            let value = self.finite(&format!("{f}.value"), p.value)?;
+            if value <= 0.0 {
+                return self.err(format!("{f}.value"), format!("{value} must be > 0 (variances are searched in log space)"));
+            }
+            let lower = self.finite(&format!("{f}.lower"), p.lower.unwrap_or(value / 1e4))?;
+            let upper = self.finite(&format!("{f}.upper"), p.upper.unwrap_or(value * 1e4))?;
+            if lower <= 0.0 {
+                return self.err(format!("{f}.lower"), format!("{lower} must be > 0"));
+            }
+            if lower >= upper {
+                return self.err(format!("{f}.lower"), format!("lower bound {lower} is not below upper bound {upper}"));
+            }
+            if value < lower || value > upper {
+                return self.err(format!("{f}.value"), format!("{value} is outside [{lower}, {upper}]"));
+            }
+            params.push(ParamDef {
+                name: name.clone(),
+                value,
+                lower,
+                upper,
+                fixed: p.fixed,
+                unit: p.unit.clone(),
+                about: p.about.clone(),
+            });
+        }
+        Ok(ParamSpace { params })
+    }
+
+    fn names(&self, field: &str, given: &Option<Vec<String>>, n: usize, prefix: &str) -> VResult<Vec<String>> {
+        match given {
+            Some(v) if v.len() != n => self.err(field, format!("has {} names, expected {n}", v.len())),
+            Some(v) => Ok(v.clone()),
+            None => Ok((0..n).map(|i| format!("{prefix}{i}")).collect()),
+        }
+    }
+
+    fn problem(&self, s: ProblemSpec) -> VResult<Problem> {
+        let dt = self.finite("dt", s.dt)?;
+        if dt <= 0.0 {
+            return self.err("dt", format!("{dt} must be > 0 (seconds per step)"));
+        }
+        let mc = &s.montecarlo;
+        if mc.runs < 1 {
+            return self.err("montecarlo.runs", format!("{} must be ≥ 1", mc.runs));
+        }
+        if mc.steps < 1 {
+            return self.err("montecarlo.steps", format!("{} must be ≥ 1", mc.steps));
+        }
+        if !(mc.alpha > 0.0 && mc.alpha < 1.0) {
+            return self.err("montecarlo.alpha", format!("{} must be in (0, 1)", mc.alpha));
+        }
+        if mc.lags < 0 {
+            return self.err("montecarlo.lags", format!("{} must be ≥ 0", mc.lags));
+        }
+        let mc = McConfig {
+            runs: mc.runs as usize,
+            steps: mc.steps as usize,
+            seed: mc.seed,
+            alpha: mc.alpha,
+            lags: mc.lags as usize,
+        };
+
+        let t = &s.truth;
+        let Some((tF, tA)) = self.dynamics("truth", &t.F, &t.A, dt, None)? else {
+            return self.err("truth.F", "missing: give F (discrete) or A (continuous)");
+        };
+        let n = tF.nrows();
+        let tH = self.matrix("truth.H", &t.H, None, Some(n))?;
+        let m = tH.nrows();
+        let tx0 = self.vector("truth.x0", &t.x0, n)?;
+        let tP0 = self.matrix("truth.P0", &t.P0, Some(n), Some(n))?;
+        self.symmetric_psd("truth.P0", &tP0, false)?;
+        let tQ = self.cov_model("truth.Q", &t.Q, n, true, dt, tA.as_ref(), None)?.build(&[]);
+        let tR = self.cov_model("truth.R", &t.R, m, false, dt, None, None)?.build(&[]);
+        self.symmetric_psd("truth.Q", &tQ, false)?;
+        self.symmetric_psd("truth.R", &tR, false)?;
+
+        let params = self.params(&s.params)?;
+        let f = &s.filter;
+        let (fF, fA) = match self.dynamics("filter", &f.F, &f.A, dt, Some(n))? {
+            Some(d) => d,
+            None => (tF.clone(), tA.clone()),
+        };
+        let fH = match &f.H {
+            Some(h) => self.matrix("filter.H", h, Some(m), Some(n))?,
+            None => tH.clone(),
+        };
+        let fx0 = match &f.x0 {
+            Some(x) => self.vector("filter.x0", x, n)?,
+            None => tx0.clone(),
+        };
+        let (fP0, p0_field) = match &f.P0 {
+            Some(p) => (self.matrix("filter.P0", p, Some(n), Some(n))?, "filter.P0"),
+            None => (tP0.clone(), "truth.P0 (used as filter.P0)"),
+        };
+        self.symmetric_psd(p0_field, &fP0, true)?;
+        let q = self.cov_model("filter.Q", &f.Q, n, true, dt, fA.as_ref(), Some(&params))?;
+        let r = self.cov_model("filter.R", &f.R, m, false, dt, None, Some(&params))?;
+        for (i, p) in params.params.iter().enumerate() {
+            if !q.uses(i) && !r.uses(i) {
+                return self.err(format!("params.{}", p.name), "not used by any filter.Q or filter.R term");
+            }
+        }
+        let truth = LinearGaussianModel::new(tF, tH, tQ, tR, tx0, tP0).map_err(|e| ProblemError {
+            file: self.file.to_path_buf(),
+            field: format!("truth.{}", e.which),
+            line: None,
+            message: e.to_string(),
+        })?;
+        let state_names = self.names("state_names", &s.state_names, n, "x")?;
+        let measurement_names = self.names("measurement_names", &s.measurement_names, m, "z")?;
+        let name = s.name.clone().unwrap_or_else(|| {
+            self.file
+                .file_stem()
+                .map(|s| s.to_string_lossy().into_owned())
+                .unwrap_or_else(|| "problem".into())
+        });
+        Ok(Problem {
+            name,
+            description: s.description.clone().unwrap_or_default(),
+            path: self.file.to_path_buf(),
+            hash: String::new(),
+            dt,
+            state_names,
+            measurement_names,
+            mc,
+            truth,
+            filter: FilterModel {
+                F: fF,
+                H: fH,
+                x0: fx0,
+                P0: fP0,
+                q,
+                r,
+            },
+            params,
+        })
+    }
+}
+
+fn kind_name(k: TermKind) -> &'static str {
+    match k {
+        TermKind::Dwna => "dwna",
+        TermKind::Cwna => "cwna",
+        TermKind::Diag => "diag",
+        TermKind::Matrix => "matrix",
+        TermKind::Continuous => "continuous",
+    }
+}

@@ -1,0 +1,160 @@
+//! The raw problem-file schema, exactly as written in TOML. [`super::Problem`] is the
+//! validated form the engine accepts.
+
+#![allow(non_snake_case)]
+
+use indexmap::IndexMap;
+use serde::Deserialize;
+
+/// A matrix as rows of numbers.
+pub type MatrixSpec = Vec<Vec<f64>>;
+
+/// The whole problem file.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ProblemSpec {
+    /// Problem name, used for output file names (default: the file stem).
+    pub name: Option<String>,
+    /// One line saying what is modelled.
+    pub description: Option<String>,
+    /// Sample period between filter steps, s.
+    pub dt: f64,
+    /// Names of the state components (default `x0`, `x1`, …).
+    pub state_names: Option<Vec<String>>,
+    /// Names of the measurement components (default `z0`, `z1`, …).
+    pub measurement_names: Option<Vec<String>>,
+    /// Monte Carlo settings.
+    pub montecarlo: MonteCarloSpec,
+    /// The truth model.
+    pub truth: TruthSpec,
+    /// The filter's model and its Q/R terms.
+    pub filter: FilterSpec,
+    /// Named parameters, in file order.
+    #[serde(default)]
+    pub params: IndexMap<String, ParamSpec>,
+}
+
+/// `[montecarlo]`.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MonteCarloSpec {
+    /// Number of runs N.
+    pub runs: i64,
+    /// Steps per run T.
+    pub steps: i64,
+    /// Base seed.
+    #[serde(default)]
+    pub seed: u64,
+    /// Significance level α of the two-sided tests (default 0.05).
+    #[serde(default = "default_alpha")]
+    pub alpha: f64,
+    /// Largest innovation-autocorrelation lag reported (default 5).
+    #[serde(default = "default_lags")]
+    pub lags: i64,
+}
+
+fn default_alpha() -> f64 {
+    0.05
+}
+
+fn default_lags() -> i64 {
+    5
+}
+
+/// `[truth]`: a linear-Gaussian system.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TruthSpec {
+    /// Discrete state transition over one step `dt` (give this or `A`).
+    pub F: Option<MatrixSpec>,
+    /// Continuous-time system matrix; `F = e^{A dt}` (give this or `F`).
+    pub A: Option<MatrixSpec>,
+    /// Measurement matrix, m × n.
+    pub H: MatrixSpec,
+    /// Mean of the initial state.
+    pub x0: Vec<f64>,
+    /// Covariance of the initial state.
+    pub P0: MatrixSpec,
+    /// Process-noise terms (fixed values).
+    pub Q: Vec<TermSpec>,
+    /// Measurement-noise terms (fixed values).
+    pub R: Vec<TermSpec>,
+}
+
+/// `[filter]`: the filter's own model; omitted matrices are the truth's.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FilterSpec {
+    /// Discrete state transition (default: the truth's).
+    pub F: Option<MatrixSpec>,
+    /// Continuous-time system matrix (default: the truth's).
+    pub A: Option<MatrixSpec>,
+    /// Measurement matrix (default: the truth's).
+    pub H: Option<MatrixSpec>,
+    /// Initial estimate (default: the truth's x0).
+    pub x0: Option<Vec<f64>>,
+    /// Initial covariance (default: the truth's P0).
+    pub P0: Option<MatrixSpec>,
+    /// Process-noise terms, each a named parameter or a fixed value.
+    pub Q: Vec<TermSpec>,
+    /// Measurement-noise terms, each a named parameter or a fixed value.
+    pub R: Vec<TermSpec>,
+}
+
+/// The shape of one covariance term.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum TermKind {
+    /// Discrete white-noise acceleration on a (position, velocity) pair; coefficient in
+    /// (units/s²)².
+    Dwna,
+    /// Continuous white-noise acceleration on a (position, velocity) pair; coefficient is a
+    /// spectral density in units²/s³.
+    Cwna,
+    /// The listed diagonal entries; coefficient in the component's units².
+    Diag,
+    /// A full symmetric PSD matrix times the coefficient.
+    Matrix,
+    /// Continuous white noise entering `ẋ = A x + g w` through `input = g`, discretized
+    /// by Van Loan's method; coefficient is the spectral density of w.
+    Continuous,
+}
+
+/// One term `coefficient × basis` of Q or R.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TermSpec {
+    /// The term's shape.
+    pub kind: TermKind,
+    /// State indices (dwna/cwna: position then velocity) or diagonal entries (diag).
+    pub indices: Option<Vec<i64>>,
+    /// Basis matrix (kind = "matrix").
+    pub matrix: Option<MatrixSpec>,
+    /// Noise input vector g (kind = "continuous").
+    pub input: Option<Vec<f64>>,
+    /// Name of the parameter that scales the term.
+    pub param: Option<String>,
+    /// Fixed coefficient.
+    pub value: Option<f64>,
+}
+
+/// `[params.NAME]`.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ParamSpec {
+    /// Value the filter is configured with (the tuner's start).
+    pub value: f64,
+    /// Lower search bound (default value / 1e4).
+    pub lower: Option<f64>,
+    /// Upper search bound (default value × 1e4).
+    pub upper: Option<f64>,
+    /// Keep at `value` while tuning.
+    #[serde(default)]
+    pub fixed: bool,
+    /// Unit of the value.
+    #[serde(default)]
+    pub unit: String,
+    /// What the parameter models.
+    #[serde(default)]
+    pub about: String,
+}

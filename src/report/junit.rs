@@ -1,0 +1,97 @@
+//! JUnit XML, the test-report format CI systems display.
+
+use std::fmt::Write;
+
+use crate::stats::{ConsistencyReport, StatisticSummary};
+
+fn escape(s: &str) -> String {
+    let mut o = String::with_capacity(s.len());
+    for c in s.chars() {
+        match c {
+            '&' => o.push_str("&amp;"),
+            '<' => o.push_str("&lt;"),
+            '>' => o.push_str("&gt;"),
+            '"' => o.push_str("&quot;"),
+            '\'' => o.push_str("&apos;"),
+            c => o.push(c),
+        }
+    }
+    o
+}
+
+fn case(name: &str, class: &str, failure: Option<(String, String)>) -> String {
+    match failure {
+        None => format!("    <testcase name=\"{}\" classname=\"{}\"/>\n", escape(name), escape(class)),
+        Some((msg, body)) => format!(
+            "    <testcase name=\"{}\" classname=\"{}\">\n      <failure message=\"{}\" type=\"inconsistent\">{}</failure>\n    </testcase>\n",
+            escape(name),
+            escape(class),
+            escape(&msg),
+            escape(&body)
+        ),
+    }
+}
+
+fn stat_case(s: &StatisticSummary, class: &str) -> String {
+    let name = format!("time-averaged A{}", s.name);
+    let failure = (!s.verdict.passes()).then(|| {
+        (
+            format!(
+                "A{} = {:.4} outside [{:.4}, {:.4}]: {}",
+                s.name,
+                s.time_average,
+                s.interval.lower,
+                s.interval.upper,
+                s.verdict.label()
+            ),
+            format!(
+                "A{} time average {:.6}, target {:.3}, interval [{:.6}, {:.6}] (effective dof {:.1}); {:.1}% of steps inside the per-step interval; {}",
+                s.name,
+                s.time_average,
+                s.target,
+                s.interval.lower,
+                s.interval.upper,
+                s.effective_dof,
+                100.0 * s.fraction_in_bounds,
+                s.verdict.describe()
+            ),
+        )
+    });
+    case(&name, class, failure)
+}
+
+/// A JUnit XML report with one test case per gate statistic (and one for divergence),
+/// named so a failing case says which statistic failed.
+pub fn junit_xml(problem: &str, report: &ConsistencyReport) -> String {
+    let class = format!("autotune.check.{problem}");
+    let mut cases = String::new();
+    if let Some(n) = &report.nees {
+        cases += &stat_case(n, &class);
+    }
+    cases += &stat_case(&report.nis, &class);
+    let div = (report.diverged_runs > 0).then(|| {
+        let first = report
+            .divergences
+            .first()
+            .map(|d| format!("first: run {} step {}: {}", d.run, d.step, d.reason))
+            .unwrap_or_default();
+        (
+            format!("filter diverged in {} of {} runs", report.diverged_runs, report.runs),
+            first,
+        )
+    });
+    cases += &case("filter stays positive definite", &class, div);
+    let tests = cases.matches("<testcase").count();
+    let failures = cases.matches("<failure").count();
+    let mut out = String::new();
+    out.push_str("<?xml version=\"1.0\" encoding=\"UTF-8\"?>\n");
+    let _ = writeln!(out, "<testsuites name=\"autotune\" tests=\"{tests}\" failures=\"{failures}\" errors=\"0\">");
+    let _ = writeln!(
+        out,
+        "  <testsuite name=\"{}\" tests=\"{tests}\" failures=\"{failures}\" errors=\"0\" skipped=\"0\">",
+        escape(&format!("autotune check {problem}"))
+    );
+    out += &cases;
+    out.push_str("  </testsuite>\n</testsuites>\n");
+    out
+}

@@ -1,0 +1,57 @@
+//! Output: the human summary, JSON, JUnit XML, and tuned configs; every file is written
+//! atomically.
+
+mod junit;
+mod summary;
+pub mod tuned;
+
+pub use junit::junit_xml;
+pub use summary::summary_text;
+
+use std::io::Write;
+use std::path::Path;
+
+use serde::Serialize;
+
+use crate::stats::ConsistencyReport;
+
+/// What a `check` run reports, for machines.
+#[derive(Debug, Clone, Serialize)]
+pub struct CheckOutput<'a> {
+    /// Problem name.
+    pub problem: &'a str,
+    /// Problem file.
+    pub file: String,
+    /// SHA-256 of the problem file.
+    pub problem_hash: &'a str,
+    /// Base seed.
+    pub seed: u64,
+    /// Parameter values the filter was run with.
+    pub params: Vec<(String, f64)>,
+    /// The statistics.
+    pub report: &'a ConsistencyReport,
+    /// autotune version.
+    pub version: &'static str,
+}
+
+/// Write `bytes` to `path` through a temporary file in the same directory and a rename, so
+/// that readers never see a half-written file.
+pub fn write_atomic(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
+    let dir = match path.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d,
+        _ => Path::new("."),
+    };
+    std::fs::create_dir_all(dir)?;
+    let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+    let tmp = dir.join(format!(".{name}.tmp.{}", std::process::id()));
+    let result = (|| {
+        let mut f = std::fs::File::create(&tmp)?;
+        f.write_all(bytes)?;
+        f.sync_all()?;
+        std::fs::rename(&tmp, path)
+    })();
+    if result.is_err() {
+        let _ = std::fs::remove_file(&tmp);
+    }
+    result
+}

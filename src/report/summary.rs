@@ -1,0 +1,81 @@
+//! The compact human summary of a consistency check.
+
+use std::fmt::Write;
+
+use crate::stats::{ConsistencyReport, StatisticSummary};
+
+fn stat_row(out: &mut String, s: &StatisticSummary) {
+    let _ = writeln!(
+        out,
+        "  A{:<5} {:>10.4} {:>7.2}   [{:.4}, {:.4}]   {:>6.1}%     {}",
+        s.name,
+        s.time_average,
+        s.target,
+        s.interval.lower,
+        s.interval.upper,
+        100.0 * s.fraction_in_bounds,
+        s.verdict.label()
+    );
+}
+
+/// A summary a person reads in seconds: the gate statistics with their intervals, the
+/// fraction of steps in bounds, the worst components, warnings about power, and the verdict.
+pub fn summary_text(problem: &str, params: &[(String, f64)], r: &ConsistencyReport) -> String {
+    let mut out = String::new();
+    let _ = writeln!(
+        out,
+        "autotune check {problem}: N = {} runs × T = {} steps, α = {}",
+        r.runs, r.steps, r.alpha
+    );
+    if !params.is_empty() {
+        let p: Vec<String> = params.iter().map(|(n, v)| format!("{n} = {v:.4}")).collect();
+        let _ = writeln!(out, "  params: {}", p.join(", "));
+    }
+    let _ = writeln!(out, "  stat    time-avg  target   interval (1-α)       in bounds   verdict");
+    let stats: Vec<&StatisticSummary> = r.nees.iter().chain(std::iter::once(&r.nis)).collect();
+    for s in &stats {
+        stat_row(&mut out, s);
+    }
+    let worst = r.worst_components(3);
+    if !worst.is_empty() {
+        let w: Vec<String> = worst
+            .iter()
+            .map(|c| format!("{} {:.3} ({})", c.name, c.value, c.verdict.label()))
+            .collect();
+        let _ = writeln!(out, "  components (target 1, worst first): {}", w.join("; "));
+    }
+    let white: Vec<String> = r
+        .whiteness
+        .iter()
+        .filter(|w| w.lag == 1 && w.rho.abs() > w.band)
+        .map(|w| format!("{} ρ₁ = {:+.3} (band ±{:.3})", w.component, w.rho, w.band))
+        .collect();
+    if !white.is_empty() {
+        let _ = writeln!(out, "  innovations not white: {}", white.join("; "));
+    }
+    for s in &stats {
+        if !s.has_power {
+            let _ = writeln!(
+                out,
+                "  warning: the time-averaged A{} test has only {:.1} effective degrees of freedom and cannot tell a factor-2 covariance error; add runs or steps",
+                s.name, s.effective_dof
+            );
+        } else if !s.per_step_has_power {
+            let _ = writeln!(
+                out,
+                "  note: per-step A{} tests have too few degrees of freedom (N·dof small) to detect a factor-2 error at a single step; the time average carries the verdict",
+                s.name
+            );
+        }
+    }
+    if r.diverged_runs > 0 {
+        let first = r
+            .divergences
+            .first()
+            .map(|d| format!(" (first: run {}, {})", d.run, d.reason))
+            .unwrap_or_default();
+        let _ = writeln!(out, "  filter diverged in {} of {} runs{first}", r.diverged_runs, r.runs);
+    }
+    let _ = writeln!(out, "verdict: {}", r.verdict.describe());
+    out
+}

@@ -1,8 +1,8 @@
 //! The linear fast path: for a linear filter measured on a fixed schedule, P_k, S_k and
 //! K_k do not depend on the data, so they are computed once per evaluation and every run
-//! only propagates its mean. Runs are processed a chunk at a time as the columns of n × B
-//! matrices, so each step is a handful of small matrix products instead of B·(several)
-//! matrix-vector products with their per-call overhead.
+//! only propagates its mean. Runs are processed a chunk at a time as the rows of B × n
+//! matrices, so each step is a handful of products whose inner loops run over the B runs,
+//! instead of B·(several) tiny matrix-vector products with their per-call overhead.
 
 #![allow(non_snake_case)]
 
@@ -12,7 +12,7 @@ use nalgebra::{DMatrix, DVector};
 use rand::RngExt;
 use rand_distr::StandardNormal;
 
-use super::{Accumulator, RunScratch, Settings, run_chunked, run_rng};
+use super::{Accumulator, Settings, run_chunked, run_rng};
 use crate::filter::{Filter, FilterError, KalmanFilter};
 use crate::linalg::{cholesky, inverse_cholesky_factor};
 use crate::model::{LinearGaussianModel, sample_gaussian};
@@ -20,11 +20,12 @@ use crate::stats::NeesNullVariance;
 
 /// The data-independent part of the filter, per step.
 struct Schedule {
-    K: Vec<DMatrix<f64>>,
-    /// `L_P⁻¹`, so NEES = |W e|².
-    W: Vec<DMatrix<f64>>,
-    /// `L_S⁻¹`, so NIS = |V ν|².
-    V: Vec<DMatrix<f64>>,
+    /// Gains, transposed (m × n), to multiply run rows from the right.
+    Kt: Vec<DMatrix<f64>>,
+    /// `(L_P⁻¹)'`, so NEES = |e' Wt|².
+    Wt: Vec<DMatrix<f64>>,
+    /// `(L_S⁻¹)'`, so NIS = |ν' Vt|².
+    Vt: Vec<DMatrix<f64>>,
     /// 1 / P_jj.
     p_inv_diag: Vec<DVector<f64>>,
     /// 1 / √S_jj.
@@ -36,9 +37,9 @@ impl Schedule {
     fn compute(f: &KalmanFilter, steps: usize) -> Result<Self, FilterError> {
         let n = f.n_x();
         let mut s = Schedule {
-            K: Vec::with_capacity(steps),
-            W: Vec::with_capacity(steps),
-            V: Vec::with_capacity(steps),
+            Kt: Vec::with_capacity(steps),
+            Wt: Vec::with_capacity(steps),
+            Vt: Vec::with_capacity(steps),
             p_inv_diag: Vec::with_capacity(steps),
             s_inv_sqrt_diag: Vec::with_capacity(steps),
             null_var: 0.0,
@@ -51,11 +52,11 @@ impl Schedule {
             P = cu.P;
             let chol = cholesky(&P).ok_or(FilterError::NotPositiveDefinite { which: "P", step: k })?;
             nv.step(&(&cu.IKH * &f.F), &P, &chol);
-            s.W.push(inverse_cholesky_factor(&chol));
-            s.V.push(inverse_cholesky_factor(&cu.chol));
+            s.Wt.push(inverse_cholesky_factor(&chol).transpose());
+            s.Vt.push(inverse_cholesky_factor(&cu.chol).transpose());
             s.p_inv_diag.push(P.diagonal().map(|v| 1.0 / v));
             s.s_inv_sqrt_diag.push(cu.S.diagonal().map(|v| 1.0 / v.sqrt()));
-            s.K.push(cu.K);
+            s.Kt.push(cu.K.transpose());
         }
         s.null_var = nv.variance();
         Ok(s)
@@ -84,6 +85,34 @@ pub fn run_linear(truth: &LinearGaussianModel, filter: &KalmanFilter, settings: 
     }
 }
 
+/// `Σ a_i b_i` with four independent partial sums, so the additions pipeline instead of
+/// forming one long dependency chain (the order is fixed, so results stay reproducible).
+fn dot(a: &[f64], b: &[f64]) -> f64 {
+    let mut p = [0.0; 4];
+    let (ca, cb) = (a.chunks_exact(4), b.chunks_exact(4));
+    let (ra, rb) = (ca.remainder(), cb.remainder());
+    for (x, y) in ca.zip(cb) {
+        for l in 0..4 {
+            p[l] += x[l] * y[l];
+        }
+    }
+    let tail: f64 = ra.iter().zip(rb).map(|(x, y)| x * y).sum();
+    (p[0] + p[1]) + (p[2] + p[3]) + tail
+}
+
+/// Column `j` of a column-major B-row matrix as a slice.
+fn col(m: &DMatrix<f64>, j: usize) -> &[f64] {
+    let b = m.nrows();
+    &m.as_slice()[j * b..(j + 1) * b]
+}
+
+fn col_mut(m: &mut DMatrix<f64>, j: usize) -> &mut [f64] {
+    let b = m.nrows();
+    &mut m.as_mut_slice()[j * b..(j + 1) * b]
+}
+
+/// Runs `range` as the rows of B × n matrices (one row per run), so every product is a few
+/// vector operations of length B.
 fn chunk(
     truth: &LinearGaussianModel,
     f: &KalmanFilter,
@@ -95,77 +124,137 @@ fn chunk(
     let n = f.n_x();
     let m = f.H.nrows();
     let b = range.len();
-    let lq = &truth.factors.q;
-    let lr = &truth.factors.r;
-    let (rq, rr) = (lq.ncols(), lr.ncols());
+    let lags = settings.lags;
+    let lq_t = truth.factors.q.transpose();
+    let lr_t = truth.factors.r.transpose();
+    let (rq, rr) = (lq_t.nrows(), lr_t.nrows());
+    let ft_t = truth.F.transpose();
+    let ht_t = truth.H.transpose();
+    let ff_t = f.F.transpose();
+    let hf_t = f.H.transpose();
 
     let mut rngs: Vec<_> = range.clone().map(|i| run_rng(settings.seed, i)).collect();
-    let mut scratch: Vec<RunScratch> = (0..b).map(|_| RunScratch::new(n, m, settings.lags)).collect();
-
-    let mut xt = DMatrix::zeros(n, b);
+    let mut xt = DMatrix::zeros(b, n);
     for (c, rng) in rngs.iter_mut().enumerate() {
-        xt.set_column(c, &sample_gaussian(&truth.x0, &truth.factors.p0, rng));
+        xt.set_row(c, &sample_gaussian(&truth.x0, &truth.factors.p0, rng).transpose());
     }
-    let mut xh = DMatrix::from_fn(n, b, |r, _| f.x0[r]);
-    let mut tmp = DMatrix::zeros(n, b);
-    let mut wq = DMatrix::zeros(rq, b);
-    let mut wr = DMatrix::zeros(rr, b);
-    let mut z = DMatrix::zeros(m, b);
-    let mut nu = DMatrix::zeros(m, b);
-    let mut e = DMatrix::zeros(n, b);
-    let mut we = DMatrix::zeros(n, b);
-    let mut vn = DMatrix::zeros(m, b);
+    let mut xh = DMatrix::from_fn(b, n, |_, j| f.x0[j]);
+    let mut tmp = DMatrix::zeros(b, n);
+    let mut wq = DMatrix::zeros(b, rq);
+    let mut wr = DMatrix::zeros(b, rr);
+    let mut z = DMatrix::zeros(b, m);
+    let mut nu = DMatrix::zeros(b, m);
+    let mut e = DMatrix::zeros(b, n);
+    let mut we = DMatrix::zeros(b, n);
+    let mut vn = DMatrix::zeros(b, m);
+    let mut sq = DVector::zeros(b);
+    // Per-run sums of e_j²/P_jj and u_j², and the last `lags` normalized innovations.
+    let mut run_x = DMatrix::<f64>::zeros(b, n);
+    let mut run_z = DMatrix::<f64>::zeros(b, m);
+    let mut u = DMatrix::<f64>::zeros(b, m);
+    let mut ring: Vec<DMatrix<f64>> = (0..lags).map(|_| DMatrix::zeros(b, m)).collect();
+    let mut ring_sq = vec![0.0; lags * m];
 
     for k in 1..=settings.steps {
         let i = k - 1;
-        // Per column: process noise first, then measurement noise, as the generic path does.
+        // Per run: process noise first, then measurement noise, as the generic path does.
         for (c, rng) in rngs.iter_mut().enumerate() {
             for r in 0..rq {
-                wq[(r, c)] = rng.sample(StandardNormal);
+                wq[(c, r)] = rng.sample(StandardNormal);
             }
             for r in 0..rr {
-                wr[(r, c)] = rng.sample(StandardNormal);
+                wr[(c, r)] = rng.sample(StandardNormal);
             }
         }
-        tmp.gemm(1.0, &truth.F, &xt, 0.0);
-        tmp.gemm(1.0, lq, &wq, 1.0);
+        tmp.gemm(1.0, &xt, &ft_t, 0.0);
+        tmp.gemm(1.0, &wq, &lq_t, 1.0);
         std::mem::swap(&mut xt, &mut tmp);
-        z.gemm(1.0, &truth.H, &xt, 0.0);
-        z.gemm(1.0, lr, &wr, 1.0);
+        z.gemm(1.0, &xt, &ht_t, 0.0);
+        z.gemm(1.0, &wr, &lr_t, 1.0);
 
-        tmp.gemm(1.0, &f.F, &xh, 0.0);
+        tmp.gemm(1.0, &xh, &ff_t, 0.0);
         std::mem::swap(&mut xh, &mut tmp);
         nu.copy_from(&z);
-        nu.gemm(-1.0, &f.H, &xh, 1.0);
-        xh.gemm(1.0, &sched.K[i], &nu, 1.0);
+        nu.gemm(-1.0, &xh, &hf_t, 1.0);
+        xh.gemm(1.0, &nu, &sched.Kt[i], 1.0);
         e.copy_from(&xt);
         e -= &xh;
-        we.gemm(1.0, &sched.W[i], &e, 0.0);
-        vn.gemm(1.0, &sched.V[i], &nu, 0.0);
+        we.gemm(1.0, &e, &sched.Wt[i], 0.0);
+        vn.gemm(1.0, &nu, &sched.Vt[i], 0.0);
 
-        let pinv = &sched.p_inv_diag[i];
-        let srt = &sched.s_inv_sqrt_diag[i];
-        for (c, sc) in scratch.iter_mut().enumerate() {
-            let nees = we.column(c).norm_squared();
-            let nis = vn.column(c).norm_squared();
-            acc.nees_sum[i] += nees;
-            acc.nees_sq[i] += nees * nees;
-            acc.nis_sum[i] += nis;
-            acc.nis_sq[i] += nis * nis;
-            let ec = e.column(c);
-            sc.state_step(acc, (0..n).map(|j| ec[j] * ec[j] * pinv[j]));
-            for j in 0..m {
-                sc.innovation(acc, j, nu[(j, c)] * srt[j]);
+        // NEES and NIS per run are row norms.
+        for (mat, sum, sqsum) in [
+            (&we, &mut acc.nees_sum[i], &mut acc.nees_sq[i]),
+            (&vn, &mut acc.nis_sum[i], &mut acc.nis_sq[i]),
+        ] {
+            sq.fill(0.0);
+            for j in 0..mat.ncols() {
+                for (s, v) in sq.iter_mut().zip(col(mat, j)) {
+                    *s += v * v;
+                }
             }
-            sc.end_step(acc, k);
+            *sum += sq.sum();
+            *sqsum += dot(sq.as_slice(), sq.as_slice());
         }
         acc.nees_dof[i] += (n * b) as f64;
         acc.nees_count[i] += b as f64;
         acc.nis_dof[i] += (m * b) as f64;
         acc.nis_count[i] += b as f64;
+
+        let pinv = &sched.p_inv_diag[i];
+        for j in 0..n {
+            let ej = col(&e, j);
+            acc.state_comp_total[j] += dot(ej, ej) * pinv[j];
+            acc.state_comp_samples[j] += b as f64;
+            for (r, v) in col_mut(&mut run_x, j).iter_mut().zip(ej) {
+                *r += v * v * pinv[j];
+            }
+        }
+        let srt = &sched.s_inv_sqrt_diag[i];
+        let slot = if lags > 0 { k % lags } else { 0 };
+        for j in 0..m {
+            for (uv, nv) in col_mut(&mut u, j).iter_mut().zip(col(&nu, j)) {
+                *uv = nv * srt[j];
+            }
+            let uj = col(&u, j);
+            let total = dot(uj, uj);
+            for (r, v) in col_mut(&mut run_z, j).iter_mut().zip(uj) {
+                *r += v * v;
+            }
+            acc.meas_comp_total[j] += total;
+            acc.meas_comp_samples[j] += b as f64;
+            for lag in 1..=lags.min(k - 1) {
+                let prev = (k - lag) % lags;
+                let o = (lag - 1) * m + j;
+                acc.white_ab[o] += dot(uj, col(&ring[prev], j));
+                acc.white_a2[o] += total;
+                acc.white_b2[o] += ring_sq[prev * m + j];
+                acc.white_pairs[o] += b as f64;
+            }
+            if lags > 0 {
+                ring_sq[slot * m + j] = total;
+            }
+        }
+        if lags > 0 {
+            ring[slot].copy_from(&u);
+        }
     }
-    for sc in &scratch {
-        sc.end_run(acc);
+    let t = settings.steps as f64;
+    for (j, col) in run_x.column_iter().enumerate() {
+        for v in col.iter() {
+            let a = v / t;
+            acc.state_comp_run_sum[j] += a;
+            acc.state_comp_run_sq[j] += a * a;
+        }
     }
+    for (j, col) in run_z.column_iter().enumerate() {
+        for v in col.iter() {
+            let a = v / t;
+            acc.meas_comp_run_sum[j] += a;
+            acc.meas_comp_run_sq[j] += a * a;
+        }
+        acc.meas_comp_runs[j] += b;
+    }
+    acc.runs += b;
     acc.nees_null_var += sched.null_var * b as f64;
 }

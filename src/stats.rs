@@ -254,6 +254,8 @@ pub struct StatisticSummary {
 pub struct ComponentStat {
     /// Component name from the problem file.
     pub name: String,
+    /// "state" (`e_j²/P_jj`) or "measurement" (`ν_j²/S_jj`).
+    pub kind: &'static str,
     /// Average over runs and steps.
     pub value: f64,
     /// Interval around the target 1 from the across-run standard error at level α.
@@ -349,6 +351,7 @@ impl ConsistencyReport {
         );
         let z = normal_two_sided_quantile(alpha);
         let state_components = components(
+            "state",
             state_names,
             &acc.state_comp_total,
             &acc.state_comp_run_sum,
@@ -358,6 +361,7 @@ impl ConsistencyReport {
             z,
         );
         let measurement_components = components(
+            "measurement",
             measurement_names,
             &acc.meas_comp_total,
             &acc.meas_comp_run_sum,
@@ -533,6 +537,7 @@ fn summarize(
 /// independent, so the standard error of the mean of per-run time averages is valid however
 /// strongly a component's errors are correlated over time.
 fn components(
+    kind: &'static str,
     names: &[String],
     total: &[f64],
     run_sum: &[f64],
@@ -564,6 +569,7 @@ fn components(
             };
             ComponentStat {
                 name: name.clone(),
+                kind,
                 value,
                 interval,
                 samples: samples[j],

@@ -6,7 +6,7 @@ mod summary;
 pub mod tuned;
 
 pub use junit::junit_xml;
-pub use summary::summary_text;
+pub use summary::{fmt_g, summary_text};
 
 use std::io::Write;
 use std::path::Path;

@@ -28,7 +28,7 @@ pub fn summary_text(problem: &str, params: &[(String, f64)], r: &ConsistencyRepo
         r.runs, r.steps, r.alpha
     );
     if !params.is_empty() {
-        let p: Vec<String> = params.iter().map(|(n, v)| format!("{n} = {v:.4}")).collect();
+        let p: Vec<String> = params.iter().map(|(n, v)| format!("{n} = {}", fmt_g(*v))).collect();
         let _ = writeln!(out, "  params: {}", p.join(", "));
     }
     let _ = writeln!(out, "  stat    time-avg  target   interval (1-α)       in bounds   verdict");
@@ -40,7 +40,10 @@ pub fn summary_text(problem: &str, params: &[(String, f64)], r: &ConsistencyRepo
     if !worst.is_empty() {
         let w: Vec<String> = worst
             .iter()
-            .map(|c| format!("{} {:.3} ({})", c.name, c.value, c.verdict.label()))
+            .map(|c| {
+                let kind = if c.kind == "state" { "state" } else { "meas" };
+                format!("{kind} {} {:.3} ({})", c.name, c.value, c.verdict.label())
+            })
             .collect();
         let _ = writeln!(out, "  components (target 1, worst first): {}", w.join("; "));
     }
@@ -78,4 +81,16 @@ pub fn summary_text(problem: &str, params: &[(String, f64)], r: &ConsistencyRepo
     }
     let _ = writeln!(out, "verdict: {}", r.verdict.describe());
     out
+}
+
+/// A number with four significant digits, in scientific notation when it is very small or
+/// very large.
+pub fn fmt_g(v: f64) -> String {
+    let a = v.abs();
+    if a != 0.0 && !(1e-3..1e5).contains(&a) {
+        format!("{v:.3e}")
+    } else {
+        let digits = if a == 0.0 { 0 } else { (3 - a.log10().floor() as i32).max(0) as usize };
+        format!("{v:.digits$}")
+    }
 }

@@ -1,0 +1,50 @@
+//! Helpers shared by the integration tests.
+#![allow(dead_code)]
+
+use std::path::PathBuf;
+
+use autotune::problem::Problem;
+
+/// Path of a shipped problem file.
+pub fn problem_path(name: &str) -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("problems").join(format!("{name}.toml"))
+}
+
+/// Load a shipped problem.
+pub fn load(name: &str) -> Problem {
+    Problem::load(&problem_path(name)).expect("shipped problem must load")
+}
+
+/// The truth's noise values for each shipped problem's parameters, as written in the
+/// problem files' [truth] sections.
+pub fn truth_values(problem: &Problem) -> Vec<f64> {
+    let table: &[(&str, f64)] = match problem.name.as_str() {
+        "cv1d" => &[("q_accel", 0.5), ("r_pos", 1.0)],
+        "cv2d" => &[("q_accel_x", 0.5), ("q_accel_y", 0.1), ("r_pos_x", 1.0), ("r_pos_y", 4.0)],
+        "dcmotor" => &[("q_torque", 1e-6), ("q_voltage", 1e-2), ("r_angle", 4e-6)],
+        other => panic!("no truth table for {other}"),
+    };
+    problem
+        .params
+        .params
+        .iter()
+        .map(|p| {
+            table
+                .iter()
+                .find(|(n, _)| *n == p.name)
+                .unwrap_or_else(|| panic!("no truth value for {}", p.name))
+                .1
+        })
+        .collect()
+}
+
+/// `theta` with every parameter whose name starts with `prefix` multiplied by `factor`.
+pub fn scaled(problem: &Problem, theta: &[f64], prefix: &str, factor: f64) -> Vec<f64> {
+    problem
+        .params
+        .params
+        .iter()
+        .zip(theta)
+        .map(|(p, &v)| if p.name.starts_with(prefix) { v * factor } else { v })
+        .collect()
+}

@@ -7,8 +7,10 @@
 //! bit-identical on any number of threads. Memory is O(T·(n + m)) per chunk in flight and
 //! does not grow with N.
 
+mod expected;
 mod linear;
 
+pub use expected::{expected_accumulator, models_match};
 pub use linear::run_linear;
 
 use std::ops::Range;

@@ -1,0 +1,242 @@
+//! Exact expected Monte Carlo sums for a linear filter whose model matches the truth's
+//! (same F and H; Q, R, P0 and x0 may differ).
+//!
+//! With matched models the estimation error obeys its own recursion, driven by the truth's
+//! noise and the filter's gain (DESIGN.md, "Theory in one page"):
+//! `e⁻_k = F e_{k−1} + w_k`, `ν_k = H e⁻_k + v_k`, `e_k = (I − K_k H) e⁻_k − K_k v_k`, so its
+//! mean and covariance propagate in closed form, `E[NEES_k] = tr(P_k⁻¹ E[e_k e_k'])`,
+//! `E[NIS_k] = tr(S_k⁻¹ E[ν_k ν_k'])`, and innovation cross-moments follow from
+//! `E[ν_k ν_j'] = H F Φ_{k−1,j} E[e_j ν_j']`. These are the sums N Monte Carlo runs would
+//! produce on average, with no sampling noise: the tuner's objective becomes a deterministic,
+//! smooth function of the parameters, and a Monte Carlo run still confirms the result.
+
+#![allow(non_snake_case)]
+
+use nalgebra::{DMatrix, DVector};
+
+use super::{Accumulator, Settings};
+use crate::filter::{Filter, FilterError, KalmanFilter};
+use crate::linalg::cholesky;
+use crate::model::LinearGaussianModel;
+use crate::stats::NeesNullVariance;
+
+/// Whether [`expected_accumulator`] applies: the filter uses the truth's F and H.
+pub fn models_match(truth: &LinearGaussianModel, filter: &KalmanFilter) -> bool {
+    truth.F == filter.F && truth.H == filter.H
+}
+
+/// Relative change below which the recursion is treated as having reached steady state.
+const STEADY_RTOL: f64 = 1e-13;
+
+/// The expected value of the sums [`super::run_linear`] accumulates over `settings.runs`
+/// runs, computed exactly. Requires [`models_match`]. Per-run component spreads are
+/// not defined here (they are set as if every run equalled the mean).
+pub fn expected_accumulator(
+    truth: &LinearGaussianModel,
+    f: &KalmanFilter,
+    settings: &Settings,
+) -> Result<Accumulator, FilterError> {
+    debug_assert!(models_match(truth, f));
+    let n = f.n_x();
+    let m = f.H.nrows();
+    let lags = settings.lags;
+    let runs = settings.runs as f64;
+    let mut acc = Accumulator::new(settings.steps, n, m, lags);
+    let F = &f.F;
+    let H = &f.H;
+    let Ht = H.transpose();
+
+    let mut P = f.P0.clone();
+    let mut mu: DVector<f64> = &truth.x0 - &f.x0;
+    let mut sigma = truth.P0.clone();
+    let mut null_var = NeesNullVariance::new(n);
+    // window[l − 1] = E[e_{k−1} ν_{k−l}'] (n × m), most recent first.
+    let mut window: Vec<DMatrix<f64>> = Vec::with_capacity(lags);
+    // History of diag(S) for the lagged normalizations, most recent first.
+    let mut s_diag_hist: Vec<DVector<f64>> = Vec::with_capacity(lags);
+    let mut comp_x = vec![0.0; n];
+    let mut comp_z = vec![0.0; m];
+    let mut steady: Option<StepValues> = None;
+    let mut last_null = None;
+    // History of expected u_j² per step, most recent first.
+    let mut comp_z_hist: Vec<Vec<f64>> = Vec::with_capacity(lags);
+
+    for k in 1..=settings.steps {
+        let i = k - 1;
+        if let Some(v) = &steady {
+            v.add(&mut acc, i, runs, n, m, &mut comp_x, &mut comp_z, lags, k);
+            if let Some((a, p, c)) = &last_null {
+                null_var.step(a, p, c);
+            }
+            continue;
+        }
+        let Pp = f.predict_covariance(&P);
+        let cu = f.update_covariance(&Pp, k)?;
+        let chol_p = cholesky(&cu.P).ok_or(FilterError::NotPositiveDefinite { which: "P", step: k })?;
+        let A = &cu.IKH * F;
+        null_var.step(&A, &cu.P, &chol_p);
+        last_null = Some((A.clone(), cu.P.clone(), chol_p.clone()));
+
+        // Error moments before and after the update.
+        let mu_p = F * &mu;
+        let mut sig_p = F * &sigma * F.transpose() + &truth.Q;
+        crate::linalg::symmetrize(&mut sig_p);
+        let m2_p = &sig_p + &mu_p * mu_p.transpose();
+        let nu_mean = H * &mu_p;
+        let nu_m2 = H * &m2_p * &Ht + &truth.R;
+        let K = &cu.K;
+        let mut sig = &cu.IKH * &sig_p * cu.IKH.transpose() + K * &truth.R * K.transpose();
+        crate::linalg::symmetrize(&mut sig);
+        let mu_new = &cu.IKH * &mu_p;
+        let e_m2 = &sig + &mu_new * mu_new.transpose();
+
+        let nees = chol_p.solve(&e_m2).trace();
+        let nees_sq = gaussian_quadratic_second_moment(&chol_p, &sig, &mu_new);
+        let nis = cu.chol.solve(&nu_m2).trace();
+        let nu_cov = &nu_m2 - &nu_mean * nu_mean.transpose();
+        let nis_sq = gaussian_quadratic_second_moment(&cu.chol, &nu_cov, &nu_mean);
+
+        let s_diag = cu.S.diagonal();
+        let cross: Vec<DVector<f64>> = window
+            .iter()
+            .map(|y| (H * F * y).diagonal())
+            .collect();
+        let comp_z_now: Vec<f64> = (0..m).map(|j| nu_m2[(j, j)] / s_diag[j]).collect();
+        let values = StepValues {
+            nees,
+            nees_sq,
+            nis,
+            nis_sq,
+            comp_x: (0..n).map(|j| e_m2[(j, j)] / cu.P[(j, j)]).collect(),
+            comp_z: comp_z_now.clone(),
+            white: cross
+                .iter()
+                .zip(&s_diag_hist)
+                .map(|(c, sd)| (0..m).map(|j| c[j] / (s_diag[j] * sd[j]).sqrt()).collect())
+                .collect(),
+            lagged_b2: comp_z_hist.clone(),
+        };
+        values.add(&mut acc, i, runs, n, m, &mut comp_x, &mut comp_z, lags, k);
+
+        // Advance the cross-moment window: E[e_k ν_k'] and older ones through A_k.
+        let d = &cu.IKH * &m2_p * &Ht - K * &truth.R;
+        let mut next = Vec::with_capacity(lags);
+        if lags > 0 {
+            next.push(d);
+            for y in window.iter().take(lags - 1) {
+                next.push(&A * y);
+            }
+        }
+        let converged = k > lags + 1
+            && rel_change(&cu.P, &P) < STEADY_RTOL
+            && rel_change(&sig, &sigma) < STEADY_RTOL
+            && mu_new.norm_squared() <= STEADY_RTOL * sig.trace()
+            && next.iter().zip(&window).all(|(a, b)| rel_change(a, b) < STEADY_RTOL.sqrt());
+        window = next;
+        s_diag_hist.insert(0, s_diag.clone_owned());
+        s_diag_hist.truncate(lags);
+        comp_z_hist.insert(0, comp_z_now);
+        comp_z_hist.truncate(lags);
+        P = cu.P;
+        sigma = sig;
+        mu = mu_new;
+        if converged {
+            steady = Some(values);
+        }
+    }
+    for j in 0..n {
+        let a = comp_x[j] / settings.steps as f64;
+        acc.state_comp_run_sum[j] = runs * a;
+        acc.state_comp_run_sq[j] = runs * a * a;
+    }
+    for j in 0..m {
+        let a = comp_z[j] / settings.steps as f64;
+        acc.meas_comp_run_sum[j] = runs * a;
+        acc.meas_comp_run_sq[j] = runs * a * a;
+        acc.meas_comp_runs[j] = settings.runs;
+    }
+    acc.runs = settings.runs;
+    acc.nees_null_var = runs * null_var.variance();
+    Ok(acc)
+}
+
+/// `E[(x' M⁻¹ x)²]` for x ~ N(μ, Σ), with M given by its Cholesky factor:
+/// `(tr B)² + 2 tr(B²) + 4 μ' M⁻¹ Σ M⁻¹ μ + 2 tr(B) μ'M⁻¹μ + (μ'M⁻¹μ)²`, `B = M⁻¹ Σ`.
+fn gaussian_quadratic_second_moment(
+    chol: &nalgebra::Cholesky<f64, nalgebra::Dyn>,
+    sigma: &DMatrix<f64>,
+    mu: &DVector<f64>,
+) -> f64 {
+    let b = chol.solve(sigma);
+    let tr = b.trace();
+    let tr2 = (&b * &b).trace();
+    let minv_mu = chol.solve(mu);
+    let q = mu.dot(&minv_mu);
+    let cross = minv_mu.dot(&(sigma * &minv_mu));
+    tr * tr + 2.0 * tr2 + 4.0 * cross + 2.0 * tr * q + q * q
+}
+
+fn rel_change(a: &DMatrix<f64>, b: &DMatrix<f64>) -> f64 {
+    if a.shape() != b.shape() {
+        return f64::INFINITY;
+    }
+    (a - b).norm() / a.norm().max(f64::MIN_POSITIVE)
+}
+
+/// The expected per-run values of one step.
+struct StepValues {
+    nees: f64,
+    nees_sq: f64,
+    nis: f64,
+    nis_sq: f64,
+    comp_x: Vec<f64>,
+    comp_z: Vec<f64>,
+    /// `white[l − 1][j]` = E[u_k,j u_{k−l},j].
+    white: Vec<Vec<f64>>,
+    /// `lagged_b2[l − 1][j]` = E[u_{k−l},j²].
+    lagged_b2: Vec<Vec<f64>>,
+}
+
+impl StepValues {
+    #[allow(clippy::too_many_arguments)]
+    fn add(
+        &self,
+        acc: &mut Accumulator,
+        i: usize,
+        runs: f64,
+        n: usize,
+        m: usize,
+        comp_x: &mut [f64],
+        comp_z: &mut [f64],
+        lags: usize,
+        k: usize,
+    ) {
+        acc.nees_sum[i] = runs * self.nees;
+        acc.nees_sq[i] = runs * self.nees_sq;
+        acc.nees_dof[i] = runs * n as f64;
+        acc.nees_count[i] = runs;
+        acc.nis_sum[i] = runs * self.nis;
+        acc.nis_sq[i] = runs * self.nis_sq;
+        acc.nis_dof[i] = runs * m as f64;
+        acc.nis_count[i] = runs;
+        for j in 0..n {
+            comp_x[j] += self.comp_x[j];
+            acc.state_comp_total[j] += runs * self.comp_x[j];
+            acc.state_comp_samples[j] += runs;
+        }
+        for j in 0..m {
+            comp_z[j] += self.comp_z[j];
+            acc.meas_comp_total[j] += runs * self.comp_z[j];
+            acc.meas_comp_samples[j] += runs;
+        }
+        for lag in 1..=lags.min(k - 1).min(self.white.len()) {
+            for j in 0..m {
+                let o = (lag - 1) * m + j;
+                acc.white_ab[o] += runs * self.white[lag - 1][j];
+                acc.white_a2[o] += runs * self.comp_z[j];
+                acc.white_b2[o] += runs * self.lagged_b2[lag - 1][j];
+                acc.white_pairs[o] += runs;
+            }
+        }
+    }
+}

@@ -1,0 +1,62 @@
+//! The exact expected sums agree with a large Monte Carlo run.
+
+mod common;
+
+use autotune::check::{Engine, accumulate};
+use autotune::montecarlo::{expected_accumulator, models_match};
+use common::{load, scaled, truth_values};
+
+#[test]
+fn expected_sums_match_large_monte_carlo() {
+    // A mis-tuned filter (Q ×3, R ×0.5) so that nothing is trivially at its target, and a
+    // filter x0 off the truth's mean so the error has a mean too.
+    for name in ["cv1d", "cv2d", "dcmotor"] {
+        let mut p = load(name);
+        let theta = scaled(&p, &scaled(&p, &truth_values(&p), "q_", 3.0), "r_", 0.5);
+        p.filter.x0 = &p.filter.x0 + p.filter.P0.diagonal().map(|v| 0.5 * v.sqrt());
+        let mut mc = p.mc;
+        mc.runs = 20_000;
+        mc.steps = 40;
+        mc.lags = 3;
+        let kf = p.filter_at(&theta);
+        assert!(models_match(&p.truth, &kf));
+        let exp = expected_accumulator(&p.truth, &kf, &mc.engine()).unwrap();
+        let sim = accumulate(&p, &theta, &mc, Engine::Linear);
+        let nn = mc.runs as f64;
+        // Each per-step mean over N runs has standard deviation sqrt(Var/N), with Var from the
+        // exact second moment; 5 standard deviations keeps the chance of a false failure over
+        // the ~100 comparisons below about 1e-4.
+        for i in 0..mc.steps {
+            for (s, e, e2, what) in [
+                (sim.nees_sum[i], exp.nees_sum[i], exp.nees_sq[i], "NEES"),
+                (sim.nis_sum[i], exp.nis_sum[i], exp.nis_sq[i], "NIS"),
+            ] {
+                let mean = e / nn;
+                let sd = ((e2 / nn - mean * mean) / nn).sqrt();
+                assert!((s / nn - mean).abs() < 5.0 * sd, "{name} {what} step {}: MC {} vs exact {mean} (sd {sd})", i + 1, s / nn);
+            }
+            // The second moment itself, to 10% (it is a fourth-moment estimate, noisier).
+            let r = sim.nees_sq[i] / exp.nees_sq[i];
+            assert!((r - 1.0).abs() < 0.1, "{name} NEES² step {}: ratio {r}", i + 1);
+        }
+        for j in 0..exp.meas_comp_total.len() {
+            let r = sim.meas_comp_total[j] / exp.meas_comp_total[j];
+            assert!((r - 1.0).abs() < 0.02, "{name} ν² component {j}: ratio {r}");
+        }
+        for j in 0..exp.state_comp_total.len() {
+            let r = sim.state_comp_total[j] / exp.state_comp_total[j];
+            assert!((r - 1.0).abs() < 0.02, "{name} e² component {j}: ratio {r}");
+        }
+        for o in 0..exp.white_ab.len() {
+            let rho_exp = exp.white_ab[o] / (exp.white_a2[o] * exp.white_b2[o]).sqrt();
+            let rho_sim = sim.white_ab[o] / (sim.white_a2[o] * sim.white_b2[o]).sqrt();
+            // Sample autocorrelation over `pairs` products: sd about 1/sqrt(pairs), but the
+            // pairs within a run are not independent; allow 6/sqrt(pairs).
+            let tol = 6.0 / sim.white_pairs[o].sqrt();
+            assert!((rho_exp - rho_sim).abs() < tol, "{name} whiteness {o}: exact {rho_exp} vs MC {rho_sim}");
+        }
+        assert_eq!(exp.white_pairs, sim.white_pairs);
+        let r = sim.nees_null_var / exp.nees_null_var;
+        assert!((r - 1.0).abs() < 1e-9, "{name} null variance ratio {r}");
+    }
+}

@@ -11,7 +11,9 @@ use autotune::problem::Problem;
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 
 fn load(name: &str) -> Problem {
-    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("problems").join(format!("{name}.toml"));
+    let path = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("problems")
+        .join(format!("{name}.toml"));
     Problem::load(&path).expect("shipped problem")
 }
 
@@ -20,9 +22,21 @@ fn montecarlo(c: &mut Criterion) {
     g.sample_size(20);
     for (name, runs, steps, engine, label) in [
         ("cv2d", 1000, 1000, Engine::Linear, "cv2d/N=1000,T=1000"),
-        ("cv2d", 100, 1000, Engine::Generic, "cv2d-generic/N=100,T=1000"),
+        (
+            "cv2d",
+            100,
+            1000,
+            Engine::Generic,
+            "cv2d-generic/N=100,T=1000",
+        ),
         ("cv1d", 1000, 1000, Engine::Linear, "cv1d/N=1000,T=1000"),
-        ("dcmotor", 1000, 1000, Engine::Linear, "dcmotor/N=1000,T=1000"),
+        (
+            "dcmotor",
+            1000,
+            1000,
+            Engine::Linear,
+            "dcmotor/N=1000,T=1000",
+        ),
     ] {
         let p = load(name);
         let theta = p.params.values();

@@ -30,7 +30,19 @@ pub fn accumulate(problem: &Problem, theta: &[f64], mc: &McConfig, engine: Engin
 
 /// Check `problem`'s filter at parameter values `theta`: the full consistency report.
 /// `use_nees = false` judges by NIS alone (no trusted ground truth).
-pub fn check(problem: &Problem, theta: &[f64], mc: &McConfig, engine: Engine, use_nees: bool) -> ConsistencyReport {
+pub fn check(
+    problem: &Problem,
+    theta: &[f64],
+    mc: &McConfig,
+    engine: Engine,
+    use_nees: bool,
+) -> ConsistencyReport {
     let acc = accumulate(problem, theta, mc, engine);
-    ConsistencyReport::from_accumulator(&acc, mc.alpha, &problem.state_names, &problem.measurement_names, use_nees)
+    ConsistencyReport::from_accumulator(
+        &acc,
+        mc.alpha,
+        &problem.state_names,
+        &problem.measurement_names,
+        use_nees,
+    )
 }

@@ -17,6 +17,7 @@ pub mod params;
 pub mod problem;
 pub mod report;
 pub mod stats;
+pub mod tune;
 
 /// The random number generator of one Monte Carlo run (xoshiro256++: fast, seedable, and
 /// with independent streams per seed).

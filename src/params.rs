@@ -124,12 +124,7 @@ pub fn cwna_block(dt: f64) -> DMatrix<f64> {
     DMatrix::from_row_slice(
         2,
         2,
-        &[
-            dt.powi(3) / 3.0,
-            dt.powi(2) / 2.0,
-            dt.powi(2) / 2.0,
-            dt,
-        ],
+        &[dt.powi(3) / 3.0, dt.powi(2) / 2.0, dt.powi(2) / 2.0, dt],
     )
 }
 

@@ -171,8 +171,12 @@ impl Verdict {
     pub fn describe(self) -> &'static str {
         match self {
             Verdict::Consistent => "consistent",
-            Verdict::Overconfident => "overconfident (errors larger than the filter believes: increase Q)",
-            Verdict::Underconfident => "underconfident (errors smaller than the filter believes: decrease Q)",
+            Verdict::Overconfident => {
+                "overconfident (errors larger than the filter believes: increase Q)"
+            }
+            Verdict::Underconfident => {
+                "underconfident (errors smaller than the filter believes: decrease Q)"
+            }
             Verdict::Mixed => "inconsistent (some statistics too high, some too low)",
             Verdict::Inconclusive => "inconclusive (too little data for the test to have power)",
             Verdict::Diverged => "diverged (covariance not positive definite)",
@@ -190,6 +194,13 @@ impl Verdict {
             Verdict::Diverged => "diverged",
         }
     }
+}
+
+/// The level of each of `k` gate statistics so that a consistent filter fails the gate with
+/// probability at most α (Šidák): `1 − (1 − α)^{1/k}`. Exactly α when the statistics are
+/// independent, less when they are positively dependent (NEES and NIS are).
+pub fn gate_alpha(alpha: f64, k: usize) -> f64 {
+    1.0 - (1.0 - alpha).powf(1.0 / k.max(1) as f64)
 }
 
 /// Combine the verdicts of several statistics into one.
@@ -234,11 +245,13 @@ pub struct StatisticSummary {
     pub time_average: f64,
     /// Its degrees-of-freedom target (mean dimension).
     pub target: f64,
-    /// The textbook interval assuming steps are independent (`Σ N n` degrees of freedom).
+    /// The textbook interval assuming steps are independent (`Σ N n` degrees of freedom), at
+    /// the statistic's level.
     pub naive_interval: Interval,
     /// Total degrees of freedom of the naive interval.
     pub naive_dof: f64,
-    /// The interval the verdict uses, accounting for correlation over time.
+    /// The interval the verdict uses, accounting for correlation over time, at the
+    /// statistic's level ([`ConsistencyReport::statistic_alpha`]).
     pub interval: Interval,
     /// Effective degrees of freedom of [`Self::interval`].
     pub effective_dof: f64,
@@ -299,8 +312,10 @@ pub struct ConsistencyReport {
     pub runs: usize,
     /// Number of steps T per run.
     pub steps: usize,
-    /// Significance level α.
+    /// Significance level α of the gate: a consistent filter fails with probability ≤ α.
     pub alpha: f64,
+    /// Level of each time-averaged gate statistic ([`gate_alpha`]); per-step intervals use α.
+    pub statistic_alpha: f64,
     /// NEES statistics (`None` when ground truth is not used).
     pub nees: Option<StatisticSummary>,
     /// NIS statistics.
@@ -330,13 +345,14 @@ impl ConsistencyReport {
         use_nees: bool,
     ) -> Self {
         let mut cache = IntervalCache::new(alpha);
+        let gate_alpha = gate_alpha(alpha, if use_nees { 2 } else { 1 });
         let nees = summarize(
             "NEES",
             &acc.nees_sum,
             &acc.nees_dof,
             &acc.nees_count,
             acc.nees_null_var,
-            alpha,
+            gate_alpha,
             &mut cache,
         );
         let nis_var = 2.0 * acc.nis_dof.iter().sum::<f64>();
@@ -346,7 +362,7 @@ impl ConsistencyReport {
             &acc.nis_dof,
             &acc.nis_count,
             nis_var,
-            alpha,
+            gate_alpha,
             &mut cache,
         );
         let z = normal_two_sided_quantile(alpha);
@@ -384,6 +400,7 @@ impl ConsistencyReport {
             runs: acc.runs,
             steps: acc.steps,
             alpha,
+            statistic_alpha: gate_alpha,
             nees: use_nees.then_some(nees),
             nis,
             state_components: if use_nees {
@@ -484,22 +501,23 @@ fn summarize(
         lower: f64::NAN,
         upper: f64::NAN,
     };
-    let (time_average, naive, interval, effective_dof, tgt) = if total_count > 0.0 && total_dof > 0.0 {
-        let naive = chi2_average_interval(alpha, total_dof, total_count);
-        // The predicted variance can never be below the independent-steps value 2·D; guard
-        // against rounding pushing it there.
-        let var = null_var.max(2.0 * total_dof);
-        let (iv, h) = scaled_chi2_interval(alpha, total_dof, var, total_count);
-        (
-            total_sum / total_count,
-            naive,
-            iv,
-            h,
-            total_dof / total_count,
-        )
-    } else {
-        (f64::NAN, nan_iv, nan_iv, 0.0, f64::NAN)
-    };
+    let (time_average, naive, interval, effective_dof, tgt) =
+        if total_count > 0.0 && total_dof > 0.0 {
+            let naive = chi2_average_interval(alpha, total_dof, total_count);
+            // The predicted variance can never be below the independent-steps value 2·D; guard
+            // against rounding pushing it there.
+            let var = null_var.max(2.0 * total_dof);
+            let (iv, h) = scaled_chi2_interval(alpha, total_dof, var, total_count);
+            (
+                total_sum / total_count,
+                naive,
+                iv,
+                h,
+                total_dof / total_count,
+            )
+        } else {
+            (f64::NAN, nan_iv, nan_iv, 0.0, f64::NAN)
+        };
     let power = effective_dof > 0.0 && has_power(alpha, effective_dof);
     let mut verdict = if time_average.is_nan() {
         Verdict::Inconclusive
@@ -521,7 +539,7 @@ fn summarize(
             f64::NAN
         },
         steps_with_data: with_data,
-        per_step_has_power: min_step_dof.is_finite() && has_power(alpha, min_step_dof),
+        per_step_has_power: min_step_dof.is_finite() && has_power(cache.alpha, min_step_dof),
         time_average,
         target: tgt,
         naive_interval: naive,
@@ -619,8 +637,16 @@ mod tests {
     fn average_interval_scales_by_count() {
         // N = 50 runs of a 2-D statistic: 100 degrees of freedom, divided by 50.
         let iv = chi2_average_interval(0.05, 100.0, 50.0);
-        assert_relative_eq!(iv.lower, chi2_inv(0.025, 100.0) / 50.0, max_relative = 1e-15);
-        assert_relative_eq!(iv.upper, chi2_inv(0.975, 100.0) / 50.0, max_relative = 1e-15);
+        assert_relative_eq!(
+            iv.lower,
+            chi2_inv(0.025, 100.0) / 50.0,
+            max_relative = 1e-15
+        );
+        assert_relative_eq!(
+            iv.upper,
+            chi2_inv(0.975, 100.0) / 50.0,
+            max_relative = 1e-15
+        );
         assert!(iv.lower < 2.0 && iv.upper > 2.0);
     }
 
@@ -660,6 +686,13 @@ mod tests {
             }
         }
         assert_relative_eq!(nv.variance(), want, max_relative = 1e-12);
+    }
+
+    #[test]
+    fn gate_alpha_splits_the_level() {
+        assert_relative_eq!(gate_alpha(0.05, 1), 0.05, max_relative = 1e-15);
+        let a = gate_alpha(0.05, 2);
+        assert_relative_eq!(1.0 - (1.0 - a) * (1.0 - a), 0.05, max_relative = 1e-12);
     }
 
     #[test]

@@ -22,9 +22,18 @@ const CV2D_TRUTH: [&str; 8] = [
 
 #[test]
 fn exit_code_is_the_verdict() {
-    autotune().arg("check").arg(problem_path("cv2d")).args(CV2D_TRUTH).assert().code(0);
+    autotune()
+        .arg("check")
+        .arg(problem_path("cv2d"))
+        .args(CV2D_TRUTH)
+        .assert()
+        .code(0);
     // The shipped guess is overconfident.
-    let out = autotune().arg("check").arg(problem_path("cv2d")).assert().code(1);
+    let out = autotune()
+        .arg("check")
+        .arg(problem_path("cv2d"))
+        .assert()
+        .code(1);
     let text = String::from_utf8(out.get_output().stdout.clone()).unwrap();
     assert!(text.contains("verdict: overconfident"), "{text}");
 }
@@ -50,7 +59,13 @@ fn json_is_bit_identical_across_thread_counts() {
     let nees = &v["report"]["nees"];
     assert_eq!(nees["per_step"].as_array().unwrap().len(), 150);
     assert_eq!(nees["per_step_lower"].as_array().unwrap().len(), 150);
-    assert_eq!(v["report"]["nis"]["per_step_upper"].as_array().unwrap().len(), 150);
+    assert_eq!(
+        v["report"]["nis"]["per_step_upper"]
+            .as_array()
+            .unwrap()
+            .len(),
+        150
+    );
     assert_eq!(v["report"]["verdict"], "overconfident");
 }
 
@@ -68,7 +83,10 @@ fn junit_names_each_failed_statistic() {
         .stdout("");
     let xml = std::fs::read_to_string(&path).unwrap();
     assert!(xml.starts_with("<?xml"));
-    assert!(xml.contains("<testsuite name=\"autotune check dcmotor\" tests=\"3\" failures=\"2\""), "{xml}");
+    assert!(
+        xml.contains("<testsuite name=\"autotune check dcmotor\" tests=\"3\" failures=\"2\""),
+        "{xml}"
+    );
     // The dcmotor guess is overconfident in NEES and underconfident in NIS.
     assert!(xml.contains("<testcase name=\"time-averaged ANEES\""));
     assert!(xml.contains("message=\"ANEES = "));
@@ -95,9 +113,20 @@ fn junit_names_each_failed_statistic() {
 
 #[test]
 fn summary_shows_intervals_and_verdicts() {
-    let out = autotune().arg("check").arg(problem_path("cv1d")).assert().code(1);
+    let out = autotune()
+        .arg("check")
+        .arg(problem_path("cv1d"))
+        .assert()
+        .code(1);
     let text = String::from_utf8(out.get_output().stdout.clone()).unwrap();
-    for needle in ["ANEES", "ANIS", "interval", "in bounds", "verdict:", "components"] {
+    for needle in [
+        "ANEES",
+        "ANIS",
+        "interval",
+        "in bounds",
+        "verdict:",
+        "components",
+    ] {
         assert!(text.contains(needle), "missing {needle}: {text}");
     }
 }

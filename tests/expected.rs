@@ -33,11 +33,20 @@ fn expected_sums_match_large_monte_carlo() {
             ] {
                 let mean = e / nn;
                 let sd = ((e2 / nn - mean * mean) / nn).sqrt();
-                assert!((s / nn - mean).abs() < 5.0 * sd, "{name} {what} step {}: MC {} vs exact {mean} (sd {sd})", i + 1, s / nn);
+                assert!(
+                    (s / nn - mean).abs() < 5.0 * sd,
+                    "{name} {what} step {}: MC {} vs exact {mean} (sd {sd})",
+                    i + 1,
+                    s / nn
+                );
             }
             // The second moment itself, to 10% (it is a fourth-moment estimate, noisier).
             let r = sim.nees_sq[i] / exp.nees_sq[i];
-            assert!((r - 1.0).abs() < 0.1, "{name} NEES² step {}: ratio {r}", i + 1);
+            assert!(
+                (r - 1.0).abs() < 0.1,
+                "{name} NEES² step {}: ratio {r}",
+                i + 1
+            );
         }
         for j in 0..exp.meas_comp_total.len() {
             let r = sim.meas_comp_total[j] / exp.meas_comp_total[j];
@@ -53,7 +62,10 @@ fn expected_sums_match_large_monte_carlo() {
             // Sample autocorrelation over `pairs` products: sd about 1/sqrt(pairs), but the
             // pairs within a run are not independent; allow 6/sqrt(pairs).
             let tol = 6.0 / sim.white_pairs[o].sqrt();
-            assert!((rho_exp - rho_sim).abs() < tol, "{name} whiteness {o}: exact {rho_exp} vs MC {rho_sim}");
+            assert!(
+                (rho_exp - rho_sim).abs() < tol,
+                "{name} whiteness {o}: exact {rho_exp} vs MC {rho_sim}"
+            );
         }
         assert_eq!(exp.white_pairs, sim.white_pairs);
         let r = sim.nees_null_var / exp.nees_null_var;

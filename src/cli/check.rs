@@ -78,7 +78,10 @@ pub fn run(a: CheckArgs) -> anyhow::Result<ExitCode> {
         let i = problem.params.index(name.trim()).ok_or_else(|| {
             option_error(
                 "--set",
-                format!("unknown parameter '{name}' (known: {})", problem.params.names().join(", ")),
+                format!(
+                    "unknown parameter '{name}' (known: {})",
+                    problem.params.names().join(", ")
+                ),
             )
         })?;
         let v: f64 = value
@@ -86,7 +89,9 @@ pub fn run(a: CheckArgs) -> anyhow::Result<ExitCode> {
             .parse()
             .ok()
             .filter(|v: &f64| v.is_finite() && *v > 0.0)
-            .ok_or_else(|| option_error("--set", format!("{name}: '{value}' is not a number > 0")))?;
+            .ok_or_else(|| {
+                option_error("--set", format!("{name}: '{value}' is not a number > 0"))
+            })?;
         theta[i] = v;
     }
     let mut mc = problem.mc;

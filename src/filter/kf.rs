@@ -38,7 +38,11 @@ impl KalmanFilter {
     /// `S = H P⁻ H' + R`, its Cholesky factor, and the Joseph-form posterior
     /// `P = (I − K H) P⁻ (I − K H)' + K R K'`, symmetrized. K solves `S K' = H P⁻` by
     /// Cholesky; no inverse is formed.
-    pub fn update_covariance(&self, Pp: &DMatrix<f64>, step: usize) -> Result<CovarianceUpdate, FilterError> {
+    pub fn update_covariance(
+        &self,
+        Pp: &DMatrix<f64>,
+        step: usize,
+    ) -> Result<CovarianceUpdate, FilterError> {
         let HP = &self.H * Pp;
         let mut S = &HP * self.H.transpose() + &self.R;
         symmetrize(&mut S);
@@ -95,7 +99,12 @@ impl Filter for KalmanFilter {
         Ok(())
     }
 
-    fn update(&self, k: usize, est: &mut Estimate, meas: &Measurement) -> Result<Innovation, FilterError> {
+    fn update(
+        &self,
+        k: usize,
+        est: &mut Estimate,
+        meas: &Measurement,
+    ) -> Result<Innovation, FilterError> {
         let m = self.H.nrows();
         if meas.sensor != 0 || meas.z.len() != m {
             return Err(FilterError::BadMeasurement {
@@ -156,7 +165,11 @@ mod tests {
         let inn = kf.update(1, &mut est, &z).unwrap();
         assert!(crate::linalg::asymmetry(&est.P).is_none());
         assert_relative_eq!(inn.nu[0], 3.0 - prior_x[0]);
-        assert_relative_eq!(inn.nis, inn.nu[0] * inn.nu[0] / inn.S[(0, 0)], max_relative = 1e-14);
+        assert_relative_eq!(
+            inn.nis,
+            inn.nu[0] * inn.nu[0] / inn.S[(0, 0)],
+            max_relative = 1e-14
+        );
     }
 
     #[test]
@@ -171,7 +184,10 @@ mod tests {
         };
         assert_eq!(
             kf.update(1, &mut est, &z).unwrap_err(),
-            FilterError::NotPositiveDefinite { which: "S", step: 1 }
+            FilterError::NotPositiveDefinite {
+                which: "S",
+                step: 1
+            }
         );
     }
 

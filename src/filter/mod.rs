@@ -75,7 +75,12 @@ pub trait Filter: Sync {
     fn predict(&self, k: usize, est: &mut Estimate) -> Result<(), FilterError>;
 
     /// Incorporate one measurement taken at step `k`.
-    fn update(&self, k: usize, est: &mut Estimate, meas: &Measurement) -> Result<Innovation, FilterError>;
+    fn update(
+        &self,
+        k: usize,
+        est: &mut Estimate,
+        meas: &Measurement,
+    ) -> Result<Innovation, FilterError>;
 
     /// The estimation error `x_true − x̂` (override to wrap angles or map a
     /// higher-fidelity truth state onto the filter's state).

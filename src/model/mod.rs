@@ -39,7 +39,11 @@ pub trait TruthModel: Sync {
 }
 
 /// Draw `x = mean + L ξ`, ξ ~ N(0, I_r), where `L` (n × r) is a covariance factor.
-pub fn sample_gaussian(mean: &DVector<f64>, factor: &DMatrix<f64>, rng: &mut SimRng) -> DVector<f64> {
+pub fn sample_gaussian(
+    mean: &DVector<f64>,
+    factor: &DMatrix<f64>,
+    rng: &mut SimRng,
+) -> DVector<f64> {
     let xi = DVector::from_fn(factor.ncols(), |_, _| rng.sample::<f64, _>(StandardNormal));
     mean + factor * xi
 }

@@ -72,7 +72,10 @@ pub fn expected_accumulator(
         }
         let Pp = f.predict_covariance(&P);
         let cu = f.update_covariance(&Pp, k)?;
-        let chol_p = cholesky(&cu.P).ok_or(FilterError::NotPositiveDefinite { which: "P", step: k })?;
+        let chol_p = cholesky(&cu.P).ok_or(FilterError::NotPositiveDefinite {
+            which: "P",
+            step: k,
+        })?;
         let A = &cu.IKH * F;
         null_var.step(&A, &cu.P, &chol_p);
         last_null = Some((A.clone(), cu.P.clone(), chol_p.clone()));
@@ -97,10 +100,7 @@ pub fn expected_accumulator(
         let nis_sq = gaussian_quadratic_second_moment(&cu.chol, &nu_cov, &nu_mean);
 
         let s_diag = cu.S.diagonal();
-        let cross: Vec<DVector<f64>> = window
-            .iter()
-            .map(|y| (H * F * y).diagonal())
-            .collect();
+        let cross: Vec<DVector<f64>> = window.iter().map(|y| (H * F * y).diagonal()).collect();
         let comp_z_now: Vec<f64> = (0..m).map(|j| nu_m2[(j, j)] / s_diag[j]).collect();
         let values = StepValues {
             nees,
@@ -131,7 +131,10 @@ pub fn expected_accumulator(
             && rel_change(&cu.P, &P) < STEADY_RTOL
             && rel_change(&sig, &sigma) < STEADY_RTOL
             && mu_new.norm_squared() <= STEADY_RTOL * sig.trace()
-            && next.iter().zip(&window).all(|(a, b)| rel_change(a, b) < STEADY_RTOL.sqrt());
+            && next
+                .iter()
+                .zip(&window)
+                .all(|(a, b)| rel_change(a, b) < STEADY_RTOL.sqrt());
         window = next;
         s_diag_hist.insert(0, s_diag.clone_owned());
         s_diag_hist.truncate(lags);

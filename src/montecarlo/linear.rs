@@ -50,12 +50,16 @@ impl Schedule {
             let Pp = f.predict_covariance(&P);
             let cu = f.update_covariance(&Pp, k)?;
             P = cu.P;
-            let chol = cholesky(&P).ok_or(FilterError::NotPositiveDefinite { which: "P", step: k })?;
+            let chol = cholesky(&P).ok_or(FilterError::NotPositiveDefinite {
+                which: "P",
+                step: k,
+            })?;
             nv.step(&(&cu.IKH * &f.F), &P, &chol);
             s.Wt.push(inverse_cholesky_factor(&chol).transpose());
             s.Vt.push(inverse_cholesky_factor(&cu.chol).transpose());
             s.p_inv_diag.push(P.diagonal().map(|v| 1.0 / v));
-            s.s_inv_sqrt_diag.push(cu.S.diagonal().map(|v| 1.0 / v.sqrt()));
+            s.s_inv_sqrt_diag
+                .push(cu.S.diagonal().map(|v| 1.0 / v.sqrt()));
             s.Kt.push(cu.K.transpose());
         }
         s.null_var = nv.variance();
@@ -67,11 +71,17 @@ impl Schedule {
 ///
 /// Gives the same statistics as [`super::run_generic`] on the same pair (to rounding: the
 /// random draws are the same, the arithmetic is reordered), several times faster.
-pub fn run_linear(truth: &LinearGaussianModel, filter: &KalmanFilter, settings: &Settings) -> Accumulator {
+pub fn run_linear(
+    truth: &LinearGaussianModel,
+    filter: &KalmanFilter,
+    settings: &Settings,
+) -> Accumulator {
     let n = filter.n_x();
     let m = filter.H.nrows();
     match Schedule::compute(filter, settings.steps) {
-        Ok(sched) => run_chunked(settings, n, m, |range, acc| chunk(truth, filter, &sched, settings, range, acc)),
+        Ok(sched) => run_chunked(settings, n, m, |range, acc| {
+            chunk(truth, filter, &sched, settings, range, acc)
+        }),
         Err(e) => {
             // The covariance recursion is the same in every run, so every run diverges at
             // the same step.
@@ -136,7 +146,10 @@ fn chunk(
     let mut rngs: Vec<_> = range.clone().map(|i| run_rng(settings.seed, i)).collect();
     let mut xt = DMatrix::zeros(b, n);
     for (c, rng) in rngs.iter_mut().enumerate() {
-        xt.set_row(c, &sample_gaussian(&truth.x0, &truth.factors.p0, rng).transpose());
+        xt.set_row(
+            c,
+            &sample_gaussian(&truth.x0, &truth.factors.p0, rng).transpose(),
+        );
     }
     let mut xh = DMatrix::from_fn(b, n, |_, j| f.x0[j]);
     let mut tmp = DMatrix::zeros(b, n);

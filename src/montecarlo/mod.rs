@@ -371,7 +371,17 @@ where
         let mut meas: Vec<Measurement> = Vec::new();
         for run in range {
             scratch.reset();
-            if let Err(e) = one_run(truth, filter, settings, run, &offsets, &dims, acc, &mut scratch, &mut meas) {
+            if let Err(e) = one_run(
+                truth,
+                filter,
+                settings,
+                run,
+                &offsets,
+                &dims,
+                acc,
+                &mut scratch,
+                &mut meas,
+            ) {
                 acc.record_divergence(run, &e);
                 acc.runs += 1;
             } else {
@@ -433,7 +443,10 @@ where
         scratch.end_step(acc, k);
 
         let e: DVector<f64> = filter.state_error(&x, &est.x);
-        let chol = cholesky(&est.P).ok_or(FilterError::NotPositiveDefinite { which: "P", step: k })?;
+        let chol = cholesky(&est.P).ok_or(FilterError::NotPositiveDefinite {
+            which: "P",
+            step: k,
+        })?;
         let nees = crate::linalg::mahalanobis_sq(&chol, &e);
         acc.nees_sum[i] += nees;
         acc.nees_sq[i] += nees * nees;

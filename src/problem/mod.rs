@@ -169,12 +169,18 @@ impl Problem {
 
 /// SHA-256 of bytes as lowercase hex.
 pub fn sha256_hex(bytes: &[u8]) -> String {
-    Sha256::digest(bytes).iter().map(|b| format!("{b:02x}")).collect()
+    Sha256::digest(bytes)
+        .iter()
+        .map(|b| format!("{b:02x}"))
+        .collect()
 }
 
 /// Deserialize TOML into `T`, turning syntax and schema errors into a [`ProblemError`]
 /// with the field path and line.
-pub fn parse_toml<T: serde::de::DeserializeOwned>(text: &str, path: &Path) -> Result<T, ProblemError> {
+pub fn parse_toml<T: serde::de::DeserializeOwned>(
+    text: &str,
+    path: &Path,
+) -> Result<T, ProblemError> {
     let line_of = |span: Option<std::ops::Range<usize>>| {
         span.map(|s| text[..s.start.min(text.len())].matches('\n').count() + 1)
     };
@@ -221,7 +227,13 @@ impl Validator<'_> {
         }
     }
 
-    fn matrix(&self, field: &str, m: &MatrixSpec, rows: Option<usize>, cols: Option<usize>) -> VResult<DMatrix<f64>> {
+    fn matrix(
+        &self,
+        field: &str,
+        m: &MatrixSpec,
+        rows: Option<usize>,
+        cols: Option<usize>,
+    ) -> VResult<DMatrix<f64>> {
         if m.is_empty() {
             return self.err(field, "matrix has no rows");
         }
@@ -236,7 +248,10 @@ impl Validator<'_> {
         }
         for (i, row) in m.iter().enumerate() {
             if row.len() != c {
-                return self.err(format!("{field}[{i}]"), format!("row has {} entries, expected {c}", row.len()));
+                return self.err(
+                    format!("{field}[{i}]"),
+                    format!("row has {} entries, expected {c}", row.len()),
+                );
             }
             for (j, &v) in row.iter().enumerate() {
                 self.finite(&format!("{field}[{i}][{j}]"), v)?;
@@ -259,34 +274,70 @@ impl Validator<'_> {
         if let Some((i, j)) = asymmetry(m) {
             return self.err(
                 field,
-                format!("not symmetric: entry [{i}][{j}] = {} but [{j}][{i}] = {}", m[(i, j)], m[(j, i)]),
+                format!(
+                    "not symmetric: entry [{i}][{j}] = {} but [{j}][{i}] = {}",
+                    m[(i, j)],
+                    m[(j, i)]
+                ),
             );
         }
-        let lmin = min_eigenvalue(m);
+        if let Some(k) = m.iter().position(|v| !v.is_finite()) {
+            let (i, j) = (k % m.nrows(), k / m.nrows());
+            return self.err(
+                field,
+                format!("entry [{i}][{j}] is {} (overflow)", m[(i, j)]),
+            );
+        }
+        // Judge the matrix scaled to unit size, so that huge entries cannot overflow the
+        // eigenvalue computation.
         let scale = crate::linalg::max_abs(m).max(f64::MIN_POSITIVE);
-        if psd_factor(m).is_err() {
-            return self.err(field, format!("not positive semidefinite (smallest eigenvalue {lmin:.3e})"));
+        let unit = m / scale;
+        let lmin = min_eigenvalue(&unit) * scale;
+        if psd_factor(&unit).is_err() {
+            return self.err(
+                field,
+                format!("not positive semidefinite (smallest eigenvalue {lmin:.3e})"),
+            );
         }
         if definite && lmin <= 1e-12 * scale {
-            return self.err(field, format!("not positive definite (smallest eigenvalue {lmin:.3e})"));
+            return self.err(
+                field,
+                format!("not positive definite (smallest eigenvalue {lmin:.3e})"),
+            );
         }
         Ok(())
     }
 
-    fn dynamics(&self, section: &str, F: &Option<MatrixSpec>, A: &Option<MatrixSpec>, dt: f64, n: Option<usize>) -> VResult<Option<(DMatrix<f64>, Option<DMatrix<f64>>)>> {
+    fn dynamics(
+        &self,
+        section: &str,
+        F: &Option<MatrixSpec>,
+        A: &Option<MatrixSpec>,
+        dt: f64,
+        n: Option<usize>,
+    ) -> VResult<Option<(DMatrix<f64>, Option<DMatrix<f64>>)>> {
         match (F, A) {
-            (Some(_), Some(_)) => self.err(format!("{section}.A"), "give either F (discrete) or A (continuous), not both"),
+            (Some(_), Some(_)) => self.err(
+                format!("{section}.A"),
+                "give either F (discrete) or A (continuous), not both",
+            ),
             (Some(f), None) => {
                 let m = self.matrix(&format!("{section}.F"), f, n, n)?;
                 if m.nrows() != m.ncols() {
-                    return self.err(format!("{section}.F"), format!("must be square, is {}×{}", m.nrows(), m.ncols()));
+                    return self.err(
+                        format!("{section}.F"),
+                        format!("must be square, is {}×{}", m.nrows(), m.ncols()),
+                    );
                 }
                 Ok(Some((m, None)))
             }
             (None, Some(a)) => {
                 let m = self.matrix(&format!("{section}.A"), a, n, n)?;
                 if m.nrows() != m.ncols() {
-                    return self.err(format!("{section}.A"), format!("must be square, is {}×{}", m.nrows(), m.ncols()));
+                    return self.err(
+                        format!("{section}.A"),
+                        format!("must be square, is {}×{}", m.nrows(), m.ncols()),
+                    );
                 }
                 let f = expm(&(&m * dt));
                 if f.iter().any(|v| !v.is_finite()) {
@@ -317,12 +368,21 @@ impl Validator<'_> {
             let tf = format!("{field}[{t}]");
             let indices = |needed: Option<usize>| -> VResult<Vec<usize>> {
                 let Some(ix) = &term.indices else {
-                    return self.err(format!("{tf}.indices"), format!("kind '{}' needs indices", kind_name(term.kind)));
+                    return self.err(
+                        format!("{tf}.indices"),
+                        format!("kind '{}' needs indices", kind_name(term.kind)),
+                    );
                 };
                 if let Some(k) = needed
                     && ix.len() != k
                 {
-                    return self.err(format!("{tf}.indices"), format!("needs exactly {k} indices (position, velocity), got {}", ix.len()));
+                    return self.err(
+                        format!("{tf}.indices"),
+                        format!(
+                            "needs exactly {k} indices (position, velocity), got {}",
+                            ix.len()
+                        ),
+                    );
                 }
                 if ix.is_empty() {
                     return self.err(format!("{tf}.indices"), "needs at least one index");
@@ -330,7 +390,10 @@ impl Validator<'_> {
                 let mut v = Vec::with_capacity(ix.len());
                 for &i in ix {
                     if i < 0 || i as usize >= dim {
-                        return self.err(format!("{tf}.indices"), format!("index {i} out of range 0..{dim}"));
+                        return self.err(
+                            format!("{tf}.indices"),
+                            format!("index {i} out of range 0..{dim}"),
+                        );
                     }
                     if v.contains(&(i as usize)) {
                         return self.err(format!("{tf}.indices"), format!("index {i} repeated"));
@@ -341,20 +404,38 @@ impl Validator<'_> {
             };
             let unexpected = |name: &str, present: bool| -> VResult<()> {
                 if present {
-                    self.err(format!("{tf}.{name}"), format!("not used by kind '{}'", kind_name(term.kind)))
+                    self.err(
+                        format!("{tf}.{name}"),
+                        format!("not used by kind '{}'", kind_name(term.kind)),
+                    )
                 } else {
                     Ok(())
                 }
             };
-            if !is_q && matches!(term.kind, TermKind::Dwna | TermKind::Cwna | TermKind::Continuous) {
-                return self.err(format!("{tf}.kind"), format!("kind '{}' describes process noise; R takes diag or matrix", kind_name(term.kind)));
+            if !is_q
+                && matches!(
+                    term.kind,
+                    TermKind::Dwna | TermKind::Cwna | TermKind::Continuous
+                )
+            {
+                return self.err(
+                    format!("{tf}.kind"),
+                    format!(
+                        "kind '{}' describes process noise; R takes diag or matrix",
+                        kind_name(term.kind)
+                    ),
+                );
             }
             let basis = match term.kind {
                 TermKind::Dwna | TermKind::Cwna => {
                     unexpected("matrix", term.matrix.is_some())?;
                     unexpected("input", term.input.is_some())?;
                     let ix = indices(Some(2))?;
-                    let block = if term.kind == TermKind::Dwna { dwna_block(dt) } else { cwna_block(dt) };
+                    let block = if term.kind == TermKind::Dwna {
+                        dwna_block(dt)
+                    } else {
+                        cwna_block(dt)
+                    };
                     embed(dim, &ix, &block)
                 }
                 TermKind::Diag => {
@@ -381,34 +462,67 @@ impl Validator<'_> {
                     unexpected("indices", term.indices.is_some())?;
                     unexpected("matrix", term.matrix.is_some())?;
                     let Some(a) = a else {
-                        return self.err(format!("{tf}.kind"), "kind 'continuous' needs the model's continuous-time A");
+                        return self.err(
+                            format!("{tf}.kind"),
+                            "kind 'continuous' needs the model's continuous-time A",
+                        );
                     };
                     let Some(g) = &term.input else {
-                        return self.err(format!("{tf}.input"), "kind 'continuous' needs input (the noise input vector g)");
+                        return self.err(
+                            format!("{tf}.input"),
+                            "kind 'continuous' needs input (the noise input vector g)",
+                        );
                     };
                     let g = self.vector(&format!("{tf}.input"), g, dim)?;
                     van_loan(a, &(&g * g.transpose()), dt)
                 }
             };
+            if basis.iter().any(|v| !v.is_finite()) {
+                return self.err(
+                    tf.clone(),
+                    format!("kind '{}' overflows with dt = {dt:e}", kind_name(term.kind)),
+                );
+            }
             let coef = match (&term.param, term.value) {
-                (Some(_), Some(_)) => return self.err(format!("{tf}.value"), "give either param or value, not both"),
-                (None, None) => return self.err(tf.clone(), "needs param (a named parameter) or value (a fixed number)"),
+                (Some(_), Some(_)) => {
+                    return self.err(
+                        format!("{tf}.value"),
+                        "give either param or value, not both",
+                    );
+                }
+                (None, None) => {
+                    return self.err(
+                        tf.clone(),
+                        "needs param (a named parameter) or value (a fixed number)",
+                    );
+                }
                 (None, Some(v)) => {
                     self.finite(&format!("{tf}.value"), v)?;
                     if v < 0.0 {
-                        return self.err(format!("{tf}.value"), format!("{v} is negative; a variance must be ≥ 0"));
+                        return self.err(
+                            format!("{tf}.value"),
+                            format!("{v} is negative; a variance must be ≥ 0"),
+                        );
                     }
                     Coef::Fixed(v)
                 }
                 (Some(name), None) => {
                     let Some(ps) = params else {
-                        return self.err(format!("{tf}.param"), "the truth takes fixed values: use value");
+                        return self.err(
+                            format!("{tf}.param"),
+                            "the truth takes fixed values: use value",
+                        );
                     };
                     match ps.index(name) {
                         Some(i) => Coef::Param(i),
                         None => {
                             let known = ps.names().join(", ");
-                            return self.err(format!("{tf}.param"), format!("unknown parameter '{name}' (defined in [params]: {known})"));
+                            return self.err(
+                                format!("{tf}.param"),
+                                format!(
+                                    "unknown parameter '{name}' (defined in [params]: {known})"
+                                ),
+                            );
                         }
                     }
                 }
@@ -427,7 +541,10 @@ impl Validator<'_> {
             }
             let value = self.finite(&format!("{f}.value"), p.value)?;
             if value <= 0.0 {
-                return self.err(format!("{f}.value"), format!("{value} must be > 0 (variances are searched in log space)"));
+                return self.err(
+                    format!("{f}.value"),
+                    format!("{value} must be > 0 (variances are searched in log space)"),
+                );
             }
             let lower = self.finite(&format!("{f}.lower"), p.lower.unwrap_or(value / 1e4))?;
             let upper = self.finite(&format!("{f}.upper"), p.upper.unwrap_or(value * 1e4))?;
@@ -435,10 +552,16 @@ impl Validator<'_> {
                 return self.err(format!("{f}.lower"), format!("{lower} must be > 0"));
             }
             if lower >= upper {
-                return self.err(format!("{f}.lower"), format!("lower bound {lower} is not below upper bound {upper}"));
+                return self.err(
+                    format!("{f}.lower"),
+                    format!("lower bound {lower} is not below upper bound {upper}"),
+                );
             }
             if value < lower || value > upper {
-                return self.err(format!("{f}.value"), format!("{value} is outside [{lower}, {upper}]"));
+                return self.err(
+                    format!("{f}.value"),
+                    format!("{value} is outside [{lower}, {upper}]"),
+                );
             }
             params.push(ParamDef {
                 name: name.clone(),
@@ -453,9 +576,17 @@ impl Validator<'_> {
         Ok(ParamSpace { params })
     }
 
-    fn names(&self, field: &str, given: &Option<Vec<String>>, n: usize, prefix: &str) -> VResult<Vec<String>> {
+    fn names(
+        &self,
+        field: &str,
+        given: &Option<Vec<String>>,
+        n: usize,
+        prefix: &str,
+    ) -> VResult<Vec<String>> {
         match given {
-            Some(v) if v.len() != n => self.err(field, format!("has {} names, expected {n}", v.len())),
+            Some(v) if v.len() != n => {
+                self.err(field, format!("has {} names, expected {n}", v.len()))
+            }
             Some(v) => Ok(v.clone()),
             None => Ok((0..n).map(|i| format!("{prefix}{i}")).collect()),
         }
@@ -474,17 +605,28 @@ impl Validator<'_> {
             return self.err("montecarlo.steps", format!("{} must be ≥ 1", mc.steps));
         }
         if !(mc.alpha > 0.0 && mc.alpha < 1.0) {
-            return self.err("montecarlo.alpha", format!("{} must be in (0, 1)", mc.alpha));
+            return self.err(
+                "montecarlo.alpha",
+                format!("{} must be in (0, 1)", mc.alpha),
+            );
         }
-        if mc.lags < 0 {
-            return self.err("montecarlo.lags", format!("{} must be ≥ 0", mc.lags));
-        }
+        let lags = match mc.lags {
+            Some(l) if l < 0 => return self.err("montecarlo.lags", format!("{l} must be ≥ 0")),
+            Some(l) if l >= mc.steps => {
+                return self.err(
+                    "montecarlo.lags",
+                    format!("{l} must be below steps ({})", mc.steps),
+                );
+            }
+            Some(l) => l,
+            None => 5.min(mc.steps - 1),
+        };
         let mc = McConfig {
             runs: mc.runs as usize,
             steps: mc.steps as usize,
             seed: mc.seed,
             alpha: mc.alpha,
-            lags: mc.lags as usize,
+            lags: lags as usize,
         };
 
         let t = &s.truth;
@@ -497,8 +639,12 @@ impl Validator<'_> {
         let tx0 = self.vector("truth.x0", &t.x0, n)?;
         let tP0 = self.matrix("truth.P0", &t.P0, Some(n), Some(n))?;
         self.symmetric_psd("truth.P0", &tP0, false)?;
-        let tQ = self.cov_model("truth.Q", &t.Q, n, true, dt, tA.as_ref(), None)?.build(&[]);
-        let tR = self.cov_model("truth.R", &t.R, m, false, dt, None, None)?.build(&[]);
+        let tQ = self
+            .cov_model("truth.Q", &t.Q, n, true, dt, tA.as_ref(), None)?
+            .build(&[]);
+        let tR = self
+            .cov_model("truth.R", &t.R, m, false, dt, None, None)?
+            .build(&[]);
         self.symmetric_psd("truth.Q", &tQ, false)?;
         self.symmetric_psd("truth.R", &tR, false)?;
 
@@ -525,15 +671,19 @@ impl Validator<'_> {
         let r = self.cov_model("filter.R", &f.R, m, false, dt, None, Some(&params))?;
         for (i, p) in params.params.iter().enumerate() {
             if !q.uses(i) && !r.uses(i) {
-                return self.err(format!("params.{}", p.name), "not used by any filter.Q or filter.R term");
+                return self.err(
+                    format!("params.{}", p.name),
+                    "not used by any filter.Q or filter.R term",
+                );
             }
         }
-        let truth = LinearGaussianModel::new(tF, tH, tQ, tR, tx0, tP0).map_err(|e| ProblemError {
-            file: self.file.to_path_buf(),
-            field: format!("truth.{}", e.which),
-            line: None,
-            message: e.to_string(),
-        })?;
+        let truth =
+            LinearGaussianModel::new(tF, tH, tQ, tR, tx0, tP0).map_err(|e| ProblemError {
+                file: self.file.to_path_buf(),
+                field: format!("truth.{}", e.which),
+                line: None,
+                message: e.to_string(),
+            })?;
         let state_names = self.names("state_names", &s.state_names, n, "x")?;
         let measurement_names = self.names("measurement_names", &s.measurement_names, m, "z")?;
         let name = s.name.clone().unwrap_or_else(|| {

@@ -48,17 +48,14 @@ pub struct MonteCarloSpec {
     /// Significance level α of the two-sided tests (default 0.05).
     #[serde(default = "default_alpha")]
     pub alpha: f64,
-    /// Largest innovation-autocorrelation lag reported (default 5).
-    #[serde(default = "default_lags")]
-    pub lags: i64,
+    /// Largest innovation-autocorrelation lag reported, below `steps` (default 5, or
+    /// `steps − 1` if that is smaller).
+    #[serde(default)]
+    pub lags: Option<i64>,
 }
 
 fn default_alpha() -> f64 {
     0.05
-}
-
-fn default_lags() -> i64 {
-    5
 }
 
 /// `[truth]`: a linear-Gaussian system.

@@ -21,7 +21,11 @@ fn escape(s: &str) -> String {
 
 fn case(name: &str, class: &str, failure: Option<(String, String)>) -> String {
     match failure {
-        None => format!("    <testcase name=\"{}\" classname=\"{}\"/>\n", escape(name), escape(class)),
+        None => format!(
+            "    <testcase name=\"{}\" classname=\"{}\"/>\n",
+            escape(name),
+            escape(class)
+        ),
         Some((msg, body)) => format!(
             "    <testcase name=\"{}\" classname=\"{}\">\n      <failure message=\"{}\" type=\"inconsistent\">{}</failure>\n    </testcase>\n",
             escape(name),
@@ -76,7 +80,10 @@ pub fn junit_xml(problem: &str, report: &ConsistencyReport) -> String {
             .map(|d| format!("first: run {} step {}: {}", d.run, d.step, d.reason))
             .unwrap_or_default();
         (
-            format!("filter diverged in {} of {} runs", report.diverged_runs, report.runs),
+            format!(
+                "filter diverged in {} of {} runs",
+                report.diverged_runs, report.runs
+            ),
             first,
         )
     });
@@ -85,7 +92,10 @@ pub fn junit_xml(problem: &str, report: &ConsistencyReport) -> String {
     let failures = cases.matches("<failure").count();
     let mut out = String::new();
     out.push_str("<?xml version=\"1.0\" encoding=\"UTF-8\"?>\n");
-    let _ = writeln!(out, "<testsuites name=\"autotune\" tests=\"{tests}\" failures=\"{failures}\" errors=\"0\">");
+    let _ = writeln!(
+        out,
+        "<testsuites name=\"autotune\" tests=\"{tests}\" failures=\"{failures}\" errors=\"0\">"
+    );
     let _ = writeln!(
         out,
         "  <testsuite name=\"{}\" tests=\"{tests}\" failures=\"{failures}\" errors=\"0\" skipped=\"0\">",

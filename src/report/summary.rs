@@ -28,10 +28,16 @@ pub fn summary_text(problem: &str, params: &[(String, f64)], r: &ConsistencyRepo
         r.runs, r.steps, r.alpha
     );
     if !params.is_empty() {
-        let p: Vec<String> = params.iter().map(|(n, v)| format!("{n} = {}", fmt_g(*v))).collect();
+        let p: Vec<String> = params
+            .iter()
+            .map(|(n, v)| format!("{n} = {}", fmt_g(*v)))
+            .collect();
         let _ = writeln!(out, "  params: {}", p.join(", "));
     }
-    let _ = writeln!(out, "  stat    time-avg  target   interval (1-α)       in bounds   verdict");
+    let _ = writeln!(
+        out,
+        "  stat    time-avg  target   interval (1-α)       in bounds   verdict"
+    );
     let stats: Vec<&StatisticSummary> = r.nees.iter().chain(std::iter::once(&r.nis)).collect();
     for s in &stats {
         stat_row(&mut out, s);
@@ -45,7 +51,11 @@ pub fn summary_text(problem: &str, params: &[(String, f64)], r: &ConsistencyRepo
                 format!("{kind} {} {:.3} ({})", c.name, c.value, c.verdict.label())
             })
             .collect();
-        let _ = writeln!(out, "  components (target 1, worst first): {}", w.join("; "));
+        let _ = writeln!(
+            out,
+            "  components (target 1, worst first): {}",
+            w.join("; ")
+        );
     }
     let white: Vec<String> = r
         .whiteness
@@ -77,7 +87,11 @@ pub fn summary_text(problem: &str, params: &[(String, f64)], r: &ConsistencyRepo
             .first()
             .map(|d| format!(" (first: run {}, {})", d.run, d.reason))
             .unwrap_or_default();
-        let _ = writeln!(out, "  filter diverged in {} of {} runs{first}", r.diverged_runs, r.runs);
+        let _ = writeln!(
+            out,
+            "  filter diverged in {} of {} runs{first}",
+            r.diverged_runs, r.runs
+        );
     }
     let _ = writeln!(out, "verdict: {}", r.verdict.describe());
     out
@@ -90,7 +104,11 @@ pub fn fmt_g(v: f64) -> String {
     if a != 0.0 && !(1e-3..1e5).contains(&a) {
         format!("{v:.3e}")
     } else {
-        let digits = if a == 0.0 { 0 } else { (3 - a.log10().floor() as i32).max(0) as usize };
+        let digits = if a == 0.0 {
+            0
+        } else {
+            (3 - a.log10().floor() as i32).max(0) as usize
+        };
         format!("{v:.digits$}")
     }
 }

@@ -6,8 +6,8 @@ use std::path::Path;
 use indexmap::IndexMap;
 use serde::{Deserialize, Serialize};
 
-use crate::problem::{ProblemError, parse_toml};
 use crate::params::ParamSpace;
+use crate::problem::{ProblemError, parse_toml};
 
 /// A tuned config as stored on disk.
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
@@ -38,18 +38,25 @@ impl TunedConfig {
             line: None,
             message,
         };
-        let text = std::fs::read_to_string(path).map_err(|e| err(String::new(), format!("cannot read: {e}")))?;
+        let text = std::fs::read_to_string(path)
+            .map_err(|e| err(String::new(), format!("cannot read: {e}")))?;
         let cfg: TunedConfig = parse_toml(&text, path)?;
         let mut values = space.values();
         for (name, &v) in &cfg.params {
             let Some(i) = space.index(name) else {
                 return Err(err(
                     format!("params.{name}"),
-                    format!("the problem has no parameter '{name}' (it has: {})", space.names().join(", ")),
+                    format!(
+                        "the problem has no parameter '{name}' (it has: {})",
+                        space.names().join(", ")
+                    ),
                 ));
             };
             if !(v.is_finite() && v > 0.0) {
-                return Err(err(format!("params.{name}"), format!("{v} must be a finite number > 0")));
+                return Err(err(
+                    format!("params.{name}"),
+                    format!("{v} must be a finite number > 0"),
+                ));
             }
             values[i] = v;
         }

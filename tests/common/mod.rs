@@ -7,7 +7,9 @@ use autotune::problem::Problem;
 
 /// Path of a shipped problem file.
 pub fn problem_path(name: &str) -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("problems").join(format!("{name}.toml"))
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("problems")
+        .join(format!("{name}.toml"))
 }
 
 /// Load a shipped problem.
@@ -20,7 +22,12 @@ pub fn load(name: &str) -> Problem {
 pub fn truth_values(problem: &Problem) -> Vec<f64> {
     let table: &[(&str, f64)] = match problem.name.as_str() {
         "cv1d" => &[("q_accel", 0.5), ("r_pos", 1.0)],
-        "cv2d" => &[("q_accel_x", 0.5), ("q_accel_y", 0.1), ("r_pos_x", 1.0), ("r_pos_y", 4.0)],
+        "cv2d" => &[
+            ("q_accel_x", 0.5),
+            ("q_accel_y", 0.1),
+            ("r_pos_x", 1.0),
+            ("r_pos_y", 4.0),
+        ],
         "dcmotor" => &[("q_torque", 1e-6), ("q_voltage", 1e-2), ("r_angle", 4e-6)],
         other => panic!("no truth table for {other}"),
     };
@@ -45,6 +52,12 @@ pub fn scaled(problem: &Problem, theta: &[f64], prefix: &str, factor: f64) -> Ve
         .params
         .iter()
         .zip(theta)
-        .map(|(p, &v)| if p.name.starts_with(prefix) { v * factor } else { v })
+        .map(|(p, &v)| {
+            if p.name.starts_with(prefix) {
+                v * factor
+            } else {
+                v
+            }
+        })
         .collect()
 }

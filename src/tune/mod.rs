@@ -1,0 +1,636 @@
+//! The tuner: searches a problem's free noise parameters for the filter whose consistency
+//! statistics sit at their targets, then confirms the winner on fresh Monte Carlo seeds.
+//!
+//! Search space: the logarithm of each free parameter, inside its bounds (variances span
+//! decades; a log scale makes "×2" the same step everywhere). Candidates are scored by
+//! [`Objective`] on either the exact expected statistics (linear problems whose filter has
+//! the truth's F and H: noise-free and cheap) or a Monte Carlo run with common random
+//! numbers (every candidate sees the same draws, so the score is a deterministic function
+//! of the parameters). The search is a global stage of quasi-random points in the log box
+//! followed by Nelder–Mead (argmin) from the best few, each restarted once to polish; a
+//! budget in evaluations and seconds bounds it. A candidate whose filter diverges scores
+//! +∞ and the search goes on.
+
+pub mod objective;
+
+pub use objective::{Objective, Terms, Weights};
+
+use std::sync::Mutex;
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::time::{Duration, Instant};
+
+use argmin::core::{CostFunction, Executor, State};
+use argmin::solver::neldermead::NelderMead;
+use nalgebra::{DMatrix, SymmetricEigen};
+use rand::{Rng, SeedableRng};
+use rayon::prelude::*;
+use serde::Serialize;
+
+use crate::SimRng;
+use crate::check::Engine;
+use crate::montecarlo::{self, Accumulator, expected_accumulator, models_match};
+use crate::problem::{McConfig, Problem};
+use crate::stats::ConsistencyReport;
+
+/// How candidates are scored during the search.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Scoring {
+    /// Exact expectations where the problem allows them, Monte Carlo otherwise.
+    #[default]
+    Auto,
+    /// Exact expected statistics (linear, filter with the truth's F and H).
+    Exact,
+    /// Monte Carlo with common random numbers.
+    MonteCarlo,
+}
+
+/// Search settings.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TuneSettings {
+    /// Objective weights.
+    pub weights: Weights,
+    /// Score NIS and measurement statistics only (no trusted ground truth).
+    pub nis_only: bool,
+    /// Evaluation budget of the search (≥ 1).
+    pub max_evals: usize,
+    /// Wall-time budget of the search, s (> 0).
+    pub max_seconds: f64,
+    /// Number of local searches, started from the best points of the global stage (≥ 1).
+    pub starts: usize,
+    /// Quasi-random points of the global stage per free parameter.
+    pub global_points_per_param: usize,
+    /// How candidates are scored.
+    pub scoring: Scoring,
+    /// Seed of the confirmation runs (default: derived from the problem's seed, never equal
+    /// to it).
+    pub confirm_seed: Option<u64>,
+    /// Runs per Monte Carlo evaluation in the search (default: 4 N). A parameter estimated
+    /// from N runs is as noisy as the N-run gate that confirms it, so the confirmation would
+    /// fail far more often than α; four times the runs halve the estimate's noise.
+    pub search_runs: Option<usize>,
+}
+
+impl Default for TuneSettings {
+    fn default() -> Self {
+        TuneSettings {
+            weights: Weights::default(),
+            nis_only: false,
+            max_evals: 4000,
+            max_seconds: 120.0,
+            starts: 3,
+            global_points_per_param: 16,
+            scoring: Scoring::Auto,
+            confirm_seed: None,
+            search_runs: None,
+        }
+    }
+}
+
+/// How a tuning run ended.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum TuneStatus {
+    /// The tuned filter passed the confirmation on fresh seeds.
+    Consistent,
+    /// The search finished but the tuned filter fails the confirmation.
+    Inconsistent,
+    /// The budget ran out before the search converged (the best point so far is reported).
+    BudgetExhausted,
+    /// No candidate gave a filter that stayed positive definite.
+    Diverged,
+}
+
+/// How precisely the data pin down one parameter.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct Resolution {
+    /// The factor by which the parameter can move (others re-adjusting) before the
+    /// objective rises by its Monte Carlo noise level; `None` if fixed.
+    pub factor: Option<f64>,
+    /// False when that factor exceeds 2: a flat direction of the objective.
+    pub identifiable: bool,
+}
+
+/// Observes a tuning run (progress bars, logs). All methods default to doing nothing.
+pub trait Observer: Sync {
+    /// Called after each evaluation with the count so far and the best objective value.
+    fn evaluation(&self, _evals: usize, _best: f64) {}
+    /// Called when a phase starts ("global", "local", "confirm").
+    fn phase(&self, _name: &str) {}
+}
+
+/// An observer that does nothing.
+pub struct Silent;
+
+impl Observer for Silent {}
+
+/// Everything a tuning run found.
+#[derive(Debug, Clone, Serialize)]
+pub struct TuneResult {
+    /// Parameter names, in problem order.
+    pub names: Vec<String>,
+    /// Which parameters were held fixed.
+    pub fixed: Vec<bool>,
+    /// Starting values.
+    pub initial: Vec<f64>,
+    /// Tuned values.
+    pub tuned: Vec<f64>,
+    /// Objective at the start (as scored in the search).
+    pub objective_initial: Terms,
+    /// Objective at the tuned values.
+    pub objective_final: Terms,
+    /// How candidates were scored.
+    pub scoring: Scoring,
+    /// Evaluations spent by the search.
+    pub evaluations: usize,
+    /// Candidates whose filter diverged.
+    pub diverged_evaluations: usize,
+    /// Best objective after each evaluation (for plots).
+    pub history: Vec<f64>,
+    /// Resolution per parameter.
+    pub resolution: Vec<Resolution>,
+    /// Objective noise level used for the resolution: the objective of the tuned filter on
+    /// the confirmation runs.
+    pub noise_floor: f64,
+    /// Seed used for the search's Monte Carlo runs (common random numbers).
+    pub search_seed: u64,
+    /// Seed of the confirmation runs.
+    pub confirm_seed: u64,
+    /// Monte Carlo settings of the confirmation.
+    pub runs: usize,
+    /// Steps of the confirmation.
+    pub steps: usize,
+    /// Significance level.
+    pub alpha: f64,
+    /// The starting filter on the confirmation seeds.
+    pub before: ConsistencyReport,
+    /// The tuned filter on the confirmation seeds.
+    pub after: ConsistencyReport,
+    /// How the run ended.
+    pub status: TuneStatus,
+    /// Wall time of the search and confirmation, s.
+    pub seconds: f64,
+}
+
+/// Errors that stop a tuning run before it starts.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum TuneError {
+    /// A setting is out of range.
+    #[error("{field}: {message}")]
+    Setting {
+        /// Which setting.
+        field: String,
+        /// What is wrong.
+        message: String,
+    },
+}
+
+/// The seed of the confirmation runs when none is given: a fixed mix of the search seed,
+/// never equal to it.
+pub fn default_confirm_seed(seed: u64) -> u64 {
+    let s = seed ^ 0xC0F1_B0A7_5EED_0001;
+    if s == seed { s.wrapping_add(1) } else { s }
+}
+
+struct Search<'a> {
+    problem: &'a Problem,
+    mc: McConfig,
+    exact: bool,
+    objective: Objective,
+    theta0: Vec<f64>,
+    free: Vec<usize>,
+    lo: Vec<f64>,
+    hi: Vec<f64>,
+    evals: AtomicUsize,
+    diverged: AtomicUsize,
+    best: Mutex<(f64, Vec<f64>)>,
+    history: Mutex<Vec<f64>>,
+    max_evals: usize,
+    deadline: Instant,
+    observer: &'a dyn Observer,
+}
+
+#[derive(Debug)]
+struct Budget;
+
+impl std::fmt::Display for Budget {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("budget exhausted")
+    }
+}
+
+impl std::error::Error for Budget {}
+
+impl Search<'_> {
+    /// Full parameter vector from log-values of the free parameters (clamped to the box).
+    fn theta(&self, y: &[f64]) -> Vec<f64> {
+        let mut t = self.theta0.clone();
+        for (k, &i) in self.free.iter().enumerate() {
+            t[i] = y[k].clamp(self.lo[k], self.hi[k]).exp();
+        }
+        t
+    }
+
+    fn accumulate(&self, theta: &[f64]) -> Accumulator {
+        let kf = self.problem.filter_at(theta);
+        let settings = self.mc.engine();
+        if self.exact {
+            expected_accumulator(&self.problem.truth, &kf, &settings).unwrap_or_else(|_| {
+                let mut a =
+                    Accumulator::new(settings.steps, kf.F.nrows(), kf.H.nrows(), settings.lags);
+                a.diverged_runs = settings.runs;
+                a.runs = settings.runs;
+                a
+            })
+        } else {
+            montecarlo::run_linear(&self.problem.truth, &kf, &settings)
+        }
+    }
+
+    /// Objective at log-point `y`, with a quadratic penalty outside the box so that the
+    /// simplex walks back in; no budget accounting.
+    fn score(&self, y: &[f64]) -> (f64, bool) {
+        let acc = self.accumulate(&self.theta(y));
+        let j = self.objective.evaluate(&acc).total;
+        let pen: f64 = y
+            .iter()
+            .enumerate()
+            .map(|(k, v)| (self.lo[k] - v).max(0.0).powi(2) + (v - self.hi[k]).max(0.0).powi(2))
+            .sum();
+        (j + 1e3 * pen, acc.diverged_runs > 0)
+    }
+
+    /// Budgeted evaluation: counts, tracks the best point, reports progress.
+    fn cost(&self, y: &[f64]) -> Result<f64, Budget> {
+        let n = self.evals.fetch_add(1, Ordering::SeqCst);
+        if n >= self.max_evals || Instant::now() > self.deadline {
+            self.evals.fetch_sub(1, Ordering::SeqCst);
+            return Err(Budget);
+        }
+        let (j, diverged) = self.score(y);
+        if diverged {
+            self.diverged.fetch_add(1, Ordering::SeqCst);
+        }
+        let best = {
+            let mut b = self.best.lock().expect("no panics while holding the lock");
+            if j < b.0 {
+                *b = (j, y.to_vec());
+            }
+            b.0
+        };
+        self.history
+            .lock()
+            .expect("no panics while holding the lock")
+            .push(best);
+        self.observer.evaluation(n + 1, best);
+        Ok(j)
+    }
+
+    fn exhausted(&self) -> bool {
+        self.evals.load(Ordering::SeqCst) >= self.max_evals || Instant::now() > self.deadline
+    }
+
+    /// Nelder–Mead from `y0` with initial steps `step` (log units); returns whether it
+    /// stopped for the budget.
+    fn nelder_mead(&self, y0: &[f64], step: f64) -> bool {
+        let d = y0.len();
+        let mut simplex = vec![y0.to_vec()];
+        for k in 0..d {
+            let mut v = y0.to_vec();
+            v[k] += if v[k] + step > self.hi[k] {
+                -step
+            } else {
+                step
+            };
+            simplex.push(v);
+        }
+        let solver = match NelderMead::new(simplex).with_sd_tolerance(1e-10) {
+            Ok(s) => s,
+            Err(_) => return false,
+        };
+        let problem = LocalProblem { search: self };
+        let res = Executor::new(problem, solver)
+            .configure(|s| s.max_iters((200 * d.max(1)) as u64))
+            .run();
+        match res {
+            Ok(r) => !r.state().get_termination_status().terminated() && self.exhausted(),
+            Err(_) => true,
+        }
+    }
+}
+
+struct LocalProblem<'a, 'b> {
+    search: &'a Search<'b>,
+}
+
+impl CostFunction for LocalProblem<'_, '_> {
+    type Param = Vec<f64>;
+    type Output = f64;
+
+    fn cost(&self, p: &Self::Param) -> Result<f64, argmin::core::Error> {
+        self.search.cost(p).map_err(argmin::core::Error::new)
+    }
+}
+
+/// Quasi-random points in the unit cube: a Latin hypercube from `seed` (reproducible, and
+/// every parameter's range is covered evenly).
+fn latin_hypercube(points: usize, dim: usize, seed: u64) -> Vec<Vec<f64>> {
+    let mut rng = SimRng::seed_from_u64(seed);
+    let mut out = vec![vec![0.0; dim]; points];
+    for d in 0..dim {
+        let mut perm: Vec<usize> = (0..points).collect();
+        for i in (1..points).rev() {
+            let j = (rng.next_u64() % (i as u64 + 1)) as usize;
+            perm.swap(i, j);
+        }
+        for (p, row) in out.iter_mut().enumerate() {
+            let jitter = (rng.next_u64() >> 11) as f64 / (1u64 << 53) as f64;
+            row[d] = (perm[p] as f64 + jitter) / points as f64;
+        }
+    }
+    out
+}
+
+/// Tune `problem` from parameter values `start`, holding the parameters marked in `fixed`.
+pub fn tune(
+    problem: &Problem,
+    start: &[f64],
+    fixed: &[bool],
+    mc: &McConfig,
+    settings: &TuneSettings,
+    observer: &dyn Observer,
+) -> Result<TuneResult, TuneError> {
+    let setting = |field: &str, message: String| TuneError::Setting {
+        field: field.into(),
+        message,
+    };
+    if settings.max_evals == 0 {
+        return Err(setting("max_evals", "0 must be ≥ 1".into()));
+    }
+    if !(settings.max_seconds.is_finite() && settings.max_seconds > 0.0) {
+        return Err(setting(
+            "max_seconds",
+            format!("{} must be > 0", settings.max_seconds),
+        ));
+    }
+    if settings.starts == 0 {
+        return Err(setting("starts", "0 must be ≥ 1".into()));
+    }
+    let t0 = Instant::now();
+    let params = &problem.params.params;
+    let free: Vec<usize> = (0..params.len()).filter(|&i| !fixed[i]).collect();
+    let kf0 = problem.filter_at(start);
+    let exact = match settings.scoring {
+        Scoring::Auto => models_match(&problem.truth, &kf0),
+        Scoring::Exact => {
+            if !models_match(&problem.truth, &kf0) {
+                return Err(setting(
+                    "scoring",
+                    "exact scoring needs the filter to use the truth's F and H".into(),
+                ));
+            }
+            true
+        }
+        Scoring::MonteCarlo => false,
+    };
+    let mut search_mc = *mc;
+    if !exact {
+        search_mc.runs = settings.search_runs.unwrap_or(4 * mc.runs).max(1);
+    }
+    let mut search = Search {
+        problem,
+        mc: search_mc,
+        exact,
+        objective: Objective::new(settings.weights, settings.nis_only, mc.alpha),
+        theta0: start.to_vec(),
+        lo: free.iter().map(|&i| params[i].lower.ln()).collect(),
+        hi: free.iter().map(|&i| params[i].upper.ln()).collect(),
+        free,
+        evals: AtomicUsize::new(0),
+        diverged: AtomicUsize::new(0),
+        best: Mutex::new((f64::INFINITY, Vec::new())),
+        history: Mutex::new(Vec::new()),
+        max_evals: settings.max_evals,
+        deadline: t0 + Duration::from_secs_f64(settings.max_seconds),
+        observer,
+    };
+    let y0: Vec<f64> = search.free.iter().map(|&i| start[i].ln()).collect();
+    let acc0 = search.accumulate(start);
+    search.objective.prepare(&acc0);
+    let objective_initial = search.objective.evaluate(&acc0);
+    let d = y0.len();
+
+    let mut budget_hit = false;
+    if d > 0 {
+        // Global stage. Exact scoring is sequential inside, so candidates run in parallel;
+        // Monte Carlo scoring is parallel inside, so candidates run one after another.
+        observer.phase("global");
+        let unit = latin_hypercube(settings.global_points_per_param * d, d, mc.seed);
+        let mut points: Vec<Vec<f64>> = vec![y0.clone()];
+        points.extend(unit.iter().map(|u| {
+            u.iter()
+                .enumerate()
+                .map(|(k, v)| search.lo[k] + v * (search.hi[k] - search.lo[k]))
+                .collect()
+        }));
+        let scored: Vec<(f64, Vec<f64>)> = if exact {
+            points
+                .into_par_iter()
+                .filter_map(|y| search.cost(&y).ok().map(|j| (j, y)))
+                .collect()
+        } else {
+            points
+                .into_iter()
+                .filter_map(|y| search.cost(&y).ok().map(|j| (j, y)))
+                .collect()
+        };
+        let mut scored: Vec<(f64, Vec<f64>)> =
+            scored.into_iter().filter(|(j, _)| j.is_finite()).collect();
+        scored.sort_by(|a, b| a.0.total_cmp(&b.0));
+        let mut starts: Vec<Vec<f64>> = Vec::new();
+        for (_, y) in &scored {
+            let distinct = starts.iter().all(|s| {
+                s.iter()
+                    .zip(y)
+                    .map(|(a, b)| (a - b).abs())
+                    .fold(0.0, f64::max)
+                    > 0.5
+            });
+            if distinct {
+                starts.push(y.clone());
+            }
+            if starts.len() == settings.starts {
+                break;
+            }
+        }
+        if starts.is_empty() {
+            starts.push(y0.clone());
+        }
+        observer.phase("local");
+        let local = |s: &Vec<f64>| {
+            let mut hit = search.nelder_mead(s, 0.7);
+            let polish_from = search.best.lock().expect("lock").1.clone();
+            if !hit && !polish_from.is_empty() {
+                hit = search.nelder_mead(&polish_from, 0.1);
+            }
+            hit
+        };
+        let hits: Vec<bool> = if exact {
+            starts.par_iter().map(local).collect()
+        } else {
+            starts.iter().map(local).collect()
+        };
+        budget_hit = hits.iter().any(|&h| h);
+        // A final polish from the overall best.
+        let best_y = search.best.lock().expect("lock").1.clone();
+        if !best_y.is_empty() && !search.exhausted() {
+            budget_hit |= search.nelder_mead(&best_y, 0.05);
+        }
+    }
+    let (best_j, best_y) = search.best.lock().expect("lock").clone();
+    let tuned = if best_y.is_empty() {
+        start.to_vec()
+    } else {
+        search.theta(&best_y)
+    };
+    let objective_final = search.objective.evaluate(&search.accumulate(&tuned));
+
+    // Confirmation on fresh seeds.
+    observer.phase("confirm");
+    let confirm_seed = settings
+        .confirm_seed
+        .unwrap_or_else(|| default_confirm_seed(mc.seed));
+    let mut cmc = *mc;
+    cmc.seed = confirm_seed;
+    let use_nees = !settings.nis_only;
+    let report = |theta: &[f64]| {
+        let acc = crate::check::accumulate(problem, theta, &cmc, Engine::Auto);
+        let r = ConsistencyReport::from_accumulator(
+            &acc,
+            cmc.alpha,
+            &problem.state_names,
+            &problem.measurement_names,
+            use_nees,
+        );
+        (r, search.objective.evaluate(&acc).total)
+    };
+    let (before, _) = report(start);
+    let (after, noise) = report(&tuned);
+    let noise_floor = if noise.is_finite() {
+        noise.max(1e-9)
+    } else {
+        1e-9
+    };
+
+    let resolution = if best_y.is_empty() || !best_j.is_finite() {
+        (0..params.len())
+            .map(|i| Resolution {
+                factor: None,
+                identifiable: fixed[i],
+            })
+            .collect()
+    } else {
+        resolution(&search, &best_y, noise_floor, fixed)
+    };
+
+    let status = if !best_j.is_finite() {
+        TuneStatus::Diverged
+    } else if after.verdict.passes() {
+        TuneStatus::Consistent
+    } else if budget_hit {
+        TuneStatus::BudgetExhausted
+    } else {
+        TuneStatus::Inconsistent
+    };
+    let history = search.history.lock().expect("lock").clone();
+    Ok(TuneResult {
+        names: params.iter().map(|p| p.name.clone()).collect(),
+        fixed: fixed.to_vec(),
+        initial: start.to_vec(),
+        tuned,
+        objective_initial,
+        objective_final,
+        scoring: if exact {
+            Scoring::Exact
+        } else {
+            Scoring::MonteCarlo
+        },
+        evaluations: search.evals.load(Ordering::SeqCst),
+        diverged_evaluations: search.diverged.load(Ordering::SeqCst),
+        history,
+        resolution,
+        noise_floor,
+        search_seed: mc.seed,
+        confirm_seed,
+        runs: cmc.runs,
+        steps: cmc.steps,
+        alpha: cmc.alpha,
+        before,
+        after,
+        status,
+        seconds: t0.elapsed().as_secs_f64(),
+    })
+}
+
+/// Per-parameter resolution from the objective's curvature at the optimum: with Hessian H
+/// in log-parameters, the objective rises by `δ²/(2 (H⁻¹)_ii)` when parameter i moves by δ
+/// and the others re-adjust; solving for a rise equal to the noise floor gives
+/// `δ_i = √(2 floor (H⁻¹)_ii)` and the factor `e^{δ_i}`.
+fn resolution(search: &Search<'_>, y: &[f64], floor: f64, fixed: &[bool]) -> Vec<Resolution> {
+    let d = y.len();
+    let h = 0.05;
+    let f = |v: &[f64]| search.score(v).0;
+    let f0 = f(y);
+    let mut hess = DMatrix::zeros(d, d);
+    let shift = |a: usize, sa: f64, b: Option<(usize, f64)>| {
+        let mut v = y.to_vec();
+        v[a] += sa;
+        if let Some((bi, sb)) = b {
+            v[bi] += sb;
+        }
+        v
+    };
+    for a in 0..d {
+        let fp = f(&shift(a, h, None));
+        let fm = f(&shift(a, -h, None));
+        hess[(a, a)] = (fp - 2.0 * f0 + fm) / (h * h);
+        for b in 0..a {
+            let fpp = f(&shift(a, h, Some((b, h))));
+            let fpm = f(&shift(a, h, Some((b, -h))));
+            let fmp = f(&shift(a, -h, Some((b, h))));
+            let fmm = f(&shift(a, -h, Some((b, -h))));
+            let v = (fpp - fpm - fmp + fmm) / (4.0 * h * h);
+            hess[(a, b)] = v;
+            hess[(b, a)] = v;
+        }
+    }
+    let eig = SymmetricEigen::new(hess);
+    let lmax = eig.eigenvalues.iter().fold(0.0_f64, |a, v| a.max(v.abs()));
+    let floor_l = (1e-12 * lmax).max(1e-300);
+    let inv_diag: Vec<f64> = (0..d)
+        .map(|i| {
+            (0..d)
+                .map(|k| eig.eigenvectors[(i, k)].powi(2) / eig.eigenvalues[k].max(floor_l))
+                .sum()
+        })
+        .collect();
+    let mut out = Vec::with_capacity(fixed.len());
+    let mut k = 0;
+    for &fx in fixed {
+        if fx {
+            out.push(Resolution {
+                factor: None,
+                identifiable: true,
+            });
+        } else {
+            let delta = (2.0 * floor * inv_diag[k]).sqrt();
+            let factor = delta.exp();
+            out.push(Resolution {
+                factor: Some(factor),
+                identifiable: factor.is_finite() && factor <= 2.0,
+            });
+            k += 1;
+        }
+    }
+    out
+}

@@ -1,0 +1,264 @@
+//! The tuning objective: a dimensionless score of how far a filter's consistency statistics
+//! are from their targets.
+//!
+//! For each gate statistic s (ANEES and ANIS; ANIS alone in NIS-only mode), with time
+//! average `Ā_s`, degrees-of-freedom target `d_s`, gate interval `[a_s, b_s]`, and per-step
+//! averages `A_sk` with intervals `[r1_sk, r2_sk]`, let `h(x; a, b)` be the log-distance
+//! outside an interval (`ln(x/b)` above it, `ln(a/x)` below it, 0 inside). Then
+//!
+//! ```text
+//! J = w_mean     Σ_s [ln(Ā_s / d_s)]²                      at the DOF target
+//!   + w_interval Σ_s h(Ā_s; a_s, b_s)²                     outside the time-averaged interval
+//!   + w_step     Σ_s (1/T_s) Σ_k h(A_sk; r1_sk, r2_sk)²    outside the per-step intervals
+//!   + w_comp     [(1/n_x) Σ_j (ln c_j)² + (1/n_z) Σ_j (ln d_j)²]   per component
+//!   + w_white    (1/(L n_z)) Σ_{l,j} ρ_lj²                  innovation whiteness
+//!   + w_shape    (1/T) Σ_k [ln(Var_k(NEES) / 2n_x)]²         distribution shape (optional)
+//! ```
+//!
+//! where `c_j` is the average of `e_j²/P_jj`, `d_j` of `ν_j²/S_jj`, and `ρ_lj` the lag-l
+//! autocorrelation of `ν_j/√S_jj`. J is zero exactly when every statistic sits at its target
+//! and grows with the distance. Mean-only objectives (Chen et al. 2018) have whole curves of
+//! zeros; the per-component and whiteness terms are what pin down per-axis parameters. A
+//! filter that diverges scores +∞.
+
+use serde::{Deserialize, Serialize};
+
+use crate::montecarlo::Accumulator;
+use crate::stats::{Interval, chi2_average_interval, gate_alpha, scaled_chi2_interval};
+
+/// Weights of the objective's terms (all ≥ 0).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct Weights {
+    /// Time averages at their DOF targets.
+    pub mean: f64,
+    /// Time averages outside their intervals.
+    pub interval: f64,
+    /// Per-step averages outside their intervals.
+    pub per_step: f64,
+    /// Per-component normalized errors at 1.
+    pub components: f64,
+    /// Innovation autocorrelation at 0.
+    pub whiteness: f64,
+    /// NEES variance at 2 n_x.
+    pub shape: f64,
+}
+
+impl Default for Weights {
+    fn default() -> Self {
+        Weights {
+            mean: 1.0,
+            interval: 1.0,
+            per_step: 1.0,
+            components: 1.0,
+            whiteness: 1.0,
+            shape: 0.0,
+        }
+    }
+}
+
+impl Weights {
+    /// Set one weight by name (as on the command line); `Err` names the problem.
+    pub fn set(&mut self, name: &str, value: f64) -> Result<(), String> {
+        if !(value.is_finite() && value >= 0.0) {
+            return Err(format!(
+                "weight {name} = {value} must be a finite number ≥ 0"
+            ));
+        }
+        let slot = match name {
+            "mean" => &mut self.mean,
+            "interval" => &mut self.interval,
+            "per_step" => &mut self.per_step,
+            "components" => &mut self.components,
+            "whiteness" => &mut self.whiteness,
+            "shape" => &mut self.shape,
+            _ => {
+                return Err(format!(
+                    "unknown weight '{name}' (known: mean, interval, per_step, components, whiteness, shape)"
+                ));
+            }
+        };
+        *slot = value;
+        Ok(())
+    }
+}
+
+/// The objective's value split into its terms (each already weighted).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
+pub struct Terms {
+    /// Time averages vs DOF targets.
+    pub mean: f64,
+    /// Time averages outside their intervals.
+    pub interval: f64,
+    /// Per-step averages outside their intervals.
+    pub per_step: f64,
+    /// Per-component terms.
+    pub components: f64,
+    /// Whiteness term.
+    pub whiteness: f64,
+    /// Shape term.
+    pub shape: f64,
+    /// Their sum (+∞ for a diverged filter).
+    pub total: f64,
+}
+
+/// Log-distance of `x` outside `iv` (0 inside).
+fn outside(x: f64, iv: &Interval) -> f64 {
+    if x > iv.upper {
+        (x / iv.upper).ln()
+    } else if x < iv.lower {
+        (iv.lower / x).ln()
+    } else {
+        0.0
+    }
+}
+
+/// Evaluates J on accumulated sums. Per-step intervals depend only on the degrees of
+/// freedom and run counts, which do not change between candidates, so they are cached.
+#[derive(Debug, Clone)]
+pub struct Objective {
+    /// Term weights.
+    pub weights: Weights,
+    /// Judge by NIS (and measurement components) alone.
+    pub nis_only: bool,
+    alpha: f64,
+    cache: Vec<((u64, u64), Interval)>,
+}
+
+impl Objective {
+    /// An objective at significance `alpha`.
+    pub fn new(weights: Weights, nis_only: bool, alpha: f64) -> Self {
+        Objective {
+            weights,
+            nis_only,
+            alpha,
+            cache: Vec::new(),
+        }
+    }
+
+    fn step_interval(&self, dof: f64, count: f64) -> Interval {
+        let key = (dof.to_bits(), count.to_bits());
+        match self.cache.iter().find(|(k, _)| *k == key) {
+            Some((_, iv)) => *iv,
+            None => chi2_average_interval(self.alpha, dof, count),
+        }
+    }
+
+    /// Cache the per-step intervals `acc` needs, so later evaluations of candidates with the
+    /// same measurement schedule compute no chi-square quantiles per step.
+    pub fn prepare(&mut self, acc: &Accumulator) {
+        for (dof, count) in acc
+            .nees_dof
+            .iter()
+            .zip(&acc.nees_count)
+            .chain(acc.nis_dof.iter().zip(&acc.nis_count))
+        {
+            let key = (dof.to_bits(), count.to_bits());
+            if *dof > 0.0 && *count > 0.0 && !self.cache.iter().any(|(k, _)| *k == key) {
+                let iv = chi2_average_interval(self.alpha, *dof, *count);
+                self.cache.push((key, iv));
+            }
+        }
+    }
+
+    /// Score `acc`. Diverged or non-finite statistics give `total = +∞`.
+    pub fn evaluate(&self, acc: &Accumulator) -> Terms {
+        let inf = Terms {
+            total: f64::INFINITY,
+            ..Terms::default()
+        };
+        if acc.diverged_runs > 0 {
+            return inf;
+        }
+        let w = self.weights;
+        let mut t = Terms::default();
+        let nis_var = 2.0 * acc.nis_dof.iter().sum::<f64>();
+        let mut stats = vec![(&acc.nis_sum, &acc.nis_dof, &acc.nis_count, nis_var)];
+        if !self.nis_only {
+            stats.push((
+                &acc.nees_sum,
+                &acc.nees_dof,
+                &acc.nees_count,
+                acc.nees_null_var,
+            ));
+        }
+        for (sum, dof, count, var) in stats {
+            let (s, d, c): (f64, f64, f64) =
+                (sum.iter().sum(), dof.iter().sum(), count.iter().sum());
+            if c <= 0.0 || d <= 0.0 {
+                continue;
+            }
+            let avg = s / c;
+            let k = if self.nis_only { 1 } else { 2 };
+            let (iv, _) = scaled_chi2_interval(gate_alpha(self.alpha, k), d, var.max(2.0 * d), c);
+            t.mean += w.mean * (avg / (d / c)).ln().powi(2);
+            t.interval += w.interval * outside(avg, &iv).powi(2);
+            if w.per_step > 0.0 {
+                let mut steps = 0.0;
+                let mut acc_h = 0.0;
+                for k in 0..sum.len() {
+                    if count[k] > 0.0 && dof[k] > 0.0 {
+                        let iv = self.step_interval(dof[k], count[k]);
+                        acc_h += outside(sum[k] / count[k], &iv).powi(2);
+                        steps += 1.0;
+                    }
+                }
+                if steps > 0.0 {
+                    t.per_step += w.per_step * acc_h / steps;
+                }
+            }
+        }
+        let mean_log_sq = |total: &[f64], samples: &[f64]| {
+            let mut s = 0.0;
+            let mut n = 0.0;
+            for (a, b) in total.iter().zip(samples) {
+                if *b > 0.0 {
+                    s += (a / b).ln().powi(2);
+                    n += 1.0;
+                }
+            }
+            if n > 0.0 { s / n } else { 0.0 }
+        };
+        t.components = w.components * mean_log_sq(&acc.meas_comp_total, &acc.meas_comp_samples);
+        if !self.nis_only {
+            t.components +=
+                w.components * mean_log_sq(&acc.state_comp_total, &acc.state_comp_samples);
+        }
+        let mut rho_sq = 0.0;
+        let mut nrho = 0.0;
+        for o in 0..acc.white_ab.len() {
+            let den = (acc.white_a2[o] * acc.white_b2[o]).sqrt();
+            if acc.white_pairs[o] > 0.0 && den > 0.0 {
+                rho_sq += (acc.white_ab[o] / den).powi(2);
+                nrho += 1.0;
+            }
+        }
+        if nrho > 0.0 {
+            t.whiteness = w.whiteness * rho_sq / nrho;
+        }
+        if w.shape > 0.0 && !self.nis_only {
+            let mut s = 0.0;
+            let mut n = 0.0;
+            for k in 0..acc.nees_sum.len() {
+                let c = acc.nees_count[k];
+                if c > 1.0 {
+                    let mean = acc.nees_sum[k] / c;
+                    let var = acc.nees_sq[k] / c - mean * mean;
+                    let target = 2.0 * acc.nees_dof[k] / c;
+                    if var > 0.0 {
+                        s += (var / target).ln().powi(2);
+                        n += 1.0;
+                    }
+                }
+            }
+            if n > 0.0 {
+                t.shape = w.shape * s / n;
+            }
+        }
+        t.total = t.mean + t.interval + t.per_step + t.components + t.whiteness + t.shape;
+        if !t.total.is_finite() {
+            return inf;
+        }
+        t
+    }
+}

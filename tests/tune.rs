@@ -1,0 +1,164 @@
+//! The tuner recovers the truth's noise parameters and its result passes the gate.
+
+mod common;
+
+use autotune::problem::Problem;
+use autotune::tune::{Scoring, Silent, TuneResult, TuneSettings, TuneStatus, tune};
+use common::{load, truth_values};
+use statrs::distribution::{Binomial, DiscreteCDF};
+
+/// Tune `p` from its shipped start (R parameters fixed at the truth if `fix_r`).
+fn run(p: &Problem, seed: u64, fix_r: bool, settings: &TuneSettings) -> TuneResult {
+    let truth = truth_values(p);
+    let mut start = p.params.values();
+    let fixed: Vec<bool> = p
+        .params
+        .params
+        .iter()
+        .map(|q| q.fixed || (fix_r && q.name.starts_with("r_")))
+        .collect();
+    for (i, f) in fixed.iter().enumerate() {
+        if *f && fix_r {
+            start[i] = truth[i];
+        }
+    }
+    let mut mc = p.mc;
+    mc.seed = seed;
+    let r = tune(p, &start, &fixed, &mc, settings, &Silent).unwrap();
+    eprintln!(
+        "{} seed {seed}: {:?}, {} evals in {:.2} s, J {:.3e} -> {:.3e}, tuned {:?}",
+        p.name,
+        r.status,
+        r.evaluations,
+        r.seconds,
+        r.objective_initial.total,
+        r.objective_final.total,
+        r.tuned
+    );
+    r
+}
+
+fn assert_within(p: &Problem, r: &TuneResult, tol: f64) {
+    let truth = truth_values(p);
+    for (i, q) in p.params.params.iter().enumerate() {
+        let ratio = r.tuned[i] / truth[i];
+        assert!(
+            (ratio - 1.0).abs() <= tol,
+            "{}: {} tuned {} truth {} (ratio {ratio:.4})",
+            p.name,
+            q.name,
+            r.tuned[i],
+            truth[i]
+        );
+    }
+}
+
+/// Confirmation is itself the gate on fresh seeds: for a filter at the truth it fails with
+/// probability at most α. Over k independent confirmations, allow the failures whose count
+/// has probability above 1% under Binomial(k, α).
+fn allowed_failures(k: u64, alpha: f64) -> u64 {
+    Binomial::new(alpha, k).unwrap().inverse_cdf(0.99)
+}
+
+#[test]
+fn default_settings_recover_every_shipped_problem_from_its_start() {
+    // The shipped starts are off by ×5 (cv1d), ×2.5 (cv2d) and two decades (dcmotor's
+    // torque noise); every free parameter must land within 15% of the truth, for every seed.
+    let mut confirmations = 0;
+    let mut failures = 0;
+    for name in ["cv1d", "cv2d", "dcmotor"] {
+        let p = load(name);
+        for seed in [11, 12, 13] {
+            let r = run(&p, seed, false, &TuneSettings::default());
+            assert_eq!(r.scoring, Scoring::Exact);
+            assert_within(&p, &r, 0.15);
+            assert_eq!(r.diverged_evaluations, 0);
+            confirmations += 1;
+            if r.status != TuneStatus::Consistent {
+                failures += 1;
+            }
+        }
+    }
+    assert!(
+        failures <= allowed_failures(confirmations, 0.05),
+        "{failures} of {confirmations} confirmations failed"
+    );
+}
+
+#[test]
+fn q_alone_is_recovered_with_r_fixed_at_the_truth() {
+    let mut failures = 0;
+    for name in ["cv1d", "cv2d", "dcmotor"] {
+        let p = load(name);
+        for seed in [21, 22] {
+            let r = run(&p, seed, true, &TuneSettings::default());
+            assert_within(&p, &r, 0.15);
+            for (i, q) in p.params.params.iter().enumerate() {
+                if q.name.starts_with("r_") {
+                    assert_eq!(r.tuned[i], truth_values(&p)[i], "fixed parameters stay put");
+                }
+            }
+            failures += u64::from(r.status != TuneStatus::Consistent);
+        }
+    }
+    assert!(
+        failures <= allowed_failures(6, 0.05),
+        "{failures} of 6 confirmations failed"
+    );
+}
+
+#[test]
+fn nis_only_tuning_passes_check() {
+    // Without ground truth the tuner sees only innovations: NIS, per-component ν²/S and
+    // whiteness. Its result must pass the full gate (NEES included) on the problem's seed.
+    let settings = TuneSettings {
+        nis_only: true,
+        ..TuneSettings::default()
+    };
+    for name in ["cv1d", "cv2d", "dcmotor"] {
+        let p = load(name);
+        let r = run(&p, p.mc.seed, false, &settings);
+        assert_within(&p, &r, 0.15);
+        let full = autotune::check::check(&p, &r.tuned, &p.mc, autotune::check::Engine::Auto, true);
+        assert!(full.verdict.passes(), "{name}: {:?}", full.verdict);
+    }
+}
+
+#[test]
+fn monte_carlo_scoring_recovers_too() {
+    // Common random numbers, no exact expectations: the path nonlinear problems take. The
+    // estimate carries Monte Carlo noise, so the tolerance is the 15%.
+    let settings = TuneSettings {
+        scoring: Scoring::MonteCarlo,
+        max_evals: 1500,
+        ..TuneSettings::default()
+    };
+    for name in ["cv1d", "cv2d"] {
+        let p = load(name);
+        for seed in [31, 32] {
+            let r = run(&p, seed, false, &settings);
+            assert_eq!(r.scoring, Scoring::MonteCarlo);
+            assert_within(&p, &r, 0.15);
+        }
+    }
+}
+
+#[test]
+fn diverging_candidates_are_counted_not_fatal() {
+    // Bounds that allow Q = 1e-12 and R = 1e-12 on cv2d: the global stage samples
+    // candidates whose S is numerically singular; they score +∞ and the search goes on.
+    let mut p = load("cv2d");
+    for q in &mut p.params.params {
+        q.lower = 1e-300;
+    }
+    // A filter with no process noise and no measurement noise cannot stay positive definite.
+    let kf = p.filter_at(&[1e-300, 1e-300, 1e-300, 1e-300]);
+    let acc = autotune::montecarlo::expected_accumulator(&p.truth, &kf, &p.mc.engine());
+    assert!(acc.is_err(), "the extreme candidate must diverge");
+    let r = run(&p, 5, false, &TuneSettings::default());
+    assert!(
+        r.diverged_evaluations > 0,
+        "no diverged candidates were sampled"
+    );
+    assert_within(&p, &r, 0.15);
+}

@@ -116,6 +116,8 @@ pub struct Problem {
     pub filter: FilterModel,
     /// Named parameters.
     pub params: ParamSpace,
+    /// The file's `[tune]` section, as written (the tuner validates it).
+    pub tune: spec::TuneSpec,
 }
 
 impl Problem {
@@ -711,6 +713,7 @@ impl Validator<'_> {
                 r,
             },
             params,
+            tune: s.tune.clone(),
         })
     }
 }

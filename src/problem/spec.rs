@@ -32,6 +32,29 @@ pub struct ProblemSpec {
     /// Named parameters, in file order.
     #[serde(default)]
     pub params: IndexMap<String, ParamSpec>,
+    /// Tuner settings (all optional).
+    #[serde(default)]
+    pub tune: TuneSpec,
+}
+
+/// `[tune]`: defaults for `autotune tune`, each overridable on the command line.
+#[derive(Debug, Clone, Default, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct TuneSpec {
+    /// Objective weights by term name (mean, interval, per_step, components, whiteness,
+    /// shape).
+    #[serde(default)]
+    pub weights: IndexMap<String, f64>,
+    /// Evaluation budget.
+    pub max_evals: Option<i64>,
+    /// Wall-time budget, s.
+    pub max_seconds: Option<f64>,
+    /// Local searches from the best global points.
+    pub starts: Option<i64>,
+    /// Score innovations only.
+    pub nis_only: Option<bool>,
+    /// "auto", "exact" or "monte_carlo".
+    pub scoring: Option<String>,
 }
 
 /// `[montecarlo]`.

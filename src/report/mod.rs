@@ -1,8 +1,10 @@
 //! Output: the human summary, JSON, JUnit XML, and tuned configs; every file is written
 //! atomically.
 
+pub mod advice;
 mod junit;
 mod summary;
+pub mod tune;
 pub mod tuned;
 
 pub use junit::junit_xml;

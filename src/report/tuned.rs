@@ -1,5 +1,5 @@
 //! Tuned configs: the parameter values (and the Q and R they give) that `autotune check
-//! --config` applies on top of a problem file.
+//! --config` applies on top of a problem file, with the provenance of the tuning run.
 
 use std::path::Path;
 
@@ -7,7 +7,8 @@ use indexmap::IndexMap;
 use serde::{Deserialize, Serialize};
 
 use crate::params::ParamSpace;
-use crate::problem::{ProblemError, parse_toml};
+use crate::problem::{Problem, ProblemError, parse_toml};
+use crate::tune::TuneResult;
 
 /// A tuned config as stored on disk.
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
@@ -15,23 +16,126 @@ use crate::problem::{ProblemError, parse_toml};
 pub struct TunedConfig {
     /// Name of the problem it was tuned for.
     pub problem: String,
-    /// Parameter values by name.
-    pub params: IndexMap<String, f64>,
-    /// Anything else the writer recorded (Q, R, provenance); not read back.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub provenance: Option<toml::Table>,
     /// Process noise covariance the parameters give, rows (informational).
     #[serde(default, rename = "Q", skip_serializing_if = "Option::is_none")]
     pub q: Option<Vec<Vec<f64>>>,
     /// Measurement noise covariance the parameters give, rows (informational).
     #[serde(default, rename = "R", skip_serializing_if = "Option::is_none")]
     pub r: Option<Vec<Vec<f64>>>,
+    /// Parameter values by name: what `check --config` applies.
+    pub params: IndexMap<String, f64>,
+    /// How the values were obtained (not read back).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub provenance: Option<toml::Table>,
+}
+
+/// Provenance recorded in a tuned config.
+#[derive(Debug, Clone, Serialize)]
+struct Provenance {
+    autotune_version: &'static str,
+    problem_file: String,
+    problem_sha256: String,
+    status: String,
+    scoring: String,
+    search_seed: toml::Value,
+    confirm_seed: toml::Value,
+    runs: usize,
+    steps: usize,
+    alpha: f64,
+    objective: f64,
+    evaluations: usize,
+    diverged_evaluations: usize,
+    seconds: f64,
+    confirmation: Confirmation,
+}
+
+#[derive(Debug, Clone, Serialize)]
+struct Confirmation {
+    verdict: String,
+    anees: Option<f64>,
+    anees_interval: Option<[f64; 2]>,
+    anis: f64,
+    anis_interval: [f64; 2],
+    nees_fraction_in_bounds: Option<f64>,
+    nis_fraction_in_bounds: f64,
+}
+
+/// A seed as a TOML value: TOML integers are 64-bit signed, so larger seeds are written as
+/// strings rather than lost.
+fn seed_value(seed: u64) -> toml::Value {
+    i64::try_from(seed).map_or_else(
+        |_| toml::Value::String(seed.to_string()),
+        toml::Value::Integer,
+    )
+}
+
+fn rows(m: &nalgebra::DMatrix<f64>) -> Vec<Vec<f64>> {
+    (0..m.nrows())
+        .map(|i| m.row(i).iter().copied().collect())
+        .collect()
+}
+
+/// The tuned config of a tuning run, as TOML text with a comment header.
+pub fn tuned_config_toml(problem: &Problem, result: &TuneResult) -> String {
+    let kf = problem.filter_at(&result.tuned);
+    let a = &result.after;
+    let prov = Provenance {
+        autotune_version: env!("CARGO_PKG_VERSION"),
+        problem_file: problem.path.display().to_string(),
+        problem_sha256: problem.hash.clone(),
+        status: format!("{:?}", result.status).to_lowercase(),
+        scoring: format!("{:?}", result.scoring).to_lowercase(),
+        search_seed: seed_value(result.search_seed),
+        confirm_seed: seed_value(result.confirm_seed),
+        runs: result.runs,
+        steps: result.steps,
+        alpha: result.alpha,
+        objective: result.objective_final.total,
+        evaluations: result.evaluations,
+        diverged_evaluations: result.diverged_evaluations,
+        seconds: (result.seconds * 1000.0).round() / 1000.0,
+        confirmation: Confirmation {
+            verdict: a.verdict.label().to_string(),
+            anees: a.nees.as_ref().map(|s| s.time_average),
+            anees_interval: a
+                .nees
+                .as_ref()
+                .map(|s| [s.interval.lower, s.interval.upper]),
+            anis: a.nis.time_average,
+            anis_interval: [a.nis.interval.lower, a.nis.interval.upper],
+            nees_fraction_in_bounds: a.nees.as_ref().map(|s| s.fraction_in_bounds),
+            nis_fraction_in_bounds: a.nis.fraction_in_bounds,
+        },
+    };
+    let cfg = TunedConfig {
+        problem: problem.name.clone(),
+        q: Some(rows(&kf.Q)),
+        r: Some(rows(&kf.R)),
+        params: result
+            .names
+            .iter()
+            .cloned()
+            .zip(result.tuned.iter().copied())
+            .collect(),
+        provenance: Some(toml::Table::try_from(&prov).expect("provenance is a plain table")),
+    };
+    let body = toml::to_string(&cfg).expect("a tuned config serializes");
+    format!(
+        "# Tuned by autotune {} from {}.\n# Check it with: autotune check {} --config <this file>\n{body}",
+        env!("CARGO_PKG_VERSION"),
+        problem.path.display(),
+        problem.path.display()
+    )
 }
 
 impl TunedConfig {
-    /// Read a tuned config and map its values onto `space`: every parameter of the problem
-    /// must be given, and nothing else.
-    pub fn load_values(path: &Path, space: &ParamSpace) -> Result<Vec<f64>, ProblemError> {
+    /// Read a tuned config for `problem` and map its values onto `space`: every parameter of
+    /// the problem must be given, and nothing else.
+    pub fn load_values(
+        path: &Path,
+        problem_name: &str,
+        space: &ParamSpace,
+    ) -> Result<Vec<f64>, ProblemError> {
         let err = |field: String, message: String| ProblemError {
             file: path.to_path_buf(),
             field,
@@ -41,6 +145,15 @@ impl TunedConfig {
         let text = std::fs::read_to_string(path)
             .map_err(|e| err(String::new(), format!("cannot read: {e}")))?;
         let cfg: TunedConfig = parse_toml(&text, path)?;
+        if cfg.problem != problem_name {
+            return Err(err(
+                "problem".into(),
+                format!(
+                    "this config was tuned for '{}', not '{problem_name}'",
+                    cfg.problem
+                ),
+            ));
+        }
         let mut values = space.values();
         for (name, &v) in &cfg.params {
             let Some(i) = space.index(name) else {

@@ -188,8 +188,9 @@ pub enum TuneError {
 /// The seed of the confirmation runs when none is given: a fixed mix of the search seed,
 /// never equal to it.
 pub fn default_confirm_seed(seed: u64) -> u64 {
-    let s = seed ^ 0xC0F1_B0A7_5EED_0001;
-    if s == seed { s.wrapping_add(1) } else { s }
+    // Flipping bits 0 and 40 changes the seed and keeps it below 2^63 when it was (TOML
+    // files store seeds as signed 64-bit integers).
+    seed ^ 0x0000_0100_0000_0001
 }
 
 struct Search<'a> {
@@ -633,4 +634,58 @@ fn resolution(search: &Search<'_>, y: &[f64], floor: f64, fixed: &[bool]) -> Vec
         }
     }
     out
+}
+
+impl TuneSettings {
+    /// Apply a problem file's `[tune]` section; errors name the field (`tune.…`).
+    pub fn apply_spec(&mut self, spec: &crate::problem::spec::TuneSpec) -> Result<(), TuneError> {
+        let err = |field: String, message: String| TuneError::Setting { field, message };
+        for (name, &v) in &spec.weights {
+            self.weights
+                .set(name, v)
+                .map_err(|m| err(format!("tune.weights.{name}"), m))?;
+        }
+        if let Some(n) = spec.max_evals {
+            if n < 1 {
+                return Err(err("tune.max_evals".into(), format!("{n} must be ≥ 1")));
+            }
+            self.max_evals = n as usize;
+        }
+        if let Some(s) = spec.max_seconds {
+            if !(s.is_finite() && s > 0.0) {
+                return Err(err("tune.max_seconds".into(), format!("{s} must be > 0")));
+            }
+            self.max_seconds = s;
+        }
+        if let Some(n) = spec.starts {
+            if n < 1 {
+                return Err(err("tune.starts".into(), format!("{n} must be ≥ 1")));
+            }
+            self.starts = n as usize;
+        }
+        if let Some(b) = spec.nis_only {
+            self.nis_only = b;
+        }
+        if let Some(s) = &spec.scoring {
+            self.scoring = Scoring::parse(s).ok_or_else(|| {
+                err(
+                    "tune.scoring".into(),
+                    format!("unknown scoring '{s}' (known: auto, exact, monte_carlo)"),
+                )
+            })?;
+        }
+        Ok(())
+    }
+}
+
+impl Scoring {
+    /// Parse "auto", "exact" or "monte_carlo" (also "monte-carlo").
+    pub fn parse(s: &str) -> Option<Scoring> {
+        match s {
+            "auto" => Some(Scoring::Auto),
+            "exact" => Some(Scoring::Exact),
+            "monte_carlo" | "monte-carlo" => Some(Scoring::MonteCarlo),
+            _ => None,
+        }
+    }
 }

@@ -1,0 +1,173 @@
+//! Per-parameter recommendations in the words filter designers use.
+
+use serde::Serialize;
+
+use crate::params::{Coef, CovModel};
+use crate::problem::Problem;
+use crate::stats::ConsistencyReport;
+use crate::tune::TuneResult;
+
+/// A change smaller than this factor (either way) is "about right".
+const NEGLIGIBLE: f64 = 1.1;
+
+/// One row of the recommendation table.
+#[derive(Debug, Clone, Serialize)]
+pub struct Recommendation {
+    /// Parameter name.
+    pub param: String,
+    /// Its unit.
+    pub unit: String,
+    /// What it models.
+    pub about: String,
+    /// Starting value.
+    pub initial: f64,
+    /// Tuned value.
+    pub tuned: f64,
+    /// tuned / initial.
+    pub factor: f64,
+    /// Held fixed during tuning.
+    pub fixed: bool,
+    /// Whether the data pin the parameter down (see [`crate::tune::Resolution`]).
+    pub identifiable: bool,
+    /// Factor within which the tuned value is determined, if known.
+    pub resolution: Option<f64>,
+    /// The components the parameter acts on, with their normalized errors in the starting
+    /// filter (target 1): `(name, value)`.
+    pub evidence: Vec<(String, f64)>,
+    /// The recommendation in words.
+    pub advice: String,
+}
+
+/// Indices of the diagonal entries parameter `i` touches in a covariance model.
+fn touched(model: &CovModel, i: usize) -> Vec<usize> {
+    let mut out = Vec::new();
+    for t in &model.terms {
+        if t.coef == Coef::Param(i) {
+            for j in 0..model.dim {
+                if t.basis[(j, j)] > 0.0 && !out.contains(&j) {
+                    out.push(j);
+                }
+            }
+        }
+    }
+    out
+}
+
+fn fmt_factor(f: f64) -> String {
+    if f >= 10.0 {
+        format!("{f:.0}")
+    } else {
+        format!("{f:.2}")
+    }
+}
+
+/// The recommendation table of a tuning run: one row per parameter.
+pub fn recommendations(
+    problem: &Problem,
+    result: &TuneResult,
+    before: &ConsistencyReport,
+) -> Vec<Recommendation> {
+    let mut rows = Vec::new();
+    for (i, p) in problem.params.params.iter().enumerate() {
+        let is_q = problem.filter.q.uses(i);
+        let (indices, comps, names) = if is_q {
+            (
+                touched(&problem.filter.q, i),
+                &before.state_components,
+                &problem.state_names,
+            )
+        } else {
+            (
+                touched(&problem.filter.r, i),
+                &before.measurement_components,
+                &problem.measurement_names,
+            )
+        };
+        let mut evidence: Vec<(String, f64)> = indices
+            .iter()
+            .filter_map(|&j| comps.get(j).map(|c| (names[j].clone(), c.value)))
+            .collect();
+        if is_q && evidence.is_empty() {
+            // NIS-only runs have no state components; fall back to the measurements.
+            evidence = before
+                .measurement_components
+                .iter()
+                .map(|c| (c.name.clone(), c.value))
+                .collect();
+        }
+        let initial = result.initial[i];
+        let tuned = result.tuned[i];
+        let factor = tuned / initial;
+        let res = result.resolution[i];
+        let what = if evidence.is_empty() {
+            p.name.clone()
+        } else {
+            let stat = if is_q && !before.state_components.is_empty() {
+                "e²/P"
+            } else {
+                "ν²/S"
+            };
+            let names: Vec<&str> = evidence.iter().map(|(n, _)| n.as_str()).collect();
+            let values: Vec<String> = evidence.iter().map(|(_, v)| format!("{v:.2}")).collect();
+            format!("{} ({stat} = {})", names.join(", "), values.join(", "))
+        };
+        let advice = if result.fixed[i] {
+            format!(
+                "{}: held fixed at {}",
+                p.name,
+                crate::report::fmt_g(initial)
+            )
+        } else if !res.identifiable {
+            format!(
+                "{}: not identifiable from this data (the objective is flat over more than a factor of 2); keep a prior value such as a datasheet's",
+                p.name
+            )
+        } else if factor > NEGLIGIBLE {
+            if is_q {
+                format!(
+                    "{}: {what} overconfident, increase ×{}",
+                    p.name,
+                    fmt_factor(factor)
+                )
+            } else {
+                format!(
+                    "{}: {what} sensor noise underestimated, increase ×{}",
+                    p.name,
+                    fmt_factor(factor)
+                )
+            }
+        } else if factor < 1.0 / NEGLIGIBLE {
+            if is_q {
+                format!(
+                    "{}: {what} underconfident, decrease ×{} (÷{})",
+                    p.name,
+                    fmt_factor(factor),
+                    fmt_factor(1.0 / factor)
+                )
+            } else {
+                format!(
+                    "{}: {what} sensor noise overestimated, decrease ×{} (÷{})",
+                    p.name,
+                    fmt_factor(factor),
+                    fmt_factor(1.0 / factor)
+                )
+            }
+        } else {
+            format!("{}: about right (×{})", p.name, fmt_factor(factor))
+        };
+        rows.push(Recommendation {
+            param: p.name.clone(),
+            unit: p.unit.clone(),
+            about: p.about.clone(),
+            initial,
+            tuned,
+            factor,
+            fixed: result.fixed[i],
+            identifiable: res.identifiable,
+            resolution: res.factor,
+            evidence,
+            advice,
+        });
+    }
+    rows
+}

@@ -1,0 +1,170 @@
+//! The report of a tuning run: Markdown for people, JSON for machines.
+
+use std::fmt::Write;
+
+use serde::Serialize;
+
+use super::advice::Recommendation;
+use super::fmt_g;
+use crate::problem::Problem;
+use crate::stats::{ConsistencyReport, StatisticSummary};
+use crate::tune::TuneResult;
+
+/// Everything a tuning report says, for machines.
+#[derive(Debug, Clone, Serialize)]
+pub struct TuneReport<'a> {
+    /// Problem name.
+    pub problem: &'a str,
+    /// Problem file.
+    pub file: String,
+    /// SHA-256 of the problem file.
+    pub problem_hash: &'a str,
+    /// autotune version.
+    pub version: &'static str,
+    /// The run's results (both consistency reports included).
+    pub result: &'a TuneResult,
+    /// Per-parameter recommendations.
+    pub recommendations: &'a [Recommendation],
+}
+
+fn stat_line(out: &mut String, label: &str, s: Option<&StatisticSummary>) {
+    match s {
+        Some(s) => {
+            let _ = write!(
+                out,
+                "| {label} | {:.4} | {:.2} | [{:.4}, {:.4}] | {:.1}% | {} |",
+                s.time_average,
+                s.target,
+                s.interval.lower,
+                s.interval.upper,
+                100.0 * s.fraction_in_bounds,
+                s.verdict.label()
+            );
+        }
+        None => {
+            let _ = write!(out, "| {label} | – | – | – | – | not used |");
+        }
+    }
+}
+
+fn stats_table(out: &mut String, before: &ConsistencyReport, after: &ConsistencyReport) {
+    out.push_str(
+        "| filter / statistic | time average | target | interval | steps in bounds | verdict |\n",
+    );
+    out.push_str("| --- | --- | --- | --- | --- | --- |\n");
+    for (name, r) in [("initial", before), ("tuned", after)] {
+        stat_line(out, &format!("{name} ANEES"), r.nees.as_ref());
+        out.push('\n');
+        stat_line(out, &format!("{name} ANIS"), Some(&r.nis));
+        out.push('\n');
+    }
+}
+
+/// The Markdown report.
+pub fn tune_markdown(problem: &Problem, r: &TuneResult, recs: &[Recommendation]) -> String {
+    let mut o = String::new();
+    let _ = writeln!(o, "# autotune: {}\n", problem.name);
+    if !problem.description.is_empty() {
+        let _ = writeln!(o, "{}\n", problem.description);
+    }
+    let _ = writeln!(
+        o,
+        "Problem file `{}` (sha256 `{}`), autotune {}.\n",
+        problem.path.display(),
+        &problem.hash[..problem.hash.len().min(12)],
+        env!("CARGO_PKG_VERSION")
+    );
+    let _ = writeln!(
+        o,
+        "**Verdict before: {}. After: {}.** Status: {:?}.\n",
+        r.before.verdict.label(),
+        r.after.verdict.label(),
+        r.status
+    );
+    let _ = writeln!(o, "## Recommendations\n");
+    for rec in recs {
+        let _ = writeln!(o, "- {}", rec.advice);
+    }
+    let _ = writeln!(
+        o,
+        "\n| parameter | unit | initial | tuned | factor | determined within | evidence (initial filter, target 1) |"
+    );
+    let _ = writeln!(o, "| --- | --- | --- | --- | --- | --- | --- |");
+    for rec in recs {
+        let res = match (rec.fixed, rec.identifiable, rec.resolution) {
+            (true, _, _) => "fixed".to_string(),
+            (false, false, _) => "**not identifiable**".to_string(),
+            (false, true, Some(f)) => format!("±{:.1}%", 100.0 * (f - 1.0)),
+            _ => "–".to_string(),
+        };
+        let ev: Vec<String> = rec
+            .evidence
+            .iter()
+            .map(|(n, v)| format!("{n} {v:.2}"))
+            .collect();
+        let _ = writeln!(
+            o,
+            "| `{}` | {} | {} | {} | ×{:.3} | {} | {} |",
+            rec.param,
+            rec.unit,
+            fmt_g(rec.initial),
+            fmt_g(rec.tuned),
+            rec.factor,
+            res,
+            ev.join(", ")
+        );
+    }
+    let _ = writeln!(
+        o,
+        "\n## Consistency before and after\n\nMonte Carlo on fresh seeds never used in the search (seed {}, N = {} runs × T = {} steps, α = {}).\n",
+        r.confirm_seed, r.runs, r.steps, r.alpha
+    );
+    stats_table(&mut o, &r.before, &r.after);
+    let _ = writeln!(
+        o,
+        "\nPer-component normalized errors of the tuned filter (target 1):\n"
+    );
+    let _ = writeln!(o, "| component | kind | value | interval | verdict |");
+    let _ = writeln!(o, "| --- | --- | --- | --- | --- |");
+    for c in r
+        .after
+        .state_components
+        .iter()
+        .chain(&r.after.measurement_components)
+    {
+        let _ = writeln!(
+            o,
+            "| {} | {} | {:.3} | [{:.3}, {:.3}] | {} |",
+            c.name,
+            c.kind,
+            c.value,
+            c.interval.lower,
+            c.interval.upper,
+            c.verdict.label()
+        );
+    }
+    let _ = writeln!(o, "\n## Search\n");
+    let _ = writeln!(
+        o,
+        "- scoring: {:?} (search seed {}), {} evaluations in {:.2} s, {} candidates diverged",
+        r.scoring, r.search_seed, r.evaluations, r.seconds, r.diverged_evaluations
+    );
+    let _ = writeln!(
+        o,
+        "- objective: {:.4e} at the start, {:.4e} tuned (terms: mean {:.2e}, interval {:.2e}, per-step {:.2e}, components {:.2e}, whiteness {:.2e}, shape {:.2e})",
+        r.objective_initial.total,
+        r.objective_final.total,
+        r.objective_final.mean,
+        r.objective_final.interval,
+        r.objective_final.per_step,
+        r.objective_final.components,
+        r.objective_final.whiteness,
+        r.objective_final.shape
+    );
+    let _ = writeln!(
+        o,
+        "- resolution: a parameter is \"determined within ±x%\" when moving it further (the others re-adjusting) raises the objective by more than its Monte Carlo noise level ({:.2e}) on the confirmation runs",
+        r.noise_floor
+    );
+    o
+}

@@ -369,20 +369,24 @@ impl ConsistencyReport {
         let state_components = components(
             "state",
             state_names,
-            &acc.state_comp_total,
-            &acc.state_comp_run_sum,
-            &acc.state_comp_run_sq,
-            &acc.state_comp_samples,
+            ComponentSums {
+                total: &acc.state_comp_total,
+                run_sum: &acc.state_comp_run_sum,
+                run_sq: &acc.state_comp_run_sq,
+                samples: &acc.state_comp_samples,
+            },
             acc.runs,
             z,
         );
         let measurement_components = components(
             "measurement",
             measurement_names,
-            &acc.meas_comp_total,
-            &acc.meas_comp_run_sum,
-            &acc.meas_comp_run_sq,
-            &acc.meas_comp_samples,
+            ComponentSums {
+                total: &acc.meas_comp_total,
+                run_sum: &acc.meas_comp_run_sum,
+                run_sq: &acc.meas_comp_run_sq,
+                samples: &acc.meas_comp_samples,
+            },
             acc.meas_comp_runs.iter().copied().max().unwrap_or(0),
             z,
         );
@@ -551,19 +555,30 @@ fn summarize(
     }
 }
 
+/// Sums behind one family of component statistics (see [`Accumulator`]).
+struct ComponentSums<'a> {
+    total: &'a [f64],
+    run_sum: &'a [f64],
+    run_sq: &'a [f64],
+    samples: &'a [f64],
+}
+
 /// Per-component averages with an interval from the spread of per-run averages: runs are
 /// independent, so the standard error of the mean of per-run time averages is valid however
 /// strongly a component's errors are correlated over time.
 fn components(
     kind: &'static str,
     names: &[String],
-    total: &[f64],
-    run_sum: &[f64],
-    run_sq: &[f64],
-    samples: &[f64],
+    sums: ComponentSums<'_>,
     runs: usize,
     z: f64,
 ) -> Vec<ComponentStat> {
+    let ComponentSums {
+        total,
+        run_sum,
+        run_sq,
+        samples,
+    } = sums;
     names
         .iter()
         .enumerate()

@@ -147,15 +147,14 @@ pub fn expected_accumulator(
             steady = Some(values);
         }
     }
-    for j in 0..n {
-        let a = comp_x[j] / settings.steps as f64;
-        acc.state_comp_run_sum[j] = runs * a;
-        acc.state_comp_run_sq[j] = runs * a * a;
+    let t = settings.steps as f64;
+    for (j, c) in comp_x.iter().enumerate() {
+        acc.state_comp_run_sum[j] = runs * c / t;
+        acc.state_comp_run_sq[j] = runs * (c / t).powi(2);
     }
-    for j in 0..m {
-        let a = comp_z[j] / settings.steps as f64;
-        acc.meas_comp_run_sum[j] = runs * a;
-        acc.meas_comp_run_sq[j] = runs * a * a;
+    for (j, c) in comp_z.iter().enumerate() {
+        acc.meas_comp_run_sum[j] = runs * c / t;
+        acc.meas_comp_run_sq[j] = runs * (c / t).powi(2);
         acc.meas_comp_runs[j] = settings.runs;
     }
     acc.runs = settings.runs;
@@ -222,14 +221,14 @@ impl StepValues {
         acc.nis_sq[i] = runs * self.nis_sq;
         acc.nis_dof[i] = runs * m as f64;
         acc.nis_count[i] = runs;
-        for j in 0..n {
-            comp_x[j] += self.comp_x[j];
-            acc.state_comp_total[j] += runs * self.comp_x[j];
+        for (j, (c, v)) in comp_x.iter_mut().zip(&self.comp_x).enumerate() {
+            *c += v;
+            acc.state_comp_total[j] += runs * v;
             acc.state_comp_samples[j] += runs;
         }
-        for j in 0..m {
-            comp_z[j] += self.comp_z[j];
-            acc.meas_comp_total[j] += runs * self.comp_z[j];
+        for (j, (c, v)) in comp_z.iter_mut().zip(&self.comp_z).enumerate() {
+            *c += v;
+            acc.meas_comp_total[j] += runs * v;
             acc.meas_comp_samples[j] += runs;
         }
         for lag in 1..=lags.min(k - 1).min(self.white.len()) {

@@ -211,6 +211,9 @@ struct Validator<'a> {
 
 type VResult<T> = Result<T, ProblemError>;
 
+/// A model's discrete transition F and, when given in continuous time, its A.
+type Dynamics = (DMatrix<f64>, Option<DMatrix<f64>>);
+
 impl Validator<'_> {
     fn err<T>(&self, field: impl Into<String>, message: impl Into<String>) -> VResult<T> {
         Err(ProblemError {
@@ -317,7 +320,7 @@ impl Validator<'_> {
         A: &Option<MatrixSpec>,
         dt: f64,
         n: Option<usize>,
-    ) -> VResult<Option<(DMatrix<f64>, Option<DMatrix<f64>>)>> {
+    ) -> VResult<Option<Dynamics>> {
         match (F, A) {
             (Some(_), Some(_)) => self.err(
                 format!("{section}.A"),

@@ -287,13 +287,10 @@ impl Search<'_> {
         Ok(j)
     }
 
-    fn exhausted(&self) -> bool {
-        self.evals.load(Ordering::SeqCst) >= self.max_evals || Instant::now() > self.deadline
-    }
-
-    /// Nelder–Mead from `y0` with initial steps `step` (log units); returns whether it
-    /// stopped for the budget.
-    fn nelder_mead(&self, y0: &[f64], step: f64) -> bool {
+    /// Nelder–Mead from `y0` with initial steps `step` (log units). Returns the best point
+    /// it found with its score, and whether it stopped for the budget (then the point is
+    /// the start, and the shared best point is the fallback).
+    fn nelder_mead(&self, y0: &[f64], step: f64) -> (Vec<f64>, f64, bool) {
         let d = y0.len();
         let mut simplex = vec![y0.to_vec()];
         for k in 0..d {
@@ -305,17 +302,36 @@ impl Search<'_> {
             };
             simplex.push(v);
         }
-        let solver = match NelderMead::new(simplex).with_sd_tolerance(1e-10) {
-            Ok(s) => s,
-            Err(_) => return false,
+        let failed = (y0.to_vec(), f64::INFINITY, true);
+        let Ok(solver) = NelderMead::new(simplex).with_sd_tolerance(1e-10) else {
+            return failed;
         };
         let problem = LocalProblem { search: self };
         let res = Executor::new(problem, solver)
             .configure(|s| s.max_iters((200 * d.max(1)) as u64))
             .run();
         match res {
-            Ok(r) => !r.state().get_termination_status().terminated() && self.exhausted(),
-            Err(_) => true,
+            Ok(r) => {
+                let st = r.state();
+                let y = st.get_best_param().cloned().unwrap_or_else(|| y0.to_vec());
+                (y, st.get_best_cost(), false)
+            }
+            Err(_) => failed,
+        }
+    }
+
+    /// One local search: Nelder–Mead, then a restart with a small simplex to polish (a
+    /// restart undoes Nelder–Mead's occasional collapse onto a subspace).
+    fn local(&self, y0: &[f64]) -> (Vec<f64>, f64, bool) {
+        let (y1, c1, hit) = self.nelder_mead(y0, 0.7);
+        if hit {
+            return (y1, c1, true);
+        }
+        let (y2, c2, hit) = self.nelder_mead(&y1, 0.1);
+        if c2 < c1 {
+            (y2, c2, hit)
+        } else {
+            (y1, c1, hit)
         }
     }
 }
@@ -422,6 +438,7 @@ pub fn tune(
     let d = y0.len();
 
     let mut budget_hit = false;
+    let mut local_best: Option<(f64, Vec<f64>)> = None;
     if d > 0 {
         // Global stage. Exact scoring is sequential inside, so candidates run in parallel;
         // Monte Carlo scoring is parallel inside, so candidates run one after another.
@@ -468,27 +485,33 @@ pub fn tune(
             starts.push(y0.clone());
         }
         observer.phase("local");
-        let local = |s: &Vec<f64>| {
-            let mut hit = search.nelder_mead(s, 0.7);
-            let polish_from = search.best.lock().expect("lock").1.clone();
-            if !hit && !polish_from.is_empty() {
-                hit = search.nelder_mead(&polish_from, 0.1);
-            }
-            hit
-        };
-        let hits: Vec<bool> = if exact {
-            starts.par_iter().map(local).collect()
+        // Each start's search depends only on its start, and results are compared in start
+        // order, so the outcome does not depend on the thread count (unless the budget runs
+        // out mid-way, when the best point seen so far is taken).
+        let results: Vec<(Vec<f64>, f64, bool)> = if exact {
+            starts.par_iter().map(|s| search.local(s)).collect()
         } else {
-            starts.iter().map(local).collect()
+            starts.iter().map(|s| search.local(s)).collect()
         };
-        budget_hit = hits.iter().any(|&h| h);
-        // A final polish from the overall best.
-        let best_y = search.best.lock().expect("lock").1.clone();
-        if !best_y.is_empty() && !search.exhausted() {
-            budget_hit |= search.nelder_mead(&best_y, 0.05);
+        budget_hit = results.iter().any(|r| r.2);
+        let mut best: Option<(Vec<f64>, f64)> = None;
+        for (y, c, _) in results {
+            if c.is_finite() && best.as_ref().is_none_or(|b| c < b.1) {
+                best = Some((y, c));
+            }
+        }
+        if let Some((y, c)) = best
+            && !budget_hit
+        {
+            let (y2, c2, hit) = search.local(&y);
+            budget_hit |= hit;
+            local_best = Some(if c2 < c { (c2, y2) } else { (c, y) });
         }
     }
-    let (best_j, best_y) = search.best.lock().expect("lock").clone();
+    let (best_j, best_y) = match local_best {
+        Some(b) if !budget_hit => b,
+        _ => search.best.lock().expect("lock").clone(),
+    };
     let tuned = if best_y.is_empty() {
         start.to_vec()
     } else {

@@ -1,0 +1,183 @@
+//! `autotune tune` from the command line: outputs, words, errors.
+
+mod common;
+
+use assert_cmd::Command;
+use common::problem_path;
+
+fn autotune() -> Command {
+    Command::cargo_bin("autotune").unwrap()
+}
+
+#[test]
+fn cv2d_report_says_which_axis_and_by_what_factor() {
+    // The shipped cv2d start copies one guess to both axes: x's acceleration noise is too
+    // small (truth 0.5, start 0.2) and y's too large (truth 0.1, start 0.2); the x sensor is
+    // better than believed (1 vs 2 m²) and the y sensor worse (4 vs 2 m²).
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("cv2d.toml");
+    let rep = dir.path().join("report");
+    let assert = autotune()
+        .arg("tune")
+        .arg(problem_path("cv2d"))
+        .arg("--out")
+        .arg(&out)
+        .arg("--report")
+        .arg(&rep)
+        .assert()
+        .code(0);
+    let stdout = String::from_utf8(assert.get_output().stdout.clone()).unwrap();
+    let md = std::fs::read_to_string(rep.join("report.md")).unwrap();
+    for text in [&stdout, &md] {
+        assert!(text.contains("q_accel_x: x, vx (e²/P = "), "{text}");
+        assert!(text.contains("overconfident, increase ×2.50"), "{text}");
+        assert!(text.contains("q_accel_y: y, vy"), "{text}");
+        assert!(
+            text.contains("underconfident, decrease ×0.50 (÷2.00)"),
+            "{text}"
+        );
+        assert!(text.contains("r_pos_x: x (ν²/S = "), "{text}");
+        assert!(
+            text.contains("sensor noise overestimated, decrease ×0.50"),
+            "{text}"
+        );
+        assert!(text.contains("r_pos_y: y (ν²/S = "), "{text}");
+        assert!(
+            text.contains("sensor noise underestimated, increase ×2.00"),
+            "{text}"
+        );
+    }
+    assert!(
+        md.contains("Verdict before: overconfident. After: consistent."),
+        "{md}"
+    );
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(rep.join("report.json")).unwrap()).unwrap();
+    assert_eq!(json["result"]["status"], "consistent");
+    assert_eq!(json["recommendations"].as_array().unwrap().len(), 4);
+
+    // The tuned config is what `check --config` reads, with its provenance.
+    let cfg = std::fs::read_to_string(&out).unwrap();
+    for key in [
+        "problem = \"cv2d\"",
+        "[params]",
+        "problem_sha256",
+        "search_seed",
+        "confirm_seed",
+        "objective",
+        "autotune_version",
+        "[provenance.confirmation]",
+    ] {
+        assert!(cfg.contains(key), "missing {key}: {cfg}");
+    }
+    autotune()
+        .arg("check")
+        .arg(problem_path("cv2d"))
+        .arg("--config")
+        .arg(&out)
+        .assert()
+        .code(0);
+}
+
+#[test]
+fn shipped_tuned_configs_pass_check() {
+    for name in ["cv1d", "cv2d", "dcmotor"] {
+        let cfg = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("tuned")
+            .join(format!("{name}.toml"));
+        autotune()
+            .arg("check")
+            .arg(problem_path(name))
+            .arg("--config")
+            .arg(&cfg)
+            .assert()
+            .code(0);
+    }
+}
+
+#[test]
+fn fixing_r_and_nis_only_from_the_cli() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("t.toml");
+    autotune()
+        .arg("tune")
+        .arg(problem_path("cv2d"))
+        .args([
+            "--fix",
+            "r_pos_x=1",
+            "--fix",
+            "r_pos_y=4",
+            "--quiet",
+            "--out",
+        ])
+        .arg(&out)
+        .assert()
+        .code(0)
+        .stdout("");
+    let cfg = std::fs::read_to_string(&out).unwrap();
+    assert!(
+        cfg.contains("r_pos_x = 1.0\n") && cfg.contains("r_pos_y = 4.0\n"),
+        "{cfg}"
+    );
+    autotune()
+        .arg("tune")
+        .arg(problem_path("cv1d"))
+        .args(["--nis-only", "--quiet", "--out"])
+        .arg(&out)
+        .assert()
+        .code(0);
+    autotune()
+        .arg("check")
+        .arg(problem_path("cv1d"))
+        .arg("--config")
+        .arg(&out)
+        .assert()
+        .code(0);
+}
+
+#[test]
+fn bad_tune_options_are_one_line_errors_with_exit_2() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("never.toml");
+    let cases: &[(&[&str], &str)] = &[
+        (&["--max-evals", "0"], "--max-evals"),
+        (&["--max-seconds", "0"], "--max-seconds"),
+        (&["--fix", "q_nothing"], "--fix"),
+        (&["--weight", "colour=1"], "--weight"),
+        (&["--weight", "mean=-1"], "--weight"),
+        (&["--scoring", "magic"], "--scoring"),
+        (&["--set", "q_accel_x=1e9"], "--set"),
+        (&["--runs", "abc"], "--runs"),
+    ];
+    for (args, field) in cases {
+        let a = autotune()
+            .arg("tune")
+            .arg(problem_path("cv2d"))
+            .args(*args)
+            .arg("--out")
+            .arg(&out)
+            .assert()
+            .code(2);
+        let err = String::from_utf8(a.get_output().stderr.clone()).unwrap();
+        assert_eq!(err.trim_end().lines().count(), 1, "{args:?}: {err}");
+        assert!(err.contains(field), "{args:?}: {err}");
+        assert!(!out.exists(), "{args:?} wrote a file");
+    }
+    // The same budget error from the problem file names the file and the field.
+    let text = std::fs::read_to_string(problem_path("cv1d")).unwrap() + "\n[tune]\nmax_evals = 0\n";
+    let file = dir.path().join("p.toml");
+    std::fs::write(&file, text).unwrap();
+    let a = autotune()
+        .arg("tune")
+        .arg(&file)
+        .arg("--out")
+        .arg(&out)
+        .assert()
+        .code(2);
+    let err = String::from_utf8(a.get_output().stderr.clone()).unwrap();
+    assert!(
+        err.contains("p.toml") && err.contains("tune.max_evals"),
+        "{err}"
+    );
+    assert!(!out.exists());
+}

@@ -110,6 +110,33 @@ fn dot(a: &[f64], b: &[f64]) -> f64 {
     (p[0] + p[1]) + (p[2] + p[3]) + tail
 }
 
+/// `c ← α a b + β c` where `a` and `c` hold one run per row (B × k and B × n) and `b` is a
+/// small k × n matrix. Each output column is a sum of k scaled columns of `a`, so the inner
+/// loop runs over the B runs on contiguous memory and vectorizes. (nalgebra's `gemm` takes
+/// the same approach below six columns but through strided generic iterators that cost
+/// several times more per element here.)
+fn gemm_rows(c: &mut DMatrix<f64>, alpha: f64, a: &DMatrix<f64>, b: &DMatrix<f64>, beta: f64) {
+    let rows = a.nrows();
+    debug_assert_eq!(a.ncols(), b.nrows());
+    debug_assert_eq!(c.shape(), (rows, b.ncols()));
+    for j in 0..b.ncols() {
+        let cj = col_mut(c, j);
+        if beta == 0.0 {
+            cj.fill(0.0);
+        } else if beta != 1.0 {
+            cj.iter_mut().for_each(|v| *v *= beta);
+        }
+        for l in 0..a.ncols() {
+            let s = alpha * b[(l, j)];
+            if s != 0.0 {
+                for (x, y) in cj.iter_mut().zip(col(a, l)) {
+                    *x += s * y;
+                }
+            }
+        }
+    }
+}
+
 /// Column `j` of a column-major B-row matrix as a slice.
 fn col(m: &DMatrix<f64>, j: usize) -> &[f64] {
     let b = m.nrows();
@@ -160,7 +187,7 @@ fn chunk(
     let mut e = DMatrix::zeros(b, n);
     let mut we = DMatrix::zeros(b, n);
     let mut vn = DMatrix::zeros(b, m);
-    let mut sq = DVector::zeros(b);
+    let mut sq = vec![0.0; b];
     // Per-run sums of e_j²/P_jj and u_j², and the last `lags` normalized innovations.
     let mut run_x = DMatrix::<f64>::zeros(b, n);
     let mut run_z = DMatrix::<f64>::zeros(b, m);
@@ -179,21 +206,27 @@ fn chunk(
                 wr[(c, r)] = rng.sample(StandardNormal);
             }
         }
-        tmp.gemm(1.0, &xt, &ft_t, 0.0);
-        tmp.gemm(1.0, &wq, &lq_t, 1.0);
+        gemm_rows(&mut tmp, 1.0, &xt, &ft_t, 0.0);
+        gemm_rows(&mut tmp, 1.0, &wq, &lq_t, 1.0);
         std::mem::swap(&mut xt, &mut tmp);
-        z.gemm(1.0, &xt, &ht_t, 0.0);
-        z.gemm(1.0, &wr, &lr_t, 1.0);
+        gemm_rows(&mut z, 1.0, &xt, &ht_t, 0.0);
+        gemm_rows(&mut z, 1.0, &wr, &lr_t, 1.0);
 
-        tmp.gemm(1.0, &xh, &ff_t, 0.0);
+        gemm_rows(&mut tmp, 1.0, &xh, &ff_t, 0.0);
         std::mem::swap(&mut xh, &mut tmp);
         nu.copy_from(&z);
-        nu.gemm(-1.0, &xh, &hf_t, 1.0);
-        xh.gemm(1.0, &nu, &sched.Kt[i], 1.0);
-        e.copy_from(&xt);
-        e -= &xh;
-        we.gemm(1.0, &e, &sched.Wt[i], 0.0);
-        vn.gemm(1.0, &nu, &sched.Vt[i], 0.0);
+        gemm_rows(&mut nu, -1.0, &xh, &hf_t, 1.0);
+        gemm_rows(&mut xh, 1.0, &nu, &sched.Kt[i], 1.0);
+        for ((ev, t), h) in e
+            .as_mut_slice()
+            .iter_mut()
+            .zip(xt.as_slice())
+            .zip(xh.as_slice())
+        {
+            *ev = t - h;
+        }
+        gemm_rows(&mut we, 1.0, &e, &sched.Wt[i], 0.0);
+        gemm_rows(&mut vn, 1.0, &nu, &sched.Vt[i], 0.0);
 
         // NEES and NIS per run are row norms.
         for (mat, sum, sqsum) in [
@@ -206,8 +239,8 @@ fn chunk(
                     *s += v * v;
                 }
             }
-            *sum += sq.sum();
-            *sqsum += dot(sq.as_slice(), sq.as_slice());
+            *sum += sq.iter().sum::<f64>();
+            *sqsum += dot(&sq, &sq);
         }
         acc.nees_dof[i] += (n * b) as f64;
         acc.nees_count[i] += b as f64;

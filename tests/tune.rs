@@ -162,3 +162,30 @@ fn diverging_candidates_are_counted_not_fatal() {
     );
     assert_within(&p, &r, 0.15);
 }
+
+#[test]
+fn flat_directions_are_reported_not_given_a_confident_number() {
+    // Two parameters scaling the same DWNA block: only their sum is determined by any data,
+    // so each alone lies on a flat valley of the objective. The measurement noise stays
+    // identifiable.
+    let text = std::fs::read_to_string(common::problem_path("cv1d")).unwrap();
+    let text = text.replace(
+        r#"Q = [{ kind = "dwna", indices = [0, 1], param = "q_accel" }]"#,
+        r#"Q = [{ kind = "dwna", indices = [0, 1], param = "q_accel" }, { kind = "dwna", indices = [0, 1], param = "q_twin" }]"#,
+    ) + "\n[params.q_twin]\nvalue = 0.1\nunit = \"(m/s²)²\"\n";
+    assert!(text.contains("q_twin\" }]"));
+    let p = Problem::from_toml(&text, std::path::Path::new("twin.toml")).unwrap();
+    let start = p.params.values();
+    let fixed = vec![false; 3];
+    let r = tune(&p, &start, &fixed, &p.mc, &TuneSettings::default(), &Silent).unwrap();
+    let idx = |n: &str| p.params.index(n).unwrap();
+    assert!(!r.resolution[idx("q_accel")].identifiable, "{:?}", r.resolution);
+    assert!(!r.resolution[idx("q_twin")].identifiable, "{:?}", r.resolution);
+    assert!(r.resolution[idx("r_pos")].identifiable, "{:?}", r.resolution);
+    // The sum is still right.
+    let sum = r.tuned[idx("q_accel")] + r.tuned[idx("q_twin")];
+    assert!((sum / 0.5 - 1.0).abs() < 0.05, "sum {sum}");
+    let recs = autotune::report::advice::recommendations(&p, &r, &r.before);
+    assert!(recs[idx("q_twin")].advice.contains("not identifiable"), "{}", recs[idx("q_twin")].advice);
+    assert!(!recs[idx("r_pos")].advice.contains("not identifiable"));
+}

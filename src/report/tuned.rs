@@ -45,7 +45,6 @@ struct Provenance {
     objective: f64,
     evaluations: usize,
     diverged_evaluations: usize,
-    seconds: f64,
     confirmation: Confirmation,
 }
 
@@ -93,7 +92,6 @@ pub fn tuned_config_toml(problem: &Problem, result: &TuneResult) -> String {
         objective: result.objective_final.total,
         evaluations: result.evaluations,
         diverged_evaluations: result.diverged_evaluations,
-        seconds: (result.seconds * 1000.0).round() / 1000.0,
         confirmation: Confirmation {
             verdict: a.verdict.label().to_string(),
             anees: a.nees.as_ref().map(|s| s.time_average),

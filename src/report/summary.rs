@@ -36,7 +36,7 @@ pub fn summary_text(problem: &str, params: &[(String, f64)], r: &ConsistencyRepo
     }
     let _ = writeln!(
         out,
-        "  stat    time-avg  target   interval (1-α)       in bounds   verdict"
+        "  stat    time-avg  target   gate interval        in bounds   verdict"
     );
     let stats: Vec<&StatisticSummary> = r.nees.iter().chain(std::iter::once(&r.nis)).collect();
     for s in &stats {

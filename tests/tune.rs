@@ -179,13 +179,29 @@ fn flat_directions_are_reported_not_given_a_confident_number() {
     let fixed = vec![false; 3];
     let r = tune(&p, &start, &fixed, &p.mc, &TuneSettings::default(), &Silent).unwrap();
     let idx = |n: &str| p.params.index(n).unwrap();
-    assert!(!r.resolution[idx("q_accel")].identifiable, "{:?}", r.resolution);
-    assert!(!r.resolution[idx("q_twin")].identifiable, "{:?}", r.resolution);
-    assert!(r.resolution[idx("r_pos")].identifiable, "{:?}", r.resolution);
+    assert!(
+        !r.resolution[idx("q_accel")].identifiable,
+        "{:?}",
+        r.resolution
+    );
+    assert!(
+        !r.resolution[idx("q_twin")].identifiable,
+        "{:?}",
+        r.resolution
+    );
+    assert!(
+        r.resolution[idx("r_pos")].identifiable,
+        "{:?}",
+        r.resolution
+    );
     // The sum is still right.
     let sum = r.tuned[idx("q_accel")] + r.tuned[idx("q_twin")];
     assert!((sum / 0.5 - 1.0).abs() < 0.05, "sum {sum}");
     let recs = autotune::report::advice::recommendations(&p, &r, &r.before);
-    assert!(recs[idx("q_twin")].advice.contains("not identifiable"), "{}", recs[idx("q_twin")].advice);
+    assert!(
+        recs[idx("q_twin")].advice.contains("not identifiable"),
+        "{}",
+        recs[idx("q_twin")].advice
+    );
     assert!(!recs[idx("r_pos")].advice.contains("not identifiable"));
 }

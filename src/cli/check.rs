@@ -7,7 +7,8 @@ use std::process::ExitCode;
 use anyhow::Context;
 use autotune::check::{Engine, check};
 use autotune::problem::Problem;
-use autotune::report::{CheckOutput, junit_xml, summary_text, tuned::TunedConfig, write_atomic};
+use autotune::report::html::{check_html, check_markdown};
+use autotune::report::{CheckOutput, junit_xml, summary_text, tuned::TunedConfig, write_atomic, write_report_dir};
 
 #[derive(Debug, Clone, Copy, clap::ValueEnum)]
 enum EngineArg {
@@ -31,6 +32,9 @@ pub struct CheckArgs {
     /// Print the full statistics as JSON on stdout instead of the summary.
     #[arg(long)]
     json: bool,
+    /// Write report.html, report.md and report.json into this directory.
+    #[arg(long, value_name = "DIR")]
+    report: Option<PathBuf>,
     /// Also write a JUnit XML report to this file.
     #[arg(long, value_name = "FILE")]
     junit: Option<PathBuf>,
@@ -69,21 +73,38 @@ pub fn run(a: CheckArgs) -> anyhow::Result<ExitCode> {
         write_atomic(path, junit_xml(&problem.name, &report).as_bytes())
             .with_context(|| format!("writing {}", path.display()))?;
     }
+    let out = CheckOutput {
+        problem: &problem.name,
+        file: problem.path.display().to_string(),
+        problem_hash: &problem.hash,
+        seed: mc.seed,
+        params: params.clone(),
+        report: &report,
+        version: env!("CARGO_PKG_VERSION"),
+    };
+    let json = serde_json::to_string_pretty(&out)?;
+    if let Some(dir) = &a.report {
+        write_report_dir(
+            dir,
+            &check_html(&problem, &params, &report),
+            &check_markdown(&problem, &params, &report),
+            &json,
+        )
+        .with_context(|| format!("writing the report into {}", dir.display()))?;
+    }
     let mut stdout = std::io::stdout().lock();
     if a.json {
-        let out = CheckOutput {
-            problem: &problem.name,
-            file: problem.path.display().to_string(),
-            problem_hash: &problem.hash,
-            seed: mc.seed,
-            params,
-            report: &report,
-            version: env!("CARGO_PKG_VERSION"),
-        };
-        serde_json::to_writer_pretty(&mut stdout, &out)?;
+        stdout.write_all(json.as_bytes())?;
         writeln!(stdout)?;
     } else if !a.quiet {
-        write!(stdout, "{}", summary_text(&problem.name, &params, &report))?;
+        let text = summary_text(&problem.name, &params, &report);
+        for line in text.lines() {
+            if line.starts_with("verdict:") {
+                writeln!(stdout, "{}", super::paint_verdict(line, report.verdict.passes()))?;
+            } else {
+                writeln!(stdout, "{line}")?;
+            }
+        }
     }
     stdout.flush()?;
     Ok(if report.verdict.passes() {

@@ -84,6 +84,23 @@ fn parse_positive(flag: &str, name: &str, value: &str) -> Result<f64, ProblemErr
         .ok_or_else(|| option_error(flag, format!("{name}: '{value}' is not a number > 0")))
 }
 
+/// Whether to colour stdout: only on a terminal, and never when `NO_COLOR` is set to
+/// anything non-empty (<https://no-color.org>).
+pub fn colour_enabled() -> bool {
+    use std::io::IsTerminal;
+    std::env::var_os("NO_COLOR").is_none_or(|v| v.is_empty()) && std::io::stdout().is_terminal()
+}
+
+/// `line` in bold green (pass) or bold red (fail) when colour is enabled.
+pub fn paint_verdict(line: &str, pass: bool) -> String {
+    if colour_enabled() {
+        let code = if pass { "1;32" } else { "1;31" };
+        format!("\x1b[{code}m{line}\x1b[0m")
+    } else {
+        line.to_string()
+    }
+}
+
 /// Largest number of steps per run: the per-step sums take memory proportional to T.
 const MAX_STEPS: usize = 50_000_000;
 

@@ -9,7 +9,8 @@ use autotune::problem::Problem;
 use autotune::report::advice::recommendations;
 use autotune::report::tune::{TuneReport, tune_markdown};
 use autotune::report::tuned::tuned_config_toml;
-use autotune::report::{fmt_g, write_atomic};
+use autotune::report::html::tune_html;
+use autotune::report::{fmt_g, write_atomic, write_report_dir};
 use autotune::tune::{Observer, Scoring, TuneSettings, TuneStatus, tune};
 use indicatif::{ProgressBar, ProgressStyle};
 
@@ -22,7 +23,7 @@ pub struct TuneArgs {
     /// Where to write the tuned config (default: tuned/<name>.toml).
     #[arg(long, value_name = "FILE")]
     out: Option<PathBuf>,
-    /// Write report.md and report.json into this directory.
+    /// Write report.html, report.md and report.json into this directory.
     #[arg(long, value_name = "DIR")]
     report: Option<PathBuf>,
     #[command(flatten)]
@@ -200,15 +201,14 @@ pub fn run(a: TuneArgs) -> anyhow::Result<ExitCode> {
     };
     let json = serde_json::to_string_pretty(&report)?;
     if let Some(dir) = &a.report {
-        write_atomic(
-            &dir.join("report.md"),
-            tune_markdown(&problem, &result, &recs).as_bytes(),
+        write_report_dir(
+            dir,
+            &tune_html(&problem, &result, &recs),
+            &tune_markdown(&problem, &result, &recs),
+            &json,
         )
-        .with_context(|| format!("writing {}", dir.join("report.md").display()))?;
-        write_atomic(&dir.join("report.json"), json.as_bytes())
-            .with_context(|| format!("writing {}", dir.join("report.json").display()))?;
+        .with_context(|| format!("writing the report into {}", dir.display()))?;
     }
-
     let mut stdout = std::io::stdout().lock();
     if a.json {
         writeln!(stdout, "{json}")?;
@@ -253,14 +253,14 @@ pub fn run(a: TuneArgs) -> anyhow::Result<ExitCode> {
         )?;
         writeln!(stdout, "  wrote {}", out.display())?;
         if let Some(dir) = &a.report {
-            writeln!(stdout, "  wrote {}/report.md, report.json", dir.display())?;
+            writeln!(stdout, "  wrote {}/report.html, report.md, report.json", dir.display())?;
         }
-        writeln!(
-            stdout,
+        let verdict = format!(
             "verdict: before {}, after {}",
             result.before.verdict.label(),
             result.after.verdict.describe()
-        )?;
+        );
+        writeln!(stdout, "{}", super::paint_verdict(&verdict, result.status == TuneStatus::Consistent))?;
     }
     stdout.flush()?;
     Ok(if result.status == TuneStatus::Consistent {

@@ -1,0 +1,211 @@
+//! Self-contained HTML reports: inline SVG plots and tables, no scripts, no network.
+
+use std::fmt::Write;
+
+use super::advice::Recommendation;
+use super::fmt_g;
+use super::plots::{components_svg, objective_svg, statistic_svg, whiteness_svg};
+use crate::problem::Problem;
+use crate::stats::{ConsistencyReport, StatisticSummary};
+use crate::tune::TuneResult;
+
+/// Escape text for HTML and XML.
+pub fn escape(s: &str) -> String {
+    let mut o = String::with_capacity(s.len());
+    for c in s.chars() {
+        match c {
+            '&' => o.push_str("&amp;"),
+            '<' => o.push_str("&lt;"),
+            '>' => o.push_str("&gt;"),
+            '"' => o.push_str("&quot;"),
+            '\'' => o.push_str("&apos;"),
+            c => o.push(c),
+        }
+    }
+    o
+}
+
+const STYLE: &str = "body{font-family:sans-serif;max-width:1400px;margin:1em auto;padding:0 1em;color:#111}\
+table{border-collapse:collapse;margin:.5em 0}td,th{border:1px solid #999;padding:3px 8px;text-align:left}\
+th{background:#e6e6e6}.row{display:flex;flex-wrap:wrap;gap:12px}.row figure{margin:0;max-width:640px}\
+figcaption{font-size:90%;color:#333}.verdict{font-size:120%;font-weight:bold}\
+svg{max-width:100%;height:auto}code{background:#f0f0f0;padding:0 3px}";
+
+fn head(o: &mut String, title: &str) {
+    let _ = write!(
+        o,
+        "<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\"><title>{}</title><style>{STYLE}</style></head><body>\n",
+        escape(title)
+    );
+}
+
+fn figure(o: &mut String, svg: &str, caption: &str) {
+    let _ = write!(o, "<figure>{svg}<figcaption>{}</figcaption></figure>\n", escape(caption));
+}
+
+fn stat_rows(o: &mut String, label: &str, s: &StatisticSummary) {
+    let _ = writeln!(
+        o,
+        "<tr><td>{}</td><td>{:.4}</td><td>{:.3}</td><td>[{:.4}, {:.4}]</td><td>{:.1}%</td><td>{}</td></tr>",
+        escape(label),
+        s.time_average,
+        s.target,
+        s.interval.lower,
+        s.interval.upper,
+        100.0 * s.fraction_in_bounds,
+        s.verdict.label()
+    );
+}
+
+fn stats_table(o: &mut String, reports: &[(&str, &ConsistencyReport)]) {
+    o.push_str("<table><tr><th>filter / statistic</th><th>time average</th><th>target</th><th>gate interval</th><th>steps in per-step band</th><th>verdict</th></tr>\n");
+    for (name, r) in reports {
+        if let Some(n) = &r.nees {
+            stat_rows(o, &format!("{name} ANEES"), n);
+        }
+        stat_rows(o, &format!("{name} ANIS"), &r.nis);
+    }
+    o.push_str("</table>\n");
+}
+
+/// Plots of one consistency report, side by side with another's where given.
+fn plots(o: &mut String, reports: &[(&str, &ConsistencyReport)]) {
+    let stats: Vec<(&str, Vec<(&str, &StatisticSummary)>)> = vec![
+        ("ANEES", reports.iter().filter_map(|(n, r)| r.nees.as_ref().map(|s| (*n, s))).collect()),
+        ("ANIS", reports.iter().map(|(n, r)| (*n, &r.nis)).collect()),
+    ];
+    for (name, series) in stats {
+        if series.is_empty() {
+            continue;
+        }
+        let _ = writeln!(o, "<h2>{name} over time</h2><div class=\"row\">");
+        for (label, s) in series {
+            figure(
+                o,
+                &statistic_svg(&format!("{name}_k, {label} filter"), s),
+                &format!(
+                    "{label}: {name}_k averaged over {} runs at each step; grey band: per-step (1-α) chi-square interval; dashed: DOF target; crosses: steps outside the band.",
+                    reports[0].1.runs
+                ),
+            );
+        }
+        o.push_str("</div>\n");
+    }
+    o.push_str("<h2>Per-component normalized errors</h2><div class=\"row\">");
+    for (label, r) in reports {
+        let comps: Vec<_> = r.state_components.iter().chain(&r.measurement_components).cloned().collect();
+        figure(
+            o,
+            &components_svg(&format!("components, {label} filter"), &comps),
+            &format!("{label}: mean e_j²/P_jj per state and ν_j²/S_jj per measurement component; bars with their interval around the target 1."),
+        );
+    }
+    o.push_str("</div>\n<h2>Innovation whiteness</h2><div class=\"row\">");
+    for (label, r) in reports {
+        figure(
+            o,
+            &whiteness_svg(&format!("innovation autocorrelation, {label} filter"), &r.whiteness),
+            &format!("{label}: normalized autocorrelation of ν_j/√S_jj by lag; a consistent filter's innovations are white and stay inside the grey band."),
+        );
+    }
+    o.push_str("</div>\n");
+}
+
+/// The HTML report of `autotune check`.
+pub fn check_html(problem: &Problem, params: &[(String, f64)], r: &ConsistencyReport) -> String {
+    let mut o = String::new();
+    head(&mut o, &format!("autotune check: {}", problem.name));
+    let _ = writeln!(o, "<h1>autotune check: {}</h1>", escape(&problem.name));
+    let _ = writeln!(
+        o,
+        "<p>{} — <code>{}</code>, N = {} runs × T = {} steps, α = {}.</p>",
+        escape(&problem.description),
+        escape(&problem.path.display().to_string()),
+        r.runs,
+        r.steps,
+        r.alpha
+    );
+    let _ = writeln!(o, "<p class=\"verdict\">Verdict: {}</p>", escape(r.verdict.describe()));
+    if !params.is_empty() {
+        o.push_str("<table><tr><th>parameter</th><th>value</th></tr>");
+        for (n, v) in params {
+            let _ = write!(o, "<tr><td><code>{}</code></td><td>{}</td></tr>", escape(n), fmt_g(*v));
+        }
+        o.push_str("</table>\n");
+    }
+    stats_table(&mut o, &[("configured", r)]);
+    plots(&mut o, &[("configured", r)]);
+    let _ = writeln!(o, "<p><small>autotune {}</small></p></body></html>", env!("CARGO_PKG_VERSION"));
+    o
+}
+
+/// The HTML report of `autotune tune`: recommendations, before/after statistics and plots
+/// side by side, and the objective's progress.
+pub fn tune_html(problem: &Problem, res: &TuneResult, recs: &[Recommendation]) -> String {
+    let mut o = String::new();
+    head(&mut o, &format!("autotune tune: {}", problem.name));
+    let _ = writeln!(o, "<h1>autotune tune: {}</h1>", escape(&problem.name));
+    let _ = writeln!(
+        o,
+        "<p>{} — <code>{}</code>. Confirmation on fresh seeds (seed {}), N = {} runs × T = {} steps, α = {}.</p>",
+        escape(&problem.description),
+        escape(&problem.path.display().to_string()),
+        res.confirm_seed,
+        res.runs,
+        res.steps,
+        res.alpha
+    );
+    let _ = writeln!(
+        o,
+        "<p class=\"verdict\">Before: {}. After: {}.</p>",
+        escape(res.before.verdict.label()),
+        escape(res.after.verdict.describe())
+    );
+    o.push_str("<h2>Recommendations</h2><ul>");
+    for r in recs {
+        let _ = write!(o, "<li>{}</li>", escape(&r.advice));
+    }
+    o.push_str("</ul>\n<table><tr><th>parameter</th><th>unit</th><th>initial</th><th>tuned</th><th>factor</th><th>determined within</th></tr>\n");
+    for r in recs {
+        let res_text = match (r.fixed, r.identifiable, r.resolution) {
+            (true, _, _) => "fixed".to_string(),
+            (false, false, _) => "not identifiable".to_string(),
+            (false, true, Some(f)) => format!("±{:.1}%", 100.0 * (f - 1.0)),
+            _ => "–".to_string(),
+        };
+        let _ = writeln!(
+            o,
+            "<tr><td><code>{}</code></td><td>{}</td><td>{}</td><td>{}</td><td>×{:.3}</td><td>{}</td></tr>",
+            escape(&r.param),
+            escape(&r.unit),
+            fmt_g(r.initial),
+            fmt_g(r.tuned),
+            r.factor,
+            res_text
+        );
+    }
+    o.push_str("</table>\n<h2>Consistency before and after</h2>\n");
+    let reports = [("initial", &res.before), ("tuned", &res.after)];
+    stats_table(&mut o, &reports);
+    plots(&mut o, &reports);
+    o.push_str("<h2>Search</h2><div class=\"row\">");
+    figure(
+        &mut o,
+        &objective_svg("objective against evaluations", &res.history),
+        &format!(
+            "{} evaluations ({:?} scoring), {} diverged candidates; objective {:.3e} → {:.3e}.",
+            res.evaluations, res.scoring, res.diverged_evaluations, res.objective_initial.total, res.objective_final.total
+        ),
+    );
+    let _ = writeln!(o, "</div><p><small>autotune {}</small></p></body></html>", env!("CARGO_PKG_VERSION"));
+    o
+}
+
+/// The Markdown report of `autotune check`.
+pub fn check_markdown(problem: &Problem, params: &[(String, f64)], r: &ConsistencyReport) -> String {
+    let mut o = String::new();
+    let _ = writeln!(o, "# autotune check: {}\n", problem.name);
+    let _ = writeln!(o, "**Verdict: {}**\n", r.verdict.describe());
+    let _ = writeln!(o, "```\n{}```", super::summary_text(&problem.name, params, r));
+    o
+}

@@ -9,7 +9,9 @@ use autotune::tune::{Silent, TuneSettings, tune};
 use criterion::{Criterion, criterion_group, criterion_main};
 
 fn load(name: &str) -> Problem {
-    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("problems").join(format!("{name}.toml"));
+    let path = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("problems")
+        .join(format!("{name}.toml"));
     Problem::load(&path).expect("shipped problem")
 }
 
@@ -22,7 +24,17 @@ fn tuning(c: &mut Criterion) {
         let fixed: Vec<bool> = p.params.params.iter().map(|q| q.fixed).collect();
         let settings = TuneSettings::default();
         g.bench_function(name, |b| {
-            b.iter(|| tune(black_box(&p), black_box(&start), &fixed, &p.mc, &settings, &Silent).expect("valid settings"))
+            b.iter(|| {
+                tune(
+                    black_box(&p),
+                    black_box(&start),
+                    &fixed,
+                    &p.mc,
+                    &settings,
+                    &Silent,
+                )
+                .expect("valid settings")
+            })
         });
     }
     g.finish();

@@ -8,7 +8,9 @@ use anyhow::Context;
 use autotune::check::{Engine, check};
 use autotune::problem::Problem;
 use autotune::report::html::{check_html, check_markdown};
-use autotune::report::{CheckOutput, junit_xml, summary_text, tuned::TunedConfig, write_atomic, write_report_dir};
+use autotune::report::{
+    CheckOutput, junit_xml, summary_text, tuned::TunedConfig, write_atomic, write_report_dir,
+};
 
 #[derive(Debug, Clone, Copy, clap::ValueEnum)]
 enum EngineArg {
@@ -100,7 +102,11 @@ pub fn run(a: CheckArgs) -> anyhow::Result<ExitCode> {
         let text = summary_text(&problem.name, &params, &report);
         for line in text.lines() {
             if line.starts_with("verdict:") {
-                writeln!(stdout, "{}", super::paint_verdict(line, report.verdict.passes()))?;
+                writeln!(
+                    stdout,
+                    "{}",
+                    super::paint_verdict(line, report.verdict.passes())
+                )?;
             } else {
                 writeln!(stdout, "{line}")?;
             }

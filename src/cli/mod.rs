@@ -1,6 +1,8 @@
 //! Argument parsing and wiring.
 
 mod check;
+mod completions;
+mod init;
 mod tune;
 
 use std::path::PathBuf;
@@ -25,6 +27,12 @@ enum Command {
     /// Search the free Q/R parameters for a consistent filter; write a tuned config and a
     /// report; exit 0 if the tuned filter passes the confirmation, 1 if not.
     Tune(tune::TuneArgs),
+    /// Write a commented starter problem file (NAME.toml) whose filter equals its truth, so
+    /// `autotune check` passes on it; replace its parameter values with your own guesses.
+    Init(init::InitArgs),
+    /// Print a shell completion script on stdout, e.g.
+    /// `autotune completions bash > ~/.local/share/bash-completion/completions/autotune`.
+    Completions(completions::CompletionsArgs),
 }
 
 /// Monte Carlo overrides shared by the commands.
@@ -165,6 +173,8 @@ pub fn run() -> anyhow::Result<ExitCode> {
     match cli.command {
         Command::Check(a) => check::run(a),
         Command::Tune(a) => tune::run(a),
+        Command::Init(a) => init::run(a),
+        Command::Completions(a) => completions::run(a),
     }
 }
 

@@ -7,9 +7,9 @@ use std::process::ExitCode;
 use anyhow::Context;
 use autotune::problem::Problem;
 use autotune::report::advice::recommendations;
+use autotune::report::html::tune_html;
 use autotune::report::tune::{TuneReport, tune_markdown};
 use autotune::report::tuned::tuned_config_toml;
-use autotune::report::html::tune_html;
 use autotune::report::{fmt_g, write_atomic, write_report_dir};
 use autotune::tune::{Observer, Scoring, TuneSettings, TuneStatus, tune};
 use indicatif::{ProgressBar, ProgressStyle};
@@ -253,14 +253,22 @@ pub fn run(a: TuneArgs) -> anyhow::Result<ExitCode> {
         )?;
         writeln!(stdout, "  wrote {}", out.display())?;
         if let Some(dir) = &a.report {
-            writeln!(stdout, "  wrote {}/report.html, report.md, report.json", dir.display())?;
+            writeln!(
+                stdout,
+                "  wrote {}/report.html, report.md, report.json",
+                dir.display()
+            )?;
         }
         let verdict = format!(
             "verdict: before {}, after {}",
             result.before.verdict.label(),
             result.after.verdict.describe()
         );
-        writeln!(stdout, "{}", super::paint_verdict(&verdict, result.status == TuneStatus::Consistent))?;
+        writeln!(
+            stdout,
+            "{}",
+            super::paint_verdict(&verdict, result.status == TuneStatus::Consistent)
+        )?;
     }
     stdout.flush()?;
     Ok(if result.status == TuneStatus::Consistent {

@@ -40,7 +40,11 @@ fn head(o: &mut String, title: &str) {
 }
 
 fn figure(o: &mut String, svg: &str, caption: &str) {
-    let _ = write!(o, "<figure>{svg}<figcaption>{}</figcaption></figure>\n", escape(caption));
+    let _ = writeln!(
+        o,
+        "<figure>{svg}<figcaption>{}</figcaption></figure>",
+        escape(caption)
+    );
 }
 
 fn stat_rows(o: &mut String, label: &str, s: &StatisticSummary) {
@@ -71,7 +75,13 @@ fn stats_table(o: &mut String, reports: &[(&str, &ConsistencyReport)]) {
 /// Plots of one consistency report, side by side with another's where given.
 fn plots(o: &mut String, reports: &[(&str, &ConsistencyReport)]) {
     let stats: Vec<(&str, Vec<(&str, &StatisticSummary)>)> = vec![
-        ("ANEES", reports.iter().filter_map(|(n, r)| r.nees.as_ref().map(|s| (*n, s))).collect()),
+        (
+            "ANEES",
+            reports
+                .iter()
+                .filter_map(|(n, r)| r.nees.as_ref().map(|s| (*n, s)))
+                .collect(),
+        ),
         ("ANIS", reports.iter().map(|(n, r)| (*n, &r.nis)).collect()),
     ];
     for (name, series) in stats {
@@ -93,19 +103,31 @@ fn plots(o: &mut String, reports: &[(&str, &ConsistencyReport)]) {
     }
     o.push_str("<h2>Per-component normalized errors</h2><div class=\"row\">");
     for (label, r) in reports {
-        let comps: Vec<_> = r.state_components.iter().chain(&r.measurement_components).cloned().collect();
+        let comps: Vec<_> = r
+            .state_components
+            .iter()
+            .chain(&r.measurement_components)
+            .cloned()
+            .collect();
         figure(
             o,
             &components_svg(&format!("components, {label} filter"), &comps),
-            &format!("{label}: mean e_j²/P_jj per state and ν_j²/S_jj per measurement component; bars with their interval around the target 1."),
+            &format!(
+                "{label}: mean e_j²/P_jj per state and ν_j²/S_jj per measurement component; bars with their interval around the target 1."
+            ),
         );
     }
     o.push_str("</div>\n<h2>Innovation whiteness</h2><div class=\"row\">");
     for (label, r) in reports {
         figure(
             o,
-            &whiteness_svg(&format!("innovation autocorrelation, {label} filter"), &r.whiteness),
-            &format!("{label}: normalized autocorrelation of ν_j/√S_jj by lag; a consistent filter's innovations are white and stay inside the grey band."),
+            &whiteness_svg(
+                &format!("innovation autocorrelation, {label} filter"),
+                &r.whiteness,
+            ),
+            &format!(
+                "{label}: normalized autocorrelation of ν_j/√S_jj by lag; a consistent filter's innovations are white and stay inside the grey band."
+            ),
         );
     }
     o.push_str("</div>\n");
@@ -125,17 +147,30 @@ pub fn check_html(problem: &Problem, params: &[(String, f64)], r: &ConsistencyRe
         r.steps,
         r.alpha
     );
-    let _ = writeln!(o, "<p class=\"verdict\">Verdict: {}</p>", escape(r.verdict.describe()));
+    let _ = writeln!(
+        o,
+        "<p class=\"verdict\">Verdict: {}</p>",
+        escape(r.verdict.describe())
+    );
     if !params.is_empty() {
         o.push_str("<table><tr><th>parameter</th><th>value</th></tr>");
         for (n, v) in params {
-            let _ = write!(o, "<tr><td><code>{}</code></td><td>{}</td></tr>", escape(n), fmt_g(*v));
+            let _ = write!(
+                o,
+                "<tr><td><code>{}</code></td><td>{}</td></tr>",
+                escape(n),
+                fmt_g(*v)
+            );
         }
         o.push_str("</table>\n");
     }
     stats_table(&mut o, &[("configured", r)]);
     plots(&mut o, &[("configured", r)]);
-    let _ = writeln!(o, "<p><small>autotune {}</small></p></body></html>", env!("CARGO_PKG_VERSION"));
+    let _ = writeln!(
+        o,
+        "<p><small>autotune {}</small></p></body></html>",
+        env!("CARGO_PKG_VERSION")
+    );
     o
 }
 
@@ -194,18 +229,34 @@ pub fn tune_html(problem: &Problem, res: &TuneResult, recs: &[Recommendation]) -
         &objective_svg("objective against evaluations", &res.history),
         &format!(
             "{} evaluations ({:?} scoring), {} diverged candidates; objective {:.3e} → {:.3e}.",
-            res.evaluations, res.scoring, res.diverged_evaluations, res.objective_initial.total, res.objective_final.total
+            res.evaluations,
+            res.scoring,
+            res.diverged_evaluations,
+            res.objective_initial.total,
+            res.objective_final.total
         ),
     );
-    let _ = writeln!(o, "</div><p><small>autotune {}</small></p></body></html>", env!("CARGO_PKG_VERSION"));
+    let _ = writeln!(
+        o,
+        "</div><p><small>autotune {}</small></p></body></html>",
+        env!("CARGO_PKG_VERSION")
+    );
     o
 }
 
 /// The Markdown report of `autotune check`.
-pub fn check_markdown(problem: &Problem, params: &[(String, f64)], r: &ConsistencyReport) -> String {
+pub fn check_markdown(
+    problem: &Problem,
+    params: &[(String, f64)],
+    r: &ConsistencyReport,
+) -> String {
     let mut o = String::new();
     let _ = writeln!(o, "# autotune check: {}\n", problem.name);
     let _ = writeln!(o, "**Verdict: {}**\n", r.verdict.describe());
-    let _ = writeln!(o, "```\n{}```", super::summary_text(&problem.name, params, r));
+    let _ = writeln!(
+        o,
+        "```\n{}```",
+        super::summary_text(&problem.name, params, r)
+    );
     o
 }

@@ -3,8 +3,8 @@
 
 pub mod advice;
 pub mod html;
-pub mod plots;
 mod junit;
+pub mod plots;
 mod summary;
 pub mod tune;
 pub mod tuned;
@@ -66,9 +66,14 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
 /// Write `report.html`, `report.md` and `report.json` into `dir` (created if missing), each
 /// atomically.
 pub fn write_report_dir(dir: &Path, html: &str, markdown: &str, json: &str) -> std::io::Result<()> {
-    for (name, text) in [("report.html", html), ("report.md", markdown), ("report.json", json)] {
-        write_atomic(&dir.join(name), text.as_bytes())
-            .map_err(|e| std::io::Error::new(e.kind(), format!("{}: {e}", dir.join(name).display())))?;
+    for (name, text) in [
+        ("report.html", html),
+        ("report.md", markdown),
+        ("report.json", json),
+    ] {
+        write_atomic(&dir.join(name), text.as_bytes()).map_err(|e| {
+            std::io::Error::new(e.kind(), format!("{}: {e}", dir.join(name).display()))
+        })?;
     }
     Ok(())
 }

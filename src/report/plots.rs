@@ -32,7 +32,11 @@ pub fn statistic_svg(title: &str, s: &StatisticSummary) -> String {
     }
 }
 
-fn draw_statistic(buf: &mut String, title: &str, s: &StatisticSummary) -> Result<(), Box<dyn std::error::Error>> {
+fn draw_statistic(
+    buf: &mut String,
+    title: &str,
+    s: &StatisticSummary,
+) -> Result<(), Box<dyn std::error::Error>> {
     let steps = s.per_step.len().max(1);
     let pts: Vec<(f64, f64, f64, f64, f64)> = (0..s.per_step.len())
         .filter_map(|k| {
@@ -49,7 +53,9 @@ fn draw_statistic(buf: &mut String, title: &str, s: &StatisticSummary) -> Result
     let top_data = pts.iter().map(|p| p.1).fold(0.0_f64, f64::max);
     let target = if s.target.is_finite() { s.target } else { 1.0 };
     // Show the data, but keep the band readable when a filter is wildly off.
-    let ymax = (top_data.max(top_band) * 1.05).min((top_band * 1.05).max(4.0 * target)).max(1e-9);
+    let ymax = (top_data.max(top_band) * 1.05)
+        .min((top_band * 1.05).max(4.0 * target))
+        .max(1e-9);
     let root = SVGBackend::with_string(buf, SIZE).into_drawing_area();
     root.fill(&WHITE)?;
     let mut chart = ChartBuilder::on(&root)
@@ -82,7 +88,10 @@ fn draw_statistic(buf: &mut String, title: &str, s: &StatisticSummary) -> Result
         .label(format!("DOF target {target:.3}"))
         .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], MID.stroke_width(2)));
     chart
-        .draw_series(LineSeries::new(pts.iter().map(|p| (p.0, p.1.min(ymax))), BLACK.stroke_width(1)))?
+        .draw_series(LineSeries::new(
+            pts.iter().map(|p| (p.0, p.1.min(ymax))),
+            BLACK.stroke_width(1),
+        ))?
         .label(format!("A{}_k", s.name))
         .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], BLACK.stroke_width(1)));
     let outside: Vec<(f64, f64)> = pts
@@ -91,7 +100,11 @@ fn draw_statistic(buf: &mut String, title: &str, s: &StatisticSummary) -> Result
         .map(|p| (p.0, p.1.min(ymax)))
         .collect();
     chart
-        .draw_series(outside.iter().map(|&p| Cross::new(p, 4, BLACK.stroke_width(1))))?
+        .draw_series(
+            outside
+                .iter()
+                .map(|&p| Cross::new(p, 4, BLACK.stroke_width(1))),
+        )?
         .label(format!("outside the interval ({})", outside.len()))
         .legend(|(x, y)| Cross::new((x + 8, y), 4, BLACK.stroke_width(1)));
     chart
@@ -114,7 +127,11 @@ pub fn components_svg(title: &str, comps: &[ComponentStat]) -> String {
     }
 }
 
-fn draw_components(buf: &mut String, title: &str, comps: &[ComponentStat]) -> Result<(), Box<dyn std::error::Error>> {
+fn draw_components(
+    buf: &mut String,
+    title: &str,
+    comps: &[ComponentStat],
+) -> Result<(), Box<dyn std::error::Error>> {
     let n = comps.len().max(1);
     let finite = |v: f64| if v.is_finite() { v } else { 0.0 };
     let ymax = comps
@@ -124,7 +141,16 @@ fn draw_components(buf: &mut String, title: &str, comps: &[ComponentStat]) -> Re
         * 1.1;
     let root = SVGBackend::with_string(buf, SIZE).into_drawing_area();
     root.fill(&WHITE)?;
-    let names: Vec<String> = comps.iter().map(|c| format!("{} ({})", c.name, if c.kind == "state" { "e²/P" } else { "ν²/S" })).collect();
+    let names: Vec<String> = comps
+        .iter()
+        .map(|c| {
+            format!(
+                "{} ({})",
+                c.name,
+                if c.kind == "state" { "e²/P" } else { "ν²/S" }
+            )
+        })
+        .collect();
     let mut chart = ChartBuilder::on(&root)
         .caption(title, (FONT, 18))
         .margin(12)
@@ -150,23 +176,48 @@ fn draw_components(buf: &mut String, title: &str, comps: &[ComponentStat]) -> Re
     chart
         .draw_series(comps.iter().enumerate().map(|(i, c)| {
             let x = i as f64;
-            Rectangle::new([(x - 0.3, 0.0), (x + 0.3, finite(c.value).min(ymax))], BAND.filled())
+            Rectangle::new(
+                [(x - 0.3, 0.0), (x + 0.3, finite(c.value).min(ymax))],
+                BAND.filled(),
+            )
         }))?
         .label("average over runs and steps")
         .legend(|(x, y)| Rectangle::new([(x, y - 5), (x + 16, y + 5)], BAND.filled()));
+    chart.draw_series(comps.iter().enumerate().map(|(i, c)| {
+        let x = i as f64;
+        Rectangle::new(
+            [(x - 0.3, 0.0), (x + 0.3, finite(c.value).min(ymax))],
+            BLACK.stroke_width(1),
+        )
+    }))?;
     chart
-        .draw_series(comps.iter().enumerate().map(|(i, c)| {
-            let x = i as f64;
-            Rectangle::new([(x - 0.3, 0.0), (x + 0.3, finite(c.value).min(ymax))], BLACK.stroke_width(1))
-        }))?;
-    chart
-        .draw_series(comps.iter().enumerate().filter(|(_, c)| c.interval.lower.is_finite() && c.interval.upper.is_finite()).map(|(i, c)| {
-            ErrorBar::new_vertical(i as f64, c.interval.lower.max(0.0), 1.0, c.interval.upper.min(ymax), BLACK.stroke_width(2), 12)
-        }))?
+        .draw_series(
+            comps
+                .iter()
+                .enumerate()
+                .filter(|(_, c)| c.interval.lower.is_finite() && c.interval.upper.is_finite())
+                .map(|(i, c)| {
+                    ErrorBar::new_vertical(
+                        i as f64,
+                        c.interval.lower.max(0.0),
+                        1.0,
+                        c.interval.upper.min(ymax),
+                        BLACK.stroke_width(2),
+                        12,
+                    )
+                }),
+        )?
         .label("interval around 1 (1-α, from run-to-run spread)")
-        .legend(|(x, y)| PathElement::new(vec![(x + 8, y - 6), (x + 8, y + 6)], BLACK.stroke_width(2)));
+        .legend(|(x, y)| {
+            PathElement::new(vec![(x + 8, y - 6), (x + 8, y + 6)], BLACK.stroke_width(2))
+        });
     chart
-        .draw_series(DashedLineSeries::new(vec![(-0.5, 1.0), (n as f64 - 0.5, 1.0)], 6, 4, MID.stroke_width(2)))?
+        .draw_series(DashedLineSeries::new(
+            vec![(-0.5, 1.0), (n as f64 - 0.5, 1.0)],
+            6,
+            4,
+            MID.stroke_width(2),
+        ))?
         .label("target 1")
         .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], MID.stroke_width(2)));
     chart
@@ -190,9 +241,17 @@ pub fn whiteness_svg(title: &str, white: &[WhitenessStat]) -> String {
     }
 }
 
-fn draw_whiteness(buf: &mut String, title: &str, white: &[WhitenessStat]) -> Result<(), Box<dyn std::error::Error>> {
+fn draw_whiteness(
+    buf: &mut String,
+    title: &str,
+    white: &[WhitenessStat],
+) -> Result<(), Box<dyn std::error::Error>> {
     let lags = white.iter().map(|w| w.lag).max().unwrap_or(1);
-    let amp = white.iter().map(|w| w.rho.abs().max(w.band)).fold(0.05_f64, f64::max) * 1.2;
+    let amp = white
+        .iter()
+        .map(|w| w.rho.abs().max(w.band))
+        .fold(0.05_f64, f64::max)
+        * 1.2;
     let mut comps: Vec<&str> = Vec::new();
     for w in white {
         if !comps.contains(&w.component.as_str()) {
@@ -218,39 +277,65 @@ fn draw_whiteness(buf: &mut String, title: &str, white: &[WhitenessStat]) -> Res
         .draw()?;
     // The band is the same for every component at a lag when all are measured together;
     // draw the widest.
-    let band_at = |lag: usize| white.iter().filter(|w| w.lag == lag).map(|w| w.band).fold(0.0_f64, f64::max);
+    let band_at = |lag: usize| {
+        white
+            .iter()
+            .filter(|w| w.lag == lag)
+            .map(|w| w.band)
+            .fold(0.0_f64, f64::max)
+    };
     let mut poly: Vec<(f64, f64)> = (1..=lags).map(|l| (l as f64, band_at(l))).collect();
     poly.extend((1..=lags).rev().map(|l| (l as f64, -band_at(l))));
     if lags == 1 {
-        poly = vec![(0.7, band_at(1)), (1.3, band_at(1)), (1.3, -band_at(1)), (0.7, -band_at(1))];
+        poly = vec![
+            (0.7, band_at(1)),
+            (1.3, band_at(1)),
+            (1.3, -band_at(1)),
+            (0.7, -band_at(1)),
+        ];
     }
     chart
         .draw_series(std::iter::once(Polygon::new(poly, BAND.filled())))?
         .label("band of a white sequence (1-α)")
         .legend(|(x, y)| Rectangle::new([(x, y - 5), (x + 16, y + 5)], BAND.filled()));
     for (ci, name) in comps.iter().enumerate() {
-        let pts: Vec<(f64, f64)> = white.iter().filter(|w| w.component == *name).map(|w| (w.lag as f64, w.rho)).collect();
-        let style = if ci % 2 == 0 { BLACK.stroke_width(1) } else { MID.stroke_width(1) };
+        let pts: Vec<(f64, f64)> = white
+            .iter()
+            .filter(|w| w.component == *name)
+            .map(|w| (w.lag as f64, w.rho))
+            .collect();
+        let style = if ci % 2 == 0 {
+            BLACK.stroke_width(1)
+        } else {
+            MID.stroke_width(1)
+        };
         chart.draw_series(LineSeries::new(pts.clone(), style))?;
         let marker = ci % 3;
         chart
-            .draw_series(pts.iter().map(move |&p| -> DynElement<'static, SVGBackend, (f64, f64)> {
-                match marker {
-                    0 => Circle::new(p, 4, BLACK.filled()).into_dyn(),
-                    1 => TriangleMarker::new(p, 5, BLACK.filled()).into_dyn(),
-                    _ => Cross::new(p, 4, BLACK.stroke_width(2)).into_dyn(),
-                }
-            }))?
+            .draw_series(pts.iter().map(
+                move |&p| -> DynElement<'static, SVGBackend, (f64, f64)> {
+                    match marker {
+                        0 => Circle::new(p, 4, BLACK.filled()).into_dyn(),
+                        1 => TriangleMarker::new(p, 5, BLACK.filled()).into_dyn(),
+                        _ => Cross::new(p, 4, BLACK.stroke_width(2)).into_dyn(),
+                    }
+                },
+            ))?
             .label(format!("ρ of {name}"))
-            .legend(move |(x, y)| -> DynElement<'static, SVGBackend, (i32, i32)> {
-                match marker {
-                    0 => Circle::new((x + 8, y), 4, BLACK.filled()).into_dyn(),
-                    1 => TriangleMarker::new((x + 8, y), 5, BLACK.filled()).into_dyn(),
-                    _ => Cross::new((x + 8, y), 4, BLACK.stroke_width(2)).into_dyn(),
-                }
-            });
+            .legend(
+                move |(x, y)| -> DynElement<'static, SVGBackend, (i32, i32)> {
+                    match marker {
+                        0 => Circle::new((x + 8, y), 4, BLACK.filled()).into_dyn(),
+                        1 => TriangleMarker::new((x + 8, y), 5, BLACK.filled()).into_dyn(),
+                        _ => Cross::new((x + 8, y), 4, BLACK.stroke_width(2)).into_dyn(),
+                    }
+                },
+            );
     }
-    chart.draw_series(LineSeries::new(vec![(0.5, 0.0), (lags as f64 + 0.5, 0.0)], MID.stroke_width(1)))?;
+    chart.draw_series(LineSeries::new(
+        vec![(0.5, 0.0), (lags as f64 + 0.5, 0.0)],
+        MID.stroke_width(1),
+    ))?;
     chart
         .configure_series_labels()
         .label_font((FONT, 13))
@@ -271,15 +356,27 @@ pub fn objective_svg(title: &str, history: &[f64]) -> String {
     }
 }
 
-fn draw_objective(buf: &mut String, title: &str, history: &[f64]) -> Result<(), Box<dyn std::error::Error>> {
+fn draw_objective(
+    buf: &mut String,
+    title: &str,
+    history: &[f64],
+) -> Result<(), Box<dyn std::error::Error>> {
     let pts: Vec<(f64, f64)> = history
         .iter()
         .enumerate()
         .filter(|(_, v)| v.is_finite() && **v > 0.0)
         .map(|(i, v)| ((i + 1) as f64, *v))
         .collect();
-    let lo = pts.iter().map(|p| p.1).fold(f64::INFINITY, f64::min).min(1.0);
-    let hi = pts.iter().map(|p| p.1).fold(0.0_f64, f64::max).max(lo * 10.0);
+    let lo = pts
+        .iter()
+        .map(|p| p.1)
+        .fold(f64::INFINITY, f64::min)
+        .min(1.0);
+    let hi = pts
+        .iter()
+        .map(|p| p.1)
+        .fold(0.0_f64, f64::max)
+        .max(lo * 10.0);
     let n = history.len().max(2) as f64;
     let root = SVGBackend::with_string(buf, SIZE).into_drawing_area();
     root.fill(&WHITE)?;

@@ -1,0 +1,233 @@
+//! `autotune init`: write a commented starter problem file.
+//!
+//! Each starter (`templates/<model>.toml`) is a complete problem file whose comments explain
+//! every section and field. Its filter parameters EQUAL the truth's noise, so `autotune check`
+//! passes on it unchanged with the Monte Carlo seed it ships with (the integration tests in
+//! `tests/cli_init.rs` run that check for every model); the comments tell the user to replace
+//! the values with their own guesses, which `autotune tune` then corrects.
+
+use std::ffi::OsStr;
+use std::io::Write;
+use std::marker::PhantomData;
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use anyhow::Context;
+use autotune::report::write_atomic;
+use clap::ValueEnum;
+use clap::builder::{PossibleValue, TypedValueParser};
+use clap::error::ErrorKind;
+
+/// The starter models: `--model`, its help, its errors and the completions all list these.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum Model {
+    /// 1-D nearly constant velocity, position measured (parameters q_accel, r_pos)
+    Cv1d,
+    /// 2-D nearly constant velocity, per-axis noise, position measured (q_accel_x/y, r_pos_x/y)
+    Cv2d,
+    /// DC motor in continuous time, encoder angle measured (q_torque, q_voltage, r_angle)
+    Dcmotor,
+}
+
+/// What every template writes where the problem name goes.
+const NAME_PLACEHOLDER: &str = "{{name}}";
+
+impl Model {
+    /// The template, with [`NAME_PLACEHOLDER`] for the name.
+    fn template(self) -> &'static str {
+        match self {
+            Model::Cv1d => include_str!("templates/cv1d.toml"),
+            Model::Cv2d => include_str!("templates/cv2d.toml"),
+            Model::Dcmotor => include_str!("templates/dcmotor.toml"),
+        }
+    }
+
+    /// The starter problem file for problem `name` (already validated by [`parse_name`]).
+    fn starter(self, name: &str) -> String {
+        self.template().replace(NAME_PLACEHOLDER, name)
+    }
+}
+
+#[derive(Debug, clap::Args)]
+pub struct InitArgs {
+    /// Problem name (letters, digits, '_' and '-'): written as `name = "NAME"`, and the
+    /// default file is NAME.toml.
+    #[arg(value_parser = parse_name)]
+    name: String,
+    /// Which system the starter models.
+    #[arg(long, default_value = "cv2d", value_parser = OneOf::<Model>::new())]
+    model: Model,
+    /// File to write (default: NAME.toml in the current directory).
+    #[arg(long, value_name = "FILE")]
+    out: Option<PathBuf>,
+    /// Overwrite the file if it exists.
+    #[arg(long)]
+    force: bool,
+}
+
+/// A problem name: non-empty, ASCII letters, digits, `_` and `-` only (it becomes a file
+/// name and a TOML string).
+fn parse_name(name: &str) -> Result<String, String> {
+    if name.is_empty() {
+        return Err("the name is empty: use letters, digits, '_' and '-'".into());
+    }
+    if let Some(c) = name
+        .chars()
+        .find(|c| !(c.is_ascii_alphanumeric() || *c == '_' || *c == '-'))
+    {
+        return Err(format!(
+            "{c:?} is not allowed: use letters, digits, '_' and '-' only"
+        ));
+    }
+    Ok(name.to_string())
+}
+
+pub fn run(a: InitArgs) -> anyhow::Result<ExitCode> {
+    let path = a
+        .out
+        .unwrap_or_else(|| PathBuf::from(format!("{}.toml", a.name)));
+    // symlink_metadata: a dangling symlink or any other entry counts as existing.
+    if !a.force && std::fs::symlink_metadata(&path).is_ok() {
+        anyhow::bail!(
+            "{} already exists (use --force to overwrite it)",
+            path.display()
+        );
+    }
+    write_atomic(&path, a.model.starter(&a.name).as_bytes())
+        .with_context(|| format!("writing {}", path.display()))?;
+    let model = a
+        .model
+        .to_possible_value()
+        .map(|v| v.get_name().to_string());
+    let mut stdout = std::io::stdout().lock();
+    writeln!(
+        stdout,
+        "wrote {} ({} starter; its filter parameters equal the truth's noise, so \
+         `autotune check` passes on it as written)",
+        path.display(),
+        model.unwrap_or_default()
+    )?;
+    writeln!(
+        stdout,
+        "next: describe your system in [truth], replace the [params] values with your \
+         filter's, then run `autotune check` and `autotune tune` on it"
+    )?;
+    stdout.flush()?;
+    Ok(ExitCode::SUCCESS)
+}
+
+/// Value parser for a [`ValueEnum`] whose error lists the known values on its first line:
+/// the CLI reports only the first line of a parse error, where clap's own parser puts the
+/// possible values on the second. Help and completions get the values as usual.
+#[derive(Debug)]
+pub(super) struct OneOf<E>(PhantomData<E>);
+
+impl<E> OneOf<E> {
+    pub(super) fn new() -> Self {
+        OneOf(PhantomData)
+    }
+}
+
+impl<E> Clone for OneOf<E> {
+    fn clone(&self) -> Self {
+        OneOf(PhantomData)
+    }
+}
+
+impl<E: ValueEnum + Clone + Send + Sync + 'static> TypedValueParser for OneOf<E> {
+    type Value = E;
+
+    fn parse_ref(
+        &self,
+        cmd: &clap::Command,
+        arg: Option<&clap::Arg>,
+        value: &OsStr,
+    ) -> Result<E, clap::Error> {
+        let text = value.to_string_lossy();
+        E::from_str(&text, false).map_err(|_| {
+            let known: Vec<String> = E::value_variants()
+                .iter()
+                .filter_map(ValueEnum::to_possible_value)
+                .filter(|v| !v.is_hide_set())
+                .map(|v| v.get_name().to_string())
+                .collect();
+            let arg = arg.map_or_else(|| "...".to_string(), |a| a.to_string());
+            clap::Error::raw(
+                ErrorKind::InvalidValue,
+                format!(
+                    "invalid value '{text}' for '{arg}' (known: {})\n",
+                    known.join(", ")
+                ),
+            )
+            .with_cmd(cmd)
+        })
+    }
+
+    fn possible_values(&self) -> Option<Box<dyn Iterator<Item = PossibleValue> + '_>> {
+        Some(Box::new(
+            E::value_variants()
+                .iter()
+                .filter_map(ValueEnum::to_possible_value),
+        ))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use autotune::problem::Problem;
+    use std::path::Path;
+
+    #[test]
+    fn names() {
+        for ok in ["cv2d", "my-filter_2", "A", "_"] {
+            assert_eq!(parse_name(ok).as_deref(), Ok(ok));
+        }
+        for bad in ["", "a b", "a/b", "a.toml", "x\"y", "ä", "a\nb"] {
+            assert!(parse_name(bad).is_err(), "{bad:?} accepted");
+        }
+    }
+
+    #[test]
+    fn every_template_is_a_valid_problem_with_its_name() {
+        for &m in Model::value_variants() {
+            let t = m.template();
+            assert!(
+                t.contains(&format!("name = \"{NAME_PLACEHOLDER}\"")),
+                "{m:?}"
+            );
+            let text = m.starter("some-name_1");
+            assert!(!text.contains("{{"), "{m:?}: placeholder left");
+            let p = Problem::from_toml(&text, Path::new("starter.toml"))
+                .unwrap_or_else(|e| panic!("{m:?}: {e}"));
+            assert_eq!(p.name, "some-name_1");
+        }
+    }
+
+    #[test]
+    fn unknown_value_error_lists_the_known_ones_on_its_first_line() {
+        use clap::Parser;
+        for (args, known) in [
+            (
+                &["autotune", "init", "x", "--model", "cv3d"][..],
+                "(known: cv1d, cv2d, dcmotor)",
+            ),
+            (
+                &["autotune", "completions", "tcsh"][..],
+                "(known: bash, elvish, fish, powershell, zsh)",
+            ),
+        ] {
+            let err = crate::cli::Cli::try_parse_from(args).unwrap_err();
+            let text = err.render().to_string();
+            let first = text.lines().next().unwrap();
+            assert!(
+                first.contains(&format!("'{}'", args[args.len() - 1])),
+                "{first}"
+            );
+            assert!(first.contains(known), "{first}");
+        }
+        let cmd = clap::Command::new("t");
+        let ok = OneOf::<Model>::new().parse_ref(&cmd, None, OsStr::new("dcmotor"));
+        assert_eq!(ok.unwrap(), Model::Dcmotor);
+    }
+}

@@ -44,19 +44,34 @@ pub fn asymmetry(m: &DMatrix<f64>) -> Option<(usize, usize)> {
     None
 }
 
+/// Jacobi scaling `M = S C S` with `S = diag(√M_ii)` (1 where `M_ii ≤ 0`), so that `C` has a
+/// unit diagonal wherever `M` has a positive one. Numerical-rank decisions on `C` do not
+/// depend on units: a state with variance 1e-10 next to one with 1e4 keeps its noise.
+pub fn jacobi_scaled(m: &DMatrix<f64>) -> (DMatrix<f64>, DVector<f64>) {
+    let n = m.nrows();
+    let sc = DVector::from_fn(n, |i, _| {
+        let d = m[(i, i)];
+        if d > 0.0 { d.sqrt() } else { 1.0 }
+    });
+    let mut c = DMatrix::from_fn(n, n, |i, j| m[(i, j)] / (sc[i] * sc[j]));
+    symmetrize(&mut c);
+    (c, sc)
+}
+
 /// A factor `L` (n × r) of a symmetric positive-semidefinite matrix, `L L' = M`, where r is
 /// the numerical rank. Used to draw Gaussian samples with a possibly singular covariance
-/// (a DWNA process noise has rank 1 per axis) from only r standard normals.
+/// (a DWNA process noise has rank 1 per axis) from only r standard normals. The rank is
+/// judged on the Jacobi-scaled matrix ([`jacobi_scaled`]), so it does not depend on units.
 ///
-/// Returns `Err(lambda_min)` when `M` has an eigenvalue below `-SYMMETRY_RTOL·max|λ|`.
+/// Returns `Err(lambda_min)` (of the scaled matrix) when `M` has an eigenvalue below
+/// `-SYMMETRY_RTOL·max|λ|` there.
 pub fn psd_factor(m: &DMatrix<f64>) -> Result<DMatrix<f64>, f64> {
     let n = m.nrows();
     if n == 0 {
         return Ok(DMatrix::zeros(0, 0));
     }
-    let mut sym = m.clone();
-    symmetrize(&mut sym);
-    let eig = SymmetricEigen::new(sym);
+    let (c, sc) = jacobi_scaled(m);
+    let eig = SymmetricEigen::new(c);
     let lmax = eig.eigenvalues.iter().fold(0.0_f64, |a, v| a.max(v.abs()));
     let tol = SYMMETRY_RTOL * lmax.max(f64::MIN_POSITIVE);
     let lmin = eig.eigenvalues.iter().fold(f64::INFINITY, |a, &v| a.min(v));
@@ -65,13 +80,22 @@ pub fn psd_factor(m: &DMatrix<f64>) -> Result<DMatrix<f64>, f64> {
     }
     let keep: Vec<usize> = (0..n).filter(|&i| eig.eigenvalues[i] > tol).collect();
     let mut l = DMatrix::zeros(n, keep.len());
-    for (c, &i) in keep.iter().enumerate() {
+    for (col, &i) in keep.iter().enumerate() {
         let s = eig.eigenvalues[i].sqrt();
         for r in 0..n {
-            l[(r, c)] = eig.eigenvectors[(r, i)] * s;
+            l[(r, col)] = sc[r] * eig.eigenvectors[(r, i)] * s;
         }
     }
     Ok(l)
+}
+
+/// Whether a symmetric matrix is positive definite, judged scale-free: every diagonal
+/// entry positive and the Jacobi-scaled matrix's smallest eigenvalue above 1e-12.
+pub fn is_positive_definite(m: &DMatrix<f64>) -> bool {
+    if (0..m.nrows()).any(|i| !(m[(i, i)] > 0.0)) {
+        return false;
+    }
+    min_eigenvalue(&jacobi_scaled(m).0) > 1e-12
 }
 
 /// The smallest eigenvalue of the symmetric part of `m`.
@@ -146,6 +170,18 @@ mod tests {
         let l = psd_factor(&q).unwrap();
         assert_eq!(l.ncols(), 1);
         assert_relative_eq!(&l * l.transpose(), q, epsilon = 1e-12);
+    }
+
+    #[test]
+    fn psd_factor_keeps_tiny_variances_next_to_huge_ones() {
+        let m = DMatrix::from_diagonal(&DVector::from_column_slice(&[1e-10, 1e4]));
+        let l = psd_factor(&m).unwrap();
+        assert_eq!(l.ncols(), 2);
+        assert_relative_eq!(&l * l.transpose(), m, max_relative = 1e-12);
+        assert!(is_positive_definite(&m));
+        assert!(!is_positive_definite(&DMatrix::from_diagonal(
+            &DVector::from_column_slice(&[0.0, 1.0])
+        )));
     }
 
     #[test]

@@ -129,8 +129,8 @@ pub fn scaled_chi2_interval(alpha: f64, mean: f64, var: f64, count: f64) -> (Int
 
 /// Whether a two-sided chi-square test on `dof` degrees of freedom at level α can tell a
 /// covariance that is off by a factor of two from a correct one: both `χ²⁻¹(1 − α/2)/dof`
-/// below 2 and `χ²⁻¹(α/2)/dof` above 1/2. At α = 0.05 this needs about 8 degrees of
-/// freedom; a single run of a scalar measurement has one.
+/// below 2 and `χ²⁻¹(α/2)/dof` above 1/2. At α = 0.05 this needs 23 degrees of freedom; a
+/// single run of a scalar measurement has one.
 pub fn has_power(alpha: f64, dof: f64) -> bool {
     dof > 0.0
         && chi2_inv(1.0 - alpha / 2.0, dof) / dof < 2.0

@@ -181,3 +181,100 @@ fn bad_tune_options_are_one_line_errors_with_exit_2() {
     );
     assert!(!out.exists());
 }
+
+#[test]
+fn budget_exhaustion_is_a_status_not_a_panic_and_keeps_the_good_config() {
+    // Regression (review of issue #3): argmin's Nelder-Mead unwrapped the refused costs.
+    let dir = tempfile::tempdir().unwrap();
+    for args in [
+        &["--max-evals", "40"][..],
+        &["--max-evals", "200"],
+        &["--max-seconds", "0.01"],
+    ] {
+        let a = autotune()
+            .current_dir(dir.path())
+            .arg("tune")
+            .arg(problem_path("cv2d"))
+            .args(args)
+            .assert();
+        let out = a.get_output();
+        assert!(
+            matches!(out.status.code(), Some(0) | Some(1)),
+            "{args:?}: {:?}",
+            out.status
+        );
+        assert!(!String::from_utf8_lossy(&out.stderr).contains("panicked"));
+    }
+    // A run that fails its confirmation goes beside the config, never over it.
+    let dir = tempfile::tempdir().unwrap();
+    let a = autotune()
+        .current_dir(dir.path())
+        .arg("tune")
+        .arg(problem_path("cv2d"))
+        .args(["--max-evals", "40"])
+        .assert()
+        .code(1);
+    assert!(String::from_utf8_lossy(&a.get_output().stdout).contains("stopped on its budget"));
+    assert!(dir.path().join("tuned/cv2d.rejected.toml").is_file());
+    assert!(!dir.path().join("tuned/cv2d.toml").exists());
+}
+
+#[test]
+fn nothing_free_to_tune_is_judged_by_the_confirmation() {
+    let dir = tempfile::tempdir().unwrap();
+    autotune()
+        .current_dir(dir.path())
+        .arg("tune")
+        .arg(problem_path("cv1d"))
+        .args(["--fix", "q_accel=0.5", "--fix", "r_pos=1", "--quiet"])
+        .assert()
+        .code(0);
+    let cfg = std::fs::read_to_string(dir.path().join("tuned/cv1d.toml")).unwrap();
+    assert!(cfg.contains("status = \"consistent\""), "{cfg}");
+}
+
+#[test]
+fn a_value_stopped_at_its_bound_is_flagged() {
+    let dir = tempfile::tempdir().unwrap();
+    let text = std::fs::read_to_string(problem_path("cv1d")).unwrap();
+    let text = text.replace(
+        "[params.q_accel]\nvalue = 0.1\n",
+        "[params.q_accel]\nvalue = 0.1\nupper = 0.2\n",
+    );
+    assert!(text.contains("upper = 0.2"));
+    let file = dir.path().join("bounded.toml");
+    std::fs::write(&file, text).unwrap();
+    let a = autotune()
+        .current_dir(dir.path())
+        .arg("tune")
+        .arg(&file)
+        .assert();
+    let stdout = String::from_utf8_lossy(&a.get_output().stdout).to_string();
+    assert!(
+        stdout.contains("q_accel: stopped at its search bound"),
+        "{stdout}"
+    );
+}
+
+#[test]
+fn unsafe_names_and_runaway_dynamics_are_input_errors() {
+    let dir = tempfile::tempdir().unwrap();
+    let text = std::fs::read_to_string(problem_path("cv1d")).unwrap();
+    let escaped = text.replace("name = \"cv1d\"", "name = \"../../escaped\"");
+    assert_ne!(escaped, text);
+    let file = dir.path().join("p.toml");
+    std::fs::write(&file, escaped).unwrap();
+    let a = autotune()
+        .current_dir(dir.path())
+        .arg("tune")
+        .arg(&file)
+        .assert()
+        .code(2);
+    assert!(String::from_utf8_lossy(&a.get_output().stderr).contains("p.toml: name:"));
+    let motor = std::fs::read_to_string(problem_path("dcmotor")).unwrap();
+    let runaway = motor.replace("dt = 0.01", "dt = 1e6");
+    assert_ne!(runaway, motor);
+    std::fs::write(&file, runaway).unwrap();
+    let a = autotune().arg("check").arg(&file).assert().code(2);
+    assert!(String::from_utf8_lossy(&a.get_output().stderr).contains("truth.A"));
+}

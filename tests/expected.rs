@@ -72,3 +72,53 @@ fn expected_sums_match_large_monte_carlo() {
         assert!((r - 1.0).abs() < 1e-9, "{name} null variance ratio {r}");
     }
 }
+
+#[test]
+fn steady_state_shortcut_is_not_fooled_by_mixed_scales() {
+    // Two decoupled random walks whose variances differ by 14 decades: a convergence test on
+    // whole-matrix norms would declare steady state while the small state still converges
+    // (issue found in review: ANEES off by 5%). The exact sums must still match Monte Carlo.
+    let text = r#"
+dt = 1.0
+[montecarlo]
+runs = 20000
+steps = 400
+seed = 9
+lags = 1
+[truth]
+F = [[1.0, 0.0], [0.0, 1.0]]
+H = [[1.0, 0.0], [0.0, 1.0]]
+x0 = [0.0, 0.0]
+P0 = [[1e-10, 0.0], [0.0, 1e4]]
+Q = [{ kind = "diag", indices = [0], value = 1e-12 }, { kind = "diag", indices = [1], value = 1e2 }]
+R = [{ kind = "diag", indices = [0], value = 1e-10 }, { kind = "diag", indices = [1], value = 1e4 }]
+[filter]
+Q = [{ kind = "diag", indices = [0], value = 1e-12 }, { kind = "diag", indices = [1], value = 1e2 }]
+R = [{ kind = "diag", indices = [0], param = "r1" }, { kind = "diag", indices = [1], value = 1e4 }]
+[params.r1]
+value = 4e-10
+"#;
+    let p =
+        autotune::problem::Problem::from_toml(text, std::path::Path::new("mixed.toml")).unwrap();
+    let theta = p.params.values();
+    let kf = p.filter_at(&theta);
+    let exp = expected_accumulator(&p.truth, &kf, &p.mc.engine()).unwrap();
+    let sim = accumulate(&p, &theta, &p.mc, Engine::Linear);
+    let nn = p.mc.runs as f64;
+    for i in [99, 199, 399] {
+        let mean = exp.nees_sum[i] / nn;
+        let sd = ((exp.nees_sq[i] / nn - mean * mean) / nn).sqrt();
+        assert!(
+            (sim.nees_sum[i] / nn - mean).abs() < 5.0 * sd,
+            "step {}: MC {} vs exact {mean} (sd {sd})",
+            i + 1,
+            sim.nees_sum[i] / nn
+        );
+    }
+    let total = |v: &[f64]| v.iter().sum::<f64>() / (nn * p.mc.steps as f64);
+    let (e, s) = (total(&exp.nees_sum), total(&sim.nees_sum));
+    assert!(
+        (e / s - 1.0).abs() < 0.01,
+        "time-averaged NEES exact {e} vs MC {s}"
+    );
+}

@@ -109,8 +109,7 @@ pub fn paint_verdict(line: &str, pass: bool) -> String {
     }
 }
 
-/// Largest number of steps per run: the per-step sums take memory proportional to T.
-const MAX_STEPS: usize = 50_000_000;
+use autotune::problem::MAX_STEPS;
 
 impl McArgs {
     /// The problem's Monte Carlo settings with the overrides applied.

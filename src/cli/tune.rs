@@ -20,7 +20,8 @@ use super::{McArgs, name_value, option_error};
 pub struct TuneArgs {
     /// Problem file (TOML).
     problem: PathBuf,
-    /// Where to write the tuned config (default: tuned/<name>.toml).
+    /// Where to write the tuned config (default: tuned/<name>.toml, or
+    /// tuned/<name>.rejected.toml when the tuned filter fails its confirmation).
     #[arg(long, value_name = "FILE")]
     out: Option<PathBuf>,
     /// Write report.html, report.md and report.json into this directory.
@@ -188,6 +189,12 @@ pub fn run(a: TuneArgs) -> anyhow::Result<ExitCode> {
         b.finish_and_clear();
     }
 
+    // A run that did not confirm never replaces the config CI gates on; it goes beside it.
+    let out = if a.out.is_none() && result.status != TuneStatus::Consistent {
+        out.with_file_name(format!("{}.rejected.toml", problem.name))
+    } else {
+        out
+    };
     let recs = recommendations(&problem, &result, &result.before);
     write_atomic(&out, tuned_config_toml(&problem, &result).as_bytes())
         .with_context(|| format!("writing {}", out.display()))?;
@@ -222,6 +229,13 @@ pub fn run(a: TuneArgs) -> anyhow::Result<ExitCode> {
             result.seconds,
             result.diverged_evaluations
         )?;
+        if result.status == TuneStatus::BudgetExhausted {
+            writeln!(
+                stdout,
+                "  the search stopped on its budget (--max-evals {}, --max-seconds {}): the values below are the best found so far",
+                settings.max_evals, settings.max_seconds
+            )?;
+        }
         for r in &recs {
             writeln!(
                 stdout,

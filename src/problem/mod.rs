@@ -19,6 +19,14 @@ use crate::params::{Coef, CovModel, CovTerm, ParamDef, ParamSpace, cwna_block, d
 pub use spec::ProblemSpec;
 use spec::{MatrixSpec, TermKind, TermSpec};
 
+/// Largest number of steps per run: per-step sums and the linear engine's per-step gains
+/// take memory proportional to T (about 0.5 kB per step for four states).
+pub const MAX_STEPS: usize = 1_000_000;
+
+/// Largest `‖A dt‖₁` accepted: beyond it e^{A dt} overflows anyway, and the matrix
+/// exponential's scaling-and-squaring would take unbounded time.
+const MAX_A_DT_NORM: f64 = 1e3;
+
 /// A bad problem file (or bad option value): which file, which field, what is wrong.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ProblemError {
@@ -304,7 +312,7 @@ impl Validator<'_> {
                 format!("not positive semidefinite (smallest eigenvalue {lmin:.3e})"),
             );
         }
-        if definite && lmin <= 1e-12 * scale {
+        if definite && !crate::linalg::is_positive_definite(m) {
             return self.err(
                 field,
                 format!("not positive definite (smallest eigenvalue {lmin:.3e})"),
@@ -342,6 +350,16 @@ impl Validator<'_> {
                     return self.err(
                         format!("{section}.A"),
                         format!("must be square, is {}×{}", m.nrows(), m.ncols()),
+                    );
+                }
+                let norm1 = (0..m.ncols())
+                    .map(|j| m.column(j).iter().map(|v| v.abs()).sum::<f64>())
+                    .fold(0.0, f64::max)
+                    * dt;
+                if norm1 > MAX_A_DT_NORM {
+                    return self.err(
+                        format!("{section}.A"),
+                        format!("‖A·dt‖₁ = {norm1:.3e} is above {MAX_A_DT_NORM:e}: e^(A dt) overflows; is dt in seconds?"),
                     );
                 }
                 let f = expm(&(&m * dt));
@@ -606,8 +624,11 @@ impl Validator<'_> {
         if mc.runs < 1 {
             return self.err("montecarlo.runs", format!("{} must be ≥ 1", mc.runs));
         }
-        if mc.steps < 1 {
-            return self.err("montecarlo.steps", format!("{} must be ≥ 1", mc.steps));
+        if mc.steps < 1 || mc.steps > MAX_STEPS as i64 {
+            return self.err(
+                "montecarlo.steps",
+                format!("{} must be in 1..={MAX_STEPS}", mc.steps),
+            );
         }
         if !(mc.alpha > 0.0 && mc.alpha < 1.0) {
             return self.err(
@@ -697,6 +718,22 @@ impl Validator<'_> {
                 .map(|s| s.to_string_lossy().into_owned())
                 .unwrap_or_else(|| "problem".into())
         });
+        // The name becomes part of output paths (tuned/<name>.toml).
+        if name.is_empty()
+            || !name
+                .chars()
+                .all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '-')
+        {
+            let field = if s.name.is_some() {
+                "name"
+            } else {
+                "name (from the file name)"
+            };
+            return self.err(
+                field,
+                format!("'{name}' must be letters, digits, _ and - only"),
+            );
+        }
         Ok(Problem {
             name,
             description: s.description.clone().unwrap_or_default(),

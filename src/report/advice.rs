@@ -31,6 +31,8 @@ pub struct Recommendation {
     pub identifiable: bool,
     /// Factor within which the tuned value is determined, if known.
     pub resolution: Option<f64>,
+    /// The tuned value sits on a search bound.
+    pub at_bound: bool,
     /// The components the parameter acts on, with their normalized errors in the starting
     /// filter (target 1): `(name, value)`.
     pub evidence: Vec<(String, f64)>,
@@ -117,6 +119,13 @@ pub fn recommendations(
                 p.name,
                 crate::report::fmt_g(initial)
             )
+        } else if res.at_bound {
+            format!(
+                "{}: stopped at its search bound [{}, {}]; the data may want it beyond, widen the bounds",
+                p.name,
+                crate::report::fmt_g(p.lower),
+                crate::report::fmt_g(p.upper)
+            )
         } else if !res.identifiable {
             format!(
                 "{}: not identifiable from this data (the objective is flat over more than a factor of 2); keep a prior value such as a datasheet's",
@@ -165,9 +174,28 @@ pub fn recommendations(
             fixed: result.fixed[i],
             identifiable: res.identifiable,
             resolution: res.factor,
+            at_bound: res.at_bound,
             evidence,
             advice,
         });
     }
     rows
+}
+
+impl Recommendation {
+    /// How precisely the value is determined, in a few words for tables.
+    pub fn resolution_text(&self) -> String {
+        match (
+            self.fixed,
+            self.at_bound,
+            self.identifiable,
+            self.resolution,
+        ) {
+            (true, ..) => "fixed".to_string(),
+            (false, true, ..) => "at a search bound".to_string(),
+            (false, false, false, _) => "not identifiable".to_string(),
+            (false, false, true, Some(f)) => format!("±{:.1}%", 100.0 * (f - 1.0)),
+            _ => "–".to_string(),
+        }
+    }
 }

@@ -202,12 +202,7 @@ pub fn tune_html(problem: &Problem, res: &TuneResult, recs: &[Recommendation]) -
     }
     o.push_str("</ul>\n<table><tr><th>parameter</th><th>unit</th><th>initial</th><th>tuned</th><th>factor</th><th>determined within</th></tr>\n");
     for r in recs {
-        let res_text = match (r.fixed, r.identifiable, r.resolution) {
-            (true, _, _) => "fixed".to_string(),
-            (false, false, _) => "not identifiable".to_string(),
-            (false, true, Some(f)) => format!("±{:.1}%", 100.0 * (f - 1.0)),
-            _ => "–".to_string(),
-        };
+        let res_text = r.resolution_text();
         let _ = writeln!(
             o,
             "<tr><td><code>{}</code></td><td>{}</td><td>{}</td><td>{}</td><td>×{:.3}</td><td>{}</td></tr>",

@@ -40,14 +40,24 @@ fn stat_case(s: &StatisticSummary, class: &str) -> String {
     let name = format!("time-averaged A{}", s.name);
     let failure = (!s.verdict.passes()).then(|| {
         (
-            format!(
-                "A{} = {:.4} outside [{:.4}, {:.4}]: {}",
-                s.name,
-                s.time_average,
-                s.interval.lower,
-                s.interval.upper,
-                s.verdict.label()
-            ),
+            if s.interval.contains(s.time_average) {
+                format!(
+                    "A{} = {:.4}: {} (effective degrees of freedom {:.1})",
+                    s.name,
+                    s.time_average,
+                    s.verdict.label(),
+                    s.effective_dof
+                )
+            } else {
+                format!(
+                    "A{} = {:.4} outside [{:.4}, {:.4}]: {}",
+                    s.name,
+                    s.time_average,
+                    s.interval.lower,
+                    s.interval.upper,
+                    s.verdict.label()
+                )
+            },
             format!(
                 "A{} time average {:.6}, target {:.3}, interval [{:.6}, {:.6}] (effective dof {:.1}); {:.1}% of steps inside the per-step interval; {}",
                 s.name,

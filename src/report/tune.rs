@@ -91,12 +91,7 @@ pub fn tune_markdown(problem: &Problem, r: &TuneResult, recs: &[Recommendation])
     );
     let _ = writeln!(o, "| --- | --- | --- | --- | --- | --- | --- |");
     for rec in recs {
-        let res = match (rec.fixed, rec.identifiable, rec.resolution) {
-            (true, _, _) => "fixed".to_string(),
-            (false, false, _) => "**not identifiable**".to_string(),
-            (false, true, Some(f)) => format!("±{:.1}%", 100.0 * (f - 1.0)),
-            _ => "–".to_string(),
-        };
+        let res = rec.resolution_text();
         let ev: Vec<String> = rec
             .evidence
             .iter()

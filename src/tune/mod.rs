@@ -107,8 +107,11 @@ pub struct Resolution {
     /// The factor by which the parameter can move (others re-adjusting) before the
     /// objective rises by its Monte Carlo noise level; `None` if fixed.
     pub factor: Option<f64>,
-    /// False when that factor exceeds 2: a flat direction of the objective.
+    /// False when that factor exceeds 2 (a flat direction of the objective) or the value
+    /// sits on a search bound (the data might want it beyond).
     pub identifiable: bool,
+    /// The tuned value is within 5% of its lower or upper search bound.
+    pub at_bound: bool,
 }
 
 /// Observes a tuning run (progress bars, logs). All methods default to doing nothing.
@@ -208,6 +211,8 @@ struct Search<'a> {
     history: Mutex<Vec<f64>>,
     max_evals: usize,
     deadline: Instant,
+    /// Set once an evaluation was refused for the budget.
+    out_of_budget: std::sync::atomic::AtomicBool,
     observer: &'a dyn Observer,
 }
 
@@ -248,6 +253,13 @@ impl Search<'_> {
         }
     }
 
+    /// Objective at log-point `y` (clamped into the box), without the penalty.
+    fn objective_at(&self, y: &[f64]) -> f64 {
+        self.objective
+            .evaluate(&self.accumulate(&self.theta(y)))
+            .total
+    }
+
     /// Objective at log-point `y`, with a quadratic penalty outside the box so that the
     /// simplex walks back in; no budget accounting.
     fn score(&self, y: &[f64]) -> (f64, bool) {
@@ -266,6 +278,7 @@ impl Search<'_> {
         let n = self.evals.fetch_add(1, Ordering::SeqCst);
         if n >= self.max_evals || Instant::now() > self.deadline {
             self.evals.fetch_sub(1, Ordering::SeqCst);
+            self.out_of_budget.store(true, Ordering::SeqCst);
             return Err(Budget);
         }
         let (j, diverged) = self.score(y);
@@ -303,6 +316,9 @@ impl Search<'_> {
             simplex.push(v);
         }
         let failed = (y0.to_vec(), f64::INFINITY, true);
+        if self.out_of_budget.load(Ordering::SeqCst) {
+            return failed;
+        }
         let Ok(solver) = NelderMead::new(simplex).with_sd_tolerance(1e-10) else {
             return failed;
         };
@@ -310,11 +326,12 @@ impl Search<'_> {
         let res = Executor::new(problem, solver)
             .configure(|s| s.max_iters((200 * d.max(1)) as u64))
             .run();
+        let hit = self.out_of_budget.load(Ordering::SeqCst);
         match res {
             Ok(r) => {
                 let st = r.state();
                 let y = st.get_best_param().cloned().unwrap_or_else(|| y0.to_vec());
-                (y, st.get_best_cost(), false)
+                (y, st.get_best_cost(), hit)
             }
             Err(_) => failed,
         }
@@ -345,7 +362,10 @@ impl CostFunction for LocalProblem<'_, '_> {
     type Output = f64;
 
     fn cost(&self, p: &Self::Param) -> Result<f64, argmin::core::Error> {
-        self.search.cost(p).map_err(argmin::core::Error::new)
+        // Out of budget, every point scores +∞: argmin's Nelder–Mead unwraps the costs of
+        // its starting simplex, so an error here would be a panic, and +∞ lets the simplex
+        // finish harmlessly while `out_of_budget` records why.
+        Ok(self.search.cost(p).unwrap_or(f64::INFINITY))
     }
 }
 
@@ -429,6 +449,7 @@ pub fn tune(
         history: Mutex::new(Vec::new()),
         max_evals: settings.max_evals,
         deadline: t0 + Duration::from_secs_f64(settings.max_seconds),
+        out_of_budget: std::sync::atomic::AtomicBool::new(false),
         observer,
     };
     let y0: Vec<f64> = search.free.iter().map(|&i| start[i].ln()).collect();
@@ -493,7 +514,7 @@ pub fn tune(
         } else {
             starts.iter().map(|s| search.local(s)).collect()
         };
-        budget_hit = results.iter().any(|r| r.2);
+        budget_hit = results.iter().any(|r| r.2) || search.out_of_budget.load(Ordering::SeqCst);
         let mut best: Option<(Vec<f64>, f64)> = None;
         for (y, c, _) in results {
             if c.is_finite() && best.as_ref().is_none_or(|b| c < b.1) {
@@ -508,8 +529,10 @@ pub fn tune(
             local_best = Some(if c2 < c { (c2, y2) } else { (c, y) });
         }
     }
+    budget_hit |= search.out_of_budget.load(Ordering::SeqCst);
     let (best_j, best_y) = match local_best {
         Some(b) if !budget_hit => b,
+        _ if d == 0 => (objective_initial.total, y0.clone()),
         _ => search.best.lock().expect("lock").clone(),
     };
     let tuned = if best_y.is_empty() {
@@ -546,11 +569,13 @@ pub fn tune(
         1e-9
     };
 
-    let resolution = if best_y.is_empty() || !best_j.is_finite() {
+    // The curvature says something only at a converged optimum.
+    let resolution = if best_y.is_empty() || !best_j.is_finite() || budget_hit {
         (0..params.len())
-            .map(|i| Resolution {
+            .map(|_| Resolution {
                 factor: None,
-                identifiable: fixed[i],
+                identifiable: true,
+                at_bound: false,
             })
             .collect()
     } else {
@@ -603,7 +628,7 @@ pub fn tune(
 fn resolution(search: &Search<'_>, y: &[f64], floor: f64, fixed: &[bool]) -> Vec<Resolution> {
     let d = y.len();
     let h = 0.05;
-    let f = |v: &[f64]| search.score(v).0;
+    let f = |v: &[f64]| search.objective_at(v);
     let f0 = f(y);
     let mut hess = DMatrix::zeros(d, d);
     let shift = |a: usize, sa: f64, b: Option<(usize, f64)>| {
@@ -645,13 +670,16 @@ fn resolution(search: &Search<'_>, y: &[f64], floor: f64, fixed: &[bool]) -> Vec
             out.push(Resolution {
                 factor: None,
                 identifiable: true,
+                at_bound: false,
             });
         } else {
             let delta = (2.0 * floor * inv_diag[k]).sqrt();
             let factor = delta.exp();
+            let at_bound = y[k] - search.lo[k] < 0.05 || search.hi[k] - y[k] < 0.05;
             out.push(Resolution {
                 factor: Some(factor),
-                identifiable: factor.is_finite() && factor <= 2.0,
+                identifiable: factor.is_finite() && factor <= 2.0 && !at_bound,
+                at_bound,
             });
             k += 1;
         }

@@ -123,6 +123,7 @@ pub struct Objective {
     pub nis_only: bool,
     alpha: f64,
     cache: Vec<((u64, u64), Interval)>,
+    nis_gate: Option<((u64, u64, u64), Interval)>,
 }
 
 impl Objective {
@@ -133,7 +134,20 @@ impl Objective {
             nis_only,
             alpha,
             cache: Vec::new(),
+            nis_gate: None,
         }
+    }
+
+    /// The time-averaged gate interval; the NIS one (variance 2·dof) is the same for every
+    /// candidate and is served from the cache filled by [`Objective::prepare`].
+    fn gate_interval(&self, dof: f64, var: f64, count: f64) -> Interval {
+        if let Some((key, iv)) = &self.nis_gate
+            && *key == (dof.to_bits(), var.to_bits(), count.to_bits())
+        {
+            return *iv;
+        }
+        let k = if self.nis_only { 1 } else { 2 };
+        scaled_chi2_interval(gate_alpha(self.alpha, k), dof, var, count).0
     }
 
     fn step_interval(&self, dof: f64, count: f64) -> Interval {
@@ -147,6 +161,13 @@ impl Objective {
     /// Cache the per-step intervals `acc` needs, so later evaluations of candidates with the
     /// same measurement schedule compute no chi-square quantiles per step.
     pub fn prepare(&mut self, acc: &Accumulator) {
+        let d: f64 = acc.nis_dof.iter().sum();
+        let c: f64 = acc.nis_count.iter().sum();
+        if d > 0.0 && c > 0.0 {
+            let k = if self.nis_only { 1 } else { 2 };
+            let iv = scaled_chi2_interval(gate_alpha(self.alpha, k), d, 2.0 * d, c).0;
+            self.nis_gate = Some(((d.to_bits(), (2.0 * d).to_bits(), c.to_bits()), iv));
+        }
         for (dof, count) in acc
             .nees_dof
             .iter()
@@ -189,8 +210,11 @@ impl Objective {
                 continue;
             }
             let avg = s / c;
-            let k = if self.nis_only { 1 } else { 2 };
-            let (iv, _) = scaled_chi2_interval(gate_alpha(self.alpha, k), d, var.max(2.0 * d), c);
+            let var = var.max(2.0 * d);
+            if !var.is_finite() {
+                return inf;
+            }
+            let iv = self.gate_interval(d, var, c);
             t.mean += w.mean * (avg / (d / c)).ln().powi(2);
             t.interval += w.interval * outside(avg, &iv).powi(2);
             if w.per_step > 0.0 {

@@ -92,7 +92,7 @@ pub fn psd_factor(m: &DMatrix<f64>) -> Result<DMatrix<f64>, f64> {
 /// Whether a symmetric matrix is positive definite, judged scale-free: every diagonal
 /// entry positive and the Jacobi-scaled matrix's smallest eigenvalue above 1e-12.
 pub fn is_positive_definite(m: &DMatrix<f64>) -> bool {
-    if (0..m.nrows()).any(|i| !(m[(i, i)] > 0.0)) {
+    if (0..m.nrows()).any(|i| m[(i, i)].is_nan() || m[(i, i)] <= 0.0) {
         return false;
     }
     min_eigenvalue(&jacobi_scaled(m).0) > 1e-12

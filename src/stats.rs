@@ -63,13 +63,21 @@ impl NeesNullVariance {
 
     /// Add step k: its error map `A_k` (n × n), posterior covariance `P_k` and the
     /// Cholesky factor of `P_k`.
-    pub fn step(&mut self, a: &DMatrix<f64>, p: &DMatrix<f64>, chol: &Cholesky<f64, Dyn>) {
+    /// Returns this step's contribution to the variance.
+    pub fn step(&mut self, a: &DMatrix<f64>, p: &DMatrix<f64>, chol: &Cholesky<f64, Dyn>) -> f64 {
         if let Some(pp) = &self.p_prev {
             self.g = a * (&self.g + pp) * a.transpose();
         }
         let cross = chol.solve(&self.g).trace();
-        self.var += 2.0 * self.n as f64 + 4.0 * cross;
+        let inc = 2.0 * self.n as f64 + 4.0 * cross;
+        self.var += inc;
         self.p_prev = Some(p.clone());
+        inc
+    }
+
+    /// Add `steps` more steps that each contribute `inc` (steady state).
+    pub fn extend_steady(&mut self, inc: f64, steps: usize) {
+        self.var += inc * steps as f64;
     }
 
     /// The predicted variance of the NEES sum so far.

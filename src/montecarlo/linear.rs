@@ -33,7 +33,30 @@ struct Schedule {
     null_var: f64,
 }
 
+/// Relative change below which a covariance entry or increment counts as unchanged.
+const STEADY_RTOL: f64 = 1e-14;
+
+/// Unchanged steps in a row after which the recursion is in steady state.
+const STEADY_STEPS: usize = 3;
+
+/// Whether every entry of `a` equals `b`'s to [`STEADY_RTOL`] relative to the geometric
+/// mean of the two diagonal entries it couples (a unit-free test).
+fn same_covariance(a: &DMatrix<f64>, b: &DMatrix<f64>) -> bool {
+    let n = a.nrows();
+    (0..n).all(|i| {
+        (0..n).all(|j| {
+            let scale = (a[(i, i)] * a[(j, j)]).abs().sqrt();
+            (a[(i, j)] - b[(i, j)]).abs() <= STEADY_RTOL * scale
+        })
+    })
+}
+
 impl Schedule {
+    /// Index of the stored matrices for step index `i` (the last stored ones once steady).
+    fn at(&self, i: usize) -> usize {
+        i.min(self.Kt.len() - 1)
+    }
+
     fn compute(f: &KalmanFilter, steps: usize) -> Result<Self, FilterError> {
         let n = f.n_x();
         let mut s = Schedule {
@@ -46,21 +69,36 @@ impl Schedule {
         };
         let mut P = f.P0.clone();
         let mut nv = NeesNullVariance::new(n);
+        // A time-invariant filter's covariance converges; once P and the null-variance
+        // increment have stopped changing for a few steps, the last step's matrices serve
+        // all remaining steps ([`Schedule::at`]) and the increment is extrapolated.
+        let (mut quiet_p, mut quiet_v, mut last_inc) = (0usize, 0usize, f64::NAN);
+        let mut p_steady = false;
         for k in 1..=steps {
+            if p_steady && quiet_v >= STEADY_STEPS {
+                nv.extend_steady(last_inc, steps - k + 1);
+                break;
+            }
             let Pp = f.predict_covariance(&P);
             let cu = f.update_covariance(&Pp, k)?;
-            P = cu.P;
-            let chol = cholesky(&P).ok_or(FilterError::NotPositiveDefinite {
+            let chol = cholesky(&cu.P).ok_or(FilterError::NotPositiveDefinite {
                 which: "P",
                 step: k,
             })?;
-            nv.step(&(&cu.IKH * &f.F), &P, &chol);
-            s.Wt.push(inverse_cholesky_factor(&chol).transpose());
-            s.Vt.push(inverse_cholesky_factor(&cu.chol).transpose());
-            s.p_inv_diag.push(P.diagonal().map(|v| 1.0 / v));
-            s.s_inv_sqrt_diag
-                .push(cu.S.diagonal().map(|v| 1.0 / v.sqrt()));
-            s.Kt.push(cu.K.transpose());
+            let inc = nv.step(&(&cu.IKH * &f.F), &cu.P, &chol);
+            quiet_v = if (inc - last_inc).abs() <= STEADY_RTOL * inc.abs() { quiet_v + 1 } else { 0 };
+            last_inc = inc;
+            if !p_steady {
+                quiet_p = if same_covariance(&cu.P, &P) { quiet_p + 1 } else { 0 };
+                p_steady = quiet_p >= STEADY_STEPS;
+                s.Wt.push(inverse_cholesky_factor(&chol).transpose());
+                s.Vt.push(inverse_cholesky_factor(&cu.chol).transpose());
+                s.p_inv_diag.push(cu.P.diagonal().map(|v| 1.0 / v));
+                s.s_inv_sqrt_diag
+                    .push(cu.S.diagonal().map(|v| 1.0 / v.sqrt()));
+                s.Kt.push(cu.K.transpose());
+            }
+            P = cu.P;
         }
         s.null_var = nv.variance();
         Ok(s)
@@ -197,6 +235,7 @@ fn chunk(
 
     for k in 1..=settings.steps {
         let i = k - 1;
+        let si = sched.at(i);
         // Per run: process noise first, then measurement noise, as the generic path does.
         for (c, rng) in rngs.iter_mut().enumerate() {
             for r in 0..rq {
@@ -216,7 +255,7 @@ fn chunk(
         std::mem::swap(&mut xh, &mut tmp);
         nu.copy_from(&z);
         gemm_rows(&mut nu, -1.0, &xh, &hf_t, 1.0);
-        gemm_rows(&mut xh, 1.0, &nu, &sched.Kt[i], 1.0);
+        gemm_rows(&mut xh, 1.0, &nu, &sched.Kt[si], 1.0);
         for ((ev, t), h) in e
             .as_mut_slice()
             .iter_mut()
@@ -225,8 +264,8 @@ fn chunk(
         {
             *ev = t - h;
         }
-        gemm_rows(&mut we, 1.0, &e, &sched.Wt[i], 0.0);
-        gemm_rows(&mut vn, 1.0, &nu, &sched.Vt[i], 0.0);
+        gemm_rows(&mut we, 1.0, &e, &sched.Wt[si], 0.0);
+        gemm_rows(&mut vn, 1.0, &nu, &sched.Vt[si], 0.0);
 
         // NEES and NIS per run are row norms.
         for (mat, sum, sqsum) in [
@@ -247,7 +286,7 @@ fn chunk(
         acc.nis_dof[i] += (m * b) as f64;
         acc.nis_count[i] += b as f64;
 
-        let pinv = &sched.p_inv_diag[i];
+        let pinv = &sched.p_inv_diag[si];
         for j in 0..n {
             let ej = col(&e, j);
             acc.state_comp_total[j] += dot(ej, ej) * pinv[j];
@@ -256,7 +295,7 @@ fn chunk(
                 *r += v * v * pinv[j];
             }
         }
-        let srt = &sched.s_inv_sqrt_diag[i];
+        let srt = &sched.s_inv_sqrt_diag[si];
         let slot = if lags > 0 { k % lags } else { 0 };
         for j in 0..m {
             for (uv, nv) in col_mut(&mut u, j).iter_mut().zip(col(&nu, j)) {

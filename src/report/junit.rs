@@ -2,22 +2,8 @@
 
 use std::fmt::Write;
 
+use super::html::escape;
 use crate::stats::{ConsistencyReport, StatisticSummary};
-
-fn escape(s: &str) -> String {
-    let mut o = String::with_capacity(s.len());
-    for c in s.chars() {
-        match c {
-            '&' => o.push_str("&amp;"),
-            '<' => o.push_str("&lt;"),
-            '>' => o.push_str("&gt;"),
-            '"' => o.push_str("&quot;"),
-            '\'' => o.push_str("&apos;"),
-            c => o.push(c),
-        }
-    }
-    o
-}
 
 fn case(name: &str, class: &str, failure: Option<(String, String)>) -> String {
     match failure {

@@ -20,11 +20,26 @@ pub enum Engine {
 
 /// Run the Monte Carlo sums for `problem`'s filter at parameter values `theta`.
 pub fn accumulate(problem: &Problem, theta: &[f64], mc: &McConfig, engine: Engine) -> Accumulator {
+    accumulate_with_progress(problem, theta, mc, engine, None)
+}
+
+/// [`accumulate`], reporting the runs completed as the engine goes.
+pub fn accumulate_with_progress(
+    problem: &Problem,
+    theta: &[f64],
+    mc: &McConfig,
+    engine: Engine,
+    progress: montecarlo::Progress<'_>,
+) -> Accumulator {
     let kf = problem.filter_at(theta);
     let settings = mc.engine();
     match engine {
-        Engine::Auto | Engine::Linear => montecarlo::run_linear(&problem.truth, &kf, &settings),
-        Engine::Generic => montecarlo::run_generic(&problem.truth, &kf, &settings),
+        Engine::Auto | Engine::Linear => {
+            montecarlo::run_linear_with_progress(&problem.truth, &kf, &settings, progress)
+        }
+        Engine::Generic => {
+            montecarlo::run_generic_with_progress(&problem.truth, &kf, &settings, progress)
+        }
     }
 }
 

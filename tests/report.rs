@@ -317,3 +317,41 @@ fn junit_has_the_common_schema_shape() {
         );
     }
 }
+
+#[test]
+fn long_checks_show_progress_only_on_a_terminal() {
+    let args = [
+        "--runs",
+        "20000",
+        "--steps",
+        "1000",
+        "--set",
+        "q_accel=0.5",
+        "--set",
+        "r_pos=1",
+    ];
+    // Piped: nothing on stderr.
+    autotune()
+        .arg("check")
+        .arg(problem_path("cv1d"))
+        .args(args)
+        .assert()
+        .stderr("");
+    let bin = assert_cmd::cargo::cargo_bin("autotune");
+    let cmd = format!(
+        "{} check {} {}",
+        bin.display(),
+        problem_path("cv1d").display(),
+        args.join(" ")
+    );
+    if let Ok(tty) = StdCommand::new("script")
+        .args(["-qec", &cmd, "/dev/null"])
+        .output()
+    {
+        let text = String::from_utf8_lossy(&tty.stdout);
+        assert!(
+            text.contains("runs,") && text.contains("ETA"),
+            "no progress bar on a terminal: {text}"
+        );
+    }
+}

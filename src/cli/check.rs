@@ -5,12 +5,15 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use anyhow::Context;
-use autotune::check::{Engine, check};
+use autotune::check::{Engine, accumulate_with_progress};
 use autotune::problem::Problem;
 use autotune::report::html::{check_html, check_markdown};
 use autotune::report::{
     CheckOutput, junit_xml, summary_text, tuned::TunedConfig, write_atomic, write_report_dir,
 };
+use autotune::stats::ConsistencyReport;
+use indicatif::{ProgressBar, ProgressStyle};
+use std::io::IsTerminal;
 
 #[derive(Debug, Clone, Copy, clap::ValueEnum)]
 enum EngineArg {
@@ -62,7 +65,36 @@ pub fn run(a: CheckArgs) -> anyhow::Result<ExitCode> {
         EngineArg::Linear => Engine::Linear,
         EngineArg::Generic => Engine::Generic,
     };
-    let report = check(&problem, &theta, &mc, engine, !a.nis_only);
+    // A progress bar with ETA on stderr, only on a terminal and only for runs long enough
+    // to be worth one.
+    let bar = (!a.quiet && std::io::stderr().is_terminal() && mc.runs * mc.steps >= 20_000_000)
+        .then(|| {
+            let b = ProgressBar::new(mc.runs as u64);
+            b.set_style(
+                ProgressStyle::with_template(
+                    "check [{bar:30}] {pos}/{len} runs, {elapsed} (ETA {eta})",
+                )
+                .expect("a valid template")
+                .progress_chars("=> "),
+            );
+            b
+        });
+    let on_runs = |done: usize| {
+        if let Some(b) = &bar {
+            b.set_position(done as u64);
+        }
+    };
+    let acc = accumulate_with_progress(&problem, &theta, &mc, engine, Some(&on_runs));
+    if let Some(b) = &bar {
+        b.finish_and_clear();
+    }
+    let report = ConsistencyReport::from_accumulator(
+        &acc,
+        mc.alpha,
+        &problem.state_names,
+        &problem.measurement_names,
+        !a.nis_only,
+    );
     let params: Vec<(String, f64)> = problem
         .params
         .params

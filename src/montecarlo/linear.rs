@@ -122,10 +122,20 @@ pub fn run_linear(
     filter: &KalmanFilter,
     settings: &Settings,
 ) -> Accumulator {
+    run_linear_with_progress(truth, filter, settings, None)
+}
+
+/// [`run_linear`], reporting the runs completed after each parallel wave.
+pub fn run_linear_with_progress(
+    truth: &LinearGaussianModel,
+    filter: &KalmanFilter,
+    settings: &Settings,
+    progress: super::Progress<'_>,
+) -> Accumulator {
     let n = filter.n_x();
     let m = filter.H.nrows();
     match Schedule::compute(filter, settings.steps) {
-        Ok(sched) => run_chunked(settings, n, m, |range, acc| {
+        Ok(sched) => run_chunked(settings, n, m, progress, |range, acc| {
             chunk_dispatch(truth, filter, &sched, settings, range, acc)
         }),
         Err(e) => {

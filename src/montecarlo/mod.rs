@@ -11,7 +11,7 @@ mod expected;
 mod linear;
 
 pub use expected::{expected_accumulator, models_match};
-pub use linear::run_linear;
+pub use linear::{run_linear, run_linear_with_progress};
 
 use std::ops::Range;
 
@@ -317,7 +317,13 @@ impl RunScratch {
 
 /// Split `runs` into fixed chunks, evaluate them in parallel waves, and merge the chunk sums
 /// in chunk order.
-fn run_chunked<G>(settings: &Settings, n_x: usize, n_z: usize, chunk: G) -> Accumulator
+fn run_chunked<G>(
+    settings: &Settings,
+    n_x: usize,
+    n_z: usize,
+    progress: Progress<'_>,
+    chunk: G,
+) -> Accumulator
 where
     G: Fn(Range<usize>, &mut Accumulator) + Sync,
 {
@@ -340,9 +346,15 @@ where
         for p in &parts {
             total.merge(p);
         }
+        if let Some(report) = progress {
+            report(total.runs);
+        }
     }
     total
 }
+
+/// An optional callback told the number of runs completed so far (for progress bars).
+pub type Progress<'a> = Option<&'a (dyn Fn(usize) + Sync)>;
 
 /// Offsets of each sensor's first component in the concatenated measurement components.
 pub fn sensor_offsets(dims: &[usize]) -> Vec<usize> {
@@ -362,11 +374,25 @@ where
     M: TruthModel + ?Sized,
     F: Filter + ?Sized,
 {
+    run_generic_with_progress(truth, filter, settings, None)
+}
+
+/// [`run_generic`], reporting the runs completed after each parallel wave.
+pub fn run_generic_with_progress<M, F>(
+    truth: &M,
+    filter: &F,
+    settings: &Settings,
+    progress: Progress<'_>,
+) -> Accumulator
+where
+    M: TruthModel + ?Sized,
+    F: Filter + ?Sized,
+{
     let n_x = filter.n_x();
     let dims = filter.sensor_dims();
     let offsets = sensor_offsets(&dims);
     let n_z: usize = dims.iter().sum();
-    run_chunked(settings, n_x, n_z, |range, acc| {
+    run_chunked(settings, n_x, n_z, progress, |range, acc| {
         let mut scratch = RunScratch::new(n_x, n_z, settings.lags);
         let mut meas: Vec<Measurement> = Vec::new();
         for run in range {

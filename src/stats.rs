@@ -20,7 +20,7 @@
 
 use nalgebra::{Cholesky, DMatrix, Dyn};
 use serde::Serialize;
-use statrs::distribution::{ChiSquared, ContinuousCDF, Normal};
+use statrs::distribution::{ChiSquared, ContinuousCDF, Normal, StudentsT};
 
 use crate::montecarlo::Accumulator;
 
@@ -384,7 +384,7 @@ impl ConsistencyReport {
                 samples: &acc.state_comp_samples,
             },
             acc.runs,
-            z,
+            alpha,
         );
         let measurement_components = components(
             "measurement",
@@ -396,7 +396,7 @@ impl ConsistencyReport {
                 samples: &acc.meas_comp_samples,
             },
             acc.meas_comp_runs.iter().copied().max().unwrap_or(0),
-            z,
+            alpha,
         );
         let whiteness = whiteness(acc, measurement_names, z);
 
@@ -579,7 +579,7 @@ fn components(
     names: &[String],
     sums: ComponentSums<'_>,
     runs: usize,
-    z: f64,
+    alpha: f64,
 ) -> Vec<ComponentStat> {
     let ComponentSums {
         total,
@@ -587,6 +587,15 @@ fn components(
         run_sq,
         samples,
     } = sums;
+    // Student's t with N − 1 degrees of freedom: the spread is estimated from the same N
+    // runs (for large N this is the normal quantile).
+    let t = if runs >= 2 {
+        StudentsT::new(0.0, 1.0, runs as f64 - 1.0)
+            .map(|d| d.inverse_cdf(1.0 - alpha / 2.0))
+            .unwrap_or_else(|_| normal_two_sided_quantile(alpha))
+    } else {
+        f64::INFINITY
+    };
     names
         .iter()
         .enumerate()
@@ -600,7 +609,7 @@ fn components(
             let half = if runs >= 2 {
                 let mean = run_sum[j] / n;
                 let var = ((run_sq[j] - n * mean * mean) / (n - 1.0)).max(0.0);
-                z * (var / n).sqrt()
+                t * (var / n).sqrt()
             } else {
                 f64::INFINITY
             };

@@ -4,8 +4,10 @@
 //! ([`KalmanFilter`]) implements it, and so can a user's own filter.
 
 mod kf;
+mod nonlinear;
 
 pub use kf::KalmanFilter;
+pub use nonlinear::{Ekf, LinearSystem, SystemModel, Ukf, numerical_jacobian};
 
 use nalgebra::{DMatrix, DVector};
 

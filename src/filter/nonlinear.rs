@@ -1,0 +1,382 @@
+//! Nonlinear filters: the extended and the unscented Kalman filter, over a [`SystemModel`].
+
+#![allow(non_snake_case)]
+
+use nalgebra::{DMatrix, DVector};
+
+use super::{Estimate, Filter, FilterError, Innovation};
+use crate::linalg::{cholesky, mahalanobis_sq, symmetrize};
+use crate::model::Measurement;
+
+/// A system as a nonlinear filter sees it: `x_k = f_k(x_{k−1}) + w_k`,
+/// `z_k = h_{k,s}(x_k) + v_k` for each sensor s.
+pub trait SystemModel: Sync {
+    /// State dimension n_x.
+    fn n_x(&self) -> usize;
+
+    /// Dimension of each sensor's measurement.
+    fn sensor_dims(&self) -> Vec<usize>;
+
+    /// The state transition f_k (from step k − 1 to step k).
+    fn transition(&self, k: usize, x: &DVector<f64>) -> DVector<f64>;
+
+    /// `∂f_k/∂x` at `x` (n × n); `None` (the default) means central finite differences.
+    fn transition_jacobian(&self, _k: usize, _x: &DVector<f64>) -> Option<DMatrix<f64>> {
+        None
+    }
+
+    /// The measurement function of `sensor` at step k.
+    fn measurement(&self, k: usize, sensor: usize, x: &DVector<f64>) -> DVector<f64>;
+
+    /// `∂h/∂x` at `x` (m_s × n); `None` (the default) means central finite differences.
+    fn measurement_jacobian(
+        &self,
+        _k: usize,
+        _sensor: usize,
+        _x: &DVector<f64>,
+    ) -> Option<DMatrix<f64>> {
+        None
+    }
+
+    /// The innovation `z − ẑ`; override to wrap angles (e.g. a bearing into (−π, π]).
+    fn residual(&self, _sensor: usize, z: &DVector<f64>, z_hat: &DVector<f64>) -> DVector<f64> {
+        z - z_hat
+    }
+}
+
+/// Central finite-difference Jacobian of `g` at `x`, with steps `1e-6·max(1, |x_i|)`
+/// (close to the cube root of machine epsilon, which balances truncation and rounding).
+pub fn numerical_jacobian(
+    g: impl Fn(&DVector<f64>) -> DVector<f64>,
+    x: &DVector<f64>,
+) -> DMatrix<f64> {
+    let n = x.len();
+    let m = g(x).len();
+    let mut J = DMatrix::zeros(m, n);
+    for i in 0..n {
+        let h = 1e-6 * x[i].abs().max(1.0);
+        let mut xp = x.clone();
+        let mut xm = x.clone();
+        xp[i] += h;
+        xm[i] -= h;
+        let d = (g(&xp) - g(&xm)) / (2.0 * h);
+        J.set_column(i, &d);
+    }
+    J
+}
+
+fn check_measurement(dims: &[usize], meas: &Measurement) -> Result<(), FilterError> {
+    match dims.get(meas.sensor) {
+        Some(&d) if d == meas.z.len() => Ok(()),
+        other => Err(FilterError::BadMeasurement {
+            sensor: meas.sensor,
+            got: meas.z.len(),
+            expected: other.copied().unwrap_or(0),
+        }),
+    }
+}
+
+/// The extended Kalman filter: linearizes f and h at the current estimate, with the
+/// model's analytic Jacobians or finite differences, and updates in Joseph form.
+#[derive(Debug, Clone)]
+pub struct Ekf<M> {
+    /// The filter's system model.
+    pub model: M,
+    /// Process noise covariance per step, n × n.
+    pub Q: DMatrix<f64>,
+    /// Measurement noise covariance of each sensor, m_s × m_s.
+    pub R: Vec<DMatrix<f64>>,
+    /// Initial estimate.
+    pub x0: DVector<f64>,
+    /// Initial covariance.
+    pub P0: DMatrix<f64>,
+}
+
+impl<M: SystemModel> Ekf<M> {
+    fn f_jacobian(&self, k: usize, x: &DVector<f64>) -> DMatrix<f64> {
+        self.model
+            .transition_jacobian(k, x)
+            .unwrap_or_else(|| numerical_jacobian(|v| self.model.transition(k, v), x))
+    }
+
+    fn h_jacobian(&self, k: usize, s: usize, x: &DVector<f64>) -> DMatrix<f64> {
+        self.model
+            .measurement_jacobian(k, s, x)
+            .unwrap_or_else(|| numerical_jacobian(|v| self.model.measurement(k, s, v), x))
+    }
+}
+
+impl<M: SystemModel> Filter for Ekf<M> {
+    fn n_x(&self) -> usize {
+        self.model.n_x()
+    }
+
+    fn sensor_dims(&self) -> Vec<usize> {
+        self.model.sensor_dims()
+    }
+
+    fn initial(&self) -> Estimate {
+        let n = self.n_x();
+        Estimate {
+            x: self.x0.clone(),
+            P: self.P0.clone(),
+            error_map: DMatrix::identity(n, n),
+        }
+    }
+
+    fn predict(&self, k: usize, est: &mut Estimate) -> Result<(), FilterError> {
+        let F = self.f_jacobian(k, &est.x);
+        est.x = self.model.transition(k, &est.x);
+        let mut P = &F * &est.P * F.transpose() + &self.Q;
+        symmetrize(&mut P);
+        est.P = P;
+        est.error_map = F;
+        Ok(())
+    }
+
+    fn update(
+        &self,
+        k: usize,
+        est: &mut Estimate,
+        meas: &Measurement,
+    ) -> Result<Innovation, FilterError> {
+        check_measurement(&self.sensor_dims(), meas)?;
+        let s = meas.sensor;
+        let H = self.h_jacobian(k, s, &est.x);
+        let HP = &H * &est.P;
+        let mut S = &HP * H.transpose() + &self.R[s];
+        symmetrize(&mut S);
+        let chol = cholesky(&S).ok_or(FilterError::NotPositiveDefinite {
+            which: "S",
+            step: k,
+        })?;
+        let K = chol.solve(&HP).transpose();
+        let nu = self
+            .model
+            .residual(s, &meas.z, &self.model.measurement(k, s, &est.x));
+        est.x += &K * &nu;
+        let n = est.x.len();
+        let IKH = DMatrix::identity(n, n) - &K * &H;
+        let mut P = &IKH * &est.P * IKH.transpose() + &K * &self.R[s] * K.transpose();
+        symmetrize(&mut P);
+        est.P = P;
+        est.error_map = &IKH * &est.error_map;
+        let nis = mahalanobis_sq(&chol, &nu);
+        Ok(Innovation { nu, S, nis })
+    }
+}
+
+/// Sigma points with their mean and covariance weights.
+type SigmaPoints = (Vec<DVector<f64>>, Vec<f64>, Vec<f64>);
+
+/// The unscented Kalman filter with additive noise and the scaled sigma points of Julier
+/// (2002) / van der Merwe: 2n + 1 points at `x ± columns of √((n + λ) P)`,
+/// `λ = α² (n + κ) − n`, mean weights `λ/(n+λ)` and `1/(2(n+λ))`, and covariance weight
+/// `λ/(n+λ) + 1 − α² + β` for the centre point.
+#[derive(Debug, Clone)]
+pub struct Ukf<M> {
+    /// The filter's system model.
+    pub model: M,
+    /// Process noise covariance per step, n × n (added after propagation).
+    pub Q: DMatrix<f64>,
+    /// Measurement noise covariance of each sensor, m_s × m_s.
+    pub R: Vec<DMatrix<f64>>,
+    /// Initial estimate.
+    pub x0: DVector<f64>,
+    /// Initial covariance.
+    pub P0: DMatrix<f64>,
+    /// Spread of the sigma points around the mean (0 < α ≤ 1; default 1).
+    pub alpha: f64,
+    /// Prior knowledge of the distribution (2 is optimal for Gaussians).
+    pub beta: f64,
+    /// Secondary scaling (default 0).
+    pub kappa: f64,
+}
+
+impl<M: SystemModel> Ukf<M> {
+    /// A UKF with α = 1, β = 2, κ = 0.
+    pub fn new(
+        model: M,
+        Q: DMatrix<f64>,
+        R: Vec<DMatrix<f64>>,
+        x0: DVector<f64>,
+        P0: DMatrix<f64>,
+    ) -> Self {
+        Ukf {
+            model,
+            Q,
+            R,
+            x0,
+            P0,
+            alpha: 1.0,
+            beta: 2.0,
+            kappa: 0.0,
+        }
+    }
+
+    /// Sigma points (columns) and the mean and covariance weights.
+    fn sigma(
+        &self,
+        x: &DVector<f64>,
+        P: &DMatrix<f64>,
+        step: usize,
+    ) -> Result<SigmaPoints, FilterError> {
+        let n = x.len() as f64;
+        let lambda = self.alpha * self.alpha * (n + self.kappa) - n;
+        let chol = cholesky(&(P * (n + lambda)))
+            .ok_or(FilterError::NotPositiveDefinite { which: "P", step })?;
+        let L = chol.l();
+        let mut pts = vec![x.clone()];
+        for i in 0..x.len() {
+            pts.push(x + L.column(i));
+        }
+        for i in 0..x.len() {
+            pts.push(x - L.column(i));
+        }
+        let w = 1.0 / (2.0 * (n + lambda));
+        let mut wm = vec![w; pts.len()];
+        let mut wc = wm.clone();
+        wm[0] = lambda / (n + lambda);
+        wc[0] = wm[0] + 1.0 - self.alpha * self.alpha + self.beta;
+        Ok((pts, wm, wc))
+    }
+}
+
+impl<M: SystemModel> Filter for Ukf<M> {
+    fn n_x(&self) -> usize {
+        self.model.n_x()
+    }
+
+    fn sensor_dims(&self) -> Vec<usize> {
+        self.model.sensor_dims()
+    }
+
+    fn initial(&self) -> Estimate {
+        let n = self.n_x();
+        Estimate {
+            x: self.x0.clone(),
+            P: self.P0.clone(),
+            error_map: DMatrix::identity(n, n),
+        }
+    }
+
+    fn predict(&self, k: usize, est: &mut Estimate) -> Result<(), FilterError> {
+        let (pts, wm, wc) = self.sigma(&est.x, &est.P, k)?;
+        let prop: Vec<DVector<f64>> = pts.iter().map(|p| self.model.transition(k, p)).collect();
+        let n = est.x.len();
+        let mut x = DVector::zeros(n);
+        for (p, w) in prop.iter().zip(&wm) {
+            x += p * *w;
+        }
+        let mut P = self.Q.clone();
+        let mut C = DMatrix::zeros(n, n);
+        for ((p, q), w) in prop.iter().zip(&pts).zip(&wc) {
+            let d = p - &x;
+            P += &d * d.transpose() * *w;
+            C += &d * (q - &est.x).transpose() * *w;
+        }
+        symmetrize(&mut P);
+        // Statistical linearization of f: the F with which a linear filter would produce the
+        // same cross covariance, F = C P⁻¹ (used for the NEES correlation model).
+        let F = cholesky(&est.P)
+            .map(|c| c.solve(&C.transpose()).transpose())
+            .ok_or(FilterError::NotPositiveDefinite {
+                which: "P",
+                step: k,
+            })?;
+        est.x = x;
+        est.P = P;
+        est.error_map = F;
+        Ok(())
+    }
+
+    fn update(
+        &self,
+        k: usize,
+        est: &mut Estimate,
+        meas: &Measurement,
+    ) -> Result<Innovation, FilterError> {
+        check_measurement(&self.sensor_dims(), meas)?;
+        let s = meas.sensor;
+        let (pts, wm, wc) = self.sigma(&est.x, &est.P, k)?;
+        let zs: Vec<DVector<f64>> = pts
+            .iter()
+            .map(|p| self.model.measurement(k, s, p))
+            .collect();
+        let m = meas.z.len();
+        let mut z_hat = DVector::zeros(m);
+        for (z, w) in zs.iter().zip(&wm) {
+            z_hat += z * *w;
+        }
+        let mut S = self.R[s].clone();
+        let mut Pxz = DMatrix::zeros(est.x.len(), m);
+        for ((z, p), w) in zs.iter().zip(&pts).zip(&wc) {
+            let dz = self.model.residual(s, z, &z_hat);
+            S += &dz * dz.transpose() * *w;
+            Pxz += (p - &est.x) * dz.transpose() * *w;
+        }
+        symmetrize(&mut S);
+        let chol = cholesky(&S).ok_or(FilterError::NotPositiveDefinite {
+            which: "S",
+            step: k,
+        })?;
+        let K = chol.solve(&Pxz.transpose()).transpose();
+        let nu = self.model.residual(s, &meas.z, &z_hat);
+        // Statistical linearization of h, H = Pxz' P⁻¹, for the error map.
+        let H = cholesky(&est.P).map(|c| c.solve(&Pxz).transpose()).ok_or(
+            FilterError::NotPositiveDefinite {
+                which: "P",
+                step: k,
+            },
+        )?;
+        est.x += &K * &nu;
+        let mut P = &est.P - &K * &S * K.transpose();
+        symmetrize(&mut P);
+        est.P = P;
+        let n = est.x.len();
+        est.error_map = (DMatrix::identity(n, n) - &K * &H) * &est.error_map;
+        let nis = mahalanobis_sq(&chol, &nu);
+        Ok(Innovation { nu, S, nis })
+    }
+}
+
+/// A linear system `f(x) = F x`, `h(x) = H x` as a [`SystemModel`] (one sensor), for running
+/// the nonlinear filters on linear problems (and checking them against the KF).
+#[derive(Debug, Clone)]
+pub struct LinearSystem {
+    /// State transition, n × n.
+    pub F: DMatrix<f64>,
+    /// Measurement matrix, m × n.
+    pub H: DMatrix<f64>,
+}
+
+impl SystemModel for LinearSystem {
+    fn n_x(&self) -> usize {
+        self.F.nrows()
+    }
+
+    fn sensor_dims(&self) -> Vec<usize> {
+        vec![self.H.nrows()]
+    }
+
+    fn transition(&self, _k: usize, x: &DVector<f64>) -> DVector<f64> {
+        &self.F * x
+    }
+
+    fn transition_jacobian(&self, _k: usize, _x: &DVector<f64>) -> Option<DMatrix<f64>> {
+        Some(self.F.clone())
+    }
+
+    fn measurement(&self, _k: usize, _sensor: usize, x: &DVector<f64>) -> DVector<f64> {
+        &self.H * x
+    }
+
+    fn measurement_jacobian(
+        &self,
+        _k: usize,
+        _sensor: usize,
+        _x: &DVector<f64>,
+    ) -> Option<DMatrix<f64>> {
+        Some(self.H.clone())
+    }
+}

@@ -27,10 +27,130 @@ use rayon::prelude::*;
 use serde::Serialize;
 
 use crate::SimRng;
-use crate::check::Engine;
+use crate::filter::Filter;
+use crate::model::TruthModel;
+use crate::montecarlo::Settings;
 use crate::montecarlo::{self, Accumulator, expected_accumulator, models_match};
+use crate::params::ParamSpace;
 use crate::problem::{McConfig, Problem};
 use crate::stats::ConsistencyReport;
+
+/// Anything the tuner can tune: named parameters, and the Monte Carlo sums of the filter at
+/// given parameter values. [`Problem`] implements it for problem files; [`CustomModel`]
+/// does for a truth model and filter defined in Rust.
+pub trait Tunable: Sync {
+    /// The named parameters (values are the defaults, bounds are the search box).
+    fn params(&self) -> &ParamSpace;
+    /// State component names, n_x.
+    fn state_names(&self) -> &[String];
+    /// Measurement component names (all sensors' components concatenated).
+    fn measurement_names(&self) -> &[String];
+    /// Monte Carlo sums of the filter with parameters `theta` against the truth.
+    fn monte_carlo(&self, theta: &[f64], settings: &Settings) -> Accumulator;
+    /// The exact expected sums, where the model allows computing them (a diverging filter
+    /// gives sums marked diverged); `None` when it does not.
+    fn expected(&self, _theta: &[f64], _settings: &Settings) -> Option<Accumulator> {
+        None
+    }
+}
+
+impl Tunable for Problem {
+    fn params(&self) -> &ParamSpace {
+        &self.params
+    }
+
+    fn state_names(&self) -> &[String] {
+        &self.state_names
+    }
+
+    fn measurement_names(&self) -> &[String] {
+        &self.measurement_names
+    }
+
+    fn monte_carlo(&self, theta: &[f64], settings: &Settings) -> Accumulator {
+        montecarlo::run_linear(&self.truth, &self.filter_at(theta), settings)
+    }
+
+    fn expected(&self, theta: &[f64], settings: &Settings) -> Option<Accumulator> {
+        let kf = self.filter_at(theta);
+        if !models_match(&self.truth, &kf) {
+            return None;
+        }
+        Some(
+            expected_accumulator(&self.truth, &kf, settings).unwrap_or_else(|_| {
+                let mut a =
+                    Accumulator::new(settings.steps, kf.F.nrows(), kf.H.nrows(), settings.lags);
+                a.diverged_runs = settings.runs;
+                a.runs = settings.runs;
+                a
+            }),
+        )
+    }
+}
+
+/// A user's own truth model and filter family as a [`Tunable`]: `build(θ)` makes the
+/// filter for parameter values θ (in the order of `params`).
+pub struct CustomModel<T, F, B> {
+    /// The truth model.
+    pub truth: T,
+    /// Builds the filter for parameter values θ.
+    pub build: B,
+    /// The named parameters.
+    pub params: ParamSpace,
+    /// State component names.
+    pub state_names: Vec<String>,
+    /// Measurement component names.
+    pub measurement_names: Vec<String>,
+    _filter: std::marker::PhantomData<fn() -> F>,
+}
+
+impl<T, F, B> CustomModel<T, F, B>
+where
+    T: TruthModel,
+    F: Filter,
+    B: Fn(&[f64]) -> F + Sync,
+{
+    /// Wrap a truth model and a filter builder.
+    pub fn new(
+        truth: T,
+        build: B,
+        params: ParamSpace,
+        state_names: Vec<String>,
+        measurement_names: Vec<String>,
+    ) -> Self {
+        CustomModel {
+            truth,
+            build,
+            params,
+            state_names,
+            measurement_names,
+            _filter: std::marker::PhantomData,
+        }
+    }
+}
+
+impl<T, F, B> Tunable for CustomModel<T, F, B>
+where
+    T: TruthModel,
+    F: Filter,
+    B: Fn(&[f64]) -> F + Sync,
+{
+    fn params(&self) -> &ParamSpace {
+        &self.params
+    }
+
+    fn state_names(&self) -> &[String] {
+        &self.state_names
+    }
+
+    fn measurement_names(&self) -> &[String] {
+        &self.measurement_names
+    }
+
+    fn monte_carlo(&self, theta: &[f64], settings: &Settings) -> Accumulator {
+        montecarlo::run_generic(&self.truth, &(self.build)(theta), settings)
+    }
+}
 
 /// How candidates are scored during the search.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize)]
@@ -197,7 +317,7 @@ pub fn default_confirm_seed(seed: u64) -> u64 {
 }
 
 struct Search<'a> {
-    problem: &'a Problem,
+    model: &'a dyn Tunable,
     mc: McConfig,
     exact: bool,
     objective: Objective,
@@ -238,18 +358,14 @@ impl Search<'_> {
     }
 
     fn accumulate(&self, theta: &[f64]) -> Accumulator {
-        let kf = self.problem.filter_at(theta);
         let settings = self.mc.engine();
-        if self.exact {
-            expected_accumulator(&self.problem.truth, &kf, &settings).unwrap_or_else(|_| {
-                let mut a =
-                    Accumulator::new(settings.steps, kf.F.nrows(), kf.H.nrows(), settings.lags);
-                a.diverged_runs = settings.runs;
-                a.runs = settings.runs;
-                a
-            })
-        } else {
-            montecarlo::run_linear(&self.problem.truth, &kf, &settings)
+        match self
+            .exact
+            .then(|| self.model.expected(theta, &settings))
+            .flatten()
+        {
+            Some(acc) => acc,
+            None => self.model.monte_carlo(theta, &settings),
         }
     }
 
@@ -388,9 +504,10 @@ fn latin_hypercube(points: usize, dim: usize, seed: u64) -> Vec<Vec<f64>> {
     out
 }
 
-/// Tune `problem` from parameter values `start`, holding the parameters marked in `fixed`.
+/// Tune `model` (a [`Problem`], or a [`CustomModel`]) from parameter values `start`, holding
+/// the parameters marked in `fixed`.
 pub fn tune(
-    problem: &Problem,
+    model: &dyn Tunable,
     start: &[f64],
     fixed: &[bool],
     mc: &McConfig,
@@ -414,16 +531,33 @@ pub fn tune(
         return Err(setting("starts", "0 must be ≥ 1".into()));
     }
     let t0 = Instant::now();
-    let params = &problem.params.params;
+    let params = &model.params().params;
+    if start.len() != params.len() || fixed.len() != params.len() {
+        return Err(setting(
+            "start",
+            format!(
+                "{} start values and {} fixed flags for {} parameters",
+                start.len(),
+                fixed.len(),
+                params.len()
+            ),
+        ));
+    }
     let free: Vec<usize> = (0..params.len()).filter(|&i| !fixed[i]).collect();
-    let kf0 = problem.filter_at(start);
+    let probe = Settings {
+        runs: 1,
+        steps: 1,
+        seed: mc.seed,
+        lags: 0,
+    };
+    let exact_available = model.expected(start, &probe).is_some();
     let exact = match settings.scoring {
-        Scoring::Auto => models_match(&problem.truth, &kf0),
+        Scoring::Auto => exact_available,
         Scoring::Exact => {
-            if !models_match(&problem.truth, &kf0) {
+            if !exact_available {
                 return Err(setting(
                     "scoring",
-                    "exact scoring needs the filter to use the truth's F and H".into(),
+                    "exact scoring needs a linear filter that uses the truth's F and H".into(),
                 ));
             }
             true
@@ -435,7 +569,7 @@ pub fn tune(
         search_mc.runs = settings.search_runs.unwrap_or(4 * mc.runs).max(1);
     }
     let mut search = Search {
-        problem,
+        model,
         mc: search_mc,
         exact,
         objective: Objective::new(settings.weights, settings.nis_only, mc.alpha),
@@ -551,12 +685,12 @@ pub fn tune(
     cmc.seed = confirm_seed;
     let use_nees = !settings.nis_only;
     let report = |theta: &[f64]| {
-        let acc = crate::check::accumulate(problem, theta, &cmc, Engine::Auto);
+        let acc = model.monte_carlo(theta, &cmc.engine());
         let r = ConsistencyReport::from_accumulator(
             &acc,
             cmc.alpha,
-            &problem.state_names,
-            &problem.measurement_names,
+            model.state_names(),
+            model.measurement_names(),
             use_nees,
         );
         (r, search.objective.evaluate(&acc).total)

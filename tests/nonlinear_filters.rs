@@ -177,3 +177,85 @@ fn numerical_jacobian_matches_analytic_on_a_range_bearing_sensor() {
     let err = max_rel_m(&numeric, &analytic);
     assert!(err < 1e-8, "finite-difference Jacobian off by {err:e}");
 }
+
+/// cv2d with the process noise entering as accelerations: `x_k = F x + G w`.
+struct NoiseDriven(LinearSystem, DMatrix<f64>);
+
+impl SystemModel for NoiseDriven {
+    fn n_x(&self) -> usize {
+        self.0.n_x()
+    }
+    fn sensor_dims(&self) -> Vec<usize> {
+        self.0.sensor_dims()
+    }
+    fn transition(&self, k: usize, x: &DVector<f64>) -> DVector<f64> {
+        self.0.transition(k, x)
+    }
+    fn transition_with_noise(
+        &self,
+        k: usize,
+        x: &DVector<f64>,
+        w: &DVector<f64>,
+    ) -> Option<DVector<f64>> {
+        Some(self.0.transition(k, x) + &self.1 * w)
+    }
+    fn measurement(&self, k: usize, s: usize, x: &DVector<f64>) -> DVector<f64> {
+        self.0.measurement(k, s, x)
+    }
+}
+
+#[test]
+fn ukf_with_augmented_process_noise_agrees_with_the_kf() {
+    let p = load("cv2d");
+    let theta: Vec<f64> = truth_values(&p).iter().map(|v| v * 2.0).collect();
+    let kf = p.filter_at(&theta);
+    // DWNA: Q = G diag(q_x, q_y) G' with G the per-axis gain [dt²/2, dt]'.
+    let g = DMatrix::from_row_slice(4, 2, &[0.5, 0.0, 1.0, 0.0, 0.0, 0.5, 0.0, 1.0]);
+    let qw = DMatrix::from_diagonal(&DVector::from_column_slice(&[theta[0], theta[1]]));
+    assert!(max_rel_m(&(&g * &qw * g.transpose()), &kf.Q) < 1e-15);
+    let sys = LinearSystem {
+        F: kf.F.clone(),
+        H: kf.H.clone(),
+    };
+    let mut ukf = Ukf::new(
+        NoiseDriven(sys, g),
+        DMatrix::zeros(4, 4),
+        vec![kf.R.clone()],
+        kf.x0.clone(),
+        kf.P0.clone(),
+    );
+    ukf.augmented_noise = Some(qw);
+    let mut rng = run_rng(3, 0);
+    let mut x = p.truth.initial_state(&mut rng);
+    let (mut a, mut b) = (kf.initial(), ukf.initial());
+    let mut meas = Vec::new();
+    for k in 1..=80 {
+        x = p.truth.propagate(k, &x, &mut rng);
+        meas.clear();
+        p.truth.measure(k, &x, &mut rng, &mut meas);
+        kf.predict(k, &mut a).unwrap();
+        ukf.predict(k, &mut b).unwrap();
+        let ia = kf.update(k, &mut a, &meas[0]).unwrap();
+        let ib = ukf.update(k, &mut b, &meas[0]).unwrap();
+        assert!(max_rel_m(&a.P, &b.P) < 1e-9, "step {k}: P");
+        assert!(
+            (&a.x - &b.x).abs().max() / a.x.abs().max() < 1e-9,
+            "step {k}: x"
+        );
+        assert!(rel(ia.nis, ib.nis) < 1e-9, "step {k}: NIS");
+    }
+    // A model without the noise-driven form is an error, not a silent additive fallback.
+    let mut plain = Ukf::new(
+        LinearSystem {
+            F: kf.F.clone(),
+            H: kf.H.clone(),
+        },
+        kf.Q.clone(),
+        vec![kf.R.clone()],
+        kf.x0.clone(),
+        kf.P0.clone(),
+    );
+    plain.augmented_noise = Some(DMatrix::identity(2, 2));
+    let mut e = plain.initial();
+    assert!(plain.predict(1, &mut e).is_err());
+}

@@ -50,6 +50,12 @@ pub enum FilterError {
         /// Time step.
         step: usize,
     },
+    /// The filter needs something its model does not provide.
+    #[error("the model does not provide {what}")]
+    Unsupported {
+        /// What is missing.
+        what: &'static str,
+    },
     /// A measurement from a sensor the filter does not know, or of the wrong dimension.
     #[error("measurement from sensor {sensor} has dimension {got}, expected {expected}")]
     BadMeasurement {

@@ -25,6 +25,17 @@ pub trait SystemModel: Sync {
         None
     }
 
+    /// The transition driven by process noise `w`, `x_k = f_k(x_{k−1}, w_k)`, for the UKF
+    /// with augmented process noise; `None` (the default) when the model has no such form.
+    fn transition_with_noise(
+        &self,
+        _k: usize,
+        _x: &DVector<f64>,
+        _w: &DVector<f64>,
+    ) -> Option<DVector<f64>> {
+        None
+    }
+
     /// The measurement function of `sensor` at step k.
     fn measurement(&self, k: usize, sensor: usize, x: &DVector<f64>) -> DVector<f64>;
 
@@ -191,6 +202,9 @@ pub struct Ukf<M> {
     pub beta: f64,
     /// Secondary scaling (default 0).
     pub kappa: f64,
+    /// Covariance of the process noise w for augmented sigma points (non-additive noise
+    /// through [`SystemModel::transition_with_noise`]); `None` adds `Q` after propagation.
+    pub augmented_noise: Option<DMatrix<f64>>,
 }
 
 impl<M: SystemModel> Ukf<M> {
@@ -211,6 +225,7 @@ impl<M: SystemModel> Ukf<M> {
             alpha: 1.0,
             beta: 2.0,
             kappa: 0.0,
+            augmented_noise: None,
         }
     }
 
@@ -261,14 +276,47 @@ impl<M: SystemModel> Filter for Ukf<M> {
     }
 
     fn predict(&self, k: usize, est: &mut Estimate) -> Result<(), FilterError> {
-        let (pts, wm, wc) = self.sigma(&est.x, &est.P, k)?;
-        let prop: Vec<DVector<f64>> = pts.iter().map(|p| self.model.transition(k, p)).collect();
         let n = est.x.len();
+        // Additive noise: sigma points of x, Q added after. Augmented: sigma points of
+        // [x; w] with covariance blkdiag(P, Q_w), each propagated through f(x, w).
+        let (pts, wm, wc, prop, add_q) = match &self.augmented_noise {
+            None => {
+                let (pts, wm, wc) = self.sigma(&est.x, &est.P, k)?;
+                let prop: Vec<DVector<f64>> =
+                    pts.iter().map(|p| self.model.transition(k, p)).collect();
+                (pts, wm, wc, prop, true)
+            }
+            Some(qw) => {
+                let q = qw.nrows();
+                let mut xa = DVector::zeros(n + q);
+                xa.rows_mut(0, n).copy_from(&est.x);
+                let mut pa = DMatrix::zeros(n + q, n + q);
+                pa.view_mut((0, 0), (n, n)).copy_from(&est.P);
+                pa.view_mut((n, n), (q, q)).copy_from(qw);
+                let (apts, wm, wc) = self.sigma(&xa, &pa, k)?;
+                let mut prop = Vec::with_capacity(apts.len());
+                for a in &apts {
+                    let x = a.rows(0, n).clone_owned();
+                    let w = a.rows(n, q).clone_owned();
+                    prop.push(self.model.transition_with_noise(k, &x, &w).ok_or(
+                        FilterError::Unsupported {
+                            what: "transition_with_noise (needed for augmented process noise)",
+                        },
+                    )?);
+                }
+                let pts = apts.iter().map(|a| a.rows(0, n).clone_owned()).collect();
+                (pts, wm, wc, prop, false)
+            }
+        };
         let mut x = DVector::zeros(n);
         for (p, w) in prop.iter().zip(&wm) {
             x += p * *w;
         }
-        let mut P = self.Q.clone();
+        let mut P = if add_q {
+            self.Q.clone()
+        } else {
+            DMatrix::zeros(n, n)
+        };
         let mut C = DMatrix::zeros(n, n);
         for ((p, q), w) in prop.iter().zip(&pts).zip(&wc) {
             let d = p - &x;

@@ -199,7 +199,7 @@ impl Accumulator {
         if self.divergences.len() < MAX_DIVERGENCES {
             let step = match err {
                 FilterError::NotPositiveDefinite { step, .. } => *step,
-                FilterError::BadMeasurement { .. } => 0,
+                FilterError::BadMeasurement { .. } | FilterError::Unsupported { .. } => 0,
             };
             self.divergences.push(Divergence {
                 run,

@@ -43,20 +43,33 @@ impl KalmanFilter {
         Pp: &DMatrix<f64>,
         step: usize,
     ) -> Result<CovarianceUpdate, FilterError> {
-        let HP = &self.H * Pp;
-        let mut S = &HP * self.H.transpose() + &self.R;
-        symmetrize(&mut S);
-        let chol = cholesky(&S).ok_or(FilterError::NotPositiveDefinite { which: "S", step })?;
-        let K = chol.solve(&HP).transpose();
-        let n = Pp.nrows();
-        let IKH = DMatrix::identity(n, n) - &K * &self.H;
-        let mut P = &IKH * Pp * IKH.transpose() + &K * &self.R * K.transpose();
-        symmetrize(&mut P);
-        if P.iter().any(|v| !v.is_finite()) {
-            return Err(FilterError::NotPositiveDefinite { which: "P", step });
-        }
-        Ok(CovarianceUpdate { K, S, chol, P, IKH })
+        joseph_update(Pp, &self.H, &self.R, step)
     }
+}
+
+/// The covariance half of a Kalman update with measurement matrix (or Jacobian) `H` and
+/// noise `R` from the prior `P⁻`: gain `K` solving `S K' = H P⁻` by Cholesky (no inverse),
+/// `S = H P⁻ H' + R`, and the Joseph-form posterior `(I − K H) P⁻ (I − K H)' + K R K'`,
+/// symmetrized. Shared by the KF and the EKF.
+pub fn joseph_update(
+    Pp: &DMatrix<f64>,
+    H: &DMatrix<f64>,
+    R: &DMatrix<f64>,
+    step: usize,
+) -> Result<CovarianceUpdate, FilterError> {
+    let HP = H * Pp;
+    let mut S = &HP * H.transpose() + R;
+    symmetrize(&mut S);
+    let chol = cholesky(&S).ok_or(FilterError::NotPositiveDefinite { which: "S", step })?;
+    let K = chol.solve(&HP).transpose();
+    let n = Pp.nrows();
+    let IKH = DMatrix::identity(n, n) - &K * H;
+    let mut P = &IKH * Pp * IKH.transpose() + &K * R * K.transpose();
+    symmetrize(&mut P);
+    if P.iter().any(|v| !v.is_finite()) {
+        return Err(FilterError::NotPositiveDefinite { which: "P", step });
+    }
+    Ok(CovarianceUpdate { K, S, chol, P, IKH })
 }
 
 /// The data-independent half of a Kalman update.
@@ -84,12 +97,7 @@ impl Filter for KalmanFilter {
     }
 
     fn initial(&self) -> Estimate {
-        let n = self.n_x();
-        Estimate {
-            x: self.x0.clone(),
-            P: self.P0.clone(),
-            error_map: DMatrix::identity(n, n),
-        }
+        Estimate::new(&self.x0, &self.P0)
     }
 
     fn predict(&self, _k: usize, est: &mut Estimate) -> Result<(), FilterError> {

@@ -6,7 +6,7 @@
 mod kf;
 mod nonlinear;
 
-pub use kf::KalmanFilter;
+pub use kf::{CovarianceUpdate, KalmanFilter, joseph_update};
 pub use nonlinear::{Ekf, LinearSystem, SystemModel, Ukf, numerical_jacobian};
 
 use nalgebra::{DMatrix, DVector};
@@ -25,6 +25,18 @@ pub struct Estimate {
     /// (`F` after predict, then `(I − K H) F` after an update), n × n. The engine uses it to
     /// predict how strongly NEES is correlated over time under consistency.
     pub error_map: DMatrix<f64>,
+}
+
+impl Estimate {
+    /// The estimate `(x0, P0)` at step 0, with the identity as error map.
+    pub fn new(x0: &DVector<f64>, p0: &DMatrix<f64>) -> Self {
+        let n = x0.len();
+        Estimate {
+            x: x0.clone(),
+            P: p0.clone(),
+            error_map: DMatrix::identity(n, n),
+        }
+    }
 }
 
 /// The result of one measurement update.

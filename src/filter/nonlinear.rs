@@ -4,6 +4,7 @@
 
 use nalgebra::{DMatrix, DVector};
 
+use super::kf::joseph_update;
 use super::{Estimate, Filter, FilterError, Innovation};
 use crate::linalg::{cholesky, mahalanobis_sq, symmetrize};
 use crate::model::Measurement;
@@ -127,12 +128,7 @@ impl<M: SystemModel> Filter for Ekf<M> {
     }
 
     fn initial(&self) -> Estimate {
-        let n = self.n_x();
-        Estimate {
-            x: self.x0.clone(),
-            P: self.P0.clone(),
-            error_map: DMatrix::identity(n, n),
-        }
+        Estimate::new(&self.x0, &self.P0)
     }
 
     fn predict(&self, k: usize, est: &mut Estimate) -> Result<(), FilterError> {
@@ -154,24 +150,14 @@ impl<M: SystemModel> Filter for Ekf<M> {
         check_measurement(&self.sensor_dims(), meas)?;
         let s = meas.sensor;
         let H = self.h_jacobian(k, s, &est.x);
-        let HP = &H * &est.P;
-        let mut S = &HP * H.transpose() + &self.R[s];
-        symmetrize(&mut S);
-        let chol = cholesky(&S).ok_or(FilterError::NotPositiveDefinite {
-            which: "S",
-            step: k,
-        })?;
-        let K = chol.solve(&HP).transpose();
+        let cu = joseph_update(&est.P, &H, &self.R[s], k)?;
         let nu = self
             .model
             .residual(s, &meas.z, &self.model.measurement(k, s, &est.x));
-        est.x += &K * &nu;
-        let n = est.x.len();
-        let IKH = DMatrix::identity(n, n) - &K * &H;
-        let mut P = &IKH * &est.P * IKH.transpose() + &K * &self.R[s] * K.transpose();
-        symmetrize(&mut P);
-        est.P = P;
-        est.error_map = &IKH * &est.error_map;
+        est.x += &cu.K * &nu;
+        est.P = cu.P;
+        est.error_map = &cu.IKH * &est.error_map;
+        let (chol, S) = (cu.chol, cu.S);
         let nis = mahalanobis_sq(&chol, &nu);
         Ok(Innovation { nu, S, nis })
     }
@@ -267,12 +253,7 @@ impl<M: SystemModel> Filter for Ukf<M> {
     }
 
     fn initial(&self) -> Estimate {
-        let n = self.n_x();
-        Estimate {
-            x: self.x0.clone(),
-            P: self.P0.clone(),
-            error_map: DMatrix::identity(n, n),
-        }
+        Estimate::new(&self.x0, &self.P0)
     }
 
     fn predict(&self, k: usize, est: &mut Estimate) -> Result<(), FilterError> {

@@ -94,6 +94,20 @@ pub trait Filter: Sync {
     /// Propagate the estimate from step `k − 1` to step `k`.
     fn predict(&self, k: usize, est: &mut Estimate) -> Result<(), FilterError>;
 
+    /// Propagate the estimate from step `k − 1` to step `k` driven by the control input `u`
+    /// (whatever [`crate::model::TruthModel::input`] produced, e.g. IMU samples). The
+    /// default refuses: a filter that takes inputs overrides it.
+    fn predict_with_input(
+        &self,
+        _k: usize,
+        _est: &mut Estimate,
+        _u: &DVector<f64>,
+    ) -> Result<(), FilterError> {
+        Err(FilterError::Unsupported {
+            what: "control inputs",
+        })
+    }
+
     /// Incorporate one measurement taken at step `k`.
     fn update(
         &self,
@@ -106,5 +120,46 @@ pub trait Filter: Sync {
     /// higher-fidelity truth state onto the filter's state).
     fn state_error(&self, truth: &DVector<f64>, estimate: &DVector<f64>) -> DVector<f64> {
         truth - estimate
+    }
+}
+
+/// A boxed filter is a filter (catalog models hand out `Box<dyn Filter>`).
+impl<F: Filter + ?Sized> Filter for Box<F> {
+    fn n_x(&self) -> usize {
+        (**self).n_x()
+    }
+
+    fn sensor_dims(&self) -> Vec<usize> {
+        (**self).sensor_dims()
+    }
+
+    fn initial(&self) -> Estimate {
+        (**self).initial()
+    }
+
+    fn predict(&self, k: usize, est: &mut Estimate) -> Result<(), FilterError> {
+        (**self).predict(k, est)
+    }
+
+    fn predict_with_input(
+        &self,
+        k: usize,
+        est: &mut Estimate,
+        u: &DVector<f64>,
+    ) -> Result<(), FilterError> {
+        (**self).predict_with_input(k, est, u)
+    }
+
+    fn update(
+        &self,
+        k: usize,
+        est: &mut Estimate,
+        meas: &Measurement,
+    ) -> Result<Innovation, FilterError> {
+        (**self).update(k, est, meas)
+    }
+
+    fn state_error(&self, truth: &DVector<f64>, estimate: &DVector<f64>) -> DVector<f64> {
+        (**self).state_error(truth, estimate)
     }
 }

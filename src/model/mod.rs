@@ -9,6 +9,8 @@ use rand_distr::StandardNormal;
 
 use crate::SimRng;
 
+pub mod catalog;
+
 /// One sensor's measurement at one step.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Measurement {
@@ -36,6 +38,15 @@ pub trait TruthModel: Sync {
     /// Append the measurements available at step `k` (none, one, or several sensors) to
     /// `out`. The number of measurements and their dimensions may change from step to step.
     fn measure(&self, k: usize, x: &DVector<f64>, rng: &mut SimRng, out: &mut Vec<Measurement>);
+
+    /// The control input the filter's prediction from step `k − 1` to step `k` receives
+    /// (e.g. the IMU samples an INS integrates over the step), drawn after
+    /// [`TruthModel::propagate`] and before [`TruthModel::measure`]; `None` (the default)
+    /// when the filter predicts without inputs. The engine passes it to
+    /// [`crate::filter::Filter::predict_with_input`].
+    fn input(&self, _k: usize, _x: &DVector<f64>, _rng: &mut SimRng) -> Option<DVector<f64>> {
+        None
+    }
 }
 
 /// Draw `x = mean + L ξ`, ξ ~ N(0, I_r), where `L` (n × r) is a covariance factor.
@@ -145,5 +156,28 @@ impl TruthModel for LinearGaussianModel {
             sensor: 0,
             z: sample_gaussian(&(&self.H * x), &self.factors.r, rng),
         });
+    }
+}
+
+/// A borrowed truth model is a truth model (catalog models lend `&dyn TruthModel`).
+impl<T: TruthModel + ?Sized> TruthModel for &T {
+    fn n_x(&self) -> usize {
+        (**self).n_x()
+    }
+
+    fn initial_state(&self, rng: &mut SimRng) -> DVector<f64> {
+        (**self).initial_state(rng)
+    }
+
+    fn propagate(&self, k: usize, x: &DVector<f64>, rng: &mut SimRng) -> DVector<f64> {
+        (**self).propagate(k, x, rng)
+    }
+
+    fn measure(&self, k: usize, x: &DVector<f64>, rng: &mut SimRng, out: &mut Vec<Measurement>) {
+        (**self).measure(k, x, rng, out)
+    }
+
+    fn input(&self, k: usize, x: &DVector<f64>, rng: &mut SimRng) -> Option<DVector<f64>> {
+        (**self).input(k, x, rng)
     }
 }

@@ -441,9 +441,13 @@ where
     for k in 1..=settings.steps {
         let i = k - 1;
         x = truth.propagate(k, &x, &mut rng);
+        let input = truth.input(k, &x, &mut rng);
         meas.clear();
         truth.measure(k, &x, &mut rng, meas);
-        filter.predict(k, &mut est)?;
+        match &input {
+            Some(u) => filter.predict_with_input(k, &mut est, u)?,
+            None => filter.predict(k, &mut est)?,
+        }
         let (mut nis, mut dof) = (0.0, 0usize);
         for m in meas.iter() {
             if m.sensor >= dims.len() || m.z.len() != dims[m.sensor] {

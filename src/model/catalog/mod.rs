@@ -1,0 +1,140 @@
+//! The catalog of named nonlinear models a problem file selects with `[model] name = "…"`.
+//!
+//! Each entry is a truth model of higher fidelity than the filter it is paired with
+//! (continuous dynamics integrated with its own RK4 step, sensors that come and go) and a
+//! filter family (EKF or UKF) whose noise is set by named parameters. The problem loader
+//! reads `[model]` and `[params]`, and builds the entry through [`CatalogEntry::build`];
+//! the engine then sees only the [`TruthModel`] and [`Filter`] traits, which user models
+//! implement the same way.
+
+use std::fmt::Debug;
+
+use serde::de::DeserializeOwned;
+
+use crate::filter::Filter;
+use crate::model::TruthModel;
+
+pub mod ctrv;
+pub mod ins_gnss;
+pub mod orbit2d;
+
+/// Whether a parameter sets process or measurement noise.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum NoiseKind {
+    /// Process noise Q.
+    Process,
+    /// Measurement noise R.
+    Measurement,
+}
+
+/// One named filter parameter of a catalog model.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ParamInfo {
+    /// Name, as the problem file's `[params.NAME]` spells it.
+    pub name: &'static str,
+    /// Unit of the value, e.g. `"(m/s²)²"`.
+    pub unit: &'static str,
+    /// What it models, one line.
+    pub about: &'static str,
+    /// Process or measurement noise.
+    pub noise: NoiseKind,
+    /// The state components (process noise) or measurement components (measurement noise,
+    /// indices into the concatenated sensor components) it drives most directly; the
+    /// report's per-axis advice reads their statistics.
+    pub components: &'static [usize],
+}
+
+/// A catalog model built from a problem file: the truth, and the filter at given
+/// parameter values.
+pub trait CatalogModel: Send + Sync + Debug {
+    /// Names of the filter's (error-)state components, n_x.
+    fn state_names(&self) -> Vec<String>;
+    /// Names of all sensors' measurement components, concatenated in sensor order.
+    fn measurement_names(&self) -> Vec<String>;
+    /// The truth model.
+    fn truth(&self) -> &dyn TruthModel;
+    /// The filter with parameter values `theta`, in the entry's [`CatalogEntry::params`]
+    /// order.
+    fn filter(&self, theta: &[f64]) -> Box<dyn Filter>;
+    /// The parameter values that equal the truth's noise (the truth's own values where the
+    /// filter shares the truth's noise structure, the closest equivalent otherwise), in
+    /// [`CatalogEntry::params`] order.
+    fn truth_values(&self) -> Vec<f64>;
+    /// Whether the filter's noise structure is the truth's, so a tuned filter should
+    /// recover [`CatalogModel::truth_values`].
+    fn structure_matches(&self) -> bool;
+}
+
+/// Why a `[model]` table was refused: the field (relative to `[model]`, e.g.
+/// `truth.accel_std`) and what is wrong, on one line.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("{field}: {message}")]
+pub struct ModelError {
+    /// Dotted path below `[model]` (empty for the table itself).
+    pub field: String,
+    /// What is wrong.
+    pub message: String,
+}
+
+impl ModelError {
+    /// An error at `field`.
+    pub fn new(field: impl Into<String>, message: impl Into<String>) -> Self {
+        ModelError {
+            field: field.into(),
+            message: message.into(),
+        }
+    }
+}
+
+/// What the problem file fixes outside `[model]`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ModelContext {
+    /// Filter step, s (the file's `dt`).
+    pub dt: f64,
+    /// Steps per run T (`[montecarlo] steps`).
+    pub steps: usize,
+}
+
+/// A named model: its parameters and how to build it.
+#[derive(Debug, Clone, Copy)]
+pub struct CatalogEntry {
+    /// The name `[model] name` selects it by.
+    pub name: &'static str,
+    /// One line saying what it is.
+    pub about: &'static str,
+    /// The filter parameters the problem file must give under `[params]`, in θ order.
+    pub params: &'static [ParamInfo],
+    /// Build from the `[model]` table (without its `name` key).
+    pub build: fn(&toml::Table, &ModelContext) -> Result<Box<dyn CatalogModel>, ModelError>,
+}
+
+/// Every named model, in the order error messages list them.
+pub fn entries() -> [CatalogEntry; 3] {
+    [ctrv::ENTRY, orbit2d::ENTRY, ins_gnss::ENTRY]
+}
+
+/// The entry called `name`.
+pub fn find(name: &str) -> Option<CatalogEntry> {
+    entries().into_iter().find(|e| e.name == name)
+}
+
+/// Deserialize a `[model]` table into a model's own settings struct, with the failing
+/// field's path in the error (use `#[serde(deny_unknown_fields)]` on the struct so a
+/// misspelt key is refused by name).
+pub fn parse_table<T: DeserializeOwned>(table: &toml::Table) -> Result<T, ModelError> {
+    let value = toml::Value::Table(table.clone());
+    serde_path_to_error::deserialize(value).map_err(|e| {
+        let path = e.path().to_string();
+        let field = if path == "." { String::new() } else { path };
+        ModelError::new(field, e.into_inner().to_string())
+    })
+}
+
+/// Check that `v` is finite and positive.
+pub fn positive(field: &str, v: f64) -> Result<f64, ModelError> {
+    if v.is_finite() && v > 0.0 {
+        Ok(v)
+    } else {
+        Err(ModelError::new(field, format!("must be finite and > 0, got {v}")))
+    }
+}

@@ -1,0 +1,15 @@
+//! `orbit2d` (placeholder until implemented).
+
+use super::{CatalogEntry, CatalogModel, ModelContext, ModelError};
+
+/// The catalog entry.
+pub const ENTRY: CatalogEntry = CatalogEntry {
+    name: "orbit2d",
+    about: "not implemented yet",
+    params: &[],
+    build,
+};
+
+fn build(_t: &toml::Table, _c: &ModelContext) -> Result<Box<dyn CatalogModel>, ModelError> {
+    Err(ModelError::new("", "not implemented yet"))
+}

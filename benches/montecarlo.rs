@@ -1,7 +1,8 @@
 //! One Monte Carlo evaluation (truth simulation, filter and statistics) per iteration.
 //!
 //! `montecarlo/cv2d/N=1000,T=1000` is the throughput target: 1e6 filter steps per
-//! evaluation; throughput is reported in filter steps (elements) per second.
+//! evaluation; throughput is reported in filter steps (elements) per second. The `catalog`
+//! group times one N = 100, full-horizon evaluation of each named nonlinear model.
 
 use std::hint::black_box;
 use std::path::Path;
@@ -51,5 +52,23 @@ fn montecarlo(c: &mut Criterion) {
     g.finish();
 }
 
-criterion_group!(benches, montecarlo);
+/// One evaluation of each catalog problem as the tuner repeats it: N = 100 runs over the
+/// problem's full horizon, at the shipped parameter values.
+fn catalog(c: &mut Criterion) {
+    let mut g = c.benchmark_group("catalog");
+    g.sample_size(10);
+    for name in ["ctrv", "orbit2d", "ins_gnss"] {
+        let p = load(name);
+        let theta = p.params.values();
+        let mut mc = p.mc;
+        mc.runs = 100;
+        g.throughput(Throughput::Elements((mc.runs * mc.steps) as u64));
+        g.bench_function(format!("{name}/N=100,T={}", mc.steps), |b| {
+            b.iter(|| accumulate(black_box(&p), black_box(&theta), black_box(&mc), Engine::Auto))
+        });
+    }
+    g.finish();
+}
+
+criterion_group!(benches, montecarlo, catalog);
 criterion_main!(benches);

@@ -2,16 +2,18 @@
 //! run the Monte Carlo engine, and summarize.
 
 use crate::montecarlo::{self, Accumulator};
-use crate::problem::{McConfig, Problem};
+use crate::problem::{McConfig, Problem, System};
 use crate::stats::ConsistencyReport;
 
 /// Which Monte Carlo path to use.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum Engine {
-    /// The fastest path valid for the problem (the linear fast path for linear problems).
+    /// The fastest path valid for the problem (the linear fast path for linear problems,
+    /// the generic one for catalog models).
     #[default]
     Auto,
-    /// Precompute the data-independent covariance recursion once; batch runs.
+    /// Precompute the data-independent covariance recursion once; batch runs (linear
+    /// problems only: a catalog model runs the generic path).
     Linear,
     /// One run at a time through the [`crate::model::TruthModel`] and
     /// [`crate::filter::Filter`] traits.
@@ -31,15 +33,26 @@ pub fn accumulate_with_progress(
     engine: Engine,
     progress: montecarlo::Progress<'_>,
 ) -> Accumulator {
-    let kf = problem.filter_at(theta);
     let settings = mc.engine();
-    match engine {
-        Engine::Auto | Engine::Linear => {
-            montecarlo::run_linear_with_progress(&problem.truth, &kf, &settings, progress)
+    match &problem.system {
+        System::Linear(l) => {
+            let kf = l.filter_at(theta);
+            match engine {
+                Engine::Auto | Engine::Linear => {
+                    montecarlo::run_linear_with_progress(&l.truth, &kf, &settings, progress)
+                }
+                Engine::Generic => {
+                    montecarlo::run_generic_with_progress(&l.truth, &kf, &settings, progress)
+                }
+            }
         }
-        Engine::Generic => {
-            montecarlo::run_generic_with_progress(&problem.truth, &kf, &settings, progress)
-        }
+        // Nonlinear filters have data-dependent gains: only the generic path applies.
+        System::Catalog { model, .. } => montecarlo::run_generic_with_progress(
+            model.truth(),
+            &model.filter(theta),
+            &settings,
+            progress,
+        ),
     }
 }
 

@@ -98,6 +98,21 @@ impl CovModel {
     pub fn uses(&self, i: usize) -> bool {
         self.terms.iter().any(|t| t.coef == Coef::Param(i))
     }
+
+    /// The components (diagonal entries) that parameter `i`'s terms put variance on.
+    pub fn touched(&self, i: usize) -> Vec<usize> {
+        let mut out = Vec::new();
+        for t in &self.terms {
+            if t.coef == Coef::Param(i) {
+                for j in 0..self.dim {
+                    if t.basis[(j, j)] > 0.0 && !out.contains(&j) {
+                        out.push(j);
+                    }
+                }
+            }
+        }
+        out
+    }
 }
 
 /// Basis of a discrete white-noise acceleration (DWNA) block for a (position, velocity)

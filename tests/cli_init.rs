@@ -76,8 +76,8 @@ fn every_starter_passes_check_unchanged() {
         // A valid problem whose filter, at the parameter values as written, is the truth.
         let p = Problem::load(&path).unwrap_or_else(|e| panic!("{model}: {e}"));
         assert_eq!(p.name, name);
-        let kf = p.filter_at(&p.params.values());
-        let t = &p.truth;
+        let kf = p.linear().unwrap().filter_at(&p.params.values());
+        let t = &p.linear().unwrap().truth;
         for (what, a, b) in [
             ("F", &kf.F, &t.F),
             ("H", &kf.H, &t.H),

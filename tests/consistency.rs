@@ -203,12 +203,12 @@ fn too_little_data_is_inconclusive_not_a_silent_pass() {
 fn diverging_filter_is_reported_not_nan() {
     // A negative measurement variance makes S indefinite at the first update.
     let p = load("cv1d");
-    let mut kf = p.filter_at(&truth_values(&p));
+    let mut kf = p.linear().unwrap().filter_at(&truth_values(&p));
     kf.R[(0, 0)] = -1e3;
-    let acc = autotune::montecarlo::run_linear(&p.truth, &kf, &p.mc.engine());
+    let acc = autotune::montecarlo::run_linear(&p.linear().unwrap().truth, &kf, &p.mc.engine());
     assert_eq!(acc.diverged_runs, p.mc.runs);
     assert_eq!(acc.divergences[0].step, 1);
-    let acc = autotune::montecarlo::run_generic(&p.truth, &kf, &p.mc.engine());
+    let acc = autotune::montecarlo::run_generic(&p.linear().unwrap().truth, &kf, &p.mc.engine());
     assert_eq!(acc.diverged_runs, p.mc.runs);
     let r = autotune::stats::ConsistencyReport::from_accumulator(
         &acc,

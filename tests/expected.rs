@@ -13,14 +13,15 @@ fn expected_sums_match_large_monte_carlo() {
     for name in ["cv1d", "cv2d", "dcmotor"] {
         let mut p = load(name);
         let theta = scaled(&p, &scaled(&p, &truth_values(&p), "q_", 3.0), "r_", 0.5);
-        p.filter.x0 = &p.filter.x0 + p.filter.P0.diagonal().map(|v| 0.5 * v.sqrt());
+        let l = p.linear_mut().unwrap();
+        l.filter.x0 = &l.filter.x0 + l.filter.P0.diagonal().map(|v| 0.5 * v.sqrt());
         let mut mc = p.mc;
         mc.runs = 20_000;
         mc.steps = 40;
         mc.lags = 3;
-        let kf = p.filter_at(&theta);
-        assert!(models_match(&p.truth, &kf));
-        let exp = expected_accumulator(&p.truth, &kf, &mc.engine()).unwrap();
+        let kf = p.linear().unwrap().filter_at(&theta);
+        assert!(models_match(&p.linear().unwrap().truth, &kf));
+        let exp = expected_accumulator(&p.linear().unwrap().truth, &kf, &mc.engine()).unwrap();
         let sim = accumulate(&p, &theta, &mc, Engine::Linear);
         let nn = mc.runs as f64;
         // Each per-step mean over N runs has standard deviation sqrt(Var/N), with Var from the
@@ -101,8 +102,8 @@ value = 4e-10
     let p =
         autotune::problem::Problem::from_toml(text, std::path::Path::new("mixed.toml")).unwrap();
     let theta = p.params.values();
-    let kf = p.filter_at(&theta);
-    let exp = expected_accumulator(&p.truth, &kf, &p.mc.engine()).unwrap();
+    let kf = p.linear().unwrap().filter_at(&theta);
+    let exp = expected_accumulator(&p.linear().unwrap().truth, &kf, &p.mc.engine()).unwrap();
     let sim = accumulate(&p, &theta, &p.mc, Engine::Linear);
     let nn = p.mc.runs as f64;
     for i in [99, 199, 399] {

@@ -73,19 +73,19 @@ fn ekf_and_ukf_agree_with_the_kf_on_a_linear_model() {
         let p = load(name);
         // A mis-tuned filter, so that the comparison is not only at the optimum.
         let theta: Vec<f64> = truth_values(&p).iter().map(|v| v * 3.0).collect();
-        let kf = p.filter_at(&theta);
+        let kf = p.linear().unwrap().filter_at(&theta);
         let (ekf, ukf, fd) = filters(&kf);
         let mut rng = run_rng(5, 0);
-        let mut x = p.truth.initial_state(&mut rng);
+        let mut x = p.linear().unwrap().truth.initial_state(&mut rng);
         let mut e_kf = kf.initial();
         let mut e_ekf = ekf.initial();
         let mut e_ukf = ukf.initial();
         let mut e_fd = fd.initial();
         let mut meas = Vec::new();
         for k in 1..=100 {
-            x = p.truth.propagate(k, &x, &mut rng);
+            x = p.linear().unwrap().truth.propagate(k, &x, &mut rng);
             meas.clear();
-            p.truth.measure(k, &x, &mut rng, &mut meas);
+            p.linear().unwrap().truth.measure(k, &x, &mut rng, &mut meas);
             let z: &Measurement = &meas[0];
             kf.predict(k, &mut e_kf).unwrap();
             ekf.predict(k, &mut e_ekf).unwrap();
@@ -121,10 +121,10 @@ fn ekf_and_ukf_agree_with_the_kf_on_a_linear_model() {
         let mut mc = p.mc;
         mc.runs = 40;
         mc.steps = 60;
-        let a = run_generic(&p.truth, &kf, &mc.engine());
+        let a = run_generic(&p.linear().unwrap().truth, &kf, &mc.engine());
         for (label, b) in [
-            ("EKF", run_generic(&p.truth, &ekf, &mc.engine())),
-            ("UKF", run_generic(&p.truth, &ukf, &mc.engine())),
+            ("EKF", run_generic(&p.linear().unwrap().truth, &ekf, &mc.engine())),
+            ("UKF", run_generic(&p.linear().unwrap().truth, &ukf, &mc.engine())),
         ] {
             for i in 0..mc.steps {
                 assert!(
@@ -208,7 +208,7 @@ impl SystemModel for NoiseDriven {
 fn ukf_with_augmented_process_noise_agrees_with_the_kf() {
     let p = load("cv2d");
     let theta: Vec<f64> = truth_values(&p).iter().map(|v| v * 2.0).collect();
-    let kf = p.filter_at(&theta);
+    let kf = p.linear().unwrap().filter_at(&theta);
     // DWNA: Q = G diag(q_x, q_y) G' with G the per-axis gain [dt²/2, dt]'.
     let g = DMatrix::from_row_slice(4, 2, &[0.5, 0.0, 1.0, 0.0, 0.0, 0.5, 0.0, 1.0]);
     let qw = DMatrix::from_diagonal(&DVector::from_column_slice(&[theta[0], theta[1]]));
@@ -226,13 +226,13 @@ fn ukf_with_augmented_process_noise_agrees_with_the_kf() {
     );
     ukf.augmented_noise = Some(qw);
     let mut rng = run_rng(3, 0);
-    let mut x = p.truth.initial_state(&mut rng);
+    let mut x = p.linear().unwrap().truth.initial_state(&mut rng);
     let (mut a, mut b) = (kf.initial(), ukf.initial());
     let mut meas = Vec::new();
     for k in 1..=80 {
-        x = p.truth.propagate(k, &x, &mut rng);
+        x = p.linear().unwrap().truth.propagate(k, &x, &mut rng);
         meas.clear();
-        p.truth.measure(k, &x, &mut rng, &mut meas);
+        p.linear().unwrap().truth.measure(k, &x, &mut rng, &mut meas);
         kf.predict(k, &mut a).unwrap();
         ukf.predict(k, &mut b).unwrap();
         let ia = kf.update(k, &mut a, &meas[0]).unwrap();

@@ -65,9 +65,21 @@ pub fn run(a: CheckArgs) -> anyhow::Result<ExitCode> {
         EngineArg::Linear => Engine::Linear,
         EngineArg::Generic => Engine::Generic,
     };
+    if engine == Engine::Linear && problem.linear().is_none() {
+        anyhow::bail!(
+            "{}: --engine linear: the problem is a nonlinear catalog model; use auto or generic",
+            problem.path.display()
+        );
+    }
     // A progress bar with ETA on stderr, only on a terminal and only for runs long enough
     // to be worth one.
-    let bar = (!a.quiet && std::io::stderr().is_terminal() && mc.runs * mc.steps >= 20_000_000)
+    // Nonlinear filters step about 100 times slower than the linear fast path.
+    let long = if problem.linear().is_some() {
+        20_000_000
+    } else {
+        200_000
+    };
+    let bar = (!a.quiet && std::io::stderr().is_terminal() && mc.runs * mc.steps >= long)
         .then(|| {
             let b = ProgressBar::new(mc.runs as u64);
             b.set_style(

@@ -7,6 +7,7 @@ pub mod spec;
 
 use std::fmt;
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
 use nalgebra::{DMatrix, DVector};
 use sha2::{Digest, Sha256};
@@ -14,6 +15,7 @@ use sha2::{Digest, Sha256};
 use crate::filter::KalmanFilter;
 use crate::linalg::{asymmetry, expm, min_eigenvalue, psd_factor, van_loan};
 use crate::model::LinearGaussianModel;
+use crate::model::catalog::{self, CatalogEntry, CatalogModel, ModelContext, NoiseKind};
 use crate::montecarlo::Settings;
 use crate::params::{Coef, CovModel, CovTerm, ParamDef, ParamSpace, cwna_block, dwna_block, embed};
 pub use spec::ProblemSpec;
@@ -99,6 +101,43 @@ pub struct FilterModel {
     pub r: CovModel,
 }
 
+/// A linear-Gaussian problem: the truth and the Kalman filter's model.
+#[derive(Debug, Clone)]
+pub struct LinearProblem {
+    /// The truth.
+    pub truth: LinearGaussianModel,
+    /// The filter's model.
+    pub filter: FilterModel,
+}
+
+impl LinearProblem {
+    /// The Kalman filter with parameters `theta` (one value per parameter, in order).
+    pub fn filter_at(&self, theta: &[f64]) -> KalmanFilter {
+        KalmanFilter {
+            F: self.filter.F.clone(),
+            H: self.filter.H.clone(),
+            Q: self.filter.q.build(theta),
+            R: self.filter.r.build(theta),
+            x0: self.filter.x0.clone(),
+            P0: self.filter.P0.clone(),
+        }
+    }
+}
+
+/// What a problem simulates and filters.
+#[derive(Debug, Clone)]
+pub enum System {
+    /// `[truth]` and `[filter]`: a linear-Gaussian truth and a Kalman filter.
+    Linear(LinearProblem),
+    /// `[model]`: a named model of the catalog ([`crate::model::catalog`]).
+    Catalog {
+        /// The catalog entry (name, parameters).
+        entry: CatalogEntry,
+        /// The model built from the file's `[model]` table.
+        model: Arc<dyn CatalogModel>,
+    },
+}
+
 /// A validated problem: everything the engine needs.
 #[derive(Debug, Clone)]
 pub struct Problem {
@@ -118,10 +157,8 @@ pub struct Problem {
     pub measurement_names: Vec<String>,
     /// Monte Carlo settings.
     pub mc: McConfig,
-    /// The truth.
-    pub truth: LinearGaussianModel,
-    /// The filter's model.
-    pub filter: FilterModel,
+    /// The truth and the filter family.
+    pub system: System,
     /// Named parameters.
     pub params: ParamSpace,
     /// The file's `[tune]` section, as written (the tuner validates it).
@@ -154,26 +191,63 @@ impl Problem {
         Ok(p)
     }
 
-    /// The Kalman filter with parameters `theta` (one value per parameter, in order).
-    pub fn filter_at(&self, theta: &[f64]) -> KalmanFilter {
-        KalmanFilter {
-            F: self.filter.F.clone(),
-            H: self.filter.H.clone(),
-            Q: self.filter.q.build(theta),
-            R: self.filter.r.build(theta),
-            x0: self.filter.x0.clone(),
-            P0: self.filter.P0.clone(),
+    /// The linear truth and filter model, if the problem is linear.
+    pub fn linear(&self) -> Option<&LinearProblem> {
+        match &self.system {
+            System::Linear(l) => Some(l),
+            System::Catalog { .. } => None,
         }
     }
 
-    /// State dimension.
-    pub fn n_x(&self) -> usize {
-        self.filter.F.nrows()
+    /// Mutable access to the linear truth and filter model, if the problem is linear.
+    pub fn linear_mut(&mut self) -> Option<&mut LinearProblem> {
+        match &mut self.system {
+            System::Linear(l) => Some(l),
+            System::Catalog { .. } => None,
+        }
     }
 
-    /// Measurement dimension.
+    /// The catalog model, if the problem names one.
+    pub fn catalog(&self) -> Option<&dyn CatalogModel> {
+        match &self.system {
+            System::Linear(_) => None,
+            System::Catalog { model, .. } => Some(model.as_ref()),
+        }
+    }
+
+    /// State dimension (of the filter's error state).
+    pub fn n_x(&self) -> usize {
+        self.state_names.len()
+    }
+
+    /// Measurement dimension (all sensors' components).
     pub fn n_z(&self) -> usize {
-        self.filter.H.nrows()
+        self.measurement_names.len()
+    }
+
+    /// Whether parameter `i` sets process noise, and the state (process) or measurement
+    /// components it acts on.
+    pub fn param_target(&self, i: usize) -> (NoiseKind, Vec<usize>) {
+        match &self.system {
+            System::Linear(l) => {
+                if l.filter.q.uses(i) {
+                    (NoiseKind::Process, l.filter.q.touched(i))
+                } else {
+                    (NoiseKind::Measurement, l.filter.r.touched(i))
+                }
+            }
+            System::Catalog { entry, .. } => entry
+                .params
+                .get(i)
+                .map(|p| (p.noise, p.components.to_vec()))
+                .unwrap_or((NoiseKind::Measurement, Vec::new())),
+        }
+    }
+
+    /// The parameter values equal to the truth's noise, where the problem knows them (catalog
+    /// models; a linear problem's truth is written as matrices, not parameters).
+    pub fn truth_values(&self) -> Option<Vec<f64>> {
+        self.catalog().map(|m| m.truth_values())
     }
 }
 
@@ -655,7 +729,69 @@ impl Validator<'_> {
             lags: lags as usize,
         };
 
-        let t = &s.truth;
+        let (system, params, state_names, measurement_names) =
+            match (&s.truth, &s.filter, &s.model) {
+                (None, None, Some(model)) => self.catalog_problem(&s, model, dt, &mc)?,
+                (t, _, Some(_)) => {
+                    let which = if t.is_some() { "truth" } else { "filter" };
+                    return self.err(
+                        which,
+                        "give either [model] (a named model) or [truth] and [filter], not both",
+                    );
+                }
+                (Some(t), Some(f), None) => self.linear_problem(&s, t, f, dt)?,
+                (None, _, None) => {
+                    return self.err(
+                        "truth",
+                        "missing: give [truth] and [filter], or [model] with a catalog name",
+                    );
+                }
+                (Some(_), None, None) => return self.err("filter", "missing"),
+            };
+        let name = s.name.clone().unwrap_or_else(|| {
+            self.file
+                .file_stem()
+                .map(|s| s.to_string_lossy().into_owned())
+                .unwrap_or_else(|| "problem".into())
+        });
+        // The name becomes part of output paths (tuned/<name>.toml).
+        if name.is_empty()
+            || !name
+                .chars()
+                .all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '-')
+        {
+            let field = if s.name.is_some() {
+                "name"
+            } else {
+                "name (from the file name)"
+            };
+            return self.err(
+                field,
+                format!("'{name}' must be letters, digits, _ and - only"),
+            );
+        }
+        Ok(Problem {
+            name,
+            description: s.description.clone().unwrap_or_default(),
+            path: self.file.to_path_buf(),
+            hash: String::new(),
+            dt,
+            state_names,
+            measurement_names,
+            mc,
+            system,
+            params,
+            tune: s.tune.clone(),
+        })
+    }
+
+    fn linear_problem(
+        &self,
+        s: &ProblemSpec,
+        t: &spec::TruthSpec,
+        f: &spec::FilterSpec,
+        dt: f64,
+    ) -> VResult<(System, ParamSpace, Vec<String>, Vec<String>)> {
         let Some((tF, tA)) = self.dynamics("truth", &t.F, &t.A, dt, None)? else {
             return self.err("truth.F", "missing: give F (discrete) or A (continuous)");
         };
@@ -675,7 +811,6 @@ impl Validator<'_> {
         self.symmetric_psd("truth.R", &tR, false)?;
 
         let params = self.params(&s.params)?;
-        let f = &s.filter;
         let (fF, fA) = match self.dynamics("filter", &f.F, &f.A, dt, Some(n))? {
             Some(d) => d,
             None => (tF.clone(), tA.clone()),
@@ -712,37 +847,7 @@ impl Validator<'_> {
             })?;
         let state_names = self.names("state_names", &s.state_names, n, "x")?;
         let measurement_names = self.names("measurement_names", &s.measurement_names, m, "z")?;
-        let name = s.name.clone().unwrap_or_else(|| {
-            self.file
-                .file_stem()
-                .map(|s| s.to_string_lossy().into_owned())
-                .unwrap_or_else(|| "problem".into())
-        });
-        // The name becomes part of output paths (tuned/<name>.toml).
-        if name.is_empty()
-            || !name
-                .chars()
-                .all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '-')
-        {
-            let field = if s.name.is_some() {
-                "name"
-            } else {
-                "name (from the file name)"
-            };
-            return self.err(
-                field,
-                format!("'{name}' must be letters, digits, _ and - only"),
-            );
-        }
-        Ok(Problem {
-            name,
-            description: s.description.clone().unwrap_or_default(),
-            path: self.file.to_path_buf(),
-            hash: String::new(),
-            dt,
-            state_names,
-            measurement_names,
-            mc,
+        let system = System::Linear(LinearProblem {
             truth,
             filter: FilterModel {
                 F: fF,
@@ -752,9 +857,105 @@ impl Validator<'_> {
                 q,
                 r,
             },
-            params,
-            tune: s.tune.clone(),
-        })
+        });
+        Ok((system, params, state_names, measurement_names))
+    }
+
+    fn catalog_problem(
+        &self,
+        s: &ProblemSpec,
+        table: &toml::Table,
+        dt: f64,
+        mc: &McConfig,
+    ) -> VResult<(System, ParamSpace, Vec<String>, Vec<String>)> {
+        let known = || {
+            catalog::entries()
+                .iter()
+                .map(|e| e.name)
+                .collect::<Vec<_>>()
+                .join(", ")
+        };
+        let name = match table.get("name") {
+            Some(toml::Value::String(n)) => n.clone(),
+            Some(_) => return self.err("model.name", "must be a string"),
+            None => {
+                return self.err(
+                    "model.name",
+                    format!("missing: name a catalog model ({})", known()),
+                );
+            }
+        };
+        let Some(entry) = catalog::find(&name) else {
+            return self.err(
+                "model.name",
+                format!("unknown model '{name}' (known models: {})", known()),
+            );
+        };
+        for (field, given) in [
+            ("state_names", s.state_names.is_some()),
+            ("measurement_names", s.measurement_names.is_some()),
+        ] {
+            if given {
+                return self.err(field, format!("model '{name}' names its own components"));
+            }
+        }
+        let mut rest = table.clone();
+        rest.remove("name");
+        let ctx = ModelContext {
+            dt,
+            steps: mc.steps,
+        };
+        let model = (entry.build)(&rest, &ctx).map_err(|e| ProblemError {
+            file: self.file.to_path_buf(),
+            field: if e.field.is_empty() {
+                "model".into()
+            } else {
+                format!("model.{}", e.field)
+            },
+            line: None,
+            message: e.message,
+        })?;
+        let given = self.params(&s.params)?;
+        let expected: Vec<&str> = entry.params.iter().map(|p| p.name).collect();
+        for p in &given.params {
+            if !expected.contains(&p.name.as_str()) {
+                return self.err(
+                    format!("params.{}", p.name),
+                    format!(
+                        "not a parameter of model '{name}' (its parameters: {})",
+                        expected.join(", ")
+                    ),
+                );
+            }
+        }
+        // θ follows the model's order, whatever order the file lists them in.
+        let mut params = Vec::with_capacity(expected.len());
+        for info in entry.params {
+            let Some(i) = given.index(info.name) else {
+                return self.err(
+                    format!("params.{}", info.name),
+                    format!(
+                        "missing: model '{name}' needs [params.{}] ({}, {})",
+                        info.name, info.about, info.unit
+                    ),
+                );
+            };
+            let mut p = given.params[i].clone();
+            if p.unit.is_empty() {
+                p.unit = info.unit.to_string();
+            }
+            if p.about.is_empty() {
+                p.about = info.about.to_string();
+            }
+            params.push(p);
+        }
+        let state_names = model.state_names();
+        let measurement_names = model.measurement_names();
+        let system = System::Catalog {
+            entry,
+            model: Arc::from(model),
+        };
+        Ok((system, ParamSpace { params }, state_names, measurement_names))
     }
 }
 

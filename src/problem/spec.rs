@@ -25,10 +25,13 @@ pub struct ProblemSpec {
     pub measurement_names: Option<Vec<String>>,
     /// Monte Carlo settings.
     pub montecarlo: MonteCarloSpec,
-    /// The truth model.
-    pub truth: TruthSpec,
-    /// The filter's model and its Q/R terms.
-    pub filter: FilterSpec,
+    /// The truth model (linear problems; give this and `[filter]`, or `[model]`).
+    pub truth: Option<TruthSpec>,
+    /// The filter's model and its Q/R terms (linear problems).
+    pub filter: Option<FilterSpec>,
+    /// A named catalog model (`name = "…"` plus the model's own settings), instead of
+    /// `[truth]` and `[filter]`.
+    pub model: Option<toml::Table>,
     /// Named parameters, in file order.
     #[serde(default)]
     pub params: IndexMap<String, ParamSpec>,

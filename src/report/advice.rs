@@ -2,7 +2,7 @@
 
 use serde::Serialize;
 
-use crate::params::{Coef, CovModel};
+use crate::model::catalog::NoiseKind;
 use crate::problem::Problem;
 use crate::stats::ConsistencyReport;
 use crate::tune::TuneResult;
@@ -41,20 +41,6 @@ pub struct Recommendation {
 }
 
 /// Indices of the diagonal entries parameter `i` touches in a covariance model.
-fn touched(model: &CovModel, i: usize) -> Vec<usize> {
-    let mut out = Vec::new();
-    for t in &model.terms {
-        if t.coef == Coef::Param(i) {
-            for j in 0..model.dim {
-                if t.basis[(j, j)] > 0.0 && !out.contains(&j) {
-                    out.push(j);
-                }
-            }
-        }
-    }
-    out
-}
-
 fn fmt_factor(f: f64) -> String {
     if f >= 10.0 {
         format!("{f:.0}")
@@ -71,19 +57,12 @@ pub fn recommendations(
 ) -> Vec<Recommendation> {
     let mut rows = Vec::new();
     for (i, p) in problem.params.params.iter().enumerate() {
-        let is_q = problem.filter.q.uses(i);
-        let (indices, comps, names) = if is_q {
-            (
-                touched(&problem.filter.q, i),
-                &before.state_components,
-                &problem.state_names,
-            )
+        let (kind, indices) = problem.param_target(i);
+        let is_q = kind == NoiseKind::Process;
+        let (comps, names) = if is_q {
+            (&before.state_components, &problem.state_names)
         } else {
-            (
-                touched(&problem.filter.r, i),
-                &before.measurement_components,
-                &problem.measurement_names,
-            )
+            (&before.measurement_components, &problem.measurement_names)
         };
         let mut evidence: Vec<(String, f64)> = indices
             .iter()

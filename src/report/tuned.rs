@@ -76,7 +76,7 @@ fn rows(m: &nalgebra::DMatrix<f64>) -> Vec<Vec<f64>> {
 
 /// The tuned config of a tuning run, as TOML text with a comment header.
 pub fn tuned_config_toml(problem: &Problem, result: &TuneResult) -> String {
-    let kf = problem.filter_at(&result.tuned);
+    let kf = problem.linear().map(|l| l.filter_at(&result.tuned));
     let a = &result.after;
     let prov = Provenance {
         autotune_version: env!("CARGO_PKG_VERSION"),
@@ -107,8 +107,8 @@ pub fn tuned_config_toml(problem: &Problem, result: &TuneResult) -> String {
     };
     let cfg = TunedConfig {
         problem: problem.name.clone(),
-        q: Some(rows(&kf.Q)),
-        r: Some(rows(&kf.R)),
+        q: kf.as_ref().map(|kf| rows(&kf.Q)),
+        r: kf.as_ref().map(|kf| rows(&kf.R)),
         params: result
             .names
             .iter()

@@ -32,7 +32,7 @@ use crate::model::TruthModel;
 use crate::montecarlo::Settings;
 use crate::montecarlo::{self, Accumulator, expected_accumulator, models_match};
 use crate::params::ParamSpace;
-use crate::problem::{McConfig, Problem};
+use crate::problem::{McConfig, Problem, System};
 use crate::stats::ConsistencyReport;
 
 /// Anything the tuner can tune: named parameters, and the Monte Carlo sums of the filter at
@@ -68,16 +68,22 @@ impl Tunable for Problem {
     }
 
     fn monte_carlo(&self, theta: &[f64], settings: &Settings) -> Accumulator {
-        montecarlo::run_linear(&self.truth, &self.filter_at(theta), settings)
+        match &self.system {
+            System::Linear(l) => montecarlo::run_linear(&l.truth, &l.filter_at(theta), settings),
+            System::Catalog { model, .. } => {
+                montecarlo::run_generic(model.truth(), &model.filter(theta), settings)
+            }
+        }
     }
 
     fn expected(&self, theta: &[f64], settings: &Settings) -> Option<Accumulator> {
-        let kf = self.filter_at(theta);
-        if !models_match(&self.truth, &kf) {
+        let l = self.linear()?;
+        let kf = l.filter_at(theta);
+        if !models_match(&l.truth, &kf) {
             return None;
         }
         Some(
-            expected_accumulator(&self.truth, &kf, settings).unwrap_or_else(|_| {
+            expected_accumulator(&l.truth, &kf, settings).unwrap_or_else(|_| {
                 let mut a =
                     Accumulator::new(settings.steps, kf.F.nrows(), kf.H.nrows(), settings.lags);
                 a.diverged_runs = settings.runs;

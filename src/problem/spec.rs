@@ -58,6 +58,10 @@ pub struct TuneSpec {
     pub nis_only: Option<bool>,
     /// "auto", "exact" or "monte_carlo".
     pub scoring: Option<String>,
+    /// Runs per Monte Carlo evaluation during the search (default 4 N).
+    pub search_runs: Option<i64>,
+    /// Quasi-random points of the global stage per free parameter (default 16).
+    pub global_points: Option<i64>,
 }
 
 /// `[montecarlo]`.

@@ -857,6 +857,18 @@ impl TuneSettings {
         if let Some(b) = spec.nis_only {
             self.nis_only = b;
         }
+        if let Some(n) = spec.search_runs {
+            if n < 1 {
+                return Err(err("tune.search_runs".into(), format!("{n} must be ≥ 1")));
+            }
+            self.search_runs = Some(n as usize);
+        }
+        if let Some(n) = spec.global_points {
+            if n < 1 {
+                return Err(err("tune.global_points".into(), format!("{n} must be ≥ 1")));
+            }
+            self.global_points_per_param = n as usize;
+        }
         if let Some(s) = &spec.scoring {
             self.scoring = Scoring::parse(s).ok_or_else(|| {
                 err(

@@ -54,6 +54,19 @@ pub trait SystemModel: Sync {
     fn residual(&self, _sensor: usize, z: &DVector<f64>, z_hat: &DVector<f64>) -> DVector<f64> {
         z - z_hat
     }
+
+    /// The UKF's predicted measurement: the weighted mean `Σ w_i z_i` of the sigma points'
+    /// measurements `zs` (weights `wm` sum to 1, the centre one may be negative). Override
+    /// for angles: the plain sum of bearings near ±π (e.g. 3.1 and −3.1) averages to 0
+    /// instead of π, so an angle's mean should be taken relative to one of the points with
+    /// wrapped differences.
+    fn measurement_mean(&self, _sensor: usize, zs: &[DVector<f64>], wm: &[f64]) -> DVector<f64> {
+        let mut z_hat = DVector::zeros(zs.first().map_or(0, |z| z.len()));
+        for (z, w) in zs.iter().zip(wm) {
+            z_hat += z * *w;
+        }
+        z_hat
+    }
 }
 
 /// Central finite-difference Jacobian of `g` at `x`, with steps `1e-6·max(1, |x_i|)`
@@ -333,10 +346,7 @@ impl<M: SystemModel> Filter for Ukf<M> {
             .map(|p| self.model.measurement(k, s, p))
             .collect();
         let m = meas.z.len();
-        let mut z_hat = DVector::zeros(m);
-        for (z, w) in zs.iter().zip(&wm) {
-            z_hat += z * *w;
-        }
+        let z_hat = self.model.measurement_mean(s, &zs, &wm);
         let mut S = self.R[s].clone();
         let mut Pxz = DMatrix::zeros(est.x.len(), m);
         for ((z, p), w) in zs.iter().zip(&pts).zip(&wc) {

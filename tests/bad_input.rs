@@ -12,6 +12,9 @@ use std::path::{Path, PathBuf};
 use assert_cmd::Command;
 
 const CV1D: &str = include_str!("../problems/cv1d.toml");
+const CTRV: &str = include_str!("../problems/ctrv.toml");
+const ORBIT2D: &str = include_str!("../problems/orbit2d.toml");
+const INS_GNSS: &str = include_str!("../problems/ins_gnss.toml");
 
 /// The problem file a row runs on.
 enum Problem {
@@ -21,6 +24,9 @@ enum Problem {
     Append(&'static str),
     /// These exact bytes.
     Bytes(&'static [u8]),
+    /// A catalog problem's text, parsed and changed by the function (which must find
+    /// everything it changes), then written back.
+    Catalog(&'static str, fn(&mut toml::Table)),
     /// A path where no file exists.
     Missing,
     /// A directory instead of a file.
@@ -107,7 +113,160 @@ fn config(name: &'static str, config: Config, names: &'static [&'static str]) ->
     }
 }
 
+/// A catalog problem changed by `change`; the error must name it and `names`.
+fn catalog(
+    name: &'static str,
+    base: &'static str,
+    change: fn(&mut toml::Table),
+    names: &'static [&'static str],
+) -> Row {
+    file(name, Problem::Catalog(base, change), names)
+}
+
+/// The table at `path` (dotted keys) of a parsed problem file.
+fn table<'a>(t: &'a mut toml::Table, path: &str) -> &'a mut toml::Table {
+    path.split('.').fold(t, |t, k| {
+        t.get_mut(k)
+            .and_then(toml::Value::as_table_mut)
+            .unwrap_or_else(|| panic!("no table {k}"))
+    })
+}
+
+/// Remove `key` from the table at `path`, which must have it.
+fn remove(t: &mut toml::Table, path: &str, key: &str) {
+    assert!(table(t, path).remove(key).is_some(), "no {path}.{key}");
+}
+
+/// Set `key` in the table at `path`, which must have it already.
+fn set(t: &mut toml::Table, path: &str, key: &str, v: toml::Value) {
+    let old = table(t, path).insert(key.into(), v);
+    assert!(old.is_some(), "no {path}.{key}");
+}
+
+fn catalog_rows() -> Vec<Row> {
+    vec![
+        catalog(
+            "unknown model name lists the known ones",
+            CTRV,
+            |t| set(t, "model", "name", "ctrv_lidar".into()),
+            &[
+                "model.name",
+                "ctrv_lidar",
+                "ctrv_radar_lidar",
+                "orbit2d",
+                "ins_gnss",
+            ],
+        ),
+        catalog(
+            "model without a name",
+            CTRV,
+            |t| remove(t, "model", "name"),
+            &["model.name", "missing", "ctrv_radar_lidar"],
+        ),
+        catalog(
+            "model name not a string",
+            CTRV,
+            |t| set(t, "model", "name", 3.into()),
+            &["model.name", "string"],
+        ),
+        catalog(
+            "missing catalog parameter names itself",
+            CTRV,
+            |t| remove(t, "params", "q_yaw_accel"),
+            &["params.q_yaw_accel", "missing", "ctrv_radar_lidar"],
+        ),
+        catalog(
+            "parameter the model does not have",
+            CTRV,
+            |t| {
+                let p = table(t, "params").get("q_accel").unwrap().clone();
+                table(t, "params").insert("q_jerk".into(), p);
+            },
+            &["params.q_jerk", "not a parameter", "q_accel", "q_yaw_accel"],
+        ),
+        catalog(
+            "model and truth both given",
+            CTRV,
+            |t| {
+                let cv1d: toml::Table = toml::from_str(CV1D).unwrap();
+                t.insert("truth".into(), cv1d["truth"].clone());
+                t.insert("filter".into(), cv1d["filter"].clone());
+            },
+            &["truth", "[model]", "not both"],
+        ),
+        catalog(
+            "catalog model given state names",
+            CTRV,
+            |t| {
+                t.insert("state_names".into(), vec!["a", "b", "c", "d", "e"].into());
+            },
+            &["state_names", "ctrv_radar_lidar"],
+        ),
+        catalog(
+            "ctrv truth noise missing",
+            CTRV,
+            |t| remove(t, "model.truth", "q_yaw_accel"),
+            &["model.truth", "q_yaw_accel"],
+        ),
+        catalog(
+            "ctrv truth noise negative",
+            CTRV,
+            |t| set(t, "model.truth", "q_accel", (-0.5).into()),
+            &["model.truth.q_accel"],
+        ),
+        catalog(
+            "ctrv misspelt model setting",
+            CTRV,
+            |t| {
+                table(t, "model").insert("substep".into(), 10.into());
+            },
+            &["model", "substep"],
+        ),
+        catalog(
+            "orbit2d misspelt truth setting",
+            ORBIT2D,
+            |t| {
+                table(t, "model.truth").insert("q_radiall".into(), 1e-12.into());
+            },
+            &["model.truth", "q_radiall"],
+        ),
+        catalog(
+            "orbit2d missing parameter",
+            ORBIT2D,
+            |t| remove(t, "params", "q_along"),
+            &["params.q_along", "missing", "orbit2d"],
+        ),
+        catalog(
+            "ins_gnss misspelt truth setting",
+            INS_GNSS,
+            |t| {
+                table(t, "model.truth").insert("q_acel_x".into(), 1e-3.into());
+            },
+            &["model.truth", "q_acel_x"],
+        ),
+        catalog(
+            "ins_gnss missing parameter",
+            INS_GNSS,
+            |t| remove(t, "params", "q_accel_z"),
+            &["params.q_accel_z", "missing", "ins_gnss"],
+        ),
+        Row {
+            name: "catalog control: ctrv rewritten unchanged runs",
+            problem: Problem::Catalog(CTRV, |_| {}),
+            config: Config::None,
+            args: &[],
+            expect: Expect::Runs,
+        },
+    ]
+}
+
 fn rows() -> Vec<Row> {
+    let mut rows = linear_rows();
+    rows.extend(catalog_rows());
+    rows
+}
+
+fn linear_rows() -> Vec<Row> {
     vec![
         // --- Dimensions.
         edit(
@@ -513,6 +672,13 @@ fn materialize(row: &Row, dir: &Path) -> (PathBuf, Option<PathBuf>) {
         Problem::Bytes(b) => {
             let path = dir.join("problem.toml");
             std::fs::write(&path, b).unwrap();
+            path
+        }
+        Problem::Catalog(base, change) => {
+            let mut t: toml::Table = toml::from_str(base).unwrap();
+            change(&mut t);
+            let path = dir.join("problem.toml");
+            std::fs::write(&path, toml::to_string(&t).unwrap()).unwrap();
             path
         }
         Problem::Missing => dir.join("no-such-problem.toml"),

@@ -126,7 +126,8 @@ pub fn parse_table<T: DeserializeOwned>(table: &toml::Table) -> Result<T, ModelE
     serde_path_to_error::deserialize(value).map_err(|e| {
         let path = e.path().to_string();
         let field = if path == "." { String::new() } else { path };
-        ModelError::new(field, e.into_inner().to_string())
+        // The message alone: toml's Display adds the table's context on further lines.
+        ModelError::new(field, e.into_inner().message().trim().to_string())
     })
 }
 

@@ -39,6 +39,13 @@ fn main() {
     println!("ANIS {:.3} [{:.3},{:.3}] target {:.3} frac_in {:.3} steps_with_data {}", rep.nis.time_average, rep.nis.interval.lower, rep.nis.interval.upper, rep.nis.target, rep.nis.fraction_in_bounds, rep.nis.steps_with_data);
     for c in &rep.state_components { println!("  {} {:.3} [{:.3},{:.3}]", c.name, c.value, c.interval.lower, c.interval.upper); }
     for c in rep.measurement_components.iter().take(6) { println!("  {} {:.3} [{:.3},{:.3}]", c.name, c.value, c.interval.lower, c.interval.upper); }
+    if args.iter().any(|a| a == "white") {
+        for w in rep.whiteness.iter().take(18) { println!("  white {} lag {} rho {:.4} band {:.4}", w.component, w.lag, w.rho, w.band); }
+        let (s2, c): (f64, f64) = (acc.nis_sq.iter().sum(), acc.nis_count.iter().sum());
+        let d: f64 = acc.nis_dof.iter().sum();
+        println!("  E[NIS^2]/step {:.3}, mean dof {:.3}", s2 / c, d / c);
+        // per-run NIS totals variance
+    }
     if args.iter().any(|a| a == "perstep") {
         for k in (0..steps).step_by(get("every", 10.0) as usize) {
             println!("k {:4} nees {:?} nis {:?}", k + 1, nees.per_step[k].map(|v| (v * 100.0).round() / 100.0), rep.nis.per_step[k].map(|v| (v * 100.0).round() / 100.0));

@@ -32,7 +32,13 @@ fn shipped() -> Shipped {
     let mc = file["montecarlo"].as_table().expect("[montecarlo]");
     let int = |k: &str| mc[k].as_integer().expect("integer");
     let mut table = file["model"].as_table().expect("[model]").clone();
-    assert_eq!(table.remove("name").and_then(|v| v.as_str().map(String::from)).as_deref(), Some("orbit2d"));
+    assert_eq!(
+        table
+            .remove("name")
+            .and_then(|v| v.as_str().map(String::from))
+            .as_deref(),
+        Some("orbit2d")
+    );
     let steps = int("steps") as usize;
     Shipped {
         table,
@@ -237,7 +243,10 @@ fn stations_report_exactly_when_above_the_mask() {
     // Passes and gaps: steps with no station, and changes of the measurement dimension.
     let empty = counts.iter().filter(|&&c| c == 0).count();
     let changes = counts.windows(2).filter(|w| w[0] != w[1]).count();
-    assert!(empty > 100 && empty < 300, "{empty} steps without measurement");
+    assert!(
+        empty > 100 && empty < 300,
+        "{empty} steps without measurement"
+    );
     assert!(changes >= 20, "{changes} changes of the measurement count");
 }
 
@@ -318,10 +327,16 @@ fn fixed_size_ekf_agrees_with_the_generic_ekf() {
         // Relative to each state's own scale (position ~7000 km, velocity ~8 km/s) and to
         // P's diagonal, 1e-9: both filters do the same arithmetic in a different order.
         for i in 0..4 {
-            assert!((a.x[i] - b.x[i]).abs() < 1e-9 * b.x[i].abs().max(1.0), "x[{i}] step {k}");
+            assert!(
+                (a.x[i] - b.x[i]).abs() < 1e-9 * b.x[i].abs().max(1.0),
+                "x[{i}] step {k}"
+            );
             for j in 0..4 {
                 let scale = (b.P[(i, i)] * b.P[(j, j)]).sqrt();
-                assert!((a.P[(i, j)] - b.P[(i, j)]).abs() < 1e-7 * scale, "P[{i},{j}] step {k}");
+                assert!(
+                    (a.P[(i, j)] - b.P[(i, j)]).abs() < 1e-7 * scale,
+                    "P[{i},{j}] step {k}"
+                );
             }
         }
     }
@@ -371,7 +386,12 @@ fn truth_noise_has_the_filter_q_structure() {
     // Diagonal: position and velocity, radial and along-track; also the p-v covariances.
     for (i, j) in [(0, 0), (1, 1), (2, 2), (3, 3), (0, 2), (1, 3)] {
         let rel = sr[(i, j)] / qr[(i, j)] - 1.0;
-        assert!(rel.abs() < 0.05, "({i},{j}): sample {:e} vs Q {:e}", sr[(i, j)], qr[(i, j)]);
+        assert!(
+            rel.abs() < 0.05,
+            "({i},{j}): sample {:e} vs Q {:e}",
+            sr[(i, j)],
+            qr[(i, j)]
+        );
     }
     // Radial and along-track noise are independent: cross terms near zero relative to
     // √(radial · along).
@@ -397,26 +417,72 @@ fn bad_settings_are_refused_by_field() {
     let entry = find("orbit2d").expect("in the catalog");
     let cases: &[(&str, &str, toml::Value, &str)] = &[
         ("truth", "step", toml::Value::Float(-1.0), "truth.step"),
-        ("truth", "q_along", toml::Value::Float(f64::NAN), "truth.q_along"),
-        ("stations", "count", toml::Value::Integer(0), "stations.count"),
-        ("stations", "mask_deg", toml::Value::Float(95.0), "stations.mask_deg"),
-        ("stations", "range_std", toml::Value::Float(0.0), "stations.range_std"),
+        (
+            "truth",
+            "q_along",
+            toml::Value::Float(f64::NAN),
+            "truth.q_along",
+        ),
+        (
+            "stations",
+            "count",
+            toml::Value::Integer(0),
+            "stations.count",
+        ),
+        (
+            "stations",
+            "mask_deg",
+            toml::Value::Float(95.0),
+            "stations.mask_deg",
+        ),
+        (
+            "stations",
+            "range_std",
+            toml::Value::Float(0.0),
+            "stations.range_std",
+        ),
         ("stations", "bogus", toml::Value::Float(1.0), "stations"),
-        ("stations", "count", toml::Value::String("ten".into()), "stations.count"),
-        ("initial", "vel_std", toml::Value::Float(-1e-3), "initial.vel_std"),
-        ("filter", "substeps", toml::Value::Integer(0), "filter.substeps"),
+        (
+            "stations",
+            "count",
+            toml::Value::String("ten".into()),
+            "stations.count",
+        ),
+        (
+            "initial",
+            "vel_std",
+            toml::Value::Float(-1e-3),
+            "initial.vel_std",
+        ),
+        (
+            "filter",
+            "substeps",
+            toml::Value::Integer(0),
+            "filter.substeps",
+        ),
     ];
     for (sec, key, val, field) in cases {
         let mut t = s.table.clone();
-        t[*sec].as_table_mut().expect("section").insert((*key).into(), val.clone());
+        t[*sec]
+            .as_table_mut()
+            .expect("section")
+            .insert((*key).into(), val.clone());
         let err = (entry.build)(&t, &s.ctx).expect_err("must be refused");
         assert!(err.field.starts_with(field), "{sec}.{key}: got {err}");
     }
     let mut t = s.table.clone();
     t.insert("radius".into(), toml::Value::Float(6000.0));
-    assert_eq!((entry.build)(&t, &s.ctx).expect_err("inside the Earth").field, "radius");
+    assert_eq!(
+        (entry.build)(&t, &s.ctx)
+            .expect_err("inside the Earth")
+            .field,
+        "radius"
+    );
     let bad_dt = ModelContext { dt: 0.0, steps: 10 };
-    assert_eq!((entry.build)(&s.table, &bad_dt).expect_err("dt").field, "dt");
+    assert_eq!(
+        (entry.build)(&s.table, &bad_dt).expect_err("dt").field,
+        "dt"
+    );
 }
 
 #[test]
@@ -444,7 +510,11 @@ fn bad_inputs_do_not_panic() {
     };
     assert!(matches!(
         f.update(1, &mut est, &short),
-        Err(FilterError::BadMeasurement { got: 2, expected: 3, .. })
+        Err(FilterError::BadMeasurement {
+            got: 2,
+            expected: 3,
+            ..
+        })
     ));
     // A state at the Earth's centre gives non-finite numbers, not a panic.
     let mut est = f.initial();

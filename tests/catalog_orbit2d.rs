@@ -4,11 +4,13 @@
 //!
 //! Run with `cargo test --release --test catalog_orbit2d`.
 
+#![allow(non_snake_case)] // paper notation (Q, C) for the filter matrices
+
 use autotune::SimRng;
 use autotune::filter::{Ekf, Filter, FilterError, SystemModel, numerical_jacobian};
+use autotune::model::Measurement;
 use autotune::model::catalog::orbit2d::{self, EARTH_RADIUS, MU, Orbit2d};
 use autotune::model::catalog::{CatalogModel, ModelContext, find};
-use autotune::model::{Measurement, TruthModel};
 use autotune::montecarlo::{Settings, run_generic};
 use autotune::stats::{ConsistencyReport, Verdict};
 use nalgebra::{DMatrix, DVector, Matrix2, Vector2, Vector4};

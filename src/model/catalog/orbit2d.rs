@@ -56,7 +56,7 @@ use crate::filter::{Estimate, Filter, FilterError, Innovation, SystemModel};
 use crate::model::{Measurement, TruthModel};
 
 /// Earth's gravitational parameter μ, km³/s².
-pub const MU: f64 = 398_600.4418;
+pub const MU: f64 = 398_600.441_8;
 /// Earth's equatorial radius, km (the stations' distance from the centre).
 pub const EARTH_RADIUS: f64 = 6378.137;
 /// Earth's rotation rate, rad/s.

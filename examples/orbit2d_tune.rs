@@ -1,7 +1,7 @@
 //! Tune the catalog's `orbit2d` EKF from 10x off in both free parameters (all x10, then all
 //! x0.1), and report where the process-noise PSDs land relative to the truth's.
 //!
-//! Run with `cargo run --release --example orbit2d_tune [up|down|both]`. It exits non-zero
+//! Run with `cargo run --release --example orbit2d_tune [up|down|both] [default]`. It exits non-zero
 //! unless every tuned filter passes the consistency gate on fresh seeds.
 
 use autotune::model::catalog::{CatalogModel, ModelContext, orbit2d};
@@ -75,13 +75,19 @@ fn main() {
             model.state_names(),
             model.measurement_names(),
         );
-        let settings = TuneSettings {
-            max_evals: 300,
-            global_points_per_param: 6,
-            starts: 2,
-            search_runs: Some(2 * mc.runs),
-            max_seconds: 600.0,
-            ..TuneSettings::default()
+        // `default` as second argument: the library's default search (4N runs per
+        // evaluation, 120 s budget), as the CLI would run it.
+        let settings = if std::env::args().nth(2).as_deref() == Some("default") {
+            TuneSettings::default()
+        } else {
+            TuneSettings {
+                max_evals: 300,
+                global_points_per_param: 6,
+                starts: 2,
+                search_runs: Some(2 * mc.runs),
+                max_seconds: 600.0,
+                ..TuneSettings::default()
+            }
         };
         let r = tune(&custom, &start, &fixed, &mc, &settings, &Silent).expect("valid settings");
         println!(

@@ -56,7 +56,7 @@ use crate::filter::{Estimate, Filter, FilterError, Innovation, SystemModel};
 use crate::model::{Measurement, TruthModel};
 
 /// Earth's gravitational parameter μ, km³/s².
-pub const MU: f64 = 398_600.4418;
+pub const MU: f64 = 398_600.441_8;
 /// Earth's equatorial radius, km (the stations' distance from the centre).
 pub const EARTH_RADIUS: f64 = 6378.137;
 /// Earth's rotation rate, rad/s.
@@ -240,7 +240,10 @@ impl Settings {
         if self.radius <= EARTH_RADIUS {
             return Err(ModelError::new(
                 "radius",
-                format!("{} km is inside the Earth (radius {EARTH_RADIUS} km)", self.radius),
+                format!(
+                    "{} km is inside the Earth (radius {EARTH_RADIUS} km)",
+                    self.radius
+                ),
             ));
         }
         positive("truth.step", self.truth.step)?;
@@ -383,6 +386,8 @@ pub struct Stations {
     pub sin_mask: f64,
     /// Filter step dt, s (step k is at t = k dt).
     pub dt: f64,
+    /// Each station's up direction at t = 0 (so a step costs one sin/cos for all).
+    base: Vec<Vector2<f64>>,
 }
 
 /// One station at one instant: position (km), velocity (km/s), local up and east.
@@ -394,12 +399,42 @@ struct Site {
 }
 
 impl Stations {
-    fn site(&self, k: usize, i: usize) -> Site {
-        let t = k as f64 * self.dt;
-        let lon = self.phase + 2.0 * PI * i as f64 / self.count as f64 + EARTH_RATE * t;
-        let (s, c) = lon.sin_cos();
-        let up = Vector2::new(c, s);
-        let east = Vector2::new(-s, c);
+    /// `count` stations equally spaced from longitude `phase` (rad), elevation mask
+    /// `mask` (rad), filter step `dt` (s).
+    pub fn new(count: usize, phase: f64, mask: f64, dt: f64) -> Self {
+        let base = (0..count)
+            .map(|i| {
+                let (s, c) = (phase + 2.0 * PI * i as f64 / count as f64).sin_cos();
+                Vector2::new(c, s)
+            })
+            .collect();
+        Stations {
+            count,
+            phase,
+            sin_mask: mask.sin(),
+            dt,
+            base,
+        }
+    }
+
+    /// The Earth's rotation since t = 0 at step k, as (cos, sin).
+    fn earth(&self, k: usize) -> Vector2<f64> {
+        let (s, c) = (EARTH_RATE * k as f64 * self.dt).sin_cos();
+        Vector2::new(c, s)
+    }
+
+    /// Station `i` with the Earth turned by `earth` (NaN for an unknown station).
+    fn site_at(&self, earth: &Vector2<f64>, i: usize) -> Site {
+        let b = self
+            .base
+            .get(i)
+            .copied()
+            .unwrap_or(Vector2::new(f64::NAN, f64::NAN));
+        let up = Vector2::new(
+            b[0] * earth[0] - b[1] * earth[1],
+            b[0] * earth[1] + b[1] * earth[0],
+        );
+        let east = Vector2::new(-up[1], up[0]);
         Site {
             pos: up * EARTH_RADIUS,
             vel: east * (EARTH_RADIUS * EARTH_RATE),
@@ -408,9 +443,16 @@ impl Stations {
         }
     }
 
+    fn site(&self, k: usize, i: usize) -> Site {
+        self.site_at(&self.earth(k), i)
+    }
+
     /// Whether station `i` sees a satellite at `x` at step `k` (elevation ≥ mask).
     pub fn visible(&self, k: usize, i: usize, x: &Vector4<f64>) -> bool {
-        let site = self.site(k, i);
+        self.sees(&self.site(k, i), x)
+    }
+
+    fn sees(&self, site: &Site, x: &Vector4<f64>) -> bool {
         let rho = x.fixed_rows::<2>(0) - site.pos;
         rho.dot(&site.up) >= self.sin_mask * rho.norm()
     }
@@ -418,7 +460,10 @@ impl Stations {
     /// Station `i`'s measurement [range (km), range rate (km/s), LOS angle (rad)] of `x`
     /// at step `k`, and its Jacobian (3 × 4).
     pub fn measure(&self, k: usize, i: usize, x: &Vector4<f64>) -> (Vector3<f64>, Matrix3x4<f64>) {
-        let site = self.site(k, i);
+        Self::measure_from(&self.site(k, i), x)
+    }
+
+    fn measure_from(site: &Site, x: &Vector4<f64>) -> (Vector3<f64>, Matrix3x4<f64>) {
         let rho = x.fixed_rows::<2>(0) - site.pos;
         let rho_dot = x.fixed_rows::<2>(2) - site.vel;
         let range = rho.norm();
@@ -504,11 +549,13 @@ impl TruthModel for OrbitTruth {
 
     fn measure(&self, k: usize, x: &DVector<f64>, rng: &mut SimRng, out: &mut Vec<Measurement>) {
         let s = to4(x);
+        let earth = self.stations.earth(k);
         for i in 0..self.stations.count {
-            if !self.stations.visible(k, i, &s) {
+            let site = self.stations.site_at(&earth, i);
+            if !self.stations.sees(&site, &s) {
                 continue;
             }
-            let (z, _) = self.stations.measure(k, i, &s);
+            let (z, _) = Stations::measure_from(&site, &s);
             let z = DVector::from_fn(3, |j, _| {
                 z[j] + self.sensor_std[j] * rng.sample::<f64, _>(StandardNormal)
             });
@@ -771,12 +818,12 @@ impl Orbit2d {
     pub fn new(settings: Settings, ctx: &ModelContext) -> Result<Self, ModelError> {
         settings.validate(ctx)?;
         let st = &settings.stations;
-        let stations = Stations {
-            count: st.count,
-            phase: st.phase_deg.to_radians(),
-            sin_mask: st.mask_deg.to_radians().sin(),
-            dt: ctx.dt,
-        };
+        let stations = Stations::new(
+            st.count,
+            st.phase_deg.to_radians(),
+            st.mask_deg.to_radians(),
+            ctx.dt,
+        );
         let substeps = ((ctx.dt / settings.truth.step).ceil() as usize).max(1);
         let h = ctx.dt / substeps as f64;
         let truth = OrbitTruth {

@@ -64,7 +64,14 @@ fn catalog(c: &mut Criterion) {
         mc.runs = 100;
         g.throughput(Throughput::Elements((mc.runs * mc.steps) as u64));
         g.bench_function(format!("{name}/N=100,T={}", mc.steps), |b| {
-            b.iter(|| accumulate(black_box(&p), black_box(&theta), black_box(&mc), Engine::Auto))
+            b.iter(|| {
+                accumulate(
+                    black_box(&p),
+                    black_box(&theta),
+                    black_box(&mc),
+                    Engine::Auto,
+                )
+            })
         });
     }
     g.finish();

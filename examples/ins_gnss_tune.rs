@@ -42,7 +42,10 @@ fn main() {
             },
         );
         let secs = t0.elapsed().as_secs_f64();
-        (ConsistencyReport::from_accumulator(&acc, 0.05, &sn, &mn, true), secs)
+        (
+            ConsistencyReport::from_accumulator(&acc, 0.05, &sn, &mn, true),
+            secs,
+        )
     };
     let show = |label: &str, r: &ConsistencyReport, secs: f64| {
         let ne = r.nees.as_ref().expect("nees");

@@ -67,7 +67,10 @@ fn check_fails_overconfident_with_q_scaled_by_a_hundredth() {
     for name in CATALOG {
         let (code, stdout) = check(name, 0.01);
         assert_eq!(code, Some(1), "{name} at Q x 0.01:\n{stdout}");
-        assert!(stdout.contains("verdict: overconfident"), "{name}:\n{stdout}");
+        assert!(
+            stdout.contains("verdict: overconfident"),
+            "{name}:\n{stdout}"
+        );
     }
 }
 

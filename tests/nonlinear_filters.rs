@@ -85,7 +85,10 @@ fn ekf_and_ukf_agree_with_the_kf_on_a_linear_model() {
         for k in 1..=100 {
             x = p.linear().unwrap().truth.propagate(k, &x, &mut rng);
             meas.clear();
-            p.linear().unwrap().truth.measure(k, &x, &mut rng, &mut meas);
+            p.linear()
+                .unwrap()
+                .truth
+                .measure(k, &x, &mut rng, &mut meas);
             let z: &Measurement = &meas[0];
             kf.predict(k, &mut e_kf).unwrap();
             ekf.predict(k, &mut e_ekf).unwrap();
@@ -123,8 +126,14 @@ fn ekf_and_ukf_agree_with_the_kf_on_a_linear_model() {
         mc.steps = 60;
         let a = run_generic(&p.linear().unwrap().truth, &kf, &mc.engine());
         for (label, b) in [
-            ("EKF", run_generic(&p.linear().unwrap().truth, &ekf, &mc.engine())),
-            ("UKF", run_generic(&p.linear().unwrap().truth, &ukf, &mc.engine())),
+            (
+                "EKF",
+                run_generic(&p.linear().unwrap().truth, &ekf, &mc.engine()),
+            ),
+            (
+                "UKF",
+                run_generic(&p.linear().unwrap().truth, &ukf, &mc.engine()),
+            ),
         ] {
             for i in 0..mc.steps {
                 assert!(
@@ -232,7 +241,10 @@ fn ukf_with_augmented_process_noise_agrees_with_the_kf() {
     for k in 1..=80 {
         x = p.linear().unwrap().truth.propagate(k, &x, &mut rng);
         meas.clear();
-        p.linear().unwrap().truth.measure(k, &x, &mut rng, &mut meas);
+        p.linear()
+            .unwrap()
+            .truth
+            .measure(k, &x, &mut rng, &mut meas);
         kf.predict(k, &mut a).unwrap();
         ukf.predict(k, &mut b).unwrap();
         let ia = kf.update(k, &mut a, &meas[0]).unwrap();

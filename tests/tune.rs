@@ -152,8 +152,12 @@ fn diverging_candidates_are_counted_not_fatal() {
         q.lower = 1e-300;
     }
     // A filter with no process noise and no measurement noise cannot stay positive definite.
-    let kf = p.linear().unwrap().filter_at(&[1e-300, 1e-300, 1e-300, 1e-300]);
-    let acc = autotune::montecarlo::expected_accumulator(&p.linear().unwrap().truth, &kf, &p.mc.engine());
+    let kf = p
+        .linear()
+        .unwrap()
+        .filter_at(&[1e-300, 1e-300, 1e-300, 1e-300]);
+    let acc =
+        autotune::montecarlo::expected_accumulator(&p.linear().unwrap().truth, &kf, &p.mc.engine());
     assert!(acc.is_err(), "the extreme candidate must diverge");
     let r = run(&p, 5, false, &TuneSettings::default());
     assert!(

@@ -79,8 +79,8 @@ pub fn run(a: CheckArgs) -> anyhow::Result<ExitCode> {
     } else {
         200_000
     };
-    let bar = (!a.quiet && std::io::stderr().is_terminal() && mc.runs * mc.steps >= long)
-        .then(|| {
+    let bar =
+        (!a.quiet && std::io::stderr().is_terminal() && mc.runs * mc.steps >= long).then(|| {
             let b = ProgressBar::new(mc.runs as u64);
             b.set_style(
                 ProgressStyle::with_template(

@@ -128,7 +128,7 @@ impl LinearProblem {
 #[derive(Debug, Clone)]
 pub enum System {
     /// `[truth]` and `[filter]`: a linear-Gaussian truth and a Kalman filter.
-    Linear(LinearProblem),
+    Linear(Box<LinearProblem>),
     /// `[model]`: a named model of the catalog ([`crate::model::catalog`]).
     Catalog {
         /// The catalog entry (name, parameters).
@@ -194,7 +194,7 @@ impl Problem {
     /// The linear truth and filter model, if the problem is linear.
     pub fn linear(&self) -> Option<&LinearProblem> {
         match &self.system {
-            System::Linear(l) => Some(l),
+            System::Linear(l) => Some(l.as_ref()),
             System::Catalog { .. } => None,
         }
     }
@@ -202,7 +202,7 @@ impl Problem {
     /// Mutable access to the linear truth and filter model, if the problem is linear.
     pub fn linear_mut(&mut self) -> Option<&mut LinearProblem> {
         match &mut self.system {
-            System::Linear(l) => Some(l),
+            System::Linear(l) => Some(l.as_mut()),
             System::Catalog { .. } => None,
         }
     }
@@ -729,25 +729,25 @@ impl Validator<'_> {
             lags: lags as usize,
         };
 
-        let (system, params, state_names, measurement_names) =
-            match (&s.truth, &s.filter, &s.model) {
-                (None, None, Some(model)) => self.catalog_problem(&s, model, dt, &mc)?,
-                (t, _, Some(_)) => {
-                    let which = if t.is_some() { "truth" } else { "filter" };
-                    return self.err(
-                        which,
-                        "give either [model] (a named model) or [truth] and [filter], not both",
-                    );
-                }
-                (Some(t), Some(f), None) => self.linear_problem(&s, t, f, dt)?,
-                (None, _, None) => {
-                    return self.err(
-                        "truth",
-                        "missing: give [truth] and [filter], or [model] with a catalog name",
-                    );
-                }
-                (Some(_), None, None) => return self.err("filter", "missing"),
-            };
+        let (system, params, state_names, measurement_names) = match (&s.truth, &s.filter, &s.model)
+        {
+            (None, None, Some(model)) => self.catalog_problem(&s, model, dt, &mc)?,
+            (t, _, Some(_)) => {
+                let which = if t.is_some() { "truth" } else { "filter" };
+                return self.err(
+                    which,
+                    "give either [model] (a named model) or [truth] and [filter], not both",
+                );
+            }
+            (Some(t), Some(f), None) => self.linear_problem(&s, t, f, dt)?,
+            (None, _, None) => {
+                return self.err(
+                    "truth",
+                    "missing: give [truth] and [filter], or [model] with a catalog name",
+                );
+            }
+            (Some(_), None, None) => return self.err("filter", "missing"),
+        };
         let name = s.name.clone().unwrap_or_else(|| {
             self.file
                 .file_stem()
@@ -847,7 +847,7 @@ impl Validator<'_> {
             })?;
         let state_names = self.names("state_names", &s.state_names, n, "x")?;
         let measurement_names = self.names("measurement_names", &s.measurement_names, m, "z")?;
-        let system = System::Linear(LinearProblem {
+        let system = System::Linear(Box::new(LinearProblem {
             truth,
             filter: FilterModel {
                 F: fF,
@@ -857,7 +857,7 @@ impl Validator<'_> {
                 q,
                 r,
             },
-        });
+        }));
         Ok((system, params, state_names, measurement_names))
     }
 
@@ -955,7 +955,12 @@ impl Validator<'_> {
             entry,
             model: Arc::from(model),
         };
-        Ok((system, ParamSpace { params }, state_names, measurement_names))
+        Ok((
+            system,
+            ParamSpace { params },
+            state_names,
+            measurement_names,
+        ))
     }
 }
 

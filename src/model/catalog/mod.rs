@@ -95,6 +95,9 @@ pub struct ModelContext {
     pub steps: usize,
 }
 
+/// Builds a catalog model from its `[model]` table (without the `name` key).
+pub type Builder = fn(&toml::Table, &ModelContext) -> Result<Box<dyn CatalogModel>, ModelError>;
+
 /// A named model: its parameters and how to build it.
 #[derive(Debug, Clone, Copy)]
 pub struct CatalogEntry {
@@ -105,7 +108,7 @@ pub struct CatalogEntry {
     /// The filter parameters the problem file must give under `[params]`, in θ order.
     pub params: &'static [ParamInfo],
     /// Build from the `[model]` table (without its `name` key).
-    pub build: fn(&toml::Table, &ModelContext) -> Result<Box<dyn CatalogModel>, ModelError>,
+    pub build: Builder,
 }
 
 /// Every named model, in the order error messages list them.

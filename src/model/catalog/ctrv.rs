@@ -268,8 +268,7 @@ fn finite(field: &str, v: f64) -> Result<f64, ModelError> {
 }
 
 fn build(table: &toml::Table, ctx: &ModelContext) -> Result<Box<dyn CatalogModel>, ModelError> {
-    let spec: Spec = parse_table(table)?;
-    Ok(Box::new(CtrvModel::from_spec(&spec, ctx)?))
+    Ok(Box::new(CtrvModel::from_table(table, ctx)?))
 }
 
 // ---------------------------------------------------------------------------------------
@@ -846,6 +845,13 @@ pub struct CtrvModel {
 }
 
 impl CtrvModel {
+    /// Build from a `[model]` table without its `name` key (what [`ENTRY`]'s `build` does,
+    /// returning the concrete type).
+    pub fn from_table(table: &toml::Table, ctx: &ModelContext) -> Result<Self, ModelError> {
+        let spec: Spec = parse_table(table)?;
+        Self::from_spec(&spec, ctx)
+    }
+
     fn from_spec(spec: &Spec, ctx: &ModelContext) -> Result<Self, ModelError> {
         let dt = positive("dt", ctx.dt)?;
         if spec.substeps == 0 || spec.substeps > 10_000 {

@@ -115,7 +115,10 @@ fn analytic_jacobians_match_finite_differences() {
         for sensor in [LIDAR, RADAR] {
             let H = sys.measurement_jacobian(1, sensor, &x).unwrap();
             let Hn = numerical_jacobian(|v| sys.measurement(1, sensor, v), &x);
-            assert!(max_rel(&H, &Hn) < 1e-6, "sensor {sensor} at {x}: {H} vs {Hn}");
+            assert!(
+                max_rel(&H, &Hn) < 1e-6,
+                "sensor {sensor} at {x}: {H} vs {Hn}"
+            );
         }
     }
 }
@@ -231,7 +234,10 @@ fn fixed_size_ukf_matches_the_generic_ukf() {
             let xb = DMatrix::from_column_slice(5, 1, es.x.as_slice());
             assert!(max_rel(&xa, &xb) < 1e-9, "x at step {k}");
             assert!(max_rel(&ef.P, &es.P) < 1e-9, "P at step {k}");
-            assert!(max_rel(&ef.error_map, &es.error_map) < 1e-9, "map at step {k}");
+            assert!(
+                max_rel(&ef.error_map, &es.error_map) < 1e-9,
+                "map at step {k}"
+            );
         }
     }
     assert!(crossed, "the runs should take the radar bearing near ±π");
@@ -317,11 +323,27 @@ fn bad_input_is_an_error_naming_the_field() {
     };
     let f = toml::Value::Float;
     assert_eq!(edit(&["truth", "q_accel"], f(-1.0)).field, "truth.q_accel");
-    assert_eq!(edit(&["truth", "r_radar_bearing"], f(f64::NAN)).field, "truth.r_radar_bearing");
-    assert!(edit(&["truth", "q_acel"], f(1.0)).field.starts_with("truth"));
-    assert_eq!(edit(&["substeps"], toml::Value::Integer(0)).field, "substeps");
-    assert_eq!(edit(&["radar", "min_range"], f(-1.0)).field, "radar.min_range");
-    assert_eq!(edit(&["radar", "max_range"], f(0.5)).field, "radar.max_range");
+    assert_eq!(
+        edit(&["truth", "r_radar_bearing"], f(f64::NAN)).field,
+        "truth.r_radar_bearing"
+    );
+    assert!(
+        edit(&["truth", "q_acel"], f(1.0))
+            .field
+            .starts_with("truth")
+    );
+    assert_eq!(
+        edit(&["substeps"], toml::Value::Integer(0)).field,
+        "substeps"
+    );
+    assert_eq!(
+        edit(&["radar", "min_range"], f(-1.0)).field,
+        "radar.min_range"
+    );
+    assert_eq!(
+        edit(&["radar", "max_range"], f(0.5)).field,
+        "radar.max_range"
+    );
     assert_eq!(edit(&["ukf", "alpha"], f(0.0)).field, "ukf.alpha");
     assert_eq!(edit(&["ukf", "kappa"], f(-6.0)).field, "ukf.kappa");
     let short = toml::Value::Array(vec![f(1.0); 4]);

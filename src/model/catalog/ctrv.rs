@@ -502,6 +502,9 @@ fn weights(n: f64, (alpha, beta, kappa): (f64, f64, f64)) -> (f64, f64, f64, f64
     (wm0, wc0, 1.0 / (2.0 * (n + lambda)), n + lambda)
 }
 
+/// A prediction: mean, covariance, and the statistically linearized transition `F`.
+type Predicted = (Vector5<f64>, Matrix5<f64>, Matrix5<f64>);
+
 fn chol5(m: &Matrix5<f64>) -> Option<Cholesky<f64, U5>> {
     if m.iter().any(|v| !v.is_finite()) {
         return None;
@@ -523,7 +526,7 @@ impl CtrvFilter {
         k: usize,
         x: &Vector5<f64>,
         P: &Matrix5<f64>,
-    ) -> Result<(Vector5<f64>, Matrix5<f64>, Matrix5<f64>), FilterError> {
+    ) -> Result<Predicted, FilterError> {
         let not_pd = FilterError::NotPositiveDefinite {
             which: "P",
             step: k,

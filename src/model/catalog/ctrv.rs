@@ -556,10 +556,17 @@ impl CtrvFilter {
             dx[1 + i] = c;
             dx[8 + i] = -c;
         }
-        prop[6] = Vector5::from(self.system.step(xs, qa, 0.0));
-        prop[7] = Vector5::from(self.system.step(xs, 0.0, qy));
-        prop[13] = Vector5::from(self.system.step(xs, -qa, 0.0));
-        prop[14] = Vector5::from(self.system.step(xs, 0.0, -qy));
+        // The noise points start at x: the noise-free step is the centre's, and the noise
+        // enters additively given yaw (the same numbers `step(x, ±qa, ±qy)` gives).
+        let T = self.system.dt;
+        let (s, c) = x[3].sin_cos();
+        let h = 0.5 * T * T;
+        let na = Vector5::new(h * c * qa, h * s * qa, T * qa, 0.0, 0.0);
+        let ny = Vector5::new(0.0, 0.0, 0.0, h * qy, T * qy);
+        prop[6] = centre + na;
+        prop[7] = centre + ny;
+        prop[13] = centre - na;
+        prop[14] = centre - ny;
         let mut mean = prop[0] * wm0;
         for p in &prop[1..] {
             mean += p * w;

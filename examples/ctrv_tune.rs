@@ -132,7 +132,7 @@ fn main() {
                 lags: 3,
             };
             let settings = TuneSettings {
-                max_seconds: 600.0,
+                max_seconds: 900.0,
                 ..TuneSettings::default()
             };
             let res = tune(&cm, &start, &fixed, &mcc, &settings, &Silent).expect("tune");

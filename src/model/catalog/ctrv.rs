@@ -346,7 +346,8 @@ pub struct CtrvSystem {
 }
 
 impl CtrvSystem {
-    /// The transition with process noise `[ν_a (m/s²), ν_yawdd (rad/s²)]` held over the step.
+    /// The transition of `x` (5 components) with process noise `[ν_a (m/s²), ν_yawdd
+    /// (rad/s²)]` held over the step.
     pub fn step(&self, x: &[f64], nu_a: f64, nu_yy: f64) -> [f64; 5] {
         let T = self.dt;
         let (px, py, v, yaw, w) = (x[0], x[1], x[2], x[3], x[4]);

@@ -268,8 +268,7 @@ fn finite(field: &str, v: f64) -> Result<f64, ModelError> {
 }
 
 fn build(table: &toml::Table, ctx: &ModelContext) -> Result<Box<dyn CatalogModel>, ModelError> {
-    let spec: Spec = parse_table(table)?;
-    Ok(Box::new(CtrvModel::from_spec(&spec, ctx)?))
+    Ok(Box::new(CtrvModel::from_table(table, ctx)?))
 }
 
 // ---------------------------------------------------------------------------------------
@@ -347,7 +346,8 @@ pub struct CtrvSystem {
 }
 
 impl CtrvSystem {
-    /// The transition with process noise `[ν_a (m/s²), ν_yawdd (rad/s²)]` held over the step.
+    /// The transition of `x` (5 components) with process noise `[ν_a (m/s²), ν_yawdd
+    /// (rad/s²)]` held over the step.
     pub fn step(&self, x: &[f64], nu_a: f64, nu_yy: f64) -> [f64; 5] {
         let T = self.dt;
         let (px, py, v, yaw, w) = (x[0], x[1], x[2], x[3], x[4]);
@@ -503,6 +503,9 @@ fn weights(n: f64, (alpha, beta, kappa): (f64, f64, f64)) -> (f64, f64, f64, f64
     (wm0, wc0, 1.0 / (2.0 * (n + lambda)), n + lambda)
 }
 
+/// A prediction: mean, covariance, and the statistically linearized transition `F`.
+type Predicted = (Vector5<f64>, Matrix5<f64>, Matrix5<f64>);
+
 fn chol5(m: &Matrix5<f64>) -> Option<Cholesky<f64, U5>> {
     if m.iter().any(|v| !v.is_finite()) {
         return None;
@@ -524,7 +527,7 @@ impl CtrvFilter {
         k: usize,
         x: &Vector5<f64>,
         P: &Matrix5<f64>,
-    ) -> Result<(Vector5<f64>, Matrix5<f64>, Matrix5<f64>), FilterError> {
+    ) -> Result<Predicted, FilterError> {
         let not_pd = FilterError::NotPositiveDefinite {
             which: "P",
             step: k,
@@ -554,10 +557,17 @@ impl CtrvFilter {
             dx[1 + i] = c;
             dx[8 + i] = -c;
         }
-        prop[6] = Vector5::from(self.system.step(xs, qa, 0.0));
-        prop[7] = Vector5::from(self.system.step(xs, 0.0, qy));
-        prop[13] = Vector5::from(self.system.step(xs, -qa, 0.0));
-        prop[14] = Vector5::from(self.system.step(xs, 0.0, -qy));
+        // The noise points start at x: the noise-free step is the centre's, and the noise
+        // enters additively given yaw (the same numbers `step(x, ±qa, ±qy)` gives).
+        let T = self.system.dt;
+        let (s, c) = x[3].sin_cos();
+        let h = 0.5 * T * T;
+        let na = Vector5::new(h * c * qa, h * s * qa, T * qa, 0.0, 0.0);
+        let ny = Vector5::new(0.0, 0.0, 0.0, h * qy, T * qy);
+        prop[6] = centre + na;
+        prop[7] = centre + ny;
+        prop[13] = centre - na;
+        prop[14] = centre - ny;
         let mut mean = prop[0] * wm0;
         for p in &prop[1..] {
             mean += p * w;
@@ -846,6 +856,13 @@ pub struct CtrvModel {
 }
 
 impl CtrvModel {
+    /// Build from a `[model]` table without its `name` key (what [`ENTRY`]'s `build` does,
+    /// returning the concrete type).
+    pub fn from_table(table: &toml::Table, ctx: &ModelContext) -> Result<Self, ModelError> {
+        let spec: Spec = parse_table(table)?;
+        Self::from_spec(&spec, ctx)
+    }
+
     fn from_spec(spec: &Spec, ctx: &ModelContext) -> Result<Self, ModelError> {
         let dt = positive("dt", ctx.dt)?;
         if spec.substeps == 0 || spec.substeps > 10_000 {

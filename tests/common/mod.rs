@@ -17,9 +17,12 @@ pub fn load(name: &str) -> Problem {
     Problem::load(&problem_path(name)).expect("shipped problem must load")
 }
 
-/// The truth's noise values for each shipped problem's parameters, as written in the
-/// problem files' [truth] sections.
+/// The truth's noise values for each shipped problem's parameters: as written in the linear
+/// problem files' [truth] sections, and as the catalog models report them.
 pub fn truth_values(problem: &Problem) -> Vec<f64> {
+    if let Some(v) = problem.truth_values() {
+        return v;
+    }
     let table: &[(&str, f64)] = match problem.name.as_str() {
         "cv1d" => &[("q_accel", 0.5), ("r_pos", 1.0)],
         "cv2d" => &[

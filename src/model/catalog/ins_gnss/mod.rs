@@ -193,6 +193,18 @@ fn whole(field: &str, v: f64, unit: f64, max: usize) -> Result<usize, ModelError
 }
 
 fn build(table: &toml::Table, ctx: &ModelContext) -> Result<Box<dyn CatalogModel>, ModelError> {
+    Ok(Box::new(InsGnss::new(table, ctx)?))
+}
+
+impl InsGnss {
+    /// Build from a `[model]` table (without `name`), as [`ENTRY`] does, keeping the
+    /// concrete type (tests and benches reach the filter's and truth's own methods).
+    pub fn new(table: &toml::Table, ctx: &ModelContext) -> Result<InsGnss, ModelError> {
+        build_model(table, ctx)
+    }
+}
+
+fn build_model(table: &toml::Table, ctx: &ModelContext) -> Result<InsGnss, ModelError> {
     let s: Settings = parse_table(table)?;
     let dt = positive("dt", ctx.dt)?;
     let rate = positive("imu_rate", s.imu_rate)?;
@@ -245,7 +257,7 @@ fn build(table: &toml::Table, ctx: &ModelContext) -> Result<Box<dyn CatalogModel
             "must be ≤ 0.2 rad (the error-state filter linearizes small attitude errors)",
         ));
     }
-    Ok(Box::new(InsGnss {
+    Ok(InsGnss {
         truth: InsTruth {
             dt,
             n_imu,
@@ -255,7 +267,7 @@ fn build(table: &toml::Table, ctx: &ModelContext) -> Result<Box<dyn CatalogModel
             outage,
             drive: DRIVE,
         },
-    }))
+    })
 }
 
 /// The built `ins_gnss` model.

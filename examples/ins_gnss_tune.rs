@@ -42,7 +42,10 @@ fn main() {
             },
         );
         let secs = t0.elapsed().as_secs_f64();
-        (ConsistencyReport::from_accumulator(&acc, 0.05, &sn, &mn, true), secs)
+        (
+            ConsistencyReport::from_accumulator(&acc, 0.05, &sn, &mn, true),
+            secs,
+        )
     };
     let show = |label: &str, r: &ConsistencyReport, secs: f64| {
         let ne = r.nees.as_ref().expect("nees");
@@ -91,19 +94,26 @@ fn main() {
                 xs.push(x.clone());
             }
         }
-        println!("truth: {:.2} us/step", t0.elapsed().as_secs_f64() * 1e6 / (10 * steps) as f64);
+        println!(
+            "truth: {:.2} us/step",
+            t0.elapsed().as_secs_f64() * 1e6 / (10 * steps) as f64
+        );
         let t0 = Instant::now();
         for _ in 0..10 {
             let mut est = f.initial();
             for k in 1..=steps {
-                f.predict_with_input(k, &mut est, &us[k - 1]).expect("predict");
+                f.predict_with_input(k, &mut est, &us[k - 1])
+                    .expect("predict");
                 for m in &ms[k - 1] {
                     f.update(k, &mut est, m).expect("update");
                 }
                 let _e = f.state_error(&xs[k - 1], &est.x);
             }
         }
-        println!("filter: {:.2} us/step", t0.elapsed().as_secs_f64() * 1e6 / (10 * steps) as f64);
+        println!(
+            "filter: {:.2} us/step",
+            t0.elapsed().as_secs_f64() * 1e6 / (10 * steps) as f64
+        );
     }
     if mode == "one" {
         for _ in 0..3 {

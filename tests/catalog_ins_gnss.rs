@@ -137,7 +137,10 @@ fn sample_transition_matches_finite_differences() {
             &DVector::zeros(15),
         );
         let d = max_scaled_diff(&analytic, &fd, JAC_FLOOR);
-        assert!(d < JAC_TOL, "sample Φ differs from finite differences by {d:e}");
+        assert!(
+            d < JAC_TOL,
+            "sample Φ differs from finite differences by {d:e}"
+        );
     }
 }
 
@@ -146,7 +149,14 @@ fn filter_step_transition_matches_finite_differences() {
     // The Φ the filter reports as its error map after predict_with_input is the Jacobian
     // of the ten-sample mechanization of the step.
     let s = shipped();
-    let model = InsGnss::new(&s.table, &ModelContext { dt: s.dt, steps: s.steps }).expect("builds");
+    let model = InsGnss::new(
+        &s.table,
+        &ModelContext {
+            dt: s.dt,
+            steps: s.steps,
+        },
+    )
+    .expect("builds");
     let f = model.eskf(&model.truth_values());
     let mut rng = run_rng(12, 0);
     for _ in 0..5 {
@@ -167,7 +177,10 @@ fn filter_step_transition_matches_finite_differences() {
             &DVector::zeros(15),
         );
         let d = max_scaled_diff(&est.error_map, &fd, JAC_FLOOR);
-        assert!(d < JAC_TOL, "step Φ differs from finite differences by {d:e}");
+        assert!(
+            d < JAC_TOL,
+            "step Φ differs from finite differences by {d:e}"
+        );
         // And the nominal state advanced as the mechanization says.
         let mut b = nom;
         for m in &imus {
@@ -265,10 +278,7 @@ fn consistent_at_truth_and_overconfident_with_small_q() {
         nees.time_average,
         nees.interval.upper
     );
-    assert!(matches!(
-        r.verdict,
-        Verdict::Overconfident | Verdict::Mixed
-    ) && r.verdict != Verdict::Mixed);
+    assert_eq!(r.verdict, Verdict::Overconfident);
 }
 
 #[test]
@@ -318,7 +328,15 @@ fn truth_imu_reproduces_the_truth_trajectory() {
             gnss_h: base[6],
             gnss_v: base[7],
         },
-        ..InsGnss::new(&s.table, &ModelContext { dt: s.dt, steps: s.steps }).expect("builds").truth
+        ..InsGnss::new(
+            &s.table,
+            &ModelContext {
+                dt: s.dt,
+                steps: s.steps,
+            },
+        )
+        .expect("builds")
+        .truth
     };
     let mut rng = run_rng(5, 0);
     let mut x = truth.initial_state(&mut rng);
@@ -336,12 +354,29 @@ fn truth_imu_reproduces_the_truth_trajectory() {
     let e = nav.error_to(&t);
     assert!(max_speed > 11.0, "the drive reaches 12 m/s");
     assert!(x[layout::U].abs() < 1e-9, "and ends at rest");
-    assert!(e.fixed_rows::<3>(0).norm() < 5e-3, "position error {}", e.fixed_rows::<3>(0).norm());
-    assert!(e.fixed_rows::<3>(3).norm() < 1e-4, "velocity error {}", e.fixed_rows::<3>(3).norm());
-    assert!(e.fixed_rows::<3>(6).norm() < 1e-7, "attitude error {}", e.fixed_rows::<3>(6).norm());
+    assert!(
+        e.fixed_rows::<3>(0).norm() < 5e-3,
+        "position error {}",
+        e.fixed_rows::<3>(0).norm()
+    );
+    assert!(
+        e.fixed_rows::<3>(3).norm() < 1e-4,
+        "velocity error {}",
+        e.fixed_rows::<3>(3).norm()
+    );
+    assert!(
+        e.fixed_rows::<3>(6).norm() < 1e-7,
+        "attitude error {}",
+        e.fixed_rows::<3>(6).norm()
+    );
     // The drive turned right then left by 90°: heading back to its start.
     assert!(x[layout::YAW].abs() < 0.2, "yaw {}", x[layout::YAW]);
-    eprintln!("inertial-only drift after the drive: {:.2e} m, {:.2e} m/s, {:.2e} rad", e.fixed_rows::<3>(0).norm(), e.fixed_rows::<3>(3).norm(), e.fixed_rows::<3>(6).norm());
+    eprintln!(
+        "inertial-only drift after the drive: {:.2e} m, {:.2e} m/s, {:.2e} rad",
+        e.fixed_rows::<3>(0).norm(),
+        e.fixed_rows::<3>(3).norm(),
+        e.fixed_rows::<3>(6).norm()
+    );
 }
 
 #[test]
@@ -374,26 +409,46 @@ fn bad_settings_name_the_field() {
         let mut t = s.table.clone();
         let mut cur = &mut t;
         for p in &path[..path.len() - 1] {
-            cur = cur.get_mut(*p).and_then(|x| x.as_table_mut()).expect("table");
+            cur = cur
+                .get_mut(*p)
+                .and_then(|x| x.as_table_mut())
+                .expect("table");
         }
         cur.insert(path[path.len() - 1].into(), v);
         t
     };
     let err = |t: &toml::Table, dt: f64| {
         (ENTRY.build)(t, &ModelContext { dt, steps: 10 })
-            .err()
-            .expect("refused")
+            .expect_err("refused")
             .field
     };
-    assert_eq!(err(&with(&["truth", "gyro_noise"], (-1.0).into()), 0.1), "truth.gyro_noise");
-    assert_eq!(err(&with(&["truth", "gnss_v"], f64::NAN.into()), 0.1), "truth.gnss_v");
-    assert_eq!(err(&with(&["imu_rate"], 33.0.into()), 0.1), "imu_rate");
-    assert_eq!(err(&with(&["gnss_period"], 0.25.into()), 0.1), "gnss_period");
     assert_eq!(
-        err(&with(&["gnss_outage"], toml::Value::Array(vec![5.0.into(), 2.0.into()])), 0.1),
+        err(&with(&["truth", "gyro_noise"], (-1.0).into()), 0.1),
+        "truth.gyro_noise"
+    );
+    assert_eq!(
+        err(&with(&["truth", "gnss_v"], f64::NAN.into()), 0.1),
+        "truth.gnss_v"
+    );
+    assert_eq!(err(&with(&["imu_rate"], 33.0.into()), 0.1), "imu_rate");
+    assert_eq!(
+        err(&with(&["gnss_period"], 0.25.into()), 0.1),
+        "gnss_period"
+    );
+    assert_eq!(
+        err(
+            &with(
+                &["gnss_outage"],
+                toml::Value::Array(vec![5.0.into(), 2.0.into()])
+            ),
+            0.1
+        ),
         "gnss_outage"
     );
-    assert_eq!(err(&with(&["initial", "yaw"], 1.0.into()), 0.1), "initial.yaw");
+    assert_eq!(
+        err(&with(&["initial", "yaw"], 1.0.into()), 0.1),
+        "initial.yaw"
+    );
     let e = err(&with(&["truth", "accel_nosie"], 1.0.into()), 0.1);
     assert!(e.starts_with("truth"), "{e}");
     assert_eq!(err(&s.table, -0.1), "dt");
@@ -406,7 +461,10 @@ fn filter_refuses_bad_inputs_without_panicking() {
     let f = model.filter(&model.truth_values());
     let mut est = f.initial();
     assert!(f.predict(1, &mut est).is_err());
-    assert!(f.predict_with_input(1, &mut est, &DVector::zeros(59)).is_err());
+    assert!(
+        f.predict_with_input(1, &mut est, &DVector::zeros(59))
+            .is_err()
+    );
     let bad = Measurement {
         sensor: 0,
         z: DVector::zeros(2),

@@ -125,7 +125,10 @@ impl Filter for Eskf {
                 what: "an IMU input of 6 values per sample",
             });
         }
-        let bad = FilterError::NotPositiveDefinite { which: "P", step: k };
+        let bad = FilterError::NotPositiveDefinite {
+            which: "P",
+            step: k,
+        };
         let mut nom = Nominal::from_slice(est.x.as_slice()).ok_or(bad.clone())?;
         let mut P = to_fixed(&est.P).ok_or(bad.clone())?;
         let F = self.propagate(&mut nom, &mut P, u.as_slice());
@@ -155,16 +158,20 @@ impl Filter for Eskf {
                 expected: if meas.sensor == 0 { 3 } else { 0 },
             });
         }
-        let badp = FilterError::NotPositiveDefinite { which: "P", step: k };
+        let badp = FilterError::NotPositiveDefinite {
+            which: "P",
+            step: k,
+        };
         let nom = Nominal::from_slice(est.x.as_slice()).ok_or(badp.clone())?;
         let P = to_fixed(&est.P).ok_or(badp.clone())?;
         // H = [I₃ 0]: H P = first three rows of P, S = P_pp + R.
         let PHt: Mat15x3 = P.fixed_columns::<3>(0).into_owned();
         let mut S = P.fixed_view::<3, 3>(0, 0).into_owned() + self.R;
         S = (S + S.transpose()) * 0.5;
-        let chol = S
-            .cholesky()
-            .ok_or(FilterError::NotPositiveDefinite { which: "S", step: k })?;
+        let chol = S.cholesky().ok_or(FilterError::NotPositiveDefinite {
+            which: "S",
+            step: k,
+        })?;
         let K: Mat15x3 = chol.solve(&PHt.transpose()).transpose();
         let z = Vector3::new(meas.z[0], meas.z[1], meas.z[2]);
         let nu = z - nom.p;

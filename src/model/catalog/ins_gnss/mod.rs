@@ -39,8 +39,8 @@ use truth::{DRIVE, InitialSigma, InsTruth, TruthNoise};
 
 /// Names of the 15 error-state components.
 pub const STATE_NAMES: [&str; 15] = [
-    "pn", "pe", "pd", "vn", "ve", "vd", "roll", "pitch", "yaw", "bax", "bay", "baz", "bgx",
-    "bgy", "bgz",
+    "pn", "pe", "pd", "vn", "ve", "vd", "roll", "pitch", "yaw", "bax", "bay", "baz", "bgx", "bgy",
+    "bgz",
 ];
 
 /// Names of the GNSS measurement components (NED position).
@@ -211,10 +211,18 @@ fn build_model(table: &toml::Table, ctx: &ModelContext) -> Result<InsGnss, Model
     let n_imu = whole("imu_rate", dt * rate, 1.0, 1000).map_err(|_| {
         ModelError::new(
             "imu_rate",
-            format!("dt · imu_rate must be a whole number of samples (1 to 1000), got {}", dt * rate),
+            format!(
+                "dt · imu_rate must be a whole number of samples (1 to 1000), got {}",
+                dt * rate
+            ),
         )
     })?;
-    let gnss_every = whole("gnss_period", positive("gnss_period", s.gnss_period)?, dt, 1 << 30)?;
+    let gnss_every = whole(
+        "gnss_period",
+        positive("gnss_period", s.gnss_period)?,
+        dt,
+        1 << 30,
+    )?;
     let outage = match s.gnss_outage {
         None => (f64::INFINITY, f64::INFINITY),
         Some([a, b]) => {
@@ -253,7 +261,11 @@ fn build_model(table: &toml::Table, ctx: &ModelContext) -> Result<InsGnss, Model
     // The attitude error must stay a small angle for the linearized filter.
     if init.tilt > 0.2 || init.yaw > 0.2 {
         return Err(ModelError::new(
-            if init.tilt > 0.2 { "initial.tilt" } else { "initial.yaw" },
+            if init.tilt > 0.2 {
+                "initial.tilt"
+            } else {
+                "initial.yaw"
+            },
             "must be ≤ 0.2 rad (the error-state filter linearizes small attitude errors)",
         ));
     }

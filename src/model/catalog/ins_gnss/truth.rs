@@ -305,9 +305,7 @@ impl InsTruth {
         // The car moves along its body x axis; with roll that axis is unchanged, so v is
         // u [cθ cψ, cθ sψ, −sθ] as in the kinematics.
         let qq = q.quaternion();
-        let vals = [
-            k[0], k[1], k[2], v.x, v.y, v.z, qq.w, qq.i, qq.j, qq.k,
-        ];
+        let vals = [k[0], k[1], k[2], v.x, v.y, v.z, qq.w, qq.i, qq.j, qq.k];
         x.as_mut_slice()[..10].copy_from_slice(&vals);
     }
 

@@ -183,7 +183,7 @@ fn main() {
         };
         let settings = TuneSettings {
             max_seconds: 1500.0,
-            max_evals: 150,
+            max_evals: 200,
             global_points_per_param: 4,
             starts: 2,
             search_runs: Some(2 * runs),

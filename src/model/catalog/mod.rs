@@ -135,6 +135,9 @@ pub fn positive(field: &str, v: f64) -> Result<f64, ModelError> {
     if v.is_finite() && v > 0.0 {
         Ok(v)
     } else {
-        Err(ModelError::new(field, format!("must be finite and > 0, got {v}")))
+        Err(ModelError::new(
+            field,
+            format!("must be finite and > 0, got {v}"),
+        ))
     }
 }

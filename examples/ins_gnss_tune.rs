@@ -186,7 +186,13 @@ fn main() {
             max_evals: 200,
             global_points_per_param: 4,
             starts: 2,
-            search_runs: Some(2 * runs),
+            search_runs: Some(
+                std::env::var("SEARCH_RUNS_FACTOR")
+                    .ok()
+                    .and_then(|v| v.parse::<usize>().ok())
+                    .unwrap_or(2)
+                    * runs,
+            ),
             ..TuneSettings::default()
         };
         let t0 = Instant::now();

@@ -17,6 +17,14 @@
 //! - Parameters: accelerometer white noise per body axis, gyro white noise, the two bias
 //!   random walks (free), GNSS horizontal and vertical variance (fixed). The truth has
 //!   the filter's noise structure, so [`CatalogModel::structure_matches`] is true.
+//!
+//! Identifiability over the 90 s drive: every parameter moves the check by itself (a
+//! factor 10 either way leaves the acceptance interval, except the accelerometer bias walk
+//! at × 0.1), but some pairs trade against each other in the tuning objective: forward
+//! accelerometer noise against gyro noise (both feed the horizontal velocity error, the
+//! gyro through tilt × g) and vertical accelerometer noise against the accelerometer bias
+//! walk. Tuned values of those land tens of percent from the truth's (both still pass the
+//! check); the vertical channel and the gyro bias walk are pinned best.
 
 #![allow(non_snake_case)]
 

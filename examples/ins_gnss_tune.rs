@@ -2,7 +2,10 @@
 //! shipped problem, report the check at the truth's noise and at Q × 0.01, and tune from
 //! 10x off in every free parameter (both directions).
 //!
-//! `cargo run --release --example ins_gnss_tune -- [check|tune-up|tune-down|all]`
+//! `cargo run --release --example ins_gnss_tune -- [check|one|parts|tune-up|tune-down|all]`
+//! (`one`: three evaluations at the truth; `parts`: µs per step of truth and filter alone).
+//! Tuning uses 200 evaluations, 4 global points per parameter, 2 local starts and
+//! `SEARCH_RUNS_FACTOR` × N search runs (default 2).
 
 use std::time::Instant;
 
@@ -70,6 +73,57 @@ fn main() {
         println!("  components: {}", comps.join(", "));
     };
 
+    if mode == "parts" {
+        use autotune::filter::Filter;
+        use autotune::model::Measurement;
+        let tm = model.truth();
+        let f = model.filter(&truth);
+        let mut rng = autotune::montecarlo::run_rng(1, 0);
+        let mut xs = Vec::new();
+        let mut us = Vec::new();
+        let mut ms = Vec::new();
+        let t0 = Instant::now();
+        for _ in 0..10 {
+            let mut x = tm.initial_state(&mut rng);
+            xs.clear();
+            us.clear();
+            ms.clear();
+            for k in 1..=steps {
+                x = tm.propagate(k, &x, &mut rng);
+                us.push(tm.input(k, &x, &mut rng).expect("input"));
+                let mut m: Vec<Measurement> = Vec::new();
+                tm.measure(k, &x, &mut rng, &mut m);
+                ms.push(m);
+                xs.push(x.clone());
+            }
+        }
+        println!(
+            "truth: {:.2} us/step",
+            t0.elapsed().as_secs_f64() * 1e6 / (10 * steps) as f64
+        );
+        let t0 = Instant::now();
+        for _ in 0..10 {
+            let mut est = f.initial();
+            for k in 1..=steps {
+                f.predict_with_input(k, &mut est, &us[k - 1])
+                    .expect("predict");
+                for m in &ms[k - 1] {
+                    f.update(k, &mut est, m).expect("update");
+                }
+                let _e = f.state_error(&xs[k - 1], &est.x);
+            }
+        }
+        println!(
+            "filter: {:.2} us/step",
+            t0.elapsed().as_secs_f64() * 1e6 / (10 * steps) as f64
+        );
+    }
+    if mode == "one" {
+        for _ in 0..3 {
+            let (r, s) = check(&truth, 1, runs);
+            show("truth", &r, s);
+        }
+    }
     if mode == "check" || mode == "all" {
         for seed in [1u64, 2, 3] {
             let (r, s) = check(&truth, seed, runs);
@@ -132,6 +186,16 @@ fn main() {
         };
         let settings = TuneSettings {
             max_seconds: 1500.0,
+            max_evals: 200,
+            global_points_per_param: 4,
+            starts: 2,
+            search_runs: Some(
+                std::env::var("SEARCH_RUNS_FACTOR")
+                    .ok()
+                    .and_then(|v| v.parse::<usize>().ok())
+                    .unwrap_or(2)
+                    * runs,
+            ),
             ..TuneSettings::default()
         };
         let t0 = Instant::now();

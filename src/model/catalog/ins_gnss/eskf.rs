@@ -62,11 +62,28 @@ impl Eskf {
         let n = self.n_imu as f64;
         let Q = process_noise(&(qv / n), &(r_sum / n), &(y_sum / n), &self.noise, self.dt);
         let F = phi.to_matrix();
-        let mut Pn = F * *P * F.transpose() + Q;
-        Pn = (Pn + Pn.transpose()) * 0.5;
-        *P = Pn;
+        *P = sandwich(&F, P) + Q;
+        *P = (*P + P.transpose()) * 0.5;
         F
     }
+}
+
+/// `Φ P Φ'` for a transition whose bias rows are the identity and whose first three
+/// columns are the identity (`Φ = I + N`, N nonzero only in rows 0–8 and columns 3–14):
+/// `A = Φ P` changes only rows 0–8, `A Φ'` only columns 0–8, so two 9×12 by 12×15 products
+/// replace two dense 15×15 ones.
+fn sandwich(F: &Mat15, P: &Mat15) -> Mat15 {
+    let mut N: SMatrix<f64, 9, 12> = F.fixed_view::<9, 12>(0, 3).into_owned();
+    for r in 3..9 {
+        N[(r, r - 3)] -= 1.0;
+    }
+    let mut A = *P;
+    let top = P.fixed_view::<9, 15>(0, 0) + N * P.fixed_view::<12, 15>(3, 0);
+    A.fixed_view_mut::<9, 15>(0, 0).copy_from(&top);
+    let mut B = A;
+    let left = A.fixed_view::<15, 9>(0, 0) + A.fixed_view::<15, 12>(0, 3) * N.transpose();
+    B.fixed_view_mut::<15, 9>(0, 0).copy_from(&left);
+    B
 }
 
 fn to_fixed(m: &DMatrix<f64>) -> Option<Mat15> {

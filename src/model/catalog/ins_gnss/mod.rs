@@ -17,6 +17,14 @@
 //! - Parameters: accelerometer white noise per body axis, gyro white noise, the two bias
 //!   random walks (free), GNSS horizontal and vertical variance (fixed). The truth has
 //!   the filter's noise structure, so [`CatalogModel::structure_matches`] is true.
+//!
+//! Identifiability over the 90 s drive: every parameter moves the check by itself (a
+//! factor 10 either way leaves the acceptance interval, except the accelerometer bias walk
+//! at × 0.1), but some pairs trade against each other in the tuning objective: forward
+//! accelerometer noise against gyro noise (both feed the horizontal velocity error, the
+//! gyro through tilt × g) and vertical accelerometer noise against the accelerometer bias
+//! walk. Tuned values of those land tens of percent from the truth's (both still pass the
+//! check); the vertical channel and the gyro bias walk are pinned best.
 
 #![allow(non_snake_case)]
 
@@ -193,6 +201,18 @@ fn whole(field: &str, v: f64, unit: f64, max: usize) -> Result<usize, ModelError
 }
 
 fn build(table: &toml::Table, ctx: &ModelContext) -> Result<Box<dyn CatalogModel>, ModelError> {
+    Ok(Box::new(InsGnss::new(table, ctx)?))
+}
+
+impl InsGnss {
+    /// Build from a `[model]` table (without `name`), as [`ENTRY`] does, keeping the
+    /// concrete type (tests and benches reach the filter's and truth's own methods).
+    pub fn new(table: &toml::Table, ctx: &ModelContext) -> Result<InsGnss, ModelError> {
+        build_model(table, ctx)
+    }
+}
+
+fn build_model(table: &toml::Table, ctx: &ModelContext) -> Result<InsGnss, ModelError> {
     let s: Settings = parse_table(table)?;
     let dt = positive("dt", ctx.dt)?;
     let rate = positive("imu_rate", s.imu_rate)?;
@@ -257,7 +277,7 @@ fn build(table: &toml::Table, ctx: &ModelContext) -> Result<Box<dyn CatalogModel
             "must be ≤ 0.2 rad (the error-state filter linearizes small attitude errors)",
         ));
     }
-    Ok(Box::new(InsGnss {
+    Ok(InsGnss {
         truth: InsTruth {
             dt,
             n_imu,
@@ -267,7 +287,7 @@ fn build(table: &toml::Table, ctx: &ModelContext) -> Result<Box<dyn CatalogModel
             outage,
             drive: DRIVE,
         },
-    }))
+    })
 }
 
 /// The built `ins_gnss` model.

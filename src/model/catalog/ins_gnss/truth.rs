@@ -6,7 +6,9 @@
 //! longitudinal acceleration `a(t)` and yaw rate `r(t)` of the drive ([`DRIVE`]), pitch
 //! from the road's hills `θ = θ₀ + A sin(2π s / L)` (s the distance driven) and roll from
 //! the body leaning in turns `φ = φ₀ + c · u r`. The state `[p, u, ψ, s]` is integrated
-//! with RK4 at half the IMU interval, so every IMU sample falls on a grid point.
+//! with RK4 at its own step (0.02 s by default, see [`InsTruth::rk4_steps`]); the IMU
+//! samples the middle of each of its intervals, interpolated between the RK4 grid points
+//! with a cubic Hermite polynomial.
 //!
 //! True body rates and specific force follow from the motion:
 //! `ω_b = [φ̇ − ψ̇ sin θ, θ̇ cos φ + ψ̇ sin φ cos θ, −θ̇ sin φ + ψ̇ cos φ cos θ]` and
@@ -221,6 +223,14 @@ impl InsTruth {
         false
     }
 
+    /// RK4 steps per filter step: the fewest that keep the RK4 step at most 0.02 s and
+    /// put a whole number of IMU samples in each (5 at dt = 0.1 s, 100 Hz).
+    pub fn rk4_steps(&self) -> usize {
+        (1..=self.n_imu)
+            .find(|&n| self.n_imu % n == 0 && self.dt / n as f64 <= 0.02 + 1e-12)
+            .unwrap_or(self.n_imu)
+    }
+
     /// Whether a GNSS fix is taken at step `k`.
     pub fn gnss_at(&self, k: usize) -> bool {
         let t = k as f64 * self.dt;
@@ -260,8 +270,8 @@ impl InsTruth {
         )
     }
 
-    fn rk4(&self, k: &Kin, t: f64, h: f64, off: Offsets) -> Kin {
-        let k1 = self.deriv(k, t, off);
+    /// One RK4 step from `k` at `t`, given its derivative `k1` there.
+    fn rk4(&self, k: &Kin, k1: &Kin, t: f64, h: f64, off: Offsets) -> Kin {
         let k2 = self.deriv(&(k + k1 * (h / 2.0)), t + h / 2.0, off);
         let k3 = self.deriv(&(k + k2 * (h / 2.0)), t + h / 2.0, off);
         let k4 = self.deriv(&(k + k3 * h), t + h, off);
@@ -360,29 +370,44 @@ impl TruthModel for InsTruth {
         let off = Self::offsets(x);
         let mut kin = Self::kin(x);
         let dt_imu = self.dt / self.n_imu as f64;
-        let h = dt_imu / 2.0;
         let t0 = (k - 1) as f64 * self.dt;
         let n = &self.noise;
         let sa = n.accel.map(|q| (q / dt_imu).sqrt());
         let sg = (n.gyro / dt_imu).sqrt();
         let sba = (n.accel_bias * dt_imu).sqrt();
         let sbg = (n.gyro_bias * dt_imu).sqrt();
-        for j in 0..self.n_imu {
-            let t = t0 + j as f64 * dt_imu;
-            kin = self.rk4(&kin, t, h, off);
-            let (f, w) = self.imu_true(&kin, t + h, off);
-            for i in 0..3 {
-                out[10 + i] += sba * normal(rng);
-                out[13 + i] += sbg * normal(rng);
+        let n_rk = self.rk4_steps();
+        let h = self.dt / n_rk as f64;
+        let per = self.n_imu / n_rk;
+        let mut f0 = self.deriv(&kin, t0, off);
+        for i in 0..n_rk {
+            let t = t0 + i as f64 * h;
+            let next = self.rk4(&kin, &f0, t, h, off);
+            let f1 = self.deriv(&next, t + h, off);
+            for l in 0..per {
+                // The IMU samples the middle of its interval; cubic Hermite interpolation
+                // between the RK4 grid points (error h⁴/384 · |y⁗|, below 1e-9 here).
+                let tau = (l as f64 + 0.5) / per as f64;
+                let (t2, t3) = (tau * tau, tau * tau * tau);
+                let mid = kin * (2.0 * t3 - 3.0 * t2 + 1.0)
+                    + f0 * (h * (t3 - 2.0 * t2 + tau))
+                    + next * (3.0 * t2 - 2.0 * t3)
+                    + f1 * (h * (t3 - t2));
+                let (f, w) = self.imu_true(&mid, t + tau * h, off);
+                for c in 0..3 {
+                    out[10 + c] += sba * normal(rng);
+                    out[13 + c] += sbg * normal(rng);
+                }
+                let base = layout::IMU + 6 * (i * per + l);
+                for c in 0..3 {
+                    out[base + c] = f[c] + out[10 + c] + sa[c] * normal(rng);
+                }
+                for c in 0..3 {
+                    out[base + 3 + c] = w[c] + out[13 + c] + sg * normal(rng);
+                }
             }
-            let base = layout::IMU + 6 * j;
-            for i in 0..3 {
-                out[base + i] = f[i] + out[10 + i] + sa[i] * normal(rng);
-            }
-            for i in 0..3 {
-                out[base + 3 + i] = w[i] + out[13 + i] + sg * normal(rng);
-            }
-            kin = self.rk4(&kin, t + h, h, off);
+            kin = next;
+            f0 = f1;
         }
         out[layout::U] = kin[3];
         out[layout::YAW] = kin[4];

@@ -359,7 +359,7 @@ impl ConsistencyReport {
             &acc.nees_sum,
             &acc.nees_dof,
             &acc.nees_count,
-            acc.nees_null_var,
+            acc.nees_null_variance(),
             gate_alpha,
             &mut cache,
         );

@@ -150,7 +150,11 @@ fn linear_fast_path_matches_generic_path() {
     );
     close(&a.white_ab, &b.white_ab, "white_ab");
     close(&a.white_b2, &b.white_b2, "white_b2");
-    close(&[a.nees_null_var], &[b.nees_null_var], "nees_null_var");
+    close(
+        &[a.nees_null_variance()],
+        &[b.nees_null_variance()],
+        "nees_null_variance",
+    );
     assert_eq!(a.nis_dof, b.nis_dof);
     assert_eq!(a.white_pairs, b.white_pairs);
     assert_eq!(a.runs, b.runs);

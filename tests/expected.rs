@@ -69,7 +69,7 @@ fn expected_sums_match_large_monte_carlo() {
             );
         }
         assert_eq!(exp.white_pairs, sim.white_pairs);
-        let r = sim.nees_null_var / exp.nees_null_var;
+        let r = sim.nees_null_variance() / exp.nees_null_variance();
         assert!((r - 1.0).abs() < 1e-9, "{name} null variance ratio {r}");
     }
 }

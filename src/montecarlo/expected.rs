@@ -167,6 +167,7 @@ pub fn expected_accumulator(
     }
     acc.runs = settings.runs;
     acc.nees_null_var = runs * null_var.variance();
+    acc.null_var_runs = settings.runs;
     Ok(acc)
 }
 

@@ -399,6 +399,7 @@ fn chunk(
     }
     acc.runs += b;
     acc.nees_null_var += sched.null_var * b as f64;
+    acc.null_var_runs += b;
 }
 
 #[cfg(test)]

@@ -200,7 +200,7 @@ impl Objective {
                 &acc.nees_sum,
                 &acc.nees_dof,
                 &acc.nees_count,
-                acc.nees_null_var,
+                acc.nees_null_variance(),
             ));
         }
         for (sum, dof, count, var) in stats {

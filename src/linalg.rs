@@ -157,6 +157,13 @@ pub fn van_loan(a: &DMatrix<f64>, qc: &DMatrix<f64>, dt: f64) -> DMatrix<f64> {
     q
 }
 
+/// Wrap an angle, rad, to (−π, π] (NaN stays NaN): bearing innovations and heading errors.
+pub fn wrap_angle(a: f64) -> f64 {
+    use std::f64::consts::{PI, TAU};
+    let r = (a + PI).rem_euclid(TAU) - PI;
+    if r <= -PI { r + TAU } else { r }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

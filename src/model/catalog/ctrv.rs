@@ -40,8 +40,6 @@
 
 #![allow(non_snake_case)]
 
-use std::f64::consts::{PI, TAU};
-
 use nalgebra::{
     Cholesky, DMatrix, DVector, Matrix2, Matrix3, Matrix5, SMatrix, SVector, U5, Vector2, Vector3,
     Vector5,
@@ -125,11 +123,7 @@ pub const ENTRY: CatalogEntry = CatalogEntry {
     build,
 };
 
-/// Wrap an angle to (−π, π] (NaN stays NaN).
-pub fn wrap_angle(a: f64) -> f64 {
-    let r = (a + PI).rem_euclid(TAU) - PI;
-    if r <= -PI { r + TAU } else { r }
-}
+pub use crate::linalg::wrap_angle;
 
 // ---------------------------------------------------------------------------------------
 // Settings

@@ -53,6 +53,7 @@ use super::{
 };
 use crate::SimRng;
 use crate::filter::{Estimate, Filter, FilterError, Innovation, SystemModel};
+use crate::linalg::wrap_angle;
 use crate::model::{Measurement, TruthModel};
 
 /// Earth's gravitational parameter μ, km³/s².
@@ -488,12 +489,6 @@ impl Stations {
     }
 }
 
-/// Wrap an angle into (−π, π].
-fn wrap(a: f64) -> f64 {
-    let w = a.rem_euclid(2.0 * PI);
-    if w > PI { w - 2.0 * PI } else { w }
-}
-
 fn to4(x: &DVector<f64>) -> Vector4<f64> {
     Vector4::from_fn(|i, _| x.get(i).copied().unwrap_or(f64::NAN))
 }
@@ -639,7 +634,7 @@ impl SystemModel for OrbitSystem {
     fn residual(&self, _sensor: usize, z: &DVector<f64>, z_hat: &DVector<f64>) -> DVector<f64> {
         let mut d = z - z_hat;
         if d.len() == 3 {
-            d[2] = wrap(d[2]);
+            d[2] = wrap_angle(d[2]);
         }
         d
     }
@@ -766,7 +761,7 @@ impl Filter for OrbitEkf {
         let P = to_mat4(&est.P);
         let (z_hat, H) = self.system.stations.measure(k, meas.sensor, &x);
         let mut nu = Vector3::new(meas.z[0], meas.z[1], meas.z[2]) - z_hat;
-        nu[2] = wrap(nu[2]);
+        nu[2] = wrap_angle(nu[2]);
         let PHt: Matrix4x3<f64> = P * H.transpose();
         let mut S = H * PHt + self.R;
         S = (S + S.transpose()) * 0.5;

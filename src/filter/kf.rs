@@ -114,13 +114,7 @@ impl Filter for KalmanFilter {
         meas: &Measurement,
     ) -> Result<Innovation, FilterError> {
         let m = self.H.nrows();
-        if meas.sensor != 0 || meas.z.len() != m {
-            return Err(FilterError::BadMeasurement {
-                sensor: meas.sensor,
-                got: meas.z.len(),
-                expected: if meas.sensor == 0 { m } else { 0 },
-            });
-        }
+        super::check_measurement((meas.sensor == 0).then_some(m), meas)?;
         let cu = self.update_covariance(&est.P, k)?;
         let nu = &meas.z - &self.H * &est.x;
         est.x += &cu.K * &nu;

@@ -80,6 +80,19 @@ pub enum FilterError {
     },
 }
 
+/// Check that `meas` has the dimension `expected` of its sensor (`None`: the filter has no
+/// such sensor); otherwise the [`FilterError::BadMeasurement`] naming both.
+pub fn check_measurement(expected: Option<usize>, meas: &Measurement) -> Result<(), FilterError> {
+    match expected {
+        Some(d) if d == meas.z.len() => Ok(()),
+        _ => Err(FilterError::BadMeasurement {
+            sensor: meas.sensor,
+            got: meas.z.len(),
+            expected: expected.unwrap_or(0),
+        }),
+    }
+}
+
 /// A recursive estimator the engine can test.
 pub trait Filter: Sync {
     /// State dimension n_x.

@@ -5,7 +5,7 @@
 use nalgebra::{DMatrix, DVector};
 
 use super::kf::joseph_update;
-use super::{Estimate, Filter, FilterError, Innovation};
+use super::{Estimate, Filter, FilterError, Innovation, check_measurement};
 use crate::linalg::{cholesky, mahalanobis_sq, symmetrize};
 use crate::model::Measurement;
 
@@ -90,17 +90,6 @@ pub fn numerical_jacobian(
     J
 }
 
-fn check_measurement(dims: &[usize], meas: &Measurement) -> Result<(), FilterError> {
-    match dims.get(meas.sensor) {
-        Some(&d) if d == meas.z.len() => Ok(()),
-        other => Err(FilterError::BadMeasurement {
-            sensor: meas.sensor,
-            got: meas.z.len(),
-            expected: other.copied().unwrap_or(0),
-        }),
-    }
-}
-
 /// The extended Kalman filter: linearizes f and h at the current estimate, with the
 /// model's analytic Jacobians or finite differences, and updates in Joseph form.
 #[derive(Debug, Clone)]
@@ -160,7 +149,7 @@ impl<M: SystemModel> Filter for Ekf<M> {
         est: &mut Estimate,
         meas: &Measurement,
     ) -> Result<Innovation, FilterError> {
-        check_measurement(&self.sensor_dims(), meas)?;
+        check_measurement(self.sensor_dims().get(meas.sensor).copied(), meas)?;
         let s = meas.sensor;
         let H = self.h_jacobian(k, s, &est.x);
         let cu = joseph_update(&est.P, &H, &self.R[s], k)?;
@@ -338,7 +327,7 @@ impl<M: SystemModel> Filter for Ukf<M> {
         est: &mut Estimate,
         meas: &Measurement,
     ) -> Result<Innovation, FilterError> {
-        check_measurement(&self.sensor_dims(), meas)?;
+        check_measurement(self.sensor_dims().get(meas.sensor).copied(), meas)?;
         let s = meas.sensor;
         let (pts, wm, wc) = self.sigma(&est.x, &est.P, k)?;
         let zs: Vec<DVector<f64>> = pts

@@ -20,7 +20,7 @@ use rand::SeedableRng;
 use rayon::prelude::*;
 
 use crate::SimRng;
-use crate::filter::{Filter, FilterError};
+use crate::filter::{Filter, FilterError, check_measurement};
 use crate::linalg::cholesky;
 use crate::model::{Measurement, TruthModel};
 use crate::stats::{Divergence, NeesNullVariance};
@@ -474,13 +474,7 @@ where
         }
         let (mut nis, mut dof) = (0.0, 0usize);
         for m in meas.iter() {
-            if m.sensor >= dims.len() || m.z.len() != dims[m.sensor] {
-                return Err(FilterError::BadMeasurement {
-                    sensor: m.sensor,
-                    got: m.z.len(),
-                    expected: dims.get(m.sensor).copied().unwrap_or(0),
-                });
-            }
+            check_measurement(dims.get(m.sensor).copied(), m)?;
             let inn = filter.update(k, &mut est, m)?;
             nis += inn.nis;
             dof += m.z.len();

@@ -53,7 +53,9 @@ use super::{
     positive,
 };
 use crate::SimRng;
-use crate::filter::{Estimate, Filter, FilterError, Innovation, SystemModel, Ukf};
+use crate::filter::{
+    Estimate, Filter, FilterError, Innovation, SystemModel, Ukf, check_measurement,
+};
 use crate::model::{Measurement, TruthModel};
 
 /// Index of the lidar in the filter's sensor list.
@@ -709,22 +711,19 @@ impl Filter for CtrvFilter {
         est: &mut Estimate,
         meas: &Measurement,
     ) -> Result<Innovation, FilterError> {
-        let bad = FilterError::BadMeasurement {
-            sensor: meas.sensor,
-            got: meas.z.len(),
-            expected: match meas.sensor {
-                LIDAR => 2,
-                RADAR => 3,
-                _ => 0,
-            },
+        let dim = match meas.sensor {
+            LIDAR => Some(2),
+            RADAR => Some(3),
+            _ => None,
         };
+        check_measurement(dim, meas)?;
         if est.x.len() != 5 || est.P.shape() != (5, 5) || est.error_map.shape() != (5, 5) {
             return Err(FilterError::Unsupported {
                 what: "an estimate of dimension 5",
             });
         }
-        match (meas.sensor, meas.z.len()) {
-            (LIDAR, 2) => {
+        match meas.sensor {
+            LIDAR => {
                 let z = Vector2::from_column_slice(meas.z.as_slice());
                 self.update_fixed(
                     k,
@@ -735,7 +734,7 @@ impl Filter for CtrvFilter {
                     None,
                 )
             }
-            (RADAR, 3) => {
+            _ => {
                 let z = Vector3::from_column_slice(meas.z.as_slice());
                 self.update_fixed(
                     k,
@@ -746,7 +745,6 @@ impl Filter for CtrvFilter {
                     Some(1),
                 )
             }
-            _ => Err(bad),
         }
     }
 

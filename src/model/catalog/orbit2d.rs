@@ -52,7 +52,7 @@ use super::{
     positive,
 };
 use crate::SimRng;
-use crate::filter::{Estimate, Filter, FilterError, Innovation, SystemModel};
+use crate::filter::{Estimate, Filter, FilterError, Innovation, SystemModel, check_measurement};
 use crate::linalg::wrap_angle;
 use crate::model::{Measurement, TruthModel};
 
@@ -750,13 +750,7 @@ impl Filter for OrbitEkf {
         meas: &Measurement,
     ) -> Result<Innovation, FilterError> {
         let count = self.system.stations.count;
-        if meas.sensor >= count || meas.z.len() != 3 {
-            return Err(FilterError::BadMeasurement {
-                sensor: meas.sensor,
-                got: meas.z.len(),
-                expected: if meas.sensor < count { 3 } else { 0 },
-            });
-        }
+        check_measurement((meas.sensor < count).then_some(3), meas)?;
         let x = to4(&est.x);
         let P = to_mat4(&est.P);
         let (z_hat, H) = self.system.stations.measure(k, meas.sensor, &x);

@@ -20,7 +20,7 @@ use super::nav::{
     ImuSample, Mat15, N_ERR, N_NOM, NoiseDensities, Nominal, Transition, Vec15, mechanize,
     process_noise,
 };
-use crate::filter::{Estimate, Filter, FilterError, Innovation};
+use crate::filter::{Estimate, Filter, FilterError, Innovation, check_measurement};
 use crate::model::Measurement;
 
 /// The ESKF: noise densities, GNSS noise, initial state and covariance.
@@ -151,13 +151,7 @@ impl Filter for Eskf {
         est: &mut Estimate,
         meas: &Measurement,
     ) -> Result<Innovation, FilterError> {
-        if meas.sensor != 0 || meas.z.len() != 3 {
-            return Err(FilterError::BadMeasurement {
-                sensor: meas.sensor,
-                got: meas.z.len(),
-                expected: if meas.sensor == 0 { 3 } else { 0 },
-            });
-        }
+        check_measurement((meas.sensor == 0).then_some(3), meas)?;
         let badp = FilterError::NotPositiveDefinite {
             which: "P",
             step: k,

@@ -11,7 +11,7 @@ use autotune::report::html::tune_html;
 use autotune::report::tune::{TuneReport, tune_markdown};
 use autotune::report::tuned::tuned_config_toml;
 use autotune::report::{fmt_g, write_atomic, write_report_dir};
-use autotune::tune::{Observer, Scoring, TuneSettings, TuneStatus, tune};
+use autotune::tune::{LocalSearch, Observer, Scoring, TuneSettings, TuneStatus, tune};
 use indicatif::{ProgressBar, ProgressStyle};
 
 use super::{McArgs, name_value, option_error};
@@ -48,6 +48,10 @@ pub struct TuneArgs {
     /// How candidates are scored: auto, exact, monte_carlo.
     #[arg(long)]
     scoring: Option<String>,
+    /// Local search from the best global points: simplex (Nelder–Mead) or gauss_newton
+    /// (Levenberg–Marquardt, for many expensive parameters).
+    #[arg(long)]
+    local: Option<String>,
     /// Seed of the confirmation runs.
     #[arg(long)]
     confirm_seed: Option<u64>,
@@ -127,6 +131,14 @@ pub fn run(a: TuneArgs) -> anyhow::Result<ExitCode> {
             option_error(
                 "--scoring",
                 format!("unknown scoring '{s}' (known: auto, exact, monte_carlo)"),
+            )
+        })?;
+    }
+    if let Some(s) = &a.local {
+        settings.local = LocalSearch::parse(s).ok_or_else(|| {
+            option_error(
+                "--local",
+                format!("unknown local search '{s}' (known: simplex, gauss_newton)"),
             )
         })?;
     }

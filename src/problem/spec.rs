@@ -62,6 +62,8 @@ pub struct TuneSpec {
     pub search_runs: Option<i64>,
     /// Quasi-random points of the global stage per free parameter (default 16).
     pub global_points: Option<i64>,
+    /// "simplex" or "gauss_newton".
+    pub local: Option<String>,
 }
 
 /// `[montecarlo]`.

@@ -7,7 +7,9 @@
 //! the truth's F and H: noise-free and cheap) or a Monte Carlo run with common random
 //! numbers (every candidate sees the same draws, so the score is a deterministic function
 //! of the parameters). The search is a global stage of quasi-random points in the log box
-//! followed by Nelder–Mead (argmin) from the best few, each restarted once to polish; a
+//! followed by a local search from the best few ([`LocalSearch`]): Nelder–Mead (argmin),
+//! each restarted once to polish, or Levenberg–Marquardt on the objective's residuals,
+//! first on each parameter's own components and then on the whole objective; a
 //! budget in evaluations and seconds bounds it. A candidate whose filter diverges scores
 //! +∞ and the search goes on.
 
@@ -21,7 +23,7 @@ use std::time::{Duration, Instant};
 
 use argmin::core::{CostFunction, Executor, State};
 use argmin::solver::neldermead::NelderMead;
-use nalgebra::{DMatrix, SymmetricEigen};
+use nalgebra::{DMatrix, DVector, SymmetricEigen};
 use rand::{Rng, SeedableRng};
 use rayon::prelude::*;
 use serde::Serialize;
@@ -29,6 +31,7 @@ use serde::Serialize;
 use crate::SimRng;
 use crate::filter::Filter;
 use crate::model::TruthModel;
+use crate::model::catalog::NoiseKind;
 use crate::montecarlo::Settings;
 use crate::montecarlo::{self, Accumulator, expected_accumulator, models_match};
 use crate::params::ParamSpace;
@@ -50,6 +53,12 @@ pub trait Tunable: Sync {
     /// The exact expected sums, where the model allows computing them (a diverging filter
     /// gives sums marked diverged); `None` when it does not.
     fn expected(&self, _theta: &[f64], _settings: &Settings) -> Option<Accumulator> {
+        None
+    }
+    /// What parameter `i` drives: process noise of these state components, or measurement
+    /// noise of these measurement components; `None` when unknown. The Gauss–Newton search
+    /// uses it to match each parameter's own components first.
+    fn targets(&self, _i: usize) -> Option<(NoiseKind, Vec<usize>)> {
         None
     }
 }
@@ -91,6 +100,11 @@ impl Tunable for Problem {
                 a
             }),
         )
+    }
+
+    fn targets(&self, i: usize) -> Option<(NoiseKind, Vec<usize>)> {
+        let (kind, comps) = self.param_target(i);
+        (!comps.is_empty()).then_some((kind, comps))
     }
 }
 
@@ -171,6 +185,36 @@ pub enum Scoring {
     MonteCarlo,
 }
 
+/// The local search that refines the global stage's best points.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum LocalSearch {
+    /// Nelder–Mead with a wide simplex (0.7 in log units, a factor 2), restarted with a
+    /// small one to polish. Derivative-free and exploratory: it can leave a shallow local
+    /// minimum. Suits problems with a few free parameters.
+    #[default]
+    Simplex,
+    /// Levenberg–Marquardt on the objective's residual vector (J is a sum of squares) with
+    /// a finite-difference Jacobian: d + 1 evaluations an iteration, converging in a
+    /// handful. Suits many free parameters of an expensive Monte Carlo, where a simplex
+    /// needs hundreds of evaluations; it stays in the basin it starts in, so it relies on
+    /// the global stage and several starts.
+    GaussNewton,
+}
+
+impl LocalSearch {
+    /// Parse "simplex" (also "nelder_mead") or "gauss_newton" (also "levenberg_marquardt").
+    pub fn parse(s: &str) -> Option<LocalSearch> {
+        match s {
+            "simplex" | "nelder_mead" | "nelder-mead" => Some(LocalSearch::Simplex),
+            "gauss_newton" | "gauss-newton" | "levenberg_marquardt" | "levenberg-marquardt" => {
+                Some(LocalSearch::GaussNewton)
+            }
+            _ => None,
+        }
+    }
+}
+
 /// Search settings.
 #[derive(Debug, Clone, PartialEq)]
 pub struct TuneSettings {
@@ -188,6 +232,8 @@ pub struct TuneSettings {
     pub global_points_per_param: usize,
     /// How candidates are scored.
     pub scoring: Scoring,
+    /// The local search.
+    pub local: LocalSearch,
     /// Seed of the confirmation runs (default: derived from the problem's seed, never equal
     /// to it).
     pub confirm_seed: Option<u64>,
@@ -207,6 +253,7 @@ impl Default for TuneSettings {
             starts: 3,
             global_points_per_param: 16,
             scoring: Scoring::Auto,
+            local: LocalSearch::Simplex,
             confirm_seed: None,
             search_runs: None,
         }
@@ -340,6 +387,9 @@ struct Search<'a> {
     /// Set once an evaluation was refused for the budget.
     out_of_budget: std::sync::atomic::AtomicBool,
     observer: &'a dyn Observer,
+    method: LocalSearch,
+    /// Per free parameter, the components it drives (all known, or `None`).
+    targets: Option<Vec<(NoiseKind, Vec<usize>)>>,
 }
 
 #[derive(Debug)]
@@ -395,15 +445,19 @@ impl Search<'_> {
         (j + 1e3 * pen, acc.diverged_runs > 0)
     }
 
-    /// Budgeted evaluation: counts, tracks the best point, reports progress.
-    fn cost(&self, y: &[f64]) -> Result<f64, Budget> {
+    /// Takes one evaluation from the budget, returning its number.
+    fn charge(&self) -> Result<usize, Budget> {
         let n = self.evals.fetch_add(1, Ordering::SeqCst);
         if n >= self.max_evals || Instant::now() > self.deadline {
             self.evals.fetch_sub(1, Ordering::SeqCst);
             self.out_of_budget.store(true, Ordering::SeqCst);
             return Err(Budget);
         }
-        let (j, diverged) = self.score(y);
+        Ok(n)
+    }
+
+    /// Books evaluation `n` at `y` with score `j`: the best point, history and progress.
+    fn record(&self, n: usize, y: &[f64], j: f64, diverged: bool) {
         if diverged {
             self.diverged.fetch_add(1, Ordering::SeqCst);
         }
@@ -419,7 +473,173 @@ impl Search<'_> {
             .expect("no panics while holding the lock")
             .push(best);
         self.observer.evaluation(n + 1, best);
+    }
+
+    /// Budgeted evaluation: counts, tracks the best point, reports progress.
+    fn cost(&self, y: &[f64]) -> Result<f64, Budget> {
+        let n = self.charge()?;
+        let (j, diverged) = self.score(y);
+        self.record(n, y, j, diverged);
         Ok(j)
+    }
+
+    /// Budgeted evaluation of a residual vector at `y` (inside the box): J's, or with
+    /// `moments` one per free parameter, the mean log ratio of its own components
+    /// ([`Search::moments`]). `None` when the filter diverged. The best point is tracked by J.
+    fn residuals(&self, y: &[f64], moments: bool) -> Result<Option<Vec<f64>>, Budget> {
+        let n = self.charge()?;
+        let acc = self.accumulate(&self.theta(y));
+        let r = self.objective.residuals(&acc);
+        let j = r
+            .as_ref()
+            .map_or(f64::INFINITY, |r| r.iter().map(|v| v * v).sum());
+        self.record(n, y, j, acc.diverged_runs > 0);
+        Ok(if moments {
+            r.and_then(|_| self.moments(&acc))
+        } else {
+            r
+        })
+    }
+
+    /// The moment equations: for each free parameter, the mean over the components it
+    /// drives of ln(e_j²/P_jj) (process noise) or ln(ν_j²/S_jj) (measurement noise), zero
+    /// when those components are consistent on average. One equation per parameter, each
+    /// moved mostly by its own parameter, so unlike J's many residuals they have no
+    /// compromise minimum where one parameter stands in for another (a large bias random
+    /// walk in place of white accelerometer noise, say).
+    fn moments(&self, acc: &Accumulator) -> Option<Vec<f64>> {
+        let targets = self.targets.as_ref()?;
+        Some(
+            targets
+                .iter()
+                .map(|(kind, comps)| {
+                    let (total, samples) = match kind {
+                        NoiseKind::Process => (&acc.state_comp_total, &acc.state_comp_samples),
+                        NoiseKind::Measurement => (&acc.meas_comp_total, &acc.meas_comp_samples),
+                    };
+                    let logs: Vec<f64> = comps
+                        .iter()
+                        .filter(|&&j| samples.get(j).is_some_and(|&s| s > 0.0))
+                        .map(|&j| (total[j] / samples[j]).ln())
+                        .collect();
+                    if logs.is_empty() {
+                        0.0
+                    } else {
+                        logs.iter().sum::<f64>() / logs.len() as f64
+                    }
+                })
+                .collect(),
+        )
+    }
+
+    /// Levenberg–Marquardt on J's residual vector in log-parameters, from `y0`, with a
+    /// forward-difference Jacobian (step 0.05, i.e. 5%) and Marquardt's diagonal scaling;
+    /// steps are projected into the box. Each iteration costs d + 1 evaluations or a few
+    /// more. J is a sum of squared log-ratios that are close to linear in the
+    /// log-parameters, so this converges in a handful of iterations where a simplex in 6
+    /// dimensions wanders along the valleys that partly interchangeable parameters make.
+    /// Returns the best point, its score, and whether the budget stopped it.
+    fn levenberg_marquardt(&self, y0: &[f64], moments: bool) -> (Vec<f64>, f64, bool) {
+        let d = y0.len();
+        let clamp = |y: &[f64]| -> Vec<f64> {
+            y.iter()
+                .enumerate()
+                .map(|(k, v)| v.clamp(self.lo[k], self.hi[k]))
+                .collect()
+        };
+        let sum_sq = |r: &[f64]| r.iter().map(|v| v * v).sum::<f64>();
+        let mut y = clamp(y0);
+        let mut r = match self.residuals(&y, moments) {
+            Err(Budget) => return (y, f64::INFINITY, true),
+            Ok(None) => return (y, f64::INFINITY, false),
+            Ok(Some(r)) => r,
+        };
+        let mut j = sum_sq(&r);
+        let m = r.len();
+        let h = 0.05;
+        let mut lambda = 1e-3;
+        for _ in 0..40 {
+            let mut jac = DMatrix::<f64>::zeros(m, d);
+            for k in 0..d {
+                let fwd = |step: f64| -> Result<Option<Vec<f64>>, Budget> {
+                    let mut v = y.clone();
+                    v[k] += step;
+                    self.residuals(&v, moments)
+                };
+                let step = if y[k] + h > self.hi[k] { -h } else { h };
+                let (col, step) = match fwd(step) {
+                    Err(Budget) => return (y, j, true),
+                    Ok(Some(rk)) => (rk, step),
+                    // A diverging neighbour: difference on the other side.
+                    Ok(None) => match fwd(-step) {
+                        Err(Budget) => return (y, j, true),
+                        Ok(Some(rk)) => (rk, -step),
+                        Ok(None) => continue,
+                    },
+                };
+                if col.len() == m {
+                    for i in 0..m {
+                        jac[(i, k)] = (col[i] - r[i]) / step;
+                    }
+                }
+            }
+            let rv = DVector::from_column_slice(&r);
+            let g = jac.tr_mul(&rv);
+            let a = jac.tr_mul(&jac);
+            let diag_max = (0..d).map(|k| a[(k, k)]).fold(0.0_f64, f64::max);
+            if diag_max <= 0.0 {
+                return (y, j, false);
+            }
+            let mut accepted = None;
+            for _ in 0..12 {
+                let mut lhs = a.clone();
+                for k in 0..d {
+                    lhs[(k, k)] += lambda * a[(k, k)].max(1e-9 * diag_max);
+                }
+                let Some(chol) = lhs.cholesky() else {
+                    lambda *= 4.0;
+                    continue;
+                };
+                let mut delta = chol.solve(&(-&g));
+                // Trust at most a factor e² per iteration in any parameter.
+                let big = delta.amax();
+                if big > 2.0 {
+                    delta *= 2.0 / big;
+                }
+                let trial = clamp(
+                    &y.iter()
+                        .zip(delta.iter())
+                        .map(|(a, b)| a + b)
+                        .collect::<Vec<_>>(),
+                );
+                match self.residuals(&trial, moments) {
+                    Err(Budget) => return (y, j, true),
+                    Ok(Some(rt)) if rt.len() == m && sum_sq(&rt) < j => {
+                        accepted = Some((trial, rt));
+                        lambda = (lambda / 3.0).max(1e-9);
+                        break;
+                    }
+                    Ok(_) => lambda *= 4.0,
+                }
+            }
+            let Some((trial, rt)) = accepted else {
+                return (y, j, false);
+            };
+            let moved = trial
+                .iter()
+                .zip(&y)
+                .map(|(a, b)| (a - b).abs())
+                .fold(0.0, f64::max);
+            let j_new = sum_sq(&rt);
+            let gain = j - j_new;
+            y = trial;
+            r = rt;
+            j = j_new;
+            if moved < 1e-3 || gain < 1e-4 * j + 1e-12 {
+                break;
+            }
+        }
+        (y, j, false)
     }
 
     /// Nelder–Mead from `y0` with initial steps `step` (log units). Returns the best point
@@ -459,10 +679,30 @@ impl Search<'_> {
         }
     }
 
-    /// One local search: Nelder–Mead, then a restart with a small simplex to polish (a
-    /// restart undoes Nelder–Mead's occasional collapse onto a subspace).
+    /// One local search from `y0`. Simplex: Nelder–Mead, then a restart with a small simplex
+    /// to polish (a restart undoes Nelder–Mead's occasional collapse onto a subspace).
+    /// Gauss–Newton: Levenberg–Marquardt, falling back to the simplex if `y0` diverges.
     fn local(&self, y0: &[f64]) -> (Vec<f64>, f64, bool) {
-        let (y1, c1, hit) = self.nelder_mead(y0, 0.7);
+        let (y1, c1, hit) = match self.method {
+            LocalSearch::GaussNewton => {
+                let mut y0 = y0.to_vec();
+                if self.targets.is_some() {
+                    let (y, c, hit) = self.levenberg_marquardt(&y0, true);
+                    if hit {
+                        return (y, f64::INFINITY, true);
+                    }
+                    if c.is_finite() {
+                        y0 = y;
+                    }
+                }
+                let (y, c, hit) = self.levenberg_marquardt(&y0, false);
+                if hit || c.is_finite() {
+                    return (y, c, hit);
+                }
+                self.nelder_mead(&y0, 0.7)
+            }
+            LocalSearch::Simplex => self.nelder_mead(y0, 0.7),
+        };
         if hit {
             return (y1, c1, true);
         }
@@ -591,7 +831,14 @@ pub fn tune(
         deadline: t0 + Duration::from_secs_f64(settings.max_seconds),
         out_of_budget: std::sync::atomic::AtomicBool::new(false),
         observer,
+        method: settings.local,
+        targets: None,
     };
+    search.targets = search
+        .free
+        .iter()
+        .map(|&i| model.targets(i))
+        .collect::<Option<Vec<_>>>();
     let y0: Vec<f64> = search.free.iter().map(|&i| start[i].ln()).collect();
     let acc0 = search.accumulate(start);
     search.objective.prepare(&acc0);
@@ -626,8 +873,16 @@ pub fn tune(
         let mut scored: Vec<(f64, Vec<f64>)> =
             scored.into_iter().filter(|(j, _)| j.is_finite()).collect();
         scored.sort_by(|a, b| a.0.total_cmp(&b.0));
-        let mut starts: Vec<Vec<f64>> = Vec::new();
+        // Gauss–Newton stays in the basin it starts in, and the user's start is usually a
+        // better-informed guess than a quasi-random point, so it is always one of the starts.
+        let mut starts: Vec<Vec<f64>> = match settings.local {
+            LocalSearch::GaussNewton => vec![y0.clone()],
+            LocalSearch::Simplex => Vec::new(),
+        };
         for (_, y) in &scored {
+            if starts.len() >= settings.starts {
+                break;
+            }
             let distinct = starts.iter().all(|s| {
                 s.iter()
                     .zip(y)
@@ -637,9 +892,6 @@ pub fn tune(
             });
             if distinct {
                 starts.push(y.clone());
-            }
-            if starts.len() == settings.starts {
-                break;
             }
         }
         if starts.is_empty() {
@@ -661,12 +913,18 @@ pub fn tune(
                 best = Some((y, c));
             }
         }
+        // The simplex restarts once more from the best point; Levenberg–Marquardt has
+        // converged where it stopped, and a restart would only repeat it.
         if let Some((y, c)) = best
             && !budget_hit
         {
-            let (y2, c2, hit) = search.local(&y);
-            budget_hit |= hit;
-            local_best = Some(if c2 < c { (c2, y2) } else { (c, y) });
+            local_best = Some(if settings.local == LocalSearch::Simplex {
+                let (y2, c2, hit) = search.local(&y);
+                budget_hit |= hit;
+                if c2 < c { (c2, y2) } else { (c, y) }
+            } else {
+                (c, y)
+            });
         }
     }
     budget_hit |= search.out_of_budget.load(Ordering::SeqCst);
@@ -868,6 +1126,14 @@ impl TuneSettings {
                 return Err(err("tune.global_points".into(), format!("{n} must be ≥ 1")));
             }
             self.global_points_per_param = n as usize;
+        }
+        if let Some(s) = &spec.local {
+            self.local = LocalSearch::parse(s).ok_or_else(|| {
+                err(
+                    "tune.local".into(),
+                    format!("unknown local search '{s}' (known: simplex, gauss_newton)"),
+                )
+            })?;
         }
         if let Some(s) = &spec.scoring {
             self.scoring = Scoring::parse(s).ok_or_else(|| {

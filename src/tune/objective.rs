@@ -184,6 +184,19 @@ impl Objective {
 
     /// Score `acc`. Diverged or non-finite statistics give `total = +∞`.
     pub fn evaluate(&self, acc: &Accumulator) -> Terms {
+        self.score(acc, None)
+    }
+
+    /// J as a sum of squares: the residual vector r with `Σ r² = evaluate(acc).total`, one
+    /// entry per time average, interval, step, component, lag and shape step (for a
+    /// Gauss–Newton search); `None` when J is +∞.
+    pub fn residuals(&self, acc: &Accumulator) -> Option<Vec<f64>> {
+        let mut r = Vec::new();
+        self.score(acc, Some(&mut r)).total.is_finite().then_some(r)
+    }
+
+    /// The terms of J; with `res`, each term's weighted square roots are pushed onto it.
+    fn score(&self, acc: &Accumulator, mut res: Option<&mut Vec<f64>>) -> Terms {
         let inf = Terms {
             total: f64::INFINITY,
             ..Terms::default()
@@ -191,6 +204,17 @@ impl Objective {
         if acc.diverged_runs > 0 {
             return inf;
         }
+        // Adds `weight · mean(x²)` over `xs` to `term` and pushes `√(weight/len) · x`.
+        let mut add = |term: &mut f64, weight: f64, xs: &[f64]| {
+            if xs.is_empty() || weight == 0.0 {
+                return;
+            }
+            let scale = weight / xs.len() as f64;
+            *term += scale * xs.iter().map(|x| x * x).sum::<f64>();
+            if let Some(r) = res.as_deref_mut() {
+                r.extend(xs.iter().map(|x| scale.sqrt() * x));
+            }
+        };
         let w = self.weights;
         let mut t = Terms::default();
         let nis_var = 2.0 * acc.nis_dof.iter().sum::<f64>();
@@ -215,69 +239,57 @@ impl Objective {
                 return inf;
             }
             let iv = self.gate_interval(d, var, c);
-            t.mean += w.mean * (avg / (d / c)).ln().powi(2);
-            t.interval += w.interval * outside(avg, &iv).powi(2);
+            add(&mut t.mean, w.mean, &[(avg / (d / c)).ln()]);
+            add(&mut t.interval, w.interval, &[outside(avg, &iv)]);
             if w.per_step > 0.0 {
-                let mut steps = 0.0;
-                let mut acc_h = 0.0;
-                for k in 0..sum.len() {
-                    if count[k] > 0.0 && dof[k] > 0.0 {
-                        let iv = self.step_interval(dof[k], count[k]);
-                        acc_h += outside(sum[k] / count[k], &iv).powi(2);
-                        steps += 1.0;
-                    }
-                }
-                if steps > 0.0 {
-                    t.per_step += w.per_step * acc_h / steps;
-                }
+                let h: Vec<f64> = (0..sum.len())
+                    .filter(|&k| count[k] > 0.0 && dof[k] > 0.0)
+                    .map(|k| outside(sum[k] / count[k], &self.step_interval(dof[k], count[k])))
+                    .collect();
+                add(&mut t.per_step, w.per_step, &h);
             }
         }
-        let mean_log_sq = |total: &[f64], samples: &[f64]| {
-            let mut s = 0.0;
-            let mut n = 0.0;
-            for (a, b) in total.iter().zip(samples) {
-                if *b > 0.0 {
-                    s += (a / b).ln().powi(2);
-                    n += 1.0;
-                }
-            }
-            if n > 0.0 { s / n } else { 0.0 }
+        let log_ratios = |total: &[f64], samples: &[f64]| -> Vec<f64> {
+            total
+                .iter()
+                .zip(samples)
+                .filter(|(_, b)| **b > 0.0)
+                .map(|(a, b)| (a / b).ln())
+                .collect()
         };
-        t.components = w.components * mean_log_sq(&acc.meas_comp_total, &acc.meas_comp_samples);
+        add(
+            &mut t.components,
+            w.components,
+            &log_ratios(&acc.meas_comp_total, &acc.meas_comp_samples),
+        );
         if !self.nis_only {
-            t.components +=
-                w.components * mean_log_sq(&acc.state_comp_total, &acc.state_comp_samples);
+            add(
+                &mut t.components,
+                w.components,
+                &log_ratios(&acc.state_comp_total, &acc.state_comp_samples),
+            );
         }
-        let mut rho_sq = 0.0;
-        let mut nrho = 0.0;
-        for o in 0..acc.white_ab.len() {
-            let den = (acc.white_a2[o] * acc.white_b2[o]).sqrt();
-            if acc.white_pairs[o] > 0.0 && den > 0.0 {
-                rho_sq += (acc.white_ab[o] / den).powi(2);
-                nrho += 1.0;
-            }
-        }
-        if nrho > 0.0 {
-            t.whiteness = w.whiteness * rho_sq / nrho;
-        }
+        let rho: Vec<f64> = (0..acc.white_ab.len())
+            .filter_map(|o| {
+                let den = (acc.white_a2[o] * acc.white_b2[o]).sqrt();
+                (acc.white_pairs[o] > 0.0 && den > 0.0).then(|| acc.white_ab[o] / den)
+            })
+            .collect();
+        add(&mut t.whiteness, w.whiteness, &rho);
         if w.shape > 0.0 && !self.nis_only {
-            let mut s = 0.0;
-            let mut n = 0.0;
-            for k in 0..acc.nees_sum.len() {
-                let c = acc.nees_count[k];
-                if c > 1.0 {
+            let shape: Vec<f64> = (0..acc.nees_sum.len())
+                .filter_map(|k| {
+                    let c = acc.nees_count[k];
+                    if c <= 1.0 {
+                        return None;
+                    }
                     let mean = acc.nees_sum[k] / c;
                     let var = acc.nees_sq[k] / c - mean * mean;
                     let target = 2.0 * acc.nees_dof[k] / c;
-                    if var > 0.0 {
-                        s += (var / target).ln().powi(2);
-                        n += 1.0;
-                    }
-                }
-            }
-            if n > 0.0 {
-                t.shape = w.shape * s / n;
-            }
+                    (var > 0.0).then(|| (var / target).ln())
+                })
+                .collect();
+            add(&mut t.shape, w.shape, &shape);
         }
         t.total = t.mean + t.interval + t.per_step + t.components + t.whiteness + t.shape;
         if !t.total.is_finite() {

@@ -48,6 +48,10 @@ fn quick() -> TuneSettings {
 }
 
 fn assert_recovers(name: &str, settings: &TuneSettings) {
+    assert_recovers_from(name, settings, &[10.0, 0.1]);
+}
+
+fn assert_recovers_from(name: &str, settings: &TuneSettings, factors: &[f64]) {
     let p = load(name);
     let model = p.catalog().expect("a catalog problem");
     let truth = truth_values(&p);
@@ -55,7 +59,7 @@ fn assert_recovers(name: &str, settings: &TuneSettings) {
         search_runs: Some(settings.search_runs.unwrap_or(p.mc.runs)),
         ..settings.clone()
     };
-    for factor in [10.0, 0.1] {
+    for &factor in factors {
         let r = tune_from(&p, factor, &settings);
         assert_eq!(
             r.after.verdict,
@@ -87,4 +91,45 @@ fn ctrv_tunes_from_ten_times_off_both_ways() {
 #[test]
 fn orbit2d_tunes_from_ten_times_off_both_ways() {
     assert_recovers("orbit2d", &quick());
+}
+
+#[test]
+fn ins_gnss_tunes_from_a_tenth() {
+    // Six free parameters of a 15-state filter, about 1 s an evaluation: the shipped [tune]
+    // settings (Gauss–Newton from the start, 12 global points, 2 N search runs), from all
+    // ×0.1. The other direction, all ×10, is the shipped problem's own start: its result is
+    // tuned/ins_gnss.toml, checked by `shipped_tuned_configs_land_within_30_percent` here
+    // and `shipped_tuned_configs_pass_check` (tests/cli_tune.rs); one direction here keeps
+    // the suite short. With N search runs instead of 2 N the tuned values land within 17%
+    // but the confirmation fails (ANEES just under its interval): the estimate's noise.
+    let p = load("ins_gnss");
+    let mut settings = TuneSettings::default();
+    settings.apply_spec(&p.tune).unwrap();
+    assert_eq!(settings.local, autotune::tune::LocalSearch::GaussNewton);
+    assert_recovers_from("ins_gnss", &settings, &[0.1]);
+}
+
+#[test]
+fn shipped_tuned_configs_land_within_30_percent() {
+    for name in ["ctrv", "orbit2d", "ins_gnss"] {
+        let p = load(name);
+        assert!(p.catalog().expect("a catalog problem").structure_matches());
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("tuned")
+            .join(format!("{name}.toml"));
+        let text = std::fs::read_to_string(&path).unwrap();
+        let tuned: toml::Table = text.parse().unwrap();
+        let params = tuned["params"].as_table().unwrap();
+        let truth = truth_values(&p);
+        for (i, q) in p.params.params.iter().enumerate() {
+            let v = params[&q.name].as_float().unwrap();
+            let ratio = v / truth[i];
+            assert!(
+                (ratio - 1.0).abs() <= 0.3,
+                "{name}: shipped {} = {v:e}, truth {:e}",
+                q.name,
+                truth[i]
+            );
+        }
+    }
 }

@@ -146,6 +146,7 @@ fn bad_tune_options_are_one_line_errors_with_exit_2() {
         (&["--weight", "colour=1"], "--weight"),
         (&["--weight", "mean=-1"], "--weight"),
         (&["--scoring", "magic"], "--scoring"),
+        (&["--local", "newton"], "--local"),
         (&["--set", "q_accel_x=1e9"], "--set"),
         (&["--runs", "abc"], "--runs"),
     ];
@@ -177,6 +178,22 @@ fn bad_tune_options_are_one_line_errors_with_exit_2() {
     let err = String::from_utf8(a.get_output().stderr.clone()).unwrap();
     assert!(
         err.contains("p.toml") && err.contains("tune.max_evals"),
+        "{err}"
+    );
+    assert!(!out.exists());
+    let text = std::fs::read_to_string(problem_path("cv1d")).unwrap() + "\n[tune]\nlocal = \"newton\"\n";
+    std::fs::write(&file, text).unwrap();
+    let a = autotune()
+        .arg("tune")
+        .arg(&file)
+        .arg("--out")
+        .arg(&out)
+        .assert()
+        .code(2);
+    let err = String::from_utf8(a.get_output().stderr.clone()).unwrap();
+    assert_eq!(err.trim_end().lines().count(), 1, "{err}");
+    assert!(
+        err.contains("p.toml") && err.contains("tune.local") && err.contains("gauss_newton"),
         "{err}"
     );
     assert!(!out.exists());

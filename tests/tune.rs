@@ -3,7 +3,10 @@
 mod common;
 
 use autotune::problem::Problem;
-use autotune::tune::{Scoring, Silent, TuneResult, TuneSettings, TuneStatus, tune};
+use autotune::tune::{
+    LocalSearch, Objective, Scoring, Silent, TuneResult, TuneSettings, TuneStatus, Tunable, Weights,
+    tune,
+};
 use common::{load, truth_values};
 use statrs::distribution::{Binomial, DiscreteCDF};
 
@@ -121,6 +124,56 @@ fn nis_only_tuning_passes_check() {
         assert_within(&p, &r, 0.15);
         let full = autotune::check::check(&p, &r.tuned, &p.mc, autotune::check::Engine::Auto, true);
         assert!(full.verdict.passes(), "{name}: {:?}", full.verdict);
+    }
+}
+
+#[test]
+fn gauss_newton_recovers_every_shipped_linear_problem() {
+    // The Levenberg–Marquardt local search (moment equations on each parameter's own
+    // components, then J's residuals) on the exact objective and on Monte Carlo with
+    // common random numbers: same 15% as the simplex.
+    for scoring in [Scoring::Exact, Scoring::MonteCarlo] {
+        let settings = TuneSettings {
+            local: LocalSearch::GaussNewton,
+            scoring,
+            ..TuneSettings::default()
+        };
+        for name in ["cv1d", "cv2d", "dcmotor"] {
+            let p = load(name);
+            let r = run(&p, 41, false, &settings);
+            assert_eq!(r.scoring, scoring);
+            assert_within(&p, &r, 0.15);
+        }
+    }
+}
+
+#[test]
+fn residuals_square_to_the_objective() {
+    // Gauss–Newton minimizes Σ r²; it must be the J the simplex and the reports see, with
+    // every term switched on (whiteness needs lags, shape its weight) and a filter off the
+    // truth so that every term is non-zero.
+    let p = load("cv2d");
+    let mut settings = p.mc.engine();
+    settings.lags = 3;
+    let theta: Vec<f64> = p.params.values().iter().map(|v| v * 3.0).collect();
+    let acc = p.monte_carlo(&theta, &settings);
+    let weights = Weights {
+        shape: 0.5,
+        ..Weights::default()
+    };
+    for nis_only in [false, true] {
+        let mut o = Objective::new(weights, nis_only, p.mc.alpha);
+        o.prepare(&acc);
+        let terms = o.evaluate(&acc);
+        assert!(terms.whiteness > 0.0 && terms.components > 0.0 && terms.per_step > 0.0);
+        assert_eq!(terms.shape > 0.0, !nis_only);
+        let r = o.residuals(&acc).unwrap();
+        let sum: f64 = r.iter().map(|v| v * v).sum();
+        assert!(
+            (sum - terms.total).abs() <= 1e-12 * terms.total,
+            "Σr² {sum} vs J {}",
+            terms.total
+        );
     }
 }
 

@@ -181,7 +181,8 @@ fn bad_tune_options_are_one_line_errors_with_exit_2() {
         "{err}"
     );
     assert!(!out.exists());
-    let text = std::fs::read_to_string(problem_path("cv1d")).unwrap() + "\n[tune]\nlocal = \"newton\"\n";
+    let text =
+        std::fs::read_to_string(problem_path("cv1d")).unwrap() + "\n[tune]\nlocal = \"newton\"\n";
     std::fs::write(&file, text).unwrap();
     let a = autotune()
         .arg("tune")

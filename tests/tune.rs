@@ -4,8 +4,8 @@ mod common;
 
 use autotune::problem::Problem;
 use autotune::tune::{
-    LocalSearch, Objective, Scoring, Silent, TuneResult, TuneSettings, TuneStatus, Tunable, Weights,
-    tune,
+    LocalSearch, Objective, Scoring, Silent, Tunable, TuneResult, TuneSettings, TuneStatus,
+    Weights, tune,
 };
 use common::{load, truth_values};
 use statrs::distribution::{Binomial, DiscreteCDF};

@@ -164,40 +164,30 @@ fn bad_tune_options_are_one_line_errors_with_exit_2() {
         assert!(err.contains(field), "{args:?}: {err}");
         assert!(!out.exists(), "{args:?} wrote a file");
     }
-    // The same budget error from the problem file names the file and the field.
-    let text = std::fs::read_to_string(problem_path("cv1d")).unwrap() + "\n[tune]\nmax_evals = 0\n";
+    // The same errors from the problem file's [tune] name the file and the field.
     let file = dir.path().join("p.toml");
-    std::fs::write(&file, text).unwrap();
-    let a = autotune()
-        .arg("tune")
-        .arg(&file)
-        .arg("--out")
-        .arg(&out)
-        .assert()
-        .code(2);
-    let err = String::from_utf8(a.get_output().stderr.clone()).unwrap();
-    assert!(
-        err.contains("p.toml") && err.contains("tune.max_evals"),
-        "{err}"
-    );
-    assert!(!out.exists());
-    let text =
-        std::fs::read_to_string(problem_path("cv1d")).unwrap() + "\n[tune]\nlocal = \"newton\"\n";
-    std::fs::write(&file, text).unwrap();
-    let a = autotune()
-        .arg("tune")
-        .arg(&file)
-        .arg("--out")
-        .arg(&out)
-        .assert()
-        .code(2);
-    let err = String::from_utf8(a.get_output().stderr.clone()).unwrap();
-    assert_eq!(err.trim_end().lines().count(), 1, "{err}");
-    assert!(
-        err.contains("p.toml") && err.contains("tune.local") && err.contains("gauss_newton"),
-        "{err}"
-    );
-    assert!(!out.exists());
+    for (line, field, says) in [
+        ("max_evals = 0", "tune.max_evals", "≥ 1"),
+        ("local = \"newton\"", "tune.local", "gauss_newton"),
+    ] {
+        let text =
+            std::fs::read_to_string(problem_path("cv1d")).unwrap() + "\n[tune]\n" + line + "\n";
+        std::fs::write(&file, text).unwrap();
+        let a = autotune()
+            .arg("tune")
+            .arg(&file)
+            .arg("--out")
+            .arg(&out)
+            .assert()
+            .code(2);
+        let err = String::from_utf8(a.get_output().stderr.clone()).unwrap();
+        assert_eq!(err.trim_end().lines().count(), 1, "{line}: {err}");
+        assert!(
+            err.contains("p.toml") && err.contains(field) && err.contains(says),
+            "{line}: {err}"
+        );
+        assert!(!out.exists(), "{line} wrote a file");
+    }
 }
 
 #[test]

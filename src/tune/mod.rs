@@ -625,11 +625,7 @@ impl Search<'_> {
             let Some((trial, rt)) = accepted else {
                 return (y, j, false);
             };
-            let moved = trial
-                .iter()
-                .zip(&y)
-                .map(|(a, b)| (a - b).abs())
-                .fold(0.0, f64::max);
+            let moved = max_abs_diff(&trial, &y);
             let j_new = sum_sq(&rt);
             let gain = j - j_new;
             y = trial;
@@ -731,6 +727,14 @@ impl CostFunction for LocalProblem<'_, '_> {
     }
 }
 
+/// Largest coordinate difference of two log-points (log units).
+fn max_abs_diff(a: &[f64], b: &[f64]) -> f64 {
+    a.iter()
+        .zip(b)
+        .map(|(x, y)| (x - y).abs())
+        .fold(0.0, f64::max)
+}
+
 /// Quasi-random points in the unit cube: a Latin hypercube from `seed` (reproducible, and
 /// every parameter's range is covered evenly).
 fn latin_hypercube(points: usize, dim: usize, seed: u64) -> Vec<Vec<f64>> {
@@ -822,7 +826,6 @@ pub fn tune(
         theta0: start.to_vec(),
         lo: free.iter().map(|&i| params[i].lower.ln()).collect(),
         hi: free.iter().map(|&i| params[i].upper.ln()).collect(),
-        free,
         evals: AtomicUsize::new(0),
         diverged: AtomicUsize::new(0),
         best: Mutex::new((f64::INFINITY, Vec::new())),
@@ -832,13 +835,9 @@ pub fn tune(
         out_of_budget: std::sync::atomic::AtomicBool::new(false),
         observer,
         method: settings.local,
-        targets: None,
+        targets: free.iter().map(|&i| model.targets(i)).collect(),
+        free,
     };
-    search.targets = search
-        .free
-        .iter()
-        .map(|&i| model.targets(i))
-        .collect::<Option<Vec<_>>>();
     let y0: Vec<f64> = search.free.iter().map(|&i| start[i].ln()).collect();
     let acc0 = search.accumulate(start);
     search.objective.prepare(&acc0);
@@ -883,13 +882,7 @@ pub fn tune(
             if starts.len() >= settings.starts {
                 break;
             }
-            let distinct = starts.iter().all(|s| {
-                s.iter()
-                    .zip(y)
-                    .map(|(a, b)| (a - b).abs())
-                    .fold(0.0, f64::max)
-                    > 0.5
-            });
+            let distinct = starts.iter().all(|s| max_abs_diff(s, y) > 0.5);
             if distinct {
                 starts.push(y.clone());
             }

@@ -7,7 +7,9 @@
 use std::hint::black_box;
 use std::path::Path;
 
-use autotune::check::{Engine, accumulate};
+use autotune::check::accumulate;
+use autotune::experiment::Experiment;
+use autotune::montecarlo::Engine;
 use autotune::problem::Problem;
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 
@@ -40,10 +42,10 @@ fn montecarlo(c: &mut Criterion) {
         ),
     ] {
         let p = load(name);
-        let theta = p.params.values();
-        let mut mc = p.mc;
-        mc.runs = runs;
-        mc.steps = steps;
+        let theta = p.params().values();
+        let mut mc = *p.mc();
+        mc = mc.with_runs(runs).unwrap();
+        mc = mc.with_steps(steps).unwrap();
         g.throughput(Throughput::Elements((runs * steps) as u64));
         g.bench_function(label, |b| {
             b.iter(|| accumulate(black_box(&p), black_box(&theta), black_box(&mc), engine))
@@ -59,11 +61,11 @@ fn catalog(c: &mut Criterion) {
     g.sample_size(10);
     for name in ["ctrv", "orbit2d", "ins_gnss"] {
         let p = load(name);
-        let theta = p.params.values();
-        let mut mc = p.mc;
-        mc.runs = 100;
-        g.throughput(Throughput::Elements((mc.runs * mc.steps) as u64));
-        g.bench_function(format!("{name}/N=100,T={}", mc.steps), |b| {
+        let theta = p.params().values();
+        let mut mc = *p.mc();
+        mc = mc.with_runs(100).unwrap();
+        g.throughput(Throughput::Elements((mc.runs() * mc.steps()) as u64));
+        g.bench_function(format!("{name}/N=100,T={}", mc.steps()), |b| {
             b.iter(|| {
                 accumulate(
                     black_box(&p),

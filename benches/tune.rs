@@ -4,6 +4,7 @@
 use std::hint::black_box;
 use std::path::Path;
 
+use autotune::experiment::Experiment;
 use autotune::problem::Problem;
 use autotune::tune::{Silent, TuneSettings, tune};
 use criterion::{Criterion, criterion_group, criterion_main};
@@ -20,8 +21,8 @@ fn tuning(c: &mut Criterion) {
     g.sample_size(10);
     for name in ["cv1d", "cv2d", "dcmotor"] {
         let p = load(name);
-        let start = p.params.values();
-        let fixed: Vec<bool> = p.params.params.iter().map(|q| q.fixed).collect();
+        let start = p.params().values();
+        let fixed: Vec<bool> = p.params().params.iter().map(|q| q.fixed).collect();
         let settings = TuneSettings::default();
         g.bench_function(name, |b| {
             b.iter(|| {
@@ -29,7 +30,7 @@ fn tuning(c: &mut Criterion) {
                     black_box(&p),
                     black_box(&start),
                     &fixed,
-                    &p.mc,
+                    p.mc(),
                     &settings,
                     &Silent,
                 )

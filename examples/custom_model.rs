@@ -1,16 +1,28 @@
-//! Tune a model defined entirely in user code: a damped pendulum whose angle is measured,
-//! tracked by an EKF, with the truth integrated by RK4 at a finer step than the filter's.
+//! A model defined entirely in user code, with the whole autotune command line: a damped
+//! pendulum whose angle is measured, tracked by an EKF, with the truth integrated by RK4 at
+//! a finer step than the filter's. The filter is configured 10× off in both noise
+//! parameters.
 //!
-//! Run with `cargo run --release --example custom_model`. It starts 10× off in both noise
-//! parameters and exits non-zero unless the tuned filter passes the consistency gate on
-//! fresh seeds.
+//! ```sh
+//! cargo run --release --example custom_model -- check                  # exit 1: 10× off
+//! cargo run --release --example custom_model -- tune --out /tmp/pendulum.toml --report out/pendulum
+//! cargo run --release --example custom_model -- check --config /tmp/pendulum.toml   # exit 0
+//! ```
+//!
+//! `tune` writes the same tuned config, report.html/md/json and advice as `autotune tune`
+//! does for a problem file; every option of `autotune check` and `tune` works (`--json`,
+//! `--junit`, `--set`, `--fix`, `--runs`, …).
+
+use std::process::ExitCode;
 
 use autotune::SimRng;
+use autotune::experiment::{Covariances, Custom};
 use autotune::filter::{Ekf, SystemModel};
-use autotune::model::{Measurement, TruthModel, sample_gaussian};
-use autotune::params::{ParamDef, ParamSpace, cwna_block};
-use autotune::problem::McConfig;
-use autotune::tune::{CustomModel, Silent, TuneSettings, TuneStatus, tune};
+use autotune::measurement::Measurement;
+use autotune::model::{TruthModel, sample_gaussian};
+use autotune::montecarlo::McConfig;
+use autotune::params::{ParamDef, Target, cwna_block};
+use autotune::tune::TuneSettings;
 use nalgebra::{DMatrix, DVector};
 
 /// Filter step, s.
@@ -89,7 +101,7 @@ impl TruthModel for Truth {
     }
 }
 
-fn main() {
+fn main() -> ExitCode {
     let factor = |m: &DMatrix<f64>| autotune::linalg::psd_factor(m).expect("PSD");
     let p0 = DMatrix::from_diagonal(&DVector::from_column_slice(&[0.01, 0.01]));
     let truth = Truth {
@@ -97,89 +109,50 @@ fn main() {
         sensor: factor(&DMatrix::from_element(1, 1, R_TRUE)),
         p0: factor(&p0),
     };
-    let param = |name: &str, value: f64, unit: &str, about: &str| ParamDef {
-        name: name.into(),
-        value,
-        lower: value / 1e4,
-        upper: value * 1e4,
-        fixed: false,
-        unit: unit.into(),
-        about: about.into(),
-    };
-    let params = ParamSpace {
-        params: vec![
-            param(
-                "q_accel",
-                Q_TRUE * 10.0,
-                "rad²/s³",
-                "angular acceleration noise density",
-            ),
-            param("r_angle", R_TRUE / 10.0, "rad²", "angle sensor variance"),
-        ],
-    };
-    let build = |theta: &[f64]| Ekf {
+    let filter = move |theta: &[f64]| Ekf {
         model: Pendulum,
         Q: cwna_block(DT) * theta[0],
         R: vec![DMatrix::from_element(1, 1, theta[1])],
         x0: DVector::from_column_slice(&[0.8, 0.0]),
         P0: p0.clone(),
     };
-    let model = CustomModel::new(
-        truth,
-        build,
-        params.clone(),
-        vec!["angle".into(), "rate".into()],
-        vec!["angle".into()],
-    );
-    let mc = McConfig {
-        runs: 100,
-        steps: 100,
-        seed: 1,
-        alpha: 0.05,
-        lags: 3,
-    };
+    let model = Custom::builder("pendulum", truth, filter)
+        .description("damped pendulum, angle measured, EKF (autotune example)")
+        .program("custom_model")
+        .states(["angle", "rate"])
+        .measurements(["angle"])
+        .param(
+            ParamDef::new("q_accel", Q_TRUE * 10.0)
+                .unit("rad²/s³")
+                .about("angular acceleration noise density"),
+            Target::process(&[0, 1]),
+        )
+        .param(
+            ParamDef::new("r_angle", R_TRUE / 10.0)
+                .unit("rad²")
+                .about("angle sensor variance"),
+            Target::measurement(&[0]),
+        )
+        .covariances(|theta| Covariances {
+            Q: cwna_block(DT) * theta[0],
+            R: DMatrix::from_element(1, 1, theta[1]),
+        })
+        .truth_values(vec![Q_TRUE, R_TRUE])
+        .montecarlo(
+            McConfig::new(100, 100)
+                .and_then(|mc| mc.with_lags(3))
+                .expect("valid Monte Carlo settings")
+                .with_seed(1),
+        )
+        .build()
+        .expect("a valid model");
     // Monte Carlo scoring (an EKF has no closed form): a small global stage and two local
-    // searches keep the example to seconds.
-    let settings = TuneSettings {
-        max_evals: 300,
-        global_points_per_param: 4,
-        starts: 2,
-        search_runs: Some(200),
-        ..TuneSettings::default()
-    };
-    let start = params.values();
-    let result =
-        tune(&model, &start, &[false, false], &mc, &settings, &Silent).expect("valid settings");
-    println!(
-        "pendulum: {} evaluations ({:?} scoring) in {:.1} s",
-        result.evaluations, result.scoring, result.seconds
-    );
-    for (i, p) in params.params.iter().enumerate() {
-        println!(
-            "  {}: start {:.3e}, tuned {:.3e}, truth {:.3e}",
-            p.name,
-            start[i],
-            result.tuned[i],
-            [Q_TRUE, R_TRUE][i]
-        );
-    }
-    let a = &result.after;
-    println!(
-        "  confirmation (seed {}): ANEES {:.3} in [{:.3}, {:.3}], ANIS {:.3} in [{:.3}, {:.3}]: {}",
-        result.confirm_seed,
-        a.nees.as_ref().map_or(f64::NAN, |s| s.time_average),
-        a.nees.as_ref().map_or(f64::NAN, |s| s.interval.lower),
-        a.nees.as_ref().map_or(f64::NAN, |s| s.interval.upper),
-        a.nis.time_average,
-        a.nis.interval.lower,
-        a.nis.interval.upper,
-        a.verdict.describe()
-    );
-    if result.status != TuneStatus::Consistent {
-        eprintln!(
-            "the tuned pendulum filter did not pass the gate: {:?}",
-            result.status
-        );
-        std::process::exit(1);
-    }
+    // searches keep a tuning run to seconds.
+    let settings = TuneSettings::default()
+        .with_max_evals(300)
+        .and_then(|s| s.with_global_points(4))
+        .and_then(|s| s.with_starts(2))
+        .and_then(|s| s.with_search_runs(200))
+        .expect("valid tuning settings");
+    autotune::app::main_for(&model, &settings)
 }

@@ -1,34 +1,43 @@
 //! autotune: make Kalman filters statistically consistent.
 //!
 //! The library checks a filter by truth-model Monte Carlo (NEES and NIS against chi-square
-//! intervals, [`stats`]), and tunes its noise covariances Q and R. Data flows one way:
-//! [`problem`] file → ([`model`], [`filter`], [`params`]) → [`montecarlo`] → [`stats`] →
-//! [`report`]. Each piece is usable on its own: a Rust user can supply a truth model or a
-//! filter through [`model::TruthModel`] and [`filter::Filter`].
+//! intervals, [`stats`]) and tunes its noise covariances Q and R ([`tune`]). Everything
+//! goes through one seam, [`experiment::Experiment`]: "the Monte Carlo sums of the filter at
+//! parameter values θ". A problem file ([`problem`]), a catalog model ([`catalog`]) and a
+//! Rust user's own truth model and filter ([`experiment::Custom`]) are each one
+//! implementation; [`check`], [`tune`], [`report`] and the command line ([`app`]) take any
+//! of them. docs/ARCHITECTURE.md draws the layers.
 //!
 //! Check a shipped problem's filter with the truth's noise values, then tune it from the
 //! designer's guess:
 //!
 //! ```
-//! use autotune::check::{Engine, check};
+//! use autotune::check::check;
+//! use autotune::experiment::Experiment;
 //! use autotune::problem::Problem;
 //! use autotune::tune::{Silent, TuneSettings, tune};
 //!
 //! let p = Problem::load(std::path::Path::new("problems/cv1d.toml")).unwrap();
 //! // Parameters in file order: q_accel ((m/s²)²), r_pos (m²).
-//! let report = check(&p, &[0.5, 1.0], &p.mc, Engine::Auto, true);
+//! let report = check(&p, &[0.5, 1.0], p.mc(), true);
 //! assert!(report.verdict.passes());
 //!
-//! let fixed = vec![false; p.params.params.len()];
-//! let result = tune(&p, &p.params.values(), &fixed, &p.mc, &TuneSettings::default(), &Silent).unwrap();
-//! assert!((result.tuned[0] / 0.5 - 1.0).abs() < 0.01);
+//! let fixed = vec![false; p.params().params.len()];
+//! let start = p.params().values();
+//! let result = tune(&p, &start, &fixed, p.mc(), &TuneSettings::default(), &Silent).unwrap();
+//! assert!((result.tuned[0] / 0.5 - 1.0).abs() < 1e-4);
 //! ```
 
 #![warn(missing_docs)]
 
+pub mod app;
+pub mod catalog;
 pub mod check;
+pub mod experiment;
 pub mod filter;
+pub mod input;
 pub mod linalg;
+pub mod measurement;
 pub mod model;
 pub mod montecarlo;
 pub mod params;

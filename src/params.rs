@@ -10,6 +10,48 @@
 use nalgebra::DMatrix;
 use serde::Serialize;
 
+use crate::input::SettingError;
+
+/// Whether a parameter sets process or measurement noise.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum NoiseKind {
+    /// Process noise Q.
+    Process,
+    /// Measurement noise R.
+    Measurement,
+}
+
+/// What a parameter drives: process noise of some state components, or measurement noise
+/// of some measurement components (indices into the concatenated sensor components). Its
+/// advice reads those components' statistics, and the Gauss–Newton search matches them
+/// first.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize)]
+pub struct Target {
+    /// Process or measurement noise.
+    pub kind: NoiseKind,
+    /// The state (process) or measurement (measurement noise) components, 0-based.
+    pub components: Vec<usize>,
+}
+
+impl Target {
+    /// Process noise of these state components.
+    pub fn process(components: &[usize]) -> Target {
+        Target {
+            kind: NoiseKind::Process,
+            components: components.to_vec(),
+        }
+    }
+
+    /// Measurement noise of these measurement components.
+    pub fn measurement(components: &[usize]) -> Target {
+        Target {
+            kind: NoiseKind::Measurement,
+            components: components.to_vec(),
+        }
+    }
+}
+
 /// One named parameter: a variance or spectral density that sets part of Q or R.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct ParamDef {
@@ -27,6 +69,99 @@ pub struct ParamDef {
     pub unit: String,
     /// What the parameter models, in the designer's words.
     pub about: String,
+}
+
+impl ParamDef {
+    /// A free parameter `name` with configured value `value`, searched within
+    /// `value/1e4 .. value·1e4`, no unit or description.
+    pub fn new(name: &str, value: f64) -> ParamDef {
+        ParamDef {
+            name: name.to_string(),
+            value,
+            lower: value / 1e4,
+            upper: value * 1e4,
+            fixed: false,
+            unit: String::new(),
+            about: String::new(),
+        }
+    }
+
+    /// Search bounds (0 < lower < upper, with the value inside).
+    pub fn bounds(mut self, lower: f64, upper: f64) -> ParamDef {
+        self.lower = lower;
+        self.upper = upper;
+        self
+    }
+
+    /// Hold at the configured value when tuning.
+    pub fn fixed(mut self) -> ParamDef {
+        self.fixed = true;
+        self
+    }
+
+    /// Unit of the value, e.g. `(m/s²)²`.
+    pub fn unit(mut self, unit: &str) -> ParamDef {
+        self.unit = unit.to_string();
+        self
+    }
+
+    /// What it models, one line.
+    pub fn about(mut self, about: &str) -> ParamDef {
+        self.about = about.to_string();
+        self
+    }
+
+    /// Check the name (letters, digits, `_`), the value (finite, > 0: the search works in
+    /// log space) and the bounds (finite, 0 < lower < upper, value inside). The error's
+    /// setting is relative to the parameter: `` (the name), `value`, `lower` or `upper`.
+    pub fn validate(&self) -> Result<(), SettingError> {
+        let finite = |setting: &str, v: f64| {
+            if v.is_finite() {
+                Ok(v)
+            } else {
+                Err(SettingError::new(
+                    setting,
+                    format!("{v} is not a finite number"),
+                ))
+            }
+        };
+        if self.name.is_empty()
+            || !self
+                .name
+                .chars()
+                .all(|c| c.is_ascii_alphanumeric() || c == '_')
+        {
+            return Err(SettingError::new(
+                "",
+                "parameter names use letters, digits and _ only",
+            ));
+        }
+        let value = finite("value", self.value)?;
+        if value <= 0.0 {
+            return Err(SettingError::new(
+                "value",
+                format!("{value} must be > 0 (variances are searched in log space)"),
+            ));
+        }
+        let lower = finite("lower", self.lower)?;
+        let upper = finite("upper", self.upper)?;
+        if lower <= 0.0 {
+            return Err(SettingError::new("lower", format!("{lower} must be > 0")));
+        }
+        if lower >= upper {
+            return Err(SettingError::new(
+                "lower",
+                format!("lower bound {lower} is not below upper bound {upper}"),
+            ));
+        }
+        if value < lower || value > upper {
+            return Err(SettingError::new(
+                "value",
+                format!("{value} is outside [{lower}, {upper}]"),
+            ));
+        }
+        Ok(())
+    }
 }
 
 /// The ordered set of named parameters of a problem.

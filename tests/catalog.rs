@@ -13,7 +13,8 @@
 mod common;
 
 use assert_cmd::Command;
-use autotune::model::catalog::NoiseKind;
+use autotune::experiment::Experiment;
+use autotune::params::NoiseKind;
 
 const CATALOG: [&str; 3] = ["ctrv", "orbit2d", "ins_gnss"];
 
@@ -22,8 +23,8 @@ fn set_args(name: &str, q_scale: f64) -> Vec<String> {
     let p = common::load(name);
     let truth = p.truth_values().expect("a catalog problem knows its truth");
     let mut args = Vec::new();
-    for (i, (def, v)) in p.params.params.iter().zip(truth).enumerate() {
-        let scale = if p.param_target(i).0 == NoiseKind::Process {
+    for (i, (def, v)) in p.params().params.iter().zip(truth).enumerate() {
+        let scale = if p.target(i).expect("catalog targets").kind == NoiseKind::Process {
             q_scale
         } else {
             1.0
@@ -78,24 +79,26 @@ fn check_fails_overconfident_with_q_scaled_by_a_hundredth() {
 fn catalog_problems_load_with_model_names_and_parameters_in_model_order() {
     for name in CATALOG {
         let p = common::load(name);
-        let model = p.catalog().expect("a catalog problem");
+        let catalog = p.catalog().expect("a catalog problem");
         assert!(p.linear().is_none());
-        assert_eq!(p.state_names, model.state_names());
-        assert_eq!(p.measurement_names, model.measurement_names());
-        let autotune::problem::System::Catalog { entry, .. } = &p.system else {
-            unreachable!()
-        };
+        assert_eq!(p.state_names(), catalog.model.state_names());
+        assert_eq!(p.measurement_names(), catalog.model.measurement_names());
+        let entry = &catalog.entry;
         let names: Vec<&str> = entry.params.iter().map(|i| i.name).collect();
-        assert_eq!(p.params.names(), names, "{name}");
-        assert_eq!(model.truth_values().len(), names.len());
+        assert_eq!(p.params().names(), names, "{name}");
+        assert_eq!(catalog.model.truth_values().len(), names.len());
         for (i, info) in entry.params.iter().enumerate() {
-            let (kind, comps) = p.param_target(i);
-            assert_eq!(kind, info.noise);
-            let dim = match kind {
-                NoiseKind::Process => p.n_x(),
-                NoiseKind::Measurement => p.n_z(),
+            let target = p.target(i).expect("catalog parameters have targets");
+            assert_eq!(target.kind, info.noise);
+            let dim = match target.kind {
+                NoiseKind::Process => p.state_names().len(),
+                NoiseKind::Measurement => p.measurement_names().len(),
             };
-            assert!(comps.iter().all(|&c| c < dim), "{name}: {}", info.name);
+            assert!(
+                !target.components.is_empty() && target.components.iter().all(|&c| c < dim),
+                "{name}: {}",
+                info.name
+            );
         }
     }
 }

@@ -7,11 +7,12 @@
 use std::f64::consts::PI;
 
 use autotune::SimRng;
+use autotune::catalog::ctrv::{CtrvModel, CtrvSystem, ENTRY, LIDAR, RADAR, wrap_angle};
+use autotune::catalog::{CatalogModel, ModelContext};
 use autotune::filter::{Filter, SystemModel, numerical_jacobian};
-use autotune::model::catalog::ctrv::{CtrvModel, CtrvSystem, ENTRY, LIDAR, RADAR, wrap_angle};
-use autotune::model::catalog::{CatalogModel, ModelContext};
-use autotune::model::{Measurement, TruthModel};
-use autotune::montecarlo::{Settings, run_generic, run_rng};
+use autotune::measurement::Measurement;
+use autotune::model::TruthModel;
+use autotune::montecarlo::{McConfig, run_generic, run_rng};
 use autotune::stats::{ConsistencyReport, Verdict};
 use nalgebra::{DMatrix, DVector};
 use rand::{RngExt, SeedableRng};
@@ -356,12 +357,11 @@ fn bad_input_is_an_error_naming_the_field() {
     assert_eq!(err.field, "dt");
 
     let model = build(&s);
-    let settings = Settings {
-        runs: 4,
-        steps: 20,
-        seed: 1,
-        lags: 1,
-    };
+    let settings = McConfig::new(4, 20)
+        .unwrap()
+        .with_seed(1)
+        .with_lags(1)
+        .unwrap();
     for theta in [
         vec![-1.0, 0.1, 0.0225, 0.09, 0.0009, 0.09],
         vec![0.5, 0.1, f64::NAN, 0.09, 0.0009, 0.09],
@@ -381,12 +381,11 @@ fn bad_input_is_an_error_naming_the_field() {
 fn shipped_check_is_consistent_at_truth_and_overconfident_with_small_q() {
     let s = shipped();
     let model = build(&s);
-    let settings = Settings {
-        runs: s.runs,
-        steps: s.steps,
-        seed: s.seed,
-        lags: 3,
-    };
+    let settings = McConfig::new(s.runs, s.steps)
+        .unwrap()
+        .with_seed(s.seed)
+        .with_lags(3)
+        .unwrap();
     let (sn, mn) = (model.state_names(), model.measurement_names());
     let tv = model.truth_values();
     let acc = run_generic(model.truth(), &model.filter(&tv), &settings);

@@ -4,15 +4,16 @@
 //! attitude-error wrapping, and settings validation.
 
 use autotune::SimRng;
-use autotune::filter::{Filter, numerical_jacobian};
-use autotune::model::catalog::ins_gnss::nav::{
+use autotune::catalog::ins_gnss::nav::{
     ImuSample, Mat15, Nominal, Vec15, continuous_f, error_rate, mechanize,
 };
-use autotune::model::catalog::ins_gnss::truth::{InsTruth, layout, truth_nominal};
-use autotune::model::catalog::ins_gnss::{ENTRY, InsGnss};
-use autotune::model::catalog::{CatalogModel, ModelContext};
-use autotune::model::{Measurement, TruthModel};
-use autotune::montecarlo::{Settings, run_generic, run_rng};
+use autotune::catalog::ins_gnss::truth::{InsTruth, layout, truth_nominal};
+use autotune::catalog::ins_gnss::{ENTRY, InsGnss};
+use autotune::catalog::{CatalogModel, ModelContext};
+use autotune::filter::{Filter, numerical_jacobian};
+use autotune::measurement::Measurement;
+use autotune::model::TruthModel;
+use autotune::montecarlo::{McConfig, run_generic, run_rng};
 use autotune::stats::{ConsistencyReport, Verdict};
 use nalgebra::{DMatrix, DVector, UnitQuaternion, Vector3};
 use rand::RngExt;
@@ -237,12 +238,11 @@ fn check(model: &dyn CatalogModel, theta: &[f64], s: &Shipped) -> ConsistencyRep
     let acc = run_generic(
         model.truth(),
         &f,
-        &Settings {
-            runs: s.runs,
-            steps: s.steps,
-            seed: s.seed,
-            lags: 3,
-        },
+        &McConfig::new(s.runs, s.steps)
+            .unwrap()
+            .with_seed(s.seed)
+            .with_lags(3)
+            .unwrap(),
     );
     ConsistencyReport::from_accumulator(
         &acc,
@@ -345,7 +345,7 @@ fn truth_imu_reproduces_the_truth_trajectory() {
     let model = build(&s.table, s.dt, s.steps);
     let base = model.truth_values();
     let truth = InsTruth {
-        noise: autotune::model::catalog::ins_gnss::truth::TruthNoise {
+        noise: autotune::catalog::ins_gnss::truth::TruthNoise {
             accel: Vector3::from_element(1e-30),
             gyro: 1e-30,
             accel_bias: 1e-30,

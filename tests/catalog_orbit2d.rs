@@ -7,11 +7,11 @@
 #![allow(non_snake_case)] // paper notation (Q, C) for the filter matrices
 
 use autotune::SimRng;
+use autotune::catalog::orbit2d::{self, EARTH_RADIUS, MU, Orbit2d};
+use autotune::catalog::{CatalogModel, ModelContext, find};
 use autotune::filter::{Ekf, Filter, FilterError, SystemModel, numerical_jacobian};
-use autotune::model::Measurement;
-use autotune::model::catalog::orbit2d::{self, EARTH_RADIUS, MU, Orbit2d};
-use autotune::model::catalog::{CatalogModel, ModelContext, find};
-use autotune::montecarlo::{Settings, run_generic};
+use autotune::measurement::Measurement;
+use autotune::montecarlo::{McConfig, run_generic};
 use autotune::stats::{ConsistencyReport, Verdict};
 use nalgebra::{DMatrix, DVector, Matrix2, Vector2, Vector4};
 use rand::{RngExt, SeedableRng};
@@ -22,7 +22,7 @@ use rand_distr::StandardNormal;
 struct Shipped {
     table: toml::Table,
     ctx: ModelContext,
-    settings: Settings,
+    settings: McConfig,
     alpha: f64,
 }
 
@@ -45,12 +45,11 @@ fn shipped() -> Shipped {
     Shipped {
         table,
         ctx: ModelContext { dt, steps },
-        settings: Settings {
-            runs: int("runs") as usize,
-            steps,
-            seed: int("seed") as u64,
-            lags: 3,
-        },
+        settings: McConfig::new(int("runs") as usize, steps)
+            .unwrap()
+            .with_seed(int("seed") as u64)
+            .with_lags(3)
+            .unwrap(),
         alpha: mc["alpha"].as_float().expect("alpha"),
     }
 }

@@ -3,6 +3,7 @@
 use std::path::Path;
 
 use assert_cmd::Command;
+use autotune::experiment::Experiment;
 use autotune::problem::Problem;
 use nalgebra::DMatrix;
 
@@ -75,8 +76,8 @@ fn every_starter_passes_check_unchanged() {
 
         // A valid problem whose filter, at the parameter values as written, is the truth.
         let p = Problem::load(&path).unwrap_or_else(|e| panic!("{model}: {e}"));
-        assert_eq!(p.name, name);
-        let kf = p.linear().unwrap().filter_at(&p.params.values());
+        assert_eq!(p.name(), name);
+        let kf = p.linear().unwrap().filter_at(&p.params().values());
         let t = &p.linear().unwrap().truth;
         for (what, a, b) in [
             ("F", &kf.F, &t.F),
@@ -106,7 +107,7 @@ fn every_starter_passes_check_unchanged() {
         // large) is caught.
         let mut check = autotune();
         check.arg("check").arg(&path).arg("--quiet");
-        for param in &p.params.params {
+        for param in &p.params().params {
             check
                 .arg("--set")
                 .arg(format!("{}={}", param.name, param.value * 10.0));

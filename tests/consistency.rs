@@ -3,7 +3,9 @@
 
 mod common;
 
-use autotune::check::{Engine, accumulate, check};
+use autotune::check::{accumulate, check};
+use autotune::experiment::Experiment;
+use autotune::montecarlo::Engine;
 use autotune::stats::Verdict;
 use common::{load, scaled, truth_values};
 use statrs::distribution::{Binomial, DiscreteCDF};
@@ -17,7 +19,7 @@ fn truth_noise_passes_on_every_shipped_problem() {
     for name in ["cv1d", "cv2d", "dcmotor"] {
         let p = load(name);
         let theta = truth_values(&p);
-        let r = check(&p, &theta, &p.mc, Engine::Auto, true);
+        let r = check(&p, &theta, p.mc(), true);
         assert_eq!(
             r.verdict,
             Verdict::Consistent,
@@ -49,16 +51,16 @@ fn false_alarm_rate_matches_alpha_over_200_seeds() {
     // count between the 0.5% quantile at α_s and the 99.5% quantile at α.
     let p = load("cv1d");
     let theta = truth_values(&p);
-    let alpha = p.mc.alpha;
+    let alpha = p.mc().alpha();
     let seeds: u64 = std::env::var("FA_SEEDS")
         .ok()
         .and_then(|v| v.parse().ok())
         .unwrap_or(200);
     let (mut nees_rej, mut nis_rej, mut gate_rej) = (0u64, 0u64, 0u64);
     for s in 0..seeds {
-        let mut mc = p.mc;
-        mc.seed = 10_000 + s;
-        let r = check(&p, &theta, &mc, Engine::Auto, true);
+        let mut mc = *p.mc();
+        mc = mc.with_seed(10_000 + s);
+        let r = check(&p, &theta, &mc, true);
         nees_rej += u64::from(!r.nees.as_ref().unwrap().verdict.passes());
         nis_rej += u64::from(!r.nis.verdict.passes());
         gate_rej += u64::from(!r.verdict.passes());
@@ -87,7 +89,7 @@ fn naive_time_averaged_nees_interval_would_raise_too_many_alarms() {
     // with N·T·n_x degrees of freedom is markedly narrower than the correlation-aware one.
     let p = load("cv2d");
     let theta = truth_values(&p);
-    let r = check(&p, &theta, &p.mc, Engine::Auto, true);
+    let r = check(&p, &theta, p.mc(), true);
     let nees = r.nees.unwrap();
     let naive = nees.naive_interval.upper - nees.naive_interval.lower;
     let gate = nees.interval.upper - nees.interval.lower;
@@ -107,7 +109,7 @@ fn mis_scaled_noise_is_caught_with_the_right_direction() {
             ("r_", 100.0, Verdict::Underconfident),
         ] {
             let theta = scaled(&p, &truth, prefix, factor);
-            let r = check(&p, &theta, &p.mc, Engine::Auto, true);
+            let r = check(&p, &theta, p.mc(), true);
             assert!(!r.verdict.passes(), "{name}: {prefix}×{factor} passed");
             // The NEES statistic alone must point the right way whatever NIS does.
             assert_eq!(
@@ -124,9 +126,9 @@ fn linear_fast_path_matches_generic_path() {
     // Same random draws, reordered arithmetic: agreement to rounding.
     let p = load("cv2d");
     let theta = scaled(&p, &truth_values(&p), "q_", 3.0);
-    let mut mc = p.mc;
-    mc.runs = 150; // not a multiple of the chunk size
-    mc.steps = 60;
+    let mut mc = *p.mc();
+    mc = mc.with_runs(150).unwrap(); // not a multiple of the chunk size
+    mc = mc.with_steps(60).unwrap();
     let a = accumulate(&p, &theta, &mc, Engine::Linear);
     let b = accumulate(&p, &theta, &mc, Engine::Generic);
     let close = |x: &[f64], y: &[f64], what: &str| {
@@ -164,8 +166,8 @@ fn linear_fast_path_matches_generic_path() {
 fn results_are_bit_identical_on_one_and_two_threads() {
     let p = load("cv2d");
     let theta = truth_values(&p);
-    let mut mc = p.mc;
-    mc.runs = 300;
+    let mut mc = *p.mc();
+    mc = mc.with_runs(300).unwrap();
     for engine in [Engine::Linear, Engine::Generic] {
         let run = |threads| {
             rayon::ThreadPoolBuilder::new()
@@ -183,23 +185,23 @@ fn too_little_data_is_inconclusive_not_a_silent_pass() {
     // One run, four steps of a scalar measurement: a handful of degrees of freedom.
     let p = load("cv1d");
     let theta = truth_values(&p);
-    let mut mc = p.mc;
-    mc.runs = 1;
-    mc.steps = 4;
-    let r = check(&p, &theta, &mc, Engine::Auto, true);
+    let mut mc = *p.mc();
+    mc = mc.with_runs(1).unwrap();
+    mc = mc.with_steps(4).unwrap();
+    let r = check(&p, &theta, &mc, true);
     assert!(!r.nis.has_power && !r.nis.per_step_has_power);
     assert_eq!(r.verdict, Verdict::Inconclusive);
-    let text = autotune::report::summary_text(&p.name, &[], &r);
+    let text = autotune::report::summary_text(p.name(), &[], &r);
     assert!(
         text.contains("warning: the time-averaged ANIS test"),
         "{text}"
     );
 
     // One run but many steps: the time average has power, single steps do not.
-    mc.steps = 400;
-    let r = check(&p, &theta, &mc, Engine::Auto, true);
+    mc = mc.with_steps(400).unwrap();
+    let r = check(&p, &theta, &mc, true);
     assert!(r.nis.has_power && !r.nis.per_step_has_power);
-    let text = autotune::report::summary_text(&p.name, &[], &r);
+    let text = autotune::report::summary_text(p.name(), &[], &r);
     assert!(text.contains("note: per-step ANIS tests"), "{text}");
 }
 
@@ -209,16 +211,16 @@ fn diverging_filter_is_reported_not_nan() {
     let p = load("cv1d");
     let mut kf = p.linear().unwrap().filter_at(&truth_values(&p));
     kf.R[(0, 0)] = -1e3;
-    let acc = autotune::montecarlo::run_linear(&p.linear().unwrap().truth, &kf, &p.mc.engine());
-    assert_eq!(acc.diverged_runs, p.mc.runs);
+    let acc = autotune::montecarlo::run_linear(&p.linear().unwrap().truth, &kf, p.mc());
+    assert_eq!(acc.diverged_runs, p.mc().runs());
     assert_eq!(acc.divergences[0].step, 1);
-    let acc = autotune::montecarlo::run_generic(&p.linear().unwrap().truth, &kf, &p.mc.engine());
-    assert_eq!(acc.diverged_runs, p.mc.runs);
+    let acc = autotune::montecarlo::run_generic(&p.linear().unwrap().truth, &kf, p.mc());
+    assert_eq!(acc.diverged_runs, p.mc().runs());
     let r = autotune::stats::ConsistencyReport::from_accumulator(
         &acc,
         0.05,
-        &p.state_names,
-        &p.measurement_names,
+        p.state_names(),
+        p.measurement_names(),
         true,
     );
     assert_eq!(r.verdict, Verdict::Diverged);

@@ -2,7 +2,9 @@
 
 mod common;
 
-use autotune::check::{Engine, accumulate};
+use autotune::check::accumulate;
+use autotune::experiment::Experiment;
+use autotune::montecarlo::Engine;
 use autotune::montecarlo::{expected_accumulator, models_match};
 use common::{load, scaled, truth_values};
 
@@ -15,19 +17,19 @@ fn expected_sums_match_large_monte_carlo() {
         let theta = scaled(&p, &scaled(&p, &truth_values(&p), "q_", 3.0), "r_", 0.5);
         let l = p.linear_mut().unwrap();
         l.filter.x0 = &l.filter.x0 + l.filter.P0.diagonal().map(|v| 0.5 * v.sqrt());
-        let mut mc = p.mc;
-        mc.runs = 20_000;
-        mc.steps = 40;
-        mc.lags = 3;
+        let mut mc = *p.mc();
+        mc = mc.with_runs(20_000).unwrap();
+        mc = mc.with_steps(40).unwrap();
+        mc = mc.with_lags(3).unwrap();
         let kf = p.linear().unwrap().filter_at(&theta);
         assert!(models_match(&p.linear().unwrap().truth, &kf));
-        let exp = expected_accumulator(&p.linear().unwrap().truth, &kf, &mc.engine()).unwrap();
+        let exp = expected_accumulator(&p.linear().unwrap().truth, &kf, &mc).unwrap();
         let sim = accumulate(&p, &theta, &mc, Engine::Linear);
-        let nn = mc.runs as f64;
+        let nn = mc.runs() as f64;
         // Each per-step mean over N runs has standard deviation sqrt(Var/N), with Var from the
         // exact second moment; 5 standard deviations keeps the chance of a false failure over
         // the ~100 comparisons below about 1e-4.
-        for i in 0..mc.steps {
+        for i in 0..mc.steps() {
             for (s, e, e2, what) in [
                 (sim.nees_sum[i], exp.nees_sum[i], exp.nees_sq[i], "NEES"),
                 (sim.nis_sum[i], exp.nis_sum[i], exp.nis_sq[i], "NIS"),
@@ -101,11 +103,11 @@ value = 4e-10
 "#;
     let p =
         autotune::problem::Problem::from_toml(text, std::path::Path::new("mixed.toml")).unwrap();
-    let theta = p.params.values();
+    let theta = p.params().values();
     let kf = p.linear().unwrap().filter_at(&theta);
-    let exp = expected_accumulator(&p.linear().unwrap().truth, &kf, &p.mc.engine()).unwrap();
-    let sim = accumulate(&p, &theta, &p.mc, Engine::Linear);
-    let nn = p.mc.runs as f64;
+    let exp = expected_accumulator(&p.linear().unwrap().truth, &kf, p.mc()).unwrap();
+    let sim = accumulate(&p, &theta, p.mc(), Engine::Linear);
+    let nn = p.mc().runs() as f64;
     for i in [99, 199, 399] {
         let mean = exp.nees_sum[i] / nn;
         let sd = ((exp.nees_sq[i] / nn - mean * mean) / nn).sqrt();
@@ -116,7 +118,7 @@ value = 4e-10
             sim.nees_sum[i] / nn
         );
     }
-    let total = |v: &[f64]| v.iter().sum::<f64>() / (nn * p.mc.steps as f64);
+    let total = |v: &[f64]| v.iter().sum::<f64>() / (nn * p.mc().steps() as f64);
     let (e, s) = (total(&exp.nees_sum), total(&sim.nees_sum));
     assert!(
         (e / s - 1.0).abs() < 0.01,

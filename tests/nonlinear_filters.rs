@@ -3,10 +3,12 @@
 
 mod common;
 
+use autotune::experiment::Experiment;
 use autotune::filter::{
     Ekf, Filter, KalmanFilter, LinearSystem, SystemModel, Ukf, numerical_jacobian,
 };
-use autotune::model::{Measurement, TruthModel};
+use autotune::measurement::Measurement;
+use autotune::model::TruthModel;
 use autotune::montecarlo::{run_generic, run_rng};
 use common::{load, truth_values};
 use nalgebra::{DMatrix, DVector};
@@ -121,21 +123,15 @@ fn ekf_and_ukf_agree_with_the_kf_on_a_linear_model() {
             }
         }
         // And through the Monte Carlo engine: the same statistics.
-        let mut mc = p.mc;
-        mc.runs = 40;
-        mc.steps = 60;
-        let a = run_generic(&p.linear().unwrap().truth, &kf, &mc.engine());
+        let mut mc = *p.mc();
+        mc = mc.with_runs(40).unwrap();
+        mc = mc.with_steps(60).unwrap();
+        let a = run_generic(&p.linear().unwrap().truth, &kf, &mc);
         for (label, b) in [
-            (
-                "EKF",
-                run_generic(&p.linear().unwrap().truth, &ekf, &mc.engine()),
-            ),
-            (
-                "UKF",
-                run_generic(&p.linear().unwrap().truth, &ukf, &mc.engine()),
-            ),
+            ("EKF", run_generic(&p.linear().unwrap().truth, &ekf, &mc)),
+            ("UKF", run_generic(&p.linear().unwrap().truth, &ukf, &mc)),
         ] {
-            for i in 0..mc.steps {
+            for i in 0..mc.steps() {
                 assert!(
                     rel(a.nees_sum[i], b.nees_sum[i]) < 1e-9,
                     "{name} {label} NEES step {}",

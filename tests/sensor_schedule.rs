@@ -3,8 +3,9 @@
 
 use autotune::SimRng;
 use autotune::filter::{Ekf, SystemModel};
-use autotune::model::{Measurement, TruthModel, sample_gaussian};
-use autotune::montecarlo::{Settings, run_generic};
+use autotune::measurement::Measurement;
+use autotune::model::{TruthModel, sample_gaussian};
+use autotune::montecarlo::{McConfig, run_generic};
 use autotune::stats::{ConsistencyReport, Verdict, chi2_average_interval};
 use nalgebra::{DMatrix, DVector};
 
@@ -110,12 +111,11 @@ fn nis_interval_follows_the_measurement_dimension_of_each_step() {
         x0,
         P0: p0,
     };
-    let settings = Settings {
-        runs: 400,
-        steps: 60,
-        seed: 11,
-        lags: 2,
-    };
+    let settings = McConfig::new(400, 60)
+        .unwrap()
+        .with_seed(11)
+        .with_lags(2)
+        .unwrap();
     let acc = run_generic(&truth, &ekf, &settings);
     assert_eq!(acc.diverged_runs, 0);
     let names: Vec<String> = ["x", "vx", "y", "vy"]
@@ -124,8 +124,8 @@ fn nis_interval_follows_the_measurement_dimension_of_each_step() {
         .collect();
     let meas = vec!["px".to_string(), "py".to_string(), "range".to_string()];
     let r = ConsistencyReport::from_accumulator(&acc, 0.05, &names, &meas, true);
-    let n = settings.runs as f64;
-    for k in 1..=settings.steps {
+    let n = settings.runs() as f64;
+    for k in 1..=settings.steps() {
         let dim: usize = sensors_at(k).iter().map(|&s| [2, 1][s]).sum();
         assert_eq!(acc.nis_dof[k - 1], n * dim as f64, "step {k}");
         if dim == 0 {
@@ -141,11 +141,11 @@ fn nis_interval_follows_the_measurement_dimension_of_each_step() {
         assert_eq!(r.nis.per_step_lower[k - 1], Some(iv.lower), "step {k}");
     }
     // Steps 6, 12, … have both sensors (3 dof); the time-averaged target is the mean.
-    let total_dim: usize = (1..=settings.steps)
+    let total_dim: usize = (1..=settings.steps())
         .flat_map(sensors_at)
         .map(|s| [2, 1][s])
         .sum();
-    let measured_steps = (1..=settings.steps)
+    let measured_steps = (1..=settings.steps())
         .filter(|k| !sensors_at(*k).is_empty())
         .count();
     assert!((r.nis.target - total_dim as f64 / measured_steps as f64).abs() < 1e-12);

@@ -2,10 +2,10 @@
 
 mod common;
 
+use autotune::experiment::Experiment;
 use autotune::problem::Problem;
 use autotune::tune::{
-    LocalSearch, Objective, Scoring, Silent, Tunable, TuneResult, TuneSettings, TuneStatus,
-    Weights, tune,
+    LocalSearch, Objective, Scoring, Silent, TuneResult, TuneSettings, TuneStatus, Weights, tune,
 };
 use common::{load, truth_values};
 use statrs::distribution::{Binomial, DiscreteCDF};
@@ -13,9 +13,9 @@ use statrs::distribution::{Binomial, DiscreteCDF};
 /// Tune `p` from its shipped start (R parameters fixed at the truth if `fix_r`).
 fn run(p: &Problem, seed: u64, fix_r: bool, settings: &TuneSettings) -> TuneResult {
     let truth = truth_values(p);
-    let mut start = p.params.values();
+    let mut start = p.params().values();
     let fixed: Vec<bool> = p
-        .params
+        .params()
         .params
         .iter()
         .map(|q| q.fixed || (fix_r && q.name.starts_with("r_")))
@@ -25,12 +25,12 @@ fn run(p: &Problem, seed: u64, fix_r: bool, settings: &TuneSettings) -> TuneResu
             start[i] = truth[i];
         }
     }
-    let mut mc = p.mc;
-    mc.seed = seed;
+    let mut mc = *p.mc();
+    mc = mc.with_seed(seed);
     let r = tune(p, &start, &fixed, &mc, settings, &Silent).unwrap();
     eprintln!(
         "{} seed {seed}: {:?}, {} evals in {:.2} s, J {:.3e} -> {:.3e}, tuned {:?}",
-        p.name,
+        p.name(),
         r.status,
         r.evaluations,
         r.seconds,
@@ -43,12 +43,12 @@ fn run(p: &Problem, seed: u64, fix_r: bool, settings: &TuneSettings) -> TuneResu
 
 fn assert_within(p: &Problem, r: &TuneResult, tol: f64) {
     let truth = truth_values(p);
-    for (i, q) in p.params.params.iter().enumerate() {
+    for (i, q) in p.params().params.iter().enumerate() {
         let ratio = r.tuned[i] / truth[i];
         assert!(
             (ratio - 1.0).abs() <= tol,
             "{}: {} tuned {} truth {} (ratio {ratio:.4})",
-            p.name,
+            p.name(),
             q.name,
             r.tuned[i],
             truth[i]
@@ -96,7 +96,7 @@ fn q_alone_is_recovered_with_r_fixed_at_the_truth() {
         for seed in [21, 22] {
             let r = run(&p, seed, true, &TuneSettings::default());
             assert_within(&p, &r, 0.15);
-            for (i, q) in p.params.params.iter().enumerate() {
+            for (i, q) in p.params().params.iter().enumerate() {
                 if q.name.starts_with("r_") {
                     assert_eq!(r.tuned[i], truth_values(&p)[i], "fixed parameters stay put");
                 }
@@ -114,15 +114,12 @@ fn q_alone_is_recovered_with_r_fixed_at_the_truth() {
 fn nis_only_tuning_passes_check() {
     // Without ground truth the tuner sees only innovations: NIS, per-component ν²/S and
     // whiteness. Its result must pass the full gate (NEES included) on the problem's seed.
-    let settings = TuneSettings {
-        nis_only: true,
-        ..TuneSettings::default()
-    };
+    let settings = TuneSettings::default().with_nis_only(true);
     for name in ["cv1d", "cv2d", "dcmotor"] {
         let p = load(name);
-        let r = run(&p, p.mc.seed, false, &settings);
+        let r = run(&p, p.mc().seed(), false, &settings);
         assert_within(&p, &r, 0.15);
-        let full = autotune::check::check(&p, &r.tuned, &p.mc, autotune::check::Engine::Auto, true);
+        let full = autotune::check::check(&p, &r.tuned, p.mc(), true);
         assert!(full.verdict.passes(), "{name}: {:?}", full.verdict);
     }
 }
@@ -133,11 +130,9 @@ fn gauss_newton_recovers_every_shipped_linear_problem() {
     // components, then J's residuals) on the exact objective and on Monte Carlo with
     // common random numbers: same 15% as the simplex.
     for scoring in [Scoring::Exact, Scoring::MonteCarlo] {
-        let settings = TuneSettings {
-            local: LocalSearch::GaussNewton,
-            scoring,
-            ..TuneSettings::default()
-        };
+        let settings = TuneSettings::default()
+            .with_local(LocalSearch::GaussNewton)
+            .with_scoring(scoring);
         for name in ["cv1d", "cv2d", "dcmotor"] {
             let p = load(name);
             let r = run(&p, 41, false, &settings);
@@ -153,16 +148,15 @@ fn residuals_square_to_the_objective() {
     // every term switched on (whiteness needs lags, shape its weight) and a filter off the
     // truth so that every term is non-zero.
     let p = load("cv2d");
-    let mut settings = p.mc.engine();
-    settings.lags = 3;
-    let theta: Vec<f64> = p.params.values().iter().map(|v| v * 3.0).collect();
+    let settings = p.mc().with_lags(3).unwrap();
+    let theta: Vec<f64> = p.params().values().iter().map(|v| v * 3.0).collect();
     let acc = p.monte_carlo(&theta, &settings);
     let weights = Weights {
         shape: 0.5,
         ..Weights::default()
     };
     for nis_only in [false, true] {
-        let mut o = Objective::new(weights, nis_only, p.mc.alpha);
+        let mut o = Objective::new(weights, nis_only, p.mc().alpha());
         o.prepare(&acc);
         let terms = o.evaluate(&acc);
         assert!(terms.whiteness > 0.0 && terms.components > 0.0 && terms.per_step > 0.0);
@@ -181,11 +175,10 @@ fn residuals_square_to_the_objective() {
 fn monte_carlo_scoring_recovers_too() {
     // Common random numbers, no exact expectations: the path nonlinear problems take. The
     // estimate carries Monte Carlo noise, so the tolerance is the issue's 15%.
-    let settings = TuneSettings {
-        scoring: Scoring::MonteCarlo,
-        max_evals: 1500,
-        ..TuneSettings::default()
-    };
+    let settings = TuneSettings::default()
+        .with_scoring(Scoring::MonteCarlo)
+        .with_max_evals(1500)
+        .unwrap();
     for name in ["cv1d", "cv2d"] {
         let p = load(name);
         for seed in [31, 32] {
@@ -201,7 +194,7 @@ fn diverging_candidates_are_counted_not_fatal() {
     // Bounds that allow Q = 1e-12 and R = 1e-12 on cv2d: the global stage samples
     // candidates whose S is numerically singular; they score +∞ and the search goes on.
     let mut p = load("cv2d");
-    for q in &mut p.params.params {
+    for q in &mut p.linear_mut().unwrap().params.params {
         q.lower = 1e-300;
     }
     // A filter with no process noise and no measurement noise cannot stay positive definite.
@@ -209,8 +202,7 @@ fn diverging_candidates_are_counted_not_fatal() {
         .linear()
         .unwrap()
         .filter_at(&[1e-300, 1e-300, 1e-300, 1e-300]);
-    let acc =
-        autotune::montecarlo::expected_accumulator(&p.linear().unwrap().truth, &kf, &p.mc.engine());
+    let acc = autotune::montecarlo::expected_accumulator(&p.linear().unwrap().truth, &kf, p.mc());
     assert!(acc.is_err(), "the extreme candidate must diverge");
     let r = run(&p, 5, false, &TuneSettings::default());
     assert!(
@@ -232,10 +224,18 @@ fn flat_directions_are_reported_not_given_a_confident_number() {
     ) + "\n[params.q_twin]\nvalue = 0.1\nunit = \"(m/s²)²\"\n";
     assert!(text.contains("q_twin\" }]"));
     let p = Problem::from_toml(&text, std::path::Path::new("twin.toml")).unwrap();
-    let start = p.params.values();
+    let start = p.params().values();
     let fixed = vec![false; 3];
-    let r = tune(&p, &start, &fixed, &p.mc, &TuneSettings::default(), &Silent).unwrap();
-    let idx = |n: &str| p.params.index(n).unwrap();
+    let r = tune(
+        &p,
+        &start,
+        &fixed,
+        p.mc(),
+        &TuneSettings::default(),
+        &Silent,
+    )
+    .unwrap();
+    let idx = |n: &str| p.params().index(n).unwrap();
     assert!(
         !r.resolution[idx("q_accel")].identifiable,
         "{:?}",

@@ -6,7 +6,7 @@ use nalgebra::{DMatrix, DVector};
 
 use super::{Estimate, Filter, FilterError, Innovation};
 use crate::linalg::{cholesky, mahalanobis_sq, symmetrize};
-use crate::model::Measurement;
+use crate::measurement::Measurement;
 
 /// Linear Kalman filter for `x_k = F x_{k−1} + w`, `z_k = H x_k + v`, with the filter's own
 /// Q and R (which may differ from the truth's: that is what is being tested).

@@ -11,7 +11,7 @@ pub use nonlinear::{Ekf, LinearSystem, SystemModel, Ukf, numerical_jacobian};
 
 use nalgebra::{DMatrix, DVector};
 
-use crate::model::Measurement;
+use crate::measurement::Measurement;
 
 /// A filter's estimate: mean, covariance, and the linearized error map of the current step.
 #[allow(non_snake_case)]

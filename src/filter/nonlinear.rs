@@ -7,7 +7,7 @@ use nalgebra::{DMatrix, DVector};
 use super::kf::joseph_update;
 use super::{Estimate, Filter, FilterError, Innovation, check_measurement};
 use crate::linalg::{cholesky, mahalanobis_sq, symmetrize};
-use crate::model::Measurement;
+use crate::measurement::Measurement;
 
 /// A system as a nonlinear filter sees it: `x_k = f_k(x_{k−1}) + w_k`,
 /// `z_k = h_{k,s}(x_k) + v_k` for each sensor s.

@@ -8,17 +8,7 @@ use rand::RngExt;
 use rand_distr::StandardNormal;
 
 use crate::SimRng;
-
-pub mod catalog;
-
-/// One sensor's measurement at one step.
-#[derive(Debug, Clone, PartialEq)]
-pub struct Measurement {
-    /// Index of the sensor that produced it, into the filter's sensor list.
-    pub sensor: usize,
-    /// Measured values, in the sensor's units; its length is that sensor's dimension.
-    pub z: DVector<f64>,
-}
+use crate::measurement::Measurement;
 
 /// A simulated system: the truth the filter is tested against.
 ///

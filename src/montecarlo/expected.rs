@@ -14,10 +14,11 @@
 
 use nalgebra::{DMatrix, DVector};
 
-use super::{Accumulator, Settings};
+use super::McConfig;
 use crate::filter::{Filter, FilterError, KalmanFilter};
 use crate::linalg::cholesky;
 use crate::model::LinearGaussianModel;
+use crate::stats::Accumulator;
 use crate::stats::NeesNullVariance;
 
 /// Whether [`expected_accumulator`] applies: the filter uses the truth's F and H.
@@ -31,20 +32,20 @@ const STEADY_RTOL: f64 = 1e-12;
 /// Quiet steps in a row after which the recursion is treated as being in steady state.
 const STEADY_STEPS: usize = 3;
 
-/// The expected value of the sums [`super::run_linear`] accumulates over `settings.runs`
+/// The expected value of the sums [`super::run_linear`] accumulates over `mc.runs()`
 /// runs, computed exactly. Requires [`models_match`]. Per-run component spreads are
 /// not defined here (they are set as if every run equalled the mean).
 pub fn expected_accumulator(
     truth: &LinearGaussianModel,
     f: &KalmanFilter,
-    settings: &Settings,
+    mc: &McConfig,
 ) -> Result<Accumulator, FilterError> {
     debug_assert!(models_match(truth, f));
     let n = f.n_x();
     let m = f.H.nrows();
-    let lags = settings.lags;
-    let runs = settings.runs as f64;
-    let mut acc = Accumulator::new(settings.steps, n, m, lags);
+    let lags = mc.lags();
+    let runs = mc.runs() as f64;
+    let mut acc = Accumulator::new(mc.steps(), n, m, lags);
     let F = &f.F;
     let H = &f.H;
     let Ht = H.transpose();
@@ -66,7 +67,7 @@ pub fn expected_accumulator(
     // History of expected u_j² per step, most recent first.
     let mut comp_z_hist: Vec<Vec<f64>> = Vec::with_capacity(lags);
 
-    for k in 1..=settings.steps {
+    for k in 1..=mc.steps() {
         let i = k - 1;
         if let Some(v) = &steady {
             v.add(&mut acc, i, runs, n, m, &mut comp_x, &mut comp_z, lags, k);
@@ -155,7 +156,7 @@ pub fn expected_accumulator(
             previous = Some(values);
         }
     }
-    let t = settings.steps as f64;
+    let t = mc.steps() as f64;
     for (j, c) in comp_x.iter().enumerate() {
         acc.state_comp_run_sum[j] = runs * c / t;
         acc.state_comp_run_sq[j] = runs * (c / t).powi(2);
@@ -163,11 +164,11 @@ pub fn expected_accumulator(
     for (j, c) in comp_z.iter().enumerate() {
         acc.meas_comp_run_sum[j] = runs * c / t;
         acc.meas_comp_run_sq[j] = runs * (c / t).powi(2);
-        acc.meas_comp_runs[j] = settings.runs;
+        acc.meas_comp_runs[j] = mc.runs();
     }
-    acc.runs = settings.runs;
+    acc.runs = mc.runs();
     acc.nees_null_var = runs * null_var.variance();
-    acc.null_var_runs = settings.runs;
+    acc.null_var_runs = mc.runs();
     Ok(acc)
 }
 

@@ -12,10 +12,11 @@ use nalgebra::{DMatrix, DVector};
 use rand::RngExt;
 use rand_distr::StandardNormal;
 
-use super::{Accumulator, Settings, run_chunked, run_rng};
+use super::{McConfig, record_divergence, run_chunked, run_rng};
 use crate::filter::{Filter, FilterError, KalmanFilter};
 use crate::linalg::{cholesky, inverse_cholesky_factor};
 use crate::model::{LinearGaussianModel, sample_gaussian};
+use crate::stats::Accumulator;
 use crate::stats::NeesNullVariance;
 
 /// The data-independent part of the filter, per step.
@@ -120,32 +121,32 @@ impl Schedule {
 pub fn run_linear(
     truth: &LinearGaussianModel,
     filter: &KalmanFilter,
-    settings: &Settings,
+    mc: &McConfig,
 ) -> Accumulator {
-    run_linear_with_progress(truth, filter, settings, None)
+    run_linear_with_progress(truth, filter, mc, None)
 }
 
 /// [`run_linear`], reporting the runs completed after each parallel wave.
 pub fn run_linear_with_progress(
     truth: &LinearGaussianModel,
     filter: &KalmanFilter,
-    settings: &Settings,
+    mc: &McConfig,
     progress: super::Progress<'_>,
 ) -> Accumulator {
     let n = filter.n_x();
     let m = filter.H.nrows();
-    match Schedule::compute(filter, settings.steps) {
-        Ok(sched) => run_chunked(settings, n, m, progress, |range, acc| {
-            chunk_dispatch(truth, filter, &sched, settings, range, acc)
+    match Schedule::compute(filter, mc.steps()) {
+        Ok(sched) => run_chunked(mc, n, m, progress, |range, acc| {
+            chunk_dispatch(truth, filter, &sched, mc, range, acc)
         }),
         Err(e) => {
             // The covariance recursion is the same in every run, so every run diverges at
             // the same step.
-            let mut acc = Accumulator::new(settings.steps, n, m, settings.lags);
-            for run in 0..settings.runs {
-                acc.record_divergence(run, &e);
+            let mut acc = Accumulator::new(mc.steps(), n, m, mc.lags());
+            for run in 0..mc.runs() {
+                record_divergence(&mut acc, run, &e);
             }
-            acc.runs = settings.runs;
+            acc.runs = mc.runs();
             acc
         }
     }
@@ -216,17 +217,17 @@ fn chunk_dispatch(
     truth: &LinearGaussianModel,
     f: &KalmanFilter,
     sched: &Schedule,
-    settings: &Settings,
+    mc: &McConfig,
     range: Range<usize>,
     acc: &mut Accumulator,
 ) {
     #[cfg(target_arch = "x86_64")]
     if std::is_x86_feature_detected!("avx2") {
         // SAFETY: the CPU supports AVX2, checked just above.
-        unsafe { chunk_avx2(truth, f, sched, settings, range, acc) };
+        unsafe { chunk_avx2(truth, f, sched, mc, range, acc) };
         return;
     }
-    chunk(truth, f, sched, settings, range, acc);
+    chunk(truth, f, sched, mc, range, acc);
 }
 
 #[cfg(target_arch = "x86_64")]
@@ -235,11 +236,11 @@ fn chunk_avx2(
     truth: &LinearGaussianModel,
     f: &KalmanFilter,
     sched: &Schedule,
-    settings: &Settings,
+    mc: &McConfig,
     range: Range<usize>,
     acc: &mut Accumulator,
 ) {
-    chunk(truth, f, sched, settings, range, acc);
+    chunk(truth, f, sched, mc, range, acc);
 }
 
 /// Runs `range` as the rows of B × n matrices (one row per run), so every product is a few
@@ -249,14 +250,14 @@ fn chunk(
     truth: &LinearGaussianModel,
     f: &KalmanFilter,
     sched: &Schedule,
-    settings: &Settings,
+    mc: &McConfig,
     range: Range<usize>,
     acc: &mut Accumulator,
 ) {
     let n = f.n_x();
     let m = f.H.nrows();
     let b = range.len();
-    let lags = settings.lags;
+    let lags = mc.lags();
     let lq_t = truth.factors.q.transpose();
     let lr_t = truth.factors.r.transpose();
     let (rq, rr) = (lq_t.nrows(), lr_t.nrows());
@@ -265,7 +266,7 @@ fn chunk(
     let ff_t = f.F.transpose();
     let hf_t = f.H.transpose();
 
-    let mut rngs: Vec<_> = range.clone().map(|i| run_rng(settings.seed, i)).collect();
+    let mut rngs: Vec<_> = range.clone().map(|i| run_rng(mc.seed(), i)).collect();
     let mut xt = DMatrix::zeros(b, n);
     for (c, rng) in rngs.iter_mut().enumerate() {
         xt.set_row(
@@ -290,7 +291,7 @@ fn chunk(
     let mut ring: Vec<DMatrix<f64>> = (0..lags).map(|_| DMatrix::zeros(b, m)).collect();
     let mut ring_sq = vec![0.0; lags * m];
 
-    for k in 1..=settings.steps {
+    for k in 1..=mc.steps() {
         let i = k - 1;
         let si = sched.at(i);
         // Per run: process noise first, then measurement noise, as the generic path does.
@@ -381,7 +382,7 @@ fn chunk(
             ring[slot].copy_from(&u);
         }
     }
-    let t = settings.steps as f64;
+    let t = mc.steps() as f64;
     for (j, col) in run_x.column_iter().enumerate() {
         for v in col.iter() {
             let a = v / t;
@@ -428,17 +429,16 @@ mod tests {
             x0: truth.x0.clone(),
             P0: truth.P0.clone(),
         };
-        let settings = Settings {
-            runs: 100,
-            steps: 50,
-            seed: 7,
-            lags: 3,
-        };
-        let sched = Schedule::compute(&kf, settings.steps).unwrap();
+        let mc = McConfig::new(100, 50)
+            .unwrap()
+            .with_seed(7)
+            .with_lags(3)
+            .unwrap();
+        let sched = Schedule::compute(&kf, mc.steps()).unwrap();
         let mut base = Accumulator::new(50, 2, 1, 3);
-        chunk(&truth, &kf, &sched, &settings, 0..100, &mut base);
+        chunk(&truth, &kf, &sched, &mc, 0..100, &mut base);
         let mut fast = Accumulator::new(50, 2, 1, 3);
-        chunk_dispatch(&truth, &kf, &sched, &settings, 0..100, &mut fast);
+        chunk_dispatch(&truth, &kf, &sched, &mc, 0..100, &mut fast);
         assert_eq!(base, fast);
         assert!(base.nees_sum.iter().all(|v| *v > 0.0));
     }

@@ -2,8 +2,8 @@
 
 use serde::Serialize;
 
-use crate::model::catalog::NoiseKind;
-use crate::problem::Problem;
+use crate::experiment::Experiment;
+use crate::params::{NoiseKind, Target};
 use crate::stats::ConsistencyReport;
 use crate::tune::TuneResult;
 
@@ -51,18 +51,26 @@ fn fmt_factor(f: f64) -> String {
 
 /// The recommendation table of a tuning run: one row per parameter.
 pub fn recommendations(
-    problem: &Problem,
+    experiment: &dyn Experiment,
     result: &TuneResult,
     before: &ConsistencyReport,
 ) -> Vec<Recommendation> {
     let mut rows = Vec::new();
-    for (i, p) in problem.params.params.iter().enumerate() {
-        let (kind, indices) = problem.param_target(i);
+    for (i, p) in experiment.params().params.iter().enumerate() {
+        let Target {
+            kind,
+            components: indices,
+        } = experiment
+            .target(i)
+            .unwrap_or_else(|| Target::measurement(&[]));
         let is_q = kind == NoiseKind::Process;
         let (comps, names) = if is_q {
-            (&before.state_components, &problem.state_names)
+            (&before.state_components, experiment.state_names())
         } else {
-            (&before.measurement_components, &problem.measurement_names)
+            (
+                &before.measurement_components,
+                experiment.measurement_names(),
+            )
         };
         let mut evidence: Vec<(String, f64)> = indices
             .iter()

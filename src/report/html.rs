@@ -5,7 +5,7 @@ use std::fmt::Write;
 use super::advice::Recommendation;
 use super::fmt_g;
 use super::plots::{components_svg, objective_svg, statistic_svg, whiteness_svg};
-use crate::problem::Problem;
+use crate::experiment::Experiment;
 use crate::stats::{ConsistencyReport, StatisticSummary};
 use crate::tune::TuneResult;
 
@@ -134,15 +134,20 @@ fn plots(o: &mut String, reports: &[(&str, &ConsistencyReport)]) {
 }
 
 /// The HTML report of `autotune check`.
-pub fn check_html(problem: &Problem, params: &[(String, f64)], r: &ConsistencyReport) -> String {
+pub fn check_html(
+    experiment: &dyn Experiment,
+    params: &[(String, f64)],
+    r: &ConsistencyReport,
+) -> String {
+    let info = experiment.info();
     let mut o = String::new();
-    head(&mut o, &format!("autotune check: {}", problem.name));
-    let _ = writeln!(o, "<h1>autotune check: {}</h1>", escape(&problem.name));
+    head(&mut o, &format!("autotune check: {}", info.name));
+    let _ = writeln!(o, "<h1>autotune check: {}</h1>", escape(&info.name));
     let _ = writeln!(
         o,
         "<p>{} — <code>{}</code>, N = {} runs × T = {} steps, α = {}.</p>",
-        escape(&problem.description),
-        escape(&problem.path.display().to_string()),
+        escape(&info.description),
+        escape(&info.source.label()),
         r.runs,
         r.steps,
         r.alpha
@@ -176,15 +181,16 @@ pub fn check_html(problem: &Problem, params: &[(String, f64)], r: &ConsistencyRe
 
 /// The HTML report of `autotune tune`: recommendations, before/after statistics and plots
 /// side by side, and the objective's progress.
-pub fn tune_html(problem: &Problem, res: &TuneResult, recs: &[Recommendation]) -> String {
+pub fn tune_html(experiment: &dyn Experiment, res: &TuneResult, recs: &[Recommendation]) -> String {
+    let info = experiment.info();
     let mut o = String::new();
-    head(&mut o, &format!("autotune tune: {}", problem.name));
-    let _ = writeln!(o, "<h1>autotune tune: {}</h1>", escape(&problem.name));
+    head(&mut o, &format!("autotune tune: {}", info.name));
+    let _ = writeln!(o, "<h1>autotune tune: {}</h1>", escape(&info.name));
     let _ = writeln!(
         o,
         "<p>{} — <code>{}</code>. Confirmation on fresh seeds (seed {}), N = {} runs × T = {} steps, α = {}.</p>",
-        escape(&problem.description),
-        escape(&problem.path.display().to_string()),
+        escape(&info.description),
+        escape(&info.source.label()),
         res.confirm_seed,
         res.runs,
         res.steps,
@@ -241,17 +247,14 @@ pub fn tune_html(problem: &Problem, res: &TuneResult, recs: &[Recommendation]) -
 
 /// The Markdown report of `autotune check`.
 pub fn check_markdown(
-    problem: &Problem,
+    experiment: &dyn Experiment,
     params: &[(String, f64)],
     r: &ConsistencyReport,
 ) -> String {
     let mut o = String::new();
-    let _ = writeln!(o, "# autotune check: {}\n", problem.name);
+    let name = &experiment.info().name;
+    let _ = writeln!(o, "# autotune check: {name}\n");
     let _ = writeln!(o, "**Verdict: {}**\n", r.verdict.describe());
-    let _ = writeln!(
-        o,
-        "```\n{}```",
-        super::summary_text(&problem.name, params, r)
-    );
+    let _ = writeln!(o, "```\n{}```", super::summary_text(name, params, r));
     o
 }

@@ -13,7 +13,7 @@ pub use junit::junit_xml;
 pub use summary::{fmt_g, summary_text};
 
 use std::io::Write;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use serde::Serialize;
 
@@ -26,8 +26,8 @@ pub struct CheckOutput<'a> {
     pub problem: &'a str,
     /// Problem file.
     pub file: String,
-    /// SHA-256 of the problem file.
-    pub problem_hash: &'a str,
+    /// SHA-256 of the problem file (`null` for a model defined in Rust).
+    pub problem_hash: Option<&'a str>,
     /// Base seed.
     pub seed: u64,
     /// Parameter values the filter was run with.
@@ -63,17 +63,39 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
     result
 }
 
+/// An output file that could not be written.
+#[derive(Debug, thiserror::Error)]
+#[error("writing {}: {source}", path.display())]
+pub struct WriteError {
+    /// The file.
+    pub path: PathBuf,
+    /// Why.
+    #[source]
+    pub source: std::io::Error,
+}
+
+/// [`write_atomic`], with the path in the error.
+pub fn write_file(path: &Path, bytes: &[u8]) -> Result<(), WriteError> {
+    write_atomic(path, bytes).map_err(|source| WriteError {
+        path: path.to_path_buf(),
+        source,
+    })
+}
+
 /// Write `report.html`, `report.md` and `report.json` into `dir` (created if missing), each
 /// atomically.
-pub fn write_report_dir(dir: &Path, html: &str, markdown: &str, json: &str) -> std::io::Result<()> {
+pub fn write_report_dir(
+    dir: &Path,
+    html: &str,
+    markdown: &str,
+    json: &str,
+) -> Result<(), WriteError> {
     for (name, text) in [
         ("report.html", html),
         ("report.md", markdown),
         ("report.json", json),
     ] {
-        write_atomic(&dir.join(name), text.as_bytes()).map_err(|e| {
-            std::io::Error::new(e.kind(), format!("{}: {e}", dir.join(name).display()))
-        })?;
+        write_file(&dir.join(name), text.as_bytes())?;
     }
     Ok(())
 }

@@ -6,7 +6,7 @@ use serde::Serialize;
 
 use super::advice::Recommendation;
 use super::fmt_g;
-use crate::problem::Problem;
+use crate::experiment::{Experiment, Source};
 use crate::stats::{ConsistencyReport, StatisticSummary};
 use crate::tune::TuneResult;
 
@@ -17,8 +17,8 @@ pub struct TuneReport<'a> {
     pub problem: &'a str,
     /// Problem file.
     pub file: String,
-    /// SHA-256 of the problem file.
-    pub problem_hash: &'a str,
+    /// SHA-256 of the problem file (`null` for a model defined in Rust).
+    pub problem_hash: Option<&'a str>,
     /// autotune version.
     pub version: &'static str,
     /// The run's results (both consistency reports included).
@@ -61,19 +61,29 @@ fn stats_table(out: &mut String, before: &ConsistencyReport, after: &Consistency
 }
 
 /// The Markdown report.
-pub fn tune_markdown(problem: &Problem, r: &TuneResult, recs: &[Recommendation]) -> String {
+pub fn tune_markdown(
+    experiment: &dyn Experiment,
+    r: &TuneResult,
+    recs: &[Recommendation],
+) -> String {
+    let info = experiment.info();
     let mut o = String::new();
-    let _ = writeln!(o, "# autotune: {}\n", problem.name);
-    if !problem.description.is_empty() {
-        let _ = writeln!(o, "{}\n", problem.description);
+    let _ = writeln!(o, "# autotune: {}\n", info.name);
+    if !info.description.is_empty() {
+        let _ = writeln!(o, "{}\n", info.description);
     }
-    let _ = writeln!(
-        o,
-        "Problem file `{}` (sha256 `{}`), autotune {}.\n",
-        problem.path.display(),
-        &problem.hash[..problem.hash.len().min(12)],
-        env!("CARGO_PKG_VERSION")
-    );
+    let version = env!("CARGO_PKG_VERSION");
+    let _ = match &info.source {
+        Source::File { path, sha256 } => writeln!(
+            o,
+            "Problem file `{}` (sha256 `{}`), autotune {version}.\n",
+            path.display(),
+            &sha256[..sha256.len().min(12)],
+        ),
+        Source::Program { .. } => {
+            writeln!(o, "Model `{}`, autotune {version}.\n", info.source.label())
+        }
+    };
     let _ = writeln!(
         o,
         "**Verdict before: {}. After: {}.** Status: {:?}.\n",

@@ -6,8 +6,9 @@ use std::path::Path;
 use indexmap::IndexMap;
 use serde::{Deserialize, Serialize};
 
+use crate::experiment::Experiment;
+use crate::input::{FileError, parse_toml, read_text};
 use crate::params::ParamSpace;
-use crate::problem::{Problem, ProblemError, parse_toml};
 use crate::tune::TuneResult;
 
 /// A tuned config as stored on disk.
@@ -34,7 +35,8 @@ pub struct TunedConfig {
 struct Provenance {
     autotune_version: &'static str,
     problem_file: String,
-    problem_sha256: String,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    problem_sha256: Option<String>,
     status: String,
     scoring: String,
     search_seed: toml::Value,
@@ -75,13 +77,14 @@ fn rows(m: &nalgebra::DMatrix<f64>) -> Vec<Vec<f64>> {
 }
 
 /// The tuned config of a tuning run, as TOML text with a comment header.
-pub fn tuned_config_toml(problem: &Problem, result: &TuneResult) -> String {
-    let kf = problem.linear().map(|l| l.filter_at(&result.tuned));
+pub fn tuned_config_toml(experiment: &dyn Experiment, result: &TuneResult) -> String {
+    let info = experiment.info();
+    let cov = experiment.covariances(&result.tuned);
     let a = &result.after;
     let prov = Provenance {
         autotune_version: env!("CARGO_PKG_VERSION"),
-        problem_file: problem.path.display().to_string(),
-        problem_sha256: problem.hash.clone(),
+        problem_file: info.source.label(),
+        problem_sha256: info.source.sha256().map(str::to_string),
         status: format!("{:?}", result.status).to_lowercase(),
         scoring: format!("{:?}", result.scoring).to_lowercase(),
         search_seed: seed_value(result.search_seed),
@@ -106,9 +109,9 @@ pub fn tuned_config_toml(problem: &Problem, result: &TuneResult) -> String {
         },
     };
     let cfg = TunedConfig {
-        problem: problem.name.clone(),
-        q: kf.as_ref().map(|kf| rows(&kf.Q)),
-        r: kf.as_ref().map(|kf| rows(&kf.R)),
+        problem: info.name.clone(),
+        q: cov.as_ref().map(|c| rows(&c.Q)),
+        r: cov.as_ref().map(|c| rows(&c.R)),
         params: result
             .names
             .iter()
@@ -119,10 +122,10 @@ pub fn tuned_config_toml(problem: &Problem, result: &TuneResult) -> String {
     };
     let body = toml::to_string(&cfg).expect("a tuned config serializes");
     format!(
-        "# Tuned by autotune {} from {}.\n# Check it with: autotune check {} --config <this file>\n{body}",
+        "# Tuned by autotune {} from {}.\n# Check it with: {} --config <this file>\n{body}",
         env!("CARGO_PKG_VERSION"),
-        problem.path.display(),
-        problem.path.display()
+        info.source.label(),
+        info.source.check_command()
     )
 }
 
@@ -133,15 +136,9 @@ impl TunedConfig {
         path: &Path,
         problem_name: &str,
         space: &ParamSpace,
-    ) -> Result<Vec<f64>, ProblemError> {
-        let err = |field: String, message: String| ProblemError {
-            file: path.to_path_buf(),
-            field,
-            line: None,
-            message,
-        };
-        let text = std::fs::read_to_string(path)
-            .map_err(|e| err(String::new(), format!("cannot read: {e}")))?;
+    ) -> Result<Vec<f64>, FileError> {
+        let err = |field: String, message: String| FileError::new(path, field, message);
+        let text = read_text(path)?;
         let cfg: TunedConfig = parse_toml(&text, path)?;
         if cfg.problem != problem_name {
             return Err(err(

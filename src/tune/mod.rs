@@ -14,8 +14,10 @@
 //! +∞ and the search goes on.
 
 pub mod objective;
+mod settings;
 
 pub use objective::{Objective, Terms, Weights};
+pub use settings::{LocalSearch, Scoring, TuneSettings};
 
 use std::sync::Mutex;
 use std::sync::atomic::{AtomicUsize, Ordering};
@@ -29,236 +31,11 @@ use rayon::prelude::*;
 use serde::Serialize;
 
 use crate::SimRng;
-use crate::filter::Filter;
-use crate::model::TruthModel;
-use crate::model::catalog::NoiseKind;
-use crate::montecarlo::Settings;
-use crate::montecarlo::{self, Accumulator, expected_accumulator, models_match};
-use crate::params::ParamSpace;
-use crate::problem::{McConfig, Problem, System};
-use crate::stats::ConsistencyReport;
-
-/// Anything the tuner can tune: named parameters, and the Monte Carlo sums of the filter at
-/// given parameter values. [`Problem`] implements it for problem files; [`CustomModel`]
-/// does for a truth model and filter defined in Rust.
-pub trait Tunable: Sync {
-    /// The named parameters (values are the defaults, bounds are the search box).
-    fn params(&self) -> &ParamSpace;
-    /// State component names, n_x.
-    fn state_names(&self) -> &[String];
-    /// Measurement component names (all sensors' components concatenated).
-    fn measurement_names(&self) -> &[String];
-    /// Monte Carlo sums of the filter with parameters `theta` against the truth.
-    fn monte_carlo(&self, theta: &[f64], settings: &Settings) -> Accumulator;
-    /// The exact expected sums, where the model allows computing them (a diverging filter
-    /// gives sums marked diverged); `None` when it does not.
-    fn expected(&self, _theta: &[f64], _settings: &Settings) -> Option<Accumulator> {
-        None
-    }
-    /// What parameter `i` drives: process noise of these state components, or measurement
-    /// noise of these measurement components; `None` when unknown. The Gauss–Newton search
-    /// uses it to match each parameter's own components first.
-    fn targets(&self, _i: usize) -> Option<(NoiseKind, Vec<usize>)> {
-        None
-    }
-}
-
-impl Tunable for Problem {
-    fn params(&self) -> &ParamSpace {
-        &self.params
-    }
-
-    fn state_names(&self) -> &[String] {
-        &self.state_names
-    }
-
-    fn measurement_names(&self) -> &[String] {
-        &self.measurement_names
-    }
-
-    fn monte_carlo(&self, theta: &[f64], settings: &Settings) -> Accumulator {
-        match &self.system {
-            System::Linear(l) => montecarlo::run_linear(&l.truth, &l.filter_at(theta), settings),
-            System::Catalog { model, .. } => {
-                montecarlo::run_generic(model.truth(), &model.filter(theta), settings)
-            }
-        }
-    }
-
-    fn expected(&self, theta: &[f64], settings: &Settings) -> Option<Accumulator> {
-        let l = self.linear()?;
-        let kf = l.filter_at(theta);
-        if !models_match(&l.truth, &kf) {
-            return None;
-        }
-        Some(
-            expected_accumulator(&l.truth, &kf, settings).unwrap_or_else(|_| {
-                let mut a =
-                    Accumulator::new(settings.steps, kf.F.nrows(), kf.H.nrows(), settings.lags);
-                a.diverged_runs = settings.runs;
-                a.runs = settings.runs;
-                a
-            }),
-        )
-    }
-
-    fn targets(&self, i: usize) -> Option<(NoiseKind, Vec<usize>)> {
-        let (kind, comps) = self.param_target(i);
-        (!comps.is_empty()).then_some((kind, comps))
-    }
-}
-
-/// A user's own truth model and filter family as a [`Tunable`]: `build(θ)` makes the
-/// filter for parameter values θ (in the order of `params`).
-pub struct CustomModel<T, F, B> {
-    /// The truth model.
-    pub truth: T,
-    /// Builds the filter for parameter values θ.
-    pub build: B,
-    /// The named parameters.
-    pub params: ParamSpace,
-    /// State component names.
-    pub state_names: Vec<String>,
-    /// Measurement component names.
-    pub measurement_names: Vec<String>,
-    _filter: std::marker::PhantomData<fn() -> F>,
-}
-
-impl<T, F, B> CustomModel<T, F, B>
-where
-    T: TruthModel,
-    F: Filter,
-    B: Fn(&[f64]) -> F + Sync,
-{
-    /// Wrap a truth model and a filter builder.
-    pub fn new(
-        truth: T,
-        build: B,
-        params: ParamSpace,
-        state_names: Vec<String>,
-        measurement_names: Vec<String>,
-    ) -> Self {
-        CustomModel {
-            truth,
-            build,
-            params,
-            state_names,
-            measurement_names,
-            _filter: std::marker::PhantomData,
-        }
-    }
-}
-
-impl<T, F, B> Tunable for CustomModel<T, F, B>
-where
-    T: TruthModel,
-    F: Filter,
-    B: Fn(&[f64]) -> F + Sync,
-{
-    fn params(&self) -> &ParamSpace {
-        &self.params
-    }
-
-    fn state_names(&self) -> &[String] {
-        &self.state_names
-    }
-
-    fn measurement_names(&self) -> &[String] {
-        &self.measurement_names
-    }
-
-    fn monte_carlo(&self, theta: &[f64], settings: &Settings) -> Accumulator {
-        montecarlo::run_generic(&self.truth, &(self.build)(theta), settings)
-    }
-}
-
-/// How candidates are scored during the search.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize)]
-#[serde(rename_all = "snake_case")]
-pub enum Scoring {
-    /// Exact expectations where the problem allows them, Monte Carlo otherwise.
-    #[default]
-    Auto,
-    /// Exact expected statistics (linear, filter with the truth's F and H).
-    Exact,
-    /// Monte Carlo with common random numbers.
-    MonteCarlo,
-}
-
-/// The local search that refines the global stage's best points.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize)]
-#[serde(rename_all = "snake_case")]
-pub enum LocalSearch {
-    /// Nelder–Mead with a wide simplex (0.7 in log units, a factor 2), restarted with a
-    /// small one to polish. Derivative-free and exploratory: it can leave a shallow local
-    /// minimum. Suits problems with a few free parameters.
-    #[default]
-    Simplex,
-    /// Levenberg–Marquardt on the objective's residual vector (J is a sum of squares) with
-    /// a finite-difference Jacobian: d + 1 evaluations an iteration, converging in a
-    /// handful. Suits many free parameters of an expensive Monte Carlo, where a simplex
-    /// needs hundreds of evaluations; it stays in the basin it starts in, so it relies on
-    /// the global stage and several starts.
-    GaussNewton,
-}
-
-impl LocalSearch {
-    /// Parse "simplex" (also "nelder_mead") or "gauss_newton" (also "levenberg_marquardt").
-    pub fn parse(s: &str) -> Option<LocalSearch> {
-        match s {
-            "simplex" | "nelder_mead" | "nelder-mead" => Some(LocalSearch::Simplex),
-            "gauss_newton" | "gauss-newton" | "levenberg_marquardt" | "levenberg-marquardt" => {
-                Some(LocalSearch::GaussNewton)
-            }
-            _ => None,
-        }
-    }
-}
-
-/// Search settings.
-#[derive(Debug, Clone, PartialEq)]
-pub struct TuneSettings {
-    /// Objective weights.
-    pub weights: Weights,
-    /// Score NIS and measurement statistics only (no trusted ground truth).
-    pub nis_only: bool,
-    /// Evaluation budget of the search (≥ 1).
-    pub max_evals: usize,
-    /// Wall-time budget of the search, s (> 0).
-    pub max_seconds: f64,
-    /// Number of local searches, started from the best points of the global stage (≥ 1).
-    pub starts: usize,
-    /// Quasi-random points of the global stage per free parameter.
-    pub global_points_per_param: usize,
-    /// How candidates are scored.
-    pub scoring: Scoring,
-    /// The local search.
-    pub local: LocalSearch,
-    /// Seed of the confirmation runs (default: derived from the problem's seed, never equal
-    /// to it).
-    pub confirm_seed: Option<u64>,
-    /// Runs per Monte Carlo evaluation in the search (default: 4 N). A parameter estimated
-    /// from N runs is as noisy as the N-run gate that confirms it, so the confirmation would
-    /// fail far more often than α; four times the runs halve the estimate's noise.
-    pub search_runs: Option<usize>,
-}
-
-impl Default for TuneSettings {
-    fn default() -> Self {
-        TuneSettings {
-            weights: Weights::default(),
-            nis_only: false,
-            max_evals: 4000,
-            max_seconds: 120.0,
-            starts: 3,
-            global_points_per_param: 16,
-            scoring: Scoring::Auto,
-            local: LocalSearch::Simplex,
-            confirm_seed: None,
-            search_runs: None,
-        }
-    }
-}
+use crate::experiment::Experiment;
+use crate::input::SettingError;
+use crate::montecarlo::McConfig;
+use crate::params::{NoiseKind, Target};
+use crate::stats::{Accumulator, ConsistencyReport};
 
 /// How a tuning run ended.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
@@ -351,13 +128,18 @@ pub struct TuneResult {
 /// Errors that stop a tuning run before it starts.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum TuneError {
-    /// A setting is out of range.
-    #[error("{field}: {message}")]
-    Setting {
-        /// Which setting.
-        field: String,
-        /// What is wrong.
-        message: String,
+    /// A setting does not suit this experiment.
+    #[error(transparent)]
+    Setting(#[from] SettingError),
+    /// The start or the fixed flags do not match the parameters.
+    #[error("{start} start values and {fixed} fixed flags for {params} parameters")]
+    Shape {
+        /// Start values given.
+        start: usize,
+        /// Fixed flags given.
+        fixed: usize,
+        /// Parameters of the experiment.
+        params: usize,
     },
 }
 
@@ -370,7 +152,7 @@ pub fn default_confirm_seed(seed: u64) -> u64 {
 }
 
 struct Search<'a> {
-    model: &'a dyn Tunable,
+    model: &'a dyn Experiment,
     mc: McConfig,
     exact: bool,
     objective: Objective,
@@ -389,7 +171,7 @@ struct Search<'a> {
     observer: &'a dyn Observer,
     method: LocalSearch,
     /// Per free parameter, the components it drives (all known, or `None`).
-    targets: Option<Vec<(NoiseKind, Vec<usize>)>>,
+    targets: Option<Vec<Target>>,
 }
 
 #[derive(Debug)]
@@ -414,14 +196,13 @@ impl Search<'_> {
     }
 
     fn accumulate(&self, theta: &[f64]) -> Accumulator {
-        let settings = self.mc.engine();
         match self
             .exact
-            .then(|| self.model.expected(theta, &settings))
+            .then(|| self.model.expected(theta, &self.mc))
             .flatten()
         {
             Some(acc) => acc,
-            None => self.model.monte_carlo(theta, &settings),
+            None => self.model.monte_carlo(theta, &self.mc),
         }
     }
 
@@ -512,22 +293,29 @@ impl Search<'_> {
         Some(
             targets
                 .iter()
-                .map(|(kind, comps)| {
-                    let (total, samples) = match kind {
-                        NoiseKind::Process => (&acc.state_comp_total, &acc.state_comp_samples),
-                        NoiseKind::Measurement => (&acc.meas_comp_total, &acc.meas_comp_samples),
-                    };
-                    let logs: Vec<f64> = comps
-                        .iter()
-                        .filter(|&&j| samples.get(j).is_some_and(|&s| s > 0.0))
-                        .map(|&j| (total[j] / samples[j]).ln())
-                        .collect();
-                    if logs.is_empty() {
-                        0.0
-                    } else {
-                        logs.iter().sum::<f64>() / logs.len() as f64
-                    }
-                })
+                .map(
+                    |Target {
+                         kind,
+                         components: comps,
+                     }| {
+                        let (total, samples) = match kind {
+                            NoiseKind::Process => (&acc.state_comp_total, &acc.state_comp_samples),
+                            NoiseKind::Measurement => {
+                                (&acc.meas_comp_total, &acc.meas_comp_samples)
+                            }
+                        };
+                        let logs: Vec<f64> = comps
+                            .iter()
+                            .filter(|&&j| samples.get(j).is_some_and(|&s| s > 0.0))
+                            .map(|&j| (total[j] / samples[j]).ln())
+                            .collect();
+                        if logs.is_empty() {
+                            0.0
+                        } else {
+                            logs.iter().sum::<f64>() / logs.len() as f64
+                        }
+                    },
+                )
                 .collect(),
         )
     }
@@ -754,75 +542,52 @@ fn latin_hypercube(points: usize, dim: usize, seed: u64) -> Vec<Vec<f64>> {
     out
 }
 
-/// Tune `model` (a [`Problem`], or a [`CustomModel`]) from parameter values `start`, holding
-/// the parameters marked in `fixed`.
+/// Tune `model` from parameter values `start`, holding the parameters marked in `fixed`,
+/// with the Monte Carlo test `mc` (the confirmation's; the search may use more runs).
 pub fn tune(
-    model: &dyn Tunable,
+    model: &dyn Experiment,
     start: &[f64],
     fixed: &[bool],
     mc: &McConfig,
     settings: &TuneSettings,
     observer: &dyn Observer,
 ) -> Result<TuneResult, TuneError> {
-    let setting = |field: &str, message: String| TuneError::Setting {
-        field: field.into(),
-        message,
-    };
-    if settings.max_evals == 0 {
-        return Err(setting("max_evals", "0 must be ≥ 1".into()));
-    }
-    if !(settings.max_seconds.is_finite() && settings.max_seconds > 0.0) {
-        return Err(setting(
-            "max_seconds",
-            format!("{} must be > 0", settings.max_seconds),
-        ));
-    }
-    if settings.starts == 0 {
-        return Err(setting("starts", "0 must be ≥ 1".into()));
-    }
     let t0 = Instant::now();
     let params = &model.params().params;
     if start.len() != params.len() || fixed.len() != params.len() {
-        return Err(setting(
-            "start",
-            format!(
-                "{} start values and {} fixed flags for {} parameters",
-                start.len(),
-                fixed.len(),
-                params.len()
-            ),
-        ));
+        return Err(TuneError::Shape {
+            start: start.len(),
+            fixed: fixed.len(),
+            params: params.len(),
+        });
     }
     let free: Vec<usize> = (0..params.len()).filter(|&i| !fixed[i]).collect();
-    let probe = Settings {
-        runs: 1,
-        steps: 1,
-        seed: mc.seed,
-        lags: 0,
-    };
+    let probe = McConfig::new(1, 1)?.with_seed(mc.seed());
     let exact_available = model.expected(start, &probe).is_some();
-    let exact = match settings.scoring {
+    let exact = match settings.scoring() {
         Scoring::Auto => exact_available,
         Scoring::Exact => {
             if !exact_available {
-                return Err(setting(
+                return Err(SettingError::new(
                     "scoring",
-                    "exact scoring needs a linear filter that uses the truth's F and H".into(),
-                ));
+                    "exact scoring needs a linear filter that uses the truth's F and H",
+                )
+                .into());
             }
             true
         }
         Scoring::MonteCarlo => false,
     };
-    let mut search_mc = *mc;
-    if !exact {
-        search_mc.runs = settings.search_runs.unwrap_or(4 * mc.runs).max(1);
-    }
+    let search_mc = if exact {
+        *mc
+    } else {
+        mc.with_runs(settings.search_runs().unwrap_or(4 * mc.runs()))?
+    };
     let mut search = Search {
         model,
         mc: search_mc,
         exact,
-        objective: Objective::new(settings.weights, settings.nis_only, mc.alpha),
+        objective: Objective::new(settings.weights(), settings.nis_only(), mc.alpha()),
         theta0: start.to_vec(),
         lo: free.iter().map(|&i| params[i].lower.ln()).collect(),
         hi: free.iter().map(|&i| params[i].upper.ln()).collect(),
@@ -830,12 +595,15 @@ pub fn tune(
         diverged: AtomicUsize::new(0),
         best: Mutex::new((f64::INFINITY, Vec::new())),
         history: Mutex::new(Vec::new()),
-        max_evals: settings.max_evals,
-        deadline: t0 + Duration::from_secs_f64(settings.max_seconds),
+        max_evals: settings.max_evals(),
+        deadline: t0 + Duration::from_secs_f64(settings.max_seconds()),
         out_of_budget: std::sync::atomic::AtomicBool::new(false),
         observer,
-        method: settings.local,
-        targets: free.iter().map(|&i| model.targets(i)).collect(),
+        method: settings.local(),
+        targets: free
+            .iter()
+            .map(|&i| model.target(i).filter(|t| !t.components.is_empty()))
+            .collect(),
         free,
     };
     let y0: Vec<f64> = search.free.iter().map(|&i| start[i].ln()).collect();
@@ -850,7 +618,7 @@ pub fn tune(
         // Global stage. Exact scoring is sequential inside, so candidates run in parallel;
         // Monte Carlo scoring is parallel inside, so candidates run one after another.
         observer.phase("global");
-        let unit = latin_hypercube(settings.global_points_per_param * d, d, mc.seed);
+        let unit = latin_hypercube(settings.global_points() * d, d, mc.seed());
         let mut points: Vec<Vec<f64>> = vec![y0.clone()];
         points.extend(unit.iter().map(|u| {
             u.iter()
@@ -874,12 +642,12 @@ pub fn tune(
         scored.sort_by(|a, b| a.0.total_cmp(&b.0));
         // Gauss–Newton stays in the basin it starts in, and the user's start is usually a
         // better-informed guess than a quasi-random point, so it is always one of the starts.
-        let mut starts: Vec<Vec<f64>> = match settings.local {
+        let mut starts: Vec<Vec<f64>> = match settings.local() {
             LocalSearch::GaussNewton => vec![y0.clone()],
             LocalSearch::Simplex => Vec::new(),
         };
         for (_, y) in &scored {
-            if starts.len() >= settings.starts {
+            if starts.len() >= settings.starts() {
                 break;
             }
             let distinct = starts.iter().all(|s| max_abs_diff(s, y) > 0.5);
@@ -911,7 +679,7 @@ pub fn tune(
         if let Some((y, c)) = best
             && !budget_hit
         {
-            local_best = Some(if settings.local == LocalSearch::Simplex {
+            local_best = Some(if settings.local() == LocalSearch::Simplex {
                 let (y2, c2, hit) = search.local(&y);
                 budget_hit |= hit;
                 if c2 < c { (c2, y2) } else { (c, y) }
@@ -936,16 +704,15 @@ pub fn tune(
     // Confirmation on fresh seeds.
     observer.phase("confirm");
     let confirm_seed = settings
-        .confirm_seed
-        .unwrap_or_else(|| default_confirm_seed(mc.seed));
-    let mut cmc = *mc;
-    cmc.seed = confirm_seed;
-    let use_nees = !settings.nis_only;
+        .confirm_seed()
+        .unwrap_or_else(|| default_confirm_seed(mc.seed()));
+    let cmc = mc.with_seed(confirm_seed);
+    let use_nees = !settings.nis_only();
     let report = |theta: &[f64]| {
-        let acc = model.monte_carlo(theta, &cmc.engine());
+        let acc = model.monte_carlo(theta, &cmc);
         let r = ConsistencyReport::from_accumulator(
             &acc,
-            cmc.alpha,
+            cmc.alpha(),
             model.state_names(),
             model.measurement_names(),
             use_nees,
@@ -1000,11 +767,11 @@ pub fn tune(
         history,
         resolution,
         noise_floor,
-        search_seed: mc.seed,
+        search_seed: mc.seed(),
         confirm_seed,
-        runs: cmc.runs,
-        steps: cmc.steps,
-        alpha: cmc.alpha,
+        runs: cmc.runs(),
+        steps: cmc.steps(),
+        alpha: cmc.alpha(),
         before,
         after,
         status,
@@ -1076,78 +843,4 @@ fn resolution(search: &Search<'_>, y: &[f64], floor: f64, fixed: &[bool]) -> Vec
         }
     }
     out
-}
-
-impl TuneSettings {
-    /// Apply a problem file's `[tune]` section; errors name the field (`tune.…`).
-    pub fn apply_spec(&mut self, spec: &crate::problem::spec::TuneSpec) -> Result<(), TuneError> {
-        let err = |field: String, message: String| TuneError::Setting { field, message };
-        for (name, &v) in &spec.weights {
-            self.weights
-                .set(name, v)
-                .map_err(|m| err(format!("tune.weights.{name}"), m))?;
-        }
-        if let Some(n) = spec.max_evals {
-            if n < 1 {
-                return Err(err("tune.max_evals".into(), format!("{n} must be ≥ 1")));
-            }
-            self.max_evals = n as usize;
-        }
-        if let Some(s) = spec.max_seconds {
-            if !(s.is_finite() && s > 0.0) {
-                return Err(err("tune.max_seconds".into(), format!("{s} must be > 0")));
-            }
-            self.max_seconds = s;
-        }
-        if let Some(n) = spec.starts {
-            if n < 1 {
-                return Err(err("tune.starts".into(), format!("{n} must be ≥ 1")));
-            }
-            self.starts = n as usize;
-        }
-        if let Some(b) = spec.nis_only {
-            self.nis_only = b;
-        }
-        if let Some(n) = spec.search_runs {
-            if n < 1 {
-                return Err(err("tune.search_runs".into(), format!("{n} must be ≥ 1")));
-            }
-            self.search_runs = Some(n as usize);
-        }
-        if let Some(n) = spec.global_points {
-            if n < 1 {
-                return Err(err("tune.global_points".into(), format!("{n} must be ≥ 1")));
-            }
-            self.global_points_per_param = n as usize;
-        }
-        if let Some(s) = &spec.local {
-            self.local = LocalSearch::parse(s).ok_or_else(|| {
-                err(
-                    "tune.local".into(),
-                    format!("unknown local search '{s}' (known: simplex, gauss_newton)"),
-                )
-            })?;
-        }
-        if let Some(s) = &spec.scoring {
-            self.scoring = Scoring::parse(s).ok_or_else(|| {
-                err(
-                    "tune.scoring".into(),
-                    format!("unknown scoring '{s}' (known: auto, exact, monte_carlo)"),
-                )
-            })?;
-        }
-        Ok(())
-    }
-}
-
-impl Scoring {
-    /// Parse "auto", "exact" or "monte_carlo" (also "monte-carlo").
-    pub fn parse(s: &str) -> Option<Scoring> {
-        match s {
-            "auto" => Some(Scoring::Auto),
-            "exact" => Some(Scoring::Exact),
-            "monte_carlo" | "monte-carlo" => Some(Scoring::MonteCarlo),
-            _ => None,
-        }
-    }
 }

@@ -23,7 +23,8 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::montecarlo::Accumulator;
+use crate::input::SettingError;
+use crate::stats::Accumulator;
 use crate::stats::{Interval, chi2_average_interval, gate_alpha, scaled_chi2_interval};
 
 /// Weights of the objective's terms (all ≥ 0).
@@ -58,12 +59,14 @@ impl Default for Weights {
 }
 
 impl Weights {
-    /// Set one weight by name (as on the command line); `Err` names the problem.
-    pub fn set(&mut self, name: &str, value: f64) -> Result<(), String> {
+    /// Set one weight by name (as on the command line); the error's setting is
+    /// `weights.<name>`.
+    pub fn set(&mut self, name: &str, value: f64) -> Result<(), SettingError> {
+        let err = |m: String| SettingError::new(format!("weights.{name}"), m);
         if !(value.is_finite() && value >= 0.0) {
-            return Err(format!(
+            return Err(err(format!(
                 "weight {name} = {value} must be a finite number ≥ 0"
-            ));
+            )));
         }
         let slot = match name {
             "mean" => &mut self.mean,
@@ -73,9 +76,9 @@ impl Weights {
             "whiteness" => &mut self.whiteness,
             "shape" => &mut self.shape,
             _ => {
-                return Err(format!(
+                return Err(err(format!(
                     "unknown weight '{name}' (known: mean, interval, per_step, components, whiteness, shape)"
-                ));
+                )));
             }
         };
         *slot = value;

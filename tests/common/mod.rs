@@ -3,6 +3,7 @@
 
 use std::path::PathBuf;
 
+use autotune::experiment::Experiment;
 use autotune::problem::Problem;
 
 /// Path of a shipped problem file.
@@ -23,7 +24,7 @@ pub fn truth_values(problem: &Problem) -> Vec<f64> {
     if let Some(v) = problem.truth_values() {
         return v;
     }
-    let table: &[(&str, f64)] = match problem.name.as_str() {
+    let table: &[(&str, f64)] = match problem.name() {
         "cv1d" => &[("q_accel", 0.5), ("r_pos", 1.0)],
         "cv2d" => &[
             ("q_accel_x", 0.5),
@@ -35,7 +36,7 @@ pub fn truth_values(problem: &Problem) -> Vec<f64> {
         other => panic!("no truth table for {other}"),
     };
     problem
-        .params
+        .params()
         .params
         .iter()
         .map(|p| {
@@ -51,7 +52,7 @@ pub fn truth_values(problem: &Problem) -> Vec<f64> {
 /// `theta` with every parameter whose name starts with `prefix` multiplied by `factor`.
 pub fn scaled(problem: &Problem, theta: &[f64], prefix: &str, factor: f64) -> Vec<f64> {
     problem
-        .params
+        .params()
         .params
         .iter()
         .zip(theta)

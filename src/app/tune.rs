@@ -1,25 +1,26 @@
-//! `autotune tune`.
+//! `tune`: search a consistent filter, write the tuned config and the report.
 
 use std::io::{IsTerminal, Write};
 use std::path::PathBuf;
 use std::process::ExitCode;
 
-use anyhow::Context;
-use autotune::problem::Problem;
-use autotune::report::advice::recommendations;
-use autotune::report::html::tune_html;
-use autotune::report::tune::{TuneReport, tune_markdown};
-use autotune::report::tuned::tuned_config_toml;
-use autotune::report::{fmt_g, write_atomic, write_report_dir};
-use autotune::tune::{LocalSearch, Observer, Scoring, TuneSettings, TuneStatus, tune};
 use indicatif::{ProgressBar, ProgressStyle};
 
-use super::{McArgs, name_value, option_error};
+use super::args::{McArgs, OneOf, flag_error, name_value, param_index};
+use super::{AppError, paint_verdict};
+use crate::experiment::{Experiment, Source};
+use crate::input::FileError;
+use crate::report::advice::recommendations;
+use crate::report::html::tune_html;
+use crate::report::tune::{TuneReport, tune_markdown};
+use crate::report::tuned::tuned_config_toml;
+use crate::report::{fmt_g, write_file, write_report_dir};
+use crate::stats::StatisticSummary;
+use crate::tune::{LocalSearch, Observer, Scoring, TuneError, TuneSettings, TuneStatus, tune};
 
-#[derive(Debug, clap::Args)]
-pub struct TuneArgs {
-    /// Problem file (TOML).
-    problem: PathBuf,
+/// The options of `tune`.
+#[derive(Debug, Clone, clap::Args)]
+pub struct TuneOptions {
     /// Where to write the tuned config (default: tuned/<name>.toml, or
     /// tuned/<name>.rejected.toml when the tuned filter fails its confirmation).
     #[arg(long, value_name = "FILE")]
@@ -45,13 +46,13 @@ pub struct TuneArgs {
     /// Wall-time budget of the search, s.
     #[arg(long)]
     max_seconds: Option<f64>,
-    /// How candidates are scored: auto, exact, monte_carlo.
-    #[arg(long)]
-    scoring: Option<String>,
+    /// How candidates are scored.
+    #[arg(long, value_parser = OneOf::<Scoring>::new())]
+    scoring: Option<Scoring>,
     /// Local search from the best global points: simplex (Nelder–Mead) or gauss_newton
     /// (Levenberg–Marquardt, for many expensive parameters).
-    #[arg(long)]
-    local: Option<String>,
+    #[arg(long, value_parser = OneOf::<LocalSearch>::new())]
+    local: Option<LocalSearch>,
     /// Seed of the confirmation runs.
     #[arg(long)]
     confirm_seed: Option<u64>,
@@ -83,108 +84,82 @@ impl Observer for Progress {
     }
 }
 
-pub fn run(a: TuneArgs) -> anyhow::Result<ExitCode> {
-    let problem = Problem::load(&a.problem)?;
-    let mut settings = TuneSettings::default();
-    settings
-        .apply_spec(&problem.tune)
-        .map_err(|e| autotune::problem::ProblemError {
-            file: problem.path.clone(),
-            field: match &e {
-                autotune::tune::TuneError::Setting { field, .. } => field.clone(),
-            },
-            line: None,
-            message: match &e {
-                autotune::tune::TuneError::Setting { message, .. } => message.clone(),
-            },
-        })?;
-    for kv in &a.weight {
-        let (name, value) = kv
-            .split_once('=')
-            .ok_or_else(|| option_error("--weight", format!("'{kv}' is not NAME=VALUE")))?;
-        let v: f64 = value
-            .trim()
-            .parse()
-            .map_err(|_| option_error("--weight", format!("{name}: '{value}' is not a number")))?;
-        settings
-            .weights
-            .set(name.trim(), v)
-            .map_err(|m| option_error("--weight", m))?;
-    }
-    if a.nis_only {
-        settings.nis_only = true;
-    }
-    if let Some(n) = a.max_evals {
-        if n == 0 {
-            return Err(option_error("--max-evals", "0 must be ≥ 1".into()).into());
+impl TuneOptions {
+    /// `defaults` with the command line's settings applied.
+    fn settings(&self, defaults: &TuneSettings) -> Result<TuneSettings, AppError> {
+        let mut s = defaults.clone();
+        for kv in &self.weight {
+            let (name, value) = kv
+                .split_once('=')
+                .ok_or_else(|| AppError::flag("--weight", format!("'{kv}' is not NAME=VALUE")))?;
+            let v: f64 = value.trim().parse().map_err(|_| {
+                AppError::flag("--weight", format!("{name}: '{value}' is not a number"))
+            })?;
+            s = s
+                .with_weight(name.trim(), v)
+                .map_err(flag_error("--weight"))?;
         }
-        settings.max_evals = n;
-    }
-    if let Some(s) = a.max_seconds {
-        if !(s.is_finite() && s > 0.0) {
-            return Err(option_error("--max-seconds", format!("{s} must be > 0")).into());
+        if self.nis_only {
+            s = s.with_nis_only(true);
         }
-        settings.max_seconds = s;
+        if let Some(n) = self.max_evals {
+            s = s.with_max_evals(n).map_err(flag_error("--max-evals"))?;
+        }
+        if let Some(v) = self.max_seconds {
+            s = s.with_max_seconds(v).map_err(flag_error("--max-seconds"))?;
+        }
+        if let Some(x) = self.scoring {
+            s = s.with_scoring(x);
+        }
+        if let Some(x) = self.local {
+            s = s.with_local(x);
+        }
+        Ok(s.with_confirm_seed(self.confirm_seed))
     }
-    if let Some(s) = &a.scoring {
-        settings.scoring = Scoring::parse(s).ok_or_else(|| {
-            option_error(
-                "--scoring",
-                format!("unknown scoring '{s}' (known: auto, exact, monte_carlo)"),
-            )
-        })?;
-    }
-    if let Some(s) = &a.local {
-        settings.local = LocalSearch::parse(s).ok_or_else(|| {
-            option_error(
-                "--local",
-                format!("unknown local search '{s}' (known: simplex, gauss_newton)"),
-            )
-        })?;
-    }
-    settings.confirm_seed = a.confirm_seed;
+}
 
-    let mut start = problem.params.values();
-    a.mc.set_params(&problem, &mut start)?;
-    let mut fixed: Vec<bool> = problem.params.params.iter().map(|p| p.fixed).collect();
+/// Run `tune` on `experiment`, starting from the settings `defaults` (a problem file's
+/// `[tune]`).
+pub fn run(
+    experiment: &dyn Experiment,
+    defaults: &TuneSettings,
+    a: TuneOptions,
+) -> Result<ExitCode, AppError> {
+    let info = experiment.info();
+    let params = experiment.params();
+    let settings = a.settings(defaults)?;
+    let mut start = params.values();
+    a.mc.set_params(params, &mut start)?;
+    let mut fixed: Vec<bool> = params.params.iter().map(|p| p.fixed).collect();
     for f in &a.fix {
         let i = if f.contains('=') {
-            let (i, v) = name_value(&problem, "--fix", f)?;
+            let (i, v) = name_value(params, "--fix", f)?;
             start[i] = v;
             i
         } else {
-            problem.params.index(f.trim()).ok_or_else(|| {
-                option_error(
-                    "--fix",
-                    format!(
-                        "unknown parameter '{f}' (known: {})",
-                        problem.params.names().join(", ")
-                    ),
-                )
-            })?
+            param_index(params, "--fix", f)?
         };
         fixed[i] = true;
     }
-    for (i, p) in problem.params.params.iter().enumerate() {
+    for (i, p) in params.params.iter().enumerate() {
         if !(p.lower..=p.upper).contains(&start[i]) {
-            return Err(option_error(
+            return Err(AppError::flag(
                 "--set",
                 format!(
                     "{} = {} is outside its bounds [{}, {}]",
                     p.name, start[i], p.lower, p.upper
                 ),
-            )
-            .into());
+            ));
         }
     }
-    let mc = a.mc.apply(problem.mc)?;
+    let mc = a.mc.apply(*experiment.mc())?;
     let out = a
         .out
         .clone()
-        .unwrap_or_else(|| PathBuf::from("tuned").join(format!("{}.toml", problem.name)));
+        .unwrap_or_else(|| PathBuf::from("tuned").join(format!("{}.toml", info.name)));
 
     let bar = (!a.quiet && std::io::stderr().is_terminal()).then(|| {
-        let b = ProgressBar::new(settings.max_evals as u64);
+        let b = ProgressBar::new(settings.max_evals() as u64);
         b.set_style(
             ProgressStyle::with_template(
                 "{prefix:>7} [{bar:30}] {pos}/{len} evals, {elapsed} (ETA {eta}) {msg}",
@@ -195,38 +170,36 @@ pub fn run(a: TuneArgs) -> anyhow::Result<ExitCode> {
         b
     });
     let progress = Progress { bar };
-    let result = tune(&problem, &start, &fixed, &mc, &settings, &progress)
-        .map_err(|e| option_error("tune", e.to_string()))?;
+    let result = tune(experiment, &start, &fixed, &mc, &settings, &progress)
+        .map_err(|e| tune_error(e, experiment, a.scoring.is_some()))?;
     if let Some(b) = &progress.bar {
         b.finish_and_clear();
     }
 
     // A run that did not confirm never replaces the config CI gates on; it goes beside it.
     let out = if a.out.is_none() && result.status != TuneStatus::Consistent {
-        out.with_file_name(format!("{}.rejected.toml", problem.name))
+        out.with_file_name(format!("{}.rejected.toml", info.name))
     } else {
         out
     };
-    let recs = recommendations(&problem, &result, &result.before);
-    write_atomic(&out, tuned_config_toml(&problem, &result).as_bytes())
-        .with_context(|| format!("writing {}", out.display()))?;
+    let recs = recommendations(experiment, &result, &result.before);
+    write_file(&out, tuned_config_toml(experiment, &result).as_bytes())?;
     let report = TuneReport {
-        problem: &problem.name,
-        file: problem.path.display().to_string(),
-        problem_hash: &problem.hash,
+        problem: &info.name,
+        file: info.source.label(),
+        problem_hash: info.source.sha256(),
         version: env!("CARGO_PKG_VERSION"),
         result: &result,
         recommendations: &recs,
     };
-    let json = serde_json::to_string_pretty(&report)?;
+    let json = serde_json::to_string_pretty(&report).expect("the report serializes");
     if let Some(dir) = &a.report {
         write_report_dir(
             dir,
-            &tune_html(&problem, &result, &recs),
-            &tune_markdown(&problem, &result, &recs),
+            &tune_html(experiment, &result, &recs),
+            &tune_markdown(experiment, &result, &recs),
             &json,
-        )
-        .with_context(|| format!("writing the report into {}", dir.display()))?;
+        )?;
     }
     let mut stdout = std::io::stdout().lock();
     if a.json {
@@ -235,7 +208,7 @@ pub fn run(a: TuneArgs) -> anyhow::Result<ExitCode> {
         writeln!(
             stdout,
             "autotune tune {}: {} evaluations ({} scoring) in {:.2} s, {} diverged",
-            problem.name,
+            info.name,
             result.evaluations,
             format!("{:?}", result.scoring).to_lowercase(),
             result.seconds,
@@ -245,7 +218,8 @@ pub fn run(a: TuneArgs) -> anyhow::Result<ExitCode> {
             writeln!(
                 stdout,
                 "  the search stopped on its budget (--max-evals {}, --max-seconds {}): the values below are the best found so far",
-                settings.max_evals, settings.max_seconds
+                settings.max_evals(),
+                settings.max_seconds()
             )?;
         }
         for r in &recs {
@@ -257,7 +231,7 @@ pub fn run(a: TuneArgs) -> anyhow::Result<ExitCode> {
                 fmt_g(r.tuned)
             )?;
         }
-        let line = |s: &autotune::stats::StatisticSummary| {
+        let line = |s: &StatisticSummary| {
             format!(
                 "A{} {:.4} in [{:.4}, {:.4}] {}",
                 s.name,
@@ -293,7 +267,7 @@ pub fn run(a: TuneArgs) -> anyhow::Result<ExitCode> {
         writeln!(
             stdout,
             "{}",
-            super::paint_verdict(&verdict, result.status == TuneStatus::Consistent)
+            paint_verdict(&verdict, result.status == TuneStatus::Consistent)
         )?;
     }
     stdout.flush()?;
@@ -302,4 +276,18 @@ pub fn run(a: TuneArgs) -> anyhow::Result<ExitCode> {
     } else {
         ExitCode::from(1)
     })
+}
+
+/// A setting the tuner refused for this experiment, named where it was given: the flag,
+/// or the problem file's `[tune]` field.
+fn tune_error(e: TuneError, experiment: &dyn Experiment, from_flag: bool) -> AppError {
+    match (e, &experiment.info().source) {
+        (TuneError::Setting(s), _) if from_flag => {
+            AppError::flag(&format!("--{}", s.setting.replace('_', "-")), s.message)
+        }
+        (TuneError::Setting(s), Source::File { path, .. }) => {
+            FileError::from_setting(path, "tune.", s).into()
+        }
+        (e, _) => AppError::Refused(e.to_string()),
+    }
 }

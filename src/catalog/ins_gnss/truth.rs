@@ -27,7 +27,8 @@ use rand_distr::StandardNormal;
 
 use super::nav::{GRAVITY, N_NOM, Nominal};
 use crate::SimRng;
-use crate::model::{Measurement, TruthModel};
+use crate::measurement::Measurement;
+use crate::model::TruthModel;
 
 /// One smooth manoeuvre: a raised-cosine pulse of `peak` amplitude from `start` for
 /// `duration` seconds (its integral is `peak · duration / 2`).

@@ -40,11 +40,11 @@ use nalgebra::{Matrix3, UnitQuaternion, Vector3};
 use serde::Deserialize;
 
 use super::{
-    CatalogEntry, CatalogModel, ModelContext, ModelError, NoiseKind, ParamInfo, parse_table,
-    positive,
+    CatalogEntry, CatalogModel, ModelContext, ModelError, ParamInfo, parse_table, positive,
 };
 use crate::filter::Filter;
 use crate::model::TruthModel;
+use crate::params::NoiseKind;
 use eskf::Eskf;
 use nav::{Mat15, NoiseDensities, Nominal};
 use truth::{DRIVE, InitialSigma, InsTruth, TruthNoise};

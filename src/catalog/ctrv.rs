@@ -49,14 +49,15 @@ use rand_distr::StandardNormal;
 use serde::Deserialize;
 
 use super::{
-    CatalogEntry, CatalogModel, ModelContext, ModelError, NoiseKind, ParamInfo, parse_table,
-    positive,
+    CatalogEntry, CatalogModel, ModelContext, ModelError, ParamInfo, parse_table, positive,
 };
 use crate::SimRng;
 use crate::filter::{
     Estimate, Filter, FilterError, Innovation, SystemModel, Ukf, check_measurement,
 };
-use crate::model::{Measurement, TruthModel};
+use crate::measurement::Measurement;
+use crate::model::TruthModel;
+use crate::params::NoiseKind;
 
 /// Index of the lidar in the filter's sensor list.
 pub const LIDAR: usize = 0;

@@ -48,13 +48,14 @@ use rand_distr::StandardNormal;
 use serde::Deserialize;
 
 use super::{
-    CatalogEntry, CatalogModel, ModelContext, ModelError, NoiseKind, ParamInfo, parse_table,
-    positive,
+    CatalogEntry, CatalogModel, ModelContext, ModelError, ParamInfo, parse_table, positive,
 };
 use crate::SimRng;
 use crate::filter::{Estimate, Filter, FilterError, Innovation, SystemModel, check_measurement};
 use crate::linalg::wrap_angle;
-use crate::model::{Measurement, TruthModel};
+use crate::measurement::Measurement;
+use crate::model::TruthModel;
+use crate::params::NoiseKind;
 
 /// Earth's gravitational parameter μ, km³/s².
 pub const MU: f64 = 398_600.441_8;

@@ -6,17 +6,15 @@
 //! `tests/cli_init.rs` run that check for every model); the comments tell the user to replace
 //! the values with their own guesses, which `autotune tune` then corrects.
 
-use std::ffi::OsStr;
 use std::io::Write;
-use std::marker::PhantomData;
 use std::path::PathBuf;
 use std::process::ExitCode;
 
-use anyhow::Context;
-use autotune::report::write_atomic;
 use clap::ValueEnum;
-use clap::builder::{PossibleValue, TypedValueParser};
-use clap::error::ErrorKind;
+
+use super::AppError;
+use super::args::OneOf;
+use crate::report::write_file;
 
 /// The starter models: `--model`, its help, its errors and the completions all list these.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
@@ -82,19 +80,18 @@ fn parse_name(name: &str) -> Result<String, String> {
     Ok(name.to_string())
 }
 
-pub fn run(a: InitArgs) -> anyhow::Result<ExitCode> {
+pub fn run(a: InitArgs) -> Result<ExitCode, AppError> {
     let path = a
         .out
         .unwrap_or_else(|| PathBuf::from(format!("{}.toml", a.name)));
     // symlink_metadata: a dangling symlink or any other entry counts as existing.
     if !a.force && std::fs::symlink_metadata(&path).is_ok() {
-        anyhow::bail!(
+        return Err(AppError::Refused(format!(
             "{} already exists (use --force to overwrite it)",
             path.display()
-        );
+        )));
     }
-    write_atomic(&path, a.model.starter(&a.name).as_bytes())
-        .with_context(|| format!("writing {}", path.display()))?;
+    write_file(&path, a.model.starter(&a.name).as_bytes())?;
     let model = a
         .model
         .to_possible_value()
@@ -116,66 +113,12 @@ pub fn run(a: InitArgs) -> anyhow::Result<ExitCode> {
     Ok(ExitCode::SUCCESS)
 }
 
-/// Value parser for a [`ValueEnum`] whose error lists the known values on its first line:
-/// the CLI reports only the first line of a parse error, where clap's own parser puts the
-/// possible values on the second. Help and completions get the values as usual.
-#[derive(Debug)]
-pub(super) struct OneOf<E>(PhantomData<E>);
-
-impl<E> OneOf<E> {
-    pub(super) fn new() -> Self {
-        OneOf(PhantomData)
-    }
-}
-
-impl<E> Clone for OneOf<E> {
-    fn clone(&self) -> Self {
-        OneOf(PhantomData)
-    }
-}
-
-impl<E: ValueEnum + Clone + Send + Sync + 'static> TypedValueParser for OneOf<E> {
-    type Value = E;
-
-    fn parse_ref(
-        &self,
-        cmd: &clap::Command,
-        arg: Option<&clap::Arg>,
-        value: &OsStr,
-    ) -> Result<E, clap::Error> {
-        let text = value.to_string_lossy();
-        E::from_str(&text, false).map_err(|_| {
-            let known: Vec<String> = E::value_variants()
-                .iter()
-                .filter_map(ValueEnum::to_possible_value)
-                .filter(|v| !v.is_hide_set())
-                .map(|v| v.get_name().to_string())
-                .collect();
-            let arg = arg.map_or_else(|| "...".to_string(), |a| a.to_string());
-            clap::Error::raw(
-                ErrorKind::InvalidValue,
-                format!(
-                    "invalid value '{text}' for '{arg}' (known: {})\n",
-                    known.join(", ")
-                ),
-            )
-            .with_cmd(cmd)
-        })
-    }
-
-    fn possible_values(&self) -> Option<Box<dyn Iterator<Item = PossibleValue> + '_>> {
-        Some(Box::new(
-            E::value_variants()
-                .iter()
-                .filter_map(ValueEnum::to_possible_value),
-        ))
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-    use autotune::problem::Problem;
+    use crate::problem::Problem;
+    use clap::builder::TypedValueParser;
+    use std::ffi::OsStr;
     use std::path::Path;
 
     #[test]
@@ -200,7 +143,7 @@ mod tests {
             assert!(!text.contains("{{"), "{m:?}: placeholder left");
             let p = Problem::from_toml(&text, Path::new("starter.toml"))
                 .unwrap_or_else(|e| panic!("{m:?}: {e}"));
-            assert_eq!(p.name, "some-name_1");
+            assert_eq!(p.name(), "some-name_1");
         }
     }
 
@@ -217,7 +160,7 @@ mod tests {
                 "(known: bash, elvish, fish, powershell, zsh)",
             ),
         ] {
-            let err = crate::cli::Cli::try_parse_from(args).unwrap_err();
+            let err = crate::app::Cli::try_parse_from(args).unwrap_err();
             let text = err.render().to_string();
             let first = text.lines().next().unwrap();
             assert!(

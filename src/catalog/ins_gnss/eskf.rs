@@ -21,7 +21,7 @@ use super::nav::{
     process_noise,
 };
 use crate::filter::{Estimate, Filter, FilterError, Innovation, check_measurement};
-use crate::model::Measurement;
+use crate::measurement::Measurement;
 
 /// The ESKF: noise densities, GNSS noise, initial state and covariance.
 #[derive(Debug, Clone)]

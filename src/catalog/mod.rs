@@ -13,19 +13,11 @@ use serde::de::DeserializeOwned;
 
 use crate::filter::Filter;
 use crate::model::TruthModel;
+use crate::params::NoiseKind;
 
 pub mod ctrv;
 pub mod ins_gnss;
 pub mod orbit2d;
-
-/// Whether a parameter sets process or measurement noise.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum NoiseKind {
-    /// Process noise Q.
-    Process,
-    /// Measurement noise R.
-    Measurement,
-}
 
 /// One named filter parameter of a catalog model.
 #[derive(Debug, Clone, Copy, PartialEq)]

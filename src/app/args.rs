@@ -1,0 +1,152 @@
+//! Options shared by the commands, and how their values become settings: every value goes
+//! through the library's setters, and a refusal names the flag.
+
+use std::ffi::OsStr;
+use std::marker::PhantomData;
+
+use clap::ValueEnum;
+use clap::builder::{PossibleValue, TypedValueParser};
+use clap::error::ErrorKind;
+
+use super::AppError;
+use crate::input::SettingError;
+use crate::montecarlo::McConfig;
+use crate::params::ParamSpace;
+
+/// Monte Carlo overrides shared by the commands.
+#[derive(Debug, Clone, Default, clap::Args)]
+pub struct McArgs {
+    /// Number of Monte Carlo runs N (overrides the file).
+    #[arg(long)]
+    runs: Option<usize>,
+    /// Steps per run T (overrides the file).
+    #[arg(long)]
+    steps: Option<usize>,
+    /// Base seed (overrides the file).
+    #[arg(long)]
+    seed: Option<u64>,
+    /// Significance level α in (0, 1) (overrides the file).
+    #[arg(long)]
+    alpha: Option<f64>,
+    /// Set a parameter, NAME=VALUE (repeatable).
+    #[arg(long = "set", value_name = "NAME=VALUE")]
+    set: Vec<String>,
+}
+
+/// A setter's refusal as an error of the flag that gave the value.
+pub fn flag_error(flag: &str) -> impl Fn(SettingError) -> AppError + '_ {
+    move |e| AppError::flag(flag, e.message)
+}
+
+impl McArgs {
+    /// The experiment's Monte Carlo settings with the overrides applied.
+    pub fn apply(&self, mut mc: McConfig) -> Result<McConfig, AppError> {
+        if let Some(n) = self.runs {
+            mc = mc.with_runs(n).map_err(flag_error("--runs"))?;
+        }
+        if let Some(t) = self.steps {
+            mc = mc.with_steps(t).map_err(flag_error("--steps"))?;
+        }
+        if let Some(s) = self.seed {
+            mc = mc.with_seed(s);
+        }
+        if let Some(a) = self.alpha {
+            mc = mc.with_alpha(a).map_err(flag_error("--alpha"))?;
+        }
+        Ok(mc)
+    }
+
+    /// `theta` with the `--set` values applied.
+    pub fn set_params(&self, params: &ParamSpace, theta: &mut [f64]) -> Result<(), AppError> {
+        for kv in &self.set {
+            let (i, v) = name_value(params, "--set", kv)?;
+            theta[i] = v;
+        }
+        Ok(())
+    }
+}
+
+/// Parse `NAME=VALUE` with VALUE a finite number > 0 naming one of the parameters.
+pub fn name_value(params: &ParamSpace, flag: &str, kv: &str) -> Result<(usize, f64), AppError> {
+    let (name, value) = kv
+        .split_once('=')
+        .ok_or_else(|| AppError::flag(flag, format!("'{kv}' is not NAME=VALUE")))?;
+    let i = param_index(params, flag, name)?;
+    let v = value
+        .trim()
+        .parse()
+        .ok()
+        .filter(|v: &f64| v.is_finite() && *v > 0.0)
+        .ok_or_else(|| AppError::flag(flag, format!("{name}: '{value}' is not a number > 0")))?;
+    Ok((i, v))
+}
+
+/// The index of parameter `name`, or an error of `flag` listing the known ones.
+pub fn param_index(params: &ParamSpace, flag: &str, name: &str) -> Result<usize, AppError> {
+    params.index(name.trim()).ok_or_else(|| {
+        AppError::flag(
+            flag,
+            format!(
+                "unknown parameter '{name}' (known: {})",
+                params.names().join(", ")
+            ),
+        )
+    })
+}
+
+/// Value parser for a [`ValueEnum`] whose error lists the known values on its first line:
+/// the CLI reports only the first line of a parse error, where clap's own parser puts the
+/// possible values on the second. Help and completions get the values as usual.
+#[derive(Debug)]
+pub struct OneOf<E>(PhantomData<E>);
+
+impl<E> OneOf<E> {
+    /// The parser.
+    pub fn new() -> Self {
+        OneOf(PhantomData)
+    }
+}
+
+impl<E> Clone for OneOf<E> {
+    fn clone(&self) -> Self {
+        OneOf(PhantomData)
+    }
+}
+
+impl<E: ValueEnum + Clone + Send + Sync + 'static> TypedValueParser for OneOf<E> {
+    type Value = E;
+
+    fn parse_ref(
+        &self,
+        cmd: &clap::Command,
+        arg: Option<&clap::Arg>,
+        value: &OsStr,
+    ) -> Result<E, clap::Error> {
+        let text = value.to_string_lossy();
+        E::from_str(&text, false).map_err(|_| {
+            let known: Vec<String> = E::value_variants()
+                .iter()
+                .filter_map(ValueEnum::to_possible_value)
+                .filter(|v| !v.is_hide_set())
+                .map(|v| v.get_name().to_string())
+                .collect();
+            let arg = arg.map_or_else(|| "...".to_string(), |a| a.to_string());
+            clap::Error::raw(
+                ErrorKind::InvalidValue,
+                format!(
+                    "invalid value '{text}' for '{arg}' (known: {})\n",
+                    known.join(", ")
+                ),
+            )
+            .with_cmd(cmd)
+        })
+    }
+
+    fn possible_values(&self) -> Option<Box<dyn Iterator<Item = PossibleValue> + '_>> {
+        Some(Box::new(
+            E::value_variants()
+                .iter()
+                .filter_map(ValueEnum::to_possible_value),
+        ))
+    }
+}

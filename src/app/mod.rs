@@ -1,0 +1,253 @@
+//! The command line as a library: `autotune check`, `tune`, `init` and `completions`.
+//!
+//! The `autotune` binary is [`main`] and nothing else. A Rust user's own model gets the same
+//! `check` and `tune` commands, with every option, report, the advice and the tuned config,
+//! from one call in its own `main`:
+//!
+//! ```no_run
+//! # fn my_experiment() -> autotune::problem::Problem { unimplemented!() }
+//! use autotune::tune::TuneSettings;
+//! fn main() -> std::process::ExitCode {
+//!     let model = my_experiment(); // e.g. autotune::experiment::Custom::builder(...).build()
+//!     autotune::app::main_for(&model, &TuneSettings::default())
+//! }
+//! ```
+//!
+//! `my_model check --report out`, `my_model tune --out tuned/my_model.toml`, … then behave as
+//! `autotune check problem.toml …` does. Exit codes: 0 consistent, 1 not, 2 bad input.
+
+mod args;
+mod check;
+mod completions;
+mod init;
+mod tune;
+
+pub use check::CheckOptions;
+pub use tune::TuneOptions;
+
+use std::ffi::OsString;
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use clap::{CommandFactory, FromArgMatches, Parser, Subcommand};
+
+use crate::experiment::Experiment;
+use crate::input::FileError;
+use crate::problem::Problem;
+use crate::report::WriteError;
+use crate::tune::TuneSettings;
+
+/// Why a command could not do its job (exit code 2). Each renders as one line naming the
+/// file and field, or the flag.
+#[derive(Debug, thiserror::Error)]
+pub enum AppError {
+    /// A bad input file.
+    #[error(transparent)]
+    File(#[from] FileError),
+    /// A bad command-line option: the flag and what is wrong.
+    #[error("{flag}: {message}")]
+    Flag {
+        /// The flag, e.g. `--runs`.
+        flag: String,
+        /// What is wrong.
+        message: String,
+    },
+    /// Arguments clap refused (its first line, and where to find help).
+    #[error("{0}")]
+    Usage(String),
+    /// An output that could not be written.
+    #[error(transparent)]
+    Write(#[from] WriteError),
+    /// A refusal that names its own subject (e.g. an existing file).
+    #[error("{0}")]
+    Refused(String),
+    /// Standard output failed (a closed pipe is not reported).
+    #[error(transparent)]
+    Io(#[from] std::io::Error),
+}
+
+impl AppError {
+    /// An error in option `flag`.
+    pub fn flag(flag: &str, message: impl Into<String>) -> AppError {
+        AppError::Flag {
+            flag: flag.to_string(),
+            message: message.into(),
+        }
+    }
+}
+
+/// Tune Kalman filter noise covariances until the filter is statistically consistent.
+#[derive(Debug, Parser)]
+#[command(name = "autotune", version, about, long_about = None)]
+pub struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Debug, Subcommand)]
+enum Command {
+    /// Monte Carlo consistency test (NEES/NIS against chi-square intervals); exit 0 if
+    /// consistent, 1 if not, 2 on bad input.
+    Check(ProblemCheck),
+    /// Search the free Q/R parameters for a consistent filter; write a tuned config and a
+    /// report; exit 0 if the tuned filter passes the confirmation, 1 if not.
+    Tune(ProblemTune),
+    /// Write a commented starter problem file (NAME.toml) whose filter equals its truth, so
+    /// `autotune check` passes on it; replace its parameter values with your own guesses.
+    Init(init::InitArgs),
+    /// Print a shell completion script on stdout, e.g.
+    /// `autotune completions bash > ~/.local/share/bash-completion/completions/autotune`.
+    Completions(completions::CompletionsArgs),
+}
+
+#[derive(Debug, clap::Args)]
+struct ProblemCheck {
+    /// Problem file (TOML).
+    problem: PathBuf,
+    #[command(flatten)]
+    options: CheckOptions,
+}
+
+#[derive(Debug, clap::Args)]
+struct ProblemTune {
+    /// Problem file (TOML).
+    problem: PathBuf,
+    #[command(flatten)]
+    options: TuneOptions,
+}
+
+/// The commands a Rust model's own program has.
+#[derive(Debug, Parser)]
+#[command(version, about = "Check and tune this model's filter: Monte Carlo NEES/NIS consistency tests and a Q/R search (autotune).", long_about = None)]
+struct ModelCli {
+    #[command(subcommand)]
+    command: ModelCommand,
+}
+
+#[derive(Debug, Subcommand)]
+enum ModelCommand {
+    /// Monte Carlo consistency test (NEES/NIS against chi-square intervals); exit 0 if
+    /// consistent, 1 if not, 2 on bad input.
+    Check(CheckOptions),
+    /// Search the free Q/R parameters for a consistent filter; write a tuned config and a
+    /// report; exit 0 if the tuned filter passes the confirmation, 1 if not.
+    Tune(TuneOptions),
+}
+
+/// The `autotune` binary: parse the process's arguments, run, print any error on one line.
+pub fn main() -> ExitCode {
+    finish(run(std::env::args_os()))
+}
+
+/// `autotune` with these arguments (the first is the program name).
+pub fn run<I, T>(args: I) -> Result<ExitCode, AppError>
+where
+    I: IntoIterator<Item = T>,
+    T: Into<OsString> + Clone,
+{
+    let cli = match Cli::try_parse_from(args) {
+        Ok(c) => c,
+        Err(e) => return usage_error(e, "autotune"),
+    };
+    match cli.command {
+        Command::Check(a) => check::run(&Problem::load(&a.problem)?, a.options),
+        Command::Tune(a) => {
+            let p = Problem::load(&a.problem)?;
+            tune::run(&p, &p.tune, a.options)
+        }
+        Command::Init(a) => init::run(a),
+        Command::Completions(a) => completions::run(a, Cli::command(), "autotune"),
+    }
+}
+
+/// The whole command line for a model defined in Rust: `check` and `tune` with every option
+/// `autotune` has (no problem file: the model is `experiment`; `tune` starts from `tune`'s
+/// settings). Prints any error on one line; returns the exit code (0 consistent, 1 not,
+/// 2 bad input).
+pub fn main_for(experiment: &dyn Experiment, tune: &TuneSettings) -> ExitCode {
+    finish(run_for(experiment, tune, std::env::args_os()))
+}
+
+/// [`main_for`] with these arguments (the first is the program name).
+pub fn run_for<I, T>(
+    experiment: &dyn Experiment,
+    tune: &TuneSettings,
+    args: I,
+) -> Result<ExitCode, AppError>
+where
+    I: IntoIterator<Item = T>,
+    T: Into<OsString> + Clone,
+{
+    let program = match &experiment.info().source {
+        crate::experiment::Source::Program { name } => name.clone(),
+        crate::experiment::Source::File { .. } => experiment.info().name.clone(),
+    };
+    let cmd = ModelCli::command()
+        .name(program.clone())
+        .bin_name(program.clone());
+    let parsed = cmd
+        .try_get_matches_from(args)
+        .and_then(|m| ModelCli::from_arg_matches(&m));
+    let cli = match parsed {
+        Ok(c) => c,
+        Err(e) => return usage_error(e, &program),
+    };
+    match cli.command {
+        ModelCommand::Check(o) => check::run(experiment, o),
+        ModelCommand::Tune(o) => tune::run(experiment, tune, o),
+    }
+}
+
+/// Help and version go to stdout with exit 0; any other parse error becomes one line.
+fn usage_error(e: clap::Error, program: &str) -> Result<ExitCode, AppError> {
+    use clap::error::ErrorKind;
+    if matches!(e.kind(), ErrorKind::DisplayHelp | ErrorKind::DisplayVersion) {
+        e.print()?;
+        return Ok(ExitCode::SUCCESS);
+    }
+    let text = e.render().to_string();
+    let first = text.lines().next().unwrap_or("invalid arguments").trim();
+    let first = first.strip_prefix("error: ").unwrap_or(first);
+    Err(AppError::Usage(format!("{first} (see '{program} --help')")))
+}
+
+/// Print an error as `error: …` on stderr and map it to exit code 2; a closed stdout pipe
+/// (`autotune check … | head`) is not an error.
+fn finish(result: Result<ExitCode, AppError>) -> ExitCode {
+    match result {
+        Ok(code) => code,
+        Err(AppError::Io(e)) if e.kind() == std::io::ErrorKind::BrokenPipe => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e}");
+            ExitCode::from(2)
+        }
+    }
+}
+
+/// Whether to colour stdout: only on a terminal, and never when `NO_COLOR` is set to
+/// anything non-empty (<https://no-color.org>).
+fn colour_enabled() -> bool {
+    use std::io::IsTerminal;
+    std::env::var_os("NO_COLOR").is_none_or(|v| v.is_empty()) && std::io::stdout().is_terminal()
+}
+
+/// `line` in bold green (pass) or bold red (fail) when colour is enabled.
+fn paint_verdict(line: &str, pass: bool) -> String {
+    if colour_enabled() {
+        let code = if pass { "1;32" } else { "1;31" };
+        format!("\x1b[{code}m{line}\x1b[0m")
+    } else {
+        line.to_string()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn verify_cli() {
+        Cli::command().debug_assert();
+        ModelCli::command().debug_assert();
+    }
+}

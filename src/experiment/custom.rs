@@ -1,0 +1,305 @@
+//! A Rust user's own truth model and filter family as an [`Experiment`].
+
+use super::{Covariances, Experiment, Info, RunOptions, Source};
+use crate::filter::Filter;
+use crate::input::SettingError;
+use crate::model::TruthModel;
+use crate::montecarlo::{self, McConfig};
+use crate::params::{ParamDef, ParamSpace, Target};
+use crate::stats::Accumulator;
+
+/// Q and R of the filter at θ, for reports and tuned configs.
+type CovarianceFn = Box<dyn Fn(&[f64]) -> Covariances + Send + Sync>;
+
+/// A truth model `T` and a filter builder `B: θ ↦ filter`, with named parameters that each
+/// drive known components. Built by [`Custom::builder`], which checks everything once;
+/// `check`, `tune`, the reports, the advice and [`crate::app::main`] then treat it as they
+/// treat a problem file.
+///
+/// ```
+/// use autotune::experiment::{Custom, Experiment};
+/// use autotune::filter::KalmanFilter;
+/// use autotune::model::LinearGaussianModel;
+/// use autotune::montecarlo::McConfig;
+/// use autotune::params::{ParamDef, Target, dwna_block};
+/// use nalgebra::{DMatrix, DVector};
+///
+/// let f = DMatrix::from_row_slice(2, 2, &[1.0, 1.0, 0.0, 1.0]);
+/// let h = DMatrix::from_row_slice(1, 2, &[1.0, 0.0]);
+/// let (x0, p0) = (DVector::zeros(2), DMatrix::identity(2, 2));
+/// let truth = LinearGaussianModel::new(
+///     f.clone(), h.clone(), dwna_block(1.0) * 0.5, DMatrix::from_element(1, 1, 1.0),
+///     x0.clone(), p0.clone(),
+/// ).unwrap();
+/// let filter = move |theta: &[f64]| KalmanFilter {
+///     F: f.clone(), H: h.clone(),
+///     Q: dwna_block(1.0) * theta[0], R: DMatrix::from_element(1, 1, theta[1]),
+///     x0: x0.clone(), P0: p0.clone(),
+/// };
+/// let model = Custom::builder("cv1d_rust", truth, filter)
+///     .states(["x", "vx"])
+///     .measurements(["x"])
+///     .param(ParamDef::new("q_accel", 0.5).unit("(m/s²)²"), Target::process(&[0, 1]))
+///     .param(ParamDef::new("r_pos", 1.0).unit("m²"), Target::measurement(&[0]))
+///     .montecarlo(McConfig::new(50, 100).unwrap())
+///     .build()
+///     .unwrap();
+/// let report = autotune::check::check(&model, &[0.5, 1.0], model.mc(), true);
+/// assert_eq!(report.nees.unwrap().target, 2.0);
+/// ```
+pub struct Custom<T, B> {
+    info: Info,
+    truth: T,
+    build: B,
+    params: ParamSpace,
+    targets: Vec<Target>,
+    state_names: Vec<String>,
+    measurement_names: Vec<String>,
+    mc: McConfig,
+    covariances: Option<CovarianceFn>,
+    truth_values: Option<Vec<f64>>,
+}
+
+/// Collects a [`Custom`] experiment's parts; [`CustomBuilder::build`] checks them.
+pub struct CustomBuilder<T, B> {
+    name: String,
+    description: String,
+    program: Option<String>,
+    truth: T,
+    build: B,
+    params: Vec<(ParamDef, Target)>,
+    state_names: Option<Vec<String>>,
+    measurement_names: Option<Vec<String>>,
+    mc: Option<McConfig>,
+    covariances: Option<CovarianceFn>,
+    truth_values: Option<Vec<f64>>,
+}
+
+impl<T, F, B> Custom<T, B>
+where
+    T: TruthModel,
+    F: Filter,
+    B: Fn(&[f64]) -> F + Sync,
+{
+    /// Start an experiment called `name` (used for output names: letters, digits, `_`, `-`)
+    /// from a truth model and a filter builder `θ ↦ filter` (θ in the order the parameters
+    /// are added).
+    pub fn builder(name: &str, truth: T, build: B) -> CustomBuilder<T, B> {
+        CustomBuilder {
+            name: name.to_string(),
+            description: String::new(),
+            program: None,
+            truth,
+            build,
+            params: Vec::new(),
+            state_names: None,
+            measurement_names: None,
+            mc: None,
+            covariances: None,
+            truth_values: None,
+        }
+    }
+}
+
+impl<T, F, B> CustomBuilder<T, B>
+where
+    T: TruthModel,
+    F: Filter,
+    B: Fn(&[f64]) -> F + Sync,
+{
+    /// One line saying what is modelled.
+    pub fn description(mut self, text: &str) -> Self {
+        self.description = text.to_string();
+        self
+    }
+
+    /// The program's name in reports and in the `<program> check --config` hint (default:
+    /// the running executable's file stem).
+    pub fn program(mut self, name: &str) -> Self {
+        self.program = Some(name.to_string());
+        self
+    }
+
+    /// Names of the filter's state components, n_x (default `x0`, `x1`, …).
+    pub fn states<I: IntoIterator<Item = S>, S: Into<String>>(mut self, names: I) -> Self {
+        self.state_names = Some(names.into_iter().map(Into::into).collect());
+        self
+    }
+
+    /// Names of all sensors' measurement components in sensor order (default `z0`, …).
+    pub fn measurements<I: IntoIterator<Item = S>, S: Into<String>>(mut self, names: I) -> Self {
+        self.measurement_names = Some(names.into_iter().map(Into::into).collect());
+        self
+    }
+
+    /// Add a parameter and what it drives; θ follows the order of these calls.
+    pub fn param(mut self, def: ParamDef, target: Target) -> Self {
+        self.params.push((def, target));
+        self
+    }
+
+    /// The Monte Carlo test (default: 100 runs × 100 steps, seed 0, α = 0.05).
+    pub fn montecarlo(mut self, mc: McConfig) -> Self {
+        self.mc = Some(mc);
+        self
+    }
+
+    /// Q (n_x × n_x) and R (n_z × n_z) at θ, written into tuned configs and reports.
+    pub fn covariances(
+        mut self,
+        f: impl Fn(&[f64]) -> Covariances + Send + Sync + 'static,
+    ) -> Self {
+        self.covariances = Some(Box::new(f));
+        self
+    }
+
+    /// The parameter values equal to the truth's noise, where known (tests compare with them).
+    pub fn truth_values(mut self, values: Vec<f64>) -> Self {
+        self.truth_values = Some(values);
+        self
+    }
+
+    /// Check every part and build the experiment. Errors name the setting (`name`,
+    /// `params.q_accel.lower`, `states`, `params.r_pos.target`, …).
+    pub fn build(self) -> Result<Custom<T, B>, SettingError> {
+        if self.name.is_empty()
+            || !self
+                .name
+                .chars()
+                .all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '-')
+        {
+            return Err(SettingError::new(
+                "name",
+                format!("'{}' must be letters, digits, _ and - only", self.name),
+            ));
+        }
+        let mut defs = Vec::with_capacity(self.params.len());
+        let mut targets = Vec::with_capacity(self.params.len());
+        for (def, target) in self.params {
+            def.validate()
+                .map_err(|e| e.within(&format!("params.{}", def.name)))?;
+            if defs.iter().any(|d: &ParamDef| d.name == def.name) {
+                return Err(SettingError::new(
+                    format!("params.{}", def.name),
+                    "defined twice",
+                ));
+            }
+            defs.push(def);
+            targets.push(target);
+        }
+        let params = ParamSpace { params: defs };
+        let filter = (self.build)(&params.values());
+        let n_x = filter.n_x();
+        let n_z: usize = filter.sensor_dims().iter().sum();
+        let names = |given: Option<Vec<String>>, n: usize, prefix: &str, setting: &str| match given
+        {
+            Some(v) if v.len() != n => Err(SettingError::new(
+                setting,
+                format!("{} names for {n} components", v.len()),
+            )),
+            Some(v) => Ok(v),
+            None => Ok((0..n).map(|i| format!("{prefix}{i}")).collect()),
+        };
+        let state_names = names(self.state_names, n_x, "x", "states")?;
+        let measurement_names = names(self.measurement_names, n_z, "z", "measurements")?;
+        for (def, t) in params.params.iter().zip(&targets) {
+            let n = match t.kind {
+                crate::params::NoiseKind::Process => n_x,
+                crate::params::NoiseKind::Measurement => n_z,
+            };
+            if let Some(&j) = t.components.iter().find(|&&j| j >= n) {
+                return Err(SettingError::new(
+                    format!("params.{}.target", def.name),
+                    format!("component {j} is out of range (there are {n})"),
+                ));
+            }
+        }
+        if let Some(v) = &self.truth_values
+            && v.len() != params.params.len()
+        {
+            return Err(SettingError::new(
+                "truth_values",
+                format!("{} values for {} parameters", v.len(), params.params.len()),
+            ));
+        }
+        let program = self.program.unwrap_or_else(|| {
+            std::env::current_exe()
+                .ok()
+                .and_then(|p| p.file_stem().map(|s| s.to_string_lossy().into_owned()))
+                .unwrap_or_else(|| "model".to_string())
+        });
+        let mc = match self.mc {
+            Some(mc) => mc,
+            None => McConfig::new(100, 100)?,
+        };
+        Ok(Custom {
+            info: Info {
+                name: self.name,
+                description: self.description,
+                source: Source::Program { name: program },
+            },
+            truth: self.truth,
+            build: self.build,
+            params,
+            targets,
+            state_names,
+            measurement_names,
+            mc,
+            covariances: self.covariances,
+            truth_values: self.truth_values,
+        })
+    }
+}
+
+impl<T, F, B> Experiment for Custom<T, B>
+where
+    T: TruthModel,
+    F: Filter,
+    B: Fn(&[f64]) -> F + Sync,
+{
+    fn info(&self) -> &Info {
+        &self.info
+    }
+
+    fn params(&self) -> &ParamSpace {
+        &self.params
+    }
+
+    fn state_names(&self) -> &[String] {
+        &self.state_names
+    }
+
+    fn measurement_names(&self) -> &[String] {
+        &self.measurement_names
+    }
+
+    fn mc(&self) -> &McConfig {
+        &self.mc
+    }
+
+    fn monte_carlo_with(
+        &self,
+        theta: &[f64],
+        mc: &McConfig,
+        options: RunOptions<'_>,
+    ) -> Accumulator {
+        montecarlo::run_generic_with_progress(
+            &self.truth,
+            &(self.build)(theta),
+            mc,
+            options.progress,
+        )
+    }
+
+    fn target(&self, i: usize) -> Option<Target> {
+        self.targets.get(i).cloned()
+    }
+
+    fn covariances(&self, theta: &[f64]) -> Option<Covariances> {
+        self.covariances.as_ref().map(|f| f(theta))
+    }
+
+    fn truth_values(&self) -> Option<Vec<f64>> {
+        self.truth_values.clone()
+    }
+}

@@ -1,0 +1,143 @@
+//! A problem file's linear-Gaussian truth and Kalman filter as an [`Experiment`].
+
+#![allow(non_snake_case)]
+
+use nalgebra::{DMatrix, DVector};
+
+use super::{Covariances, Experiment, Info, RunOptions};
+use crate::filter::KalmanFilter;
+use crate::model::LinearGaussianModel;
+use crate::montecarlo::{self, Engine, McConfig, expected_accumulator, models_match};
+use crate::params::{CovModel, NoiseKind, ParamSpace, Target};
+use crate::stats::Accumulator;
+
+/// The filter's model with Q and R as functions of the parameters.
+#[derive(Debug, Clone)]
+pub struct FilterModel {
+    /// State transition, n × n.
+    pub F: DMatrix<f64>,
+    /// Measurement matrix, m × n.
+    pub H: DMatrix<f64>,
+    /// Initial estimate, n.
+    pub x0: DVector<f64>,
+    /// Initial covariance, n × n (positive definite).
+    pub P0: DMatrix<f64>,
+    /// Process noise as a function of the parameters.
+    pub q: CovModel,
+    /// Measurement noise as a function of the parameters.
+    pub r: CovModel,
+}
+
+/// A linear-Gaussian truth and a Kalman filter whose Q and R are sums of parameterized
+/// terms. It runs on the linear fast path, and when the filter uses the truth's F and H its
+/// expected statistics have a closed form ([`expected_accumulator`]).
+#[derive(Debug, Clone)]
+pub struct LinearExperiment {
+    /// Name, description, source.
+    pub info: Info,
+    /// The truth.
+    pub truth: LinearGaussianModel,
+    /// The filter's model.
+    pub filter: FilterModel,
+    /// Named parameters.
+    pub params: ParamSpace,
+    /// State component names, n.
+    pub state_names: Vec<String>,
+    /// Measurement component names, m.
+    pub measurement_names: Vec<String>,
+    /// The Monte Carlo test.
+    pub mc: McConfig,
+}
+
+impl LinearExperiment {
+    /// The Kalman filter with parameters `theta` (one value per parameter, in order).
+    pub fn filter_at(&self, theta: &[f64]) -> KalmanFilter {
+        KalmanFilter {
+            F: self.filter.F.clone(),
+            H: self.filter.H.clone(),
+            Q: self.filter.q.build(theta),
+            R: self.filter.r.build(theta),
+            x0: self.filter.x0.clone(),
+            P0: self.filter.P0.clone(),
+        }
+    }
+}
+
+impl Experiment for LinearExperiment {
+    fn info(&self) -> &Info {
+        &self.info
+    }
+
+    fn params(&self) -> &ParamSpace {
+        &self.params
+    }
+
+    fn state_names(&self) -> &[String] {
+        &self.state_names
+    }
+
+    fn measurement_names(&self) -> &[String] {
+        &self.measurement_names
+    }
+
+    fn mc(&self) -> &McConfig {
+        &self.mc
+    }
+
+    fn monte_carlo_with(
+        &self,
+        theta: &[f64],
+        mc: &McConfig,
+        options: RunOptions<'_>,
+    ) -> Accumulator {
+        let kf = self.filter_at(theta);
+        match options.engine {
+            Engine::Auto | Engine::Linear => {
+                montecarlo::run_linear_with_progress(&self.truth, &kf, mc, options.progress)
+            }
+            Engine::Generic => {
+                montecarlo::run_generic_with_progress(&self.truth, &kf, mc, options.progress)
+            }
+        }
+    }
+
+    fn supports(&self, _engine: Engine) -> bool {
+        true
+    }
+
+    fn expected(&self, theta: &[f64], mc: &McConfig) -> Option<Accumulator> {
+        let kf = self.filter_at(theta);
+        if !models_match(&self.truth, &kf) {
+            return None;
+        }
+        Some(
+            expected_accumulator(&self.truth, &kf, mc).unwrap_or_else(|_| {
+                let mut a = Accumulator::new(mc.steps(), kf.F.nrows(), kf.H.nrows(), mc.lags());
+                a.diverged_runs = mc.runs();
+                a.runs = mc.runs();
+                a
+            }),
+        )
+    }
+
+    fn target(&self, i: usize) -> Option<Target> {
+        Some(if self.filter.q.uses(i) {
+            Target {
+                kind: NoiseKind::Process,
+                components: self.filter.q.touched(i),
+            }
+        } else {
+            Target {
+                kind: NoiseKind::Measurement,
+                components: self.filter.r.touched(i),
+            }
+        })
+    }
+
+    fn covariances(&self, theta: &[f64]) -> Option<Covariances> {
+        Some(Covariances {
+            Q: self.filter.q.build(theta),
+            R: self.filter.r.build(theta),
+        })
+    }
+}

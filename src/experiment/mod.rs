@@ -1,0 +1,170 @@
+//! The seam every consistency check and tuning run goes through: an [`Experiment`] gives the
+//! Monte Carlo sums of a filter family at parameter values θ, with the names, parameters and
+//! targets that the statistics, the tuner and the reports need.
+//!
+//! Every source of a filter to judge is one implementation:
+//! - a problem file's linear `[truth]`/`[filter]` ([`LinearExperiment`]) or catalog `[model]`
+//!   ([`CatalogExperiment`]), both built by [`crate::problem::Problem`];
+//! - a Rust user's own truth model and filter ([`Custom`], built with [`Custom::builder`]).
+//!
+//! [`crate::check`], [`crate::tune`], [`crate::report`] and [`crate::app`] take
+//! `&dyn Experiment` and nothing more concrete.
+
+mod catalog;
+mod custom;
+mod linear;
+
+pub use catalog::CatalogExperiment;
+pub use custom::{Custom, CustomBuilder};
+pub use linear::{FilterModel, LinearExperiment};
+
+use std::path::PathBuf;
+
+use nalgebra::DMatrix;
+
+use crate::montecarlo::{Engine, McConfig, Progress};
+use crate::params::{ParamSpace, Target};
+use crate::stats::Accumulator;
+
+/// Where an experiment was defined, for reports and provenance.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Source {
+    /// A problem file and the SHA-256 of its bytes (hex).
+    File {
+        /// The file as given.
+        path: PathBuf,
+        /// SHA-256 of its bytes, lowercase hex.
+        sha256: String,
+    },
+    /// A Rust program that defines the model in code.
+    Program {
+        /// The program's name, as it is run (`cargo run --example custom_model`: `custom_model`).
+        name: String,
+    },
+}
+
+impl Source {
+    /// How reports name the source: the file's path, or `<program> (Rust model)`.
+    pub fn label(&self) -> String {
+        match self {
+            Source::File { path, .. } => path.display().to_string(),
+            Source::Program { name } => format!("{name} (Rust model)"),
+        }
+    }
+
+    /// The SHA-256 of the defining file, if the experiment comes from one.
+    pub fn sha256(&self) -> Option<&str> {
+        match self {
+            Source::File { sha256, .. } => Some(sha256),
+            Source::Program { .. } => None,
+        }
+    }
+
+    /// The command that checks this experiment (a tuned config goes after `--config`).
+    pub fn check_command(&self) -> String {
+        match self {
+            Source::File { path, .. } => format!("autotune check {}", path.display()),
+            Source::Program { name } => format!("{name} check"),
+        }
+    }
+}
+
+/// What an experiment is called and where it comes from.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Info {
+    /// Name, used for output names (`tuned/<name>.toml`): letters, digits, `_` and `-`.
+    pub name: String,
+    /// One line saying what is modelled (may be empty).
+    pub description: String,
+    /// Where it is defined.
+    pub source: Source,
+}
+
+/// The filter's noise covariances at some θ, for reports and tuned configs.
+#[allow(non_snake_case)]
+#[derive(Debug, Clone, PartialEq)]
+pub struct Covariances {
+    /// Process noise covariance per step, n_x × n_x (state units squared).
+    pub Q: DMatrix<f64>,
+    /// Measurement noise covariance, n_z × n_z (measurement units squared; all sensors'
+    /// components in sensor order).
+    pub R: DMatrix<f64>,
+}
+
+/// How one Monte Carlo evaluation runs: the engine path and a progress callback.
+#[derive(Clone, Copy, Default)]
+pub struct RunOptions<'a> {
+    /// The engine path; an experiment without a linear fast path runs its generic one for
+    /// [`Engine::Auto`] and [`Engine::Linear`] alike (see [`Experiment::supports`]).
+    pub engine: Engine,
+    /// Told the number of runs completed after each parallel wave.
+    pub progress: Progress<'a>,
+}
+
+/// A filter family and the truth it is tested against, seen through what the statistics
+/// need: named parameters θ, component names, and the Monte Carlo sums at θ.
+///
+/// Implementations must honour the engine's reproducibility contract: the same θ, settings
+/// and seed give the same sums on any number of threads (common random numbers: the tuner
+/// evaluates every candidate on the same seed).
+pub trait Experiment: Sync {
+    /// Name, description and source.
+    fn info(&self) -> &Info;
+
+    /// The named parameters: values are the configured filter (the tuner's start), bounds
+    /// the search box.
+    fn params(&self) -> &ParamSpace;
+
+    /// State component names, n_x (of the error state the NEES is taken in).
+    fn state_names(&self) -> &[String];
+
+    /// Measurement component names, all sensors' components concatenated in sensor order.
+    fn measurement_names(&self) -> &[String];
+
+    /// The experiment's own Monte Carlo test (runs, steps, seed, α, lags).
+    fn mc(&self) -> &McConfig;
+
+    /// The Monte Carlo sums of the filter with parameters `theta` (one value per parameter,
+    /// in [`Experiment::params`] order) against the truth, under `mc`.
+    fn monte_carlo_with(
+        &self,
+        theta: &[f64],
+        mc: &McConfig,
+        options: RunOptions<'_>,
+    ) -> Accumulator;
+
+    /// [`Experiment::monte_carlo_with`] on the fastest valid path, without progress.
+    fn monte_carlo(&self, theta: &[f64], mc: &McConfig) -> Accumulator {
+        self.monte_carlo_with(theta, mc, RunOptions::default())
+    }
+
+    /// Whether the experiment can run on `engine` (all can run [`Engine::Auto`] and
+    /// [`Engine::Generic`]; only linear problems have the linear fast path).
+    fn supports(&self, engine: Engine) -> bool {
+        engine != Engine::Linear
+    }
+
+    /// The exact expected sums, where the model allows computing them in closed form (a
+    /// filter whose covariance stops being positive definite gives sums marked diverged);
+    /// `None` when it does not.
+    fn expected(&self, _theta: &[f64], _mc: &McConfig) -> Option<Accumulator> {
+        None
+    }
+
+    /// What parameter `i` drives (process or measurement noise, and which components); the
+    /// advice reads those components' statistics and the Gauss–Newton search matches them
+    /// first. `None` when unknown.
+    fn target(&self, _i: usize) -> Option<Target> {
+        None
+    }
+
+    /// The filter's Q and R at `theta`, where they are single matrices (linear filters).
+    fn covariances(&self, _theta: &[f64]) -> Option<Covariances> {
+        None
+    }
+
+    /// The parameter values equal to the truth's noise, where the experiment knows them.
+    fn truth_values(&self) -> Option<Vec<f64>> {
+        None
+    }
+}

@@ -1,0 +1,132 @@
+//! Reading inputs: TOML files with errors that name the file, the field and the line, and
+//! values checked where they are set, with errors that name the setting.
+//!
+//! These two error types are the bottom of every input path. A problem file's loader turns
+//! a [`SettingError`] into a [`FileError`] at `montecarlo.runs` or `tune.max_evals`; the
+//! command line turns it into an error naming the flag (`--runs`).
+
+use std::fmt;
+use std::path::{Path, PathBuf};
+
+/// A bad input file: which file, which field, what is wrong (one line).
+#[derive(Debug, Clone, PartialEq)]
+pub struct FileError {
+    /// The file.
+    pub file: PathBuf,
+    /// Dotted path of the field, e.g. `truth.Q[1].indices` (empty for the whole file).
+    pub field: String,
+    /// Line in the file, where known.
+    pub line: Option<usize>,
+    /// What is wrong, on one line.
+    pub message: String,
+}
+
+impl FileError {
+    /// An error at `field` of `file`, line unknown.
+    pub fn new(file: &Path, field: impl Into<String>, message: impl Into<String>) -> Self {
+        FileError {
+            file: file.to_path_buf(),
+            field: field.into(),
+            line: None,
+            message: message.into(),
+        }
+    }
+
+    /// A setting's error as an error at `prefix` + the setting's name in `file` (e.g.
+    /// `tune.` + `max_evals`).
+    pub fn from_setting(file: &Path, prefix: &str, e: SettingError) -> Self {
+        FileError::new(file, format!("{prefix}{}", e.setting), e.message)
+    }
+}
+
+impl fmt::Display for FileError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{}", self.file.display())?;
+        if let Some(l) = self.line {
+            write!(f, ":{l}")?;
+        }
+        if !self.field.is_empty() {
+            write!(f, ": {}", self.field)?;
+        }
+        write!(f, ": {}", self.message)
+    }
+}
+
+impl std::error::Error for FileError {}
+
+/// A value a setter refused: the setting's name (as in a problem file's table, e.g.
+/// `runs`, `max_evals`, `weights.shape`) and why.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("{setting}: {message}")]
+pub struct SettingError {
+    /// The setting.
+    pub setting: String,
+    /// What is wrong with the value, on one line.
+    pub message: String,
+}
+
+impl SettingError {
+    /// An error for `setting`.
+    pub fn new(setting: impl Into<String>, message: impl Into<String>) -> Self {
+        SettingError {
+            setting: setting.into(),
+            message: message.into(),
+        }
+    }
+
+    /// The same error for a setting inside `table` (`value` in `params.q` becomes
+    /// `params.q.value`; an error of the whole item becomes `params.q`).
+    pub fn within(self, table: &str) -> Self {
+        let setting = if self.setting.is_empty() {
+            table.to_string()
+        } else {
+            format!("{table}.{}", self.setting)
+        };
+        SettingError { setting, ..self }
+    }
+}
+
+/// `v` as a count of at least `min`, or an error for `setting` that shows `v` as given (so a
+/// negative TOML integer is reported as written).
+pub fn at_least<T: TryInto<usize> + std::fmt::Display + Copy>(
+    setting: &str,
+    v: T,
+    min: usize,
+) -> Result<usize, SettingError> {
+    v.try_into()
+        .ok()
+        .filter(|&n| n >= min)
+        .ok_or_else(|| SettingError::new(setting, format!("{v} must be ≥ {min}")))
+}
+
+/// Read a file as UTF-8 text; the error names the file.
+pub fn read_text(path: &Path) -> Result<String, FileError> {
+    let bytes =
+        std::fs::read(path).map_err(|e| FileError::new(path, "", format!("cannot read: {e}")))?;
+    String::from_utf8(bytes).map_err(|_| FileError::new(path, "", "not UTF-8 text"))
+}
+
+/// Deserialize TOML into `T`, turning syntax and schema errors into a [`FileError`] with the
+/// field path and line.
+pub fn parse_toml<T: serde::de::DeserializeOwned>(text: &str, path: &Path) -> Result<T, FileError> {
+    let line_of = |span: Option<std::ops::Range<usize>>| {
+        span.map(|s| text[..s.start.min(text.len())].matches('\n').count() + 1)
+    };
+    let one_line = |m: &str| m.trim().replace('\n', "; ");
+    let de = toml::de::Deserializer::parse(text).map_err(|e| FileError {
+        file: path.to_path_buf(),
+        field: String::new(),
+        line: line_of(e.span()),
+        message: format!("malformed TOML: {}", one_line(e.message())),
+    })?;
+    serde_path_to_error::deserialize(de).map_err(|e| {
+        let field = e.path().to_string();
+        let inner = e.into_inner();
+        FileError {
+            file: path.to_path_buf(),
+            field: if field == "." { String::new() } else { field },
+            line: line_of(inner.span()),
+            message: one_line(inner.message()),
+        }
+    })
+}

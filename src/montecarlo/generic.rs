@@ -1,0 +1,244 @@
+//! The generic engine: any [`TruthModel`] against any [`Filter`], one run at a time.
+
+use nalgebra::DVector;
+
+use super::{McConfig, Progress, record_divergence, run_chunked, run_rng};
+use crate::filter::{Filter, FilterError, check_measurement};
+use crate::linalg::cholesky;
+use crate::measurement::{Measurement, sensor_offsets};
+use crate::model::TruthModel;
+use crate::stats::{Accumulator, NeesNullVariance};
+
+/// Per-run working state for the component and whiteness statistics.
+struct RunScratch {
+    n_x: usize,
+    n_z: usize,
+    lags: usize,
+    comp_x: Vec<f64>,
+    comp_x_n: f64,
+    comp_z: Vec<f64>,
+    comp_z_n: Vec<f64>,
+    /// The last `lags` normalized innovation vectors (NaN where not measured), ring-indexed
+    /// by step.
+    ring: Vec<f64>,
+    /// The current step's normalized innovations.
+    u: Vec<f64>,
+}
+
+impl RunScratch {
+    fn new(n_x: usize, n_z: usize, lags: usize) -> Self {
+        RunScratch {
+            n_x,
+            n_z,
+            lags,
+            comp_x: vec![0.0; n_x],
+            comp_x_n: 0.0,
+            comp_z: vec![0.0; n_z],
+            comp_z_n: vec![0.0; n_z],
+            ring: vec![f64::NAN; lags.max(1) * n_z],
+            u: vec![f64::NAN; n_z],
+        }
+    }
+
+    fn reset(&mut self) {
+        self.comp_x.fill(0.0);
+        self.comp_x_n = 0.0;
+        self.comp_z.fill(0.0);
+        self.comp_z_n.fill(0.0);
+        self.ring.fill(f64::NAN);
+        self.u.fill(f64::NAN);
+    }
+
+    /// Record normalized state errors `e_j/√P_jj` for one step.
+    fn state_step(&mut self, acc: &mut Accumulator, scaled_sq: impl Iterator<Item = f64>) {
+        for (j, v) in scaled_sq.enumerate() {
+            self.comp_x[j] += v;
+            acc.state_comp_total[j] += v;
+            acc.state_comp_samples[j] += 1.0;
+        }
+        self.comp_x_n += 1.0;
+    }
+
+    /// Record one normalized innovation component `u = ν_j/√S_jj` at the current step.
+    fn innovation(&mut self, acc: &mut Accumulator, j: usize, u: f64) {
+        let v = u * u;
+        self.comp_z[j] += v;
+        self.comp_z_n[j] += 1.0;
+        acc.meas_comp_total[j] += v;
+        acc.meas_comp_samples[j] += 1.0;
+        self.u[j] = u;
+    }
+
+    /// Close step `k` (1-based): pair this step's innovations with earlier steps' and
+    /// store them for later lags.
+    fn end_step(&mut self, acc: &mut Accumulator, k: usize) {
+        let (m, lags) = (self.n_z, self.lags);
+        if lags > 0 {
+            for lag in 1..=lags.min(k - 1) {
+                let slot = ((k - lag) % lags) * m;
+                for j in 0..m {
+                    let (a, b) = (self.u[j], self.ring[slot + j]);
+                    if a.is_finite() && b.is_finite() {
+                        let idx = (lag - 1) * m + j;
+                        acc.white_ab[idx] += a * b;
+                        acc.white_a2[idx] += a * a;
+                        acc.white_b2[idx] += b * b;
+                        acc.white_pairs[idx] += 1.0;
+                    }
+                }
+            }
+            let slot = (k % lags) * m;
+            self.ring[slot..slot + m].copy_from_slice(&self.u);
+        }
+        self.u.fill(f64::NAN);
+    }
+
+    /// Close the run: fold its per-run component averages into the accumulator.
+    fn end_run(&self, acc: &mut Accumulator) {
+        if self.comp_x_n > 0.0 {
+            for j in 0..self.n_x {
+                let a = self.comp_x[j] / self.comp_x_n;
+                acc.state_comp_run_sum[j] += a;
+                acc.state_comp_run_sq[j] += a * a;
+            }
+        }
+        for j in 0..self.n_z {
+            if self.comp_z_n[j] > 0.0 {
+                let a = self.comp_z[j] / self.comp_z_n[j];
+                acc.meas_comp_run_sum[j] += a;
+                acc.meas_comp_run_sq[j] += a * a;
+                acc.meas_comp_runs[j] += 1;
+            }
+        }
+        acc.runs += 1;
+    }
+}
+
+/// The generic engine computes the NEES-sum variance its filter predicts (an O(n³) matrix
+/// recursion per step, as costly as a 15-state filter itself) on every this-many-th run
+/// only. The predicted variance depends on the data only through the linearization
+/// points, so it varies little between runs; the sampled mean stands for all of them (for
+/// a linear filter it is the same in every run, and the estimate is exact).
+pub const NULL_VAR_STRIDE: usize = 8;
+
+/// Run the Monte Carlo test with any truth model and filter, one run at a time (the general
+/// path: nonlinear models, filters whose gain depends on the data, changing measurements).
+pub fn run_generic<M, F>(truth: &M, filter: &F, mc: &McConfig) -> Accumulator
+where
+    M: TruthModel + ?Sized,
+    F: Filter + ?Sized,
+{
+    run_generic_with_progress(truth, filter, mc, None)
+}
+
+/// [`run_generic`], reporting the runs completed after each parallel wave.
+pub fn run_generic_with_progress<M, F>(
+    truth: &M,
+    filter: &F,
+    mc: &McConfig,
+    progress: Progress<'_>,
+) -> Accumulator
+where
+    M: TruthModel + ?Sized,
+    F: Filter + ?Sized,
+{
+    let n_x = filter.n_x();
+    let dims = filter.sensor_dims();
+    let offsets = sensor_offsets(&dims);
+    let n_z: usize = dims.iter().sum();
+    run_chunked(mc, n_x, n_z, progress, |range, acc| {
+        let mut scratch = RunScratch::new(n_x, n_z, mc.lags());
+        let mut meas: Vec<Measurement> = Vec::new();
+        for run in range {
+            scratch.reset();
+            if let Err(e) = one_run(
+                truth,
+                filter,
+                mc,
+                run,
+                &offsets,
+                &dims,
+                acc,
+                &mut scratch,
+                &mut meas,
+            ) {
+                record_divergence(acc, run, &e);
+                acc.runs += 1;
+            } else {
+                scratch.end_run(acc);
+            }
+        }
+    })
+}
+
+#[allow(clippy::too_many_arguments)]
+fn one_run<M, F>(
+    truth: &M,
+    filter: &F,
+    mc: &McConfig,
+    run: usize,
+    offsets: &[usize],
+    dims: &[usize],
+    acc: &mut Accumulator,
+    scratch: &mut RunScratch,
+    meas: &mut Vec<Measurement>,
+) -> Result<(), FilterError>
+where
+    M: TruthModel + ?Sized,
+    F: Filter + ?Sized,
+{
+    let n_x = filter.n_x();
+    let mut rng = run_rng(mc.seed(), run);
+    let mut x = truth.initial_state(&mut rng);
+    let mut est = filter.initial();
+    let mut null_var = NeesNullVariance::new(n_x);
+    let sample_null_var = run % NULL_VAR_STRIDE == 0;
+    for k in 1..=mc.steps() {
+        let i = k - 1;
+        x = truth.propagate(k, &x, &mut rng);
+        let input = truth.input(k, &x, &mut rng);
+        meas.clear();
+        truth.measure(k, &x, &mut rng, meas);
+        match &input {
+            Some(u) => filter.predict_with_input(k, &mut est, u)?,
+            None => filter.predict(k, &mut est)?,
+        }
+        let (mut nis, mut dof) = (0.0, 0usize);
+        for m in meas.iter() {
+            check_measurement(dims.get(m.sensor).copied(), m)?;
+            let inn = filter.update(k, &mut est, m)?;
+            nis += inn.nis;
+            dof += m.z.len();
+            for j in 0..m.z.len() {
+                scratch.innovation(acc, offsets[m.sensor] + j, inn.nu[j] / inn.S[(j, j)].sqrt());
+            }
+        }
+        if dof > 0 {
+            acc.nis_sum[i] += nis;
+            acc.nis_sq[i] += nis * nis;
+            acc.nis_dof[i] += dof as f64;
+            acc.nis_count[i] += 1.0;
+        }
+        scratch.end_step(acc, k);
+
+        let e: DVector<f64> = filter.state_error(&x, &est.x);
+        let chol = cholesky(&est.P).ok_or(FilterError::NotPositiveDefinite {
+            which: "P",
+            step: k,
+        })?;
+        let nees = crate::linalg::mahalanobis_sq(&chol, &e);
+        acc.nees_sum[i] += nees;
+        acc.nees_sq[i] += nees * nees;
+        acc.nees_dof[i] += n_x as f64;
+        acc.nees_count[i] += 1.0;
+        scratch.state_step(acc, (0..n_x).map(|j| e[j] * e[j] / est.P[(j, j)]));
+        if sample_null_var {
+            null_var.step(&est.error_map, &est.P, &chol);
+        }
+    }
+    if sample_null_var {
+        acc.nees_null_var += null_var.variance();
+        acc.null_var_runs += 1;
+    }
+    Ok(())
+}

@@ -1,0 +1,243 @@
+//! Chi-square acceptance intervals, the power check, and verdicts.
+//!
+//! Over N independent runs, `N · ANEES_k ~ χ²(N n_x)` under a consistent filter, so its
+//! two-sided (1 − α) acceptance interval is `[χ²⁻¹(α/2, N n_x)/N, χ²⁻¹(1 − α/2, N n_x)/N]`
+//! (Bar-Shalom, Li, Kirubarajan 2001, §5.4); sums with correlated terms use a moment-matched
+//! scaled chi-square (Satterthwaite 1946).
+
+use serde::Serialize;
+use statrs::distribution::{ChiSquared, ContinuousCDF, Normal};
+
+/// Inverse of the chi-square CDF: the `p` quantile of `χ²(dof)`.
+///
+/// `dof` may be fractional (for moment-matched approximations). Panics only if `dof` is
+/// not positive and finite, which callers rule out.
+pub fn chi2_inv(p: f64, dof: f64) -> f64 {
+    ChiSquared::new(dof)
+        .expect("chi-square degrees of freedom must be positive and finite")
+        .inverse_cdf(p)
+}
+
+/// A closed acceptance interval `[lower, upper]` for an averaged statistic.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct Interval {
+    /// Lower bound `r1`.
+    pub lower: f64,
+    /// Upper bound `r2`.
+    pub upper: f64,
+}
+
+impl Interval {
+    /// Whether `v` lies inside the interval (bounds included).
+    pub fn contains(&self, v: f64) -> bool {
+        v >= self.lower && v <= self.upper
+    }
+
+    /// Where `v` lies relative to the interval.
+    pub fn classify(&self, v: f64) -> Verdict {
+        if v > self.upper {
+            Verdict::Overconfident
+        } else if v < self.lower {
+            Verdict::Underconfident
+        } else {
+            Verdict::Consistent
+        }
+    }
+}
+
+/// The two-sided (1 − α) interval of an average of `count` chi-square variables whose
+/// degrees of freedom add up to `total_dof`: `[χ²⁻¹(α/2, D)/count, χ²⁻¹(1 − α/2, D)/count]`.
+pub fn chi2_average_interval(alpha: f64, total_dof: f64, count: f64) -> Interval {
+    Interval {
+        lower: chi2_inv(alpha / 2.0, total_dof) / count,
+        upper: chi2_inv(1.0 - alpha / 2.0, total_dof) / count,
+    }
+}
+
+/// The two-sided (1 − α) interval of `sum / count`, where `sum` has mean `mean` and
+/// variance `var`, approximated by the scaled chi-square `g·χ²(h)` with the same two
+/// moments: `g = var / (2 mean)`, `h = 2 mean² / var`. Returns the interval and `h`.
+pub fn scaled_chi2_interval(alpha: f64, mean: f64, var: f64, count: f64) -> (Interval, f64) {
+    let g = var / (2.0 * mean);
+    let h = 2.0 * mean * mean / var;
+    let iv = Interval {
+        lower: g * chi2_inv(alpha / 2.0, h) / count,
+        upper: g * chi2_inv(1.0 - alpha / 2.0, h) / count,
+    };
+    (iv, h)
+}
+
+/// Whether a two-sided chi-square test on `dof` degrees of freedom at level α can tell a
+/// covariance that is off by a factor of two from a correct one: both `χ²⁻¹(1 − α/2)/dof`
+/// below 2 and `χ²⁻¹(α/2)/dof` above 1/2. At α = 0.05 this needs 23 degrees of freedom; a
+/// single run of a scalar measurement has one.
+pub fn has_power(alpha: f64, dof: f64) -> bool {
+    dof > 0.0
+        && chi2_inv(1.0 - alpha / 2.0, dof) / dof < 2.0
+        && chi2_inv(alpha / 2.0, dof) / dof > 0.5
+}
+
+/// The two-sided standard-normal quantile `z_{1−α/2}`.
+pub fn normal_two_sided_quantile(alpha: f64) -> f64 {
+    Normal::standard().inverse_cdf(1.0 - alpha / 2.0)
+}
+
+/// The outcome of a consistency test.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Verdict {
+    /// Inside the acceptance interval.
+    Consistent,
+    /// Errors larger than the filter believes (statistic above `r2`): its P or S is too
+    /// small; increase Q (or R if the sensor model is wrong).
+    Overconfident,
+    /// Errors smaller than the filter believes (statistic below `r1`): decrease Q.
+    Underconfident,
+    /// Some statistics above their interval, some below.
+    Mixed,
+    /// Passed, but with too few degrees of freedom for the test to mean anything.
+    Inconclusive,
+    /// The filter's covariance stopped being positive definite.
+    Diverged,
+}
+
+impl Verdict {
+    /// Whether this verdict lets a CI gate pass.
+    pub fn passes(self) -> bool {
+        self == Verdict::Consistent
+    }
+
+    /// Short human wording.
+    pub fn describe(self) -> &'static str {
+        match self {
+            Verdict::Consistent => "consistent",
+            Verdict::Overconfident => {
+                "overconfident (errors larger than the filter believes: increase Q)"
+            }
+            Verdict::Underconfident => {
+                "underconfident (errors smaller than the filter believes: decrease Q)"
+            }
+            Verdict::Mixed => "inconsistent (some statistics too high, some too low)",
+            Verdict::Inconclusive => "inconclusive (too little data for the test to have power)",
+            Verdict::Diverged => "diverged (covariance not positive definite)",
+        }
+    }
+
+    /// One-word label.
+    pub fn label(self) -> &'static str {
+        match self {
+            Verdict::Consistent => "consistent",
+            Verdict::Overconfident => "overconfident",
+            Verdict::Underconfident => "underconfident",
+            Verdict::Mixed => "mixed",
+            Verdict::Inconclusive => "inconclusive",
+            Verdict::Diverged => "diverged",
+        }
+    }
+}
+
+/// The level of each of `k` gate statistics so that a consistent filter fails the gate with
+/// probability at most α (Šidák): `1 − (1 − α)^{1/k}`. Exactly α when the statistics are
+/// independent, less when they are positively dependent (NEES and NIS are).
+pub fn gate_alpha(alpha: f64, k: usize) -> f64 {
+    1.0 - (1.0 - alpha).powf(1.0 / k.max(1) as f64)
+}
+
+/// Combine the verdicts of several statistics into one.
+pub fn combine(verdicts: &[Verdict]) -> Verdict {
+    if verdicts.contains(&Verdict::Diverged) {
+        return Verdict::Diverged;
+    }
+    let over = verdicts.contains(&Verdict::Overconfident);
+    let under = verdicts.contains(&Verdict::Underconfident);
+    match (over, under) {
+        (true, true) => Verdict::Mixed,
+        (true, false) => Verdict::Overconfident,
+        (false, true) => Verdict::Underconfident,
+        _ if verdicts.contains(&Verdict::Mixed) => Verdict::Mixed,
+        _ if verdicts.contains(&Verdict::Inconclusive) => Verdict::Inconclusive,
+        _ => Verdict::Consistent,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use approx::assert_relative_eq;
+
+    #[test]
+    fn average_interval_scales_by_count() {
+        // N = 50 runs of a 2-D statistic: 100 degrees of freedom, divided by 50.
+        let iv = chi2_average_interval(0.05, 100.0, 50.0);
+        assert_relative_eq!(
+            iv.lower,
+            chi2_inv(0.025, 100.0) / 50.0,
+            max_relative = 1e-15
+        );
+        assert_relative_eq!(
+            iv.upper,
+            chi2_inv(0.975, 100.0) / 50.0,
+            max_relative = 1e-15
+        );
+        assert!(iv.lower < 2.0 && iv.upper > 2.0);
+    }
+
+    #[test]
+    fn scaled_interval_reduces_to_chi2_without_correlation() {
+        let (iv, h) = scaled_chi2_interval(0.05, 400.0, 800.0, 100.0);
+        let naive = chi2_average_interval(0.05, 400.0, 100.0);
+        assert_relative_eq!(h, 400.0, max_relative = 1e-14);
+        assert_relative_eq!(iv.lower, naive.lower, max_relative = 1e-12);
+        assert_relative_eq!(iv.upper, naive.upper, max_relative = 1e-12);
+    }
+
+    #[test]
+    fn scaled_interval_widens_with_variance() {
+        let (iv, h) = scaled_chi2_interval(0.05, 400.0, 8000.0, 100.0);
+        let naive = chi2_average_interval(0.05, 400.0, 100.0);
+        assert_relative_eq!(h, 40.0, max_relative = 1e-14);
+        assert!(iv.lower < naive.lower && iv.upper > naive.upper);
+    }
+
+    #[test]
+    fn gate_alpha_splits_the_level() {
+        assert_relative_eq!(gate_alpha(0.05, 1), 0.05, max_relative = 1e-15);
+        let a = gate_alpha(0.05, 2);
+        assert_relative_eq!(1.0 - (1.0 - a) * (1.0 - a), 0.05, max_relative = 1e-12);
+    }
+
+    #[test]
+    fn power_threshold() {
+        // One run of a scalar measurement cannot see a factor-2 error; 50 degrees of freedom can.
+        assert!(!has_power(0.05, 1.0));
+        assert!(!has_power(0.05, 4.0));
+        assert!(has_power(0.05, 50.0));
+    }
+
+    #[test]
+    fn classify_and_combine() {
+        let iv = Interval {
+            lower: 0.5,
+            upper: 1.5,
+        };
+        assert_eq!(iv.classify(2.0), Verdict::Overconfident);
+        assert_eq!(iv.classify(0.1), Verdict::Underconfident);
+        assert_eq!(iv.classify(1.0), Verdict::Consistent);
+        assert_eq!(
+            combine(&[Verdict::Consistent, Verdict::Overconfident]),
+            Verdict::Overconfident
+        );
+        assert_eq!(
+            combine(&[Verdict::Underconfident, Verdict::Overconfident]),
+            Verdict::Mixed
+        );
+        assert_eq!(
+            combine(&[Verdict::Consistent, Verdict::Inconclusive]),
+            Verdict::Inconclusive
+        );
+        assert_eq!(
+            combine(&[Verdict::Consistent, Verdict::Consistent]),
+            Verdict::Consistent
+        );
+    }
+}

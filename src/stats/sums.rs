@@ -1,0 +1,181 @@
+//! The sufficient statistics of a Monte Carlo evaluation: sums over runs that the engines
+//! fill and the report, the objective and the tuner read.
+
+use serde::Serialize;
+
+/// How many divergences are kept with their details.
+const MAX_DIVERGENCES: usize = 10;
+
+/// A run in which the filter's covariance stopped being positive definite.
+#[derive(Debug, Clone, Serialize, PartialEq)]
+pub struct Divergence {
+    /// Run index (0-based).
+    pub run: usize,
+    /// Time step (1-based).
+    pub step: usize,
+    /// What failed.
+    pub reason: String,
+}
+
+/// Sufficient statistics of a Monte Carlo evaluation, summed over runs.
+///
+/// Per-step vectors have length T (index k − 1 for step k); component vectors have length
+/// n_x or n_z (all sensors' components concatenated in sensor order); whiteness vectors
+/// have length `lags · n_z`, lag-major.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Accumulator {
+    /// Runs completed or diverged.
+    pub runs: usize,
+    /// Steps per run.
+    pub steps: usize,
+    /// Largest autocorrelation lag.
+    pub lags: usize,
+    /// Σ_i NEES_ik.
+    pub nees_sum: Vec<f64>,
+    /// Σ_i NEES_ik².
+    pub nees_sq: Vec<f64>,
+    /// Σ_i n_x (degrees of freedom of the step's NEES sum).
+    pub nees_dof: Vec<f64>,
+    /// Number of runs contributing a NEES at the step.
+    pub nees_count: Vec<f64>,
+    /// Σ over the runs counted in `null_var_runs` of the variance of the per-run NEES sum
+    /// the filter predicts under consistency (see [`NeesNullVariance`]); read it through
+    /// [`Accumulator::nees_null_variance`].
+    pub nees_null_var: f64,
+    /// Runs whose predicted NEES-sum variance is in `nees_null_var`: all of them on the
+    /// linear and exact paths, every [`NULL_VAR_STRIDE`]-th on the generic one.
+    pub null_var_runs: usize,
+    /// Σ_i NIS_ik.
+    pub nis_sum: Vec<f64>,
+    /// Σ_i NIS_ik².
+    pub nis_sq: Vec<f64>,
+    /// Σ_i n_z,ik (the dimension of the measurement each run used at the step).
+    pub nis_dof: Vec<f64>,
+    /// Number of runs with a measurement at the step.
+    pub nis_count: Vec<f64>,
+    /// Σ_{i,k} e_j²/P_jj per state component.
+    pub state_comp_total: Vec<f64>,
+    /// Samples behind `state_comp_total`.
+    pub state_comp_samples: Vec<f64>,
+    /// Σ_i of the per-run time average of e_j²/P_jj.
+    pub state_comp_run_sum: Vec<f64>,
+    /// Σ_i of its square.
+    pub state_comp_run_sq: Vec<f64>,
+    /// Σ_{i,k} ν_j²/S_jj per measurement component.
+    pub meas_comp_total: Vec<f64>,
+    /// Samples behind `meas_comp_total`.
+    pub meas_comp_samples: Vec<f64>,
+    /// Σ_i of the per-run time average of ν_j²/S_jj.
+    pub meas_comp_run_sum: Vec<f64>,
+    /// Σ_i of its square.
+    pub meas_comp_run_sq: Vec<f64>,
+    /// Runs in which the component was measured at least once.
+    pub meas_comp_runs: Vec<usize>,
+    /// Σ u_k u_{k−l} with u = ν_j/√S_jj.
+    pub white_ab: Vec<f64>,
+    /// Σ u_k².
+    pub white_a2: Vec<f64>,
+    /// Σ u_{k−l}².
+    pub white_b2: Vec<f64>,
+    /// Number of pairs.
+    pub white_pairs: Vec<f64>,
+    /// Number of runs whose filter diverged.
+    pub diverged_runs: usize,
+    /// The first few divergences, by run index.
+    pub divergences: Vec<Divergence>,
+}
+
+impl Accumulator {
+    /// Zeroed sums for T steps, n_x states, n_z measurement components and `lags` lags.
+    pub fn new(steps: usize, n_x: usize, n_z: usize, lags: usize) -> Self {
+        let z = |len| vec![0.0; len];
+        Accumulator {
+            runs: 0,
+            steps,
+            lags,
+            nees_sum: z(steps),
+            nees_sq: z(steps),
+            nees_dof: z(steps),
+            nees_count: z(steps),
+            nees_null_var: 0.0,
+            null_var_runs: 0,
+            nis_sum: z(steps),
+            nis_sq: z(steps),
+            nis_dof: z(steps),
+            nis_count: z(steps),
+            state_comp_total: z(n_x),
+            state_comp_samples: z(n_x),
+            state_comp_run_sum: z(n_x),
+            state_comp_run_sq: z(n_x),
+            meas_comp_total: z(n_z),
+            meas_comp_samples: z(n_z),
+            meas_comp_run_sum: z(n_z),
+            meas_comp_run_sq: z(n_z),
+            meas_comp_runs: vec![0; n_z],
+            white_ab: z(lags * n_z),
+            white_a2: z(lags * n_z),
+            white_b2: z(lags * n_z),
+            white_pairs: z(lags * n_z),
+            diverged_runs: 0,
+            divergences: Vec::new(),
+        }
+    }
+
+    /// The variance of the NEES sum over all runs that the filters predict under
+    /// consistency: the sampled runs' mean, times the runs that finished.
+    pub fn nees_null_variance(&self) -> f64 {
+        if self.null_var_runs == 0 {
+            return 0.0;
+        }
+        let finished = self.runs.saturating_sub(self.diverged_runs);
+        self.nees_null_var * finished as f64 / self.null_var_runs as f64
+    }
+
+    /// Add another accumulator's sums to this one.
+    pub fn merge(&mut self, o: &Accumulator) {
+        fn add(a: &mut [f64], b: &[f64]) {
+            for (x, y) in a.iter_mut().zip(b) {
+                *x += y;
+            }
+        }
+        self.runs += o.runs;
+        add(&mut self.nees_sum, &o.nees_sum);
+        add(&mut self.nees_sq, &o.nees_sq);
+        add(&mut self.nees_dof, &o.nees_dof);
+        add(&mut self.nees_count, &o.nees_count);
+        self.nees_null_var += o.nees_null_var;
+        self.null_var_runs += o.null_var_runs;
+        add(&mut self.nis_sum, &o.nis_sum);
+        add(&mut self.nis_sq, &o.nis_sq);
+        add(&mut self.nis_dof, &o.nis_dof);
+        add(&mut self.nis_count, &o.nis_count);
+        add(&mut self.state_comp_total, &o.state_comp_total);
+        add(&mut self.state_comp_samples, &o.state_comp_samples);
+        add(&mut self.state_comp_run_sum, &o.state_comp_run_sum);
+        add(&mut self.state_comp_run_sq, &o.state_comp_run_sq);
+        add(&mut self.meas_comp_total, &o.meas_comp_total);
+        add(&mut self.meas_comp_samples, &o.meas_comp_samples);
+        add(&mut self.meas_comp_run_sum, &o.meas_comp_run_sum);
+        add(&mut self.meas_comp_run_sq, &o.meas_comp_run_sq);
+        for (a, b) in self.meas_comp_runs.iter_mut().zip(&o.meas_comp_runs) {
+            *a += b;
+        }
+        add(&mut self.white_ab, &o.white_ab);
+        add(&mut self.white_a2, &o.white_a2);
+        add(&mut self.white_b2, &o.white_b2);
+        add(&mut self.white_pairs, &o.white_pairs);
+        self.diverged_runs += o.diverged_runs;
+        let room = MAX_DIVERGENCES.saturating_sub(self.divergences.len());
+        self.divergences
+            .extend(o.divergences.iter().take(room).cloned());
+    }
+
+    /// Count run `run` as diverged at `step` (0 if not tied to a step) for `reason`; the
+    /// first few are kept with their details.
+    pub fn record_divergence(&mut self, run: usize, step: usize, reason: String) {
+        self.diverged_runs += 1;
+        if self.divergences.len() < MAX_DIVERGENCES {
+            self.divergences.push(Divergence { run, step, reason });
+        }
+    }
+}

@@ -1,0 +1,323 @@
+//! The tuner's settings, checked where they are set.
+
+use serde::Serialize;
+
+use super::objective::Weights;
+use crate::input::{SettingError, at_least};
+
+/// How candidates are scored during the search.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, clap::ValueEnum)]
+#[serde(rename_all = "snake_case")]
+pub enum Scoring {
+    /// Exact expectations where the experiment allows them, Monte Carlo otherwise.
+    #[default]
+    Auto,
+    /// Exact expected statistics (a linear filter with the truth's F and H).
+    Exact,
+    /// Monte Carlo with common random numbers.
+    #[value(name = "monte_carlo", alias = "monte-carlo")]
+    MonteCarlo,
+}
+
+/// The local search that refines the global stage's best points.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, clap::ValueEnum)]
+#[serde(rename_all = "snake_case")]
+pub enum LocalSearch {
+    /// Nelder–Mead with a wide simplex (0.7 in log units, a factor 2), restarted with a
+    /// small one to polish. Derivative-free and exploratory: it can leave a shallow local
+    /// minimum. Suits problems with a few free parameters.
+    #[default]
+    #[value(alias = "nelder_mead", alias = "nelder-mead")]
+    Simplex,
+    /// Levenberg–Marquardt on the objective's residual vector (J is a sum of squares) with
+    /// a finite-difference Jacobian: d + 1 evaluations an iteration, converging in a
+    /// handful. Suits many free parameters of an expensive Monte Carlo, where a simplex
+    /// needs hundreds of evaluations; it stays in the basin it starts in, so it relies on
+    /// the global stage and several starts.
+    #[value(
+        name = "gauss_newton",
+        alias = "gauss-newton",
+        alias = "levenberg_marquardt",
+        alias = "levenberg-marquardt"
+    )]
+    GaussNewton,
+}
+
+/// `s` as one of `E`'s names or aliases, or an error for `setting` listing the names.
+fn parse_name<E: clap::ValueEnum>(setting: &str, what: &str, s: &str) -> Result<E, SettingError> {
+    E::from_str(s, false).map_err(|_| {
+        let known: Vec<String> = E::value_variants()
+            .iter()
+            .filter_map(|v| v.to_possible_value().map(|p| p.get_name().to_string()))
+            .collect();
+        SettingError::new(
+            setting,
+            format!("unknown {what} '{s}' (known: {})", known.join(", ")),
+        )
+    })
+}
+
+impl Scoring {
+    /// Parse `auto`, `exact` or `monte_carlo` (also `monte-carlo`).
+    pub fn from_name(s: &str) -> Result<Scoring, SettingError> {
+        parse_name("scoring", "scoring", s)
+    }
+}
+
+impl LocalSearch {
+    /// Parse `simplex` (also `nelder_mead`) or `gauss_newton` (also `levenberg_marquardt`).
+    pub fn from_name(s: &str) -> Result<LocalSearch, SettingError> {
+        parse_name("local", "local search", s)
+    }
+}
+
+/// Search settings. Every value is checked by its setter:
+///
+/// ```
+/// use autotune::tune::{LocalSearch, TuneSettings};
+/// let s = TuneSettings::default()
+///     .with_max_evals(500)?
+///     .with_local(LocalSearch::GaussNewton)
+///     .with_weight("shape", 1.0)?;
+/// assert_eq!(s.max_evals(), 500);
+/// assert!(TuneSettings::default().with_starts(0).is_err());
+/// # Ok::<(), autotune::input::SettingError>(())
+/// ```
+#[derive(Debug, Clone, PartialEq)]
+pub struct TuneSettings {
+    weights: Weights,
+    nis_only: bool,
+    max_evals: usize,
+    max_seconds: f64,
+    starts: usize,
+    global_points: usize,
+    scoring: Scoring,
+    local: LocalSearch,
+    confirm_seed: Option<u64>,
+    search_runs: Option<usize>,
+}
+
+impl Default for TuneSettings {
+    fn default() -> Self {
+        TuneSettings {
+            weights: Weights::default(),
+            nis_only: false,
+            max_evals: 4000,
+            max_seconds: 120.0,
+            starts: 3,
+            global_points: 16,
+            scoring: Scoring::Auto,
+            local: LocalSearch::Simplex,
+            confirm_seed: None,
+            search_runs: None,
+        }
+    }
+}
+
+impl TuneSettings {
+    /// Objective weights.
+    pub fn with_weights(mut self, weights: Weights) -> Self {
+        self.weights = weights;
+        self
+    }
+
+    /// One objective weight by name (`mean`, `interval`, `per_step`, `components`,
+    /// `whiteness`, `shape`), finite and ≥ 0.
+    pub fn with_weight(mut self, name: &str, value: f64) -> Result<Self, SettingError> {
+        self.weights.set(name, value)?;
+        Ok(self)
+    }
+
+    /// Score NIS and measurement statistics only (no trusted ground truth).
+    pub fn with_nis_only(mut self, nis_only: bool) -> Self {
+        self.nis_only = nis_only;
+        self
+    }
+
+    /// Evaluation budget of the search (≥ 1).
+    pub fn with_max_evals<N: TryInto<usize> + std::fmt::Display + Copy>(
+        mut self,
+        n: N,
+    ) -> Result<Self, SettingError> {
+        self.max_evals = at_least("max_evals", n, 1)?;
+        Ok(self)
+    }
+
+    /// Wall-time budget of the search, s (finite, > 0).
+    pub fn with_max_seconds(mut self, s: f64) -> Result<Self, SettingError> {
+        if !(s.is_finite() && s > 0.0) {
+            return Err(SettingError::new("max_seconds", format!("{s} must be > 0")));
+        }
+        self.max_seconds = s;
+        Ok(self)
+    }
+
+    /// Number of local searches, started from the best points of the global stage (≥ 1).
+    pub fn with_starts<N: TryInto<usize> + std::fmt::Display + Copy>(
+        mut self,
+        n: N,
+    ) -> Result<Self, SettingError> {
+        self.starts = at_least("starts", n, 1)?;
+        Ok(self)
+    }
+
+    /// Quasi-random points of the global stage per free parameter (≥ 1).
+    pub fn with_global_points<N: TryInto<usize> + std::fmt::Display + Copy>(
+        mut self,
+        n: N,
+    ) -> Result<Self, SettingError> {
+        self.global_points = at_least("global_points", n, 1)?;
+        Ok(self)
+    }
+
+    /// How candidates are scored.
+    pub fn with_scoring(mut self, scoring: Scoring) -> Self {
+        self.scoring = scoring;
+        self
+    }
+
+    /// The local search.
+    pub fn with_local(mut self, local: LocalSearch) -> Self {
+        self.local = local;
+        self
+    }
+
+    /// Seed of the confirmation runs (`None`: derived from the search seed, never equal).
+    pub fn with_confirm_seed(mut self, seed: Option<u64>) -> Self {
+        self.confirm_seed = seed;
+        self
+    }
+
+    /// Runs per Monte Carlo evaluation in the search (≥ 1; default 4 N).
+    pub fn with_search_runs<N: TryInto<usize> + std::fmt::Display + Copy>(
+        mut self,
+        n: N,
+    ) -> Result<Self, SettingError> {
+        self.search_runs = Some(at_least("search_runs", n, 1)?);
+        Ok(self)
+    }
+
+    /// Objective weights.
+    pub fn weights(&self) -> Weights {
+        self.weights
+    }
+
+    /// Whether only innovations are scored.
+    pub fn nis_only(&self) -> bool {
+        self.nis_only
+    }
+
+    /// Evaluation budget.
+    pub fn max_evals(&self) -> usize {
+        self.max_evals
+    }
+
+    /// Wall-time budget, s.
+    pub fn max_seconds(&self) -> f64 {
+        self.max_seconds
+    }
+
+    /// Number of local searches.
+    pub fn starts(&self) -> usize {
+        self.starts
+    }
+
+    /// Global-stage points per free parameter.
+    pub fn global_points(&self) -> usize {
+        self.global_points
+    }
+
+    /// How candidates are scored.
+    pub fn scoring(&self) -> Scoring {
+        self.scoring
+    }
+
+    /// The local search.
+    pub fn local(&self) -> LocalSearch {
+        self.local
+    }
+
+    /// Seed of the confirmation runs, if set.
+    pub fn confirm_seed(&self) -> Option<u64> {
+        self.confirm_seed
+    }
+
+    /// Runs per Monte Carlo evaluation in the search, if set (default 4 N: a parameter
+    /// estimated from N runs is as noisy as the N-run gate that confirms it, so the
+    /// confirmation would fail far more often than α; four times the runs halve the noise).
+    pub fn search_runs(&self) -> Option<usize> {
+        self.search_runs
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn setters_accept_valid_and_refuse_invalid_values() {
+        let s = TuneSettings::default();
+        assert_eq!(s.clone().with_max_evals(7).unwrap().max_evals(), 7);
+        assert_eq!(
+            s.clone().with_max_evals(0).unwrap_err(),
+            SettingError::new("max_evals", "0 must be ≥ 1")
+        );
+        assert_eq!(
+            s.clone().with_max_evals(-2_i64).unwrap_err(),
+            SettingError::new("max_evals", "-2 must be ≥ 1")
+        );
+        for bad in [0.0, -1.0, f64::NAN, f64::INFINITY] {
+            assert_eq!(
+                s.clone().with_max_seconds(bad).unwrap_err().setting,
+                "max_seconds"
+            );
+        }
+        assert_eq!(s.clone().with_max_seconds(0.5).unwrap().max_seconds(), 0.5);
+        assert!(s.clone().with_starts(0).is_err());
+        assert_eq!(s.clone().with_starts(2).unwrap().starts(), 2);
+        assert!(s.clone().with_global_points(0).is_err());
+        assert_eq!(s.clone().with_global_points(3).unwrap().global_points(), 3);
+        assert!(s.clone().with_search_runs(0).is_err());
+        assert_eq!(
+            s.clone().with_search_runs(9).unwrap().search_runs(),
+            Some(9)
+        );
+        assert_eq!(
+            s.clone().with_weight("colour", 1.0).unwrap_err().setting,
+            "weights.colour"
+        );
+        assert!(s.clone().with_weight("shape", -1.0).is_err());
+        assert_eq!(
+            s.clone().with_weight("shape", 2.0).unwrap().weights().shape,
+            2.0
+        );
+    }
+
+    #[test]
+    fn names_and_aliases_parse_and_unknown_names_list_the_known_ones() {
+        assert_eq!(
+            Scoring::from_name("monte-carlo").unwrap(),
+            Scoring::MonteCarlo
+        );
+        assert_eq!(Scoring::from_name("exact").unwrap(), Scoring::Exact);
+        assert_eq!(
+            Scoring::from_name("x").unwrap_err().message,
+            "unknown scoring 'x' (known: auto, exact, monte_carlo)"
+        );
+        assert_eq!(
+            LocalSearch::from_name("levenberg_marquardt").unwrap(),
+            LocalSearch::GaussNewton
+        );
+        assert_eq!(
+            LocalSearch::from_name("nelder-mead").unwrap(),
+            LocalSearch::Simplex
+        );
+        assert_eq!(
+            LocalSearch::from_name("newton").unwrap_err(),
+            SettingError::new(
+                "local",
+                "unknown local search 'newton' (known: simplex, gauss_newton)"
+            )
+        );
+    }
+}

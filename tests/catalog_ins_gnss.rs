@@ -177,7 +177,11 @@ fn filter_step_transition_matches_finite_differences() {
             |dx| propagated_error(&nom, dx, &imus, 0.01),
             &DVector::zeros(15),
         );
-        let d = max_scaled_diff(&est.error_map, &fd, JAC_FLOOR);
+        let d = max_scaled_diff(
+            est.error_map.as_ref().expect("the ESKF sets its error map"),
+            &fd,
+            JAC_FLOOR,
+        );
         assert!(
             d < JAC_TOL,
             "step Φ differs from finite differences by {d:e}"

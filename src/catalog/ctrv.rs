@@ -655,8 +655,11 @@ impl CtrvFilter {
         let H = cP0.solve(&Pxz).transpose();
         let xn = x + K * nu;
         let Pn = symmetrized(&(P - K * S * K.transpose()));
-        let A = Matrix5::from_column_slice(est.error_map.as_slice());
-        let A = (Matrix5::identity() - K * H) * A;
+        let IKH = Matrix5::identity() - K * H;
+        let A = est
+            .error_map
+            .as_ref()
+            .map(|a| IKH * Matrix5::from_column_slice(a.as_slice()));
         let v = cS
             .l()
             .solve_lower_triangular(&nu)
@@ -666,7 +669,7 @@ impl CtrvFilter {
             })?;
         est.x = DVector::from_column_slice(xn.as_slice());
         est.P = to_dmatrix(&Pn);
-        est.error_map = to_dmatrix(&A);
+        est.error_map = A.as_ref().map(to_dmatrix);
         Ok(Innovation {
             nu: DVector::from_column_slice(nu.as_slice()),
             S: to_dmatrix(&S),
@@ -702,7 +705,7 @@ impl Filter for CtrvFilter {
         let (x, P, F) = self.predict_fixed(k, &x, &P)?;
         est.x = DVector::from_column_slice(x.as_slice());
         est.P = to_dmatrix(&P);
-        est.error_map = to_dmatrix(&F);
+        est.error_map = Some(to_dmatrix(&F));
         Ok(())
     }
 
@@ -718,7 +721,8 @@ impl Filter for CtrvFilter {
             _ => None,
         };
         check_measurement(dim, meas)?;
-        if est.x.len() != 5 || est.P.shape() != (5, 5) || est.error_map.shape() != (5, 5) {
+        let map_ok = est.error_map.as_ref().is_none_or(|a| a.shape() == (5, 5));
+        if est.x.len() != 5 || est.P.shape() != (5, 5) || !map_ok {
             return Err(FilterError::Unsupported {
                 what: "an estimate of dimension 5",
             });

@@ -740,7 +740,10 @@ impl Filter for OrbitEkf {
         }
         store_vec4(&mut est.x, &x1);
         store4(&mut est.P, &P1);
-        store4(&mut est.error_map, &F);
+        match &mut est.error_map {
+            Some(a) => store4(a, &F),
+            None => est.error_map = Some(DMatrix::from_column_slice(4, 4, F.as_slice())),
+        }
         Ok(())
     }
 
@@ -771,10 +774,12 @@ impl Filter for OrbitEkf {
         symmetrize4(&mut P1);
         let nis = nu.dot(&chol.solve(&nu));
         let x1 = x + K * nu;
-        let map = IKH * to_mat4(&est.error_map);
         store_vec4(&mut est.x, &x1);
         store4(&mut est.P, &P1);
-        store4(&mut est.error_map, &map);
+        if let Some(a) = &mut est.error_map {
+            let map = IKH * to_mat4(a);
+            store4(a, &map);
+        }
         Ok(Innovation {
             nu: DVector::from_column_slice(nu.as_slice()),
             S: DMatrix::from_column_slice(3, 3, S.as_slice()),

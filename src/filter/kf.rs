@@ -103,7 +103,7 @@ impl Filter for KalmanFilter {
     fn predict(&self, _k: usize, est: &mut Estimate) -> Result<(), FilterError> {
         est.x = &self.F * &est.x;
         est.P = self.predict_covariance(&est.P);
-        est.error_map = self.F.clone();
+        est.error_map = Some(self.F.clone());
         Ok(())
     }
 
@@ -119,7 +119,7 @@ impl Filter for KalmanFilter {
         let nu = &meas.z - &self.H * &est.x;
         est.x += &cu.K * &nu;
         est.P = cu.P;
-        est.error_map = &cu.IKH * &est.error_map;
+        est.compose_error_map(&cu.IKH);
         let nis = mahalanobis_sq(&cu.chol, &nu);
         Ok(Innovation { nu, S: cu.S, nis })
     }

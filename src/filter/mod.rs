@@ -17,24 +17,31 @@ use crate::measurement::Measurement;
 #[allow(non_snake_case)]
 #[derive(Debug, Clone, PartialEq)]
 pub struct Estimate {
-    /// State estimate x̂, n.
+    /// State estimate x̂, n (or the filter's own state layout; see [`Filter::state_error`]).
     pub x: DVector<f64>,
-    /// Error covariance the filter believes, P, n × n.
+    /// Error covariance the filter believes, P, n_x × n_x.
     pub P: DMatrix<f64>,
-    /// The linear map `A_k` from the previous step's posterior error to this step's
-    /// (`F` after predict, then `(I − K H) F` after an update), n × n. The engine uses it to
-    /// predict how strongly NEES is correlated over time under consistency.
-    pub error_map: DMatrix<f64>,
+    /// The linear map `A_k` from the previous step's posterior error to this step's,
+    /// n_x × n_x: `F_k` (or the statistically linearized transition) after predict, then
+    /// `(I − K H) A` after each update. `None` when the filter does not track it; see
+    /// [`Filter`] for what the engine does then.
+    pub error_map: Option<DMatrix<f64>>,
 }
 
 impl Estimate {
-    /// The estimate `(x0, P0)` at step 0, with the identity as error map.
+    /// The estimate `(x0, P0)` at step 0, with no error map yet (predict sets it).
     pub fn new(x0: &DVector<f64>, p0: &DMatrix<f64>) -> Self {
-        let n = x0.len();
         Estimate {
             x: x0.clone(),
             P: p0.clone(),
-            error_map: DMatrix::identity(n, n),
+            error_map: None,
+        }
+    }
+
+    /// Compose the error map with an update's `I − K H` (n_x × n_x): `A ← (I − K H) A`.
+    pub fn compose_error_map(&mut self, ikh: &DMatrix<f64>) {
+        if let Some(a) = &self.error_map {
+            self.error_map = Some(ikh * a);
         }
     }
 }
@@ -94,6 +101,78 @@ pub fn check_measurement(expected: Option<usize>, meas: &Measurement) -> Result<
 }
 
 /// A recursive estimator the engine can test.
+///
+/// # Duties
+///
+/// At each step k the engine calls [`Filter::predict`] (or [`Filter::predict_with_input`]),
+/// then [`Filter::update`] once per measurement, then takes the NEES of
+/// [`Filter::state_error`] against `P`. A filter must:
+///
+/// 1. keep `Estimate::P` symmetric positive definite, or return
+///    [`FilterError::NotPositiveDefinite`] (the run then counts as diverged, never NaN);
+/// 2. return each update's innovation ν, its covariance S and the NIS `ν' S⁻¹ ν`;
+/// 3. check the measurement's sensor and dimension ([`check_measurement`]);
+/// 4. set [`Estimate::error_map`] to the map from the previous posterior error to the
+///    current one: the transition `F_k` in predict (for a UKF, its statistical
+///    linearization), composed with `I − K H` in every update
+///    ([`Estimate::compose_error_map`]). Under consistency the errors obey
+///    `e_k = A_k e_{k−1} + noise`, and the engine uses `A_k` to predict how strongly NEES
+///    is correlated over time: the time-averaged NEES gate is only as narrow as that
+///    prediction is right.
+///
+/// A filter that cannot supply the error map leaves it `None` (as [`Estimate::new`] does).
+/// The engine then falls back to the variance of the per-run NEES sums measured across the
+/// runs, with a Student-t quantile for its estimation and never narrower than the textbook
+/// interval; the report says so. It needs at least two runs and is a little wider than the
+/// filter's own prediction, never a silently wider interval from a wrong map.
+///
+/// ```
+/// use autotune::filter::{Estimate, Filter, FilterError, Innovation, check_measurement};
+/// use autotune::measurement::Measurement;
+/// use nalgebra::{DMatrix, DVector};
+///
+/// /// A scalar random walk `x_k = x_{k−1} + w`, measured directly: a Kalman filter written
+/// /// out by hand, with every duty.
+/// struct Walk { q: f64, r: f64 }
+///
+/// impl Filter for Walk {
+///     fn n_x(&self) -> usize { 1 }
+///     fn sensor_dims(&self) -> Vec<usize> { vec![1] }
+///     fn initial(&self) -> Estimate {
+///         Estimate::new(&DVector::zeros(1), &DMatrix::identity(1, 1))
+///     }
+///     fn predict(&self, _k: usize, est: &mut Estimate) -> Result<(), FilterError> {
+///         est.P[(0, 0)] += self.q;
+///         est.error_map = Some(DMatrix::identity(1, 1)); // F = 1
+///         Ok(())
+///     }
+///     fn update(&self, k: usize, est: &mut Estimate, m: &Measurement)
+///         -> Result<Innovation, FilterError> {
+///         check_measurement((m.sensor == 0).then_some(1), m)?;
+///         let s = est.P[(0, 0)] + self.r;
+///         if !(s > 0.0) {
+///             return Err(FilterError::NotPositiveDefinite { which: "S", step: k });
+///         }
+///         let gain = est.P[(0, 0)] / s;
+///         let nu = m.z[0] - est.x[0];
+///         est.x[0] += gain * nu;
+///         est.P[(0, 0)] *= 1.0 - gain;
+///         est.compose_error_map(&DMatrix::from_element(1, 1, 1.0 - gain));
+///         Ok(Innovation {
+///             nu: DVector::from_element(1, nu),
+///             S: DMatrix::from_element(1, 1, s),
+///             nis: nu * nu / s,
+///         })
+///     }
+/// }
+///
+/// let f = Walk { q: 0.1, r: 1.0 };
+/// let mut est = f.initial();
+/// f.predict(1, &mut est).unwrap();
+/// let inn = f.update(1, &mut est, &Measurement { sensor: 0, z: DVector::from_element(1, 0.5) }).unwrap();
+/// assert!((inn.nis - 0.25 / 2.1).abs() < 1e-12);
+/// assert!((est.error_map.unwrap()[(0, 0)] - 1.0 / 2.1).abs() < 1e-12);
+/// ```
 pub trait Filter: Sync {
     /// State dimension n_x.
     fn n_x(&self) -> usize;

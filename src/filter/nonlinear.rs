@@ -139,7 +139,7 @@ impl<M: SystemModel> Filter for Ekf<M> {
         let mut P = &F * &est.P * F.transpose() + &self.Q;
         symmetrize(&mut P);
         est.P = P;
-        est.error_map = F;
+        est.error_map = Some(F);
         Ok(())
     }
 
@@ -158,7 +158,7 @@ impl<M: SystemModel> Filter for Ekf<M> {
             .residual(s, &meas.z, &self.model.measurement(k, s, &est.x));
         est.x += &cu.K * &nu;
         est.P = cu.P;
-        est.error_map = &cu.IKH * &est.error_map;
+        est.compose_error_map(&cu.IKH);
         let (chol, S) = (cu.chol, cu.S);
         let nis = mahalanobis_sq(&chol, &nu);
         Ok(Innovation { nu, S, nis })
@@ -317,7 +317,7 @@ impl<M: SystemModel> Filter for Ukf<M> {
             })?;
         est.x = x;
         est.P = P;
-        est.error_map = F;
+        est.error_map = Some(F);
         Ok(())
     }
 
@@ -362,7 +362,7 @@ impl<M: SystemModel> Filter for Ukf<M> {
         symmetrize(&mut P);
         est.P = P;
         let n = est.x.len();
-        est.error_map = (DMatrix::identity(n, n) - &K * &H) * &est.error_map;
+        est.compose_error_map(&(DMatrix::identity(n, n) - &K * &H));
         let nis = mahalanobis_sq(&chol, &nu);
         Ok(Innovation { nu, S, nis })
     }

@@ -193,6 +193,8 @@ where
     let mut est = filter.initial();
     let mut null_var = NeesNullVariance::new(n_x);
     let sample_null_var = run % NULL_VAR_STRIDE == 0;
+    let mut map_missing = false;
+    let mut run_nees = 0.0;
     for k in 1..=mc.steps() {
         let i = k - 1;
         x = truth.propagate(k, &x, &mut rng);
@@ -231,12 +233,21 @@ where
         acc.nees_sq[i] += nees * nees;
         acc.nees_dof[i] += n_x as f64;
         acc.nees_count[i] += 1.0;
+        run_nees += nees;
         scratch.state_step(acc, (0..n_x).map(|j| e[j] * e[j] / est.P[(j, j)]));
-        if sample_null_var {
-            null_var.step(&est.error_map, &est.P, &chol);
+        if sample_null_var && !map_missing {
+            match &est.error_map {
+                Some(a) if a.shape() == (n_x, n_x) => {
+                    null_var.step(a, &est.P, &chol);
+                }
+                _ => map_missing = true,
+            }
         }
     }
-    if sample_null_var {
+    acc.add_run_nees_total(run_nees);
+    if map_missing {
+        acc.error_map_missing += 1;
+    } else if sample_null_var {
         acc.nees_null_var += null_var.variance();
         acc.null_var_runs += 1;
     }

@@ -284,6 +284,8 @@ fn chunk(
     let mut we = DMatrix::zeros(b, n);
     let mut vn = DMatrix::zeros(b, m);
     let mut sq = vec![0.0; b];
+    // Each run's NEES sum over its steps.
+    let mut run_nees = vec![0.0; b];
     // Per-run sums of e_j²/P_jj and u_j², and the last `lags` normalized innovations.
     let mut run_x = DMatrix::<f64>::zeros(b, n);
     let mut run_z = DMatrix::<f64>::zeros(b, m);
@@ -326,9 +328,9 @@ fn chunk(
         gemm_rows(&mut vn, 1.0, &nu, &sched.Vt[si], 0.0);
 
         // NEES and NIS per run are row norms.
-        for (mat, sum, sqsum) in [
-            (&we, &mut acc.nees_sum[i], &mut acc.nees_sq[i]),
-            (&vn, &mut acc.nis_sum[i], &mut acc.nis_sq[i]),
+        for (is_nees, mat, sum, sqsum) in [
+            (true, &we, &mut acc.nees_sum[i], &mut acc.nees_sq[i]),
+            (false, &vn, &mut acc.nis_sum[i], &mut acc.nis_sq[i]),
         ] {
             sq.fill(0.0);
             for j in 0..mat.ncols() {
@@ -338,6 +340,11 @@ fn chunk(
             }
             *sum += sq.iter().sum::<f64>();
             *sqsum += dot(&sq, &sq);
+            if is_nees {
+                for (r, s) in run_nees.iter_mut().zip(&sq) {
+                    *r += s;
+                }
+            }
         }
         acc.nees_dof[i] += (n * b) as f64;
         acc.nees_count[i] += b as f64;
@@ -397,6 +404,9 @@ fn chunk(
             acc.meas_comp_run_sq[j] += a * a;
         }
         acc.meas_comp_runs[j] += b;
+    }
+    for &total in &run_nees {
+        acc.add_run_nees_total(total);
     }
     acc.runs += b;
     acc.nees_null_var += sched.null_var * b as f64;

@@ -70,6 +70,13 @@ fn stats_table(o: &mut String, reports: &[(&str, &ConsistencyReport)]) {
         stat_rows(o, &format!("{name} ANIS"), &r.nis);
     }
     o.push_str("</table>\n");
+    for (name, r) in reports {
+        for s in r.nees.iter().chain(std::iter::once(&r.nis)) {
+            if let Some(note) = super::run_spread_note(s) {
+                let _ = writeln!(o, "<p>Note ({}): {}.</p>", escape(name), escape(&note));
+            }
+        }
+    }
 }
 
 /// Plots of one consistency report, side by side with another's where given.

@@ -67,6 +67,9 @@ pub fn summary_text(problem: &str, params: &[(String, f64)], r: &ConsistencyRepo
         let _ = writeln!(out, "  innovations not white: {}", white.join("; "));
     }
     for s in &stats {
+        if let Some(note) = run_spread_note(s) {
+            let _ = writeln!(out, "  note: {note}");
+        }
         if !s.has_power {
             let _ = writeln!(
                 out,
@@ -95,6 +98,17 @@ pub fn summary_text(problem: &str, params: &[(String, f64)], r: &ConsistencyRepo
     }
     let _ = writeln!(out, "verdict: {}", r.verdict.describe());
     out
+}
+
+/// For a statistic whose gate interval rests on the spread of the per-run sums (a filter that
+/// supplies no error map), the sentence that says so.
+pub fn run_spread_note(s: &StatisticSummary) -> Option<String> {
+    s.run_spread_runs.map(|n| {
+        format!(
+            "the filter supplies no error map, so the A{} interval comes from the spread of the {n} per-run sums (Student t), widened to contain the textbook interval",
+            s.name
+        )
+    })
 }
 
 /// A number with four significant digits, in scientific notation when it is very small or

@@ -6,7 +6,7 @@
 //! scaled chi-square (Satterthwaite 1946).
 
 use serde::Serialize;
-use statrs::distribution::{ChiSquared, ContinuousCDF, Normal};
+use statrs::distribution::{ChiSquared, ContinuousCDF, Normal, StudentsT};
 
 /// Inverse of the chi-square CDF: the `p` quantile of `χ²(dof)`.
 ///
@@ -65,6 +65,59 @@ pub fn scaled_chi2_interval(alpha: f64, mean: f64, var: f64, count: f64) -> (Int
         upper: g * chi2_inv(1.0 - alpha / 2.0, h) / count,
     };
     (iv, h)
+}
+
+/// What the variance of a time-averaged statistic's sum (over all runs and steps) rests on.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum SumVariance {
+    /// Known under consistency: `2 D` for independent chi-square terms (NIS), or the
+    /// filter's own prediction of the correlated NEES terms.
+    Predicted(f64),
+    /// Measured as `N s²` from the spread `s²` of the `runs` per-run sums, for a filter that
+    /// supplies no model of its errors' correlation.
+    RunSpread {
+        /// The estimated variance of the sum over all runs.
+        var: f64,
+        /// The runs it was measured on (≥ 2).
+        runs: usize,
+    },
+    /// Neither (fewer than two runs and no prediction).
+    Unavailable,
+}
+
+/// The two-sided (1 − α) gate interval of a time average `sum / count` whose sum has mean
+/// `dof` under consistency, and its effective degrees of freedom.
+///
+/// - [`SumVariance::Predicted`]: the scaled chi-square with that variance (never below the
+///   independent-terms value `2 D`), see [`scaled_chi2_interval`].
+/// - [`SumVariance::RunSpread`]: the t interval `(D ± t_{1−α/2}(N−1) √var) / count` (the
+///   per-run sums are independent, so their mean is t-distributed about its target whatever
+///   the correlation inside a run), widened to contain the textbook interval: conservative.
+/// - [`SumVariance::Unavailable`]: NaN bounds and 0 degrees of freedom (no test).
+pub fn gate_interval(alpha: f64, dof: f64, count: f64, var: SumVariance) -> (Interval, f64) {
+    let floor = 2.0 * dof;
+    match var {
+        SumVariance::Predicted(v) => scaled_chi2_interval(alpha, dof, v.max(floor), count),
+        SumVariance::RunSpread { var, runs } => {
+            let naive = chi2_average_interval(alpha, dof, count);
+            let t = StudentsT::new(0.0, 1.0, runs.saturating_sub(1).max(1) as f64)
+                .map(|d| d.inverse_cdf(1.0 - alpha / 2.0))
+                .unwrap_or(f64::INFINITY);
+            let half = t * var.max(0.0).sqrt();
+            let iv = Interval {
+                lower: ((dof - half) / count).min(naive.lower),
+                upper: ((dof + half) / count).max(naive.upper),
+            };
+            (iv, 2.0 * dof * dof / var.max(floor))
+        }
+        SumVariance::Unavailable => (
+            Interval {
+                lower: f64::NAN,
+                upper: f64::NAN,
+            },
+            0.0,
+        ),
+    }
 }
 
 /// Whether a two-sided chi-square test on `dof` degrees of freedom at level α can tell a

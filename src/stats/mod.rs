@@ -23,8 +23,8 @@ mod null_variance;
 mod sums;
 
 pub use interval::{
-    Interval, Verdict, chi2_average_interval, chi2_inv, combine, gate_alpha, has_power,
-    normal_two_sided_quantile, scaled_chi2_interval,
+    Interval, SumVariance, Verdict, chi2_average_interval, chi2_inv, combine, gate_alpha,
+    gate_interval, has_power, normal_two_sided_quantile, scaled_chi2_interval,
 };
 pub use null_variance::NeesNullVariance;
 pub use sums::{Accumulator, Divergence};
@@ -67,6 +67,11 @@ pub struct StatisticSummary {
     pub interval: Interval,
     /// Effective degrees of freedom of [`Self::interval`].
     pub effective_dof: f64,
+    /// Set when the interval rests on the spread of this many per-run sums instead of the
+    /// filter's prediction (a filter that supplies no error map; see
+    /// [`crate::filter::Filter`]); absent otherwise.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub run_spread_runs: Option<usize>,
     /// Whether the time-averaged test can detect a factor-2 covariance error.
     pub has_power: bool,
     /// Verdict of the time-averaged test.
@@ -152,7 +157,7 @@ impl ConsistencyReport {
             &acc.nees_sum,
             &acc.nees_dof,
             &acc.nees_count,
-            acc.nees_null_variance(),
+            acc.nees_sum_variance(),
             gate_alpha,
             &mut cache,
         );
@@ -162,7 +167,7 @@ impl ConsistencyReport {
             &acc.nis_sum,
             &acc.nis_dof,
             &acc.nis_count,
-            nis_var,
+            SumVariance::Predicted(nis_var),
             gate_alpha,
             &mut cache,
         );
@@ -267,7 +272,7 @@ fn summarize(
     sum: &[f64],
     dof: &[f64],
     count: &[f64],
-    null_var: f64,
+    variance: SumVariance,
     alpha: f64,
     cache: &mut IntervalCache,
 ) -> StatisticSummary {
@@ -309,10 +314,7 @@ fn summarize(
     let (time_average, naive, interval, effective_dof, tgt) =
         if total_count > 0.0 && total_dof > 0.0 {
             let naive = chi2_average_interval(alpha, total_dof, total_count);
-            // The predicted variance can never be below the independent-steps value 2·D; guard
-            // against rounding pushing it there.
-            let var = null_var.max(2.0 * total_dof);
-            let (iv, h) = scaled_chi2_interval(alpha, total_dof, var, total_count);
+            let (iv, h) = gate_interval(alpha, total_dof, total_count, variance);
             (
                 total_sum / total_count,
                 naive,
@@ -324,7 +326,7 @@ fn summarize(
             (f64::NAN, nan_iv, nan_iv, 0.0, f64::NAN)
         };
     let power = effective_dof > 0.0 && has_power(alpha, effective_dof);
-    let mut verdict = if time_average.is_nan() {
+    let mut verdict = if time_average.is_nan() || interval.lower.is_nan() {
         Verdict::Inconclusive
     } else {
         interval.classify(time_average)
@@ -351,6 +353,10 @@ fn summarize(
         naive_dof: total_dof,
         interval,
         effective_dof,
+        run_spread_runs: match variance {
+            SumVariance::RunSpread { runs, .. } => Some(runs),
+            _ => None,
+        },
         has_power: power,
         verdict,
     }

@@ -3,6 +3,8 @@
 
 use serde::Serialize;
 
+use super::SumVariance;
+
 /// How many divergences are kept with their details.
 const MAX_DIVERGENCES: usize = 10;
 
@@ -43,8 +45,19 @@ pub struct Accumulator {
     /// [`Accumulator::nees_null_variance`].
     pub nees_null_var: f64,
     /// Runs whose predicted NEES-sum variance is in `nees_null_var`: all of them on the
-    /// linear and exact paths, every [`NULL_VAR_STRIDE`]-th on the generic one.
+    /// linear and exact paths, every `NULL_VAR_STRIDE`-th on the generic one
+    /// ([`crate::montecarlo::NULL_VAR_STRIDE`]).
     pub null_var_runs: usize,
+    /// Runs sampled for the predicted variance whose filter supplied no error map
+    /// ([`crate::filter::Estimate::error_map`]); when any did, the gate takes the NEES-sum
+    /// variance from the spread of the per-run sums instead.
+    pub error_map_missing: usize,
+    /// Σ over finished runs i of the run's NEES sum `S_i = Σ_k ε_ik`.
+    pub nees_run_total: f64,
+    /// Σ over finished runs of `S_i²`.
+    pub nees_run_total_sq: f64,
+    /// Finished runs behind `nees_run_total` (0 on the exact path, which has no runs).
+    pub nees_total_runs: usize,
     /// Σ_i NIS_ik.
     pub nis_sum: Vec<f64>,
     /// Σ_i NIS_ik².
@@ -99,6 +112,10 @@ impl Accumulator {
             nees_count: z(steps),
             nees_null_var: 0.0,
             null_var_runs: 0,
+            error_map_missing: 0,
+            nees_run_total: 0.0,
+            nees_run_total_sq: 0.0,
+            nees_total_runs: 0,
             nis_sum: z(steps),
             nis_sq: z(steps),
             nis_dof: z(steps),
@@ -131,6 +148,47 @@ impl Accumulator {
         self.nees_null_var * finished as f64 / self.null_var_runs as f64
     }
 
+    /// Add one finished run's NEES sum `S_i = Σ_k ε_ik`.
+    pub fn add_run_nees_total(&mut self, total: f64) {
+        self.nees_run_total += total;
+        self.nees_run_total_sq += total * total;
+        self.nees_total_runs += 1;
+    }
+
+    /// Whether the predicted NEES-sum variance covers the runs: every sampled filter
+    /// supplied its error map, and at least one run was sampled.
+    pub fn has_nees_null_variance(&self) -> bool {
+        self.error_map_missing == 0 && self.null_var_runs > 0
+    }
+
+    /// The variance of the NEES sum over all runs estimated from the spread of the per-run
+    /// sums, `N s²` with `s²` their sample variance, and the runs it rests on; `None` below
+    /// two runs.
+    pub fn nees_spread_variance(&self) -> Option<(f64, usize)> {
+        let n = self.nees_total_runs;
+        if n < 2 {
+            return None;
+        }
+        let nf = n as f64;
+        let mean = self.nees_run_total / nf;
+        let s2 = ((self.nees_run_total_sq - nf * mean * mean) / (nf - 1.0)).max(0.0);
+        Some((nf * s2, n))
+    }
+
+    /// What the variance of the NEES sum over all runs rests on: the filters' own
+    /// prediction where every sampled filter supplied its error map, else the spread of the
+    /// per-run sums.
+    pub fn nees_sum_variance(&self) -> SumVariance {
+        if self.has_nees_null_variance() {
+            SumVariance::Predicted(self.nees_null_variance())
+        } else {
+            match self.nees_spread_variance() {
+                Some((var, runs)) => SumVariance::RunSpread { var, runs },
+                None => SumVariance::Unavailable,
+            }
+        }
+    }
+
     /// Add another accumulator's sums to this one.
     pub fn merge(&mut self, o: &Accumulator) {
         fn add(a: &mut [f64], b: &[f64]) {
@@ -145,6 +203,10 @@ impl Accumulator {
         add(&mut self.nees_count, &o.nees_count);
         self.nees_null_var += o.nees_null_var;
         self.null_var_runs += o.null_var_runs;
+        self.error_map_missing += o.error_map_missing;
+        self.nees_run_total += o.nees_run_total;
+        self.nees_run_total_sq += o.nees_run_total_sq;
+        self.nees_total_runs += o.nees_total_runs;
         add(&mut self.nis_sum, &o.nis_sum);
         add(&mut self.nis_sq, &o.nis_sq);
         add(&mut self.nis_dof, &o.nis_dof);

@@ -25,7 +25,9 @@ use serde::{Deserialize, Serialize};
 
 use crate::input::SettingError;
 use crate::stats::Accumulator;
-use crate::stats::{Interval, chi2_average_interval, gate_alpha, scaled_chi2_interval};
+use crate::stats::{
+    Interval, SumVariance, chi2_average_interval, gate_alpha, gate_interval, scaled_chi2_interval,
+};
 
 /// Weights of the objective's terms (all ≥ 0).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -143,14 +145,14 @@ impl Objective {
 
     /// The time-averaged gate interval; the NIS one (variance 2·dof) is the same for every
     /// candidate and is served from the cache filled by [`Objective::prepare`].
-    fn gate_interval(&self, dof: f64, var: f64, count: f64) -> Interval {
-        if let Some((key, iv)) = &self.nis_gate
-            && *key == (dof.to_bits(), var.to_bits(), count.to_bits())
+    fn gate_interval(&self, dof: f64, var: SumVariance, count: f64) -> Interval {
+        if let (Some((key, iv)), SumVariance::Predicted(v)) = (&self.nis_gate, var)
+            && *key == (dof.to_bits(), v.to_bits(), count.to_bits())
         {
             return *iv;
         }
         let k = if self.nis_only { 1 } else { 2 };
-        scaled_chi2_interval(gate_alpha(self.alpha, k), dof, var, count).0
+        gate_interval(gate_alpha(self.alpha, k), dof, count, var).0
     }
 
     fn step_interval(&self, dof: f64, count: f64) -> Interval {
@@ -220,14 +222,14 @@ impl Objective {
         };
         let w = self.weights;
         let mut t = Terms::default();
-        let nis_var = 2.0 * acc.nis_dof.iter().sum::<f64>();
+        let nis_var = SumVariance::Predicted(2.0 * acc.nis_dof.iter().sum::<f64>());
         let mut stats = vec![(&acc.nis_sum, &acc.nis_dof, &acc.nis_count, nis_var)];
         if !self.nis_only {
             stats.push((
                 &acc.nees_sum,
                 &acc.nees_dof,
                 &acc.nees_count,
-                acc.nees_null_variance(),
+                acc.nees_sum_variance(),
             ));
         }
         for (sum, dof, count, var) in stats {
@@ -237,8 +239,11 @@ impl Objective {
                 continue;
             }
             let avg = s / c;
-            let var = var.max(2.0 * d);
-            if !var.is_finite() {
+            let var = match var {
+                SumVariance::Predicted(v) => SumVariance::Predicted(v.max(2.0 * d)),
+                other => other,
+            };
+            if matches!(var, SumVariance::Predicted(v) if !v.is_finite()) {
                 return inf;
             }
             let iv = self.gate_interval(d, var, c);

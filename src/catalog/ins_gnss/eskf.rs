@@ -137,10 +137,9 @@ impl Filter for Eskf {
         }
         nom.write(est.x.as_mut_slice());
         est.P.copy_from_slice(P.as_slice());
-        if est.error_map.shape() == (N_ERR, N_ERR) {
-            est.error_map.copy_from_slice(F.as_slice());
-        } else {
-            est.error_map = DMatrix::from_column_slice(N_ERR, N_ERR, F.as_slice());
+        match &mut est.error_map {
+            Some(a) if a.shape() == (N_ERR, N_ERR) => a.copy_from_slice(F.as_slice()),
+            _ => est.error_map = Some(DMatrix::from_column_slice(N_ERR, N_ERR, F.as_slice())),
         }
         Ok(())
     }
@@ -182,8 +181,10 @@ impl Filter for Eskf {
         let dx: Vec15 = K * nu;
         nom.inject(&dx).write(est.x.as_mut_slice());
         est.P.copy_from_slice(Pn.as_slice());
-        if let Some(A) = to_fixed(&est.error_map) {
-            est.error_map.copy_from_slice((IKH * A).as_slice());
+        if let Some(a) = &mut est.error_map
+            && let Some(A) = to_fixed(a)
+        {
+            a.copy_from_slice((IKH * A).as_slice());
         }
         let nis = nu.dot(&chol.solve(&nu));
         Ok(Innovation {

@@ -236,7 +236,10 @@ fn fixed_size_ukf_matches_the_generic_ukf() {
             assert!(max_rel(&xa, &xb) < 1e-9, "x at step {k}");
             assert!(max_rel(&ef.P, &es.P) < 1e-9, "P at step {k}");
             assert!(
-                max_rel(&ef.error_map, &es.error_map) < 1e-9,
+                max_rel(
+                    ef.error_map.as_ref().unwrap(),
+                    es.error_map.as_ref().unwrap()
+                ) < 1e-9,
                 "map at step {k}"
             );
         }

@@ -115,7 +115,8 @@ fn ekf_and_ukf_agree_with_the_kf_on_a_linear_model() {
                     inn.nis,
                     i_kf.nis
                 );
-                let dm = max_rel_m(&est.error_map, &e_kf.error_map);
+                let (map, map_kf) = (est.error_map.as_ref(), e_kf.error_map.as_ref());
+                let dm = max_rel_m(map.expect("set"), map_kf.expect("set"));
                 assert!(
                     dm < tol.max(1e-7),
                     "{name} {label} step {k}: error map differs by {dm:e}"

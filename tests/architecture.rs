@@ -8,11 +8,8 @@ use std::path::{Path, PathBuf};
 
 /// `module → layer` from the table in docs/ARCHITECTURE.md (rows `| 3 | `montecarlo` | …`).
 fn layers() -> BTreeMap<String, u32> {
-    let doc = std::fs::read_to_string(concat!(
-        env!("CARGO_MANIFEST_DIR"),
-        "/docs/ARCHITECTURE.md"
-    ))
-    .unwrap();
+    let doc = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/docs/ARCHITECTURE.md"))
+        .unwrap();
     let mut out = BTreeMap::new();
     for line in doc.lines() {
         let cells: Vec<&str> = line.split('|').map(str::trim).collect();
@@ -20,7 +17,10 @@ fn layers() -> BTreeMap<String, u32> {
             && let Ok(layer) = cells[1].parse::<u32>()
         {
             let module = cells[2].trim_matches('`').to_string();
-            assert!(out.insert(module.clone(), layer).is_none(), "{module} twice");
+            assert!(
+                out.insert(module.clone(), layer).is_none(),
+                "{module} twice"
+            );
         }
     }
     assert!(out.len() >= 10, "the layer table was not found: {out:?}");

@@ -41,6 +41,12 @@ fn run(p: &Problem, seed: u64, fix_r: bool, settings: &TuneSettings) -> TuneResu
     r
 }
 
+/// Exact scoring makes J a smooth, noise-free function whose minimum is the truth; the
+/// simplex stops when its J values agree to 1e-10, about 1e-5 in the log of each parameter
+/// (measured: at most 2.1e-5 over the seeds below). 1e-4 leaves a margin of five; a bias of
+/// 10% would miss it a thousandfold.
+const EXACT_TOL: f64 = 1e-4;
+
 fn assert_within(p: &Problem, r: &TuneResult, tol: f64) {
     let truth = truth_values(p);
     for (i, q) in p.params().params.iter().enumerate() {
@@ -66,7 +72,8 @@ fn allowed_failures(k: u64, alpha: f64) -> u64 {
 #[test]
 fn default_settings_recover_every_shipped_problem_from_its_start() {
     // The shipped starts are off by ×5 (cv1d), ×2.5 (cv2d) and two decades (dcmotor's
-    // torque noise); every free parameter must land within 15% of the truth, for every seed.
+    // torque noise); every free parameter must land within EXACT_TOL of the truth, for every
+    // seed.
     let mut confirmations = 0;
     let mut failures = 0;
     for name in ["cv1d", "cv2d", "dcmotor"] {
@@ -74,7 +81,7 @@ fn default_settings_recover_every_shipped_problem_from_its_start() {
         for seed in [11, 12, 13] {
             let r = run(&p, seed, false, &TuneSettings::default());
             assert_eq!(r.scoring, Scoring::Exact);
-            assert_within(&p, &r, 0.15);
+            assert_within(&p, &r, EXACT_TOL);
             assert_eq!(r.diverged_evaluations, 0);
             confirmations += 1;
             if r.status != TuneStatus::Consistent {
@@ -95,7 +102,7 @@ fn q_alone_is_recovered_with_r_fixed_at_the_truth() {
         let p = load(name);
         for seed in [21, 22] {
             let r = run(&p, seed, true, &TuneSettings::default());
-            assert_within(&p, &r, 0.15);
+            assert_within(&p, &r, EXACT_TOL);
             for (i, q) in p.params().params.iter().enumerate() {
                 if q.name.starts_with("r_") {
                     assert_eq!(r.tuned[i], truth_values(&p)[i], "fixed parameters stay put");
@@ -118,7 +125,9 @@ fn nis_only_tuning_passes_check() {
     for name in ["cv1d", "cv2d", "dcmotor"] {
         let p = load(name);
         let r = run(&p, p.mc().seed(), false, &settings);
-        assert_within(&p, &r, 0.15);
+        // Innovations alone pin dcmotor's voltage noise less sharply: the objective is flat
+        // enough there that the simplex stops 3e-3 away (measured); 1e-2 for all three.
+        assert_within(&p, &r, 1e-2);
         let full = autotune::check::check(&p, &r.tuned, p.mc(), true);
         assert!(full.verdict.passes(), "{name}: {:?}", full.verdict);
     }
@@ -128,7 +137,9 @@ fn nis_only_tuning_passes_check() {
 fn gauss_newton_recovers_every_shipped_linear_problem() {
     // The Levenberg–Marquardt local search (moment equations on each parameter's own
     // components, then J's residuals) on the exact objective and on Monte Carlo with
-    // common random numbers: same 15% as the simplex.
+    // common random numbers. Exact: it stops when an iteration gains less than 1e-4 of J,
+    // within 1e-4 of the truth (measured, dcmotor); 5e-4. Monte Carlo: the minimum itself
+    // carries the estimation error of the 4 N search runs, measured at most 1.3%; 4%.
     for scoring in [Scoring::Exact, Scoring::MonteCarlo] {
         let settings = TuneSettings::default()
             .with_local(LocalSearch::GaussNewton)
@@ -137,7 +148,11 @@ fn gauss_newton_recovers_every_shipped_linear_problem() {
             let p = load(name);
             let r = run(&p, 41, false, &settings);
             assert_eq!(r.scoring, scoring);
-            assert_within(&p, &r, 0.15);
+            let tol = match scoring {
+                Scoring::Exact => 5e-4,
+                _ => 0.04,
+            };
+            assert_within(&p, &r, tol);
         }
     }
 }
@@ -174,7 +189,8 @@ fn residuals_square_to_the_objective() {
 #[test]
 fn monte_carlo_scoring_recovers_too() {
     // Common random numbers, no exact expectations: the path nonlinear problems take. The
-    // estimate carries Monte Carlo noise, so the tolerance is the 15%.
+    // estimate carries the Monte Carlo error of the 4 N search runs: measured 0.4–1.9% over
+    // these four runs (the largest on cv1d's r_pos); 4% is about three standard errors.
     let settings = TuneSettings::default()
         .with_scoring(Scoring::MonteCarlo)
         .with_max_evals(1500)
@@ -184,7 +200,7 @@ fn monte_carlo_scoring_recovers_too() {
         for seed in [31, 32] {
             let r = run(&p, seed, false, &settings);
             assert_eq!(r.scoring, Scoring::MonteCarlo);
-            assert_within(&p, &r, 0.15);
+            assert_within(&p, &r, 0.04);
         }
     }
 }
@@ -209,7 +225,7 @@ fn diverging_candidates_are_counted_not_fatal() {
         r.diverged_evaluations > 0,
         "no diverged candidates were sampled"
     );
-    assert_within(&p, &r, 0.15);
+    assert_within(&p, &r, EXACT_TOL);
 }
 
 #[test]
@@ -253,7 +269,7 @@ fn flat_directions_are_reported_not_given_a_confident_number() {
     );
     // The sum is still right.
     let sum = r.tuned[idx("q_accel")] + r.tuned[idx("q_twin")];
-    assert!((sum / 0.5 - 1.0).abs() < 0.05, "sum {sum}");
+    assert!((sum / 0.5 - 1.0).abs() < EXACT_TOL, "sum {sum}");
     let recs = autotune::report::advice::recommendations(&p, &r, &r.before);
     assert!(
         recs[idx("q_twin")].advice.contains("not identifiable"),

@@ -210,7 +210,7 @@ fn diverging_candidates_are_counted_not_fatal() {
     // Bounds that allow Q = 1e-12 and R = 1e-12 on cv2d: the global stage samples
     // candidates whose S is numerically singular; they score +∞ and the search goes on.
     let mut p = load("cv2d");
-    for q in &mut p.linear_mut().unwrap().params.params {
+    for q in &mut p.linear_mut().unwrap().definition.params.params {
         q.lower = 1e-300;
     }
     // A filter with no process noise and no measurement noise cannot stay positive definite.

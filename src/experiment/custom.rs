@@ -1,6 +1,6 @@
 //! A Rust user's own truth model and filter family as an [`Experiment`].
 
-use super::{Covariances, Experiment, Info, RunOptions, Source};
+use super::{Covariances, Definition, Experiment, Info, RunOptions, Source};
 use crate::filter::Filter;
 use crate::input::SettingError;
 use crate::model::TruthModel;
@@ -48,14 +48,10 @@ type CovarianceFn = Box<dyn Fn(&[f64]) -> Covariances + Send + Sync>;
 /// assert_eq!(report.nees.unwrap().target, 2.0);
 /// ```
 pub struct Custom<T, B> {
-    info: Info,
+    definition: Definition,
     truth: T,
     build: B,
-    params: ParamSpace,
     targets: Vec<Target>,
-    state_names: Vec<String>,
-    measurement_names: Vec<String>,
-    mc: McConfig,
     covariances: Option<CovarianceFn>,
     truth_values: Option<Vec<f64>>,
 }
@@ -233,18 +229,20 @@ where
             None => McConfig::new(100, 100)?,
         };
         Ok(Custom {
-            info: Info {
-                name: self.name,
-                description: self.description,
-                source: Source::Program { name: program },
+            definition: Definition {
+                info: Info {
+                    name: self.name,
+                    description: self.description,
+                    source: Source::Program { name: program },
+                },
+                params,
+                state_names,
+                measurement_names,
+                mc,
             },
             truth: self.truth,
             build: self.build,
-            params,
             targets,
-            state_names,
-            measurement_names,
-            mc,
             covariances: self.covariances,
             truth_values: self.truth_values,
         })
@@ -257,38 +255,12 @@ where
     F: Filter,
     B: Fn(&[f64]) -> F + Sync,
 {
-    fn info(&self) -> &Info {
-        &self.info
+    fn definition(&self) -> &Definition {
+        &self.definition
     }
 
-    fn params(&self) -> &ParamSpace {
-        &self.params
-    }
-
-    fn state_names(&self) -> &[String] {
-        &self.state_names
-    }
-
-    fn measurement_names(&self) -> &[String] {
-        &self.measurement_names
-    }
-
-    fn mc(&self) -> &McConfig {
-        &self.mc
-    }
-
-    fn monte_carlo_with(
-        &self,
-        theta: &[f64],
-        mc: &McConfig,
-        options: RunOptions<'_>,
-    ) -> Accumulator {
-        montecarlo::run_generic_with_progress(
-            &self.truth,
-            &(self.build)(theta),
-            mc,
-            options.progress,
-        )
+    fn monte_carlo_with(&self, theta: &[f64], mc: &McConfig, run: RunOptions<'_>) -> Accumulator {
+        montecarlo::run_generic_with_progress(&self.truth, &(self.build)(theta), mc, run.progress)
     }
 
     fn target(&self, i: usize) -> Option<Target> {

@@ -4,11 +4,11 @@
 
 use nalgebra::{DMatrix, DVector};
 
-use super::{Covariances, Experiment, Info, RunOptions};
+use super::{Covariances, Definition, Experiment, RunOptions};
 use crate::filter::KalmanFilter;
 use crate::model::LinearGaussianModel;
 use crate::montecarlo::{self, Engine, McConfig, expected_accumulator, models_match};
-use crate::params::{CovModel, NoiseKind, ParamSpace, Target};
+use crate::params::{CovModel, NoiseKind, Target};
 use crate::stats::Accumulator;
 
 /// The filter's model with Q and R as functions of the parameters.
@@ -33,20 +33,12 @@ pub struct FilterModel {
 /// expected statistics have a closed form ([`expected_accumulator`]).
 #[derive(Debug, Clone)]
 pub struct LinearExperiment {
-    /// Name, description, source.
-    pub info: Info,
+    /// Name, source, parameters, component names (n states, m measurements), Monte Carlo.
+    pub definition: Definition,
     /// The truth.
     pub truth: LinearGaussianModel,
     /// The filter's model.
     pub filter: FilterModel,
-    /// Named parameters.
-    pub params: ParamSpace,
-    /// State component names, n.
-    pub state_names: Vec<String>,
-    /// Measurement component names, m.
-    pub measurement_names: Vec<String>,
-    /// The Monte Carlo test.
-    pub mc: McConfig,
 }
 
 impl LinearExperiment {
@@ -64,39 +56,18 @@ impl LinearExperiment {
 }
 
 impl Experiment for LinearExperiment {
-    fn info(&self) -> &Info {
-        &self.info
+    fn definition(&self) -> &Definition {
+        &self.definition
     }
 
-    fn params(&self) -> &ParamSpace {
-        &self.params
-    }
-
-    fn state_names(&self) -> &[String] {
-        &self.state_names
-    }
-
-    fn measurement_names(&self) -> &[String] {
-        &self.measurement_names
-    }
-
-    fn mc(&self) -> &McConfig {
-        &self.mc
-    }
-
-    fn monte_carlo_with(
-        &self,
-        theta: &[f64],
-        mc: &McConfig,
-        options: RunOptions<'_>,
-    ) -> Accumulator {
+    fn monte_carlo_with(&self, theta: &[f64], mc: &McConfig, run: RunOptions<'_>) -> Accumulator {
         let kf = self.filter_at(theta);
-        match options.engine {
+        match run.engine {
             Engine::Auto | Engine::Linear => {
-                montecarlo::run_linear_with_progress(&self.truth, &kf, mc, options.progress)
+                montecarlo::run_linear_with_progress(&self.truth, &kf, mc, run.progress)
             }
             Engine::Generic => {
-                montecarlo::run_generic_with_progress(&self.truth, &kf, mc, options.progress)
+                montecarlo::run_generic_with_progress(&self.truth, &kf, mc, run.progress)
             }
         }
     }

@@ -80,6 +80,23 @@ pub struct Info {
     pub source: Source,
 }
 
+/// What every experiment declares: its name and source, its named parameters, the names of
+/// its state and measurement components, and its own Monte Carlo test.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Definition {
+    /// Name, description, source.
+    pub info: Info,
+    /// Named parameters: values are the configured filter (the tuner's start), bounds the
+    /// search box.
+    pub params: ParamSpace,
+    /// State component names, n_x (of the error state the NEES is taken in).
+    pub state_names: Vec<String>,
+    /// Measurement component names, all sensors' components concatenated in sensor order.
+    pub measurement_names: Vec<String>,
+    /// The experiment's own Monte Carlo test (runs, steps, seed, α, lags).
+    pub mc: McConfig,
+}
+
 /// The filter's noise covariances at some θ, for reports and tuned configs.
 #[allow(non_snake_case)]
 #[derive(Debug, Clone, PartialEq)]
@@ -108,21 +125,34 @@ pub struct RunOptions<'a> {
 /// and seed give the same sums on any number of threads (common random numbers: the tuner
 /// evaluates every candidate on the same seed).
 pub trait Experiment: Sync {
+    /// Name, source, parameters, component names and Monte Carlo test.
+    fn definition(&self) -> &Definition;
+
     /// Name, description and source.
-    fn info(&self) -> &Info;
+    fn info(&self) -> &Info {
+        &self.definition().info
+    }
 
     /// The named parameters: values are the configured filter (the tuner's start), bounds
     /// the search box.
-    fn params(&self) -> &ParamSpace;
+    fn params(&self) -> &ParamSpace {
+        &self.definition().params
+    }
 
-    /// State component names, n_x (of the error state the NEES is taken in).
-    fn state_names(&self) -> &[String];
+    /// State component names, n_x.
+    fn state_names(&self) -> &[String] {
+        &self.definition().state_names
+    }
 
-    /// Measurement component names, all sensors' components concatenated in sensor order.
-    fn measurement_names(&self) -> &[String];
+    /// Measurement component names, all sensors' components in sensor order.
+    fn measurement_names(&self) -> &[String] {
+        &self.definition().measurement_names
+    }
 
-    /// The experiment's own Monte Carlo test (runs, steps, seed, α, lags).
-    fn mc(&self) -> &McConfig;
+    /// The experiment's own Monte Carlo test.
+    fn mc(&self) -> &McConfig {
+        &self.definition().mc
+    }
 
     /// The Monte Carlo sums of the filter with parameters `theta` (one value per parameter,
     /// in [`Experiment::params`] order) against the truth, under `mc`.

@@ -4,7 +4,7 @@
 use super::spec::ProblemSpec;
 use super::validate::{VResult, Validator};
 use crate::catalog::{self, ModelContext};
-use crate::experiment::{CatalogExperiment, Info};
+use crate::experiment::{CatalogExperiment, Definition, Info};
 use crate::input::FileError;
 use crate::montecarlo::McConfig;
 use crate::params::ParamSpace;
@@ -99,13 +99,15 @@ impl Validator<'_> {
             params.push(p);
         }
         Ok(CatalogExperiment {
-            info,
+            definition: Definition {
+                info,
+                params: ParamSpace { params },
+                state_names: model.state_names(),
+                measurement_names: model.measurement_names(),
+                mc,
+            },
             entry,
-            state_names: model.state_names(),
-            measurement_names: model.measurement_names(),
             model,
-            params: ParamSpace { params },
-            mc,
         })
     }
 }

@@ -4,7 +4,7 @@
 
 use super::spec::{FilterSpec, ProblemSpec, TruthSpec};
 use super::validate::{VResult, Validator};
-use crate::experiment::{FilterModel, Info, LinearExperiment};
+use crate::experiment::{Definition, FilterModel, Info, LinearExperiment};
 use crate::input::FileError;
 use crate::model::LinearGaussianModel;
 use crate::montecarlo::McConfig;
@@ -71,7 +71,13 @@ impl Validator<'_> {
         let state_names = self.names("state_names", &s.state_names, n, "x")?;
         let measurement_names = self.names("measurement_names", &s.measurement_names, m, "z")?;
         Ok(LinearExperiment {
-            info,
+            definition: Definition {
+                info,
+                params,
+                state_names,
+                measurement_names,
+                mc,
+            },
             truth,
             filter: FilterModel {
                 F: fF,
@@ -81,10 +87,6 @@ impl Validator<'_> {
                 q,
                 r,
             },
-            params,
-            state_names,
-            measurement_names,
-            mc,
         })
     }
 }

@@ -13,7 +13,8 @@ use std::path::{Path, PathBuf};
 use sha2::{Digest, Sha256};
 
 use crate::experiment::{
-    CatalogExperiment, Covariances, Experiment, Info, LinearExperiment, RunOptions, Source,
+    CatalogExperiment, Covariances, Definition, Experiment, Info, LinearExperiment, RunOptions,
+    Source,
 };
 use crate::input::{FileError, SettingError, parse_toml, read_text};
 use crate::montecarlo::{Engine, McConfig};
@@ -102,33 +103,12 @@ impl Problem {
 }
 
 impl Experiment for Problem {
-    fn info(&self) -> &Info {
-        self.experiment().info()
+    fn definition(&self) -> &Definition {
+        self.experiment().definition()
     }
 
-    fn params(&self) -> &ParamSpace {
-        self.experiment().params()
-    }
-
-    fn state_names(&self) -> &[String] {
-        self.experiment().state_names()
-    }
-
-    fn measurement_names(&self) -> &[String] {
-        self.experiment().measurement_names()
-    }
-
-    fn mc(&self) -> &McConfig {
-        self.experiment().mc()
-    }
-
-    fn monte_carlo_with(
-        &self,
-        theta: &[f64],
-        mc: &McConfig,
-        options: RunOptions<'_>,
-    ) -> Accumulator {
-        self.experiment().monte_carlo_with(theta, mc, options)
+    fn monte_carlo_with(&self, theta: &[f64], mc: &McConfig, run: RunOptions<'_>) -> Accumulator {
+        self.experiment().monte_carlo_with(theta, mc, run)
     }
 
     fn supports(&self, engine: Engine) -> bool {

@@ -4,6 +4,9 @@
 //! stays legible printed in grey. A plot that cannot be drawn becomes a small SVG saying so;
 //! a report is never lost for a plot.
 
+use plotters::coord::Shift;
+use plotters::coord::ranged1d::Ranged;
+use plotters::element::{Drawable, PointCollection};
 use plotters::prelude::*;
 
 use crate::stats::{ComponentStat, StatisticSummary, WhitenessStat};
@@ -12,6 +15,55 @@ const BAND: RGBColor = RGBColor(210, 210, 210);
 const MID: RGBColor = RGBColor(110, 110, 110);
 const SIZE: (u32, u32) = (640, 380);
 const FONT: &str = "sans-serif";
+
+/// A drawing result: plotters' errors are boxed, whatever the backend.
+type Drawn = Result<(), Box<dyn std::error::Error>>;
+
+/// Draw a plot into an SVG string with `draw`; a plot that cannot be drawn becomes the
+/// fallback naming it.
+fn render(title: &str, draw: impl FnOnce(&DrawingArea<SVGBackend<'_>, Shift>) -> Drawn) -> String {
+    let mut buf = String::new();
+    let result = {
+        let root = SVGBackend::with_string(&mut buf, SIZE).into_drawing_area();
+        root.fill(&WHITE)
+            .map_err(Into::into)
+            .and_then(|()| draw(&root))
+            .and_then(|()| root.present().map_err(Into::into))
+    };
+    match result {
+        Ok(()) => buf,
+        Err(e) => fallback(title, e),
+    }
+}
+
+/// The chart every plot starts from: the title, margins and label areas (`y_area` wide).
+fn chart_builder<'a, 'b>(
+    root: &'a DrawingArea<SVGBackend<'b>, Shift>,
+    title: &str,
+    y_area: u32,
+) -> ChartBuilder<'a, 'b, SVGBackend<'b>> {
+    let mut b = ChartBuilder::on(root);
+    b.caption(title, (FONT, 18))
+        .margin(12)
+        .x_label_area_size(40)
+        .y_label_area_size(y_area);
+    b
+}
+
+/// The series legend, boxed on a translucent white ground at `position`.
+fn legend<'a, X: Ranged, Y: Ranged>(
+    chart: &mut ChartContext<'a, SVGBackend<'a>, Cartesian2d<X, Y>>,
+    position: SeriesLabelPosition,
+) -> Drawn {
+    chart
+        .configure_series_labels()
+        .label_font((FONT, 13))
+        .background_style(WHITE.mix(0.85))
+        .border_style(BLACK)
+        .position(position)
+        .draw()?;
+    Ok(())
+}
 
 fn fallback(title: &str, err: impl std::fmt::Display) -> String {
     format!(
@@ -24,19 +76,14 @@ fn fallback(title: &str, err: impl std::fmt::Display) -> String {
 /// A per-step statistic (ANEES_k or ANIS_k) against time with its [r1, r2] band, the DOF
 /// target, and the steps outside the band marked.
 pub fn statistic_svg(title: &str, s: &StatisticSummary) -> String {
-    let mut buf = String::new();
-    let r = draw_statistic(&mut buf, title, s);
-    match r {
-        Ok(()) => buf,
-        Err(e) => fallback(title, e),
-    }
+    render(title, |root| draw_statistic(root, title, s))
 }
 
 fn draw_statistic(
-    buf: &mut String,
+    root: &DrawingArea<SVGBackend<'_>, Shift>,
     title: &str,
     s: &StatisticSummary,
-) -> Result<(), Box<dyn std::error::Error>> {
+) -> Drawn {
     let steps = s.per_step.len().max(1);
     let pts: Vec<(f64, f64, f64, f64, f64)> = (0..s.per_step.len())
         .filter_map(|k| {
@@ -56,13 +103,7 @@ fn draw_statistic(
     let ymax = (top_data.max(top_band) * 1.05)
         .min((top_band * 1.05).max(4.0 * target))
         .max(1e-9);
-    let root = SVGBackend::with_string(buf, SIZE).into_drawing_area();
-    root.fill(&WHITE)?;
-    let mut chart = ChartBuilder::on(&root)
-        .caption(title, (FONT, 18))
-        .margin(12)
-        .x_label_area_size(40)
-        .y_label_area_size(60)
+    let mut chart = chart_builder(root, title, 60)
         .build_cartesian_2d(0.5f64..steps as f64 + 0.5, 0f64..ymax)?;
     chart
         .configure_mesh()
@@ -107,31 +148,19 @@ fn draw_statistic(
         )?
         .label(format!("outside the interval ({})", outside.len()))
         .legend(|(x, y)| Cross::new((x + 8, y), 4, BLACK.stroke_width(1)));
-    chart
-        .configure_series_labels()
-        .label_font((FONT, 13))
-        .background_style(WHITE.mix(0.85))
-        .border_style(BLACK)
-        .position(SeriesLabelPosition::LowerRight)
-        .draw()?;
-    root.present()?;
-    Ok(())
+    legend(&mut chart, SeriesLabelPosition::LowerRight)
 }
 
 /// Per-component normalized errors as bars against the target 1, each with its interval.
 pub fn components_svg(title: &str, comps: &[ComponentStat]) -> String {
-    let mut buf = String::new();
-    match draw_components(&mut buf, title, comps) {
-        Ok(()) => buf,
-        Err(e) => fallback(title, e),
-    }
+    render(title, |root| draw_components(root, title, comps))
 }
 
 fn draw_components(
-    buf: &mut String,
+    root: &DrawingArea<SVGBackend<'_>, Shift>,
     title: &str,
     comps: &[ComponentStat],
-) -> Result<(), Box<dyn std::error::Error>> {
+) -> Drawn {
     let n = comps.len().max(1);
     let finite = |v: f64| if v.is_finite() { v } else { 0.0 };
     let ymax = comps
@@ -139,8 +168,6 @@ fn draw_components(
         .map(|c| finite(c.value).max(finite(c.interval.upper)))
         .fold(1.5_f64, f64::max)
         * 1.1;
-    let root = SVGBackend::with_string(buf, SIZE).into_drawing_area();
-    root.fill(&WHITE)?;
     let names: Vec<String> = comps
         .iter()
         .map(|c| {
@@ -151,12 +178,8 @@ fn draw_components(
             )
         })
         .collect();
-    let mut chart = ChartBuilder::on(&root)
-        .caption(title, (FONT, 18))
-        .margin(12)
-        .x_label_area_size(40)
-        .y_label_area_size(60)
-        .build_cartesian_2d(-0.5f64..n as f64 - 0.5, 0f64..ymax)?;
+    let mut chart =
+        chart_builder(root, title, 60).build_cartesian_2d(-0.5f64..n as f64 - 0.5, 0f64..ymax)?;
     chart
         .configure_mesh()
         .disable_mesh()
@@ -220,32 +243,20 @@ fn draw_components(
         ))?
         .label("target 1")
         .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], MID.stroke_width(2)));
-    chart
-        .configure_series_labels()
-        .label_font((FONT, 13))
-        .background_style(WHITE.mix(0.85))
-        .border_style(BLACK)
-        .position(SeriesLabelPosition::UpperRight)
-        .draw()?;
-    root.present()?;
-    Ok(())
+    legend(&mut chart, SeriesLabelPosition::UpperRight)
 }
 
 /// Innovation autocorrelation against lag, per measurement component, with the ±band in
 /// which a white sequence's sample autocorrelation falls with probability 1 − α.
 pub fn whiteness_svg(title: &str, white: &[WhitenessStat]) -> String {
-    let mut buf = String::new();
-    match draw_whiteness(&mut buf, title, white) {
-        Ok(()) => buf,
-        Err(e) => fallback(title, e),
-    }
+    render(title, |root| draw_whiteness(root, title, white))
 }
 
 fn draw_whiteness(
-    buf: &mut String,
+    root: &DrawingArea<SVGBackend<'_>, Shift>,
     title: &str,
     white: &[WhitenessStat],
-) -> Result<(), Box<dyn std::error::Error>> {
+) -> Drawn {
     let lags = white.iter().map(|w| w.lag).max().unwrap_or(1);
     let amp = white
         .iter()
@@ -258,14 +269,8 @@ fn draw_whiteness(
             comps.push(&w.component);
         }
     }
-    let root = SVGBackend::with_string(buf, SIZE).into_drawing_area();
-    root.fill(&WHITE)?;
-    let mut chart = ChartBuilder::on(&root)
-        .caption(title, (FONT, 18))
-        .margin(12)
-        .x_label_area_size(40)
-        .y_label_area_size(60)
-        .build_cartesian_2d(0.5f64..lags as f64 + 0.5, -amp..amp)?;
+    let mut chart =
+        chart_builder(root, title, 60).build_cartesian_2d(0.5f64..lags as f64 + 0.5, -amp..amp)?;
     chart
         .configure_mesh()
         .disable_mesh()
@@ -312,55 +317,45 @@ fn draw_whiteness(
         chart.draw_series(LineSeries::new(pts.clone(), style))?;
         let marker = ci % 3;
         chart
-            .draw_series(pts.iter().map(
-                move |&p| -> DynElement<'static, SVGBackend, (f64, f64)> {
-                    match marker {
-                        0 => Circle::new(p, 4, BLACK.filled()).into_dyn(),
-                        1 => TriangleMarker::new(p, 5, BLACK.filled()).into_dyn(),
-                        _ => Cross::new(p, 4, BLACK.stroke_width(2)).into_dyn(),
-                    }
-                },
-            ))?
+            .draw_series(pts.iter().map(move |&p| marker_at(marker, p)))?
             .label(format!("ρ of {name}"))
-            .legend(
-                move |(x, y)| -> DynElement<'static, SVGBackend, (i32, i32)> {
-                    match marker {
-                        0 => Circle::new((x + 8, y), 4, BLACK.filled()).into_dyn(),
-                        1 => TriangleMarker::new((x + 8, y), 5, BLACK.filled()).into_dyn(),
-                        _ => Cross::new((x + 8, y), 4, BLACK.stroke_width(2)).into_dyn(),
-                    }
-                },
-            );
+            .legend(move |(x, y)| marker_at(marker, (x + 8, y)));
     }
     chart.draw_series(LineSeries::new(
         vec![(0.5, 0.0), (lags as f64 + 0.5, 0.0)],
         MID.stroke_width(1),
     ))?;
-    chart
-        .configure_series_labels()
-        .label_font((FONT, 13))
-        .background_style(WHITE.mix(0.85))
-        .border_style(BLACK)
-        .position(SeriesLabelPosition::UpperRight)
-        .draw()?;
-    root.present()?;
-    Ok(())
+    legend(&mut chart, SeriesLabelPosition::UpperRight)
+}
+
+/// Marker `kind` (0 a disc, 1 a triangle, else a cross) at `at`, in data or pixel
+/// coordinates.
+fn marker_at<'a, C: Clone + 'static>(kind: usize, at: C) -> DynElement<'static, SVGBackend<'a>, C>
+where
+    Circle<C, i32>: Drawable<SVGBackend<'a>>,
+    TriangleMarker<C, i32>: Drawable<SVGBackend<'a>>,
+    Cross<C, i32>: Drawable<SVGBackend<'a>>,
+    for<'b> &'b Circle<C, i32>: PointCollection<'b, C>,
+    for<'b> &'b TriangleMarker<C, i32>: PointCollection<'b, C>,
+    for<'b> &'b Cross<C, i32>: PointCollection<'b, C>,
+{
+    match kind {
+        0 => Circle::new(at, 4, BLACK.filled()).into_dyn(),
+        1 => TriangleMarker::new(at, 5, BLACK.filled()).into_dyn(),
+        _ => Cross::new(at, 4, BLACK.stroke_width(2)).into_dyn(),
+    }
 }
 
 /// The best objective value against evaluations, on a log scale.
 pub fn objective_svg(title: &str, history: &[f64]) -> String {
-    let mut buf = String::new();
-    match draw_objective(&mut buf, title, history) {
-        Ok(()) => buf,
-        Err(e) => fallback(title, e),
-    }
+    render(title, |root| draw_objective(root, title, history))
 }
 
 fn draw_objective(
-    buf: &mut String,
+    root: &DrawingArea<SVGBackend<'_>, Shift>,
     title: &str,
     history: &[f64],
-) -> Result<(), Box<dyn std::error::Error>> {
+) -> Drawn {
     let pts: Vec<(f64, f64)> = history
         .iter()
         .enumerate()
@@ -378,13 +373,7 @@ fn draw_objective(
         .fold(0.0_f64, f64::max)
         .max(lo * 10.0);
     let n = history.len().max(2) as f64;
-    let root = SVGBackend::with_string(buf, SIZE).into_drawing_area();
-    root.fill(&WHITE)?;
-    let mut chart = ChartBuilder::on(&root)
-        .caption(title, (FONT, 18))
-        .margin(12)
-        .x_label_area_size(40)
-        .y_label_area_size(70)
+    let mut chart = chart_builder(root, title, 70)
         .build_cartesian_2d(1f64..n, (lo * 0.5..hi * 2.0).log_scale())?;
     chart
         .configure_mesh()
@@ -399,13 +388,5 @@ fn draw_objective(
         .draw_series(LineSeries::new(pts, BLACK.stroke_width(2)))?
         .label("best so far")
         .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], BLACK.stroke_width(2)));
-    chart
-        .configure_series_labels()
-        .label_font((FONT, 13))
-        .background_style(WHITE.mix(0.85))
-        .border_style(BLACK)
-        .position(SeriesLabelPosition::UpperRight)
-        .draw()?;
-    root.present()?;
-    Ok(())
+    legend(&mut chart, SeriesLabelPosition::UpperRight)
 }

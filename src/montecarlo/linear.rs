@@ -137,7 +137,13 @@ pub fn run_linear_with_progress(
     let m = filter.H.nrows();
     match Schedule::compute(filter, mc.steps()) {
         Ok(sched) => run_chunked(mc, n, m, progress, |range, acc| {
-            chunk_dispatch(truth, filter, &sched, mc, range, acc)
+            let job = Job {
+                truth,
+                f: filter,
+                sched: &sched,
+                mc,
+            };
+            chunk_dispatch(&job, range, acc)
         }),
         Err(e) => {
             // The covariance recursion is the same in every run, so every run diverges at
@@ -213,47 +219,40 @@ fn col_mut(m: &mut DMatrix<f64>, j: usize) -> &mut [f64] {
 /// baseline. The arithmetic is the same element by element (Rust never fuses a multiply and
 /// an add on its own, and every reduction has a fixed order), so results are identical;
 /// only the vector width changes.
-fn chunk_dispatch(
-    truth: &LinearGaussianModel,
-    f: &KalmanFilter,
-    sched: &Schedule,
-    mc: &McConfig,
-    range: Range<usize>,
-    acc: &mut Accumulator,
-) {
+fn chunk_dispatch(job: &Job<'_>, range: Range<usize>, acc: &mut Accumulator) {
     #[cfg(target_arch = "x86_64")]
     if std::is_x86_feature_detected!("avx2") {
         // SAFETY: the CPU supports AVX2, checked just above.
-        unsafe { chunk_avx2(truth, f, sched, mc, range, acc) };
+        unsafe { chunk_avx2(job, range, acc) };
         return;
     }
-    chunk(truth, f, sched, mc, range, acc);
+    chunk(job, range, acc);
 }
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
-fn chunk_avx2(
-    truth: &LinearGaussianModel,
-    f: &KalmanFilter,
-    sched: &Schedule,
-    mc: &McConfig,
-    range: Range<usize>,
-    acc: &mut Accumulator,
-) {
-    chunk(truth, f, sched, mc, range, acc);
+fn chunk_avx2(job: &Job<'_>, range: Range<usize>, acc: &mut Accumulator) {
+    chunk(job, range, acc);
+}
+
+/// What every chunk of one evaluation shares.
+struct Job<'a> {
+    truth: &'a LinearGaussianModel,
+    f: &'a KalmanFilter,
+    sched: &'a Schedule,
+    mc: &'a McConfig,
 }
 
 /// Runs `range` as the rows of B × n matrices (one row per run), so every product is a few
 /// vector operations of length B.
 #[inline(always)]
-fn chunk(
-    truth: &LinearGaussianModel,
-    f: &KalmanFilter,
-    sched: &Schedule,
-    mc: &McConfig,
-    range: Range<usize>,
-    acc: &mut Accumulator,
-) {
+fn chunk(job: &Job<'_>, range: Range<usize>, acc: &mut Accumulator) {
+    let Job {
+        truth,
+        f,
+        sched,
+        mc,
+    } = *job;
     let n = f.n_x();
     let m = f.H.nrows();
     let b = range.len();
@@ -446,9 +445,15 @@ mod tests {
             .unwrap();
         let sched = Schedule::compute(&kf, mc.steps()).unwrap();
         let mut base = Accumulator::new(50, 2, 1, 3);
-        chunk(&truth, &kf, &sched, &mc, 0..100, &mut base);
+        let job = Job {
+            truth: &truth,
+            f: &kf,
+            sched: &sched,
+            mc: &mc,
+        };
+        chunk(&job, 0..100, &mut base);
         let mut fast = Accumulator::new(50, 2, 1, 3);
-        chunk_dispatch(&truth, &kf, &sched, &mc, 0..100, &mut fast);
+        chunk_dispatch(&job, 0..100, &mut fast);
         assert_eq!(base, fast);
         assert!(base.nees_sum.iter().all(|v| *v > 0.0));
     }

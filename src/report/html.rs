@@ -5,6 +5,7 @@ use std::fmt::Write;
 use super::advice::Recommendation;
 use super::fmt_g;
 use super::plots::{components_svg, objective_svg, statistic_svg, whiteness_svg};
+use super::summary::StatCells;
 use crate::experiment::Experiment;
 use crate::stats::{ConsistencyReport, StatisticSummary};
 use crate::tune::TuneResult;
@@ -48,16 +49,16 @@ fn figure(o: &mut String, svg: &str, caption: &str) {
 }
 
 fn stat_rows(o: &mut String, label: &str, s: &StatisticSummary) {
+    let c = StatCells::of(s);
     let _ = writeln!(
         o,
-        "<tr><td>{}</td><td>{:.4}</td><td>{:.3}</td><td>[{:.4}, {:.4}]</td><td>{:.1}%</td><td>{}</td></tr>",
+        "<tr><td>{}</td><td>{}</td><td>{:.3}</td><td>{}</td><td>{}</td><td>{}</td></tr>",
         escape(label),
-        s.time_average,
+        c.average,
         s.target,
-        s.interval.lower,
-        s.interval.upper,
-        100.0 * s.fraction_in_bounds,
-        s.verdict.label()
+        c.interval,
+        c.in_bounds,
+        c.verdict
     );
 }
 

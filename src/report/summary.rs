@@ -4,17 +4,36 @@ use std::fmt::Write;
 
 use crate::stats::{ConsistencyReport, StatisticSummary};
 
+/// A gate statistic's cells as every table shows them: the time average, the gate
+/// interval, the share of steps inside their per-step interval, and the verdict.
+pub(crate) struct StatCells {
+    /// Time average, 4 decimals.
+    pub average: String,
+    /// `[lower, upper]`, 4 decimals.
+    pub interval: String,
+    /// Percentage of steps in bounds, 1 decimal.
+    pub in_bounds: String,
+    /// One-word verdict.
+    pub verdict: &'static str,
+}
+
+impl StatCells {
+    pub(crate) fn of(s: &StatisticSummary) -> StatCells {
+        StatCells {
+            average: format!("{:.4}", s.time_average),
+            interval: format!("[{:.4}, {:.4}]", s.interval.lower, s.interval.upper),
+            in_bounds: format!("{:.1}%", 100.0 * s.fraction_in_bounds),
+            verdict: s.verdict.label(),
+        }
+    }
+}
+
 fn stat_row(out: &mut String, s: &StatisticSummary) {
+    let c = StatCells::of(s);
     let _ = writeln!(
         out,
-        "  A{:<5} {:>10.4} {:>7.2}   [{:.4}, {:.4}]   {:>6.1}%     {}",
-        s.name,
-        s.time_average,
-        s.target,
-        s.interval.lower,
-        s.interval.upper,
-        100.0 * s.fraction_in_bounds,
-        s.verdict.label()
+        "  A{:<5} {:>10} {:>7.2}   {}   {:>7}     {}",
+        s.name, c.average, s.target, c.interval, c.in_bounds, c.verdict
     );
 }
 

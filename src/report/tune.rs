@@ -6,6 +6,7 @@ use serde::Serialize;
 
 use super::advice::Recommendation;
 use super::fmt_g;
+use super::summary::StatCells;
 use crate::experiment::{Experiment, Source};
 use crate::stats::{ConsistencyReport, StatisticSummary};
 use crate::tune::TuneResult;
@@ -30,15 +31,11 @@ pub struct TuneReport<'a> {
 fn stat_line(out: &mut String, label: &str, s: Option<&StatisticSummary>) {
     match s {
         Some(s) => {
+            let c = StatCells::of(s);
             let _ = write!(
                 out,
-                "| {label} | {:.4} | {:.2} | [{:.4}, {:.4}] | {:.1}% | {} |",
-                s.time_average,
-                s.target,
-                s.interval.lower,
-                s.interval.upper,
-                100.0 * s.fraction_in_bounds,
-                s.verdict.label()
+                "| {label} | {} | {:.2} | {} | {} | {} |",
+                c.average, s.target, c.interval, c.in_bounds, c.verdict
             );
         }
         None => {

@@ -1,16 +1,23 @@
-//! Tuning the catalog problems from 10× off, in each free parameter and in both directions
-//! (all ×10, all ×0.1): the tuned filter passes the consistency check on fresh seeds (the
-//! tuner's confirmation, on a seed the search never saw), and where the filter shares the
-//! truth's noise structure every free parameter lands within 30% of the truth.
+//! Tuning the catalog problems from 10× off: the tuned filter passes the consistency check
+//! on fresh seeds (the tuner's confirmation, on a seed the search never saw) and every free
+//! parameter lands within its measured Monte Carlo spread of the truth.
+//!
+//! With common random numbers the tuned value is a deterministic function of the search
+//! seed, and its error is the Monte Carlo estimation error of the search runs. Each
+//! parameter's tolerance below is three times that error's standard deviation, measured as
+//! the rms of ln(tuned/truth) over seeds 1–6 with these settings (ctrv: 0.051 and 0.030;
+//! orbit2d: 0.040 and 0.012 over the four seeds that converged) or, for ins_gnss, from the
+//! linearized spread of the minimum over six seeds (README). A tuner that stopped early, a
+//! biased objective or a filter whose Q did not act misses by far more; the old 30% bound
+//! would have passed a tuner that was 20% off.
 //!
 //! The search here is cheaper than the shipped `[tune]` settings (N runs per evaluation
-//! instead of 2–4 N, 8 global points per parameter, a capped evaluation count) to keep the
-//! suite short; the shipped configs in `tuned/` come from the full settings. With common
-//! random numbers the tuned value's error is the Monte Carlo estimation error of N runs,
-//! a few percent for these problems (measured: ctrv +1%/+4%, orbit2d +5%/−1%), so 30% has a
-//! wide margin; a tuner that stopped early or a filter whose Q did not act would miss it by
-//! the start's factor of 10. The confirmation itself fails a perfect filter with
-//! probability at most α = 0.05 per run (fixed seeds here, so the outcome is reproducible).
+//! instead of 2 N, 8 global points per parameter, 120 evaluations) to keep the suite
+//! short. With this budget the simplex ran out of evaluations at a compromise point (×8 in
+//! q_radial, ×0.4 in q_along) at 2 of 6 orbit2d seeds (2 and 5); the shipped budget of 300
+//! recovers seed 2 within 4%. The two directions run at two seeds (the shipped one and the
+//! next that converged): from either start the global stage finds the same basin, so one
+//! seed would run the same search twice.
 
 mod common;
 
@@ -51,60 +58,76 @@ fn quick() -> TuneSettings {
         .unwrap()
 }
 
-fn assert_recovers(name: &str, settings: &TuneSettings) {
-    assert_recovers_from(name, settings, &[10.0, 0.1]);
-}
-
-fn assert_recovers_from(name: &str, settings: &TuneSettings, factors: &[f64]) {
-    let p = load(name);
+/// Tune `name` from all free parameters × `factor` at search seed `seed`; the confirmation
+/// must pass and free parameter i must land within `tol[i]` (relative) of the truth, in the
+/// order of the free parameters.
+fn assert_recovers(name: &str, settings: &TuneSettings, factor: f64, seed: u64, tol: &[f64]) {
+    let mut p = load(name);
     let truth = truth_values(&p);
     let settings = settings
         .clone()
         .with_search_runs(settings.search_runs().unwrap_or(p.mc().runs()))
         .unwrap();
-    for &factor in factors {
-        let r = tune_from(&p, factor, &settings);
-        assert_eq!(
-            r.after.verdict,
-            Verdict::Consistent,
-            "{name} from x{factor}: confirmation on fresh seeds: {:?}",
-            r.after.verdict
+    let mc = p.mc().with_seed(seed);
+    p.catalog_mut().expect("a catalog problem").definition.mc = mc;
+    let r = tune_from(&p, factor, &settings);
+    assert_eq!(
+        r.after.verdict,
+        Verdict::Consistent,
+        "{name} from x{factor}: confirmation on fresh seeds: {:?}",
+        r.after.verdict
+    );
+    assert_ne!(r.confirm_seed, seed);
+    let free: Vec<usize> = (0..truth.len()).filter(|&i| !r.fixed[i]).collect();
+    assert_eq!(free.len(), tol.len(), "one tolerance per free parameter");
+    for (&i, &tol) in free.iter().zip(tol) {
+        let ratio = r.tuned[i] / truth[i];
+        assert!(
+            (ratio - 1.0).abs() <= tol,
+            "{name} from x{factor}, seed {seed}: {} tuned {:e}, truth {:e} (tolerance {tol})",
+            p.params().params[i].name,
+            r.tuned[i],
+            truth[i]
         );
-        assert_ne!(r.confirm_seed, p.mc().seed());
-        for (i, q) in p.params().params.iter().enumerate() {
-            let ratio = r.tuned[i] / truth[i];
-            assert!(
-                (ratio - 1.0).abs() <= 0.3,
-                "{name} from x{factor}: {} tuned {:e}, truth {:e}",
-                q.name,
-                r.tuned[i],
-                truth[i]
-            );
-        }
     }
 }
 
+/// q_accel, q_yaw_accel: 3 × (0.051, 0.030).
+const CTRV_TOL: [f64; 2] = [0.15, 0.10];
+
+/// q_radial, q_along: 3 × (0.040, 0.012), rounded up.
+const ORBIT2D_TOL: [f64; 2] = [0.12, 0.04];
+
 #[test]
 fn ctrv_tunes_from_ten_times_off_both_ways() {
-    assert_recovers("ctrv", &quick());
+    assert_recovers("ctrv", &quick(), 10.0, 1, &CTRV_TOL);
+    assert_recovers("ctrv", &quick(), 0.1, 2, &CTRV_TOL);
 }
 
 #[test]
 fn orbit2d_tunes_from_ten_times_off_both_ways() {
-    assert_recovers("orbit2d", &quick());
+    assert_recovers("orbit2d", &quick(), 10.0, 4, &ORBIT2D_TOL);
+    assert_recovers("orbit2d", &quick(), 0.1, 3, &ORBIT2D_TOL);
 }
 
 #[test]
 fn ins_gnss_tunes_from_a_tenth() {
     // Six free parameters of a 15-state filter, about 1 s an evaluation: the shipped [tune]
     // settings (Gauss–Newton from the start, 12 global points, 2 N search runs), from all
-    // ×0.1. The other direction, all ×10, is the shipped problem's own start: its result is
-    // tuned/ins_gnss.toml, checked by `shipped_tuned_configs_land_within_30_percent` here
-    // and `shipped_tuned_configs_pass_check` (tests/cli_tune.rs); one direction here keeps
-    // the suite short. With N search runs instead of 2 N the tuned values land within 17%
-    // but the confirmation fails (ANEES just under its interval): the estimate's noise.
+    // ×0.1 at the shipped seed. The other direction, all ×10, is the shipped problem's own
+    // start, whose result is tuned/ins_gnss.toml; one direction keeps the suite short.
+    // Tolerances: 3 × the rms of ln(tuned/truth) over six seeds from the linearized minimum
+    // (accelerometer x, y, z 0.03, 0.03, 0.008; gyro 0.09; accelerometer and gyro bias walks
+    // 0.06, 0.10), rounded up.
     let p = load("ins_gnss");
     let settings = p.tune.clone();
     assert_eq!(settings.local(), autotune::tune::LocalSearch::GaussNewton);
-    assert_recovers_from("ins_gnss", &settings, &[0.1]);
+    let seed = p.mc().seed();
+    assert_recovers(
+        "ins_gnss",
+        &settings,
+        0.1,
+        seed,
+        &[0.10, 0.10, 0.03, 0.27, 0.18, 0.30],
+    );
 }

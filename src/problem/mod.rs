@@ -88,6 +88,14 @@ impl Problem {
         }
     }
 
+    /// Mutable access to the catalog model, if the problem names one.
+    pub fn catalog_mut(&mut self) -> Option<&mut CatalogExperiment> {
+        match &mut self.system {
+            System::Linear(_) => None,
+            System::Catalog(c) => Some(c),
+        }
+    }
+
     /// The problem's name (from the file, or its stem).
     pub fn name(&self) -> &str {
         &self.info().name

@@ -177,10 +177,12 @@ pub fn tune(
     };
 
     // The curvature says something only at a converged optimum.
-    let resolution = if best_y.is_empty() || !best_j.is_finite() || budget.exhausted() {
-        vec![Resolution::FIXED; params.len()]
+    let resolution = if budget.exhausted() {
+        None
+    } else if best_y.is_empty() || !best_j.is_finite() {
+        Some(vec![Resolution::FIXED; params.len()])
     } else {
-        resolution::resolution(&cost, &best_y, noise_floor, fixed)
+        Some(resolution::resolution(&cost, &best_y, noise_floor, fixed))
     };
     let status = if !best_j.is_finite() {
         TuneStatus::Diverged

@@ -82,8 +82,10 @@ pub struct TuneResult {
     /// on the thread count: evaluations that ran in parallel are booked in the order of
     /// their points or starts.
     pub history: Vec<f64>,
-    /// Resolution per parameter.
-    pub resolution: Vec<Resolution>,
+    /// Resolution per parameter; `None` when not assessed because the budget ran out (the
+    /// curvature says something only at a converged optimum, and measuring it would spend
+    /// evaluations the budget no longer has).
+    pub resolution: Option<Vec<Resolution>>,
     /// Objective noise level used for the resolution: the objective of the tuned filter on
     /// the confirmation runs.
     pub noise_floor: f64,

@@ -198,3 +198,115 @@ impl<'a> Budget<'a> {
     }
 }
 
+#[cfg(test)]
+mod tests {
+    use std::sync::atomic::Ordering;
+    use std::time::Duration;
+
+    use super::*;
+    use crate::tune::tests::{Mock, cost};
+
+    /// The tests' quadratic, diverging where p0 > 3.
+    fn mock() -> Mock {
+        Mock::new(&[0.3, 20.0], &[&[4.0, 2.0], &[0.0, 8.0]]).diverging_above(0, 3.0)
+    }
+
+    fn in_an_hour() -> Instant {
+        Instant::now() + Duration::from_secs(3600)
+    }
+
+    #[test]
+    fn charges_max_evals_then_refuses_without_evaluating() {
+        let mock = mock();
+        let cost = cost(&mock, &[false; 2]);
+        let mut b = Budget::new(&cost, 3, in_an_hour(), &Silent);
+        for _ in 0..3 {
+            assert!(b.score(&[0.0, 0.0]).is_ok());
+        }
+        assert!(
+            !b.exhausted(),
+            "spending the whole budget is not running out"
+        );
+        let calls = mock.calls.load(Ordering::SeqCst);
+        assert_eq!(b.score(&[0.0, 0.0]), Err(Exhausted));
+        assert_eq!(mock.calls.load(Ordering::SeqCst), calls);
+        assert!(b.exhausted());
+        assert_eq!(b.evaluations(), 3);
+        assert_eq!(b.history().len(), 3);
+    }
+
+    #[test]
+    fn a_passed_deadline_refuses_the_first_evaluation() {
+        let mock = mock();
+        let cost = cost(&mock, &[false; 2]);
+        let past = Instant::now() - Duration::from_millis(1);
+        let mut b = Budget::new(&cost, 100, past, &Silent);
+        assert_eq!(b.score(&[0.0, 0.0]), Err(Exhausted));
+        assert!(b.exhausted());
+        assert_eq!(b.evaluations(), 0);
+    }
+
+    #[test]
+    fn books_diverged_evaluations_the_best_point_and_the_history() {
+        let mock = mock();
+        let cost = cost(&mock, &[false; 2]);
+        let mut b = Budget::new(&cost, 10, in_an_hour(), &Silent);
+        let start = [0.0, 0.0];
+        let diverging = [10f64.ln(), 0.0];
+        let truth = mock.y_star();
+        let j_start = b.score(&start).unwrap();
+        assert_eq!(b.score(&diverging), Ok(f64::INFINITY));
+        let j_truth = b.score(&truth).unwrap();
+        b.score(&start).unwrap();
+        assert!(j_truth < 1e-20 && j_start > 1.0, "{j_truth} {j_start}");
+        assert_eq!(b.diverged(), 1);
+        assert_eq!(b.history(), vec![j_start, j_start, j_truth, j_truth]);
+        let (j, y) = b.best().unwrap();
+        assert_eq!((j, y), (j_truth, truth.as_slice()));
+    }
+
+    #[test]
+    fn the_first_of_equally_good_points_stays_the_best() {
+        // p0 and p1 enter only through (2/θ0)·(2/θ1), which is the same product to the
+        // last bit when the two are swapped.
+        let mock = Mock::new(&[2.0, 2.0], &[&[1.0, 1.0]]);
+        let cost = cost(&mock, &[false; 2]);
+        let mut b = Budget::new(&cost, 10, in_an_hour(), &Silent);
+        let (first, second) = ([0.1, 0.3], [0.3, 0.1]);
+        assert_eq!(b.score(&first), b.score(&second));
+        assert_eq!(b.best().unwrap().1, first.as_slice());
+    }
+
+    #[test]
+    fn parallel_items_are_booked_as_a_sequential_run_would_charge_them() {
+        let mock = mock();
+        let cost = cost(&mock, &[false; 2]);
+        // Three items of four evaluations each, walking towards the truth from different
+        // sides; one step of the third diverges.
+        let items = [[-1.0, 2.0], [0.5, 4.0], [2.0, 3.0]];
+        let walk = |b: &mut Budget<'_>, from: &[f64; 2]| -> Result<(), Exhausted> {
+            for k in 0..4 {
+                let t = k as f64 / 3.0;
+                let y: Vec<f64> = (0..2)
+                    .map(|i| from[i] + t * (mock.y_star()[i] - from[i]))
+                    .collect();
+                b.score(&y)?;
+            }
+            Ok(())
+        };
+        // Budgets that run out inside the second item, end exactly with the third, and
+        // have room to spare.
+        for max_evals in [5, 12, 100] {
+            let run = |parallel: bool| {
+                let mut b = Budget::new(&cost, max_evals, in_an_hour(), &Silent);
+                b.score(&[0.0, 0.0]).unwrap();
+                b.map(&items, parallel, walk);
+                (b.evaluations(), b.exhausted(), b.diverged(), b.history())
+            };
+            let (seq, par) = (run(false), run(true));
+            assert_eq!(seq.0, max_evals.min(13), "max_evals {max_evals}");
+            assert_eq!(seq.1, max_evals < 13, "max_evals {max_evals}");
+            assert_eq!(par, seq, "max_evals {max_evals}");
+        }
+    }
+}

@@ -93,3 +93,37 @@ fn latin_hypercube(points: usize, dim: usize, seed: u64) -> Vec<Vec<f64>> {
     out
 }
 
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn latin_hypercube_puts_one_point_in_each_slice_of_every_axis() {
+        let (n, dim) = (16, 3);
+        let pts = latin_hypercube(n, dim, 7);
+        for d in 0..dim {
+            let mut slices: Vec<usize> = pts.iter().map(|p| (p[d] * n as f64) as usize).collect();
+            slices.sort_unstable();
+            assert_eq!(slices, (0..n).collect::<Vec<_>>(), "axis {d}");
+        }
+        assert_eq!(pts, latin_hypercube(n, dim, 7), "same seed, same points");
+    }
+
+    #[test]
+    fn starts_are_distinct_and_gauss_newton_keeps_the_start() {
+        let c = |x: f64, cost: f64| Candidate {
+            point: vec![x],
+            cost,
+        };
+        // 0.3 is within DISTINCT of 0.0, so it is passed over.
+        let ranked = [c(0.0, 1.0), c(0.3, 2.0), c(2.0, 3.0), c(4.0, 4.0)];
+        let simplex = choose_starts(&ranked, &[9.0], LocalSearch::Simplex, 2);
+        assert_eq!(simplex, vec![vec![0.0], vec![2.0]]);
+        let gn = choose_starts(&ranked, &[9.0], LocalSearch::GaussNewton, 2);
+        assert_eq!(gn, vec![vec![9.0], vec![0.0]]);
+        assert_eq!(
+            choose_starts(&[], &[9.0], LocalSearch::Simplex, 3),
+            vec![vec![9.0]]
+        );
+    }
+}

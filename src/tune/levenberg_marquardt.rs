@@ -186,3 +186,52 @@ pub(super) fn levenberg_marquardt(
     Ok(Candidate { point: y, cost: j })
 }
 
+#[cfg(test)]
+mod tests {
+    use std::time::{Duration, Instant};
+
+    use super::*;
+    use crate::tune::Silent;
+    use crate::tune::tests::{Mock, cost};
+
+    #[test]
+    fn moment_equations_average_the_log_ratios_of_each_parameters_own_components() {
+        let e = f64::exp;
+        let mut acc = Accumulator::new(1, 3, 2, 0);
+        // Mean e²/P of e, e², and a component with no samples; mean ν²/S of 1/e, 1/e².
+        acc.state_comp_total = vec![10.0 * e(1.0), 10.0 * e(2.0), 7.0];
+        acc.state_comp_samples = vec![10.0, 10.0, 0.0];
+        acc.meas_comp_total = vec![5.0 * e(-1.0), 5.0 * e(-2.0)];
+        acc.meas_comp_samples = vec![5.0, 5.0];
+        let targets = [
+            Target::process(&[0]),
+            Target::measurement(&[0, 1]),
+            Target::process(&[1, 2]),
+            Target::process(&[2]),
+        ];
+        let m = moments(&targets, &acc);
+        let want = [1.0, -1.5, 2.0, 0.0];
+        for (k, (got, want)) in m.iter().zip(want).enumerate() {
+            assert!((got - want).abs() < 1e-12, "equation {k}: {got} vs {want}");
+        }
+    }
+
+    #[test]
+    fn solves_the_objective_and_the_moment_equations_of_a_quadratic() {
+        // Linear residuals in log space: each damped Gauss–Newton step leaves λ/(1 + λ) ≤
+        // 1e-3 of the error, and the iteration stops after a step shorter than 1e-3, so
+        // the error is then below 1e-6 (and J below 64 · 1e-12 with exponents up to 8).
+        let mock = Mock::new(&[0.3, 20.0], &[&[4.0, 2.0], &[0.0, 8.0]]);
+        let cost = cost(&mock, &[false; 2]);
+        let targets = cost.targets.clone().expect("the mock names every target");
+        for equations in [Equations::Objective, Equations::Moments(&targets)] {
+            let deadline = Instant::now() + Duration::from_secs(3600);
+            let mut b = Budget::new(&cost, 1000, deadline, &Silent);
+            let found = levenberg_marquardt(&mut b, &[0.0, 0.0], equations).unwrap();
+            let err = max_abs_diff(&found.point, &mock.y_star());
+            assert!(err < 1e-6, "{equations:?}: {err:.2e}");
+            assert!(found.cost < 1e-10, "{equations:?}: {}", found.cost);
+            assert!(b.evaluations() < 40, "{equations:?}: {}", b.evaluations());
+        }
+    }
+}

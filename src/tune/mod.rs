@@ -35,6 +35,8 @@ mod resolution;
 mod result;
 mod settings;
 mod simplex;
+#[cfg(test)]
+mod tests;
 
 pub use objective::{Objective, Terms, Weights};
 pub use result::{Observer, Resolution, Silent, TuneResult, TuneStatus};

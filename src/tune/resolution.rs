@@ -88,3 +88,37 @@ fn inverse_hessian_diagonal(cost: &Cost<'_>, y: &[f64]) -> Vec<f64> {
         .collect()
 }
 
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::tune::tests::{Mock, cost};
+
+    #[test]
+    fn matches_the_analytic_curvature_of_a_quadratic() {
+        // p0 and p2 drive one component each with exponents 1 and 2, p1 is fixed:
+        // J = ((y0* − y0)² + 4 (y2* − y2)²) / 2, H = diag(1, 4), and at a floor of 0.02
+        // δ0 = √(2 · 0.02 · 1) = 0.2 and δ2 = √(2 · 0.02 / 4) = 0.1. Central differences of
+        // a quadratic are exact but for rounding: J ≈ 1e-3 at the steps, so the Hessian is
+        // good to ~1e-12 relative; 1e-9 leaves room.
+        let mock = Mock::new(&[0.5, 1.0, 4.0], &[&[1.0, 0.0, 0.0], &[0.0, 0.0, 2.0]]);
+        let fixed = [false, true, false];
+        let cost = cost(&mock, &fixed);
+        let y = [0.5f64.ln(), 4f64.ln()];
+        let res = resolution(&cost, &y, 0.02, &fixed);
+        assert_eq!(res[1], Resolution::FIXED);
+        for (i, delta) in [(0, 0.2f64), (2, 0.1)] {
+            let f = res[i].factor.unwrap();
+            assert!((f / delta.exp() - 1.0).abs() < 1e-9, "p{i}: {f}");
+            assert!(
+                res[i].identifiable && !res[i].at_bound,
+                "p{i}: {:?}",
+                res[i]
+            );
+        }
+        // Within 5% of the lower bound (1e-4): at a bound, so not identifiable.
+        let near_lower = [1e-4f64.ln() + 0.01, 4f64.ln()];
+        let res = resolution(&cost, &near_lower, 0.02, &fixed);
+        assert!(res[0].at_bound && !res[0].identifiable, "{:?}", res[0]);
+        assert!(!res[2].at_bound, "{:?}", res[2]);
+    }
+}

@@ -13,7 +13,7 @@ use std::time::Instant;
 
 use rayon::prelude::*;
 
-use super::cost::Cost;
+use super::cost::{Candidate, Cost};
 use super::result::{Observer, Silent};
 
 /// What one evaluation of the cost gives: what the budget books, and what the caller asked
@@ -178,9 +178,12 @@ impl<'a> Budget<'a> {
     }
 
     /// The lowest finite J booked (the first on ties) and its point.
-    pub(super) fn best(&self) -> Option<(f64, &[f64])> {
+    pub(super) fn best(&self) -> Option<Candidate> {
         let b = &self.booked[self.best?];
-        Some((b.j, b.point.as_deref()?))
+        Some(Candidate {
+            point: b.point.clone()?,
+            cost: b.j,
+        })
     }
 
     /// The best J after each booked evaluation.
@@ -261,8 +264,8 @@ mod tests {
         assert!(j_truth < 1e-20 && j_start > 1.0, "{j_truth} {j_start}");
         assert_eq!(b.diverged(), 1);
         assert_eq!(b.history(), vec![j_start, j_start, j_truth, j_truth]);
-        let (j, y) = b.best().unwrap();
-        assert_eq!((j, y), (j_truth, truth.as_slice()));
+        let best = b.best().unwrap();
+        assert_eq!((best.cost, best.point), (j_truth, truth));
     }
 
     #[test]
@@ -274,7 +277,7 @@ mod tests {
         let mut b = Budget::new(&cost, 10, in_an_hour(), &Silent);
         let (first, second) = ([0.1, 0.3], [0.3, 0.1]);
         assert_eq!(b.score(&first), b.score(&second));
-        assert_eq!(b.best().unwrap().1, first.as_slice());
+        assert_eq!(b.best().unwrap().point, first);
     }
 
     #[test]

@@ -135,6 +135,16 @@ impl<'a> Cost<'a> {
     }
 }
 
+/// A log-point and its score: a point of the global stage, where a local search ended,
+/// or the best point a budget booked.
+#[derive(Debug, Clone, PartialEq)]
+pub(super) struct Candidate {
+    /// The log-point.
+    pub point: Vec<f64>,
+    /// Its score (+∞ when its filter diverged or the search found nothing finite).
+    pub cost: f64,
+}
+
 /// Largest coordinate difference of two log-points (log units).
 pub(super) fn max_abs_diff(a: &[f64], b: &[f64]) -> f64 {
     a.iter()

@@ -4,8 +4,7 @@
 use rand::{Rng, SeedableRng};
 
 use super::budget::Budget;
-use super::cost::max_abs_diff;
-use super::local::Candidate;
+use super::cost::{Candidate, max_abs_diff};
 use super::settings::LocalSearch;
 use crate::SimRng;
 

@@ -11,8 +11,7 @@
 use nalgebra::{DMatrix, DVector};
 
 use super::budget::{Budget, Evaluation, Exhausted};
-use super::cost::{Cost, max_abs_diff};
-use super::local::Candidate;
+use super::cost::{Candidate, Cost, max_abs_diff};
 use crate::params::{NoiseKind, Target};
 use crate::stats::Accumulator;
 

@@ -2,6 +2,7 @@
 //! run in which order.
 
 use super::budget::{Budget, Exhausted};
+use super::cost::Candidate;
 use super::global;
 use super::levenberg_marquardt::{Equations, levenberg_marquardt};
 use super::result::Observer;
@@ -12,15 +13,6 @@ use super::simplex::nelder_mead;
 const WIDE: f64 = 0.7;
 /// Initial simplex step of the polishing restart, log units (10%).
 const POLISH: f64 = 0.1;
-
-/// A log-point and its score: a point of the global stage, or where a local search ended.
-#[derive(Debug, Clone, PartialEq)]
-pub(super) struct Candidate {
-    /// The log-point.
-    pub point: Vec<f64>,
-    /// Its score (+∞ when its filter diverged or the search found nothing finite).
-    pub cost: f64,
-}
 
 /// The global stage, a local search from each of the best few points (in parallel if
 /// `parallel`), and for the simplex a last restart from the winner. `None` when the budget

@@ -45,7 +45,7 @@ pub use settings::{LocalSearch, Scoring, TuneSettings};
 use std::time::{Duration, Instant};
 
 use self::budget::Budget;
-use self::cost::Cost;
+use self::cost::{Candidate, Cost};
 use crate::experiment::Experiment;
 use crate::input::SettingError;
 use crate::montecarlo::McConfig;
@@ -140,17 +140,21 @@ pub fn tune(
     } else {
         None
     };
-    let (best_j, best_y) = match found {
-        Some(c) => (c.cost, c.point),
-        None if cost.dim() == 0 => (objective_initial.total, Vec::new()),
-        None => budget
-            .best()
-            .map_or((f64::INFINITY, Vec::new()), |(j, y)| (j, y.to_vec())),
+    let best = match found {
+        Some(c) => c,
+        None if cost.dim() == 0 => Candidate {
+            point: Vec::new(),
+            cost: objective_initial.total,
+        },
+        None => budget.best().unwrap_or(Candidate {
+            point: Vec::new(),
+            cost: f64::INFINITY,
+        }),
     };
-    let tuned = if best_y.is_empty() {
+    let tuned = if best.point.is_empty() {
         start.to_vec()
     } else {
-        cost.theta(&best_y)
+        cost.theta(&best.point)
     };
     let objective_final = cost.objective.evaluate(&cost.accumulate(&tuned));
 
@@ -181,12 +185,17 @@ pub fn tune(
     // The curvature says something only at a converged optimum.
     let resolution = if budget.exhausted() {
         None
-    } else if best_y.is_empty() || !best_j.is_finite() {
+    } else if best.point.is_empty() || !best.cost.is_finite() {
         Some(vec![Resolution::FIXED; params.len()])
     } else {
-        Some(resolution::resolution(&cost, &best_y, noise_floor, fixed))
+        Some(resolution::resolution(
+            &cost,
+            &best.point,
+            noise_floor,
+            fixed,
+        ))
     };
-    let status = if !best_j.is_finite() {
+    let status = if !best.cost.is_finite() {
         TuneStatus::Diverged
     } else if after.verdict.passes() {
         TuneStatus::Consistent

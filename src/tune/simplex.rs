@@ -6,7 +6,7 @@ use argmin::core::{CostFunction, Executor, State};
 use argmin::solver::neldermead::NelderMead;
 
 use super::budget::{Budget, Exhausted};
-use super::local::Candidate;
+use super::cost::Candidate;
 
 /// The simplex stops when the standard deviation of its vertices' scores falls below this.
 /// (argmin's default never stops; J is dimensionless and O(1) far from the optimum.)

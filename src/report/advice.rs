@@ -27,11 +27,12 @@ pub struct Recommendation {
     pub factor: f64,
     /// Held fixed during tuning.
     pub fixed: bool,
-    /// Whether the data pin the parameter down (see [`crate::tune::Resolution`]).
-    pub identifiable: bool,
+    /// Whether the data pin the parameter down (see [`crate::tune::Resolution`]); `None`
+    /// when not assessed because the search stopped on its budget.
+    pub identifiable: Option<bool>,
     /// Factor within which the tuned value is determined, if known.
     pub resolution: Option<f64>,
-    /// The tuned value sits on a search bound.
+    /// The tuned value sits on a search bound (false when not assessed).
     pub at_bound: bool,
     /// The components the parameter acts on, with their normalized errors in the starting
     /// filter (target 1): `(name, value)`.
@@ -87,7 +88,7 @@ pub fn recommendations(
         let initial = result.initial[i];
         let tuned = result.tuned[i];
         let factor = tuned / initial;
-        let res = result.resolution[i];
+        let res = result.resolution.as_ref().map(|r| r[i]);
         let what = if evidence.is_empty() {
             p.name.clone()
         } else {
@@ -106,14 +107,14 @@ pub fn recommendations(
                 p.name,
                 crate::report::fmt_g(initial)
             )
-        } else if res.at_bound {
+        } else if res.is_some_and(|r| r.at_bound) {
             format!(
                 "{}: stopped at its search bound [{}, {}]; the data may want it beyond, widen the bounds",
                 p.name,
                 crate::report::fmt_g(p.lower),
                 crate::report::fmt_g(p.upper)
             )
-        } else if !res.identifiable {
+        } else if res.is_some_and(|r| !r.identifiable) {
             format!(
                 "{}: not identifiable from this data (the objective is flat over more than a factor of 2); keep a prior value such as a datasheet's",
                 p.name
@@ -151,6 +152,11 @@ pub fn recommendations(
         } else {
             format!("{}: about right (×{})", p.name, fmt_factor(factor))
         };
+        let advice = if res.is_none() && !result.fixed[i] {
+            format!("{advice} (resolution not assessed: the search stopped on its budget)")
+        } else {
+            advice
+        };
         rows.push(Recommendation {
             param: p.name.clone(),
             unit: p.unit.clone(),
@@ -159,9 +165,9 @@ pub fn recommendations(
             tuned,
             factor,
             fixed: result.fixed[i],
-            identifiable: res.identifiable,
-            resolution: res.factor,
-            at_bound: res.at_bound,
+            identifiable: res.map(|r| r.identifiable),
+            resolution: res.and_then(|r| r.factor),
+            at_bound: res.is_some_and(|r| r.at_bound),
             evidence,
             advice,
         });
@@ -180,8 +186,9 @@ impl Recommendation {
         ) {
             (true, ..) => "fixed".to_string(),
             (false, true, ..) => "at a search bound".to_string(),
-            (false, false, false, _) => "not identifiable".to_string(),
-            (false, false, true, Some(f)) => format!("±{:.1}%", 100.0 * (f - 1.0)),
+            (false, false, None, _) => "not assessed".to_string(),
+            (false, false, Some(false), _) => "not identifiable".to_string(),
+            (false, false, Some(true), Some(f)) => format!("±{:.1}%", 100.0 * (f - 1.0)),
             _ => "–".to_string(),
         }
     }

@@ -1,0 +1,154 @@
+//! The search's cost function: where a candidate lives and what it scores.
+//!
+//! A candidate is a log-point `y`: the logarithm of each free parameter, inside the box
+//! `[ln lower, ln upper]` (variances span decades; a log scale makes "×2" the same step
+//! everywhere). Fixed parameters keep their start values. A candidate is scored by the
+//! [`Objective`] on the experiment's sums at its parameter values: the exact expected sums
+//! or a Monte Carlo run with common random numbers. Nothing here counts evaluations; the
+//! [`super::budget::Budget`] wraps this and does.
+
+use super::budget::Evaluation;
+use super::objective::Objective;
+use crate::experiment::Experiment;
+use crate::montecarlo::McConfig;
+use crate::params::Target;
+use crate::stats::Accumulator;
+
+/// Weight of the squared distance outside the box in [`Cost::score`]: large enough that a
+/// simplex vertex outside never beats one inside.
+const BOX_PENALTY: f64 = 1e3;
+
+/// The cost of a candidate, without any accounting.
+pub(super) struct Cost<'a> {
+    model: &'a dyn Experiment,
+    mc: McConfig,
+    exact: bool,
+    /// The objective J.
+    pub(super) objective: Objective,
+    theta0: Vec<f64>,
+    free: Vec<usize>,
+    /// Lower bounds of the free parameters, log units.
+    pub(super) lo: Vec<f64>,
+    /// Upper bounds of the free parameters, log units.
+    pub(super) hi: Vec<f64>,
+    /// Per free parameter, the components it drives (all known, or `None`).
+    pub(super) targets: Option<Vec<Target>>,
+}
+
+impl<'a> Cost<'a> {
+    /// The cost of `model`'s candidates around `start`, holding the parameters marked in
+    /// `fixed`, scored by `objective` on exact sums (`exact`) or on Monte Carlo runs `mc`.
+    pub(super) fn new(
+        model: &'a dyn Experiment,
+        mc: McConfig,
+        exact: bool,
+        objective: Objective,
+        start: &[f64],
+        fixed: &[bool],
+    ) -> Self {
+        let params = &model.params().params;
+        let free: Vec<usize> = (0..params.len()).filter(|&i| !fixed[i]).collect();
+        Cost {
+            model,
+            mc,
+            exact,
+            objective,
+            theta0: start.to_vec(),
+            lo: free.iter().map(|&i| params[i].lower.ln()).collect(),
+            hi: free.iter().map(|&i| params[i].upper.ln()).collect(),
+            targets: free
+                .iter()
+                .map(|&i| model.target(i).filter(|t| !t.components.is_empty()))
+                .collect(),
+            free,
+        }
+    }
+
+    /// Number of free parameters.
+    pub(super) fn dim(&self) -> usize {
+        self.free.len()
+    }
+
+    /// The start as a log-point.
+    pub(super) fn start(&self) -> Vec<f64> {
+        self.free.iter().map(|&i| self.theta0[i].ln()).collect()
+    }
+
+    /// `y` moved into the box.
+    pub(super) fn clamp(&self, y: &[f64]) -> Vec<f64> {
+        y.iter()
+            .enumerate()
+            .map(|(k, v)| v.clamp(self.lo[k], self.hi[k]))
+            .collect()
+    }
+
+    /// Full parameter vector from log-point `y` (clamped to the box).
+    pub(super) fn theta(&self, y: &[f64]) -> Vec<f64> {
+        let mut t = self.theta0.clone();
+        for (k, &i) in self.free.iter().enumerate() {
+            t[i] = y[k].clamp(self.lo[k], self.hi[k]).exp();
+        }
+        t
+    }
+
+    /// The experiment's sums at parameter values `theta`: exact where asked for and
+    /// available, else Monte Carlo.
+    pub(super) fn accumulate(&self, theta: &[f64]) -> Accumulator {
+        match self
+            .exact
+            .then(|| self.model.expected(theta, &self.mc))
+            .flatten()
+        {
+            Some(acc) => acc,
+            None => self.model.monte_carlo(theta, &self.mc),
+        }
+    }
+
+    /// J at log-point `y` (clamped into the box), without the penalty.
+    pub(super) fn objective_at(&self, y: &[f64]) -> f64 {
+        self.objective
+            .evaluate(&self.accumulate(&self.theta(y)))
+            .total
+    }
+
+    /// J at log-point `y` plus a quadratic penalty outside the box, so that a simplex that
+    /// steps out walks back in.
+    pub(super) fn score(&self, y: &[f64]) -> Evaluation<f64> {
+        let acc = self.accumulate(&self.theta(y));
+        let j = self.objective.evaluate(&acc).total;
+        let outside: f64 = y
+            .iter()
+            .enumerate()
+            .map(|(k, v)| (self.lo[k] - v).max(0.0).powi(2) + (v - self.hi[k]).max(0.0).powi(2))
+            .sum();
+        let score = j + BOX_PENALTY * outside;
+        Evaluation {
+            j: score,
+            diverged: acc.diverged_runs > 0,
+            value: score,
+        }
+    }
+
+    /// Whether coordinate `k` of `y` is within 0.05 log units (5%) of a bound.
+    pub(super) fn near_bound(&self, k: usize, y: &[f64]) -> bool {
+        y[k] - self.lo[k] < 0.05 || self.hi[k] - y[k] < 0.05
+    }
+}
+
+/// A log-point and its score: a point of the global stage, where a local search ended,
+/// or the best point a budget booked.
+#[derive(Debug, Clone, PartialEq)]
+pub(super) struct Candidate {
+    /// The log-point.
+    pub point: Vec<f64>,
+    /// Its score (+∞ when its filter diverged or the search found nothing finite).
+    pub cost: f64,
+}
+
+/// Largest coordinate difference of two log-points (log units).
+pub(super) fn max_abs_diff(a: &[f64], b: &[f64]) -> f64 {
+    a.iter()
+        .zip(b)
+        .map(|(x, y)| (x - y).abs())
+        .fold(0.0, f64::max)
+}

@@ -1,0 +1,128 @@
+//! The global stage: the start and a Latin hypercube of quasi-random points in the log box,
+//! and the choice of the points the local searches start from.
+
+use rand::{Rng, SeedableRng};
+
+use super::budget::Budget;
+use super::cost::{Candidate, max_abs_diff};
+use super::settings::LocalSearch;
+use crate::SimRng;
+
+/// Local starts closer than this in every coordinate (log units, a factor 1.65) would
+/// search the same basin.
+const DISTINCT: f64 = 0.5;
+
+/// Scores `y0` and `per_dim` points per free parameter spread over the box (a Latin
+/// hypercube from `seed`), in parallel if `parallel`. Returns the points with a finite
+/// score, best first (ties in point order).
+pub(super) fn scan(
+    budget: &mut Budget<'_>,
+    y0: &[f64],
+    per_dim: usize,
+    seed: u64,
+    parallel: bool,
+) -> Vec<Candidate> {
+    let cost = budget.cost();
+    let d = y0.len();
+    let mut points: Vec<Vec<f64>> = vec![y0.to_vec()];
+    points.extend(latin_hypercube(per_dim * d, d, seed).iter().map(|u| {
+        u.iter()
+            .enumerate()
+            .map(|(k, v)| cost.lo[k] + v * (cost.hi[k] - cost.lo[k]))
+            .collect()
+    }));
+    let scores = budget.map(&points, parallel, |b, y| b.score(y).ok());
+    let mut ranked: Vec<Candidate> = points
+        .into_iter()
+        .zip(scores)
+        .filter_map(|(point, score)| {
+            score
+                .filter(|j| j.is_finite())
+                .map(|cost| Candidate { point, cost })
+        })
+        .collect();
+    ranked.sort_by(|a, b| a.cost.total_cmp(&b.cost));
+    ranked
+}
+
+/// Up to `starts` mutually distinct points from `ranked`, best first; with `GaussNewton`
+/// the start `y0` is always the first. Never empty.
+pub(super) fn choose_starts(
+    ranked: &[Candidate],
+    y0: &[f64],
+    method: LocalSearch,
+    starts: usize,
+) -> Vec<Vec<f64>> {
+    // Gauss–Newton stays in the basin it starts in, and the user's start is usually a
+    // better-informed guess than a quasi-random point, so it is always one of the starts.
+    let mut chosen: Vec<Vec<f64>> = match method {
+        LocalSearch::GaussNewton => vec![y0.to_vec()],
+        LocalSearch::Simplex => Vec::new(),
+    };
+    for c in ranked {
+        if chosen.len() >= starts {
+            break;
+        }
+        if chosen.iter().all(|s| max_abs_diff(s, &c.point) > DISTINCT) {
+            chosen.push(c.point.clone());
+        }
+    }
+    if chosen.is_empty() {
+        chosen.push(y0.to_vec());
+    }
+    chosen
+}
+
+/// Quasi-random points in the unit cube: a Latin hypercube from `seed` (reproducible, and
+/// every parameter's range is covered evenly).
+fn latin_hypercube(points: usize, dim: usize, seed: u64) -> Vec<Vec<f64>> {
+    let mut rng = SimRng::seed_from_u64(seed);
+    let mut out = vec![vec![0.0; dim]; points];
+    for d in 0..dim {
+        let mut perm: Vec<usize> = (0..points).collect();
+        for i in (1..points).rev() {
+            let j = (rng.next_u64() % (i as u64 + 1)) as usize;
+            perm.swap(i, j);
+        }
+        for (p, row) in out.iter_mut().enumerate() {
+            let jitter = (rng.next_u64() >> 11) as f64 / (1u64 << 53) as f64;
+            row[d] = (perm[p] as f64 + jitter) / points as f64;
+        }
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn latin_hypercube_puts_one_point_in_each_slice_of_every_axis() {
+        let (n, dim) = (16, 3);
+        let pts = latin_hypercube(n, dim, 7);
+        for d in 0..dim {
+            let mut slices: Vec<usize> = pts.iter().map(|p| (p[d] * n as f64) as usize).collect();
+            slices.sort_unstable();
+            assert_eq!(slices, (0..n).collect::<Vec<_>>(), "axis {d}");
+        }
+        assert_eq!(pts, latin_hypercube(n, dim, 7), "same seed, same points");
+    }
+
+    #[test]
+    fn starts_are_distinct_and_gauss_newton_keeps_the_start() {
+        let c = |x: f64, cost: f64| Candidate {
+            point: vec![x],
+            cost,
+        };
+        // 0.3 is within DISTINCT of 0.0, so it is passed over.
+        let ranked = [c(0.0, 1.0), c(0.3, 2.0), c(2.0, 3.0), c(4.0, 4.0)];
+        let simplex = choose_starts(&ranked, &[9.0], LocalSearch::Simplex, 2);
+        assert_eq!(simplex, vec![vec![0.0], vec![2.0]]);
+        let gn = choose_starts(&ranked, &[9.0], LocalSearch::GaussNewton, 2);
+        assert_eq!(gn, vec![vec![9.0], vec![0.0]]);
+        assert_eq!(
+            choose_starts(&[], &[9.0], LocalSearch::Simplex, 3),
+            vec![vec![9.0]]
+        );
+    }
+}

@@ -1,0 +1,86 @@
+//! The search after the global stage: a local search from each start, and which solvers
+//! run in which order.
+
+use super::budget::{Budget, Exhausted};
+use super::cost::Candidate;
+use super::global;
+use super::levenberg_marquardt::{Equations, levenberg_marquardt};
+use super::result::Observer;
+use super::settings::{LocalSearch, TuneSettings};
+use super::simplex::nelder_mead;
+
+/// Initial simplex step of a local search, log units (a factor 2).
+const WIDE: f64 = 0.7;
+/// Initial simplex step of the polishing restart, log units (10%).
+const POLISH: f64 = 0.1;
+
+/// The global stage, a local search from each of the best few points (in parallel if
+/// `parallel`), and for the simplex a last restart from the winner. `None` when the budget
+/// ran out (the budget's best point is then the answer) or no local search found a finite
+/// score.
+pub(super) fn search(
+    budget: &mut Budget<'_>,
+    settings: &TuneSettings,
+    seed: u64,
+    parallel: bool,
+    observer: &dyn Observer,
+) -> Option<Candidate> {
+    observer.phase("global");
+    let y0 = budget.cost().start();
+    let ranked = global::scan(budget, &y0, settings.global_points(), seed, parallel);
+    let starts = global::choose_starts(&ranked, &y0, settings.local(), settings.starts());
+    observer.phase("local");
+    let method = settings.local();
+    let outcomes = budget.map(&starts, parallel, |b, s| local_search(b, method, s));
+    if budget.exhausted() {
+        return None;
+    }
+    let mut best: Option<Candidate> = None;
+    for c in outcomes.into_iter().flatten() {
+        if c.cost.is_finite() && best.as_ref().is_none_or(|b| c.cost < b.cost) {
+            best = Some(c);
+        }
+    }
+    let best = best?;
+    // The simplex restarts once more from the best point; Levenberg–Marquardt has
+    // converged where it stopped, and a restart would only repeat it.
+    if method == LocalSearch::Simplex {
+        let again = local_search(budget, method, &best.point).ok()?;
+        return Some(if again.cost < best.cost { again } else { best });
+    }
+    Some(best)
+}
+
+/// One local search from `y0`. Simplex: Nelder–Mead, then a restart with a small simplex
+/// to polish (a restart undoes Nelder–Mead's occasional collapse onto a subspace).
+/// Gauss–Newton: Levenberg–Marquardt, first on the moment equations where every parameter's
+/// components are known, then on J; falling back to the simplex if `y0` diverges.
+pub(super) fn local_search(
+    budget: &mut Budget<'_>,
+    method: LocalSearch,
+    y0: &[f64],
+) -> Result<Candidate, Exhausted> {
+    let first = match method {
+        LocalSearch::GaussNewton => {
+            let mut from = y0.to_vec();
+            if let Some(targets) = budget.cost().targets.as_deref() {
+                let moments = levenberg_marquardt(budget, &from, Equations::Moments(targets))?;
+                if moments.cost.is_finite() {
+                    from = moments.point;
+                }
+            }
+            let lm = levenberg_marquardt(budget, &from, Equations::Objective)?;
+            if lm.cost.is_finite() {
+                return Ok(lm);
+            }
+            nelder_mead(budget, &from, WIDE)?
+        }
+        LocalSearch::Simplex => nelder_mead(budget, y0, WIDE)?,
+    };
+    let polished = nelder_mead(budget, &first.point, POLISH)?;
+    Ok(if polished.cost < first.cost {
+        polished
+    } else {
+        first
+    })
+}

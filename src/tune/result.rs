@@ -1,0 +1,110 @@
+//! What a tuning run hands back: the result, its status, the per-parameter resolution, and
+//! the observer that watches it run.
+
+use serde::Serialize;
+
+use super::objective::Terms;
+use super::settings::Scoring;
+use crate::stats::ConsistencyReport;
+
+/// How a tuning run ended.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum TuneStatus {
+    /// The tuned filter passed the confirmation on fresh seeds.
+    Consistent,
+    /// The search finished but the tuned filter fails the confirmation.
+    Inconsistent,
+    /// The budget ran out before the search converged (the best point so far is reported).
+    BudgetExhausted,
+    /// No candidate gave a filter that stayed positive definite.
+    Diverged,
+}
+
+/// How precisely the data pin down one parameter.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct Resolution {
+    /// The factor by which the parameter can move (others re-adjusting) before the
+    /// objective rises by its Monte Carlo noise level; `None` if fixed.
+    pub factor: Option<f64>,
+    /// False when that factor exceeds 2 (a flat direction of the objective) or the value
+    /// sits on a search bound (the data might want it beyond).
+    pub identifiable: bool,
+    /// The tuned value is within 5% of its lower or upper search bound.
+    pub at_bound: bool,
+}
+
+impl Resolution {
+    /// A parameter held fixed: nothing to resolve.
+    pub const FIXED: Resolution = Resolution {
+        factor: None,
+        identifiable: true,
+        at_bound: false,
+    };
+}
+
+/// Observes a tuning run (progress bars, logs). All methods default to doing nothing.
+pub trait Observer: Sync {
+    /// Called after each evaluation with the count so far and the best objective value.
+    /// Evaluations that ran in parallel are reported when they are booked, in a fixed order.
+    fn evaluation(&self, _evals: usize, _best: f64) {}
+    /// Called when a phase starts ("global", "local", "confirm").
+    fn phase(&self, _name: &str) {}
+}
+
+/// An observer that does nothing.
+pub struct Silent;
+
+impl Observer for Silent {}
+
+/// Everything a tuning run found.
+#[derive(Debug, Clone, Serialize)]
+pub struct TuneResult {
+    /// Parameter names, in problem order.
+    pub names: Vec<String>,
+    /// Which parameters were held fixed.
+    pub fixed: Vec<bool>,
+    /// Starting values.
+    pub initial: Vec<f64>,
+    /// Tuned values.
+    pub tuned: Vec<f64>,
+    /// Objective at the start (as scored in the search).
+    pub objective_initial: Terms,
+    /// Objective at the tuned values.
+    pub objective_final: Terms,
+    /// How candidates were scored.
+    pub scoring: Scoring,
+    /// Evaluations spent by the search.
+    pub evaluations: usize,
+    /// Candidates whose filter diverged.
+    pub diverged_evaluations: usize,
+    /// Best objective after each evaluation (for plots), in an order that does not depend
+    /// on the thread count: evaluations that ran in parallel are booked in the order of
+    /// their points or starts.
+    pub history: Vec<f64>,
+    /// Resolution per parameter; `None` when not assessed because the budget ran out (the
+    /// curvature says something only at a converged optimum, and measuring it would spend
+    /// evaluations the budget no longer has).
+    pub resolution: Option<Vec<Resolution>>,
+    /// Objective noise level used for the resolution: the objective of the tuned filter on
+    /// the confirmation runs.
+    pub noise_floor: f64,
+    /// Seed used for the search's Monte Carlo runs (common random numbers).
+    pub search_seed: u64,
+    /// Seed of the confirmation runs.
+    pub confirm_seed: u64,
+    /// Monte Carlo settings of the confirmation.
+    pub runs: usize,
+    /// Steps of the confirmation.
+    pub steps: usize,
+    /// Significance level.
+    pub alpha: f64,
+    /// The starting filter on the confirmation seeds.
+    pub before: ConsistencyReport,
+    /// The tuned filter on the confirmation seeds.
+    pub after: ConsistencyReport,
+    /// How the run ended.
+    pub status: TuneStatus,
+    /// Wall time of the search and confirmation, s.
+    pub seconds: f64,
+}

@@ -1,0 +1,210 @@
+//! A stand-in experiment whose sums are a formula of θ, so that J and its minimum are
+//! known exactly and an evaluation costs microseconds (as hyperfine's `MockExecutor`
+//! stands in for running commands).
+//!
+//! State component j has mean normalized error `c_j(θ) = Π_i (θ*_i/θ_i)^{A_ji}`, and the
+//! filter's NEES is their sum (what a diagonal P gives), so the confirmation's gate sees
+//! the same error as the components. One measurement component is always consistent
+//! (ν²/S = 1). With only the component weight on, J is exactly
+//!
+//! ```text
+//! J(y) = (1/n_x) Σ_j (Σ_i A_ji (y*_i − y_i))²,   y = ln θ,
+//! ```
+//!
+//! a quadratic in log space with its minimum 0 at y* (a flat direction where A is singular).
+
+use std::sync::atomic::{AtomicUsize, Ordering};
+
+use crate::experiment::{Experiment, Info, RunOptions, Source};
+use crate::montecarlo::McConfig;
+use crate::params::{ParamDef, ParamSpace, Target};
+use crate::stats::Accumulator;
+use crate::tune::cost::Cost;
+use crate::tune::{Objective, Scoring, TuneSettings, Weights};
+
+/// The mock experiment.
+pub(crate) struct Mock {
+    info: Info,
+    params: ParamSpace,
+    state_names: Vec<String>,
+    measurement_names: Vec<String>,
+    mc: McConfig,
+    /// θ*: the parameters at which every component is consistent.
+    pub truth: Vec<f64>,
+    /// `A`, one row per state component.
+    exponents: Vec<Vec<f64>>,
+    /// A candidate diverges when parameter `.0` exceeds `.1`.
+    diverge_above: Option<(usize, f64)>,
+    /// Calls of `expected` and `monte_carlo_with`.
+    pub calls: AtomicUsize,
+    /// Those calls that returned diverged sums.
+    pub diverged_calls: AtomicUsize,
+}
+
+impl Mock {
+    /// A mock with parameters starting at 1 (bounds 1e-4 to 1e4), truth `truth` and
+    /// exponent matrix `exponents` (one row per state component). Parameter i drives the
+    /// state components where its exponent is not zero.
+    pub(crate) fn new(truth: &[f64], exponents: &[&[f64]]) -> Mock {
+        let params = (0..truth.len())
+            .map(|i| ParamDef::new(&format!("p{i}"), 1.0))
+            .collect();
+        Mock {
+            info: Info {
+                name: "mock".into(),
+                description: String::new(),
+                source: Source::Program {
+                    name: "mock".into(),
+                },
+            },
+            params: ParamSpace { params },
+            state_names: (0..exponents.len()).map(|j| format!("s{j}")).collect(),
+            measurement_names: vec!["z".into()],
+            mc: McConfig::new(100, 10).expect("valid"),
+            truth: truth.to_vec(),
+            exponents: exponents.iter().map(|r| r.to_vec()).collect(),
+            diverge_above: None,
+            calls: AtomicUsize::new(0),
+            diverged_calls: AtomicUsize::new(0),
+        }
+    }
+
+    /// Candidates whose parameter `i` exceeds `limit` diverge.
+    pub(crate) fn diverging_above(mut self, i: usize, limit: f64) -> Mock {
+        self.diverge_above = Some((i, limit));
+        self
+    }
+
+    /// The log-truth y*.
+    pub(crate) fn y_star(&self) -> Vec<f64> {
+        self.truth.iter().map(|t| t.ln()).collect()
+    }
+
+    /// J at θ, from the formula in the module doc.
+    pub(crate) fn j(&self, theta: &[f64]) -> f64 {
+        let c = self.components(theta);
+        c.iter().map(|c| c.ln().powi(2)).sum::<f64>() / c.len() as f64
+    }
+
+    fn components(&self, theta: &[f64]) -> Vec<f64> {
+        self.exponents
+            .iter()
+            .map(|row| {
+                row.iter()
+                    .zip(theta.iter().zip(&self.truth))
+                    .map(|(a, (t, s))| (s / t).powf(*a))
+                    .product()
+            })
+            .collect()
+    }
+
+    /// The sums of `runs` runs of `steps` steps whose statistics equal their means exactly.
+    /// The run count is the mock's own whatever the caller asks, so exact and Monte Carlo
+    /// scoring see bit-identical sums.
+    fn sums(&self, theta: &[f64]) -> Accumulator {
+        self.calls.fetch_add(1, Ordering::SeqCst);
+        let c = self.components(theta);
+        let (n_x, n_z) = (c.len(), 1);
+        let (runs, steps) = (self.mc.runs(), self.mc.steps());
+        let (r, t) = (runs as f64, steps as f64);
+        let mut acc = Accumulator::new(steps, n_x, n_z, 0);
+        acc.runs = runs;
+        let nees: f64 = c.iter().sum();
+        for k in 0..steps {
+            acc.nees_sum[k] = r * nees;
+            acc.nees_sq[k] = r * nees * nees;
+            acc.nees_dof[k] = r * n_x as f64;
+            acc.nees_count[k] = r;
+            acc.nis_sum[k] = r;
+            acc.nis_sq[k] = r;
+            acc.nis_dof[k] = r;
+            acc.nis_count[k] = r;
+        }
+        // A chi-square NEES has variance 2 n_x per step.
+        acc.nees_null_var = r * 2.0 * n_x as f64 * t;
+        acc.null_var_runs = runs;
+        for (j, cj) in c.iter().enumerate() {
+            acc.state_comp_total[j] = cj * r * t;
+            acc.state_comp_samples[j] = r * t;
+            acc.state_comp_run_sum[j] = r * cj;
+            acc.state_comp_run_sq[j] = r * cj * cj;
+        }
+        acc.meas_comp_total[0] = r * t;
+        acc.meas_comp_samples[0] = r * t;
+        acc.meas_comp_run_sum[0] = r;
+        acc.meas_comp_run_sq[0] = r;
+        acc.meas_comp_runs[0] = runs;
+        if self
+            .diverge_above
+            .is_some_and(|(i, limit)| theta[i] > limit)
+        {
+            acc.diverged_runs = runs;
+            self.diverged_calls.fetch_add(1, Ordering::SeqCst);
+        }
+        acc
+    }
+}
+
+impl Experiment for Mock {
+    fn info(&self) -> &Info {
+        &self.info
+    }
+
+    fn params(&self) -> &ParamSpace {
+        &self.params
+    }
+
+    fn state_names(&self) -> &[String] {
+        &self.state_names
+    }
+
+    fn measurement_names(&self) -> &[String] {
+        &self.measurement_names
+    }
+
+    fn mc(&self) -> &McConfig {
+        &self.mc
+    }
+
+    fn monte_carlo_with(&self, theta: &[f64], _mc: &McConfig, _o: RunOptions<'_>) -> Accumulator {
+        self.sums(theta)
+    }
+
+    fn expected(&self, theta: &[f64], _mc: &McConfig) -> Option<Accumulator> {
+        Some(self.sums(theta))
+    }
+
+    fn target(&self, i: usize) -> Option<Target> {
+        let comps: Vec<usize> = (0..self.exponents.len())
+            .filter(|&j| self.exponents[j][i] != 0.0)
+            .collect();
+        Some(Target::process(&comps))
+    }
+}
+
+/// Weights that leave J the component term alone (the formula in the module doc).
+const COMPONENTS_ONLY: Weights = Weights {
+    mean: 0.0,
+    interval: 0.0,
+    per_step: 0.0,
+    components: 1.0,
+    whiteness: 0.0,
+    shape: 0.0,
+};
+
+/// Settings whose J is the formula in the module doc.
+pub(crate) fn settings(scoring: Scoring) -> TuneSettings {
+    TuneSettings::default()
+        .with_weights(COMPONENTS_ONLY)
+        .with_scoring(scoring)
+}
+
+/// The search's cost on `mock` with the parameters flagged in `fixed` held at 1, exact
+/// scoring, J the formula in the module doc.
+pub(crate) fn cost<'a>(mock: &'a Mock, fixed: &[bool]) -> Cost<'a> {
+    let start = mock.params().values();
+    let objective = Objective::new(COMPONENTS_ONLY, false, mock.mc().alpha());
+    let mut cost = Cost::new(mock, *mock.mc(), true, objective, &start, fixed);
+    cost.objective.prepare(&mock.sums(&start));
+    cost
+}

@@ -1,0 +1,214 @@
+//! The search on a mock experiment whose J is a known quadratic in log space (see
+//! [`mock`]): the minimum, a flat direction, a diverging region and a budget that runs out.
+//! Every run takes milliseconds.
+//!
+//! Tolerances. With the component term alone, `J(y) = (1/n_x) |A (y* − y)|²`, so a point
+//! with objective J lies within `√(n_x J) / σ_min(A)` of y* in log units. Nelder–Mead stops
+//! when the spread of its vertices' J falls below `SD_TOLERANCE` (1e-10), which leaves
+//! J ≲ 1e-10 at the best vertex. Levenberg–Marquardt solves linear residuals (these are) to
+//! rounding, so its tolerance is the brief's 1e-6 with orders of magnitude to spare.
+
+mod mock;
+
+pub(crate) use mock::{Mock, cost, settings};
+
+use std::sync::atomic::Ordering;
+
+use super::*;
+
+/// J at which the simplex stops (its `SD_TOLERANCE`); see the module doc.
+const J_STOP: f64 = 1e-10;
+
+/// Two parameters, the first also moving the second's component: the quadratic's
+/// A = [[4, 2], [0, 8]] has σ_min = 3.85, so the simplex lands within
+/// √(2 · 1e-10) / 3.85 = 3.7e-6 in log units.
+fn quadratic() -> Mock {
+    Mock::new(&[0.3, 20.0], &[&[4.0, 2.0], &[0.0, 8.0]])
+}
+const QUADRATIC_SIMPLEX_TOL: f64 = 3.7e-6;
+const GAUSS_NEWTON_TOL: f64 = 1e-6;
+
+fn run(mock: &Mock, settings: &TuneSettings) -> TuneResult {
+    let start = mock.params().values();
+    let fixed = vec![false; start.len()];
+    tune(mock, &start, &fixed, mock.mc(), settings, &Silent).expect("valid settings")
+}
+
+/// Largest |ln θ_i − ln θ*_i|.
+fn log_error(mock: &Mock, theta: &[f64]) -> f64 {
+    theta
+        .iter()
+        .zip(&mock.truth)
+        .map(|(t, s)| (t.ln() - s.ln()).abs())
+        .fold(0.0, f64::max)
+}
+
+fn assert_converged(mock: &Mock, r: &TuneResult, local: LocalSearch, simplex_tol: f64) {
+    let err = log_error(mock, &r.tuned);
+    let tol = match local {
+        LocalSearch::Simplex => simplex_tol,
+        LocalSearch::GaussNewton => GAUSS_NEWTON_TOL,
+    };
+    assert!(err <= tol, "{local:?}: log error {err:.2e} > {tol:.1e}");
+    assert!(
+        r.objective_final.total <= J_STOP,
+        "{local:?}: J = {:.2e}",
+        r.objective_final.total
+    );
+    assert_eq!(r.status, TuneStatus::Consistent, "{local:?}");
+}
+
+#[test]
+fn finds_the_minimum_of_a_quadratic_in_log_space() {
+    for local in [LocalSearch::Simplex, LocalSearch::GaussNewton] {
+        let mock = quadratic();
+        let r = run(&mock, &settings(Scoring::Exact).with_local(local));
+        assert_converged(&mock, &r, local, QUADRATIC_SIMPLEX_TOL);
+        assert_eq!(r.history.len(), r.evaluations);
+        assert!(
+            r.evaluations < 4000,
+            "{local:?} converged within its budget"
+        );
+        let res = r.resolution.expect("assessed at a converged optimum");
+        assert!(res.iter().all(|p| p.identifiable), "{res:?}");
+    }
+}
+
+#[test]
+fn a_flat_direction_recovers_the_product_and_is_reported_not_identifiable() {
+    // p0 and p1 enter only through their product (6); p2 alone drives the second
+    // component. A = [[1, 1, 0], [0, 0, 1]]: J = ((s* − y0 − y1)² + (y2* − y2)²) / 2 ≤ 1e-10
+    // puts the log-product within √(2 · 1e-10) = 1.4e-5 (the simplex) and p2 likewise.
+    for local in [LocalSearch::Simplex, LocalSearch::GaussNewton] {
+        let mock = Mock::new(&[2.0, 3.0, 0.5], &[&[1.0, 1.0, 0.0], &[0.0, 0.0, 1.0]]);
+        let r = run(&mock, &settings(Scoring::Exact).with_local(local));
+        let product_err = (r.tuned[0] * r.tuned[1] / 6.0).ln().abs();
+        let p2_err = (r.tuned[2] / 0.5).ln().abs();
+        assert!(
+            product_err <= 1.4e-5 && p2_err <= 1.4e-5,
+            "{local:?}: {product_err:.2e} {p2_err:.2e}"
+        );
+        let res = r.resolution.expect("assessed at a converged optimum");
+        for i in [0, 1] {
+            // A zero eigenvalue of the Hessian: the factor is astronomically large, far
+            // beyond the threshold of 2.
+            assert!(!res[i].identifiable, "{local:?} p{i}: {:?}", res[i]);
+            assert!(res[i].factor.is_some_and(|f| f > 1e3), "{local:?}: {res:?}");
+        }
+        assert!(res[2].identifiable, "{local:?}: {:?}", res[2]);
+    }
+}
+
+#[test]
+fn diverging_candidates_are_counted_and_the_search_still_converges() {
+    // Above p0 = 3 (10× its truth) every filter diverges: 56% of the log box.
+    for local in [LocalSearch::Simplex, LocalSearch::GaussNewton] {
+        let mock = quadratic().diverging_above(0, 3.0);
+        let r = run(&mock, &settings(Scoring::Exact).with_local(local));
+        assert_converged(&mock, &r, local, QUADRATIC_SIMPLEX_TOL);
+        // Every diverged call of the mock was a charged evaluation: the unbudgeted ones
+        // (the start, the tuned point, the confirmation, the curvature) are all below 3.
+        let diverged = mock.diverged_calls.load(Ordering::SeqCst);
+        assert!(
+            diverged > 0,
+            "{local:?}: the global stage samples the region"
+        );
+        assert_eq!(r.diverged_evaluations, diverged, "{local:?}");
+    }
+}
+
+#[test]
+fn a_budget_that_runs_out_in_the_global_stage_charges_exactly_max_evals() {
+    // 1 + 16 · 2 global points; 7 of them fit.
+    let max_evals = 7;
+    for scoring in [Scoring::Exact, Scoring::MonteCarlo] {
+        let mock = quadratic();
+        let r = run(&mock, &settings(scoring).with_max_evals(max_evals).unwrap());
+        assert_eq!(r.evaluations, max_evals, "{scoring:?}");
+        assert_eq!(r.history.len(), max_evals, "{scoring:?}");
+        assert_eq!(r.status, TuneStatus::BudgetExhausted, "{scoring:?}");
+        assert_eq!(r.resolution, None, "{scoring:?}: not assessed");
+        // The answer is the best point booked: its J is the history's last entry.
+        let best = *r.history.last().unwrap();
+        assert!(best.is_finite() && r.history.windows(2).all(|w| w[1] <= w[0]));
+        assert!(
+            (r.objective_final.total - best).abs() <= 1e-12 * best,
+            "{scoring:?}: {} vs {best}",
+            r.objective_final.total
+        );
+        assert!((mock.j(&r.tuned) - best).abs() <= 1e-9 * best);
+        if scoring == Scoring::MonteCarlo {
+            // Sequential: exactly max_evals charged calls, plus the unbudgeted ones (the
+            // exact-scoring probe, the start, the tuned point, two confirmations).
+            assert_eq!(mock.calls.load(Ordering::SeqCst), max_evals + 5);
+        }
+    }
+}
+
+#[test]
+fn a_budget_that_runs_out_in_parallel_local_searches_books_as_a_sequential_run() {
+    // 33 global points, then three local searches in parallel (exact scoring) or one after
+    // another (Monte Carlo scoring; the mock gives both the same sums) share 27.
+    let max_evals = 60;
+    for local in [LocalSearch::Simplex, LocalSearch::GaussNewton] {
+        let s = settings(Scoring::Exact)
+            .with_local(local)
+            .with_max_evals(max_evals)
+            .unwrap();
+        let parallel = run(&quadratic(), &s);
+        let sequential = run(&quadratic(), &s.clone().with_scoring(Scoring::MonteCarlo));
+        for r in [&parallel, &sequential] {
+            assert_eq!(r.evaluations, max_evals, "{local:?}");
+            assert_eq!(r.resolution, None, "{local:?}: the budget ran out");
+        }
+        // The status may be Consistent: the best point so far can pass the confirmation.
+        assert_eq!(parallel.status, sequential.status, "{local:?}");
+        assert_eq!(
+            bits(&parallel.history),
+            bits(&sequential.history),
+            "{local:?}"
+        );
+        assert_eq!(bits(&parallel.tuned), bits(&sequential.tuned), "{local:?}");
+    }
+}
+
+fn bits(v: &[f64]) -> Vec<u64> {
+    v.iter().map(|x| x.to_bits()).collect()
+}
+
+#[test]
+fn the_history_does_not_depend_on_the_thread_count() {
+    for local in [LocalSearch::Simplex, LocalSearch::GaussNewton] {
+        let s = settings(Scoring::Exact).with_local(local);
+        let on = |threads: usize| {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap();
+            pool.install(|| run(&quadratic(), &s))
+        };
+        let (one, four) = (on(1), on(4));
+        assert_eq!(bits(&one.history), bits(&four.history), "{local:?}");
+        assert_eq!(bits(&one.tuned), bits(&four.tuned), "{local:?}");
+    }
+}
+
+#[test]
+fn the_observer_sees_every_evaluation_in_order() {
+    struct Record(std::sync::Mutex<Vec<(usize, f64)>>);
+    impl Observer for Record {
+        fn evaluation(&self, evals: usize, best: f64) {
+            self.0.lock().unwrap().push((evals, best));
+        }
+    }
+    let mock = quadratic();
+    let record = Record(Default::default());
+    let start = mock.params().values();
+    let s = settings(Scoring::Exact);
+    let r = tune(&mock, &start, &[false; 2], mock.mc(), &s, &record).unwrap();
+    let seen = record.0.into_inner().unwrap();
+    let counts: Vec<usize> = seen.iter().map(|e| e.0).collect();
+    assert_eq!(counts, (1..=r.evaluations).collect::<Vec<_>>());
+    let best: Vec<f64> = seen.iter().map(|e| e.1).collect();
+    assert_eq!(bits(&best), bits(&r.history));
+}

@@ -15,7 +15,7 @@
 
 use std::sync::atomic::{AtomicUsize, Ordering};
 
-use crate::experiment::{Experiment, Info, RunOptions, Source};
+use crate::experiment::{Definition, Experiment, Info, RunOptions, Source};
 use crate::montecarlo::McConfig;
 use crate::params::{ParamDef, ParamSpace, Target};
 use crate::stats::Accumulator;
@@ -24,11 +24,7 @@ use crate::tune::{Objective, Scoring, TuneSettings, Weights};
 
 /// The mock experiment.
 pub(crate) struct Mock {
-    info: Info,
-    params: ParamSpace,
-    state_names: Vec<String>,
-    measurement_names: Vec<String>,
-    mc: McConfig,
+    definition: Definition,
     /// θ*: the parameters at which every component is consistent.
     pub truth: Vec<f64>,
     /// `A`, one row per state component.
@@ -50,17 +46,19 @@ impl Mock {
             .map(|i| ParamDef::new(&format!("p{i}"), 1.0))
             .collect();
         Mock {
-            info: Info {
-                name: "mock".into(),
-                description: String::new(),
-                source: Source::Program {
+            definition: Definition {
+                info: Info {
                     name: "mock".into(),
+                    description: String::new(),
+                    source: Source::Program {
+                        name: "mock".into(),
+                    },
                 },
+                params: ParamSpace { params },
+                state_names: (0..exponents.len()).map(|j| format!("s{j}")).collect(),
+                measurement_names: vec!["z".into()],
+                mc: McConfig::new(100, 10).expect("valid"),
             },
-            params: ParamSpace { params },
-            state_names: (0..exponents.len()).map(|j| format!("s{j}")).collect(),
-            measurement_names: vec!["z".into()],
-            mc: McConfig::new(100, 10).expect("valid"),
             truth: truth.to_vec(),
             exponents: exponents.iter().map(|r| r.to_vec()).collect(),
             diverge_above: None,
@@ -105,7 +103,7 @@ impl Mock {
         self.calls.fetch_add(1, Ordering::SeqCst);
         let c = self.components(theta);
         let (n_x, n_z) = (c.len(), 1);
-        let (runs, steps) = (self.mc.runs(), self.mc.steps());
+        let (runs, steps) = (self.mc().runs(), self.mc().steps());
         let (r, t) = (runs as f64, steps as f64);
         let mut acc = Accumulator::new(steps, n_x, n_z, 0);
         acc.runs = runs;
@@ -146,24 +144,8 @@ impl Mock {
 }
 
 impl Experiment for Mock {
-    fn info(&self) -> &Info {
-        &self.info
-    }
-
-    fn params(&self) -> &ParamSpace {
-        &self.params
-    }
-
-    fn state_names(&self) -> &[String] {
-        &self.state_names
-    }
-
-    fn measurement_names(&self) -> &[String] {
-        &self.measurement_names
-    }
-
-    fn mc(&self) -> &McConfig {
-        &self.mc
+    fn definition(&self) -> &Definition {
+        &self.definition
     }
 
     fn monte_carlo_with(&self, theta: &[f64], _mc: &McConfig, _o: RunOptions<'_>) -> Accumulator {

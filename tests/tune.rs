@@ -174,8 +174,12 @@ fn residuals_square_to_the_objective() {
         let mut o = Objective::new(weights, nis_only, p.mc().alpha());
         o.prepare(&acc);
         let terms = o.evaluate(&acc);
-        assert!(terms.whiteness > 0.0 && terms.components > 0.0 && terms.per_step > 0.0);
-        assert_eq!(terms.shape > 0.0, !nis_only);
+        assert!(
+            terms.terms.whiteness > 0.0
+                && terms.terms.components > 0.0
+                && terms.terms.per_step > 0.0
+        );
+        assert_eq!(terms.terms.shape > 0.0, !nis_only);
         let r = o.residuals(&acc).unwrap();
         let sum: f64 = r.iter().map(|v| v * v).sum();
         assert!(

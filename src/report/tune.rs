@@ -156,12 +156,12 @@ pub fn tune_markdown(
         "- objective: {:.4e} at the start, {:.4e} tuned (terms: mean {:.2e}, interval {:.2e}, per-step {:.2e}, components {:.2e}, whiteness {:.2e}, shape {:.2e})",
         r.objective_initial.total,
         r.objective_final.total,
-        r.objective_final.mean,
-        r.objective_final.interval,
-        r.objective_final.per_step,
-        r.objective_final.components,
-        r.objective_final.whiteness,
-        r.objective_final.shape
+        r.objective_final.terms.mean,
+        r.objective_final.terms.interval,
+        r.objective_final.terms.per_step,
+        r.objective_final.terms.components,
+        r.objective_final.terms.whiteness,
+        r.objective_final.terms.shape
     );
     let _ = writeln!(
         o,

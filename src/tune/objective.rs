@@ -29,10 +29,11 @@ use crate::stats::{
     Interval, SumVariance, chi2_average_interval, gate_alpha, gate_interval, scaled_chi2_interval,
 };
 
-/// Weights of the objective's terms (all ≥ 0).
+/// One number per term of J: the terms' weights ([`Weights`], all ≥ 0), or their weighted
+/// values (inside [`Terms`]).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
-pub struct Weights {
+pub struct PerTerm {
     /// Time averages at their DOF targets.
     pub mean: f64,
     /// Time averages outside their intervals.
@@ -47,9 +48,25 @@ pub struct Weights {
     pub shape: f64,
 }
 
-impl Default for Weights {
+/// Weights of the objective's terms.
+pub type Weights = PerTerm;
+
+impl PerTerm {
+    /// Zero in every term.
+    pub const ZERO: PerTerm = PerTerm {
+        mean: 0.0,
+        interval: 0.0,
+        per_step: 0.0,
+        components: 0.0,
+        whiteness: 0.0,
+        shape: 0.0,
+    };
+}
+
+/// The default weights: every term 1, but the distribution shape 0.
+impl Default for PerTerm {
     fn default() -> Self {
-        Weights {
+        PerTerm {
             mean: 1.0,
             interval: 1.0,
             per_step: 1.0,
@@ -60,7 +77,7 @@ impl Default for Weights {
     }
 }
 
-impl Weights {
+impl PerTerm {
     /// Set one weight by name (as on the command line); the error's setting is
     /// `weights.<name>`.
     pub fn set(&mut self, name: &str, value: f64) -> Result<(), SettingError> {
@@ -89,22 +106,22 @@ impl Weights {
 }
 
 /// The objective's value split into its terms (each already weighted).
-#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct Terms {
-    /// Time averages vs DOF targets.
-    pub mean: f64,
-    /// Time averages outside their intervals.
-    pub interval: f64,
-    /// Per-step averages outside their intervals.
-    pub per_step: f64,
-    /// Per-component terms.
-    pub components: f64,
-    /// Whiteness term.
-    pub whiteness: f64,
-    /// Shape term.
-    pub shape: f64,
+    /// Each term's weighted value.
+    #[serde(flatten)]
+    pub terms: PerTerm,
     /// Their sum (+∞ for a diverged filter).
     pub total: f64,
+}
+
+impl Default for Terms {
+    fn default() -> Self {
+        Terms {
+            terms: PerTerm::ZERO,
+            total: 0.0,
+        }
+    }
 }
 
 /// Log-distance of `x` outside `iv` (0 inside).
@@ -247,14 +264,14 @@ impl Objective {
                 return inf;
             }
             let iv = self.gate_interval(d, var, c);
-            add(&mut t.mean, w.mean, &[(avg / (d / c)).ln()]);
-            add(&mut t.interval, w.interval, &[outside(avg, &iv)]);
+            add(&mut t.terms.mean, w.mean, &[(avg / (d / c)).ln()]);
+            add(&mut t.terms.interval, w.interval, &[outside(avg, &iv)]);
             if w.per_step > 0.0 {
                 let h: Vec<f64> = (0..sum.len())
                     .filter(|&k| count[k] > 0.0 && dof[k] > 0.0)
                     .map(|k| outside(sum[k] / count[k], &self.step_interval(dof[k], count[k])))
                     .collect();
-                add(&mut t.per_step, w.per_step, &h);
+                add(&mut t.terms.per_step, w.per_step, &h);
             }
         }
         let log_ratios = |total: &[f64], samples: &[f64]| -> Vec<f64> {
@@ -266,13 +283,13 @@ impl Objective {
                 .collect()
         };
         add(
-            &mut t.components,
+            &mut t.terms.components,
             w.components,
             &log_ratios(&acc.meas_comp_total, &acc.meas_comp_samples),
         );
         if !self.nis_only {
             add(
-                &mut t.components,
+                &mut t.terms.components,
                 w.components,
                 &log_ratios(&acc.state_comp_total, &acc.state_comp_samples),
             );
@@ -283,7 +300,7 @@ impl Objective {
                 (acc.white_pairs[o] > 0.0 && den > 0.0).then(|| acc.white_ab[o] / den)
             })
             .collect();
-        add(&mut t.whiteness, w.whiteness, &rho);
+        add(&mut t.terms.whiteness, w.whiteness, &rho);
         if w.shape > 0.0 && !self.nis_only {
             let shape: Vec<f64> = (0..acc.nees_sum.len())
                 .filter_map(|k| {
@@ -297,9 +314,14 @@ impl Objective {
                     (var > 0.0).then(|| (var / target).ln())
                 })
                 .collect();
-            add(&mut t.shape, w.shape, &shape);
+            add(&mut t.terms.shape, w.shape, &shape);
         }
-        t.total = t.mean + t.interval + t.per_step + t.components + t.whiteness + t.shape;
+        t.total = t.terms.mean
+            + t.terms.interval
+            + t.terms.per_step
+            + t.terms.components
+            + t.terms.whiteness
+            + t.terms.shape;
         if !t.total.is_finite() {
             return inf;
         }

@@ -998,8 +998,4 @@ impl CatalogModel for CtrvModel {
     fn truth_values(&self) -> Vec<f64> {
         self.truth_values.to_vec()
     }
-
-    fn structure_matches(&self) -> bool {
-        true
-    }
 }

@@ -889,10 +889,6 @@ impl CatalogModel for Orbit2d {
             s.stations.angle_std.powi(2),
         ]
     }
-
-    fn structure_matches(&self) -> bool {
-        true
-    }
 }
 
 fn build(table: &toml::Table, ctx: &ModelContext) -> Result<Box<dyn CatalogModel>, ModelError> {

@@ -48,6 +48,9 @@ where
 ///
 /// Fails with [`FilterError::NotPositiveDefinite`] naming `"S"` when S has no Cholesky
 /// factor, and `"P"` when the posterior has a non-finite entry.
+// Inlined so that a fixed-size caller keeps the result where it computed it: returned
+// through memory, the five matrices cost the catalog's 4-state EKF about 13% of an update.
+#[inline]
 pub fn joseph_update<N: Dim, M: Dim>(
     Pp: &OMatrix<f64, N, N>,
     H: &OMatrix<f64, M, N>,

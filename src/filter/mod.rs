@@ -51,10 +51,12 @@ impl Estimate {
 }
 
 /// For filters that compute on fixed-size matrices (the catalog's): the estimate in and out
-/// of static storage, reusing its allocations from step to step.
+/// of static storage, reusing its allocations from step to step. They are inlined: as
+/// calls, made several times a step, they cost the 4-state orbit EKF a few percent.
 #[allow(non_snake_case)]
 impl Estimate {
     /// The estimate `(x0, P0)` at step 0 from a fixed-size mean (N) and covariance (N × N).
+    #[inline]
     pub fn from_fixed<const N: usize>(x0: &SVector<f64, N>, P0: &SMatrix<f64, N, N>) -> Self {
         Estimate {
             x: DVector::from_column_slice(x0.as_slice()),
@@ -65,6 +67,7 @@ impl Estimate {
 
     /// The mean (N) and covariance (N × N) as fixed-size copies, or
     /// [`FilterError::Unsupported`] when the estimate has another dimension.
+    #[inline]
     pub fn fixed<const N: usize>(
         &self,
     ) -> Result<(SVector<f64, N>, SMatrix<f64, N, N>), FilterError> {
@@ -77,6 +80,7 @@ impl Estimate {
     }
 
     /// Write a fixed-size mean (N) and covariance (N × N) back, in place.
+    #[inline]
     pub fn set_fixed<const N: usize>(&mut self, x: &SVector<f64, N>, P: &SMatrix<f64, N, N>) {
         store(&mut self.x, x);
         store(&mut self.P, P);
@@ -84,6 +88,7 @@ impl Estimate {
 
     /// Set the error map to a fixed-size transition `F` (N × N), in the previous map's
     /// storage when it has that shape.
+    #[inline]
     pub fn set_error_map<const N: usize>(&mut self, F: &SMatrix<f64, N, N>) {
         match &mut self.error_map {
             Some(a) => store(a, F),
@@ -93,6 +98,7 @@ impl Estimate {
 
     /// [`Estimate::compose_error_map`] for a fixed-size filter's `I − K H` (N × N), in place;
     /// a map of another shape is left as it is (the engine then treats it as missing).
+    #[inline]
     pub fn compose_error_map_fixed<const N: usize>(&mut self, IKH: &SMatrix<f64, N, N>) {
         if let Some(a) = &mut self.error_map
             && let Some(m) = to_fixed::<N, N, _, _, _>(a)

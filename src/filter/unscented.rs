@@ -148,6 +148,7 @@ where
 /// The [`Moments`] of propagated sigma points `points` (the images `p_i` under the
 /// transition) whose inputs were offset by `offsets[i]` (`d_i`) from the prior mean;
 /// `cov0` is additive process noise, or zero.
+#[inline]
 pub fn moments<D: Dim, E: Dim>(
     points: &[OVector<f64, D>],
     offsets: &[OVector<f64, E>],
@@ -238,6 +239,8 @@ where
 ///
 /// `residual(a, b)` is the model's `a − b` (wrapping angles where it has them). Fails with
 /// [`FilterError::NotPositiveDefinite`] naming `"S"` or `"P"` at `step`.
+// Inlined for the reason joseph_update is: a fixed-size caller's result stays in place.
+#[inline]
 pub fn update<D: Dim, M: Dim>(
     x: &OVector<f64, D>,
     P: &OMatrix<f64, D, D>,

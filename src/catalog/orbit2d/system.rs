@@ -173,10 +173,14 @@ impl Stations {
 
     /// Station `i`'s measurement [range (km), range rate (km/s), LOS angle (rad)] of `x`
     /// at step `k`, and its Jacobian (3 × 4).
+    // Inlined into the filter's update and the truth's measure (other modules), as it was
+    // when they shared one: it runs for every station at every step.
+    #[inline]
     pub fn measure(&self, k: usize, i: usize, x: &Vector4<f64>) -> (Vector3<f64>, Matrix3x4<f64>) {
         Self::measure_from(&self.site(k, i), x)
     }
 
+    #[inline]
     pub(super) fn measure_from(site: &Site, x: &Vector4<f64>) -> (Vector3<f64>, Matrix3x4<f64>) {
         let rho = x.fixed_rows::<2>(0) - site.pos;
         let rho_dot = x.fixed_rows::<2>(2) - site.vel;

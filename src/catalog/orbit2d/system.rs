@@ -212,7 +212,7 @@ pub(super) fn to4(x: &DVector<f64>) -> Vector4<f64> {
 
 /// The filter's deterministic model: two-body flow over dt and the stations' measurement
 /// functions, with analytic Jacobians (usable with the library's generic [`crate::filter::Ekf`]
-/// and [`crate::filter::Ukf`]; [`OrbitEkf`] is the fixed-size EKF the catalog runs).
+/// and [`crate::filter::Ukf`]; [`super::OrbitEkf`] is the fixed-size EKF the catalog runs).
 #[derive(Debug, Clone)]
 pub struct OrbitSystem {
     /// Filter step, s.

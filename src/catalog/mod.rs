@@ -52,9 +52,6 @@ pub trait CatalogModel: Send + Sync + Debug {
     /// filter shares the truth's noise structure, the closest equivalent otherwise), in
     /// [`CatalogEntry::params`] order.
     fn truth_values(&self) -> Vec<f64>;
-    /// Whether the filter's noise structure is the truth's, so a tuned filter should
-    /// recover [`CatalogModel::truth_values`].
-    fn structure_matches(&self) -> bool;
 }
 
 /// Why a `[model]` table was refused: the field (relative to `[model]`, e.g.

@@ -4,8 +4,9 @@
 
 use nalgebra::{DMatrix, DVector};
 
+use super::joseph::{CovarianceUpdate, joseph_update};
 use super::{Estimate, Filter, FilterError, Innovation};
-use crate::linalg::{cholesky, mahalanobis_sq, symmetrize};
+use crate::linalg::{mahalanobis_sq, symmetrize};
 use crate::measurement::Measurement;
 
 /// Linear Kalman filter for `x_k = F x_{k−1} + w`, `z_k = H x_k + v`, with the filter's own
@@ -45,46 +46,6 @@ impl KalmanFilter {
     ) -> Result<CovarianceUpdate, FilterError> {
         joseph_update(Pp, &self.H, &self.R, step)
     }
-}
-
-/// The covariance half of a Kalman update with measurement matrix (or Jacobian) `H` and
-/// noise `R` from the prior `P⁻`: gain `K` solving `S K' = H P⁻` by Cholesky (no inverse),
-/// `S = H P⁻ H' + R`, and the Joseph-form posterior `(I − K H) P⁻ (I − K H)' + K R K'`,
-/// symmetrized. Shared by the KF and the EKF.
-pub fn joseph_update(
-    Pp: &DMatrix<f64>,
-    H: &DMatrix<f64>,
-    R: &DMatrix<f64>,
-    step: usize,
-) -> Result<CovarianceUpdate, FilterError> {
-    let HP = H * Pp;
-    let mut S = &HP * H.transpose() + R;
-    symmetrize(&mut S);
-    let chol = cholesky(&S).ok_or(FilterError::NotPositiveDefinite { which: "S", step })?;
-    let K = chol.solve(&HP).transpose();
-    let n = Pp.nrows();
-    let IKH = DMatrix::identity(n, n) - &K * H;
-    let mut P = &IKH * Pp * IKH.transpose() + &K * R * K.transpose();
-    symmetrize(&mut P);
-    if P.iter().any(|v| !v.is_finite()) {
-        return Err(FilterError::NotPositiveDefinite { which: "P", step });
-    }
-    Ok(CovarianceUpdate { K, S, chol, P, IKH })
-}
-
-/// The data-independent half of a Kalman update.
-#[derive(Debug, Clone)]
-pub struct CovarianceUpdate {
-    /// Gain, n × m.
-    pub K: DMatrix<f64>,
-    /// Innovation covariance, m × m.
-    pub S: DMatrix<f64>,
-    /// Cholesky factor of S.
-    pub chol: nalgebra::Cholesky<f64, nalgebra::Dyn>,
-    /// Posterior covariance, n × n.
-    pub P: DMatrix<f64>,
-    /// `I − K H`, n × n.
-    pub IKH: DMatrix<f64>,
 }
 
 impl Filter for KalmanFilter {

@@ -4,9 +4,10 @@
 
 use nalgebra::{DMatrix, DVector};
 
-use super::kf::joseph_update;
+use super::joseph::joseph_update;
+use super::unscented::{self, SigmaMeasurement, SigmaWeights};
 use super::{Estimate, Filter, FilterError, Innovation, check_measurement};
-use crate::linalg::{cholesky, mahalanobis_sq, symmetrize};
+use crate::linalg::{mahalanobis_sq, symmetrize};
 use crate::measurement::Measurement;
 
 /// A system as a nonlinear filter sees it: `x_k = f_k(x_{k−1}) + w_k`,
@@ -61,11 +62,7 @@ pub trait SystemModel: Sync {
     /// instead of π, so an angle's mean should be taken relative to one of the points with
     /// wrapped differences.
     fn measurement_mean(&self, _sensor: usize, zs: &[DVector<f64>], wm: &[f64]) -> DVector<f64> {
-        let mut z_hat = DVector::zeros(zs.first().map_or(0, |z| z.len()));
-        for (z, w) in zs.iter().zip(wm) {
-            z_hat += z * *w;
-        }
-        z_hat
+        unscented::weighted_sum(zs, wm.iter().copied())
     }
 }
 
@@ -165,13 +162,10 @@ impl<M: SystemModel> Filter for Ekf<M> {
     }
 }
 
-/// Sigma points with their mean and covariance weights.
-type SigmaPoints = (Vec<DVector<f64>>, Vec<f64>, Vec<f64>);
-
 /// The unscented Kalman filter with additive noise and the scaled sigma points of Julier
 /// (2002) / van der Merwe: 2n + 1 points at `x ± columns of √((n + λ) P)`,
 /// `λ = α² (n + κ) − n`, mean weights `λ/(n+λ)` and `1/(2(n+λ))`, and covariance weight
-/// `λ/(n+λ) + 1 − α² + β` for the centre point.
+/// `λ/(n+λ) + 1 − α² + β` for the centre point ([`unscented`] holds the arithmetic).
 #[derive(Debug, Clone)]
 pub struct Ukf<M> {
     /// The filter's system model.
@@ -217,31 +211,20 @@ impl<M: SystemModel> Ukf<M> {
         }
     }
 
-    /// Sigma points (columns) and the mean and covariance weights.
+    /// The sigma points of `(x, P)` and their weights.
     fn sigma(
         &self,
         x: &DVector<f64>,
         P: &DMatrix<f64>,
         step: usize,
-    ) -> Result<SigmaPoints, FilterError> {
-        let n = x.len() as f64;
-        let lambda = self.alpha * self.alpha * (n + self.kappa) - n;
-        let chol = cholesky(&(P * (n + lambda)))
+    ) -> Result<(Vec<DVector<f64>>, SigmaWeights), FilterError> {
+        let n = x.len();
+        let w = SigmaWeights::new(n, self.alpha, self.beta, self.kappa);
+        let L = unscented::sigma_factor(P, w.spread)
             .ok_or(FilterError::NotPositiveDefinite { which: "P", step })?;
-        let L = chol.l();
-        let mut pts = vec![x.clone()];
-        for i in 0..x.len() {
-            pts.push(x + L.column(i));
-        }
-        for i in 0..x.len() {
-            pts.push(x - L.column(i));
-        }
-        let w = 1.0 / (2.0 * (n + lambda));
-        let mut wm = vec![w; pts.len()];
-        let mut wc = wm.clone();
-        wm[0] = lambda / (n + lambda);
-        wc[0] = wm[0] + 1.0 - self.alpha * self.alpha + self.beta;
-        Ok((pts, wm, wc))
+        let mut offsets = vec![DVector::zeros(n); 2 * n + 1];
+        unscented::fill_offsets(&L, &mut offsets);
+        Ok((offsets.iter().map(|d| x + d).collect(), w))
     }
 }
 
@@ -262,12 +245,12 @@ impl<M: SystemModel> Filter for Ukf<M> {
         let n = est.x.len();
         // Additive noise: sigma points of x, Q added after. Augmented: sigma points of
         // [x; w] with covariance blkdiag(P, Q_w), each propagated through f(x, w).
-        let (pts, wm, wc, prop, add_q) = match &self.augmented_noise {
+        let (pts, w, prop, cov0) = match &self.augmented_noise {
             None => {
-                let (pts, wm, wc) = self.sigma(&est.x, &est.P, k)?;
+                let (pts, w) = self.sigma(&est.x, &est.P, k)?;
                 let prop: Vec<DVector<f64>> =
                     pts.iter().map(|p| self.model.transition(k, p)).collect();
-                (pts, wm, wc, prop, true)
+                (pts, w, prop, self.Q.clone())
             }
             Some(qw) => {
                 let q = qw.nrows();
@@ -276,7 +259,7 @@ impl<M: SystemModel> Filter for Ukf<M> {
                 let mut pa = DMatrix::zeros(n + q, n + q);
                 pa.view_mut((0, 0), (n, n)).copy_from(&est.P);
                 pa.view_mut((n, n), (q, q)).copy_from(qw);
-                let (apts, wm, wc) = self.sigma(&xa, &pa, k)?;
+                let (apts, w) = self.sigma(&xa, &pa, k)?;
                 let mut prop = Vec::with_capacity(apts.len());
                 for a in &apts {
                     let x = a.rows(0, n).clone_owned();
@@ -288,35 +271,21 @@ impl<M: SystemModel> Filter for Ukf<M> {
                     )?);
                 }
                 let pts = apts.iter().map(|a| a.rows(0, n).clone_owned()).collect();
-                (pts, wm, wc, prop, false)
+                (pts, w, prop, DMatrix::zeros(n, n))
             }
         };
-        let mut x = DVector::zeros(n);
-        for (p, w) in prop.iter().zip(&wm) {
-            x += p * *w;
-        }
-        let mut P = if add_q {
-            self.Q.clone()
-        } else {
-            DMatrix::zeros(n, n)
-        };
-        let mut C = DMatrix::zeros(n, n);
-        for ((p, q), w) in prop.iter().zip(&pts).zip(&wc) {
-            let d = p - &x;
-            P += &d * d.transpose() * *w;
-            C += &d * (q - &est.x).transpose() * *w;
-        }
-        symmetrize(&mut P);
+        let offsets: Vec<DVector<f64>> = pts.iter().map(|p| p - &est.x).collect();
+        let m = unscented::moments(&prop, &offsets, &w, cov0);
         // Statistical linearization of f: the F with which a linear filter would produce the
         // same cross covariance, F = C P⁻¹ (used for the NEES correlation model).
-        let F = cholesky(&est.P)
-            .map(|c| c.solve(&C.transpose()).transpose())
-            .ok_or(FilterError::NotPositiveDefinite {
+        let F = unscented::linearize(&est.P, &m.cross.transpose()).ok_or(
+            FilterError::NotPositiveDefinite {
                 which: "P",
                 step: k,
-            })?;
-        est.x = x;
-        est.P = P;
+            },
+        )?;
+        est.x = m.mean;
+        est.P = m.cov;
         est.error_map = Some(F);
         Ok(())
     }
@@ -329,42 +298,37 @@ impl<M: SystemModel> Filter for Ukf<M> {
     ) -> Result<Innovation, FilterError> {
         check_measurement(self.sensor_dims().get(meas.sensor).copied(), meas)?;
         let s = meas.sensor;
-        let (pts, wm, wc) = self.sigma(&est.x, &est.P, k)?;
+        let (pts, weights) = self.sigma(&est.x, &est.P, k)?;
         let zs: Vec<DVector<f64>> = pts
             .iter()
             .map(|p| self.model.measurement(k, s, p))
             .collect();
-        let m = meas.z.len();
+        let wm: Vec<f64> = weights.means().take(zs.len()).collect();
         let z_hat = self.model.measurement_mean(s, &zs, &wm);
-        let mut S = self.R[s].clone();
-        let mut Pxz = DMatrix::zeros(est.x.len(), m);
-        for ((z, p), w) in zs.iter().zip(&pts).zip(&wc) {
-            let dz = self.model.residual(s, z, &z_hat);
-            S += &dz * dz.transpose() * *w;
-            Pxz += (p - &est.x) * dz.transpose() * *w;
-        }
-        symmetrize(&mut S);
-        let chol = cholesky(&S).ok_or(FilterError::NotPositiveDefinite {
-            which: "S",
-            step: k,
-        })?;
-        let K = chol.solve(&Pxz.transpose()).transpose();
-        let nu = self.model.residual(s, &meas.z, &z_hat);
-        // Statistical linearization of h, H = Pxz' P⁻¹, for the error map.
-        let H = cholesky(&est.P).map(|c| c.solve(&Pxz).transpose()).ok_or(
-            FilterError::NotPositiveDefinite {
-                which: "P",
-                step: k,
-            },
+        let offsets: Vec<DVector<f64>> = pts.iter().map(|p| p - &est.x).collect();
+        let sm = SigmaMeasurement {
+            weights,
+            offsets: &offsets,
+            zs: &zs,
+            z_hat: &z_hat,
+        };
+        let u = unscented::update(
+            &est.x,
+            &est.P,
+            &sm,
+            &meas.z,
+            &self.R[s],
+            |a, b| self.model.residual(s, a, b),
+            k,
         )?;
-        est.x += &K * &nu;
-        let mut P = &est.P - &K * &S * K.transpose();
-        symmetrize(&mut P);
-        est.P = P;
-        let n = est.x.len();
-        est.compose_error_map(&(DMatrix::identity(n, n) - &K * &H));
-        let nis = mahalanobis_sq(&chol, &nu);
-        Ok(Innovation { nu, S, nis })
+        est.x = u.x;
+        est.P = u.P;
+        est.compose_error_map(&u.IKH);
+        Ok(Innovation {
+            nu: u.nu,
+            S: u.S,
+            nis: u.nis,
+        })
     }
 }
 

@@ -7,20 +7,22 @@
 //! ten sample transitions be multiplied with 3 × 3 blocks; Q_k is integrated to third
 //! order in the step ([`super::nav::process_noise`]), so nothing is lost at 0.1 s.
 //!
-//! A GNSS fix updates the error state in Joseph form (`H = [I₃ 0]`, no lever arm), the
-//! error is injected into the nominal state and reset to zero. The covariance is reused as
-//! is: the exact reset Jacobian `I − ½[ψ]×` on the attitude block differs from I by the
-//! size of the correction (a few mrad), well below what the Monte Carlo test resolves.
+//! A GNSS fix updates the error state in Joseph form ([`joseph_update`], `H = [I₃ 0]`, no
+//! lever arm), the error is injected into the nominal state and reset to zero. The
+//! covariance is reused as is: the exact reset Jacobian `I − ½[ψ]×` on the attitude block
+//! differs from I by the size of the correction (a few mrad), well below what the Monte
+//! Carlo test resolves.
 
 #![allow(non_snake_case)]
 
-use nalgebra::{DMatrix, DVector, Matrix3, SMatrix, Vector3};
+use nalgebra::{DVector, Matrix3, SMatrix, Vector3};
 
 use super::nav::{
     ImuSample, Mat15, N_ERR, N_NOM, NoiseDensities, Nominal, Transition, Vec15, mechanize,
     process_noise,
 };
-use crate::filter::{Estimate, Filter, FilterError, Innovation, check_measurement};
+use crate::filter::{Estimate, Filter, FilterError, Innovation, check_measurement, joseph_update};
+use crate::linalg::{symmetrize, to_dynamic, to_fixed};
 use crate::measurement::Measurement;
 
 /// The ESKF: noise densities, GNSS noise, initial state and covariance.
@@ -39,8 +41,6 @@ pub struct Eskf {
     /// Initial error covariance, 15 × 15.
     pub P0: Mat15,
 }
-
-type Mat15x3 = SMatrix<f64, N_ERR, 3>;
 
 impl Eskf {
     /// One step of prediction on fixed-size state: the nominal state and covariance are
@@ -63,7 +63,7 @@ impl Eskf {
         let Q = process_noise(&(qv / n), &(r_sum / n), &(y_sum / n), &self.noise, self.dt);
         let F = phi.to_matrix();
         *P = sandwich(&F, P) + Q;
-        *P = (*P + P.transpose()) * 0.5;
+        symmetrize(P);
         F
     }
 }
@@ -86,10 +86,6 @@ fn sandwich(F: &Mat15, P: &Mat15) -> Mat15 {
     B
 }
 
-fn to_fixed(m: &DMatrix<f64>) -> Option<Mat15> {
-    (m.shape() == (N_ERR, N_ERR)).then(|| Mat15::from_column_slice(m.as_slice()))
-}
-
 impl Filter for Eskf {
     fn n_x(&self) -> usize {
         N_ERR
@@ -102,10 +98,7 @@ impl Filter for Eskf {
     fn initial(&self) -> Estimate {
         let mut x = DVector::zeros(N_NOM);
         self.x0.write(x.as_mut_slice());
-        Estimate::new(
-            &x,
-            &DMatrix::from_column_slice(N_ERR, N_ERR, self.P0.as_slice()),
-        )
+        Estimate::new(&x, &to_dynamic(&self.P0))
     }
 
     fn predict(&self, _k: usize, _est: &mut Estimate) -> Result<(), FilterError> {
@@ -130,17 +123,14 @@ impl Filter for Eskf {
             step: k,
         };
         let mut nom = Nominal::from_slice(est.x.as_slice()).ok_or(bad.clone())?;
-        let mut P = to_fixed(&est.P).ok_or(bad.clone())?;
+        let mut P: Mat15 = to_fixed(&est.P).ok_or(bad.clone())?;
         let F = self.propagate(&mut nom, &mut P, u.as_slice());
         if !P.iter().all(|v| v.is_finite()) {
             return Err(bad);
         }
         nom.write(est.x.as_mut_slice());
         est.P.copy_from_slice(P.as_slice());
-        match &mut est.error_map {
-            Some(a) if a.shape() == (N_ERR, N_ERR) => a.copy_from_slice(F.as_slice()),
-            _ => est.error_map = Some(DMatrix::from_column_slice(N_ERR, N_ERR, F.as_slice())),
-        }
+        est.set_error_map(&F);
         Ok(())
     }
 
@@ -156,40 +146,21 @@ impl Filter for Eskf {
             step: k,
         };
         let nom = Nominal::from_slice(est.x.as_slice()).ok_or(badp.clone())?;
-        let P = to_fixed(&est.P).ok_or(badp.clone())?;
-        // H = [I₃ 0]: H P = first three rows of P, S = P_pp + R.
-        let PHt: Mat15x3 = P.fixed_columns::<3>(0).into_owned();
-        let mut S = P.fixed_view::<3, 3>(0, 0).into_owned() + self.R;
-        S = (S + S.transpose()) * 0.5;
-        let chol = S.cholesky().ok_or(FilterError::NotPositiveDefinite {
-            which: "S",
-            step: k,
-        })?;
-        let K: Mat15x3 = chol.solve(&PHt.transpose()).transpose();
+        let P: Mat15 = to_fixed(&est.P).ok_or(badp)?;
+        // H = [I₃ 0]: the products with its zeros and ones are exact, so this gives the
+        // numbers the block-sparse form (S = P_pp + R, K from P's first rows) gives.
+        let H = SMatrix::<f64, 3, N_ERR>::identity();
+        let cu = joseph_update(&P, &H, &self.R, k)?;
         let z = Vector3::new(meas.z[0], meas.z[1], meas.z[2]);
         let nu = z - nom.p;
-        let mut IKH = Mat15::identity();
-        {
-            let mut b = IKH.fixed_columns_mut::<3>(0);
-            b -= K;
-        }
-        let mut Pn = IKH * P * IKH.transpose() + K * self.R * K.transpose();
-        Pn = (Pn + Pn.transpose()) * 0.5;
-        if !Pn.iter().all(|v| v.is_finite()) {
-            return Err(badp);
-        }
-        let dx: Vec15 = K * nu;
+        let dx: Vec15 = cu.K * nu;
         nom.inject(&dx).write(est.x.as_mut_slice());
-        est.P.copy_from_slice(Pn.as_slice());
-        if let Some(a) = &mut est.error_map
-            && let Some(A) = to_fixed(a)
-        {
-            a.copy_from_slice((IKH * A).as_slice());
-        }
-        let nis = nu.dot(&chol.solve(&nu));
+        est.P.copy_from_slice(cu.P.as_slice());
+        est.compose_error_map_fixed(&cu.IKH);
+        let nis = nu.dot(&cu.chol.solve(&nu));
         Ok(Innovation {
             nu: DVector::from_column_slice(nu.as_slice()),
-            S: DMatrix::from_column_slice(3, 3, S.as_slice()),
+            S: to_dynamic(&cu.S),
             nis,
         })
     }

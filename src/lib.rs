@@ -43,6 +43,7 @@ pub mod montecarlo;
 pub mod params;
 pub mod problem;
 pub mod report;
+pub mod statespace;
 pub mod stats;
 pub mod tune;
 

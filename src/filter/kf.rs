@@ -2,30 +2,18 @@
 
 #![allow(non_snake_case)]
 
-use nalgebra::{DMatrix, DVector};
+use nalgebra::DMatrix;
 
 use super::joseph::{CovarianceUpdate, joseph_update};
-use super::{Estimate, Filter, FilterError, Innovation};
+use super::{Estimate, Filter, FilterError, Innovation, PredictResult, UpdateResult};
 use crate::linalg::{mahalanobis_sq, symmetrize};
 use crate::measurement::Measurement;
+use crate::statespace::LinearGaussian;
 
-/// Linear Kalman filter for `x_k = F x_{k−1} + w`, `z_k = H x_k + v`, with the filter's own
-/// Q and R (which may differ from the truth's: that is what is being tested).
-#[derive(Debug, Clone)]
-pub struct KalmanFilter {
-    /// State transition, n × n.
-    pub F: DMatrix<f64>,
-    /// Measurement matrix, m × n.
-    pub H: DMatrix<f64>,
-    /// Process noise covariance per step, n × n.
-    pub Q: DMatrix<f64>,
-    /// Measurement noise covariance, m × m.
-    pub R: DMatrix<f64>,
-    /// Initial estimate, n.
-    pub x0: DVector<f64>,
-    /// Initial covariance, n × n (positive definite).
-    pub P0: DMatrix<f64>,
-}
+/// Linear Kalman filter for `x_k = F x_{k−1} + w`, `z_k = H x_k + v`: the linear-Gaussian
+/// model it believes, with its own Q and R (which may differ from the truth's: that is
+/// what is being tested), its initial estimate x0 and covariance P0 (positive definite).
+pub type KalmanFilter = LinearGaussian;
 
 impl KalmanFilter {
     /// Covariance prediction `P⁻ = F P F' + Q`, symmetrized.
@@ -61,19 +49,14 @@ impl Filter for KalmanFilter {
         Estimate::new(&self.x0, &self.P0)
     }
 
-    fn predict(&self, _k: usize, est: &mut Estimate) -> Result<(), FilterError> {
+    fn predict(&self, _k: usize, est: &mut Estimate) -> PredictResult {
         est.x = &self.F * &est.x;
         est.P = self.predict_covariance(&est.P);
         est.error_map = Some(self.F.clone());
         Ok(())
     }
 
-    fn update(
-        &self,
-        k: usize,
-        est: &mut Estimate,
-        meas: &Measurement,
-    ) -> Result<Innovation, FilterError> {
+    fn update(&self, k: usize, est: &mut Estimate, meas: &Measurement) -> UpdateResult {
         let m = self.H.nrows();
         super::check_measurement((meas.sensor == 0).then_some(m), meas)?;
         let cu = self.update_covariance(&est.P, k)?;
@@ -90,6 +73,7 @@ impl Filter for KalmanFilter {
 mod tests {
     use super::*;
     use approx::assert_relative_eq;
+    use nalgebra::DVector;
 
     fn cv1d() -> KalmanFilter {
         KalmanFilter {

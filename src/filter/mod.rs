@@ -10,7 +10,7 @@ pub mod unscented;
 
 pub use joseph::{CovarianceUpdate, joseph_update};
 pub use kf::KalmanFilter;
-pub use nonlinear::{Ekf, LinearSystem, SystemModel, Ukf, numerical_jacobian};
+pub use nonlinear::{Ekf, Jacobian, LinearSystem, SystemModel, Ukf, numerical_jacobian};
 
 use nalgebra::{DMatrix, DVector, SMatrix, SVector};
 
@@ -120,6 +120,12 @@ pub struct Innovation {
     pub nis: f64,
 }
 
+/// What a prediction returns.
+pub type PredictResult = Result<(), FilterError>;
+
+/// What an update returns: the innovation, or why the filter could not continue.
+pub type UpdateResult = Result<Innovation, FilterError>;
+
 /// Why a filter could not continue.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum FilterError {
@@ -189,7 +195,9 @@ pub fn check_measurement(expected: Option<usize>, meas: &Measurement) -> Result<
 /// filter's own prediction, never a silently wider interval from a wrong map.
 ///
 /// ```
-/// use autotune::filter::{Estimate, Filter, FilterError, Innovation, check_measurement};
+/// use autotune::filter::{
+///     Estimate, Filter, FilterError, Innovation, PredictResult, UpdateResult, check_measurement,
+/// };
 /// use autotune::measurement::Measurement;
 /// use nalgebra::{DMatrix, DVector};
 ///
@@ -198,18 +206,16 @@ pub fn check_measurement(expected: Option<usize>, meas: &Measurement) -> Result<
 /// struct Walk { q: f64, r: f64 }
 ///
 /// impl Filter for Walk {
-///     fn n_x(&self) -> usize { 1 }
 ///     fn sensor_dims(&self) -> Vec<usize> { vec![1] }
 ///     fn initial(&self) -> Estimate {
 ///         Estimate::new(&DVector::zeros(1), &DMatrix::identity(1, 1))
 ///     }
-///     fn predict(&self, _k: usize, est: &mut Estimate) -> Result<(), FilterError> {
+///     fn predict(&self, _k: usize, est: &mut Estimate) -> PredictResult {
 ///         est.P[(0, 0)] += self.q;
 ///         est.error_map = Some(DMatrix::identity(1, 1)); // F = 1
 ///         Ok(())
 ///     }
-///     fn update(&self, k: usize, est: &mut Estimate, m: &Measurement)
-///         -> Result<Innovation, FilterError> {
+///     fn update(&self, k: usize, est: &mut Estimate, m: &Measurement) -> UpdateResult {
 ///         check_measurement((m.sensor == 0).then_some(1), m)?;
 ///         let s = est.P[(0, 0)] + self.r;
 ///         if !(s > 0.0) {
@@ -234,10 +240,14 @@ pub fn check_measurement(expected: Option<usize>, meas: &Measurement) -> Result<
 /// let inn = f.update(1, &mut est, &Measurement { sensor: 0, z: DVector::from_element(1, 0.5) }).unwrap();
 /// assert!((inn.nis - 0.25 / 2.1).abs() < 1e-12);
 /// assert!((est.error_map.unwrap()[(0, 0)] - 1.0 / 2.1).abs() < 1e-12);
+/// assert_eq!(f.n_x(), 1, "n_x defaults to the initial covariance's dimension");
 /// ```
 pub trait Filter: Sync {
-    /// State dimension n_x.
-    fn n_x(&self) -> usize;
+    /// Dimension n_x of the (error) state the NEES is taken in: by default, that of the
+    /// initial covariance.
+    fn n_x(&self) -> usize {
+        self.initial().P.nrows()
+    }
 
     /// Dimension of each sensor's measurement, indexed by [`Measurement::sensor`].
     fn sensor_dims(&self) -> Vec<usize>;
@@ -246,7 +256,7 @@ pub trait Filter: Sync {
     fn initial(&self) -> Estimate;
 
     /// Propagate the estimate from step `k − 1` to step `k`.
-    fn predict(&self, k: usize, est: &mut Estimate) -> Result<(), FilterError>;
+    fn predict(&self, k: usize, est: &mut Estimate) -> PredictResult;
 
     /// Propagate the estimate from step `k − 1` to step `k` driven by the control input `u`
     /// (whatever [`crate::model::TruthModel::input`] produced, e.g. IMU samples). The
@@ -256,19 +266,14 @@ pub trait Filter: Sync {
         _k: usize,
         _est: &mut Estimate,
         _u: &DVector<f64>,
-    ) -> Result<(), FilterError> {
+    ) -> PredictResult {
         Err(FilterError::Unsupported {
             what: "control inputs",
         })
     }
 
     /// Incorporate one measurement taken at step `k`.
-    fn update(
-        &self,
-        k: usize,
-        est: &mut Estimate,
-        meas: &Measurement,
-    ) -> Result<Innovation, FilterError>;
+    fn update(&self, k: usize, est: &mut Estimate, meas: &Measurement) -> UpdateResult;
 
     /// The estimation error `x_true − x̂` (override to wrap angles or map a
     /// higher-fidelity truth state onto the filter's state).
@@ -291,25 +296,15 @@ impl<F: Filter + ?Sized> Filter for Box<F> {
         (**self).initial()
     }
 
-    fn predict(&self, k: usize, est: &mut Estimate) -> Result<(), FilterError> {
+    fn predict(&self, k: usize, est: &mut Estimate) -> PredictResult {
         (**self).predict(k, est)
     }
 
-    fn predict_with_input(
-        &self,
-        k: usize,
-        est: &mut Estimate,
-        u: &DVector<f64>,
-    ) -> Result<(), FilterError> {
+    fn predict_with_input(&self, k: usize, est: &mut Estimate, u: &DVector<f64>) -> PredictResult {
         (**self).predict_with_input(k, est, u)
     }
 
-    fn update(
-        &self,
-        k: usize,
-        est: &mut Estimate,
-        meas: &Measurement,
-    ) -> Result<Innovation, FilterError> {
+    fn update(&self, k: usize, est: &mut Estimate, meas: &Measurement) -> UpdateResult {
         (**self).update(k, est, meas)
     }
 

@@ -6,9 +6,14 @@ use nalgebra::{DMatrix, DVector};
 
 use super::joseph::joseph_update;
 use super::unscented::{self, SigmaMeasurement, SigmaWeights};
-use super::{Estimate, Filter, FilterError, Innovation, check_measurement};
+use super::{
+    Estimate, Filter, FilterError, Innovation, PredictResult, UpdateResult, check_measurement,
+};
 use crate::linalg::{mahalanobis_sq, symmetrize};
 use crate::measurement::Measurement;
+
+/// An analytic Jacobian, or `None` for central finite differences.
+pub type Jacobian = Option<DMatrix<f64>>;
 
 /// A system as a nonlinear filter sees it: `x_k = f_k(x_{k−1}) + w_k`,
 /// `z_k = h_{k,s}(x_k) + v_k` for each sensor s.
@@ -23,7 +28,7 @@ pub trait SystemModel: Sync {
     fn transition(&self, k: usize, x: &DVector<f64>) -> DVector<f64>;
 
     /// `∂f_k/∂x` at `x` (n × n); `None` (the default) means central finite differences.
-    fn transition_jacobian(&self, _k: usize, _x: &DVector<f64>) -> Option<DMatrix<f64>> {
+    fn transition_jacobian(&self, _k: usize, _x: &DVector<f64>) -> Jacobian {
         None
     }
 
@@ -42,12 +47,7 @@ pub trait SystemModel: Sync {
     fn measurement(&self, k: usize, sensor: usize, x: &DVector<f64>) -> DVector<f64>;
 
     /// `∂h/∂x` at `x` (m_s × n); `None` (the default) means central finite differences.
-    fn measurement_jacobian(
-        &self,
-        _k: usize,
-        _sensor: usize,
-        _x: &DVector<f64>,
-    ) -> Option<DMatrix<f64>> {
+    fn measurement_jacobian(&self, _k: usize, _sensor: usize, _x: &DVector<f64>) -> Jacobian {
         None
     }
 
@@ -118,10 +118,6 @@ impl<M: SystemModel> Ekf<M> {
 }
 
 impl<M: SystemModel> Filter for Ekf<M> {
-    fn n_x(&self) -> usize {
-        self.model.n_x()
-    }
-
     fn sensor_dims(&self) -> Vec<usize> {
         self.model.sensor_dims()
     }
@@ -130,7 +126,7 @@ impl<M: SystemModel> Filter for Ekf<M> {
         Estimate::new(&self.x0, &self.P0)
     }
 
-    fn predict(&self, k: usize, est: &mut Estimate) -> Result<(), FilterError> {
+    fn predict(&self, k: usize, est: &mut Estimate) -> PredictResult {
         let F = self.f_jacobian(k, &est.x);
         est.x = self.model.transition(k, &est.x);
         let mut P = &F * &est.P * F.transpose() + &self.Q;
@@ -140,12 +136,7 @@ impl<M: SystemModel> Filter for Ekf<M> {
         Ok(())
     }
 
-    fn update(
-        &self,
-        k: usize,
-        est: &mut Estimate,
-        meas: &Measurement,
-    ) -> Result<Innovation, FilterError> {
+    fn update(&self, k: usize, est: &mut Estimate, meas: &Measurement) -> UpdateResult {
         check_measurement(self.sensor_dims().get(meas.sensor).copied(), meas)?;
         let s = meas.sensor;
         let H = self.h_jacobian(k, s, &est.x);
@@ -168,16 +159,9 @@ impl<M: SystemModel> Filter for Ekf<M> {
 /// `λ/(n+λ) + 1 − α² + β` for the centre point ([`unscented`] holds the arithmetic).
 #[derive(Debug, Clone)]
 pub struct Ukf<M> {
-    /// The filter's system model.
-    pub model: M,
-    /// Process noise covariance per step, n × n (added after propagation).
-    pub Q: DMatrix<f64>,
-    /// Measurement noise covariance of each sensor, m_s × m_s.
-    pub R: Vec<DMatrix<f64>>,
-    /// Initial estimate.
-    pub x0: DVector<f64>,
-    /// Initial covariance.
-    pub P0: DMatrix<f64>,
+    /// The system model, the noise covariances and the initial estimate: the five things an
+    /// [`Ekf`] is made of (Q is added after propagation unless the noise is augmented).
+    pub design: Ekf<M>,
     /// Spread of the sigma points around the mean (0 < α ≤ 1; default 1).
     pub alpha: f64,
     /// Prior knowledge of the distribution (2 is optimal for Gaussians).
@@ -199,11 +183,13 @@ impl<M: SystemModel> Ukf<M> {
         P0: DMatrix<f64>,
     ) -> Self {
         Ukf {
-            model,
-            Q,
-            R,
-            x0,
-            P0,
+            design: Ekf {
+                model,
+                Q,
+                R,
+                x0,
+                P0,
+            },
             alpha: 1.0,
             beta: 2.0,
             kappa: 0.0,
@@ -229,28 +215,26 @@ impl<M: SystemModel> Ukf<M> {
 }
 
 impl<M: SystemModel> Filter for Ukf<M> {
-    fn n_x(&self) -> usize {
-        self.model.n_x()
-    }
-
     fn sensor_dims(&self) -> Vec<usize> {
-        self.model.sensor_dims()
+        self.design.model.sensor_dims()
     }
 
     fn initial(&self) -> Estimate {
-        Estimate::new(&self.x0, &self.P0)
+        Estimate::new(&self.design.x0, &self.design.P0)
     }
 
-    fn predict(&self, k: usize, est: &mut Estimate) -> Result<(), FilterError> {
+    fn predict(&self, k: usize, est: &mut Estimate) -> PredictResult {
         let n = est.x.len();
         // Additive noise: sigma points of x, Q added after. Augmented: sigma points of
         // [x; w] with covariance blkdiag(P, Q_w), each propagated through f(x, w).
         let (pts, w, prop, cov0) = match &self.augmented_noise {
             None => {
                 let (pts, w) = self.sigma(&est.x, &est.P, k)?;
-                let prop: Vec<DVector<f64>> =
-                    pts.iter().map(|p| self.model.transition(k, p)).collect();
-                (pts, w, prop, self.Q.clone())
+                let prop: Vec<DVector<f64>> = pts
+                    .iter()
+                    .map(|p| self.design.model.transition(k, p))
+                    .collect();
+                (pts, w, prop, self.design.Q.clone())
             }
             Some(qw) => {
                 let q = qw.nrows();
@@ -264,7 +248,7 @@ impl<M: SystemModel> Filter for Ukf<M> {
                 for a in &apts {
                     let x = a.rows(0, n).clone_owned();
                     let w = a.rows(n, q).clone_owned();
-                    prop.push(self.model.transition_with_noise(k, &x, &w).ok_or(
+                    prop.push(self.design.model.transition_with_noise(k, &x, &w).ok_or(
                         FilterError::Unsupported {
                             what: "transition_with_noise (needed for augmented process noise)",
                         },
@@ -290,21 +274,16 @@ impl<M: SystemModel> Filter for Ukf<M> {
         Ok(())
     }
 
-    fn update(
-        &self,
-        k: usize,
-        est: &mut Estimate,
-        meas: &Measurement,
-    ) -> Result<Innovation, FilterError> {
+    fn update(&self, k: usize, est: &mut Estimate, meas: &Measurement) -> UpdateResult {
         check_measurement(self.sensor_dims().get(meas.sensor).copied(), meas)?;
         let s = meas.sensor;
         let (pts, weights) = self.sigma(&est.x, &est.P, k)?;
         let zs: Vec<DVector<f64>> = pts
             .iter()
-            .map(|p| self.model.measurement(k, s, p))
+            .map(|p| self.design.model.measurement(k, s, p))
             .collect();
         let wm: Vec<f64> = weights.means().take(zs.len()).collect();
-        let z_hat = self.model.measurement_mean(s, &zs, &wm);
+        let z_hat = self.design.model.measurement_mean(s, &zs, &wm);
         let offsets: Vec<DVector<f64>> = pts.iter().map(|p| p - &est.x).collect();
         let sm = SigmaMeasurement {
             weights,
@@ -317,8 +296,8 @@ impl<M: SystemModel> Filter for Ukf<M> {
             &est.P,
             &sm,
             &meas.z,
-            &self.R[s],
-            |a, b| self.model.residual(s, a, b),
+            &self.design.R[s],
+            |a, b| self.design.model.residual(s, a, b),
             k,
         )?;
         est.x = u.x;
@@ -355,7 +334,7 @@ impl SystemModel for LinearSystem {
         &self.F * x
     }
 
-    fn transition_jacobian(&self, _k: usize, _x: &DVector<f64>) -> Option<DMatrix<f64>> {
+    fn transition_jacobian(&self, _k: usize, _x: &DVector<f64>) -> Jacobian {
         Some(self.F.clone())
     }
 
@@ -363,12 +342,7 @@ impl SystemModel for LinearSystem {
         &self.H * x
     }
 
-    fn measurement_jacobian(
-        &self,
-        _k: usize,
-        _sensor: usize,
-        _x: &DVector<f64>,
-    ) -> Option<DMatrix<f64>> {
+    fn measurement_jacobian(&self, _k: usize, _sensor: usize, _x: &DVector<f64>) -> Jacobian {
         Some(self.H.clone())
     }
 }

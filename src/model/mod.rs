@@ -9,6 +9,7 @@ use rand_distr::StandardNormal;
 
 use crate::SimRng;
 use crate::measurement::Measurement;
+use crate::statespace::LinearGaussian;
 
 /// A simulated system: the truth the filter is tested against.
 ///
@@ -52,23 +53,23 @@ pub fn sample_gaussian(
 /// A linear-Gaussian truth model:
 /// `x_k = F x_{k−1} + w_k, w_k ~ N(0, Q)`, `z_k = H x_k + v_k, v_k ~ N(0, R)`,
 /// `x_0 ~ N(x0, P0)`, one sensor measured at every step.
-#[allow(non_snake_case)]
+///
+/// It reads as its [`LinearGaussian`] model (`truth.F`, `truth.Q`, …) and keeps the
+/// factors it samples with.
 #[derive(Debug, Clone)]
 pub struct LinearGaussianModel {
-    /// State transition over one step, n × n.
-    pub F: DMatrix<f64>,
-    /// Measurement matrix, m × n.
-    pub H: DMatrix<f64>,
-    /// Process noise covariance per step, n × n (units of the state squared).
-    pub Q: DMatrix<f64>,
-    /// Measurement noise covariance, m × m (units of the measurement squared).
-    pub R: DMatrix<f64>,
-    /// Mean of the initial state, n.
-    pub x0: DVector<f64>,
-    /// Covariance of the initial state, n × n.
-    pub P0: DMatrix<f64>,
+    /// The model.
+    pub model: LinearGaussian,
     /// Factors `L L' = Q`, `R`, `P0` (n × rank), computed once.
     pub(crate) factors: Factors,
+}
+
+impl std::ops::Deref for LinearGaussianModel {
+    type Target = LinearGaussian;
+
+    fn deref(&self) -> &LinearGaussian {
+        &self.model
+    }
 }
 
 #[derive(Debug, Clone)]
@@ -112,12 +113,7 @@ impl LinearGaussianModel {
             p0: f(&P0, "P0")?,
         };
         Ok(LinearGaussianModel {
-            F,
-            H,
-            Q,
-            R,
-            x0,
-            P0,
+            model: LinearGaussian { F, H, Q, R, x0, P0 },
             factors,
         })
     }

@@ -14,7 +14,9 @@ use nalgebra::{DVector, Matrix2, Matrix3, Matrix5, SMatrix, SVector, Vector2, Ve
 use super::system::{BEARING, CtrvSystem, radar_of};
 use super::{LIDAR, RADAR};
 use crate::filter::unscented::{self, SigmaMeasurement, SigmaWeights};
-use crate::filter::{Estimate, Filter, FilterError, Innovation, check_measurement};
+use crate::filter::{
+    Estimate, Filter, FilterError, Innovation, PredictResult, UpdateResult, check_measurement,
+};
 use crate::linalg::{to_dynamic, wrap_angle};
 use crate::measurement::Measurement;
 
@@ -156,7 +158,7 @@ impl Filter for CtrvFilter {
         Estimate::from_fixed(&self.x0, &self.P0)
     }
 
-    fn predict(&self, k: usize, est: &mut Estimate) -> Result<(), FilterError> {
+    fn predict(&self, k: usize, est: &mut Estimate) -> PredictResult {
         let (x, P) = est.fixed::<5>()?;
         let (x, P, F) = self.predict_fixed(k, &x, &P)?;
         est.set_fixed(&x, &P);
@@ -164,12 +166,7 @@ impl Filter for CtrvFilter {
         Ok(())
     }
 
-    fn update(
-        &self,
-        k: usize,
-        est: &mut Estimate,
-        meas: &Measurement,
-    ) -> Result<Innovation, FilterError> {
+    fn update(&self, k: usize, est: &mut Estimate, meas: &Measurement) -> UpdateResult {
         let dim = match meas.sensor {
             LIDAR => Some(2),
             RADAR => Some(3),

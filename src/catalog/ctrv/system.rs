@@ -7,8 +7,8 @@
 use nalgebra::{DMatrix, DVector};
 
 use super::{LIDAR, RADAR};
-use crate::filter::SystemModel;
 use crate::filter::unscented;
+use crate::filter::{Jacobian, SystemModel};
 use crate::linalg::wrap_angle;
 
 /// Below this `|ω T|` (rad) the transition uses its Taylor expansion in `ωT`.
@@ -101,7 +101,7 @@ impl SystemModel for CtrvSystem {
         DVector::from_row_slice(&self.step(x.as_slice(), 0.0, 0.0))
     }
 
-    fn transition_jacobian(&self, _k: usize, x: &DVector<f64>) -> Option<DMatrix<f64>> {
+    fn transition_jacobian(&self, _k: usize, x: &DVector<f64>) -> Jacobian {
         let T = self.dt;
         let (_, _, gx, gy) = ctrv_increment(x[2], x[3], x[4], T);
         let mut F = DMatrix::identity(5, 5);
@@ -137,12 +137,7 @@ impl SystemModel for CtrvSystem {
         }
     }
 
-    fn measurement_jacobian(
-        &self,
-        _k: usize,
-        sensor: usize,
-        x: &DVector<f64>,
-    ) -> Option<DMatrix<f64>> {
+    fn measurement_jacobian(&self, _k: usize, sensor: usize, x: &DVector<f64>) -> Jacobian {
         if sensor == LIDAR {
             let mut H = DMatrix::zeros(2, 5);
             H[(0, 0)] = 1.0;

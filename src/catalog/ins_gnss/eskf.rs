@@ -21,7 +21,10 @@ use super::nav::{
     ImuSample, Mat15, N_ERR, N_NOM, NoiseDensities, Nominal, Transition, Vec15, mechanize,
     process_noise,
 };
-use crate::filter::{Estimate, Filter, FilterError, Innovation, check_measurement, joseph_update};
+use crate::filter::{
+    Estimate, Filter, FilterError, Innovation, PredictResult, UpdateResult, check_measurement,
+    joseph_update,
+};
 use crate::linalg::{symmetrize, to_dynamic, to_fixed};
 use crate::measurement::Measurement;
 
@@ -101,18 +104,13 @@ impl Filter for Eskf {
         Estimate::new(&x, &to_dynamic(&self.P0))
     }
 
-    fn predict(&self, _k: usize, _est: &mut Estimate) -> Result<(), FilterError> {
+    fn predict(&self, _k: usize, _est: &mut Estimate) -> PredictResult {
         Err(FilterError::Unsupported {
             what: "a prediction without IMU samples",
         })
     }
 
-    fn predict_with_input(
-        &self,
-        k: usize,
-        est: &mut Estimate,
-        u: &DVector<f64>,
-    ) -> Result<(), FilterError> {
+    fn predict_with_input(&self, k: usize, est: &mut Estimate, u: &DVector<f64>) -> PredictResult {
         if u.len() != 6 * self.n_imu {
             return Err(FilterError::Unsupported {
                 what: "an IMU input of 6 values per sample",
@@ -134,12 +132,7 @@ impl Filter for Eskf {
         Ok(())
     }
 
-    fn update(
-        &self,
-        k: usize,
-        est: &mut Estimate,
-        meas: &Measurement,
-    ) -> Result<Innovation, FilterError> {
+    fn update(&self, k: usize, est: &mut Estimate, meas: &Measurement) -> UpdateResult {
         check_measurement((meas.sensor == 0).then_some(3), meas)?;
         let badp = FilterError::NotPositiveDefinite {
             which: "P",

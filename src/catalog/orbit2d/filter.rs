@@ -7,7 +7,10 @@
 use nalgebra::{DVector, Matrix3, Matrix4, Vector3, Vector4};
 
 use super::system::{OrbitSystem, frame};
-use crate::filter::{Estimate, Filter, FilterError, Innovation, check_measurement, joseph_update};
+use crate::filter::{
+    Estimate, Filter, FilterError, Innovation, PredictResult, UpdateResult, check_measurement,
+    joseph_update,
+};
 use crate::linalg::{symmetrize, to_dynamic, wrap_angle};
 use crate::measurement::Measurement;
 
@@ -64,7 +67,7 @@ impl Filter for OrbitEkf {
         Estimate::from_fixed(&self.x0, &self.P0)
     }
 
-    fn predict(&self, k: usize, est: &mut Estimate) -> Result<(), FilterError> {
+    fn predict(&self, k: usize, est: &mut Estimate) -> PredictResult {
         let (x, P) = est.fixed::<4>()?;
         let (x1, F) = self.system.flow(&x);
         let mut P1 = F * P * F.transpose() + self.process_noise(&x, &x1);
@@ -80,12 +83,7 @@ impl Filter for OrbitEkf {
         Ok(())
     }
 
-    fn update(
-        &self,
-        k: usize,
-        est: &mut Estimate,
-        meas: &Measurement,
-    ) -> Result<Innovation, FilterError> {
+    fn update(&self, k: usize, est: &mut Estimate, meas: &Measurement) -> UpdateResult {
         let count = self.system.stations.count;
         check_measurement((meas.sensor < count).then_some(3), meas)?;
         let (x, P) = est.fixed::<4>()?;

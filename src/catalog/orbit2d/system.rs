@@ -9,7 +9,7 @@ use std::f64::consts::PI;
 use nalgebra::{DMatrix, DVector, Matrix2, Matrix3x4, Matrix4, Vector2, Vector3, Vector4};
 
 use super::{EARTH_RADIUS, EARTH_RATE, MU};
-use crate::filter::SystemModel;
+use crate::filter::{Jacobian, SystemModel};
 use crate::linalg::wrap_angle;
 
 /// Two-body acceleration −μ r/|r|³, km/s².
@@ -259,7 +259,7 @@ impl SystemModel for OrbitSystem {
         DVector::from_column_slice(self.flow_state(&to4(x)).as_slice())
     }
 
-    fn transition_jacobian(&self, _k: usize, x: &DVector<f64>) -> Option<DMatrix<f64>> {
+    fn transition_jacobian(&self, _k: usize, x: &DVector<f64>) -> Jacobian {
         let (_, phi) = self.flow(&to4(x));
         Some(DMatrix::from_column_slice(4, 4, phi.as_slice()))
     }
@@ -269,12 +269,7 @@ impl SystemModel for OrbitSystem {
         DVector::from_column_slice(z.as_slice())
     }
 
-    fn measurement_jacobian(
-        &self,
-        k: usize,
-        sensor: usize,
-        x: &DVector<f64>,
-    ) -> Option<DMatrix<f64>> {
+    fn measurement_jacobian(&self, k: usize, sensor: usize, x: &DVector<f64>) -> Jacobian {
         let (_, H) = self.stations.measure(k, sensor, &to4(x));
         Some(DMatrix::from_fn(3, 4, |i, j| H[(i, j)]))
     }

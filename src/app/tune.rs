@@ -19,6 +19,8 @@ use crate::stats::StatisticSummary;
 use crate::tune::{LocalSearch, Observer, Scoring, TuneError, TuneSettings, TuneStatus, tune};
 
 /// The options of `tune`.
+// The field docs are the command's help, where `<name>` is meant literally.
+#[allow(rustdoc::invalid_html_tags)]
 #[derive(Debug, Clone, clap::Args)]
 pub struct TuneOptions {
     /// Where to write the tuned config (default: tuned/<name>.toml, or

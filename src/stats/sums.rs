@@ -41,7 +41,7 @@ pub struct Accumulator {
     /// Number of runs contributing a NEES at the step.
     pub nees_count: Vec<f64>,
     /// Σ over the runs counted in `null_var_runs` of the variance of the per-run NEES sum
-    /// the filter predicts under consistency (see [`NeesNullVariance`]); read it through
+    /// the filter predicts under consistency (see [`super::NeesNullVariance`]); read it through
     /// [`Accumulator::nees_null_variance`].
     pub nees_null_var: f64,
     /// Runs whose predicted NEES-sum variance is in `nees_null_var`: all of them on the

@@ -4,9 +4,10 @@
 
 use nalgebra::DMatrix;
 
+use super::conditioning::check_conditioned;
 use super::joseph::{CovarianceUpdate, joseph_update};
 use super::{Estimate, Filter, FilterError, Innovation, PredictResult, UpdateResult};
-use crate::linalg::{mahalanobis_sq, symmetrize};
+use crate::linalg::{cholesky, mahalanobis_sq, symmetrize};
 use crate::measurement::Measurement;
 use crate::statespace::LinearGaussian;
 
@@ -27,12 +28,23 @@ impl KalmanFilter {
     /// `S = H P⁻ H' + R`, its Cholesky factor, and the Joseph-form posterior
     /// `P = (I − K H) P⁻ (I − K H)' + K R K'`, symmetrized. K solves `S K' = H P⁻` by
     /// Cholesky; no inverse is formed.
+    ///
+    /// Fails, besides [`joseph_update`]'s errors, when `P⁻` or `S` is too ill-conditioned for
+    /// the update to keep its digits ([`super::conditioning`]): the posterior is `P⁻` minus a
+    /// nearly equal matrix when `P⁻` is nearly singular (a process noise far above what the
+    /// measurements pin down), and the gain solves with `S`.
     pub fn update_covariance(
         &self,
         Pp: &DMatrix<f64>,
         step: usize,
     ) -> Result<CovarianceUpdate, FilterError> {
-        joseph_update(Pp, &self.H, &self.R, step)
+        let cu = joseph_update(Pp, &self.H, &self.R, step)?;
+        let chol_pp = cholesky(Pp).ok_or(FilterError::NotPositiveDefinite {
+            which: "P⁻", step
+        })?;
+        check_conditioned("P⁻", Pp, &chol_pp, step)?;
+        check_conditioned("S", &cu.S, &cu.chol, step)?;
+        Ok(cu)
     }
 }
 

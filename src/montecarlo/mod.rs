@@ -100,7 +100,8 @@ pub type Progress<'a> = Option<&'a (dyn Fn(usize) + Sync)>;
 /// Record that run `run` stopped on `err`.
 fn record_divergence(acc: &mut Accumulator, run: usize, err: &FilterError) {
     let step = match err {
-        FilterError::NotPositiveDefinite { step, .. } => *step,
+        FilterError::NotPositiveDefinite { step, .. }
+        | FilterError::IllConditioned { step, .. } => *step,
         FilterError::BadMeasurement { .. } | FilterError::Unsupported { .. } => 0,
     };
     acc.record_divergence(run, step, err.to_string());

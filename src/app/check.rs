@@ -15,6 +15,7 @@ use crate::report::html::{check_html, check_markdown};
 use crate::report::{
     CheckOutput, junit_xml, summary_text, tuned::TunedConfig, write_file, write_report_dir,
 };
+use crate::stats::Verdict;
 
 /// The options of `check`.
 #[derive(Debug, Clone, clap::Args)]
@@ -139,9 +140,15 @@ pub fn run(experiment: &dyn Experiment, a: CheckOptions) -> Result<ExitCode, App
         }
     }
     stdout.flush()?;
-    Ok(if report.verdict.passes() {
-        ExitCode::SUCCESS
-    } else {
-        ExitCode::from(1)
-    })
+    Ok(exit_code(report.verdict))
+}
+
+/// The gate's exit code: 0 consistent, 1 not, and 2 (bad input) when the truth model
+/// overflows over the horizon, since then the problem, not the filter, must change.
+pub(super) fn exit_code(verdict: Verdict) -> ExitCode {
+    match verdict {
+        v if v.passes() => ExitCode::SUCCESS,
+        Verdict::TruthOverflow => ExitCode::from(2),
+        _ => ExitCode::from(1),
+    }
 }

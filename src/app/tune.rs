@@ -15,7 +15,7 @@ use crate::report::html::tune_html;
 use crate::report::tune::{TuneReport, tune_markdown};
 use crate::report::tuned::tuned_config_toml;
 use crate::report::{fmt_g, write_file, write_report_dir};
-use crate::stats::StatisticSummary;
+use crate::stats::{StatisticSummary, Verdict};
 use crate::tune::{LocalSearch, Observer, Scoring, TuneError, TuneSettings, TuneStatus, tune};
 
 /// The options of `tune`.
@@ -273,10 +273,11 @@ pub fn run(
         )?;
     }
     stdout.flush()?;
-    Ok(if result.status == TuneStatus::Consistent {
-        ExitCode::SUCCESS
-    } else {
-        ExitCode::from(1)
+    // A truth that overflows is the problem file's fault, as in `check`.
+    Ok(match result.status {
+        TuneStatus::Consistent => ExitCode::SUCCESS,
+        _ if result.after.verdict == Verdict::TruthOverflow => ExitCode::from(2),
+        _ => ExitCode::from(1),
     })
 }
 

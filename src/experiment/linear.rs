@@ -97,12 +97,8 @@ impl Experiment for LinearExperiment {
             return None;
         }
         Some(
-            expected_accumulator(&self.truth, &kf, mc).unwrap_or_else(|_| {
-                let mut a = Accumulator::new(mc.steps(), kf.F.nrows(), kf.H.nrows(), mc.lags());
-                a.diverged_runs = mc.runs();
-                a.runs = mc.runs();
-                a
-            }),
+            expected_accumulator(&self.truth, &kf, mc)
+                .unwrap_or_else(|e| montecarlo::all_stopped(mc, kf.F.nrows(), kf.H.nrows(), &e)),
         )
     }
 

@@ -38,11 +38,20 @@ impl KalmanFilter {
         Pp: &DMatrix<f64>,
         step: usize,
     ) -> Result<CovarianceUpdate, FilterError> {
+        // P⁻ = F P F' + Q is positive semidefinite in exact arithmetic, so a P⁻ with no
+        // Cholesky factor (or with entries that overflowed) is numerically singular: the far
+        // end of ill-conditioning, not a different failure.
+        match cholesky(Pp) {
+            Some(chol) => check_conditioned("P⁻", Pp, &chol, step)?,
+            None => {
+                return Err(FilterError::IllConditioned {
+                    which: "P⁻",
+                    step,
+                    condition: f64::INFINITY,
+                });
+            }
+        }
         let cu = joseph_update(Pp, &self.H, &self.R, step)?;
-        let chol_pp = cholesky(Pp).ok_or(FilterError::NotPositiveDefinite {
-            which: "P⁻", step
-        })?;
-        check_conditioned("P⁻", Pp, &chol_pp, step)?;
         check_conditioned("S", &cu.S, &cu.chol, step)?;
         Ok(cu)
     }

@@ -141,14 +141,15 @@ pub enum FilterError {
     /// A covariance the filter or the engine inverts is too ill-conditioned for the result
     /// to mean anything: its Jacobi-scaled condition number exceeds
     /// [`conditioning::MAX_CONDITION`] (see [`conditioning`]).
-    #[error("{which} is ill-conditioned at step {step} (condition number {condition:.1e}, above {max:.0e}): its inverse keeps fewer than 4 significant digits", max = conditioning::MAX_CONDITION)]
+    #[error("{which} is ill-conditioned at step {step} ({}): its inverse keeps fewer than 4 significant digits", conditioning::describe(*condition))]
     IllConditioned {
         /// "P⁻" (predicted covariance), "S" (innovation covariance) or "P" (state
         /// covariance).
         which: &'static str,
         /// Time step.
         step: usize,
-        /// Its Jacobi-scaled condition number (infinite when singular).
+        /// Its Jacobi-scaled condition number (infinite when numerically singular: no
+        /// Cholesky factor, or entries that overflowed).
         condition: f64,
     },
     /// The filter needs something its model does not provide.

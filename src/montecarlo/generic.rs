@@ -1,7 +1,7 @@
 //! The generic engine: any [`TruthModel`] against any [`Filter`], one run at a time.
 //!
-//! A run stops, recorded as a divergence with its reason and contributing nothing at the
-//! step it stops, when its filter fails ([`FilterError`], including a covariance too
+//! A run stops, recorded with its cause and reason ([`StopCause`]) and contributing nothing
+//! at the step it stops, when its filter fails ([`FilterError`], including a covariance too
 //! ill-conditioned to invert: [`crate::filter::conditioning`]) or when its numbers stop
 //! meaning anything ([`Fault`]): the truth state overflows, the state outgrows double
 //! precision relative to the filter's standard deviation, or the NEES or NIS overflows.
@@ -14,21 +14,25 @@ use crate::filter::{Filter, FilterError, check_measurement};
 use crate::linalg::cholesky;
 use crate::measurement::{Measurement, sensor_offsets};
 use crate::model::TruthModel;
-use crate::stats::{Accumulator, NeesNullVariance};
+use crate::stats::{Accumulator, NeesNullVariance, StopCause};
 
 /// Why a run stopped though its filter did not fail: its numbers would mean nothing.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub(super) enum Fault {
     /// The truth state stopped being finite.
     TruthOverflow,
-    /// The estimate of `state` is `ratio` of its standard deviations `√P_jj` from zero,
-    /// above [`MAX_CONDITION`]: the error `x − x̂` is then formed from two numbers whose
-    /// rounding (`u |x̂|`, u = 1.1e-16) exceeds 1e-4 of the error's own size, the same loss
-    /// the conditioning bound allows ([`crate::filter::conditioning`]).
+    /// The estimate of `state` (on the exact path, the truth's root mean square) is `ratio`
+    /// times both its standard deviation `√P_jj` and its actual error `|e_j|` away from
+    /// zero, above [`MAX_CONDITION`]: the error `x − x̂` is then formed from two numbers
+    /// whose rounding (`u |x̂|`, u = 1.1e-16) exceeds 1e-4 of the error's own size, the same
+    /// loss the conditioning bound allows ([`crate::filter::conditioning`]). Both scales
+    /// count, so that a filter whose P is far too small (its error is then far above √P,
+    /// and its NEES a true "overconfident") is not mistaken for a truth outgrowing the
+    /// double format.
     Resolution {
         /// Index of the filter's state.
         state: usize,
-        /// `|x̂_j| / √P_jj`.
+        /// `|x̂_j| / max(√P_jj, |e_j|)` (exact path: `√E[x_j²] / max(√P_jj, √E[e_j²])`).
         ratio: f64,
     },
     /// The NEES or NIS is not finite although truth and estimate are.
@@ -39,6 +43,17 @@ pub(super) enum Fault {
 pub(super) const MAX_RATIO_SQ: f64 = MAX_CONDITION * MAX_CONDITION;
 
 impl Fault {
+    /// How the report counts a run stopped by this fault: an estimate beyond double
+    /// precision means the truth it tracks is (the filter's error is within its covariance
+    /// until then, or the NEES would have said so); an overflowing NEES with finite truth
+    /// and estimate is a filter whose error has left its covariance.
+    pub(super) fn cause(self) -> StopCause {
+        match self {
+            Fault::TruthOverflow | Fault::Resolution { .. } => StopCause::TruthOverflow,
+            Fault::Overflow => StopCause::Diverged,
+        }
+    }
+
     /// The divergence reason for a run stopped by this fault at `step`.
     pub(super) fn reason(self, step: usize) -> String {
         match self {
@@ -46,7 +61,7 @@ impl Fault {
                 "the truth state overflowed at step {step}: the truth model is unstable over this horizon"
             ),
             Fault::Resolution { state, ratio } => format!(
-                "state {state} outgrew double precision at step {step}: |x̂| is {ratio:.1e} standard deviations (above {MAX_CONDITION:.0e}), so x − x̂ keeps fewer than 4 digits; the model is unstable over this horizon"
+                "state {state} outgrew double precision at step {step}: it is {ratio:.1e} standard deviations from zero (above {MAX_CONDITION:.0e}), so x − x̂ keeps fewer than 4 digits; the truth model is unstable over this horizon"
             ),
             Fault::Overflow => {
                 format!(
@@ -57,10 +72,10 @@ impl Fault {
     }
 
     /// The first of `n` states whose estimate has outgrown double precision, given
-    /// `x2_over_p(j) = x̂_j² / P_jj` (a NaN is left to the NEES check).
-    pub(super) fn resolution(n: usize, x2_over_p: impl Fn(usize) -> f64) -> Option<Fault> {
+    /// `ratio_sq(j) = x̂_j² / max(P_jj, e_j²)` (a NaN is left to the NEES check).
+    pub(super) fn resolution(n: usize, ratio_sq: impl Fn(usize) -> f64) -> Option<Fault> {
         (0..n).find_map(|j| {
-            let r = x2_over_p(j);
+            let r = ratio_sq(j);
             (r > MAX_RATIO_SQ).then(|| Fault::Resolution {
                 state: j,
                 ratio: r.sqrt(),
@@ -243,7 +258,7 @@ where
             ) {
                 match e {
                     Stop::Filter(e) => record_divergence(acc, run, &e),
-                    Stop::Fault(f, step) => acc.record_divergence(run, step, f.reason(step)),
+                    Stop::Fault(f, step) => acc.record_stop(run, step, f.cause(), f.reason(step)),
                 }
                 acc.runs += 1;
             } else {
@@ -310,7 +325,9 @@ where
         // The estimate's magnitude is comparable with P only when it is laid out as the
         // error state (an error-state filter's nominal state is not).
         if est.x.len() == n_x
-            && let Some(f) = Fault::resolution(n_x, |j| est.x[j] * est.x[j] / est.P[(j, j)])
+            && let Some(f) = Fault::resolution(n_x, |j| {
+                est.x[j] * est.x[j] / est.P[(j, j)].max(e[j] * e[j])
+            })
         {
             return Err(Stop::Fault(f, k));
         }

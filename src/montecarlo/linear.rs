@@ -13,7 +13,7 @@ use rand::RngExt;
 use rand_distr::StandardNormal;
 
 use super::generic::{Fault, MAX_RATIO_SQ};
-use super::{McConfig, record_divergence, run_chunked, run_rng};
+use super::{McConfig, run_chunked, run_rng};
 use crate::filter::conditioning::check_conditioned;
 use crate::filter::{Filter, FilterError, KalmanFilter};
 use crate::linalg::{cholesky, inverse_cholesky_factor};
@@ -155,16 +155,9 @@ pub fn run_linear_with_progress(
             };
             chunk_dispatch(&job, range, acc)
         }),
-        Err(e) => {
-            // The covariance recursion is the same in every run, so every run diverges at
-            // the same step.
-            let mut acc = Accumulator::new(mc.steps(), n, m, mc.lags());
-            for run in 0..mc.runs() {
-                record_divergence(&mut acc, run, &e);
-            }
-            acc.runs = mc.runs();
-            acc
-        }
+        // The covariance recursion is the same in every run, so every run stops at the same
+        // step.
+        Err(e) => super::all_stopped(mc, n, m, &e),
     }
 }
 
@@ -389,7 +382,9 @@ fn chunk(job: &Job<'_>, range: Range<usize>, acc: &mut Accumulator) {
                 hb = max_abs_bits(hb, *h);
             }
             let h = from_abs_bits(hb);
-            suspect |= !(h * h * pinv[j] <= MAX_RATIO_SQ);
+            // A NaN (an overflowed estimate) is suspect too.
+            let r = h * h * pinv[j];
+            suspect |= r > MAX_RATIO_SQ || r.is_nan();
         }
         suspect |= !from_abs_bits(tb).is_finite()
             || (map_t.is_some() && xt.iter().any(|v| !v.is_finite()));
@@ -407,7 +402,9 @@ fn chunk(job: &Job<'_>, range: Range<usize>, acc: &mut Accumulator) {
                     None
                 } else if xt.row(r).iter().any(|v| !v.is_finite()) {
                     Some(Fault::TruthOverflow)
-                } else if let Some(f) = Fault::resolution(n, |j| xh[(r, j)].powi(2) * pinv[j]) {
+                } else if let Some(f) = Fault::resolution(n, |j| {
+                    xh[(r, j)].powi(2) / (1.0 / pinv[j]).max(e[(r, j)].powi(2))
+                }) {
                     Some(f)
                 } else if !sq_x[r].is_finite() || !sq_z[r].is_finite() {
                     Some(Fault::Overflow)
@@ -501,7 +498,7 @@ fn chunk(job: &Job<'_>, range: Range<usize>, acc: &mut Accumulator) {
     // In run order, as the generic path records them.
     faults.sort_by_key(|&(run, ..)| run);
     for (run, step, fault) in faults {
-        acc.record_divergence(run, step, fault.reason(step));
+        acc.record_stop(run, step, fault.cause(), fault.reason(step));
     }
     acc.runs += b;
     acc.nees_null_var += sched.null_var * live as f64;

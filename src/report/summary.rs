@@ -2,7 +2,7 @@
 
 use std::fmt::Write;
 
-use crate::stats::{ConsistencyReport, StatisticSummary};
+use crate::stats::{ConsistencyReport, StatisticSummary, Verdict};
 
 /// A gate statistic's cells as every table shows them: the time average, the gate
 /// interval, the share of steps inside their per-step interval, and the verdict.
@@ -89,6 +89,11 @@ pub fn summary_text(problem: &str, params: &[(String, f64)], r: &ConsistencyRepo
         if let Some(note) = run_spread_note(s) {
             let _ = writeln!(out, "  note: {note}");
         }
+        // Runs that all stopped leave no data: the reason below says why, and "add runs or
+        // steps" would be the wrong advice.
+        if r.diverged_runs >= r.runs {
+            continue;
+        }
         if !s.has_power {
             let _ = writeln!(
                 out,
@@ -109,9 +114,14 @@ pub fn summary_text(problem: &str, params: &[(String, f64)], r: &ConsistencyRepo
             .first()
             .map(|d| format!(" (first: run {}, {})", d.run, d.reason))
             .unwrap_or_default();
+        let what = match r.verdict {
+            Verdict::TruthOverflow => "the truth overflowed",
+            Verdict::IllConditioned => "a covariance was too ill-conditioned to invert",
+            _ => "filter diverged",
+        };
         let _ = writeln!(
             out,
-            "  filter diverged in {} of {} runs{first}",
+            "  {what} in {} of {} runs{first}",
             r.diverged_runs, r.runs
         );
     }

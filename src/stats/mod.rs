@@ -27,7 +27,7 @@ pub use interval::{
     gate_interval, has_power, normal_two_sided_quantile, scaled_chi2_interval,
 };
 pub use null_variance::NeesNullVariance;
-pub use sums::{Accumulator, Divergence};
+pub use sums::{Accumulator, Divergence, StopCause};
 
 use serde::Serialize;
 use statrs::distribution::{ContinuousCDF, StudentsT};
@@ -132,9 +132,9 @@ pub struct ConsistencyReport {
     pub measurement_components: Vec<ComponentStat>,
     /// Innovation autocorrelation per component and lag.
     pub whiteness: Vec<WhitenessStat>,
-    /// Runs whose filter diverged (the first few).
+    /// Runs that stopped early (the first few), each with its cause.
     pub divergences: Vec<Divergence>,
-    /// Number of runs whose filter diverged.
+    /// Number of runs that stopped early, for any cause.
     pub diverged_runs: usize,
     /// The gate's verdict.
     pub verdict: Verdict,
@@ -202,10 +202,7 @@ impl ConsistencyReport {
         if use_nees {
             gate.push(nees.verdict);
         }
-        let mut verdict = combine(&gate);
-        if acc.diverged_runs > 0 {
-            verdict = Verdict::Diverged;
-        }
+        let verdict = acc.stop_verdict().unwrap_or_else(|| combine(&gate));
         ConsistencyReport {
             runs: acc.runs,
             steps: acc.steps,

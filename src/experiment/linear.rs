@@ -15,7 +15,7 @@ use crate::stats::Accumulator;
 /// The filter's model with Q and R as functions of the parameters.
 #[derive(Debug, Clone)]
 pub struct FilterModel {
-    /// State transition, n × n.
+    /// State transition, n × n (n: the filter's states, n_t without a map).
     pub F: DMatrix<f64>,
     /// Measurement matrix, m × n.
     pub H: DMatrix<f64>,
@@ -27,8 +27,9 @@ pub struct FilterModel {
     pub q: CovModel,
     /// Measurement noise as a function of the parameters.
     pub r: CovModel,
-    /// From the truth's state to the filter's, n × n_t, with the NEES taken on
-    /// `e = map · x_true − x̂`; `None` when the filter has the truth's states.
+    /// From the truth's state (n_t) to the filter's (n), n × n_t, with the NEES taken on
+    /// `e = map · x_true − x̂`; `None` when the filter has the truth's states (an identity
+    /// map in the file is stored as `None`).
     pub map: Option<DMatrix<f64>>,
 }
 

@@ -51,10 +51,11 @@ impl Validator<'_> {
             None => None,
         };
         let nf = map.as_ref().map_or(n, |m| m.nrows());
-        // Without a map the filter's matrices have the truth's shape; a filter of another
-        // size is what a map is for, so say so.
+        // Without a map the filter's matrices have the truth's number of states; a filter
+        // of another size is what a map is for, so say so (not for H's rows, which count
+        // measurements).
         let hint = |e: FileError| match &map {
-            None if e.message.contains("expected") => FileError {
+            None if e.message.contains("expected") && e.field != "filter.H" => FileError {
                 message: format!(
                     "{} (the truth's {n} states; a filter with other states needs filter.map)",
                     e.message
@@ -162,10 +163,14 @@ impl Validator<'_> {
 
 /// Why the filter must give its own `what` when it has a map.
 fn own_matrix(n_f: usize, n_t: usize, what: &str) -> String {
+    let states = |n: usize| format!("{n} state{}", if n == 1 { "" } else { "s" });
     let dims = if n_f == n_t {
-        format!("filter.map changes the state ({n_f} states)")
+        format!("filter.map changes the state ({})", states(n_f))
     } else {
-        format!("the filter has {n_f} states (filter.map's rows) and the truth {n_t}")
+        format!(
+            "the filter has {} (filter.map's rows) and the truth {n_t}",
+            states(n_f)
+        )
     };
     format!("missing: {dims}, so the truth's cannot be used; give the filter's own {what}")
 }

@@ -219,3 +219,54 @@ fn a_truth_state_that_overflows_to_infinity_is_a_truth_overflow_not_inconclusive
         assert!(r.nees.as_ref().unwrap().time_average.is_finite());
     }
 }
+
+#[test]
+fn a_filter_far_too_sure_of_itself_reads_overconfident_not_truth_overflow() {
+    // A random walk measured with unit noise, filtered with q = r = 1e-200: P ≈ 1e-200, so
+    // the estimate is 1e100 standard deviations from zero, but the error is too (its NEES
+    // about 1e200). The number is large, not meaningless: this is the textbook overconfident
+    // filter, and the state has not outgrown double precision relative to its error.
+    let text = r#"
+        dt = 1.0
+        [montecarlo]
+        runs = 64
+        steps = 50
+        seed = 3
+        [truth]
+        F = [[1.0]]
+        H = [[1.0]]
+        x0 = [0.0]
+        P0 = [[1.0]]
+        Q = [{ kind = "diag", indices = [0], value = 1.0 }]
+        R = [{ kind = "diag", indices = [0], value = 1.0 }]
+        [filter]
+        Q = [{ kind = "diag", indices = [0], param = "q" }]
+        R = [{ kind = "diag", indices = [0], param = "r" }]
+        [params.q]
+        value = 1e-200
+        lower = 1e-250
+        [params.r]
+        value = 1e-200
+        lower = 1e-250
+    "#;
+    let p = Problem::from_toml(text, Path::new("sure.toml")).unwrap();
+    let theta = p.params().values();
+    for engine in [Engine::Linear, Engine::Generic] {
+        let r = check_with(
+            &p,
+            &theta,
+            p.mc(),
+            RunOptions {
+                engine,
+                progress: None,
+            },
+            true,
+        );
+        assert_eq!(r.verdict, Verdict::Overconfident, "{engine:?}: {r:?}");
+        assert_eq!(r.diverged_runs, 0);
+    }
+    assert_eq!(
+        exact_report(&p, &theta, p.mc()).verdict,
+        Verdict::Overconfident
+    );
+}

@@ -10,7 +10,7 @@
 //!   spread of per-run averages alone will not do: a slowly varying component (a bias, a
 //!   heading) has per-run averages as heavy-tailed as `χ²(ν)/ν` with ν of one or two, whose
 //!   sample variance over some tens of runs is usually far too small, and a t test on them
-//!   rejects several times more often than its level (measured on ins_gnss: 18 of 100 seeds
+//!   rejects several times more often than its level (measured on ins_gnss: 14–16 of 100 seeds
 //!   at the truth for a family-wise 0.05).
 //! - Whiteness of component j: an optimal filter's innovations are uncorrelated in time, so
 //!   with `u = ν_j/√S_jj` the pooled lag-l autocorrelation `ρ_l` is about N(0, 1/pairs_l),

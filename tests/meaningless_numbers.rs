@@ -41,10 +41,9 @@ fn exact_report(p: &Problem, theta: &[f64], mc: &McConfig) -> ConsistencyReport 
     let acc = p.expected(theta, mc).expect("cv1d has exact sums");
     ConsistencyReport::from_accumulator(
         &acc,
-        mc.alpha(),
+        &mc.gate_spec(true),
         p.state_names(),
         p.measurement_names(),
-        true,
     )
 }
 

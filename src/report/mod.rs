@@ -10,7 +10,7 @@ pub mod tune;
 pub mod tuned;
 
 pub use junit::junit_xml;
-pub use summary::{fmt_g, run_spread_note, summary_text};
+pub use summary::{fmt_g, gate_text, run_spread_note, summary_text};
 
 use std::io::Write;
 use std::path::{Path, PathBuf};

@@ -2,7 +2,7 @@
 
 use std::fmt::Write;
 
-use crate::stats::{ConsistencyReport, StatisticSummary, Verdict};
+use crate::stats::{ConsistencyReport, GateMode, StatisticSummary, Verdict};
 
 /// A gate statistic's cells as every table shows them: the time average, the gate
 /// interval, the share of steps inside their per-step interval, and the verdict.
@@ -61,29 +61,67 @@ pub fn summary_text(problem: &str, params: &[(String, f64)], r: &ConsistencyRepo
     for s in &stats {
         stat_row(&mut out, s);
     }
-    let worst = r.worst_components(3);
-    if !worst.is_empty() {
-        let w: Vec<String> = worst
-            .iter()
-            .map(|c| {
-                let kind = if c.kind == "state" { "state" } else { "meas" };
-                format!("{kind} {} {:.3} ({})", c.name, c.value, c.verdict.label())
-            })
-            .collect();
+    let _ = writeln!(out, "  gate: {}", gate_text(r));
+    let gated = if r.gate == GateMode::Full {
+        ""
+    } else {
+        " (diagnostic, not gated)"
+    };
+    let off: Vec<String> = r
+        .state_components
+        .iter()
+        .chain(&r.measurement_components)
+        .filter(|c| matches!(c.verdict, Verdict::Overconfident | Verdict::Underconfident))
+        .map(|c| {
+            let kind = if c.kind == "state" { "state" } else { "meas" };
+            format!(
+                "{kind} {} {:.3} [{:.3}, {:.3}]",
+                c.name, c.value, c.interval.lower, c.interval.upper
+            )
+        })
+        .collect();
+    if off.is_empty() {
+        let worst = r.worst_components(3);
+        if !worst.is_empty() {
+            let w: Vec<String> = worst
+                .iter()
+                .map(|c| {
+                    let kind = if c.kind == "state" { "state" } else { "meas" };
+                    format!("{kind} {} {:.3}", c.name, c.value)
+                })
+                .collect();
+            let _ = writeln!(
+                out,
+                "  components (target 1, all inside their intervals; worst first): {}",
+                w.join("; ")
+            );
+        }
+    } else {
         let _ = writeln!(
             out,
-            "  components (target 1, worst first): {}",
-            w.join("; ")
+            "  components off their target 1{gated}: {}",
+            off.join("; ")
         );
     }
     let white: Vec<String> = r
-        .whiteness
+        .whiteness_tests
         .iter()
-        .filter(|w| w.lag == 1 && w.rho.abs() > w.band)
-        .map(|w| format!("{} ρ₁ = {:+.3} (band ±{:.3})", w.component, w.rho, w.band))
+        .filter(|w| w.verdict == Verdict::NotWhite)
+        .map(|w| {
+            format!(
+                "{} ρ₁ = {:+.3} (portmanteau {:.1} > {:.1}, {} lags)",
+                w.component, w.rho1, w.statistic, w.threshold, w.dof
+            )
+        })
         .collect();
     if !white.is_empty() {
-        let _ = writeln!(out, "  innovations not white: {}", white.join("; "));
+        let _ = writeln!(out, "  innovations not white{gated}: {}", white.join("; "));
+    }
+    if let Some(head) = r.diagnosis.headline() {
+        let _ = writeln!(out, "  diagnosis: {head}");
+        for f in &r.diagnosis.findings {
+            let _ = writeln!(out, "    {}: {} → {}", f.component, f.evidence, f.action);
+        }
     }
     for s in &stats {
         if let Some(note) = run_spread_note(s) {
@@ -114,19 +152,37 @@ pub fn summary_text(problem: &str, params: &[(String, f64)], r: &ConsistencyRepo
             .first()
             .map(|d| format!(" (first: run {}, {})", d.run, d.reason))
             .unwrap_or_default();
-        let what = match r.verdict {
-            Verdict::TruthOverflow => "the truth overflowed",
-            Verdict::IllConditioned => "a covariance was too ill-conditioned to invert",
-            _ => "filter diverged",
-        };
         let _ = writeln!(
             out,
-            "  {what} in {} of {} runs{first}",
-            r.diverged_runs, r.runs
+            "  {} in {} of {} runs{first}",
+            stopped_runs(r.verdict),
+            r.diverged_runs,
+            r.runs
         );
     }
     let _ = writeln!(out, "verdict: {}", r.verdict.describe());
     out
+}
+
+/// The gate in one line: which tests, how many, and the level of each.
+pub fn gate_text(r: &ConsistencyReport) -> String {
+    let what = match r.gate {
+        GateMode::Full => "full (time averages, every component, innovation whiteness)",
+        GateMode::Mean => "mean (time-averaged ANEES/ANIS only)",
+    };
+    format!(
+        "{what}; {} tests, each at level {:.4} so that a consistent filter fails with probability at most α = {} (Šidák)",
+        r.tests, r.statistic_alpha, r.alpha
+    )
+}
+
+/// What stopped runs early, in words, by the verdict it set.
+pub(crate) fn stopped_runs(verdict: Verdict) -> &'static str {
+    match verdict {
+        Verdict::TruthOverflow => "the truth overflowed",
+        Verdict::IllConditioned => "a covariance was too ill-conditioned to invert",
+        _ => "filter diverged",
+    }
 }
 
 /// For a statistic whose gate interval rests on the spread of the per-run sums (a filter that

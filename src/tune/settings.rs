@@ -95,6 +95,8 @@ pub struct TuneSettings {
     local: LocalSearch,
     confirm_seed: Option<u64>,
     search_runs: Option<usize>,
+    confirm_seeds: usize,
+    refine_runs: Option<usize>,
 }
 
 impl Default for TuneSettings {
@@ -110,6 +112,8 @@ impl Default for TuneSettings {
             local: LocalSearch::Simplex,
             confirm_seed: None,
             search_runs: None,
+            confirm_seeds: 20,
+            refine_runs: None,
         }
     }
 }
@@ -235,6 +239,47 @@ impl TuneSettings {
     /// The local search.
     pub fn local(&self) -> LocalSearch {
         self.local
+    }
+
+    /// Number of fresh seeds K of the confirmation (2 to 10,000; default 20): the tuned
+    /// filter is consistent when its pass count lies in the binomial band of a filter that
+    /// passes each with probability 1 − α.
+    pub fn with_confirm_seeds<N: TryInto<usize> + std::fmt::Display + Copy>(
+        mut self,
+        n: N,
+    ) -> Result<Self, SettingError> {
+        let k = at_least("confirm_seeds", n, 2)?;
+        if k > 10_000 {
+            return Err(SettingError::new(
+                "confirm_seeds",
+                format!("{k} is more than 10000 confirmation seeds"),
+            ));
+        }
+        self.confirm_seeds = k;
+        Ok(self)
+    }
+
+    /// Number of fresh seeds of the confirmation.
+    pub fn confirm_seeds(&self) -> usize {
+        self.confirm_seeds
+    }
+
+    /// Runs of the final refinement under Monte Carlo scoring (≥ 1; default four times the
+    /// search's runs).
+    pub fn with_refine_runs<N: TryInto<usize> + std::fmt::Display + Copy>(
+        mut self,
+        n: Option<N>,
+    ) -> Result<Self, SettingError> {
+        self.refine_runs = match n {
+            Some(n) => Some(at_least("refine_runs", n, 1)?),
+            None => None,
+        };
+        Ok(self)
+    }
+
+    /// Runs of the final refinement, if set.
+    pub fn refine_runs(&self) -> Option<usize> {
+        self.refine_runs
     }
 
     /// Seed of the confirmation runs, if set.

@@ -173,6 +173,18 @@ fn a_truth_that_outgrows_double_precision_is_a_truth_overflow_on_every_path() {
     assert_eq!(out.status.code(), Some(2), "{text}");
     assert!(text.contains("verdict: truth overflow"), "{text}");
     assert!(text.contains("the truth model is unstable"), "{text}");
+
+    // Tuning cannot help: every candidate stops, and the problem file is what must change.
+    let out = Command::cargo_bin("autotune")
+        .unwrap()
+        .args(["tune", path.to_str().unwrap(), "--max-evals", "40"])
+        .args(["--out", dir.path().join("t.toml").to_str().unwrap()])
+        .env("NO_COLOR", "1")
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert_eq!(out.status.code(), Some(2), "{text}");
+    assert!(text.contains("after truth overflow"), "{text}");
 }
 
 #[test]

@@ -7,9 +7,9 @@ use crate::stats::{ConsistencyReport, StatisticSummary};
 /// A gate statistic's cells as every table shows them: the time average, the gate
 /// interval, the share of steps inside their per-step interval, and the verdict.
 pub(crate) struct StatCells {
-    /// Time average, 4 decimals.
+    /// Time average, 4 decimals ([`fmt_fixed`]).
     pub average: String,
-    /// `[lower, upper]`, 4 decimals.
+    /// `[lower, upper]`, 4 decimals ([`fmt_fixed`]).
     pub interval: String,
     /// Percentage of steps in bounds, 1 decimal.
     pub in_bounds: String,
@@ -20,8 +20,12 @@ pub(crate) struct StatCells {
 impl StatCells {
     pub(crate) fn of(s: &StatisticSummary) -> StatCells {
         StatCells {
-            average: format!("{:.4}", s.time_average),
-            interval: format!("[{:.4}, {:.4}]", s.interval.lower, s.interval.upper),
+            average: fmt_fixed(s.time_average, 4),
+            interval: format!(
+                "[{}, {}]",
+                fmt_fixed(s.interval.lower, 4),
+                fmt_fixed(s.interval.upper, 4)
+            ),
             in_bounds: format!("{:.1}%", 100.0 * s.fraction_in_bounds),
             verdict: s.verdict.label(),
         }
@@ -143,5 +147,38 @@ pub fn fmt_g(v: f64) -> String {
             (3 - a.log10().floor() as i32).max(0) as usize
         };
         format!("{v:.digits$}")
+    }
+}
+
+/// Magnitude from which [`fmt_fixed`] switches to scientific notation.
+const FIXED_LIMIT: f64 = 1e6;
+
+/// A number with `decimals` decimals, as `{:.decimals$}` prints it, but in scientific
+/// notation with four significant digits from a magnitude of 10⁶ on, so that a number such
+/// as the ANEES of an overflowing filter prints as `1.234e127` rather than as 128 digits.
+pub fn fmt_fixed(v: f64, decimals: usize) -> String {
+    if v.abs() >= FIXED_LIMIT && v.is_finite() {
+        format!("{v:.3e}")
+    } else {
+        format!("{v:.decimals$}")
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn huge_numbers_print_in_scientific_notation_and_ordinary_ones_as_before() {
+        assert_eq!(fmt_fixed(3.98765432, 4), "3.9877");
+        assert_eq!(fmt_fixed(-12.5, 2), "-12.50");
+        assert_eq!(fmt_fixed(999_999.0, 4), "999999.0000");
+        assert_eq!(fmt_fixed(1.5e127, 4), "1.500e127");
+        assert_eq!(fmt_fixed(-2e6, 4), "-2.000e6");
+        assert_eq!(fmt_fixed(f64::NAN, 4), "NaN");
+        assert_eq!(fmt_fixed(f64::INFINITY, 4), "inf");
+        assert_eq!(fmt_g(1e308), "1.000e308");
+        assert_eq!(fmt_g(0.5), "0.5000");
+        assert!(fmt_fixed(f64::MAX, 4).len() < 12);
     }
 }

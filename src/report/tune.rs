@@ -148,8 +148,8 @@ pub fn tune_markdown(
     let _ = writeln!(o, "\n## Search\n");
     let _ = writeln!(
         o,
-        "- scoring: {:?} (search seed {}), {} evaluations in {:.2} s, {} candidates diverged",
-        r.scoring, r.search_seed, r.evaluations, r.seconds, r.diverged_evaluations
+        "- scoring: {:?} (search seed {}), {} evaluations, {} candidates diverged",
+        r.scoring, r.search_seed, r.evaluations, r.diverged_evaluations
     );
     let _ = writeln!(
         o,

@@ -130,27 +130,48 @@ pub fn tuned_config_toml(experiment: &dyn Experiment, result: &TuneResult) -> St
 }
 
 impl TunedConfig {
-    /// Read a tuned config for `problem` and map its values onto `space`: every parameter of
-    /// the problem must be given, and nothing else.
-    pub fn load_values(
+    /// Read a tuned config for `experiment` and map its values onto the experiment's
+    /// parameters: every parameter must be given, and nothing else; a `Q` or `R` the config
+    /// carries must be what those values give (within 1e-9 of the matrix's largest entry),
+    /// so that a config edited by hand, or tuned for another version of the problem, is
+    /// not read as something it is not.
+    pub fn load_values(path: &Path, experiment: &dyn Experiment) -> Result<Vec<f64>, FileError> {
+        let text = read_text(path)?;
+        let cfg: TunedConfig = parse_toml(&text, path)?;
+        let values = cfg.values(path, &experiment.info().name, experiment.params())?;
+        if cfg.q.is_some() || cfg.r.is_some() {
+            let cov = experiment.covariances(&values);
+            for (field, given, expected) in [
+                ("Q", &cfg.q, cov.as_ref().map(|c| &c.Q)),
+                ("R", &cfg.r, cov.as_ref().map(|c| &c.R)),
+            ] {
+                if let (Some(given), Some(expected)) = (given, expected) {
+                    same_matrix(given, expected).map_err(|m| FileError::new(path, field, m))?;
+                }
+            }
+        }
+        Ok(values)
+    }
+
+    /// The parameter values in `space`'s order, checked against it.
+    fn values(
+        &self,
         path: &Path,
         problem_name: &str,
         space: &ParamSpace,
     ) -> Result<Vec<f64>, FileError> {
         let err = |field: String, message: String| FileError::new(path, field, message);
-        let text = read_text(path)?;
-        let cfg: TunedConfig = parse_toml(&text, path)?;
-        if cfg.problem != problem_name {
+        if self.problem != problem_name {
             return Err(err(
                 "problem".into(),
                 format!(
                     "this config was tuned for '{}', not '{problem_name}'",
-                    cfg.problem
+                    self.problem
                 ),
             ));
         }
         let mut values = space.values();
-        for (name, &v) in &cfg.params {
+        for (name, &v) in &self.params {
             let Some(i) = space.index(name) else {
                 return Err(err(
                     format!("params.{name}"),
@@ -169,10 +190,34 @@ impl TunedConfig {
             values[i] = v;
         }
         for p in &space.params {
-            if !cfg.params.contains_key(&p.name) {
+            if !self.params.contains_key(&p.name) {
                 return Err(err(format!("params.{}", p.name), "missing".into()));
             }
         }
         Ok(values)
     }
+}
+
+/// Whether the rows `given` hold `expected`, to 1e-9 of its largest entry; the error says
+/// where they differ.
+fn same_matrix(given: &[Vec<f64>], expected: &nalgebra::DMatrix<f64>) -> Result<(), String> {
+    let (n, m) = expected.shape();
+    if given.len() != n || given.iter().any(|r| r.len() != m) {
+        return Err(format!(
+            "is not {n}×{m}, the shape this problem's parameters give (remove Q and R, or tune again)"
+        ));
+    }
+    let tol = 1e-9 * expected.amax().max(f64::MIN_POSITIVE);
+    for (i, row) in given.iter().enumerate() {
+        for (j, &v) in row.iter().enumerate() {
+            let e = expected[(i, j)];
+            let close = (v - e).abs() <= tol;
+            if !close {
+                return Err(format!(
+                    "[{i}][{j}] = {v:e}, but the parameters give {e:e} (remove Q and R, or tune again)"
+                ));
+            }
+        }
+    }
+    Ok(())
 }

@@ -270,6 +270,9 @@ pub fn run(
                 )?;
             }
             let line = |s: &StatisticSummary| {
+                if s.steps_with_data == 0 {
+                    return format!("A{} no data {}", s.name, s.verdict.label());
+                }
                 format!(
                     "A{} {} in [{}, {}] {}",
                     s.name,

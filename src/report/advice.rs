@@ -41,10 +41,21 @@ pub struct Recommendation {
     pub advice: String,
 }
 
-/// Indices of the diagonal entries parameter `i` touches in a covariance model.
+/// A component's normalized error as evidence, 2 decimals; `no data` for a component that
+/// was never measured (its average is 0/0).
+pub(crate) fn fmt_evidence(v: f64) -> String {
+    if v.is_nan() {
+        "no data".into()
+    } else {
+        super::fmt_fixed(v, 2)
+    }
+}
+
+/// A change factor: whole numbers from 10 on, scientific notation from 10⁶ on (a search
+/// that ran to a far bound), 2 decimals below 10.
 fn fmt_factor(f: f64) -> String {
     if f >= 10.0 {
-        format!("{f:.0}")
+        super::fmt_fixed(f, 0)
     } else {
         format!("{f:.2}")
     }
@@ -98,7 +109,7 @@ pub fn recommendations(
                 "ν²/S"
             };
             let names: Vec<&str> = evidence.iter().map(|(n, _)| n.as_str()).collect();
-            let values: Vec<String> = evidence.iter().map(|(_, v)| format!("{v:.2}")).collect();
+            let values: Vec<String> = evidence.iter().map(|(_, v)| fmt_evidence(*v)).collect();
             format!("{} ({stat} = {})", names.join(", "), values.join(", "))
         };
         let advice = if result.fixed[i] {

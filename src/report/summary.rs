@@ -2,13 +2,17 @@
 
 use std::fmt::Write;
 
-use crate::stats::{ConsistencyReport, StatisticSummary};
+use crate::stats::{ComponentStat, ConsistencyReport, StatisticSummary};
 
 /// A gate statistic's cells as every table shows them: the time average, the gate
-/// interval, the share of steps inside their per-step interval, and the verdict.
+/// interval, the share of steps inside their per-step interval, and the verdict. A
+/// statistic no step had data for (no measurement in the whole run, or every run diverged
+/// at once) shows `no data` and dashes, not a row of NaN.
 pub(crate) struct StatCells {
     /// Time average, 4 decimals ([`fmt_fixed`]).
     pub average: String,
+    /// Degrees-of-freedom target, 2 decimals.
+    pub target: String,
     /// `[lower, upper]`, 4 decimals ([`fmt_fixed`]).
     pub interval: String,
     /// Percentage of steps in bounds, 1 decimal.
@@ -19,8 +23,18 @@ pub(crate) struct StatCells {
 
 impl StatCells {
     pub(crate) fn of(s: &StatisticSummary) -> StatCells {
+        if !has_data(s) {
+            return StatCells {
+                average: "no data".into(),
+                target: "–".into(),
+                interval: "–".into(),
+                in_bounds: "–".into(),
+                verdict: s.verdict.label(),
+            };
+        }
         StatCells {
             average: fmt_fixed(s.time_average, 4),
+            target: fmt_fixed(s.target, 2),
             interval: format!(
                 "[{}, {}]",
                 fmt_fixed(s.interval.lower, 4),
@@ -32,12 +46,56 @@ impl StatCells {
     }
 }
 
+/// A component's value and interval cells, 3 decimals ([`fmt_fixed`]); `no data` and a dash
+/// for a component that was never measured (a sensor that never reported in the run).
+pub(crate) fn component_cells(c: &ComponentStat) -> (String, String) {
+    if c.samples > 0.0 && c.value.is_finite() {
+        (
+            fmt_fixed(c.value, 3),
+            format!(
+                "[{}, {}]",
+                fmt_fixed(c.interval.lower, 3),
+                fmt_fixed(c.interval.upper, 3)
+            ),
+        )
+    } else {
+        ("no data".into(), "–".into())
+    }
+}
+
+/// Whether any step had data for `s`.
+pub(crate) fn has_data(s: &StatisticSummary) -> bool {
+    s.steps_with_data > 0
+}
+
+/// Why `s` has no data, in words, for a report of `r`.
+pub(crate) fn no_data_reason(s: &StatisticSummary, r: &ConsistencyReport) -> String {
+    if r.diverged_runs > 0 && r.diverged_runs == r.runs {
+        format!(
+            "the A{} test has no data: every run's filter diverged before a step could be scored",
+            s.name
+        )
+    } else {
+        format!(
+            "the A{} test has no data: no step of the {} runs × {} steps had {}",
+            s.name,
+            r.runs,
+            r.steps,
+            if s.name == "NIS" {
+                "a measurement"
+            } else {
+                "a scored state"
+            }
+        )
+    }
+}
+
 fn stat_row(out: &mut String, s: &StatisticSummary) {
     let c = StatCells::of(s);
     let _ = writeln!(
         out,
-        "  A{:<5} {:>10} {:>7.2}   {}   {:>7}     {}",
-        s.name, c.average, s.target, c.interval, c.in_bounds, c.verdict
+        "  A{:<5} {:>10} {:>7}   {}   {:>7}     {}",
+        s.name, c.average, c.target, c.interval, c.in_bounds, c.verdict
     );
 }
 
@@ -71,7 +129,12 @@ pub fn summary_text(problem: &str, params: &[(String, f64)], r: &ConsistencyRepo
             .iter()
             .map(|c| {
                 let kind = if c.kind == "state" { "state" } else { "meas" };
-                format!("{kind} {} {:.3} ({})", c.name, c.value, c.verdict.label())
+                format!(
+                    "{kind} {} {} ({})",
+                    c.name,
+                    fmt_fixed(c.value, 3),
+                    c.verdict.label()
+                )
             })
             .collect();
         let _ = writeln!(
@@ -93,7 +156,9 @@ pub fn summary_text(problem: &str, params: &[(String, f64)], r: &ConsistencyRepo
         if let Some(note) = run_spread_note(s) {
             let _ = writeln!(out, "  note: {note}");
         }
-        if !s.has_power {
+        if !has_data(s) {
+            let _ = writeln!(out, "  note: {}", no_data_reason(s, r));
+        } else if !s.has_power {
             let _ = writeln!(
                 out,
                 "  warning: the time-averaged A{} test has only {:.1} effective degrees of freedom and cannot tell a factor-2 covariance error; add runs or steps",

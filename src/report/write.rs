@@ -76,19 +76,33 @@ pub fn remove_temporary_files() {
 /// unless it was renamed into place).
 struct Temporary {
     path: PathBuf,
+    file: Option<std::fs::File>,
 }
 
 impl Temporary {
-    /// Register `.NAME.tmp.PID` beside `target`.
-    fn new(target: &Path) -> Temporary {
+    /// Create `.NAME.tmp.PID` beside `target`. It is registered and created under the
+    /// registry's lock, so an interrupt handler (which takes the lock and keeps it) either
+    /// sees the file or stops it from being created: none slips in between its removal and
+    /// the exit.
+    fn create(target: &Path) -> std::io::Result<Temporary> {
         let (dir, name) = split(target);
         let path = dir.join(format!(".{name}.tmp.{}", std::process::id()));
-        made().files.push(path.clone());
-        Temporary { path }
+        let mut made = made();
+        made.files.push(path.clone());
+        match std::fs::File::create(&path) {
+            Ok(file) => Ok(Temporary {
+                path,
+                file: Some(file),
+            }),
+            Err(e) => {
+                made.files.retain(|p| p != &path);
+                Err(e)
+            }
+        }
     }
 
-    fn write(&self, bytes: &[u8]) -> std::io::Result<()> {
-        let mut f = std::fs::File::create(&self.path)?;
+    fn write(&mut self, bytes: &[u8]) -> std::io::Result<()> {
+        let mut f = self.file.take().expect("written once");
         f.write_all(bytes)?;
         f.sync_all()
     }
@@ -164,13 +178,14 @@ fn check_directory(dir: &Path, what: &Path) -> Result<(), WriteError> {
             format!("not a directory: {} is not a directory", existing.display()),
         ));
     }
-    let probe = Temporary::new(&existing.join("autotune-probe"));
-    std::fs::File::create(&probe.path).map(drop).map_err(|e| {
-        WriteError::refused(
-            what,
-            format!("cannot create files in {}: {e}", existing.display()),
-        )
-    })
+    Temporary::create(&existing.join("autotune-probe"))
+        .map(drop)
+        .map_err(|e| {
+            WriteError::refused(
+                what,
+                format!("cannot create files in {}: {e}", existing.display()),
+            )
+        })
 }
 
 /// Check, before any work, that `path` can be written as an output file: it is missing or
@@ -252,7 +267,7 @@ impl Outputs {
         let mut written = Vec::with_capacity(self.files.len());
         for (path, bytes) in &self.files {
             create_dirs(split(path).0, created).map_err(|e| WriteError::new(path, e))?;
-            let tmp = Temporary::new(path);
+            let mut tmp = Temporary::create(path).map_err(|e| WriteError::new(path, e))?;
             tmp.write(bytes).map_err(|e| WriteError::new(path, e))?;
             written.push((tmp, path));
         }

@@ -422,6 +422,42 @@ fn issue11_interrupt_removes_temporary_files() {
     }
 }
 
+#[test]
+fn issue11_a_signal_ignored_at_start_stays_ignored() {
+    // Under `nohup` SIGHUP is ignored, and a script's background job ignores SIGINT: the
+    // cleanup handler must not turn those back into a way to stop the run.
+    let dir = tempfile::tempdir().unwrap();
+    let mut child = Command::new("sh")
+        .current_dir(dir.path())
+        .arg("-c")
+        .arg("trap '' HUP INT; exec \"$0\" \"$@\"")
+        .arg(env!("CARGO_BIN_EXE_autotune"))
+        .arg("check")
+        .arg(problem_path("cv1d"))
+        .args(["--runs", "20", "--junit", "j.xml", "--quiet"])
+        .env("AUTOTUNE_TEST_HOLD_TEMPORARY_MS", "1500")
+        .spawn()
+        .unwrap();
+    let start = Instant::now();
+    while temporary_files(dir.path()).is_empty() {
+        assert!(
+            start.elapsed() < Duration::from_secs(30),
+            "no temporary file"
+        );
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    kill("HUP", child.id());
+    kill("INT", child.id());
+    let status = child.wait().unwrap();
+    assert_eq!(
+        status.code(),
+        Some(1),
+        "the gate's verdict, not an interrupt"
+    );
+    assert!(dir.path().join("j.xml").is_file());
+    assert_eq!(temporary_files(dir.path()), Vec::<PathBuf>::new());
+}
+
 // ---- item 14: the smaller ones ----
 
 #[test]

@@ -180,15 +180,42 @@ const INTERRUPTED: i32 = 130;
 
 /// On SIGINT, SIGTERM or SIGHUP: remove the temporary files of any write in progress, so no
 /// `.NAME.tmp.PID` file outlives the process, and exit [`INTERRUPTED`]. Installed once per
-/// process; a handler the program set before is left alone.
+/// process; a handler the program set before is left alone, and so is a signal the process
+/// was started with ignored (`nohup`'s SIGHUP, a script's background job's SIGINT): the
+/// user asked for it to be survived.
 fn remove_temporary_files_on_interrupt() {
     static ONCE: std::sync::Once = std::sync::Once::new();
     ONCE.call_once(|| {
-        let _ = ctrlc::set_handler(|| {
+        let signals = [libc::SIGINT, libc::SIGTERM, libc::SIGHUP];
+        let ignored: Vec<libc::c_int> = signals.into_iter().filter(|&s| is_ignored(s)).collect();
+        if ignored.len() == signals.len() {
+            return;
+        }
+        let installed = ctrlc::set_handler(|| {
             crate::report::remove_temporary_files();
             std::process::exit(INTERRUPTED);
         });
+        if installed.is_ok() {
+            for s in ignored {
+                // SAFETY: setting a signal's disposition to SIG_IGN installs no handler
+                // code; it only restores what the process inherited.
+                unsafe {
+                    libc::signal(s, libc::SIG_IGN);
+                }
+            }
+        }
     });
+}
+
+/// Whether `signal` is ignored (SIG_IGN) in this process.
+fn is_ignored(signal: libc::c_int) -> bool {
+    // SAFETY: a null new action only reads the current one into `old`, which is a plain
+    // C struct for which all-zero bytes are a valid value.
+    unsafe {
+        let mut old: libc::sigaction = std::mem::zeroed();
+        libc::sigaction(signal, std::ptr::null(), &mut old) == 0
+            && old.sa_sigaction == libc::SIG_IGN
+    }
 }
 
 /// [`main_for`] with these arguments (the first is the program name).

@@ -557,6 +557,27 @@ fn issue11_huge_numbers_print_in_scientific_notation() {
     assert_eq!(out.status.code(), Some(1), "{}", text(&out.stderr));
     let stdout = text(&out.stdout);
     assert!(stdout.contains("e100"), "{stdout}");
+    // The tuned config's provenance holds the same numbers, and must read back.
+    let mut c = autotune_in(dir.path());
+    c.args([
+        "tune",
+        "big.toml",
+        "--runs",
+        "5",
+        "--steps",
+        "10",
+        "--max-evals",
+        "3",
+        "--out",
+        "o.toml",
+        "--quiet",
+    ]);
+    assert_eq!(run(c).status.code(), Some(1));
+    let mut c = autotune_in(dir.path());
+    c.args([
+        "check", "big.toml", "--runs", "5", "--steps", "10", "--config", "o.toml",
+    ]);
+    assert_eq!(run(c).status.code(), Some(1), "the tuned config reads back");
     for (what, s) in [
         ("stdout", stdout),
         (
@@ -566,6 +587,10 @@ fn issue11_huge_numbers_print_in_scientific_notation() {
         (
             "junit",
             std::fs::read_to_string(dir.path().join("j.xml")).unwrap(),
+        ),
+        (
+            "tuned config",
+            std::fs::read_to_string(dir.path().join("o.toml")).unwrap(),
         ),
     ] {
         assert!(

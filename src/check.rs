@@ -27,10 +27,9 @@ pub fn check_with(
     let acc = experiment.monte_carlo_with(theta, mc, options);
     ConsistencyReport::from_accumulator(
         &acc,
-        mc.alpha(),
+        &mc.gate_spec(use_nees),
         experiment.state_names(),
         experiment.measurement_names(),
-        use_nees,
     )
 }
 

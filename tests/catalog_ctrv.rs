@@ -392,14 +392,24 @@ fn shipped_check_is_consistent_at_truth_and_overconfident_with_small_q() {
     let (sn, mn) = (model.state_names(), model.measurement_names());
     let tv = model.truth_values();
     let acc = run_generic(model.truth(), &model.filter(&tv), &settings);
-    let r = ConsistencyReport::from_accumulator(&acc, s.alpha, &sn, &mn, true);
+    let r = ConsistencyReport::from_accumulator(
+        &acc,
+        &autotune::stats::GateSpec::full(s.alpha, true),
+        &sn,
+        &mn,
+    );
     assert_eq!(r.verdict, Verdict::Consistent);
 
     let mut small = tv.clone();
     small[0] *= 0.01;
     small[1] *= 0.01;
     let acc = run_generic(model.truth(), &model.filter(&small), &settings);
-    let r = ConsistencyReport::from_accumulator(&acc, s.alpha, &sn, &mn, true);
+    let r = ConsistencyReport::from_accumulator(
+        &acc,
+        &autotune::stats::GateSpec::full(s.alpha, true),
+        &sn,
+        &mn,
+    );
     assert_eq!(r.verdict, Verdict::Overconfident);
     let nees = r.nees.unwrap();
     assert!(nees.time_average > nees.interval.upper);

@@ -250,10 +250,9 @@ fn check(model: &dyn CatalogModel, theta: &[f64], s: &Shipped) -> ConsistencyRep
     );
     ConsistencyReport::from_accumulator(
         &acc,
-        s.alpha,
+        &autotune::stats::GateSpec::full(s.alpha, true),
         &model.state_names(),
         &model.measurement_names(),
-        true,
     )
 }
 

@@ -62,10 +62,9 @@ fn check(m: &Orbit2d, theta: &[f64], s: &Shipped) -> ConsistencyReport {
     let acc = run_generic(m.truth(), &m.filter(theta), &s.settings);
     ConsistencyReport::from_accumulator(
         &acc,
-        s.alpha,
+        &autotune::stats::GateSpec::full(s.alpha, true),
         &m.state_names(),
         &m.measurement_names(),
-        true,
     )
 }
 

@@ -30,25 +30,33 @@ fn cv2d_report_says_which_axis_and_by_what_factor() {
     let md = std::fs::read_to_string(rep.join("report.md")).unwrap();
     for text in [&stdout, &md] {
         assert!(text.contains("q_accel_x: x, vx (e²/P = "), "{text}");
-        assert!(text.contains("overconfident, increase ×2.50"), "{text}");
+        // The label is what the starting filter's numbers say; the action is the change.
+        assert!(
+            text.contains("mixed at the start; increase ×2.50"),
+            "{text}"
+        );
         assert!(text.contains("q_accel_y: y, vy"), "{text}");
         assert!(
-            text.contains("underconfident, decrease ×0.50 (÷2.00)"),
+            text.contains("overconfident at the start; decrease ×0.50 (÷2.00)"),
             "{text}"
         );
         assert!(text.contains("r_pos_x: x (ν²/S = "), "{text}");
         assert!(
-            text.contains("sensor noise overestimated, decrease ×0.50"),
+            text.contains("underconfident at the start; decrease ×0.50"),
             "{text}"
         );
         assert!(text.contains("r_pos_y: y (ν²/S = "), "{text}");
         assert!(
-            text.contains("sensor noise underestimated, increase ×2.00"),
+            text.contains("overconfident at the start; increase ×2.00"),
+            "{text}"
+        );
+        assert!(
+            text.contains("20 of 20 fresh seeds pass the gate"),
             "{text}"
         );
     }
     assert!(
-        md.contains("Verdict before: overconfident. After: consistent."),
+        md.contains("Verdict before: mixed. After: consistent."),
         "{md}"
     );
     let json: serde_json::Value =

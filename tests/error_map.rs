@@ -69,10 +69,9 @@ fn report(theta: &[f64], with_map: bool, seed: u64) -> ConsistencyReport {
     };
     ConsistencyReport::from_accumulator(
         &acc,
-        mc.alpha(),
+        &autotune::stats::GateSpec::full(mc.alpha(), true),
         p.state_names(),
         p.measurement_names(),
-        true,
     )
 }
 

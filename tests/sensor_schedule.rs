@@ -123,7 +123,7 @@ fn nis_interval_follows_the_measurement_dimension_of_each_step() {
         .map(|s| s.to_string())
         .collect();
     let meas = vec!["px".to_string(), "py".to_string(), "range".to_string()];
-    let r = ConsistencyReport::from_accumulator(&acc, 0.05, &names, &meas, true);
+    let r = ConsistencyReport::from_accumulator(&acc, &settings.gate_spec(true), &names, &meas);
     let n = settings.runs() as f64;
     for k in 1..=settings.steps() {
         let dim: usize = sensors_at(k).iter().map(|&s| [2, 1][s]).sum();

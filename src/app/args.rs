@@ -12,6 +12,7 @@ use super::AppError;
 use crate::input::SettingError;
 use crate::montecarlo::McConfig;
 use crate::params::ParamSpace;
+use crate::stats::GateMode;
 
 /// Monte Carlo overrides shared by the commands. Numeric values may be negative on the
 /// command line (`--alpha -0.1` is a value, refused by the setter, not an unknown flag).
@@ -29,6 +30,11 @@ pub struct McArgs {
     /// Significance level α in (0, 1) (overrides the file).
     #[arg(long, allow_negative_numbers = true)]
     alpha: Option<f64>,
+    /// Which tests the gate applies (overrides the file): full = the time averages, every
+    /// component and the innovations' whiteness at a family-wise α (Šidák); mean = the
+    /// textbook ANEES/ANIS test alone.
+    #[arg(long, value_parser = OneOf::<GateMode>::new())]
+    gate: Option<GateMode>,
     /// Set a parameter, NAME=VALUE (repeatable).
     #[arg(long = "set", value_name = "NAME=VALUE")]
     set: Vec<String>,
@@ -53,6 +59,9 @@ impl McArgs {
         }
         if let Some(a) = self.alpha {
             mc = mc.with_alpha(a).map_err(flag_error("--alpha"))?;
+        }
+        if let Some(g) = self.gate {
+            mc = mc.with_gate(g);
         }
         Ok(mc)
     }

@@ -55,9 +55,12 @@ pub struct TuneOptions {
     /// (Levenberg–Marquardt, for many expensive parameters).
     #[arg(long, value_parser = OneOf::<LocalSearch>::new())]
     local: Option<LocalSearch>,
-    /// Seed of the confirmation runs.
+    /// Seed of the first confirmation run.
     #[arg(long, allow_negative_numbers = true)]
     confirm_seed: Option<u64>,
+    /// Number of fresh seeds the tuned filter is confirmed on (default 20).
+    #[arg(long, allow_negative_numbers = true)]
+    confirm_seeds: Option<usize>,
     /// Print the full report as JSON on stdout instead of the summary.
     #[arg(long)]
     json: bool,
@@ -121,6 +124,11 @@ impl TuneOptions {
         }
         if let Some(x) = self.local {
             s = s.with_local(x);
+        }
+        if let Some(k) = self.confirm_seeds {
+            s = s
+                .with_confirm_seeds(k)
+                .map_err(flag_error("--confirm-seeds"))?;
         }
         Ok(s.with_confirm_seed(self.confirm_seed))
     }
@@ -269,6 +277,11 @@ pub fn run(
                     fmt_g(r.tuned)
                 )?;
             }
+            if let Some(lines) = crate::report::advice::family_finding(&result) {
+                for l in lines {
+                    writeln!(stdout, "  {l}")?;
+                }
+            }
             let line = |s: &StatisticSummary| {
                 if s.steps_with_data == 0 {
                     return format!("A{} no data {}", s.name, s.verdict.label());
@@ -286,10 +299,11 @@ pub fn run(
             parts.push(line(&result.after.nis));
             writeln!(
                 stdout,
-                "  confirmation on fresh seeds ({} runs × {} steps, seed {}): {}",
+                "  confirmation ({} runs × {} steps, seeds from {}): {}; first seed: {}",
                 result.runs,
                 result.steps,
                 result.confirm_seed,
+                result.confirmation.text(),
                 parts.join("; ")
             )?;
             writeln!(stdout, "  wrote {}", out.display())?;

@@ -3,6 +3,7 @@
 use std::fmt::Display;
 
 use crate::input::{SettingError, at_least as count, at_most};
+use crate::stats::{GateMode, GateSpec};
 
 /// Largest number of steps per run: per-step sums and the linear engine's per-step gains
 /// take memory proportional to T (about 0.5 kB per step for four states).
@@ -24,8 +25,9 @@ pub const DEFAULT_ALPHA: f64 = 0.05;
 pub const DEFAULT_LAGS: usize = 5;
 
 /// A Monte Carlo consistency test: N runs of T steps from a base seed, tested at
-/// significance α, with innovation autocorrelations up to a lag. Every value is checked by
-/// its setter, so a `McConfig` is always valid: 1 ≤ N ≤ [`MAX_RUNS`], 1 ≤ T ≤ [`MAX_STEPS`],
+/// significance α by a gate of the chosen kind, with innovation autocorrelations up to a
+/// lag. Every value is checked by its setter, so a `McConfig` is always valid:
+/// 1 ≤ N ≤ [`MAX_RUNS`], 1 ≤ T ≤ [`MAX_STEPS`],
 /// 0 < α < 1, lags < T.
 ///
 /// ```
@@ -43,6 +45,7 @@ pub struct McConfig {
     seed: u64,
     alpha: f64,
     lags: usize,
+    gate: GateMode,
 }
 
 impl McConfig {
@@ -59,6 +62,7 @@ impl McConfig {
             seed: 0,
             alpha: DEFAULT_ALPHA,
             lags: DEFAULT_LAGS,
+            gate: GateMode::Full,
         };
         mc.with_runs(runs)?.with_steps(steps)
     }
@@ -121,6 +125,26 @@ impl McConfig {
         }
         self.lags = l;
         Ok(self)
+    }
+
+    /// Which tests the consistency gate applies (default: the full gate).
+    pub fn with_gate(mut self, gate: GateMode) -> McConfig {
+        self.gate = gate;
+        self
+    }
+
+    /// Which tests the consistency gate applies.
+    pub fn gate(&self) -> GateMode {
+        self.gate
+    }
+
+    /// The gate these settings describe, with or without the ground truth (NEES).
+    pub fn gate_spec(&self, use_nees: bool) -> GateSpec {
+        GateSpec {
+            alpha: self.alpha,
+            mode: self.gate,
+            use_nees,
+        }
     }
 
     /// Number of runs N.

@@ -7,7 +7,7 @@ use crate::filter::{Filter, FilterError, check_measurement};
 use crate::linalg::cholesky;
 use crate::measurement::{Measurement, sensor_offsets};
 use crate::model::TruthModel;
-use crate::stats::{Accumulator, NeesNullVariance};
+use crate::stats::{Accumulator, ComponentNullVariance, GateMode, NeesNullVariance};
 
 /// Per-run working state for the component and whiteness statistics.
 struct RunScratch {
@@ -97,16 +97,12 @@ impl RunScratch {
     fn end_run(&self, acc: &mut Accumulator) {
         if self.comp_x_n > 0.0 {
             for j in 0..self.n_x {
-                let a = self.comp_x[j] / self.comp_x_n;
-                acc.state_comp_run_sum[j] += a;
-                acc.state_comp_run_sq[j] += a * a;
+                acc.add_run_component(true, j, self.comp_x[j] / self.comp_x_n);
             }
         }
         for j in 0..self.n_z {
             if self.comp_z_n[j] > 0.0 {
-                let a = self.comp_z[j] / self.comp_z_n[j];
-                acc.meas_comp_run_sum[j] += a;
-                acc.meas_comp_run_sq[j] += a * a;
+                acc.add_run_component(false, j, self.comp_z[j] / self.comp_z_n[j]);
                 acc.meas_comp_runs[j] += 1;
             }
         }
@@ -193,6 +189,8 @@ where
     let mut est = filter.initial();
     let mut null_var = NeesNullVariance::new(n_x);
     let sample_null_var = run % NULL_VAR_STRIDE == 0;
+    // The per-component variances cost n_x times the NEES one; only the full gate reads them.
+    let mut comp_var = (mc.gate() == GateMode::Full).then(|| ComponentNullVariance::new(n_x));
     let mut map_missing = false;
     let mut run_nees = 0.0;
     for k in 1..=mc.steps() {
@@ -239,6 +237,9 @@ where
             match &est.error_map {
                 Some(a) if a.shape() == (n_x, n_x) => {
                     null_var.step(a, &est.P, &chol);
+                    if let Some(cv) = &mut comp_var {
+                        cv.step(a, &est.P);
+                    }
                 }
                 _ => map_missing = true,
             }
@@ -250,6 +251,12 @@ where
     } else if sample_null_var {
         acc.nees_null_var += null_var.variance();
         acc.null_var_runs += 1;
+        if let Some(cv) = &comp_var {
+            for (s, v) in acc.state_comp_null_var.iter_mut().zip(cv.variances()) {
+                *s += v;
+            }
+            acc.comp_null_var_runs += 1;
+        }
     }
     Ok(())
 }

@@ -17,7 +17,7 @@ use crate::filter::{Filter, FilterError, KalmanFilter};
 use crate::linalg::{cholesky, inverse_cholesky_factor};
 use crate::model::{LinearGaussianModel, sample_gaussian};
 use crate::stats::Accumulator;
-use crate::stats::NeesNullVariance;
+use crate::stats::{ComponentNullVariance, GateMode, NeesNullVariance};
 
 /// The data-independent part of the filter, per step.
 struct Schedule {
@@ -32,6 +32,9 @@ struct Schedule {
     /// 1 / √S_jj.
     s_inv_sqrt_diag: Vec<DVector<f64>>,
     null_var: f64,
+    /// The predicted variance of each state component's per-run sum (empty when the gate
+    /// does not test components).
+    comp_null_var: Vec<f64>,
 }
 
 /// Relative change below which a covariance entry or increment counts as unchanged.
@@ -58,7 +61,7 @@ impl Schedule {
         i.min(self.Kt.len() - 1)
     }
 
-    fn compute(f: &KalmanFilter, steps: usize) -> Result<Self, FilterError> {
+    fn compute(f: &KalmanFilter, steps: usize, components: bool) -> Result<Self, FilterError> {
         let n = f.n_x();
         let mut s = Schedule {
             Kt: Vec::with_capacity(steps),
@@ -67,9 +70,12 @@ impl Schedule {
             p_inv_diag: Vec::with_capacity(steps),
             s_inv_sqrt_diag: Vec::with_capacity(steps),
             null_var: 0.0,
+            comp_null_var: Vec::new(),
         };
         let mut P = f.P0.clone();
         let mut nv = NeesNullVariance::new(n);
+        let mut cv = components.then(|| ComponentNullVariance::new(n));
+        let mut last_cinc: Vec<f64> = Vec::new();
         // A time-invariant filter's covariance converges; once P and the null-variance
         // increment have stopped changing for a few steps, the last step's matrices serve
         // all remaining steps ([`Schedule::at`]) and the increment is extrapolated.
@@ -78,6 +84,9 @@ impl Schedule {
         for k in 1..=steps {
             if p_steady && quiet_v >= STEADY_STEPS {
                 nv.extend_steady(last_inc, steps - k + 1);
+                if let Some(cv) = &mut cv {
+                    cv.extend_steady(&last_cinc, steps - k + 1);
+                }
                 break;
             }
             let Pp = f.predict_covariance(&P);
@@ -86,8 +95,19 @@ impl Schedule {
                 which: "P",
                 step: k,
             })?;
-            let inc = nv.step(&(&cu.IKH * &f.F), &cu.P, &chol);
-            quiet_v = if (inc - last_inc).abs() <= STEADY_RTOL * inc.abs() {
+            let map = &cu.IKH * &f.F;
+            let inc = nv.step(&map, &cu.P, &chol);
+            let cinc = cv
+                .as_mut()
+                .map(|cv| cv.step(&map, &cu.P))
+                .unwrap_or_default();
+            let comps_quiet = cinc.len() == last_cinc.len()
+                && cinc
+                    .iter()
+                    .zip(&last_cinc)
+                    .all(|(a, b)| (a - b).abs() <= STEADY_RTOL * a.abs());
+            last_cinc = cinc;
+            quiet_v = if (inc - last_inc).abs() <= STEADY_RTOL * inc.abs() && comps_quiet {
                 quiet_v + 1
             } else {
                 0
@@ -110,6 +130,9 @@ impl Schedule {
             P = cu.P;
         }
         s.null_var = nv.variance();
+        if let Some(cv) = &cv {
+            s.comp_null_var = cv.variances().to_vec();
+        }
         Ok(s)
     }
 }
@@ -135,7 +158,7 @@ pub fn run_linear_with_progress(
 ) -> Accumulator {
     let n = filter.n_x();
     let m = filter.H.nrows();
-    match Schedule::compute(filter, mc.steps()) {
+    match Schedule::compute(filter, mc.steps(), mc.gate() == GateMode::Full) {
         Ok(sched) => run_chunked(mc, n, m, progress, |range, acc| {
             let job = Job {
                 truth,
@@ -391,16 +414,12 @@ fn chunk(job: &Job<'_>, range: Range<usize>, acc: &mut Accumulator) {
     let t = mc.steps() as f64;
     for (j, col) in run_x.column_iter().enumerate() {
         for v in col.iter() {
-            let a = v / t;
-            acc.state_comp_run_sum[j] += a;
-            acc.state_comp_run_sq[j] += a * a;
+            acc.add_run_component(true, j, v / t);
         }
     }
     for (j, col) in run_z.column_iter().enumerate() {
         for v in col.iter() {
-            let a = v / t;
-            acc.meas_comp_run_sum[j] += a;
-            acc.meas_comp_run_sq[j] += a * a;
+            acc.add_run_component(false, j, v / t);
         }
         acc.meas_comp_runs[j] += b;
     }
@@ -410,6 +429,12 @@ fn chunk(job: &Job<'_>, range: Range<usize>, acc: &mut Accumulator) {
     acc.runs += b;
     acc.nees_null_var += sched.null_var * b as f64;
     acc.null_var_runs += b;
+    if !sched.comp_null_var.is_empty() {
+        for (s, v) in acc.state_comp_null_var.iter_mut().zip(&sched.comp_null_var) {
+            *s += v * b as f64;
+        }
+        acc.comp_null_var_runs += b;
+    }
 }
 
 #[cfg(test)]
@@ -443,7 +468,7 @@ mod tests {
             .with_seed(7)
             .with_lags(3)
             .unwrap();
-        let sched = Schedule::compute(&kf, mc.steps()).unwrap();
+        let sched = Schedule::compute(&kf, mc.steps(), true).unwrap();
         let mut base = Accumulator::new(50, 2, 1, 3);
         let job = Job {
             truth: &truth,

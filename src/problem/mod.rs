@@ -217,7 +217,8 @@ impl Validator<'_> {
         let mc = McConfig::new(m.runs, m.steps)
             .and_then(|mc| mc.with_alpha(m.alpha))
             .map_err(at)?
-            .with_seed(m.seed);
+            .with_seed(m.seed)
+            .with_gate(m.gate);
         match m.lags {
             Some(l) => mc.with_lags(l).map_err(at),
             None => Ok(mc),
@@ -245,6 +246,12 @@ impl Validator<'_> {
         }
         if let Some(n) = t.search_runs {
             s = s.with_search_runs(n).map_err(at)?;
+        }
+        if let Some(n) = t.refine_runs {
+            s = s.with_refine_runs(Some(n)).map_err(at)?;
+        }
+        if let Some(n) = t.confirm_seeds {
+            s = s.with_confirm_seeds(n).map_err(at)?;
         }
         if let Some(n) = t.global_points {
             s = s.with_global_points(n).map_err(at)?;

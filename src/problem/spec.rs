@@ -60,6 +60,10 @@ pub struct TuneSpec {
     pub scoring: Option<String>,
     /// Runs per Monte Carlo evaluation during the search (default 4 N).
     pub search_runs: Option<i64>,
+    /// Runs of the final refinement under Monte Carlo scoring (default 4 × search_runs).
+    pub refine_runs: Option<i64>,
+    /// Fresh seeds of the confirmation (default 20).
+    pub confirm_seeds: Option<i64>,
     /// Quasi-random points of the global stage per free parameter (default 16).
     pub global_points: Option<i64>,
     /// "simplex" or "gauss_newton".
@@ -84,6 +88,10 @@ pub struct MonteCarloSpec {
     /// `steps − 1` if that is smaller).
     #[serde(default)]
     pub lags: Option<i64>,
+    /// Which tests the gate applies: "full" (default; time averages, components and
+    /// whiteness at a family-wise α) or "mean" (the textbook ANEES/ANIS gate).
+    #[serde(default)]
+    pub gate: crate::stats::GateMode,
 }
 
 fn default_alpha() -> f64 {

@@ -5,7 +5,8 @@ use serde::Serialize;
 use crate::experiment::Experiment;
 use crate::params::{NoiseKind, Target};
 use crate::stats::ConsistencyReport;
-use crate::tune::TuneResult;
+use crate::stats::Verdict;
+use crate::tune::{TuneResult, TuneStatus};
 
 /// A change smaller than this factor (either way) is "about right".
 const NEGLIGIBLE: f64 = 1.1;
@@ -39,6 +40,24 @@ pub struct Recommendation {
     pub evidence: Vec<(String, f64)>,
     /// The recommendation in words.
     pub advice: String,
+}
+
+/// A component further than this factor from 1 counts as off in a label.
+const OFF: f64 = 1.05;
+
+/// What the evidence says, in one word: "overconfident" when every component the parameter
+/// acts on is at or above 1 and some above [`OFF`], "underconfident" likewise below,
+/// "mixed" when some are above and some below, and "" when all are near 1. The label
+/// follows the numbers shown; the action beside it follows the change the search made.
+fn evidence_label(evidence: &[(String, f64)]) -> &'static str {
+    let above = evidence.iter().any(|(_, v)| *v > OFF);
+    let below = evidence.iter().any(|(_, v)| *v < 1.0 / OFF);
+    match (above, below) {
+        (true, true) => "mixed",
+        (true, false) => "overconfident",
+        (false, true) => "underconfident",
+        (false, false) => "",
+    }
 }
 
 /// A component's normalized error as evidence, 2 decimals; `no data` for a component that
@@ -101,7 +120,7 @@ pub fn recommendations(
         let factor = tuned / initial;
         let res = result.resolution.as_ref().map(|r| r[i]);
         let what = if evidence.is_empty() {
-            p.name.clone()
+            String::new()
         } else {
             let stat = if is_q && !before.state_components.is_empty() {
                 "e²/P"
@@ -112,11 +131,34 @@ pub fn recommendations(
             let values: Vec<String> = evidence.iter().map(|(_, v)| fmt_evidence(*v)).collect();
             format!("{} ({stat} = {})", names.join(", "), values.join(", "))
         };
+        let label = evidence_label(&evidence);
+        let what = match (what.is_empty(), label.is_empty()) {
+            (true, _) => String::new(),
+            (false, true) => format!("{what}; "),
+            (false, false) => format!("{what} {label} at the start; "),
+        };
+        let action = if factor > NEGLIGIBLE {
+            format!("increase ×{}", fmt_factor(factor))
+        } else if factor < 1.0 / NEGLIGIBLE {
+            format!(
+                "decrease ×{} (÷{})",
+                fmt_factor(factor),
+                fmt_factor(1.0 / factor)
+            )
+        } else {
+            format!("about right (×{})", fmt_factor(factor))
+        };
+        let unsearched = result.status == TuneStatus::BudgetExhausted && tuned == initial;
         let advice = if result.fixed[i] {
             format!(
                 "{}: held fixed at {}",
                 p.name,
                 crate::report::fmt_g(initial)
+            )
+        } else if unsearched {
+            format!(
+                "{}: not searched (the budget ran out before the search moved it); {what}raise the budget",
+                p.name
             )
         } else if res.is_some_and(|r| r.at_bound) {
             format!(
@@ -127,43 +169,18 @@ pub fn recommendations(
             )
         } else if res.is_some_and(|r| !r.identifiable) {
             format!(
-                "{}: not identifiable from this data (the objective is flat over more than a factor of 2); keep a prior value such as a datasheet's",
+                "{}: not identifiable from this data (the gate's runs leave it free by more than a factor of 2); keep a prior value such as a datasheet's",
                 p.name
             )
-        } else if factor > NEGLIGIBLE {
-            if is_q {
-                format!(
-                    "{}: {what} overconfident, increase ×{}",
-                    p.name,
-                    fmt_factor(factor)
-                )
-            } else {
-                format!(
-                    "{}: {what} sensor noise underestimated, increase ×{}",
-                    p.name,
-                    fmt_factor(factor)
-                )
-            }
-        } else if factor < 1.0 / NEGLIGIBLE {
-            if is_q {
-                format!(
-                    "{}: {what} underconfident, decrease ×{} (÷{})",
-                    p.name,
-                    fmt_factor(factor),
-                    fmt_factor(1.0 / factor)
-                )
-            } else {
-                format!(
-                    "{}: {what} sensor noise overestimated, decrease ×{} (÷{})",
-                    p.name,
-                    fmt_factor(factor),
-                    fmt_factor(1.0 / factor)
-                )
-            }
+        } else if result.status == TuneStatus::Inconsistent {
+            format!(
+                "{}: {what}best fit in this family {action}, but no value of the free parameters makes the filter consistent (see below)",
+                p.name
+            )
         } else {
-            format!("{}: about right (×{})", p.name, fmt_factor(factor))
+            format!("{}: {what}{action}", p.name)
         };
-        let advice = if res.is_none() && !result.fixed[i] {
+        let advice = if res.is_none() && !result.fixed[i] && !unsearched {
             format!("{advice} (resolution not assessed: the search stopped on its budget)")
         } else {
             advice
@@ -203,4 +220,94 @@ impl Recommendation {
             _ => "–".to_string(),
         }
     }
+}
+
+/// When no value of the free parameters makes the filter consistent (the search converged
+/// and the tuned filter still fails the gate on fresh seeds more often than a consistent
+/// one): the best achievable statistics, what stays off and in which direction, and what
+/// kind of change would help, in lines of text. `None` otherwise.
+pub fn family_finding(result: &TuneResult) -> Option<Vec<String>> {
+    if result.status != TuneStatus::Inconsistent {
+        return None;
+    }
+    let a = &result.after;
+    let c = &result.confirmation;
+    let mut lines = vec![format!(
+        "no value of the free parameters makes this filter consistent: at the best fit {} of {} fresh seeds pass the gate (a consistent filter passes at least {})",
+        c.passed, c.seeds, c.band_low
+    )];
+    let stats: Vec<String> = a
+        .nees
+        .iter()
+        .chain(std::iter::once(&a.nis))
+        .map(|s| {
+            let c = super::summary::StatCells::of(s);
+            format!(
+                "A{} {} (target {}, interval {})",
+                s.name, c.average, c.target, c.interval
+            )
+        })
+        .collect();
+    lines.push(format!("best achievable: {}", stats.join(", ")));
+    let off: Vec<String> = a
+        .state_components
+        .iter()
+        .chain(&a.measurement_components)
+        .filter(|c| matches!(c.verdict, Verdict::Overconfident | Verdict::Underconfident))
+        .map(|c| {
+            let stat = if c.kind == "state" { "e²/P" } else { "ν²/S" };
+            let dir = if c.verdict == Verdict::Overconfident {
+                "errors larger than the filter believes"
+            } else {
+                "errors smaller than the filter believes"
+            };
+            format!(
+                "{} {stat} = {} ({dir})",
+                c.name,
+                super::fmt_fixed(c.value, 3)
+            )
+        })
+        .collect();
+    if !off.is_empty() {
+        lines.push(format!("components that stay off: {}", off.join("; ")));
+    }
+    let lagging: Vec<String> = a
+        .whiteness_tests
+        .iter()
+        .filter(|w| w.verdict == Verdict::NotWhite)
+        .map(|w| format!("{} ρ₁ = {:+.3}", w.component, w.rho1))
+        .collect();
+    if !lagging.is_empty() {
+        lines.push(format!(
+            "innovations stay correlated in time: {}",
+            lagging.join("; ")
+        ));
+    }
+    let positive = a
+        .whiteness_tests
+        .iter()
+        .any(|w| w.verdict == Verdict::NotWhite && w.rho1 > 0.0);
+    let negative = a
+        .whiteness_tests
+        .iter()
+        .any(|w| w.verdict == Verdict::NotWhite && w.rho1 < 0.0);
+    let states_off = a
+        .state_components
+        .iter()
+        .any(|c| matches!(c.verdict, Verdict::Overconfident | Verdict::Underconfident));
+    let meas_off = a
+        .measurement_components
+        .iter()
+        .any(|c| matches!(c.verdict, Verdict::Overconfident | Verdict::Underconfident));
+    let help = if positive {
+        "the filter lags the truth at every setting of these parameters: its model misses dynamics the truth has; a richer model would help (e.g. an acceleration state for a manoeuvring target, or a Gauss–Markov state for a slowly varying disturbance)"
+    } else if negative {
+        "the filter over-corrects at every setting of these parameters: check the measurement model (correlated or coloured measurement noise, a wrong H)"
+    } else if meas_off && !states_off {
+        "the innovations do not fit while the states do: a sensor bias or a wrong measurement model; add a bias state or fix the measurement model"
+    } else {
+        "the shape of the noise model does not fit (which states Q drives, their correlations): free more entries of Q or R, or add states"
+    };
+    lines.push(format!("what would help: {help}"));
+    Some(lines)
 }

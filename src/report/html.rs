@@ -196,7 +196,7 @@ pub fn tune_html(experiment: &dyn Experiment, res: &TuneResult, recs: &[Recommen
     let _ = writeln!(o, "<h1>autotune tune: {}</h1>", escape(&info.name));
     let _ = writeln!(
         o,
-        "<p>{} — <code>{}</code>. Confirmation on fresh seeds (seed {}), N = {} runs × T = {} steps, α = {}.</p>",
+        "<p>{} — <code>{}</code>. Confirmation on fresh seeds (from seed {}), N = {} runs × T = {} steps, α = {}.</p>",
         escape(&info.description),
         escape(&info.source.label()),
         res.confirm_seed,
@@ -206,10 +206,18 @@ pub fn tune_html(experiment: &dyn Experiment, res: &TuneResult, recs: &[Recommen
     );
     let _ = writeln!(
         o,
-        "<p class=\"verdict\">Before: {}. After: {}.</p>",
+        "<p class=\"verdict\">Before: {}. After: {}. Confirmation: {}.</p>",
         escape(res.before.verdict.label()),
-        escape(res.after.verdict.describe())
+        escape(res.after.verdict.describe()),
+        escape(&res.confirmation.text())
     );
+    if let Some(lines) = super::advice::family_finding(res) {
+        o.push_str("<h2>No consistent value in this family</h2><ul>");
+        for l in lines {
+            let _ = write!(o, "<li>{}</li>", escape(&l));
+        }
+        o.push_str("</ul>\n");
+    }
     o.push_str("<h2>Recommendations</h2><ul>");
     for r in recs {
         let _ = write!(o, "<li>{}</li>", escape(&r.advice));

@@ -11,7 +11,7 @@ pub mod tuned;
 mod write;
 
 pub use junit::junit_xml;
-pub use summary::{fmt_fixed, fmt_g, run_spread_note, summary_text};
+pub use summary::{fmt_fixed, fmt_g, gate_text, run_spread_note, summary_text};
 pub use write::{
     Outputs, REPORT_FILES, WriteError, check_output_file, check_report_dir, remove_temporary_files,
     write_file,

@@ -2,7 +2,7 @@
 
 use std::fmt::Write;
 
-use crate::stats::{ComponentStat, ConsistencyReport, StatisticSummary};
+use crate::stats::{ComponentStat, ConsistencyReport, GateMode, StatisticSummary, Verdict};
 
 /// A gate statistic's cells as every table shows them: the time average, the gate
 /// interval, the share of steps inside their per-step interval, and the verdict. A
@@ -123,34 +123,75 @@ pub fn summary_text(problem: &str, params: &[(String, f64)], r: &ConsistencyRepo
     for s in &stats {
         stat_row(&mut out, s);
     }
-    let worst = r.worst_components(3);
-    if !worst.is_empty() {
-        let w: Vec<String> = worst
-            .iter()
-            .map(|c| {
-                let kind = if c.kind == "state" { "state" } else { "meas" };
-                format!(
-                    "{kind} {} {} ({})",
-                    c.name,
-                    fmt_fixed(c.value, 3),
-                    c.verdict.label()
-                )
-            })
-            .collect();
+    let _ = writeln!(out, "  gate: {}", gate_text(r));
+    let gated = if r.gate == GateMode::Full {
+        ""
+    } else {
+        " (diagnostic, not gated)"
+    };
+    let off: Vec<String> = r
+        .state_components
+        .iter()
+        .chain(&r.measurement_components)
+        .filter(|c| matches!(c.verdict, Verdict::Overconfident | Verdict::Underconfident))
+        .map(|c| {
+            let kind = if c.kind == "state" { "state" } else { "meas" };
+            let (value, interval) = component_cells(c);
+            format!("{kind} {} {value} {interval}", c.name)
+        })
+        .collect();
+    if off.is_empty() {
+        let worst = r.worst_components(3);
+        if !worst.is_empty() {
+            let w: Vec<String> = worst
+                .iter()
+                .map(|c| {
+                    let kind = if c.kind == "state" { "state" } else { "meas" };
+                    format!("{kind} {} {}", c.name, fmt_fixed(c.value, 3))
+                })
+                .collect();
+            let _ = writeln!(
+                out,
+                "  components (target 1, all inside their intervals; worst first): {}",
+                w.join("; ")
+            );
+        }
+    } else {
         let _ = writeln!(
             out,
-            "  components (target 1, worst first): {}",
-            w.join("; ")
+            "  components off their target 1{gated}: {}",
+            off.join("; ")
         );
     }
     let white: Vec<String> = r
-        .whiteness
+        .whiteness_tests
         .iter()
-        .filter(|w| w.lag == 1 && w.rho.abs() > w.band)
-        .map(|w| format!("{} ρ₁ = {:+.3} (band ±{:.3})", w.component, w.rho, w.band))
+        .filter(|w| w.verdict == Verdict::NotWhite)
+        .map(|w| {
+            format!(
+                "{} ρ₁ = {:+.3} (portmanteau {} > {}, {} lags)",
+                w.component,
+                w.rho1,
+                fmt_fixed(w.statistic, 1),
+                fmt_fixed(w.threshold, 1),
+                w.dof
+            )
+        })
         .collect();
     if !white.is_empty() {
-        let _ = writeln!(out, "  innovations not white: {}", white.join("; "));
+        let _ = writeln!(out, "  innovations not white{gated}: {}", white.join("; "));
+    }
+    if let Some(head) = r.diagnosis.headline() {
+        let _ = writeln!(out, "  diagnosis: {head}");
+        for f in &r.diagnosis.findings {
+            let _ = writeln!(
+                out,
+                "    {}: {} → {}",
+                f.component,
+                compact_numbers(&f.evidence),
+                f.action
+            );
+        }
     }
     for s in &stats {
         if let Some(note) = run_spread_note(s) {
@@ -188,6 +229,18 @@ pub fn summary_text(problem: &str, params: &[(String, f64)], r: &ConsistencyRepo
     out
 }
 
+/// The gate in one line: which tests, how many, and the level of each.
+pub fn gate_text(r: &ConsistencyReport) -> String {
+    let what = match r.gate {
+        GateMode::Full => "full (time averages, every component, innovation whiteness)",
+        GateMode::Mean => "mean (time-averaged ANEES/ANIS only)",
+    };
+    format!(
+        "{what}; {} tests, each at level {:.4} so that a consistent filter fails with probability at most α = {} (Šidák)",
+        r.tests, r.statistic_alpha, r.alpha
+    )
+}
+
 /// For a statistic whose gate interval rests on the spread of the per-run sums (a filter that
 /// supplies no error map), the sentence that says so.
 pub fn run_spread_note(s: &StatisticSummary) -> Option<String> {
@@ -213,6 +266,33 @@ pub fn fmt_g(v: f64) -> String {
         };
         format!("{v:.digits$}")
     }
+}
+
+/// Longest plain decimal number [`compact_numbers`] leaves as it is.
+const LONGEST_PLAIN_NUMBER: usize = 20;
+
+/// `text` with every plain decimal number longer than 20 characters rewritten as
+/// [`fmt_fixed`] writes it (scientific notation, four significant digits), for text that
+/// was built elsewhere with fixed decimals (the diagnosis's evidence): there a value of
+/// 10¹⁰⁰ is a hundred digits.
+pub(crate) fn compact_numbers(text: &str) -> String {
+    let mut out = String::with_capacity(text.len());
+    let mut rest = text;
+    while let Some(start) = rest.find(|c: char| c.is_ascii_digit()) {
+        out.push_str(&rest[..start]);
+        let tail = &rest[start..];
+        let len = tail
+            .find(|c: char| !(c.is_ascii_digit() || c == '.'))
+            .unwrap_or(tail.len());
+        let token = &tail[..len];
+        match token.parse::<f64>() {
+            Ok(v) if len > LONGEST_PLAIN_NUMBER => out.push_str(&fmt_fixed(v, 3)),
+            _ => out.push_str(token),
+        }
+        rest = &tail[len..];
+    }
+    out.push_str(rest);
+    out
 }
 
 /// Magnitude from which [`fmt_fixed`] switches to scientific notation.
@@ -245,5 +325,11 @@ mod tests {
         assert_eq!(fmt_g(1e308), "1.000e308");
         assert_eq!(fmt_g(0.5), "0.5000");
         assert!(fmt_fixed(f64::MAX, 4).len() < 12);
+        let long = format!("ν²/S = {:.3}, ρ₁ = +0.916", 1e100);
+        assert_eq!(compact_numbers(&long), "ν²/S = 1.000e100, ρ₁ = +0.916");
+        assert_eq!(
+            compact_numbers("e²/P = 2.500 at 1e5"),
+            "e²/P = 2.500 at 1e5"
+        );
     }
 }

@@ -88,6 +88,13 @@ pub fn tune_markdown(
         r.after.verdict.label(),
         r.status
     );
+    if let Some(lines) = super::advice::family_finding(r) {
+        let _ = writeln!(o, "## No consistent value in this family\n");
+        for l in lines {
+            let _ = writeln!(o, "- {l}");
+        }
+        let _ = writeln!(o);
+    }
     let _ = writeln!(o, "## Recommendations\n");
     for rec in recs {
         let _ = writeln!(o, "- {}", rec.advice);
@@ -118,9 +125,10 @@ pub fn tune_markdown(
     }
     let _ = writeln!(
         o,
-        "\n## Consistency before and after\n\nMonte Carlo on fresh seeds never used in the search (seed {}, N = {} runs × T = {} steps, α = {}).\n",
+        "\n## Consistency before and after\n\nMonte Carlo on fresh seeds never used in the search (seeds from {}, N = {} runs × T = {} steps, α = {}).\n",
         r.confirm_seed, r.runs, r.steps, r.alpha
     );
+    let _ = writeln!(o, "Confirmation: {}.\n", r.confirmation.text());
     stats_table(&mut o, &r.before, &r.after);
     let _ = writeln!(
         o,
@@ -163,8 +171,13 @@ pub fn tune_markdown(
     );
     let _ = writeln!(
         o,
-        "- resolution: a parameter is \"determined within ±x%\" when moving it further (the others re-adjusting) raises the objective by more than its Monte Carlo noise level ({:.2e}) on the confirmation runs",
-        r.noise_floor
+        "- refinement: {} evaluations of the gate's deviates (their sensitivity to the parameters and the steps on more runs)",
+        r.refine_evaluations
+    );
+    let _ = writeln!(
+        o,
+        "- resolution: a parameter is \"determined within ±x%\" when the estimate the gate's N runs would give lies within that factor of it with about 95% confidence (two standard deviations of a sandwich covariance over the {} confirmation seeds: Monte Carlo noise only)",
+        r.confirmation.seeds
     );
     o
 }

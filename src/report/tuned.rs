@@ -52,6 +52,9 @@ struct Provenance {
 
 #[derive(Debug, Clone, Serialize)]
 struct Confirmation {
+    seeds: usize,
+    passed: usize,
+    band_low: usize,
     verdict: String,
     anees: Option<f64>,
     anees_interval: Option<[f64; 2]>,
@@ -148,6 +151,9 @@ pub fn tuned_config_toml(experiment: &dyn Experiment, result: &TuneResult) -> St
         evaluations: result.evaluations,
         diverged_evaluations: result.diverged_evaluations,
         confirmation: Confirmation {
+            seeds: result.confirmation.seeds,
+            passed: result.confirmation.passed,
+            band_low: result.confirmation.band_low,
             verdict: a.verdict.label().to_string(),
             anees: a.nees.as_ref().map(|s| s.time_average),
             anees_interval: a

@@ -142,12 +142,16 @@ pub enum Verdict {
     /// Inside the acceptance interval.
     Consistent,
     /// Errors larger than the filter believes (statistic above `r2`): its P or S is too
-    /// small; increase Q (or R if the sensor model is wrong).
+    /// small.
     Overconfident,
-    /// Errors smaller than the filter believes (statistic below `r1`): decrease Q.
+    /// Errors smaller than the filter believes (statistic below `r1`): its P or S is too
+    /// large.
     Underconfident,
     /// Some statistics above their interval, some below.
     Mixed,
+    /// The innovations are correlated in time (an optimal filter's are white): the model
+    /// misses dynamics, or its gain does not fit the noise.
+    NotWhite,
     /// Passed, but with too few degrees of freedom for the test to mean anything.
     Inconclusive,
     /// The filter's covariance stopped being positive definite.
@@ -164,13 +168,10 @@ impl Verdict {
     pub fn describe(self) -> &'static str {
         match self {
             Verdict::Consistent => "consistent",
-            Verdict::Overconfident => {
-                "overconfident (errors larger than the filter believes: increase Q)"
-            }
-            Verdict::Underconfident => {
-                "underconfident (errors smaller than the filter believes: decrease Q)"
-            }
+            Verdict::Overconfident => "overconfident (errors larger than the filter believes)",
+            Verdict::Underconfident => "underconfident (errors smaller than the filter believes)",
             Verdict::Mixed => "inconsistent (some statistics too high, some too low)",
+            Verdict::NotWhite => "inconsistent (innovations correlated in time)",
             Verdict::Inconclusive => "inconclusive (too little data for the test to have power)",
             Verdict::Diverged => "diverged (covariance not positive definite)",
         }
@@ -183,10 +184,26 @@ impl Verdict {
             Verdict::Overconfident => "overconfident",
             Verdict::Underconfident => "underconfident",
             Verdict::Mixed => "mixed",
+            Verdict::NotWhite => "not white",
             Verdict::Inconclusive => "inconclusive",
             Verdict::Diverged => "diverged",
         }
     }
+}
+
+/// Which tests the consistency gate applies.
+#[derive(
+    Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, serde::Deserialize, clap::ValueEnum,
+)]
+#[serde(rename_all = "snake_case")]
+pub enum GateMode {
+    /// Everything the summary shows: the time-averaged ANEES and ANIS, every state and
+    /// measurement component's mean normalized squared error, and every measurement
+    /// component's innovation whiteness.
+    #[default]
+    Full,
+    /// The textbook gate: the time-averaged ANEES and ANIS only.
+    Mean,
 }
 
 /// The level of each of `k` gate statistics so that a consistent filter fails the gate with
@@ -208,6 +225,7 @@ pub fn combine(verdicts: &[Verdict]) -> Verdict {
         (true, false) => Verdict::Overconfident,
         (false, true) => Verdict::Underconfident,
         _ if verdicts.contains(&Verdict::Mixed) => Verdict::Mixed,
+        _ if verdicts.contains(&Verdict::NotWhite) => Verdict::NotWhite,
         _ if verdicts.contains(&Verdict::Inconclusive) => Verdict::Inconclusive,
         _ => Verdict::Consistent,
     }

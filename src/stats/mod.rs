@@ -18,19 +18,24 @@
 //! moment-matched scaled chi-square `g·χ²(h)` (Satterthwaite 1946) with that mean and
 //! variance. When the errors are uncorrelated this reduces to the naive interval exactly.
 
+mod attribution;
+mod diagnostics;
 mod interval;
 mod null_variance;
 mod sums;
 
+pub use attribution::{Diagnosis, Finding, Suspect, diagnose};
+pub use diagnostics::{ComponentStat, WhitenessStat, WhitenessTest, gate_deviates};
+use diagnostics::{components, whiteness, whiteness_tests};
+
 pub use interval::{
-    Interval, SumVariance, Verdict, chi2_average_interval, chi2_inv, combine, gate_alpha,
+    GateMode, Interval, SumVariance, Verdict, chi2_average_interval, chi2_inv, combine, gate_alpha,
     gate_interval, has_power, normal_two_sided_quantile, scaled_chi2_interval,
 };
-pub use null_variance::NeesNullVariance;
+pub use null_variance::{ComponentNullVariance, NeesNullVariance};
 pub use sums::{Accumulator, Divergence};
 
 use serde::Serialize;
-use statrs::distribution::{ContinuousCDF, StudentsT};
 
 /// Per-step and time-averaged results for one statistic (NEES or NIS).
 #[derive(Debug, Clone, Serialize)]
@@ -78,39 +83,6 @@ pub struct StatisticSummary {
     pub verdict: Verdict,
 }
 
-/// Normalized error statistic of one state or measurement component: the average of
-/// `e_j²/P_jj` (state) or `ν_j²/S_jj` (measurement), target 1.
-#[derive(Debug, Clone, Serialize)]
-pub struct ComponentStat {
-    /// Component name from the problem file.
-    pub name: String,
-    /// "state" (`e_j²/P_jj`) or "measurement" (`ν_j²/S_jj`).
-    pub kind: &'static str,
-    /// Average over runs and steps.
-    pub value: f64,
-    /// Interval around the target 1 from the across-run standard error at level α.
-    pub interval: Interval,
-    /// Number of (run, step) samples.
-    pub samples: f64,
-    /// Where the value falls.
-    pub verdict: Verdict,
-}
-
-/// Normalized autocorrelation of one measurement component's innovations at one lag.
-#[derive(Debug, Clone, Serialize)]
-pub struct WhitenessStat {
-    /// Measurement component name.
-    pub component: String,
-    /// Lag in steps.
-    pub lag: usize,
-    /// `Σ u_k u_{k−l} / √(Σ u_k² Σ u_{k−l}²)` with `u = ν_j/√S_jj`; 0 for white innovations.
-    pub rho: f64,
-    /// Half-width of the (1 − α) band around 0, `z_{1−α/2}/√pairs`.
-    pub band: f64,
-    /// Number of (run, step) pairs.
-    pub pairs: f64,
-}
-
 /// Everything `autotune check` reports about one filter.
 #[derive(Debug, Clone, Serialize)]
 pub struct ConsistencyReport {
@@ -120,7 +92,13 @@ pub struct ConsistencyReport {
     pub steps: usize,
     /// Significance level α of the gate: a consistent filter fails with probability ≤ α.
     pub alpha: f64,
-    /// Level of each time-averaged gate statistic ([`gate_alpha`]); per-step intervals use α.
+    /// Which tests the gate applies.
+    pub gate: GateMode,
+    /// How many tests the gate applies (the time averages, and in the full gate every
+    /// component and every measurement component's whiteness).
+    pub tests: usize,
+    /// Level of each gate test, `1 − (1 − α)^{1/tests}` (Šidák), so that a consistent filter
+    /// fails the whole gate with probability at most α; per-step intervals use α.
     pub statistic_alpha: f64,
     /// NEES statistics (`None` when ground truth is not used).
     pub nees: Option<StatisticSummary>,
@@ -130,35 +108,91 @@ pub struct ConsistencyReport {
     pub state_components: Vec<ComponentStat>,
     /// Per-measurement-component `ν_j²/S_jj`.
     pub measurement_components: Vec<ComponentStat>,
-    /// Innovation autocorrelation per component and lag.
+    /// Innovation autocorrelation per component and lag, each with the band of a white
+    /// sequence at level α (a diagnostic).
     pub whiteness: Vec<WhitenessStat>,
+    /// The portmanteau whiteness test of each measurement component over all lags, at the
+    /// gate's level in the full gate (at α as a diagnostic in the mean gate).
+    pub whiteness_tests: Vec<WhitenessTest>,
     /// Runs whose filter diverged (the first few).
     pub divergences: Vec<Divergence>,
     /// Number of runs whose filter diverged.
     pub diverged_runs: usize,
     /// The gate's verdict.
     pub verdict: Verdict,
+    /// Which of Q and R the components and whiteness point to (see [`diagnose`]).
+    pub diagnosis: Diagnosis,
+}
+
+/// How the gate tests a filter.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct GateSpec {
+    /// Family-wise significance level α in (0, 1): a consistent filter fails the gate with
+    /// probability at most α.
+    pub alpha: f64,
+    /// Which tests.
+    pub mode: GateMode,
+    /// Whether the ground truth is used (NEES and the state components); false judges by
+    /// the innovations alone.
+    pub use_nees: bool,
+}
+
+impl GateSpec {
+    /// The default gate (every test the summary shows) at family-wise level `alpha`.
+    pub fn full(alpha: f64, use_nees: bool) -> Self {
+        GateSpec {
+            alpha,
+            mode: GateMode::Full,
+            use_nees,
+        }
+    }
 }
 
 impl ConsistencyReport {
     /// Build the report from the engine's sums. `state_names` and `measurement_names` label
-    /// the components; `use_nees` is false in NIS-only mode.
+    /// the components.
+    ///
+    /// The gate applies k tests (the time-averaged ANIS, ANEES with the truth; in the full
+    /// gate also each component with samples and each measurement component's whiteness),
+    /// each at the Šidák level `1 − (1 − α)^{1/k}`: exactly α family-wise if the tests were
+    /// independent, less since they are positively dependent (a filter off in one component
+    /// is off in the time averages too).
     pub fn from_accumulator(
         acc: &Accumulator,
-        alpha: f64,
+        gate: &GateSpec,
         state_names: &[String],
         measurement_names: &[String],
-        use_nees: bool,
     ) -> Self {
+        let (alpha, use_nees, full) = (gate.alpha, gate.use_nees, gate.mode == GateMode::Full);
+        let white = whiteness(acc, measurement_names, normal_two_sided_quantile(alpha));
+        let has = |samples: &[f64]| samples.iter().filter(|&&s| s > 0.0).count();
+        let white_components = measurement_names
+            .iter()
+            .filter(|n| white.iter().any(|w| &w.component == *n))
+            .count();
+        let tests = if full {
+            1 + usize::from(use_nees)
+                + if use_nees {
+                    has(&acc.state_comp_samples)
+                } else {
+                    0
+                }
+                + has(&acc.meas_comp_samples)
+                + white_components
+        } else {
+            1 + usize::from(use_nees)
+        };
+        let level = gate_alpha(alpha, tests);
+        // In the mean gate the components and whiteness are diagnostics, judged at α.
+        let diagnostic_level = if full { level } else { alpha };
         let mut cache = IntervalCache::new(alpha);
-        let gate_alpha = gate_alpha(alpha, if use_nees { 2 } else { 1 });
         let nees = summarize(
             "NEES",
             &acc.nees_sum,
             &acc.nees_dof,
             &acc.nees_count,
             acc.nees_sum_variance(),
-            gate_alpha,
+            level,
             &mut cache,
         );
         let nis_var = 2.0 * acc.nis_dof.iter().sum::<f64>();
@@ -168,62 +202,77 @@ impl ConsistencyReport {
             &acc.nis_dof,
             &acc.nis_count,
             SumVariance::Predicted(nis_var),
-            gate_alpha,
+            level,
             &mut cache,
         );
-        let z = normal_two_sided_quantile(alpha);
         let state_components = components(
             "state",
             state_names,
-            ComponentSums {
-                total: &acc.state_comp_total,
-                run_sum: &acc.state_comp_run_sum,
-                run_sq: &acc.state_comp_run_sq,
-                samples: &acc.state_comp_samples,
-            },
-            acc.runs,
-            alpha,
+            &acc.state_comp_total,
+            &acc.state_comp_samples,
+            |j| acc.state_component_variance(j),
+            diagnostic_level,
         );
+        // White under consistency: each ν_j²/S_jj is an independent χ²(1).
         let measurement_components = components(
             "measurement",
             measurement_names,
-            ComponentSums {
-                total: &acc.meas_comp_total,
-                run_sum: &acc.meas_comp_run_sum,
-                run_sq: &acc.meas_comp_run_sq,
-                samples: &acc.meas_comp_samples,
-            },
-            acc.meas_comp_runs.iter().copied().max().unwrap_or(0),
-            alpha,
+            &acc.meas_comp_total,
+            &acc.meas_comp_samples,
+            |j| SumVariance::Predicted(2.0 * acc.meas_comp_samples[j]),
+            diagnostic_level,
         );
-        let whiteness = whiteness(acc, measurement_names, z);
+        let whiteness_tests = whiteness_tests(&white, measurement_names, diagnostic_level);
+        let state_components = if use_nees {
+            state_components
+        } else {
+            Vec::new()
+        };
 
-        let mut gate = vec![nis.verdict];
+        let mut verdicts = vec![nis.verdict];
         if use_nees {
-            gate.push(nees.verdict);
+            verdicts.push(nees.verdict);
         }
-        let mut verdict = combine(&gate);
+        if full {
+            verdicts.extend(
+                state_components
+                    .iter()
+                    .chain(&measurement_components)
+                    .filter(|c| c.samples > 0.0)
+                    .map(|c| c.verdict),
+            );
+            verdicts.extend(whiteness_tests.iter().map(|w| w.verdict));
+        }
+        let mut verdict = combine(&verdicts);
         if acc.diverged_runs > 0 {
             verdict = Verdict::Diverged;
         }
-        ConsistencyReport {
+        let mut report = ConsistencyReport {
             runs: acc.runs,
             steps: acc.steps,
             alpha,
-            statistic_alpha: gate_alpha,
+            gate: gate.mode,
+            tests,
+            statistic_alpha: level,
             nees: use_nees.then_some(nees),
             nis,
-            state_components: if use_nees {
-                state_components
-            } else {
-                Vec::new()
-            },
+            state_components,
             measurement_components,
-            whiteness,
+            whiteness: white,
+            whiteness_tests,
             divergences: acc.divergences.clone(),
             diverged_runs: acc.diverged_runs,
             verdict,
+            diagnosis: Diagnosis {
+                findings: Vec::new(),
+                suspect: None,
+                states_off_too: false,
+            },
+        };
+        if !verdict.passes() && verdict != Verdict::Diverged {
+            report.diagnosis = diagnose(&report);
         }
+        report
     }
 
     /// Components (state and measurement) sorted from the most to the least inconsistent
@@ -360,101 +409,4 @@ fn summarize(
         has_power: power,
         verdict,
     }
-}
-
-/// Sums behind one family of component statistics (see [`Accumulator`]).
-struct ComponentSums<'a> {
-    total: &'a [f64],
-    run_sum: &'a [f64],
-    run_sq: &'a [f64],
-    samples: &'a [f64],
-}
-
-/// Per-component averages with an interval from the spread of per-run averages: runs are
-/// independent, so the standard error of the mean of per-run time averages is valid however
-/// strongly a component's errors are correlated over time.
-fn components(
-    kind: &'static str,
-    names: &[String],
-    sums: ComponentSums<'_>,
-    runs: usize,
-    alpha: f64,
-) -> Vec<ComponentStat> {
-    let ComponentSums {
-        total,
-        run_sum,
-        run_sq,
-        samples,
-    } = sums;
-    // Student's t with N − 1 degrees of freedom: the spread is estimated from the same N
-    // runs (for large N this is the normal quantile).
-    let t = if runs >= 2 {
-        StudentsT::new(0.0, 1.0, runs as f64 - 1.0)
-            .map(|d| d.inverse_cdf(1.0 - alpha / 2.0))
-            .unwrap_or_else(|_| normal_two_sided_quantile(alpha))
-    } else {
-        f64::INFINITY
-    };
-    names
-        .iter()
-        .enumerate()
-        .map(|(j, name)| {
-            let value = if samples[j] > 0.0 {
-                total[j] / samples[j]
-            } else {
-                f64::NAN
-            };
-            let n = runs as f64;
-            let half = if runs >= 2 {
-                let mean = run_sum[j] / n;
-                let var = ((run_sq[j] - n * mean * mean) / (n - 1.0)).max(0.0);
-                t * (var / n).sqrt()
-            } else {
-                f64::INFINITY
-            };
-            let interval = Interval {
-                lower: 1.0 - half,
-                upper: 1.0 + half,
-            };
-            ComponentStat {
-                name: name.clone(),
-                kind,
-                value,
-                interval,
-                samples: samples[j],
-                verdict: if value.is_nan() {
-                    Verdict::Inconclusive
-                } else {
-                    interval.classify(value)
-                },
-            }
-        })
-        .collect()
-}
-
-fn whiteness(acc: &Accumulator, names: &[String], z: f64) -> Vec<WhitenessStat> {
-    let m = names.len();
-    let mut out = Vec::new();
-    for lag in 1..=acc.lags {
-        for (j, name) in names.iter().enumerate() {
-            let idx = (lag - 1) * m + j;
-            let pairs = acc.white_pairs[idx];
-            if pairs < 1.0 {
-                continue;
-            }
-            let den = (acc.white_a2[idx] * acc.white_b2[idx]).sqrt();
-            out.push(WhitenessStat {
-                component: name.clone(),
-                lag,
-                rho: if den > 0.0 {
-                    acc.white_ab[idx] / den
-                } else {
-                    0.0
-                },
-                band: z / pairs.sqrt(),
-                pairs,
-            });
-        }
-    }
-    out
 }

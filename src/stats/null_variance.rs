@@ -54,6 +54,66 @@ impl NeesNullVariance {
     }
 }
 
+/// Streaming computation of the variance of one run's sum `Σ_k e_jk²/P_jj,k` of each state
+/// component j that a filter predicts for itself if it is consistent (the per-component
+/// analogue of [`NeesNullVariance`]).
+///
+/// With `x_k = e_jk²/P_jj,k` and `E[e_k e_l'] = Φ_kl P_l`,
+/// `Cov(x_k, x_l) = 2 (Φ_kl P_l)_jj² / (P_jj,k P_jj,l)`. Writing `p_l = P_l e_j`,
+/// `(Φ_kl P_l)_jj² = e_j' Φ_kl (p_l p_l') Φ_kl' e_j`, so the sum over `l < k` is
+/// `e_j' G_k e_j` with the linear recursion `G_k = A_k (G_{k−1} + p_{k−1} p_{k−1}'/P_jj,k−1)
+/// A_k'`, and `Var(Σ_k x_k) = Σ_k [2 + 4 (G_k)_jj / P_jj,k]`: O(n³) per component and step.
+#[derive(Debug, Clone)]
+pub struct ComponentNullVariance {
+    g: Vec<DMatrix<f64>>,
+    p_prev: Option<DMatrix<f64>>,
+    var: Vec<f64>,
+}
+
+impl ComponentNullVariance {
+    /// Start a run with state dimension `n`.
+    pub fn new(n: usize) -> Self {
+        ComponentNullVariance {
+            g: vec![DMatrix::zeros(n, n); n],
+            p_prev: None,
+            var: vec![0.0; n],
+        }
+    }
+
+    /// Add step k: its error map `A_k` and posterior covariance `P_k` (n × n). Returns
+    /// this step's contribution to each component's variance.
+    pub fn step(&mut self, a: &DMatrix<f64>, p: &DMatrix<f64>) -> Vec<f64> {
+        let n = p.nrows();
+        if let Some(pp) = &self.p_prev {
+            for (j, g) in self.g.iter_mut().enumerate() {
+                let col = pp.column(j);
+                let inner = &*g + col * col.transpose() / pp[(j, j)];
+                *g = a * inner * a.transpose();
+            }
+        }
+        let inc: Vec<f64> = (0..n)
+            .map(|j| 2.0 + 4.0 * self.g[j][(j, j)] / p[(j, j)])
+            .collect();
+        for (v, i) in self.var.iter_mut().zip(&inc) {
+            *v += i;
+        }
+        self.p_prev = Some(p.clone());
+        inc
+    }
+
+    /// Add `steps` more steps that each contribute `inc` (steady state).
+    pub fn extend_steady(&mut self, inc: &[f64], steps: usize) {
+        for (v, i) in self.var.iter_mut().zip(inc) {
+            *v += i * steps as f64;
+        }
+    }
+
+    /// The predicted variance of each component's sum so far.
+    pub fn variances(&self) -> &[f64] {
+        &self.var
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -78,5 +138,31 @@ mod tests {
             }
         }
         assert_relative_eq!(nv.variance(), want, max_relative = 1e-12);
+    }
+
+    #[test]
+    fn component_null_variance_matches_brute_force_double_sum() {
+        // A fixed error map and covariance: Cov(x_k, x_l) = 2 (A^{|k−l|} P)_jj² / P_jj².
+        let a = DMatrix::from_row_slice(2, 2, &[0.9, 0.2, -0.1, 0.7]);
+        let p = DMatrix::from_row_slice(2, 2, &[2.0, 0.3, 0.3, 1.0]);
+        let t = 20;
+        let mut cv = ComponentNullVariance::new(2);
+        for _ in 0..t {
+            cv.step(&a, &p);
+        }
+        let mut powers = vec![DMatrix::identity(2, 2)];
+        for i in 1..t {
+            powers.push(&a * &powers[i - 1]);
+        }
+        for j in 0..2 {
+            let mut want = 0.0;
+            for k in 0..t {
+                for l in 0..t {
+                    let c = (&powers[k.abs_diff(l)] * &p)[(j, j)];
+                    want += 2.0 * c * c / (p[(j, j)] * p[(j, j)]);
+                }
+            }
+            assert_relative_eq!(cv.variances()[j], want, max_relative = 1e-12);
+        }
     }
 }

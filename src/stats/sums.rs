@@ -74,6 +74,13 @@ pub struct Accumulator {
     pub state_comp_run_sum: Vec<f64>,
     /// Σ_i of its square.
     pub state_comp_run_sq: Vec<f64>,
+    /// Σ over the runs counted in `comp_null_var_runs` of the variance of the per-run sum
+    /// of e_j²/P_jj that the filter predicts under consistency (see
+    /// [`super::ComponentNullVariance`]).
+    pub state_comp_null_var: Vec<f64>,
+    /// Runs whose predicted component variances are in `state_comp_null_var` (computed for
+    /// the full gate only, on the same runs as the NEES-sum variance).
+    pub comp_null_var_runs: usize,
     /// Σ_{i,k} ν_j²/S_jj per measurement component.
     pub meas_comp_total: Vec<f64>,
     /// Samples behind `meas_comp_total`.
@@ -124,6 +131,8 @@ impl Accumulator {
             state_comp_samples: z(n_x),
             state_comp_run_sum: z(n_x),
             state_comp_run_sq: z(n_x),
+            state_comp_null_var: z(n_x),
+            comp_null_var_runs: 0,
             meas_comp_total: z(n_z),
             meas_comp_samples: z(n_z),
             meas_comp_run_sum: z(n_z),
@@ -189,6 +198,40 @@ impl Accumulator {
         }
     }
 
+    /// Add one run's time average `a` of component j's normalized squared error (state or
+    /// measurement) to the per-run sums.
+    pub fn add_run_component(&mut self, state: bool, j: usize, a: f64) {
+        let (sum, sq) = if state {
+            (&mut self.state_comp_run_sum, &mut self.state_comp_run_sq)
+        } else {
+            (&mut self.meas_comp_run_sum, &mut self.meas_comp_run_sq)
+        };
+        sum[j] += a;
+        sq[j] += a * a;
+    }
+
+    /// What the variance of state component j's sum over all runs and steps rests on: the
+    /// filters' own prediction where every sampled filter supplied its error map, else the
+    /// spread of the per-run averages (each of `steps` samples) across the finished runs.
+    pub fn state_component_variance(&self, j: usize) -> SumVariance {
+        let finished = self.runs.saturating_sub(self.diverged_runs);
+        if self.error_map_missing == 0 && self.comp_null_var_runs > 0 {
+            let scale = finished as f64 / self.comp_null_var_runs as f64;
+            return SumVariance::Predicted(self.state_comp_null_var[j] * scale);
+        }
+        if finished < 2 {
+            return SumVariance::Unavailable;
+        }
+        let n = finished as f64;
+        let mean = self.state_comp_run_sum[j] / n;
+        let var_avg = ((self.state_comp_run_sq[j] - n * mean * mean) / (n - 1.0)).max(0.0);
+        let t = self.steps as f64;
+        SumVariance::RunSpread {
+            var: n * t * t * var_avg,
+            runs: finished,
+        }
+    }
+
     /// Add another accumulator's sums to this one.
     pub fn merge(&mut self, o: &Accumulator) {
         fn add(a: &mut [f64], b: &[f64]) {
@@ -215,6 +258,8 @@ impl Accumulator {
         add(&mut self.state_comp_samples, &o.state_comp_samples);
         add(&mut self.state_comp_run_sum, &o.state_comp_run_sum);
         add(&mut self.state_comp_run_sq, &o.state_comp_run_sq);
+        add(&mut self.state_comp_null_var, &o.state_comp_null_var);
+        self.comp_null_var_runs += o.comp_null_var_runs;
         add(&mut self.meas_comp_total, &o.meas_comp_total);
         add(&mut self.meas_comp_samples, &o.meas_comp_samples);
         add(&mut self.meas_comp_run_sum, &o.meas_comp_run_sum);

@@ -22,7 +22,8 @@ const BOX_PENALTY: f64 = 1e3;
 pub(super) struct Cost<'a> {
     model: &'a dyn Experiment,
     mc: McConfig,
-    exact: bool,
+    /// Scored on exact expected sums (no Monte Carlo noise).
+    pub(super) exact: bool,
     /// The objective J.
     pub(super) objective: Objective,
     theta0: Vec<f64>,
@@ -102,13 +103,6 @@ impl<'a> Cost<'a> {
             Some(acc) => acc,
             None => self.model.monte_carlo(theta, &self.mc),
         }
-    }
-
-    /// J at log-point `y` (clamped into the box), without the penalty.
-    pub(super) fn objective_at(&self, y: &[f64]) -> f64 {
-        self.objective
-            .evaluate(&self.accumulate(&self.theta(y)))
-            .total
     }
 
     /// J at log-point `y` plus a quadratic penalty outside the box, so that a simplex that

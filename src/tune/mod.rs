@@ -31,7 +31,7 @@ mod global;
 mod levenberg_marquardt;
 mod local;
 pub mod objective;
-mod resolution;
+mod refine;
 mod result;
 mod settings;
 mod simplex;
@@ -39,6 +39,7 @@ mod simplex;
 mod tests;
 
 pub use objective::{Objective, Terms, Weights};
+pub use refine::{Confirmation, band_low, seed_at};
 pub use result::{Observer, Resolution, Silent, TuneResult, TuneStatus};
 pub use settings::{LocalSearch, Scoring, TuneSettings};
 
@@ -46,10 +47,11 @@ use std::time::{Duration, Instant};
 
 use self::budget::Budget;
 use self::cost::{Candidate, Cost};
+use self::refine::Gate;
 use crate::experiment::Experiment;
 use crate::input::SettingError;
 use crate::montecarlo::McConfig;
-use crate::stats::ConsistencyReport;
+use crate::stats::GateMode;
 
 /// Errors that stop a tuning run before it starts.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -119,11 +121,14 @@ pub fn tune(
         });
     }
     let exact = exact_scoring(model, start, mc, settings.scoring())?;
+    // The objective needs no gate intervals, so the search skips the full gate's
+    // per-component null variances.
     let search_mc = if exact {
         *mc
     } else {
         mc.with_runs(settings.search_runs().unwrap_or(4 * mc.runs()))?
-    };
+    }
+    .with_gate(GateMode::Mean);
     let objective = Objective::new(settings.weights(), settings.nis_only(), mc.alpha());
     let mut cost = Cost::new(model, search_mc, exact, objective, start, fixed);
     let acc0 = cost.accumulate(start);
@@ -151,10 +156,34 @@ pub fn tune(
             cost: f64::INFINITY,
         }),
     };
-    let tuned = if best.point.is_empty() {
+    // The gate's own deviates at the optimum: how they move with each parameter (for the
+    // refinement and the resolution), on the search's runs from its seed.
+    let use_nees = !settings.nis_only();
+    let gate = Gate::new(model, *mc, use_nees);
+    let searched = budget.evaluations() > 0 && !budget.exhausted();
+    let sens_runs = search_mc.runs();
+    let mut point = best.point.clone();
+    let mut refine_evaluations = 0;
+    let sens = if searched && !point.is_empty() && best.cost.is_finite() {
+        observer.phase("refine");
+        refine_evaluations += point.len() + 1;
+        refine::sensitivity(&gate, &cost, &point, sens_runs, mc.seed())
+    } else {
+        None
+    };
+    if let (false, Some((_, d))) = (exact, &sens) {
+        let runs = settings
+            .refine_runs()
+            .unwrap_or_else(|| sens_runs.saturating_mul(4));
+        let d_refine = d * (runs as f64 / sens_runs as f64).sqrt();
+        let (refined, evals) = refine::refine(&gate, &cost, &point, &d_refine, runs, mc.seed());
+        point = refined;
+        refine_evaluations += evals;
+    }
+    let tuned = if point.is_empty() {
         start.to_vec()
     } else {
-        cost.theta(&best.point)
+        cost.theta(&point)
     };
     let objective_final = cost.objective.evaluate(&cost.accumulate(&tuned));
 
@@ -162,42 +191,26 @@ pub fn tune(
     let confirm_seed = settings
         .confirm_seed()
         .unwrap_or_else(|| default_confirm_seed(mc.seed()));
-    let cmc = mc.with_seed(confirm_seed);
-    let report = |theta: &[f64]| {
-        let acc = model.monte_carlo(theta, &cmc);
-        let r = ConsistencyReport::from_accumulator(
-            &acc,
-            cmc.alpha(),
-            model.state_names(),
-            model.measurement_names(),
-            !settings.nis_only(),
-        );
-        (r, cost.objective.evaluate(&acc).total)
-    };
-    let (before, _) = report(start);
-    let (after, noise) = report(&tuned);
-    let noise_floor = if noise.is_finite() {
-        noise.max(1e-9)
-    } else {
-        1e-9
-    };
+    let before = gate.report(start, mc.runs(), confirm_seed);
+    let (confirmation, after, deviates) =
+        refine::confirm(&gate, &tuned, confirm_seed, settings.confirm_seeds());
 
-    // The curvature says something only at a converged optimum.
-    let resolution = if budget.exhausted() {
+    // The resolution means something only at a converged optimum.
+    let resolution = if !searched && cost.dim() > 0 {
         None
-    } else if best.point.is_empty() || !best.cost.is_finite() {
+    } else if point.is_empty() || !best.cost.is_finite() {
         Some(vec![Resolution::FIXED; params.len()])
     } else {
-        Some(resolution::resolution(
-            &cost,
-            &best.point,
-            noise_floor,
-            fixed,
-        ))
+        sens.as_ref().map(|(_, d)| {
+            let d_n = d * (mc.runs() as f64 / sens_runs as f64).sqrt();
+            refine::resolution(&cost, &point, &d_n, &deviates, fixed)
+        })
     };
-    let status = if !best.cost.is_finite() {
+    let status = if cost.dim() > 0 && budget.evaluations() == 0 {
+        TuneStatus::BudgetExhausted
+    } else if !best.cost.is_finite() {
         TuneStatus::Diverged
-    } else if after.verdict.passes() {
+    } else if confirmation.holds() {
         TuneStatus::Consistent
     } else if budget.exhausted() {
         TuneStatus::BudgetExhausted
@@ -220,12 +233,13 @@ pub fn tune(
         diverged_evaluations: budget.diverged(),
         history: budget.history(),
         resolution,
-        noise_floor,
+        refine_evaluations,
         search_seed: mc.seed(),
         confirm_seed,
-        runs: cmc.runs(),
-        steps: cmc.steps(),
-        alpha: cmc.alpha(),
+        confirmation,
+        runs: mc.runs(),
+        steps: mc.steps(),
+        alpha: mc.alpha(),
         before,
         after,
         status,

@@ -11,9 +11,11 @@ use crate::stats::ConsistencyReport;
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "snake_case")]
 pub enum TuneStatus {
-    /// The tuned filter passed the confirmation on fresh seeds.
+    /// The tuned filter passed the gate on fresh seeds as often as a consistent filter does
+    /// (its count inside the binomial band).
     Consistent,
-    /// The search finished but the tuned filter fails the confirmation.
+    /// The search finished but the tuned filter fails the gate on fresh seeds more often
+    /// than a consistent filter: no value of the free parameters makes it consistent.
     Inconsistent,
     /// The budget ran out before the search converged (the best point so far is reported).
     BudgetExhausted,
@@ -24,8 +26,8 @@ pub enum TuneStatus {
 /// How precisely the data pin down one parameter.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct Resolution {
-    /// The factor by which the parameter can move (others re-adjusting) before the
-    /// objective rises by its Monte Carlo noise level; `None` if fixed.
+    /// The factor within which the gate's N runs determine the parameter (two standard
+    /// deviations of the estimate they would give, others re-adjusting); `None` if fixed.
     pub factor: Option<f64>,
     /// False when that factor exceeds 2 (a flat direction of the objective) or the value
     /// sits on a search bound (the data might want it beyond).
@@ -86,22 +88,24 @@ pub struct TuneResult {
     /// curvature says something only at a converged optimum, and measuring it would spend
     /// evaluations the budget no longer has).
     pub resolution: Option<Vec<Resolution>>,
-    /// Objective noise level used for the resolution: the objective of the tuned filter on
-    /// the confirmation runs.
-    pub noise_floor: f64,
+    /// Evaluations of the refinement (the gate's sensitivity and the refinement's steps),
+    /// beside the search's budget.
+    pub refine_evaluations: usize,
     /// Seed used for the search's Monte Carlo runs (common random numbers).
     pub search_seed: u64,
-    /// Seed of the confirmation runs.
+    /// Seed of the first confirmation run.
     pub confirm_seed: u64,
+    /// The gate on fresh seeds: how many of them the tuned filter passes.
+    pub confirmation: super::Confirmation,
     /// Monte Carlo settings of the confirmation.
     pub runs: usize,
     /// Steps of the confirmation.
     pub steps: usize,
     /// Significance level.
     pub alpha: f64,
-    /// The starting filter on the confirmation seeds.
+    /// The starting filter on the first confirmation seed.
     pub before: ConsistencyReport,
-    /// The tuned filter on the confirmation seeds.
+    /// The tuned filter on the first confirmation seed.
     pub after: ConsistencyReport,
     /// How the run ended.
     pub status: TuneStatus,

@@ -110,6 +110,8 @@ pub struct TuneSettings {
     local: LocalSearch,
     confirm_seed: Option<u64>,
     search_runs: Option<usize>,
+    confirm_seeds: usize,
+    refine_runs: Option<usize>,
 }
 
 impl Default for TuneSettings {
@@ -125,6 +127,8 @@ impl Default for TuneSettings {
             local: LocalSearch::Simplex,
             confirm_seed: None,
             search_runs: None,
+            confirm_seeds: 20,
+            refine_runs: None,
         }
     }
 }
@@ -279,6 +283,51 @@ impl TuneSettings {
         self.local
     }
 
+    /// Number of fresh seeds K of the confirmation (2 to 10,000; default 20): the tuned
+    /// filter is consistent when its pass count lies in the binomial band of a filter that
+    /// passes each with probability 1 − α.
+    pub fn with_confirm_seeds<N: TryInto<usize> + std::fmt::Display + Copy>(
+        mut self,
+        n: N,
+    ) -> Result<Self, SettingError> {
+        let k = at_least("confirm_seeds", n, 2)?;
+        if k > 10_000 {
+            return Err(SettingError::new(
+                "confirm_seeds",
+                format!("{k} is more than 10000 confirmation seeds"),
+            ));
+        }
+        self.confirm_seeds = k;
+        Ok(self)
+    }
+
+    /// Number of fresh seeds of the confirmation.
+    pub fn confirm_seeds(&self) -> usize {
+        self.confirm_seeds
+    }
+
+    /// Runs of the final refinement under Monte Carlo scoring, in 1..=`MAX_RUNS` (the Monte
+    /// Carlo test's own bound; default four times the search's runs).
+    pub fn with_refine_runs<N: TryInto<usize> + std::fmt::Display + Copy>(
+        mut self,
+        n: Option<N>,
+    ) -> Result<Self, SettingError> {
+        self.refine_runs = match n {
+            Some(n) => Some(at_most(
+                "refine_runs",
+                at_least("refine_runs", n, 1)?,
+                MAX_RUNS,
+            )?),
+            None => None,
+        };
+        Ok(self)
+    }
+
+    /// Runs of the final refinement, if set.
+    pub fn refine_runs(&self) -> Option<usize> {
+        self.refine_runs
+    }
+
     /// Seed of the confirmation runs, if set.
     pub fn confirm_seed(&self) -> Option<u64> {
         self.confirm_seed
@@ -356,6 +405,13 @@ mod tests {
             SettingError::new("global_points", "9223372036854775807 must be ≤ 1000")
         );
         assert!(s.clone().with_search_runs(0).is_err());
+        assert_eq!(
+            s.clone()
+                .with_refine_runs(Some(i64::MAX))
+                .unwrap_err()
+                .setting,
+            "refine_runs"
+        );
         assert_eq!(
             s.clone().with_search_runs(u64::MAX).unwrap_err().setting,
             "search_runs"

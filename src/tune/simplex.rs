@@ -8,9 +8,13 @@ use argmin::solver::neldermead::NelderMead;
 use super::budget::{Budget, Exhausted};
 use super::cost::Candidate;
 
-/// The simplex stops when the standard deviation of its vertices' scores falls below this.
-/// (argmin's default never stops; J is dimensionless and O(1) far from the optimum.)
+/// The simplex stops when the standard deviation of its vertices' scores falls below this
+/// under exact scoring. (argmin's default never stops; J is dimensionless and O(1) far from
+/// the optimum.)
 const SD_TOLERANCE: f64 = 1e-10;
+/// The same under Monte Carlo scoring: J carries the search runs' noise, so polishing it
+/// further buys nothing; the refinement on more runs takes over from here.
+const SD_TOLERANCE_MONTE_CARLO: f64 = 1e-5;
 
 /// Iterations per free parameter.
 const ITERS_PER_DIM: usize = 200;
@@ -34,9 +38,14 @@ pub(super) fn nelder_mead(
         v[k] += if v[k] + step > hi[k] { -step } else { step };
         simplex.push(v);
     }
+    let tolerance = if budget.cost().exact {
+        SD_TOLERANCE
+    } else {
+        SD_TOLERANCE_MONTE_CARLO
+    };
     let solver = NelderMead::new(simplex)
-        .with_sd_tolerance(SD_TOLERANCE)
-        .expect("SD_TOLERANCE is positive");
+        .with_sd_tolerance(tolerance)
+        .expect("the tolerances are positive");
     let run = Executor::new(Charged(RefCell::new(&mut *budget)), solver)
         .configure(|s| s.max_iters((ITERS_PER_DIM * d.max(1)) as u64))
         .run();

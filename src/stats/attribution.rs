@@ -1,0 +1,200 @@
+//! Which noise model the evidence points to: the process noise Q, the measurement noise R,
+//! or both.
+//!
+//! A time average alone cannot tell: ANIS tests `S = H P H' + R`, and a too-small Q and a
+//! too-small R both make it high. Two more pieces of evidence separate them:
+//! - The whiteness of each measurement component's innovations says whether the gain is
+//!   right. A gain too low (Q too small for R) leaves errors that persist from step to step,
+//!   so neighbouring innovations correlate positively (ρ₁ > 0); a gain too high (Q too large
+//!   for R) over-corrects, so they alternate (ρ₁ < 0). With the level of `ν_j²/S_jj`:
+//!
+//!   | `ν²/S` | ρ₁ > 0 (gain low) | ρ₁ < 0 (gain high) | white |
+//!   |--------|-------------------|--------------------|-------|
+//!   | high   | Q too small       | R too small        | Q and R both too small |
+//!   | low    | R too large       | Q too large        | Q and R both too large |
+//!   | at 1   | Q/R too small     | Q/R too large      | —     |
+//!
+//!   (S too small with a low gain: the filter believes its prediction too much, so Q is
+//!   small; S too small with a high gain: it believes the measurement too much, so R is
+//!   small; and likewise for the rest.)
+//! - With ground truth, the state components: errors that fit P while the innovations do not
+//!   fit S put the blame on R; errors off while the innovations fit put it on Q (in states
+//!   the sensors do not see directly) or on the initial covariance.
+
+use serde::Serialize;
+
+use super::{ComponentStat, ConsistencyReport, Verdict, WhitenessTest};
+
+/// A noise model the evidence blames.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Suspect {
+    /// The process noise Q.
+    Q,
+    /// The measurement noise R.
+    R,
+    /// Both together (the gain fits, the scale does not), or their ratio.
+    QAndR,
+}
+
+impl Suspect {
+    fn words(self) -> &'static str {
+        match self {
+            Suspect::Q => "Q (process noise)",
+            Suspect::R => "R (measurement noise)",
+            Suspect::QAndR => "Q and R together",
+        }
+    }
+}
+
+/// One piece of evidence and what it points to.
+#[derive(Debug, Clone, Serialize)]
+pub struct Finding {
+    /// The component it is about (a measurement or state component name).
+    pub component: String,
+    /// What it blames; `None` for a state component off while the innovations are off too
+    /// (then it is context: the innovations carry the blame).
+    pub suspect: Option<Suspect>,
+    /// The change the evidence asks for, in words ("increase R", "decrease Q/R").
+    pub action: String,
+    /// The evidence in numbers.
+    pub evidence: String,
+}
+
+/// What the statistics say about Q and R.
+#[derive(Debug, Clone, Serialize)]
+pub struct Diagnosis {
+    /// The findings, measurement components first.
+    pub findings: Vec<Finding>,
+    /// What they point to overall; `None` when nothing is off.
+    pub suspect: Option<Suspect>,
+    /// Some state components are off while the innovations carry the blame: the other
+    /// noise model may be off as well.
+    pub states_off_too: bool,
+}
+
+impl Diagnosis {
+    /// One line: what the evidence points to, or `None` when nothing is off.
+    pub fn headline(&self) -> Option<String> {
+        self.suspect.map(|s| {
+            let also = match (self.states_off_too, s) {
+                (true, Suspect::R) => "; state components are off too, so Q may be off as well",
+                (true, _) => "; state components are off too",
+                _ => "",
+            };
+            format!("the evidence points to {}{also}", s.words())
+        })
+    }
+}
+
+/// Direction of a component's level: +1 above its interval, −1 below, 0 inside or unknown.
+fn level(c: &ComponentStat) -> i32 {
+    match c.verdict {
+        Verdict::Overconfident => 1,
+        Verdict::Underconfident => -1,
+        _ => 0,
+    }
+}
+
+/// The sign of a failed whiteness test's lag-1 autocorrelation, 0 when white.
+fn gain(w: Option<&WhitenessTest>) -> i32 {
+    match w {
+        Some(w) if w.verdict == Verdict::NotWhite && w.rho1 != 0.0 => {
+            if w.rho1 > 0.0 {
+                1
+            } else {
+                -1
+            }
+        }
+        _ => 0,
+    }
+}
+
+/// Read `report`'s components and whiteness for which of Q and R is off (see the module
+/// documentation for the reasoning).
+pub fn diagnose(report: &ConsistencyReport) -> Diagnosis {
+    let states_fit = report.state_components.iter().all(|c| level(c) == 0);
+    let has_truth = !report.state_components.is_empty();
+    let mut findings = Vec::new();
+    for c in &report.measurement_components {
+        let w = report
+            .whiteness_tests
+            .iter()
+            .find(|w| w.component == c.name);
+        let (lv, g) = (level(c), gain(w));
+        if lv == 0 && g == 0 {
+            continue;
+        }
+        let rho = w.map_or(String::new(), |w| format!(", ρ₁ = {:+.3}", w.rho1));
+        let evidence = format!("ν²/S = {:.3}{rho}", c.value);
+        let (suspect, action) = if lv != 0 && has_truth && states_fit {
+            // The state errors fit P: the mismatch is in the measurement model.
+            (Suspect::R, if lv > 0 { "increase R" } else { "decrease R" })
+        } else {
+            match (lv, g) {
+                (1, 1) => (Suspect::Q, "increase Q"),
+                (1, -1) => (Suspect::R, "increase R"),
+                (-1, -1) => (Suspect::Q, "decrease Q"),
+                (-1, 1) => (Suspect::R, "decrease R"),
+                (1, _) => (Suspect::QAndR, "increase Q and R in proportion"),
+                (-1, _) => (Suspect::QAndR, "decrease Q and R in proportion"),
+                (_, 1) => (
+                    Suspect::QAndR,
+                    "increase Q relative to R (the gain is too low)",
+                ),
+                _ => (
+                    Suspect::QAndR,
+                    "decrease Q relative to R (the gain is too high)",
+                ),
+            }
+        };
+        findings.push(Finding {
+            component: c.name.clone(),
+            suspect: Some(suspect),
+            action: action.to_string(),
+            evidence,
+        });
+    }
+    let innovations_fit = findings.is_empty();
+    for c in &report.state_components {
+        let lv = level(c);
+        if lv == 0 {
+            continue;
+        }
+        let (suspect, action) = match (innovations_fit, lv > 0) {
+            (true, true) => (
+                Some(Suspect::Q),
+                "increase Q acting on it (or its initial variance)",
+            ),
+            (true, false) => (
+                Some(Suspect::Q),
+                "decrease Q acting on it (or its initial variance)",
+            ),
+            (false, true) => (None, "its variance in P is too small"),
+            (false, false) => (None, "its variance in P is too large"),
+        };
+        findings.push(Finding {
+            component: c.name.clone(),
+            suspect,
+            action: action.to_string(),
+            evidence: format!("e²/P = {:.3}", c.value),
+        });
+    }
+    let blames = |s: Suspect| findings.iter().any(|f| f.suspect == Some(s));
+    let suspect = match (
+        blames(Suspect::Q),
+        blames(Suspect::R),
+        blames(Suspect::QAndR),
+    ) {
+        (false, false, false) => None,
+        (true, false, false) => Some(Suspect::Q),
+        (false, true, false) => Some(Suspect::R),
+        _ => Some(Suspect::QAndR),
+    };
+    let states_off_too = findings.iter().any(|f| f.suspect.is_none());
+    Diagnosis {
+        findings,
+        suspect,
+        states_off_too,
+    }
+}

@@ -99,6 +99,14 @@ pub fn at_least<T: TryInto<usize> + std::fmt::Display + Copy>(
         .ok_or_else(|| SettingError::new(setting, format!("{v} must be ≥ {min}")))
 }
 
+/// `n` if it is at most `max`, or an error for `setting`.
+pub fn at_most(setting: &str, n: usize, max: usize) -> Result<usize, SettingError> {
+    if n > max {
+        return Err(SettingError::new(setting, format!("{n} must be ≤ {max}")));
+    }
+    Ok(n)
+}
+
 /// Read a file as UTF-8 text; the error names the file.
 pub fn read_text(path: &Path) -> Result<String, FileError> {
     let bytes =

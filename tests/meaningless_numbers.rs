@@ -5,7 +5,8 @@
 //! zero-width interval, so the verdict was not monotone in q; an unstable truth gave NaN
 //! reported as "inconclusive (too little data)", or a 127-digit ANEES "overconfident". Now
 //! the first is the verdict `ill-conditioned` (exit 1: the filter as configured fails the
-//! gate) and the second `truth overflow` (exit 2: the problem, not the filter, must change).
+//! gate) and the second `truth overflow` (exit 2 with a one-line error naming the file: the
+//! problem, not the filter, must change).
 
 mod common;
 
@@ -173,6 +174,13 @@ fn a_truth_that_outgrows_double_precision_is_a_truth_overflow_on_every_path() {
     assert_eq!(out.status.code(), Some(2), "{text}");
     assert!(text.contains("verdict: truth overflow"), "{text}");
     assert!(text.contains("the truth model is unstable"), "{text}");
+    // Bad input, so also the one-line error naming the file and the section to change.
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(err.lines().count(), 1, "{err}");
+    assert!(
+        err.starts_with("error: ") && err.contains("unstable.toml: truth: the truth overflowed"),
+        "{err}"
+    );
 
     // Tuning cannot help: every candidate stops, and the problem file is what must change.
     let out = Command::cargo_bin("autotune")
@@ -185,6 +193,9 @@ fn a_truth_that_outgrows_double_precision_is_a_truth_overflow_on_every_path() {
     let text = String::from_utf8_lossy(&out.stdout);
     assert_eq!(out.status.code(), Some(2), "{text}");
     assert!(text.contains("after truth overflow"), "{text}");
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(err.lines().count(), 1, "{err}");
+    assert!(err.contains("truth: the truth overflowed"), "{err}");
 }
 
 #[test]

@@ -194,10 +194,12 @@ fn the_exact_path_refuses_a_mapped_filter_and_tuning_says_so() {
     let err = tune(&p, &theta, &fixed, p.mc(), &s, &Silent).unwrap_err();
     assert!(err.to_string().contains("truth's states"), "{err}");
 
+    let dir = tempfile::tempdir().unwrap();
     let out = Command::cargo_bin("autotune")
         .unwrap()
         .args(["tune", data("ca_vs_cv.toml").to_str().unwrap()])
-        .args(["--scoring", "exact", "--out", "/dev/null"])
+        .args(["--scoring", "exact", "--out"])
+        .arg(dir.path().join("tuned.toml"))
         .output()
         .unwrap();
     let err = String::from_utf8_lossy(&out.stderr);

@@ -5,7 +5,6 @@ mod common;
 
 use autotune::check::check;
 use autotune::experiment::Experiment;
-use autotune::params::ParamSpace;
 use autotune::report::tuned::TunedConfig;
 use common::{load, problem_path};
 
@@ -14,9 +13,7 @@ use common::{load, problem_path};
 fn passes(name: &str) -> usize {
     let p = load(name);
     let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
-    let space: &ParamSpace = p.params();
-    let theta =
-        TunedConfig::load_values(&root.join(format!("tuned/{name}.toml")), name, space).unwrap();
+    let theta = TunedConfig::load_values(&root.join(format!("tuned/{name}.toml")), &p).unwrap();
     assert!(problem_path(name).exists());
     (3001..=3100)
         .filter(|&s| {

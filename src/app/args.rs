@@ -14,20 +14,21 @@ use crate::montecarlo::McConfig;
 use crate::params::ParamSpace;
 use crate::stats::GateMode;
 
-/// Monte Carlo overrides shared by the commands.
+/// Monte Carlo overrides shared by the commands. Numeric values may be negative on the
+/// command line (`--alpha -0.1` is a value, refused by the setter, not an unknown flag).
 #[derive(Debug, Clone, Default, clap::Args)]
 pub struct McArgs {
     /// Number of Monte Carlo runs N (overrides the file).
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     runs: Option<usize>,
     /// Steps per run T (overrides the file).
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     steps: Option<usize>,
     /// Base seed (overrides the file).
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     seed: Option<u64>,
     /// Significance level α in (0, 1) (overrides the file).
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     alpha: Option<f64>,
     /// Which tests the gate applies (overrides the file): full = the time averages, every
     /// component and the innovations' whiteness at a family-wise α (Šidák); mean = the
@@ -65,13 +66,24 @@ impl McArgs {
         Ok(mc)
     }
 
-    /// `theta` with the `--set` values applied.
-    pub fn set_params(&self, params: &ParamSpace, theta: &mut [f64]) -> Result<(), AppError> {
+    /// Whether `--runs` was given.
+    pub fn runs_given(&self) -> bool {
+        self.runs.is_some()
+    }
+
+    /// `theta` with the `--set` values applied; returns the indices set.
+    pub fn set_params(
+        &self,
+        params: &ParamSpace,
+        theta: &mut [f64],
+    ) -> Result<Vec<usize>, AppError> {
+        let mut set = Vec::with_capacity(self.set.len());
         for kv in &self.set {
             let (i, v) = name_value(params, "--set", kv)?;
             theta[i] = v;
+            set.push(i);
         }
-        Ok(())
+        Ok(set)
     }
 }
 

@@ -1,21 +1,23 @@
 //! `check`: the Monte Carlo consistency gate on any experiment.
 
-use std::io::{IsTerminal, Write};
+use std::io::IsTerminal;
 use std::path::PathBuf;
 use std::process::ExitCode;
 
 use indicatif::{ProgressBar, ProgressStyle};
 
 use super::args::{McArgs, OneOf};
-use super::{AppError, paint_verdict};
+use super::{AppError, paint_verdict, print_stdout};
 use crate::check::check_with;
-use crate::experiment::{Experiment, RunOptions};
+use crate::experiment::{Experiment, RunOptions, Source};
+use crate::input::FileError;
 use crate::montecarlo::Engine;
 use crate::report::html::{check_html, check_markdown};
 use crate::report::{
-    CheckOutput, junit_xml, summary_text, tuned::TunedConfig, write_file, write_report_dir,
+    CheckOutput, Outputs, check_output_file, check_report_dir, junit_xml, summary_text,
+    tuned::TunedConfig,
 };
-use crate::stats::Verdict;
+use crate::stats::{ConsistencyReport, Verdict};
 
 /// The options of `check`.
 #[derive(Debug, Clone, clap::Args)]
@@ -41,7 +43,7 @@ pub struct CheckOptions {
     #[arg(long, default_value = "auto", value_parser = OneOf::<Engine>::new())]
     engine: Engine,
     /// Print nothing; the exit code is the answer.
-    #[arg(long, short)]
+    #[arg(long, short, conflicts_with = "json")]
     quiet: bool,
 }
 
@@ -49,7 +51,7 @@ pub struct CheckOptions {
 pub fn run(experiment: &dyn Experiment, a: CheckOptions) -> Result<ExitCode, AppError> {
     let info = experiment.info();
     let mut theta = match &a.config {
-        Some(c) => TunedConfig::load_values(c, &info.name, experiment.params())?,
+        Some(c) => TunedConfig::load_values(c, experiment)?,
         None => experiment.params().values(),
     };
     a.mc.set_params(experiment.params(), &mut theta)?;
@@ -63,6 +65,13 @@ pub fn run(experiment: &dyn Experiment, a: CheckOptions) -> Result<ExitCode, App
             ),
         ));
     }
+    // Every output location is checked before the work, so a bad one costs no run.
+    if let Some(path) = &a.junit {
+        check_output_file(path)?;
+    }
+    if let Some(dir) = &a.report {
+        check_report_dir(dir)?;
+    }
     // A progress bar with ETA on stderr, only on a terminal and only for runs long enough
     // to be worth one; the linear fast path steps about 100 times faster than the others.
     let long = if experiment.supports(crate::montecarlo::Engine::Linear) {
@@ -70,8 +79,10 @@ pub fn run(experiment: &dyn Experiment, a: CheckOptions) -> Result<ExitCode, App
     } else {
         200_000
     };
-    let bar = (!a.quiet && std::io::stderr().is_terminal() && mc.runs() * mc.steps() >= long).then(
-        || {
+    let bar = (!a.quiet
+        && std::io::stderr().is_terminal()
+        && mc.runs().saturating_mul(mc.steps()) >= long)
+        .then(|| {
             let b = ProgressBar::new(mc.runs() as u64);
             b.set_style(
                 ProgressStyle::with_template(
@@ -81,8 +92,7 @@ pub fn run(experiment: &dyn Experiment, a: CheckOptions) -> Result<ExitCode, App
                 .progress_chars("=> "),
             );
             b
-        },
-    );
+        });
     let on_runs = |done: usize| {
         if let Some(b) = &bar {
             b.set_position(done as u64);
@@ -104,9 +114,6 @@ pub fn run(experiment: &dyn Experiment, a: CheckOptions) -> Result<ExitCode, App
         .map(|(p, &v)| (p.name.clone(), v))
         .collect();
 
-    if let Some(path) = &a.junit {
-        write_file(path, junit_xml(&info.name, &report).as_bytes())?;
-    }
     let out = CheckOutput {
         problem: &info.name,
         file: info.source.label(),
@@ -117,38 +124,70 @@ pub fn run(experiment: &dyn Experiment, a: CheckOptions) -> Result<ExitCode, App
         version: env!("CARGO_PKG_VERSION"),
     };
     let json = serde_json::to_string_pretty(&out).expect("the report serializes");
+    // The files are written together: all of them, or none.
+    let mut outputs = Outputs::new();
+    if let Some(path) = &a.junit {
+        outputs.file(path, junit_xml(&info.name, &report));
+    }
     if let Some(dir) = &a.report {
-        write_report_dir(
+        outputs.report_dir(
             dir,
             &check_html(experiment, &params, &report),
             &check_markdown(experiment, &params, &report),
             &json,
-        )?;
+        );
     }
-    let mut stdout = std::io::stdout().lock();
-    if a.json {
-        stdout.write_all(json.as_bytes())?;
-        writeln!(stdout)?;
-    } else if !a.quiet {
-        let text = summary_text(&info.name, &params, &report);
-        for line in text.lines() {
-            if line.starts_with("verdict:") {
-                writeln!(stdout, "{}", paint_verdict(line, report.verdict.passes()))?;
-            } else {
-                writeln!(stdout, "{line}")?;
+    outputs.commit()?;
+    let code = if report.verdict.passes() {
+        ExitCode::SUCCESS
+    } else {
+        ExitCode::from(1)
+    };
+    print_stdout(|stdout| {
+        if a.json {
+            stdout.write_all(json.as_bytes())?;
+            writeln!(stdout)?;
+        } else if !a.quiet {
+            let text = summary_text(&info.name, &params, &report);
+            for line in text.lines() {
+                if line.starts_with("verdict:") {
+                    writeln!(stdout, "{}", paint_verdict(line, report.verdict.passes()))?;
+                } else {
+                    writeln!(stdout, "{line}")?;
+                }
             }
         }
+        Ok(())
+    })?;
+    if report.verdict == Verdict::TruthOverflow {
+        return Err(truth_overflow(experiment, &report));
     }
-    stdout.flush()?;
-    Ok(exit_code(report.verdict))
+    Ok(code)
 }
 
-/// The gate's exit code: 0 consistent, 1 not, and 2 (bad input) when the truth model
-/// overflows over the horizon, since then the problem, not the filter, must change.
-pub(super) fn exit_code(verdict: Verdict) -> ExitCode {
-    match verdict {
-        v if v.passes() => ExitCode::SUCCESS,
-        Verdict::TruthOverflow => ExitCode::from(2),
-        _ => ExitCode::from(1),
+/// A truth that overflows over the horizon as the bad input it is (exit 2, one line naming
+/// the file and the section that must change), after the report that shows it: nothing
+/// about the filter was tested.
+pub(super) fn truth_overflow(experiment: &dyn Experiment, report: &ConsistencyReport) -> AppError {
+    let first = report
+        .divergences
+        .first()
+        .map(|d| format!(" (first: run {}, {})", d.run, d.reason))
+        .unwrap_or_default();
+    let message = format!(
+        "the truth overflowed in {} of {} runs{first}; use fewer steps or a stable model",
+        report.diverged_runs, report.runs
+    );
+    match &experiment.info().source {
+        Source::File { path, .. } => {
+            // A linear problem's truth is its [truth]; a catalog model's, its [model].
+            let field = if experiment.supports(Engine::Linear) {
+                "truth"
+            } else {
+                "model"
+            };
+            FileError::new(path, field, message).into()
+        }
+        Source::Program { name } => AppError::Refused(format!("{name}: {message}")),
     }
 }

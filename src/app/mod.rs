@@ -135,7 +135,10 @@ enum ModelCommand {
 }
 
 /// The `autotune` binary: parse the process's arguments, run, print any error on one line.
+/// Ctrl-C (SIGINT), SIGTERM and SIGHUP remove the temporary files of a write in progress and
+/// exit 130.
 pub fn main() -> ExitCode {
+    remove_temporary_files_on_interrupt();
     finish(run(std::env::args_os()))
 }
 
@@ -164,8 +167,55 @@ where
 /// `autotune` has (no problem file: the model is `experiment`; `tune` starts from `tune`'s
 /// settings). Prints any error on one line; returns the exit code (0 consistent, 1 not,
 /// 2 bad input).
+///
+/// Like `autotune`, it handles Ctrl-C, SIGTERM and SIGHUP (removing temporary files, exit
+/// 130) unless the program installed a handler of its own with the `ctrlc` crate first.
 pub fn main_for(experiment: &dyn Experiment, tune: &TuneSettings) -> ExitCode {
+    remove_temporary_files_on_interrupt();
     finish(run_for(experiment, tune, std::env::args_os()))
+}
+
+/// Exit code of a run stopped by Ctrl-C (128 + SIGINT, as a shell reports it).
+const INTERRUPTED: i32 = 130;
+
+/// On SIGINT, SIGTERM or SIGHUP: remove the temporary files of any write in progress, so no
+/// `.NAME.tmp.PID` file outlives the process, and exit [`INTERRUPTED`]. Installed once per
+/// process; a handler the program set before is left alone, and so is a signal the process
+/// was started with ignored (`nohup`'s SIGHUP, a script's background job's SIGINT): the
+/// user asked for it to be survived.
+fn remove_temporary_files_on_interrupt() {
+    static ONCE: std::sync::Once = std::sync::Once::new();
+    ONCE.call_once(|| {
+        let signals = [libc::SIGINT, libc::SIGTERM, libc::SIGHUP];
+        let ignored: Vec<libc::c_int> = signals.into_iter().filter(|&s| is_ignored(s)).collect();
+        if ignored.len() == signals.len() {
+            return;
+        }
+        let installed = ctrlc::set_handler(|| {
+            crate::report::remove_temporary_files();
+            std::process::exit(INTERRUPTED);
+        });
+        if installed.is_ok() {
+            for s in ignored {
+                // SAFETY: setting a signal's disposition to SIG_IGN installs no handler
+                // code; it only restores what the process inherited.
+                unsafe {
+                    libc::signal(s, libc::SIG_IGN);
+                }
+            }
+        }
+    });
+}
+
+/// Whether `signal` is ignored (SIG_IGN) in this process.
+fn is_ignored(signal: libc::c_int) -> bool {
+    // SAFETY: a null new action only reads the current one into `old`, which is a plain
+    // C struct for which all-zero bytes are a valid value.
+    unsafe {
+        let mut old: libc::sigaction = std::mem::zeroed();
+        libc::sigaction(signal, std::ptr::null(), &mut old) == 0
+            && old.sa_sigaction == libc::SIG_IGN
+    }
 }
 
 /// [`main_for`] with these arguments (the first is the program name).
@@ -206,13 +256,43 @@ fn usage_error(e: clap::Error, program: &str) -> Result<ExitCode, AppError> {
         return Ok(ExitCode::SUCCESS);
     }
     let text = e.render().to_string();
-    let first = text.lines().next().unwrap_or("invalid arguments").trim();
+    let mut lines = text.lines();
+    let first = lines.next().unwrap_or("invalid arguments").trim();
     let first = first.strip_prefix("error: ").unwrap_or(first);
+    // clap lists missing arguments on the lines after the first, up to a blank line.
+    let missing: Vec<&str> = if e.kind() == ErrorKind::MissingRequiredArgument {
+        lines
+            .take_while(|l| !l.trim().is_empty())
+            .map(str::trim)
+            .collect()
+    } else {
+        Vec::new()
+    };
+    let first = if missing.is_empty() {
+        first.to_string()
+    } else {
+        format!("{} {}", first, missing.join(", "))
+    };
     Err(AppError::Usage(format!("{first} (see '{program} --help')")))
 }
 
-/// Print an error as `error: …` on stderr and map it to exit code 2; a closed stdout pipe
-/// (`autotune check … | head`) is not an error.
+/// Print on stdout with `f`. A closed pipe (`autotune check … | head`) ends the printing
+/// without an error, so the command still exits with its verdict's code; any other failure
+/// of stdout is an error.
+fn print_stdout(
+    f: impl FnOnce(&mut dyn std::io::Write) -> std::io::Result<()>,
+) -> Result<(), AppError> {
+    use std::io::Write;
+    let mut stdout = std::io::stdout().lock();
+    match f(&mut stdout).and_then(|()| stdout.flush()) {
+        Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe => Ok(()),
+        r => Ok(r?),
+    }
+}
+
+/// Print an error as `error: …` on stderr and map it to exit code 2. A closed stdout pipe
+/// is not an error here: `check` and `tune` print through [`print_stdout`] and keep their
+/// verdict's code, and what else prints (help, `init`, `completions`) has done its work.
 fn finish(result: Result<ExitCode, AppError>) -> ExitCode {
     match result {
         Ok(code) => code,

@@ -1,20 +1,20 @@
 //! `tune`: search a consistent filter, write the tuned config and the report.
 
-use std::io::{IsTerminal, Write};
+use std::io::IsTerminal;
 use std::path::PathBuf;
 use std::process::ExitCode;
 
 use indicatif::{ProgressBar, ProgressStyle};
 
 use super::args::{McArgs, OneOf, flag_error, name_value, param_index};
-use super::{AppError, paint_verdict};
+use super::{AppError, paint_verdict, print_stdout};
 use crate::experiment::{Experiment, Source};
 use crate::input::FileError;
 use crate::report::advice::recommendations;
 use crate::report::html::tune_html;
 use crate::report::tune::{TuneReport, tune_markdown};
 use crate::report::tuned::tuned_config_toml;
-use crate::report::{fmt_g, write_file, write_report_dir};
+use crate::report::{Outputs, check_output_file, check_report_dir, fmt_fixed, fmt_g};
 use crate::stats::{StatisticSummary, Verdict};
 use crate::tune::{LocalSearch, Observer, Scoring, TuneError, TuneSettings, TuneStatus, tune};
 
@@ -43,10 +43,10 @@ pub struct TuneOptions {
     #[arg(long)]
     nis_only: bool,
     /// Evaluation budget of the search.
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     max_evals: Option<usize>,
     /// Wall-time budget of the search, s.
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     max_seconds: Option<f64>,
     /// How candidates are scored.
     #[arg(long, value_parser = OneOf::<Scoring>::new())]
@@ -56,16 +56,16 @@ pub struct TuneOptions {
     #[arg(long, value_parser = OneOf::<LocalSearch>::new())]
     local: Option<LocalSearch>,
     /// Seed of the first confirmation run.
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     confirm_seed: Option<u64>,
     /// Number of fresh seeds the tuned filter is confirmed on (default 20).
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     confirm_seeds: Option<usize>,
     /// Print the full report as JSON on stdout instead of the summary.
     #[arg(long)]
     json: bool,
     /// Print nothing; the exit code is the answer.
-    #[arg(long, short)]
+    #[arg(long, short, conflicts_with = "json")]
     quiet: bool,
 }
 
@@ -92,7 +92,7 @@ impl Observer for Progress {
 impl TuneOptions {
     /// `defaults` with the command line's settings applied.
     fn settings(&self, defaults: &TuneSettings) -> Result<TuneSettings, AppError> {
-        let mut s = defaults.clone();
+        let mut weights = Vec::with_capacity(self.weight.len());
         for kv in &self.weight {
             let (name, value) = kv
                 .split_once('=')
@@ -100,10 +100,16 @@ impl TuneOptions {
             let v: f64 = value.trim().parse().map_err(|_| {
                 AppError::flag("--weight", format!("{name}: '{value}' is not a number"))
             })?;
-            s = s
-                .with_weight(name.trim(), v)
-                .map_err(flag_error("--weight"))?;
+            weights.push((name.trim(), v));
         }
+        let mut s = if weights.is_empty() {
+            defaults.clone()
+        } else {
+            defaults
+                .clone()
+                .with_named_weights(weights)
+                .map_err(flag_error("--weight"))?
+        };
         if self.nis_only {
             s = s.with_nis_only(true);
         }
@@ -139,12 +145,17 @@ pub fn run(
     let params = experiment.params();
     let settings = a.settings(defaults)?;
     let mut start = params.values();
-    a.mc.set_params(params, &mut start)?;
+    // Which flag gave each value that is not the file's, for the bounds check below.
+    let mut given: Vec<Option<&str>> = vec![None; start.len()];
+    for i in a.mc.set_params(params, &mut start)? {
+        given[i] = Some("--set");
+    }
     let mut fixed: Vec<bool> = params.params.iter().map(|p| p.fixed).collect();
     for f in &a.fix {
         let i = if f.contains('=') {
             let (i, v) = name_value(params, "--fix", f)?;
             start[i] = v;
+            given[i] = Some("--fix");
             i
         } else {
             param_index(params, "--fix", f)?
@@ -154,7 +165,7 @@ pub fn run(
     for (i, p) in params.params.iter().enumerate() {
         if !(p.lower..=p.upper).contains(&start[i]) {
             return Err(AppError::flag(
-                "--set",
+                given[i].unwrap_or("--set"),
                 format!(
                     "{} = {} is outside its bounds [{}, {}]",
                     p.name, start[i], p.lower, p.upper
@@ -163,10 +174,23 @@ pub fn run(
         }
     }
     let mc = a.mc.apply(*experiment.mc())?;
-    let out = a
-        .out
-        .clone()
-        .unwrap_or_else(|| PathBuf::from("tuned").join(format!("{}.toml", info.name)));
+    settings
+        .search_runs_for(mc.runs())
+        .map_err(|e| runs_error(e, experiment, a.mc.runs_given()))?;
+    let tuned_path = PathBuf::from("tuned").join(format!("{}.toml", info.name));
+    let rejected_path = tuned_path.with_file_name(format!("{}.rejected.toml", info.name));
+    // Every output location is checked before the search, so a bad one costs no work;
+    // without --out the config goes to one of two places, decided by the confirmation.
+    match &a.out {
+        Some(out) => check_output_file(out)?,
+        None => {
+            check_output_file(&tuned_path)?;
+            check_output_file(&rejected_path)?;
+        }
+    }
+    if let Some(dir) = &a.report {
+        check_report_dir(dir)?;
+    }
 
     let bar = (!a.quiet && std::io::stderr().is_terminal()).then(|| {
         let b = ProgressBar::new(settings.max_evals() as u64);
@@ -186,14 +210,20 @@ pub fn run(
         b.finish_and_clear();
     }
 
-    // A run that did not confirm never replaces the config CI gates on; it goes beside it.
-    let out = if a.out.is_none() && result.status != TuneStatus::Consistent {
-        out.with_file_name(format!("{}.rejected.toml", info.name))
-    } else {
-        out
+    let consistent = result.status == TuneStatus::Consistent;
+    // A run that did not confirm never replaces the config CI gates on; it goes beside it,
+    // and a rejected config a later run supersedes is removed.
+    let mut outputs = Outputs::new();
+    let out = match &a.out {
+        Some(out) => out.clone(),
+        None if consistent => {
+            outputs.remove_stale(&rejected_path);
+            tuned_path
+        }
+        None => rejected_path,
     };
     let recs = recommendations(experiment, &result, &result.before);
-    write_file(&out, tuned_config_toml(experiment, &result).as_bytes())?;
+    outputs.file(&out, tuned_config_toml(experiment, &result));
     let report = TuneReport {
         problem: &info.name,
         file: info.source.label(),
@@ -204,95 +234,111 @@ pub fn run(
     };
     let json = serde_json::to_string_pretty(&report).expect("the report serializes");
     if let Some(dir) = &a.report {
-        write_report_dir(
+        outputs.report_dir(
             dir,
             &tune_html(experiment, &result, &recs),
             &tune_markdown(experiment, &result, &recs),
             &json,
-        )?;
-    }
-    let mut stdout = std::io::stdout().lock();
-    if a.json {
-        writeln!(stdout, "{json}")?;
-    } else if !a.quiet {
-        writeln!(
-            stdout,
-            "autotune tune {}: {} evaluations ({} scoring) in {:.2} s, {} diverged",
-            info.name,
-            result.evaluations,
-            format!("{:?}", result.scoring).to_lowercase(),
-            result.seconds,
-            result.diverged_evaluations
-        )?;
-        if result.status == TuneStatus::BudgetExhausted {
-            writeln!(
-                stdout,
-                "  the search stopped on its budget (--max-evals {}, --max-seconds {}): the values below are the best found so far",
-                settings.max_evals(),
-                settings.max_seconds()
-            )?;
-        }
-        for r in &recs {
-            writeln!(
-                stdout,
-                "  {}  [{} → {}]",
-                r.advice,
-                fmt_g(r.initial),
-                fmt_g(r.tuned)
-            )?;
-        }
-        if let Some(lines) = crate::report::advice::family_finding(&result) {
-            for l in lines {
-                writeln!(stdout, "  {l}")?;
-            }
-        }
-        let line = |s: &StatisticSummary| {
-            format!(
-                "A{} {:.4} in [{:.4}, {:.4}] {}",
-                s.name,
-                s.time_average,
-                s.interval.lower,
-                s.interval.upper,
-                s.verdict.label()
-            )
-        };
-        let mut parts: Vec<String> = result.after.nees.iter().map(line).collect();
-        parts.push(line(&result.after.nis));
-        writeln!(
-            stdout,
-            "  confirmation ({} runs × {} steps, seeds from {}): {}; first seed: {}",
-            result.runs,
-            result.steps,
-            result.confirm_seed,
-            result.confirmation.text(),
-            parts.join("; ")
-        )?;
-        writeln!(stdout, "  wrote {}", out.display())?;
-        if let Some(dir) = &a.report {
-            writeln!(
-                stdout,
-                "  wrote {}/report.html, report.md, report.json",
-                dir.display()
-            )?;
-        }
-        let verdict = format!(
-            "verdict: before {}, after {}",
-            result.before.verdict.label(),
-            result.after.verdict.describe()
         );
-        writeln!(
-            stdout,
-            "{}",
-            paint_verdict(&verdict, result.status == TuneStatus::Consistent)
-        )?;
     }
-    stdout.flush()?;
+    outputs.commit()?;
+    let code = if consistent {
+        ExitCode::SUCCESS
+    } else {
+        ExitCode::from(1)
+    };
+    print_stdout(|stdout| {
+        if a.json {
+            writeln!(stdout, "{json}")?;
+        } else if !a.quiet {
+            writeln!(
+                stdout,
+                "autotune tune {}: {} evaluations ({} scoring) in {:.2} s, {} diverged",
+                info.name,
+                result.evaluations,
+                format!("{:?}", result.scoring).to_lowercase(),
+                result.seconds,
+                result.diverged_evaluations
+            )?;
+            if result.status == TuneStatus::BudgetExhausted {
+                writeln!(
+                    stdout,
+                    "  the search stopped on its budget (--max-evals {}, --max-seconds {}): the values below are the best found so far",
+                    settings.max_evals(),
+                    settings.max_seconds()
+                )?;
+            }
+            for r in &recs {
+                writeln!(
+                    stdout,
+                    "  {}  [{} → {}]",
+                    r.advice,
+                    fmt_g(r.initial),
+                    fmt_g(r.tuned)
+                )?;
+            }
+            if let Some(lines) = crate::report::advice::family_finding(&result) {
+                for l in lines {
+                    writeln!(stdout, "  {l}")?;
+                }
+            }
+            let line = |s: &StatisticSummary| {
+                if s.steps_with_data == 0 {
+                    return format!("A{} no data {}", s.name, s.verdict.label());
+                }
+                format!(
+                    "A{} {} in [{}, {}] {}",
+                    s.name,
+                    fmt_fixed(s.time_average, 4),
+                    fmt_fixed(s.interval.lower, 4),
+                    fmt_fixed(s.interval.upper, 4),
+                    s.verdict.label()
+                )
+            };
+            let mut parts: Vec<String> = result.after.nees.iter().map(line).collect();
+            parts.push(line(&result.after.nis));
+            writeln!(
+                stdout,
+                "  confirmation ({} runs × {} steps, seeds from {}): {}; first seed: {}",
+                result.runs,
+                result.steps,
+                result.confirm_seed,
+                result.confirmation.text(),
+                parts.join("; ")
+            )?;
+            writeln!(stdout, "  wrote {}", out.display())?;
+            if let Some(dir) = &a.report {
+                writeln!(
+                    stdout,
+                    "  wrote {}/report.html, report.md, report.json",
+                    dir.display()
+                )?;
+            }
+            let verdict = format!(
+                "verdict: before {}, after {}",
+                result.before.verdict.label(),
+                result.after.verdict.describe()
+            );
+            writeln!(stdout, "{}", paint_verdict(&verdict, consistent))?;
+        }
+        Ok(())
+    })?;
     // A truth that overflows is the problem file's fault, as in `check`.
-    Ok(match result.status {
-        TuneStatus::Consistent => ExitCode::SUCCESS,
-        _ if result.after.verdict == Verdict::TruthOverflow => ExitCode::from(2),
-        _ => ExitCode::from(1),
-    })
+    if result.after.verdict == Verdict::TruthOverflow {
+        return Err(super::check::truth_overflow(experiment, &result.after));
+    }
+    Ok(code)
+}
+
+/// The confirmation's run count `runs` is too large for the search's default 4 N runs:
+/// an error of `--runs` if given, else of the problem file's `montecarlo.runs`.
+fn runs_error(e: crate::input::SettingError, experiment: &dyn Experiment, flag: bool) -> AppError {
+    match &experiment.info().source {
+        Source::File { path, .. } if !flag => {
+            FileError::from_setting(path, "montecarlo.", e).into()
+        }
+        _ => AppError::flag("--runs", e.message),
+    }
 }
 
 /// A setting the tuner refused for this experiment, named where it was given: the flag,

@@ -2,12 +2,21 @@
 
 use std::fmt::Display;
 
-use crate::input::{SettingError, at_least as count};
+use crate::input::{SettingError, at_least as count, at_most};
 use crate::stats::{GateMode, GateSpec};
 
 /// Largest number of steps per run: per-step sums and the linear engine's per-step gains
 /// take memory proportional to T (about 0.5 kB per step for four states).
 pub const MAX_STEPS: usize = 1_000_000;
+
+/// Largest number of runs N, 10¹². Memory does not grow with N (the engines stream the runs
+/// in chunks), so the bound is about arithmetic, not memory: N·T stays below 2⁶³ (with T ≤
+/// [`MAX_STEPS`], N·T ≤ 10¹⁸), the tuner's default 4 N search runs fit in a `usize`, and the
+/// per-step counts of runs, summed as `f64`, stay exact integers (below 2⁵³ ≈ 9·10¹⁵ for
+/// up to 9 000 measurement components). At 10⁸ filter steps a second, 10¹² runs of one step
+/// take three hours and of a thousand steps four months, so no test anyone waits for is
+/// refused.
+pub const MAX_RUNS: usize = 1_000_000_000_000;
 
 /// Default significance level α of the two-sided tests.
 pub const DEFAULT_ALPHA: f64 = 0.05;
@@ -17,8 +26,8 @@ pub const DEFAULT_LAGS: usize = 5;
 
 /// A Monte Carlo consistency test: N runs of T steps from a base seed, tested at
 /// significance α by a gate of the chosen kind, with innovation autocorrelations up to a
-/// lag. Every value is checked by
-/// its setter, so a `McConfig` is always valid: 1 ≤ N, 1 ≤ T ≤ [`MAX_STEPS`],
+/// lag. Every value is checked by its setter, so a `McConfig` is always valid:
+/// 1 ≤ N ≤ [`MAX_RUNS`], 1 ≤ T ≤ [`MAX_STEPS`],
 /// 0 < α < 1, lags < T.
 ///
 /// ```
@@ -58,12 +67,12 @@ impl McConfig {
         mc.with_runs(runs)?.with_steps(steps)
     }
 
-    /// Number of runs N (≥ 1).
+    /// Number of runs N, in 1..=[`MAX_RUNS`].
     pub fn with_runs<R: TryInto<usize> + Display + Copy>(
         mut self,
         runs: R,
     ) -> Result<McConfig, SettingError> {
-        self.runs = count("runs", runs, 1)?;
+        self.runs = at_most("runs", count("runs", runs, 1)?, MAX_RUNS)?;
         Ok(self)
     }
 
@@ -208,5 +217,11 @@ mod tests {
             SettingError::new("lags", "-1 must be ≥ 0")
         );
         assert_eq!(mc.with_seed(u64::MAX).seed(), u64::MAX);
+        assert_eq!(mc.with_runs(MAX_RUNS).unwrap().runs(), MAX_RUNS);
+        assert_eq!(
+            mc.with_runs(u64::MAX).unwrap_err(),
+            SettingError::new("runs", "18446744073709551615 must be ≤ 1000000000000")
+        );
+        assert_eq!(mc.with_runs(i64::MAX).unwrap_err().setting, "runs");
     }
 }

@@ -12,7 +12,7 @@ mod expected;
 mod generic;
 mod linear;
 
-pub use config::{DEFAULT_ALPHA, DEFAULT_LAGS, MAX_STEPS, McConfig};
+pub use config::{DEFAULT_ALPHA, DEFAULT_LAGS, MAX_RUNS, MAX_STEPS, McConfig};
 pub use expected::{expected_accumulator, models_match};
 pub use generic::{NULL_VAR_STRIDE, run_generic, run_generic_with_progress};
 pub use linear::{run_linear, run_linear_with_progress};
@@ -58,6 +58,10 @@ pub fn run_rng(seed: u64, run: usize) -> SimRng {
 
 /// Split `runs` into fixed chunks, evaluate them in parallel waves, and merge the chunk sums
 /// in chunk order.
+///
+/// The chunks are generated wave by wave, never listed: memory holds one wave's
+/// accumulators (two chunks per thread) whatever N, so a test of 10¹⁰ runs takes time, not
+/// memory. Chunk `c` covers runs `64 c .. min(64 c + 64, N)`.
 fn run_chunked<G>(
     mc: &McConfig,
     n_x: usize,
@@ -68,19 +72,18 @@ fn run_chunked<G>(
 where
     G: Fn(Range<usize>, &mut Accumulator) + Sync,
 {
-    let ranges: Vec<Range<usize>> = (0..mc.runs())
-        .step_by(CHUNK)
-        .map(|s| s..(s + CHUNK).min(mc.runs()))
-        .collect();
+    let runs = mc.runs();
+    let chunks = runs.div_ceil(CHUNK);
+    let range = |c: usize| c * CHUNK..(c * CHUNK).saturating_add(CHUNK).min(runs);
     let mut total = Accumulator::new(mc.steps(), n_x, n_z, mc.lags());
     // Only the merge order matters for the result, so the wave size may follow the pool.
     let wave = 2 * rayon::current_num_threads().max(1);
-    for group in ranges.chunks(wave) {
-        let parts: Vec<Accumulator> = group
-            .par_iter()
-            .map(|r| {
+    for first in (0..chunks).step_by(wave) {
+        let parts: Vec<Accumulator> = (first..chunks.min(first.saturating_add(wave)))
+            .into_par_iter()
+            .map(|c| {
                 let mut acc = Accumulator::new(mc.steps(), n_x, n_z, mc.lags());
-                chunk(r.clone(), &mut acc);
+                chunk(range(c), &mut acc);
                 acc
             })
             .collect();

@@ -229,10 +229,9 @@ impl Validator<'_> {
     /// documented.
     fn tune_settings(&self, t: &spec::TuneSpec) -> VResult<TuneSettings> {
         let at = |e: SettingError| FileError::from_setting(self.file, "tune.", e);
-        let mut s = TuneSettings::default();
-        for (name, &v) in &t.weights {
-            s = s.with_weight(name, v).map_err(at)?;
-        }
+        let mut s = TuneSettings::default()
+            .with_named_weights(t.weights.iter().map(|(name, &v)| (name.as_str(), v)))
+            .map_err(at)?;
         if let Some(n) = t.max_evals {
             s = s.with_max_evals(n).map_err(at)?;
         }

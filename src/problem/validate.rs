@@ -111,10 +111,18 @@ impl Validator<'_> {
             );
         }
         if definite && !crate::linalg::is_positive_definite(m) {
-            return self.err(
-                field,
-                format!("not positive definite (smallest eigenvalue {lmin:.3e})"),
-            );
+            // A positive smallest eigenvalue that is still refused is one too small next to
+            // the largest to invert reliably: say so, rather than "not positive definite".
+            let message = if lmin > 0.0 {
+                let lmax = unit.symmetric_eigenvalues().max() * scale;
+                format!(
+                    "numerically singular: its smallest eigenvalue {lmin:.3e} is positive, but its condition number {:.3e} is too large to invert reliably",
+                    lmax / lmin
+                )
+            } else {
+                format!("not positive definite (smallest eigenvalue {lmin:.3e})")
+            };
+            return self.err(field, message);
         }
         Ok(())
     }

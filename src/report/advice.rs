@@ -60,9 +60,21 @@ fn evidence_label(evidence: &[(String, f64)]) -> &'static str {
     }
 }
 
+/// A component's normalized error as evidence, 2 decimals; `no data` for a component that
+/// was never measured (its average is 0/0).
+pub(crate) fn fmt_evidence(v: f64) -> String {
+    if v.is_nan() {
+        "no data".into()
+    } else {
+        super::fmt_fixed(v, 2)
+    }
+}
+
+/// A change factor: whole numbers from 10 on, scientific notation from 10⁶ on (a search
+/// that ran to a far bound), 2 decimals below 10.
 fn fmt_factor(f: f64) -> String {
     if f >= 10.0 {
-        format!("{f:.0}")
+        super::fmt_fixed(f, 0)
     } else {
         format!("{f:.2}")
     }
@@ -116,7 +128,7 @@ pub fn recommendations(
                 "ν²/S"
             };
             let names: Vec<&str> = evidence.iter().map(|(n, _)| n.as_str()).collect();
-            let values: Vec<String> = evidence.iter().map(|(_, v)| format!("{v:.2}")).collect();
+            let values: Vec<String> = evidence.iter().map(|(_, v)| fmt_evidence(*v)).collect();
             format!("{} ({stat} = {})", names.join(", "), values.join(", "))
         };
         let label = evidence_label(&evidence);
@@ -229,9 +241,10 @@ pub fn family_finding(result: &TuneResult) -> Option<Vec<String>> {
         .iter()
         .chain(std::iter::once(&a.nis))
         .map(|s| {
+            let c = super::summary::StatCells::of(s);
             format!(
-                "A{} {:.3} (target {:.2}, interval [{:.3}, {:.3}])",
-                s.name, s.time_average, s.target, s.interval.lower, s.interval.upper
+                "A{} {} (target {}, interval {})",
+                s.name, c.average, c.target, c.interval
             )
         })
         .collect();
@@ -248,7 +261,11 @@ pub fn family_finding(result: &TuneResult) -> Option<Vec<String>> {
             } else {
                 "errors smaller than the filter believes"
             };
-            format!("{} {stat} = {:.3} ({dir})", c.name, c.value)
+            format!(
+                "{} {stat} = {} ({dir})",
+                c.name,
+                super::fmt_fixed(c.value, 3)
+            )
         })
         .collect();
     if !off.is_empty() {

@@ -3,9 +3,9 @@
 use std::fmt::Write;
 
 use super::advice::Recommendation;
-use super::fmt_g;
 use super::plots::{components_svg, objective_svg, statistic_svg, whiteness_svg};
 use super::summary::StatCells;
+use super::{fmt_fixed, fmt_g};
 use crate::experiment::Experiment;
 use crate::stats::{ConsistencyReport, StatisticSummary};
 use crate::tune::TuneResult;
@@ -52,10 +52,10 @@ fn stat_rows(o: &mut String, label: &str, s: &StatisticSummary) {
     let c = StatCells::of(s);
     let _ = writeln!(
         o,
-        "<tr><td>{}</td><td>{}</td><td>{:.3}</td><td>{}</td><td>{}</td><td>{}</td></tr>",
+        "<tr><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td></tr>",
         escape(label),
         c.average,
-        s.target,
+        c.target,
         c.interval,
         c.in_bounds,
         c.verdict
@@ -227,12 +227,12 @@ pub fn tune_html(experiment: &dyn Experiment, res: &TuneResult, recs: &[Recommen
         let res_text = r.resolution_text();
         let _ = writeln!(
             o,
-            "<tr><td><code>{}</code></td><td>{}</td><td>{}</td><td>{}</td><td>×{:.3}</td><td>{}</td></tr>",
+            "<tr><td><code>{}</code></td><td>{}</td><td>{}</td><td>{}</td><td>×{}</td><td>{}</td></tr>",
             escape(&r.param),
             escape(&r.unit),
             fmt_g(r.initial),
             fmt_g(r.tuned),
-            r.factor,
+            fmt_fixed(r.factor, 3),
             res_text
         );
     }

@@ -2,7 +2,9 @@
 
 use std::fmt::Write;
 
+use super::fmt_fixed;
 use super::html::escape;
+use super::summary::has_data;
 use crate::stats::{ConsistencyReport, StatisticSummary};
 
 fn case(name: &str, class: &str, failure: Option<(String, String)>) -> String {
@@ -25,32 +27,37 @@ fn case(name: &str, class: &str, failure: Option<(String, String)>) -> String {
 fn stat_case(s: &StatisticSummary, class: &str) -> String {
     let name = format!("time-averaged A{}", s.name);
     let failure = (!s.verdict.passes()).then(|| {
+        if !has_data(s) {
+            let message = format!("A{}: no data (no step had data in any run)", s.name);
+            let body = format!("{message}; {}", s.verdict.describe());
+            return (message, body);
+        }
         (
             if s.interval.contains(s.time_average) {
                 format!(
-                    "A{} = {:.4}: {} (effective degrees of freedom {:.1})",
+                    "A{} = {}: {} (effective degrees of freedom {:.1})",
                     s.name,
-                    s.time_average,
+                    fmt_fixed(s.time_average, 4),
                     s.verdict.label(),
                     s.effective_dof
                 )
             } else {
                 format!(
-                    "A{} = {:.4} outside [{:.4}, {:.4}]: {}",
+                    "A{} = {} outside [{}, {}]: {}",
                     s.name,
-                    s.time_average,
-                    s.interval.lower,
-                    s.interval.upper,
+                    fmt_fixed(s.time_average, 4),
+                    fmt_fixed(s.interval.lower, 4),
+                    fmt_fixed(s.interval.upper, 4),
                     s.verdict.label()
                 )
             },
             format!(
-                "A{} time average {:.6}, target {:.3}, interval [{:.6}, {:.6}] (effective dof {:.1}); {:.1}% of steps inside the per-step interval; {}",
+                "A{} time average {}, target {:.3}, interval [{}, {}] (effective dof {:.1}); {:.1}% of steps inside the per-step interval; {}",
                 s.name,
-                s.time_average,
+                fmt_fixed(s.time_average, 6),
                 s.target,
-                s.interval.lower,
-                s.interval.upper,
+                fmt_fixed(s.interval.lower, 6),
+                fmt_fixed(s.interval.upper, 6),
                 s.effective_dof,
                 100.0 * s.fraction_in_bounds,
                 s.verdict.describe()

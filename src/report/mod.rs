@@ -1,5 +1,5 @@
-//! Output: the human summary, JSON, JUnit XML, and tuned configs; every file is written
-//! atomically.
+//! Output: the human summary, JSON, JUnit XML, and tuned configs; a command's files are
+//! checked before its work and written together, atomically (see [`Outputs`]).
 
 pub mod advice;
 pub mod html;
@@ -8,12 +8,14 @@ pub mod plots;
 mod summary;
 pub mod tune;
 pub mod tuned;
+mod write;
 
 pub use junit::junit_xml;
-pub use summary::{fmt_g, gate_text, run_spread_note, summary_text};
-
-use std::io::Write;
-use std::path::{Path, PathBuf};
+pub use summary::{fmt_fixed, fmt_g, gate_text, run_spread_note, summary_text};
+pub use write::{
+    Outputs, REPORT_FILES, WriteError, check_output_file, check_report_dir, remove_temporary_files,
+    write_file,
+};
 
 use serde::Serialize;
 
@@ -36,66 +38,4 @@ pub struct CheckOutput<'a> {
     pub report: &'a ConsistencyReport,
     /// autotune version.
     pub version: &'static str,
-}
-
-/// Write `bytes` to `path` through a temporary file in the same directory and a rename, so
-/// that readers never see a half-written file.
-pub fn write_atomic(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
-    let dir = match path.parent() {
-        Some(d) if !d.as_os_str().is_empty() => d,
-        _ => Path::new("."),
-    };
-    std::fs::create_dir_all(dir)?;
-    let name = path
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_default();
-    let tmp = dir.join(format!(".{name}.tmp.{}", std::process::id()));
-    let result = (|| {
-        let mut f = std::fs::File::create(&tmp)?;
-        f.write_all(bytes)?;
-        f.sync_all()?;
-        std::fs::rename(&tmp, path)
-    })();
-    if result.is_err() {
-        let _ = std::fs::remove_file(&tmp);
-    }
-    result
-}
-
-/// An output file that could not be written.
-#[derive(Debug, thiserror::Error)]
-#[error("writing {}: {source}", path.display())]
-pub struct WriteError {
-    /// The file.
-    pub path: PathBuf,
-    /// Why.
-    #[source]
-    pub source: std::io::Error,
-}
-
-/// [`write_atomic`], with the path in the error.
-pub fn write_file(path: &Path, bytes: &[u8]) -> Result<(), WriteError> {
-    write_atomic(path, bytes).map_err(|source| WriteError {
-        path: path.to_path_buf(),
-        source,
-    })
-}
-
-/// Write `report.html`, `report.md` and `report.json` into `dir` (created if missing), each
-/// atomically.
-pub fn write_report_dir(
-    dir: &Path,
-    html: &str,
-    markdown: &str,
-    json: &str,
-) -> Result<(), WriteError> {
-    for (name, text) in [
-        ("report.html", html),
-        ("report.md", markdown),
-        ("report.json", json),
-    ] {
-        write_file(&dir.join(name), text.as_bytes())?;
-    }
-    Ok(())
 }

@@ -2,14 +2,18 @@
 
 use std::fmt::Write;
 
-use crate::stats::{ConsistencyReport, GateMode, StatisticSummary, Verdict};
+use crate::stats::{ComponentStat, ConsistencyReport, GateMode, StatisticSummary, Verdict};
 
 /// A gate statistic's cells as every table shows them: the time average, the gate
-/// interval, the share of steps inside their per-step interval, and the verdict.
+/// interval, the share of steps inside their per-step interval, and the verdict. A
+/// statistic no step had data for (no measurement in the whole run, or every run diverged
+/// at once) shows `no data` and dashes, not a row of NaN.
 pub(crate) struct StatCells {
-    /// Time average, 4 decimals.
+    /// Time average, 4 decimals ([`fmt_fixed`]).
     pub average: String,
-    /// `[lower, upper]`, 4 decimals.
+    /// Degrees-of-freedom target, 2 decimals.
+    pub target: String,
+    /// `[lower, upper]`, 4 decimals ([`fmt_fixed`]).
     pub interval: String,
     /// Percentage of steps in bounds, 1 decimal.
     pub in_bounds: String,
@@ -19,12 +23,75 @@ pub(crate) struct StatCells {
 
 impl StatCells {
     pub(crate) fn of(s: &StatisticSummary) -> StatCells {
+        if !has_data(s) {
+            return StatCells {
+                average: "no data".into(),
+                target: "–".into(),
+                interval: "–".into(),
+                in_bounds: "–".into(),
+                verdict: s.verdict.label(),
+            };
+        }
         StatCells {
-            average: format!("{:.4}", s.time_average),
-            interval: format!("[{:.4}, {:.4}]", s.interval.lower, s.interval.upper),
+            average: fmt_fixed(s.time_average, 4),
+            target: fmt_fixed(s.target, 2),
+            interval: format!(
+                "[{}, {}]",
+                fmt_fixed(s.interval.lower, 4),
+                fmt_fixed(s.interval.upper, 4)
+            ),
             in_bounds: format!("{:.1}%", 100.0 * s.fraction_in_bounds),
             verdict: s.verdict.label(),
         }
+    }
+}
+
+/// A component's value and interval cells, 3 decimals ([`fmt_fixed`]); `no data` and a dash
+/// for a component that was never measured (a sensor that never reported in the run).
+pub(crate) fn component_cells(c: &ComponentStat) -> (String, String) {
+    if c.samples > 0.0 && c.value.is_finite() {
+        (
+            fmt_fixed(c.value, 3),
+            format!(
+                "[{}, {}]",
+                fmt_fixed(c.interval.lower, 3),
+                fmt_fixed(c.interval.upper, 3)
+            ),
+        )
+    } else {
+        ("no data".into(), "–".into())
+    }
+}
+
+/// Whether any step had data for `s`.
+pub(crate) fn has_data(s: &StatisticSummary) -> bool {
+    s.steps_with_data > 0
+}
+
+/// Why `s` has no data, in words, for a report of `r`.
+pub(crate) fn no_data_reason(s: &StatisticSummary, r: &ConsistencyReport) -> String {
+    if r.diverged_runs > 0 && r.diverged_runs == r.runs {
+        let why = match r.verdict {
+            Verdict::TruthOverflow => "its truth overflowed",
+            Verdict::IllConditioned => "a covariance was too ill-conditioned to invert",
+            _ => "its filter diverged",
+        };
+        format!(
+            "the A{} test has no data: in every run {why} before a step could be scored",
+            s.name
+        )
+    } else {
+        format!(
+            "the A{} test has no data: no step of the {} runs × {} steps had {}",
+            s.name,
+            r.runs,
+            r.steps,
+            if s.name == "NIS" {
+                "a measurement"
+            } else {
+                "a scored state"
+            }
+        )
     }
 }
 
@@ -32,8 +99,8 @@ fn stat_row(out: &mut String, s: &StatisticSummary) {
     let c = StatCells::of(s);
     let _ = writeln!(
         out,
-        "  A{:<5} {:>10} {:>7.2}   {}   {:>7}     {}",
-        s.name, c.average, s.target, c.interval, c.in_bounds, c.verdict
+        "  A{:<5} {:>10} {:>7}   {}   {:>7}     {}",
+        s.name, c.average, c.target, c.interval, c.in_bounds, c.verdict
     );
 }
 
@@ -74,10 +141,8 @@ pub fn summary_text(problem: &str, params: &[(String, f64)], r: &ConsistencyRepo
         .filter(|c| matches!(c.verdict, Verdict::Overconfident | Verdict::Underconfident))
         .map(|c| {
             let kind = if c.kind == "state" { "state" } else { "meas" };
-            format!(
-                "{kind} {} {:.3} [{:.3}, {:.3}]",
-                c.name, c.value, c.interval.lower, c.interval.upper
-            )
+            let (value, interval) = component_cells(c);
+            format!("{kind} {} {value} {interval}", c.name)
         })
         .collect();
     if off.is_empty() {
@@ -87,7 +152,7 @@ pub fn summary_text(problem: &str, params: &[(String, f64)], r: &ConsistencyRepo
                 .iter()
                 .map(|c| {
                     let kind = if c.kind == "state" { "state" } else { "meas" };
-                    format!("{kind} {} {:.3}", c.name, c.value)
+                    format!("{kind} {} {}", c.name, fmt_fixed(c.value, 3))
                 })
                 .collect();
             let _ = writeln!(
@@ -109,8 +174,12 @@ pub fn summary_text(problem: &str, params: &[(String, f64)], r: &ConsistencyRepo
         .filter(|w| w.verdict == Verdict::NotWhite)
         .map(|w| {
             format!(
-                "{} ρ₁ = {:+.3} (portmanteau {:.1} > {:.1}, {} lags)",
-                w.component, w.rho1, w.statistic, w.threshold, w.dof
+                "{} ρ₁ = {:+.3} (portmanteau {} > {}, {} lags)",
+                w.component,
+                w.rho1,
+                fmt_fixed(w.statistic, 1),
+                fmt_fixed(w.threshold, 1),
+                w.dof
             )
         })
         .collect();
@@ -120,19 +189,25 @@ pub fn summary_text(problem: &str, params: &[(String, f64)], r: &ConsistencyRepo
     if let Some(head) = r.diagnosis.headline() {
         let _ = writeln!(out, "  diagnosis: {head}");
         for f in &r.diagnosis.findings {
-            let _ = writeln!(out, "    {}: {} → {}", f.component, f.evidence, f.action);
+            let _ = writeln!(
+                out,
+                "    {}: {} → {}",
+                f.component,
+                compact_numbers(&f.evidence),
+                f.action
+            );
         }
     }
     for s in &stats {
         if let Some(note) = run_spread_note(s) {
             let _ = writeln!(out, "  note: {note}");
         }
-        // Runs that all stopped leave no data: the reason below says why, and "add runs or
-        // steps" would be the wrong advice.
-        if r.diverged_runs >= r.runs {
-            continue;
-        }
-        if !s.has_power {
+        if !has_data(s) {
+            let _ = writeln!(out, "  note: {}", no_data_reason(s, r));
+        } else if r.diverged_runs >= r.runs {
+            // Every run stopped part-way: the stopped-runs line below says why, and "add
+            // runs or steps" would be the wrong advice.
+        } else if !s.has_power {
             let _ = writeln!(
                 out,
                 "  warning: the time-averaged A{} test has only {:.1} effective degrees of freedom and cannot tell a factor-2 covariance error; add runs or steps",
@@ -209,5 +284,71 @@ pub fn fmt_g(v: f64) -> String {
             (3 - a.log10().floor() as i32).max(0) as usize
         };
         format!("{v:.digits$}")
+    }
+}
+
+/// Longest plain decimal number [`compact_numbers`] leaves as it is.
+const LONGEST_PLAIN_NUMBER: usize = 20;
+
+/// `text` with every plain decimal number longer than 20 characters rewritten as
+/// [`fmt_fixed`] writes it (scientific notation, four significant digits), for text that
+/// was built elsewhere with fixed decimals (the diagnosis's evidence): there a value of
+/// 10¹⁰⁰ is a hundred digits.
+pub(crate) fn compact_numbers(text: &str) -> String {
+    let mut out = String::with_capacity(text.len());
+    let mut rest = text;
+    while let Some(start) = rest.find(|c: char| c.is_ascii_digit()) {
+        out.push_str(&rest[..start]);
+        let tail = &rest[start..];
+        let len = tail
+            .find(|c: char| !(c.is_ascii_digit() || c == '.'))
+            .unwrap_or(tail.len());
+        let token = &tail[..len];
+        match token.parse::<f64>() {
+            Ok(v) if len > LONGEST_PLAIN_NUMBER => out.push_str(&fmt_fixed(v, 3)),
+            _ => out.push_str(token),
+        }
+        rest = &tail[len..];
+    }
+    out.push_str(rest);
+    out
+}
+
+/// Magnitude from which [`fmt_fixed`] switches to scientific notation.
+const FIXED_LIMIT: f64 = 1e6;
+
+/// A number with `decimals` decimals, as `{:.decimals$}` prints it, but in scientific
+/// notation with four significant digits from a magnitude of 10⁶ on, so that a number such
+/// as the ANEES of an overflowing filter prints as `1.234e127` rather than as 128 digits.
+pub fn fmt_fixed(v: f64, decimals: usize) -> String {
+    if v.abs() >= FIXED_LIMIT && v.is_finite() {
+        format!("{v:.3e}")
+    } else {
+        format!("{v:.decimals$}")
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn huge_numbers_print_in_scientific_notation_and_ordinary_ones_as_before() {
+        assert_eq!(fmt_fixed(3.98765432, 4), "3.9877");
+        assert_eq!(fmt_fixed(-12.5, 2), "-12.50");
+        assert_eq!(fmt_fixed(999_999.0, 4), "999999.0000");
+        assert_eq!(fmt_fixed(1.5e127, 4), "1.500e127");
+        assert_eq!(fmt_fixed(-2e6, 4), "-2.000e6");
+        assert_eq!(fmt_fixed(f64::NAN, 4), "NaN");
+        assert_eq!(fmt_fixed(f64::INFINITY, 4), "inf");
+        assert_eq!(fmt_g(1e308), "1.000e308");
+        assert_eq!(fmt_g(0.5), "0.5000");
+        assert!(fmt_fixed(f64::MAX, 4).len() < 12);
+        let long = format!("ν²/S = {:.3}, ρ₁ = +0.916", 1e100);
+        assert_eq!(compact_numbers(&long), "ν²/S = 1.000e100, ρ₁ = +0.916");
+        assert_eq!(
+            compact_numbers("e²/P = 2.500 at 1e5"),
+            "e²/P = 2.500 at 1e5"
+        );
     }
 }

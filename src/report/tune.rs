@@ -4,9 +4,9 @@ use std::fmt::Write;
 
 use serde::Serialize;
 
-use super::advice::Recommendation;
-use super::fmt_g;
-use super::summary::StatCells;
+use super::advice::{Recommendation, fmt_evidence};
+use super::summary::{StatCells, component_cells};
+use super::{fmt_fixed, fmt_g};
 use crate::experiment::{Experiment, Source};
 use crate::stats::{ConsistencyReport, StatisticSummary};
 use crate::tune::TuneResult;
@@ -34,8 +34,8 @@ fn stat_line(out: &mut String, label: &str, s: Option<&StatisticSummary>) {
             let c = StatCells::of(s);
             let _ = write!(
                 out,
-                "| {label} | {} | {:.2} | {} | {} | {} |",
-                c.average, s.target, c.interval, c.in_bounds, c.verdict
+                "| {label} | {} | {} | {} | {} | {} |",
+                c.average, c.target, c.interval, c.in_bounds, c.verdict
             );
         }
         None => {
@@ -109,16 +109,16 @@ pub fn tune_markdown(
         let ev: Vec<String> = rec
             .evidence
             .iter()
-            .map(|(n, v)| format!("{n} {v:.2}"))
+            .map(|(n, v)| format!("{n} {}", fmt_evidence(*v)))
             .collect();
         let _ = writeln!(
             o,
-            "| `{}` | {} | {} | {} | ×{:.3} | {} | {} |",
+            "| `{}` | {} | {} | {} | ×{} | {} | {} |",
             rec.param,
             rec.unit,
             fmt_g(rec.initial),
             fmt_g(rec.tuned),
-            rec.factor,
+            fmt_fixed(rec.factor, 3),
             res,
             ev.join(", ")
         );
@@ -142,22 +142,20 @@ pub fn tune_markdown(
         .iter()
         .chain(&r.after.measurement_components)
     {
+        let (value, interval) = component_cells(c);
         let _ = writeln!(
             o,
-            "| {} | {} | {:.3} | [{:.3}, {:.3}] | {} |",
+            "| {} | {} | {value} | {interval} | {} |",
             c.name,
             c.kind,
-            c.value,
-            c.interval.lower,
-            c.interval.upper,
             c.verdict.label()
         );
     }
     let _ = writeln!(o, "\n## Search\n");
     let _ = writeln!(
         o,
-        "- scoring: {:?} (search seed {}), {} evaluations in {:.2} s, {} candidates diverged",
-        r.scoring, r.search_seed, r.evaluations, r.seconds, r.diverged_evaluations
+        "- scoring: {:?} (search seed {}), {} evaluations, {} candidates diverged",
+        r.scoring, r.search_seed, r.evaluations, r.diverged_evaluations
     );
     let _ = writeln!(
         o,

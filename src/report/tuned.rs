@@ -79,6 +79,58 @@ fn rows(m: &nalgebra::DMatrix<f64>) -> Vec<Vec<f64>> {
         .collect()
 }
 
+/// Longest float literal kept as the TOML writer prints it: a 17-digit value with up to a
+/// dozen leading zeros (1e-12). Longer ones are hundreds of digits (1e100, 1e-300).
+const LONGEST_PLAIN_FLOAT: usize = 32;
+
+/// `toml` with every float literal longer than [`LONGEST_PLAIN_FLOAT`] characters rewritten
+/// in scientific notation (the TOML writer prints floats without an exponent, so the ANEES
+/// of a diverging filter came out as a hundred digits). `{:e}` is the shortest form that
+/// reads back as the same `f64`, so the values are unchanged. Strings are left alone.
+fn compact_floats(toml: &str) -> String {
+    let mut out = String::with_capacity(toml.len());
+    let mut chars = toml.char_indices().peekable();
+    let mut quote: Option<char> = None;
+    while let Some((i, c)) = chars.next() {
+        match quote {
+            Some(q) => {
+                out.push(c);
+                if c == '\\' && q == '"' {
+                    if let Some((_, e)) = chars.next() {
+                        out.push(e);
+                    }
+                } else if c == q {
+                    quote = None;
+                }
+            }
+            None if c == '"' || c == '\'' => {
+                quote = Some(c);
+                out.push(c);
+            }
+            None if c == '-' || c.is_ascii_digit() => {
+                let mut end = i + c.len_utf8();
+                while let Some(&(j, d)) = chars.peek() {
+                    if d.is_ascii_alphanumeric() || "._+-".contains(d) {
+                        end = j + d.len_utf8();
+                        chars.next();
+                    } else {
+                        break;
+                    }
+                }
+                let token = &toml[i..end];
+                match token.parse::<f64>() {
+                    Ok(v) if token.len() > LONGEST_PLAIN_FLOAT && v.is_finite() => {
+                        out.push_str(&format!("{v:e}"));
+                    }
+                    _ => out.push_str(token),
+                }
+            }
+            None => out.push(c),
+        }
+    }
+    out
+}
+
 /// The tuned config of a tuning run, as TOML text with a comment header.
 pub fn tuned_config_toml(experiment: &dyn Experiment, result: &TuneResult) -> String {
     let info = experiment.info();
@@ -126,7 +178,7 @@ pub fn tuned_config_toml(experiment: &dyn Experiment, result: &TuneResult) -> St
             .collect(),
         provenance: Some(toml::Table::try_from(&prov).expect("provenance is a plain table")),
     };
-    let body = toml::to_string(&cfg).expect("a tuned config serializes");
+    let body = compact_floats(&toml::to_string(&cfg).expect("a tuned config serializes"));
     format!(
         "# Tuned by autotune {} from {}.\n# Check it with: {} --config <this file>\n{body}",
         env!("CARGO_PKG_VERSION"),
@@ -136,27 +188,48 @@ pub fn tuned_config_toml(experiment: &dyn Experiment, result: &TuneResult) -> St
 }
 
 impl TunedConfig {
-    /// Read a tuned config for `problem` and map its values onto `space`: every parameter of
-    /// the problem must be given, and nothing else.
-    pub fn load_values(
+    /// Read a tuned config for `experiment` and map its values onto the experiment's
+    /// parameters: every parameter must be given, and nothing else; a `Q` or `R` the config
+    /// carries must be what those values give (within 1e-9 of the matrix's largest entry),
+    /// so that a config edited by hand, or tuned for another version of the problem, is
+    /// not read as something it is not.
+    pub fn load_values(path: &Path, experiment: &dyn Experiment) -> Result<Vec<f64>, FileError> {
+        let text = read_text(path)?;
+        let cfg: TunedConfig = parse_toml(&text, path)?;
+        let values = cfg.values(path, &experiment.info().name, experiment.params())?;
+        if cfg.q.is_some() || cfg.r.is_some() {
+            let cov = experiment.covariances(&values);
+            for (field, given, expected) in [
+                ("Q", &cfg.q, cov.as_ref().map(|c| &c.Q)),
+                ("R", &cfg.r, cov.as_ref().map(|c| &c.R)),
+            ] {
+                if let (Some(given), Some(expected)) = (given, expected) {
+                    same_matrix(given, expected).map_err(|m| FileError::new(path, field, m))?;
+                }
+            }
+        }
+        Ok(values)
+    }
+
+    /// The parameter values in `space`'s order, checked against it.
+    fn values(
+        &self,
         path: &Path,
         problem_name: &str,
         space: &ParamSpace,
     ) -> Result<Vec<f64>, FileError> {
         let err = |field: String, message: String| FileError::new(path, field, message);
-        let text = read_text(path)?;
-        let cfg: TunedConfig = parse_toml(&text, path)?;
-        if cfg.problem != problem_name {
+        if self.problem != problem_name {
             return Err(err(
                 "problem".into(),
                 format!(
                     "this config was tuned for '{}', not '{problem_name}'",
-                    cfg.problem
+                    self.problem
                 ),
             ));
         }
         let mut values = space.values();
-        for (name, &v) in &cfg.params {
+        for (name, &v) in &self.params {
             let Some(i) = space.index(name) else {
                 return Err(err(
                     format!("params.{name}"),
@@ -175,10 +248,60 @@ impl TunedConfig {
             values[i] = v;
         }
         for p in &space.params {
-            if !cfg.params.contains_key(&p.name) {
+            if !self.params.contains_key(&p.name) {
                 return Err(err(format!("params.{}", p.name), "missing".into()));
             }
         }
         Ok(values)
+    }
+}
+
+/// Whether the rows `given` hold `expected`, to 1e-9 of its largest entry; the error says
+/// where they differ.
+fn same_matrix(given: &[Vec<f64>], expected: &nalgebra::DMatrix<f64>) -> Result<(), String> {
+    let (n, m) = expected.shape();
+    if given.len() != n || given.iter().any(|r| r.len() != m) {
+        return Err(format!(
+            "is not {n}×{m}, the shape this problem's parameters give (remove Q and R, or tune again)"
+        ));
+    }
+    let tol = 1e-9 * expected.amax().max(f64::MIN_POSITIVE);
+    for (i, row) in given.iter().enumerate() {
+        for (j, &v) in row.iter().enumerate() {
+            let e = expected[(i, j)];
+            let close = (v - e).abs() <= tol;
+            if !close {
+                return Err(format!(
+                    "[{i}][{j}] = {v:e}, but the parameters give {e:e} (remove Q and R, or tune again)"
+                ));
+            }
+        }
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn long_floats_become_scientific_and_read_back_the_same() {
+        let mut t = toml::Table::new();
+        for (k, v) in [
+            ("big", 1e100),
+            ("tiny", -1.5e-300),
+            ("plain", 0.125),
+            ("e12", 2.1e-12),
+        ] {
+            t.insert(k.into(), toml::Value::Float(v));
+        }
+        t.insert("s".into(), toml::Value::String(format!("{}", 1e100)));
+        let text = compact_floats(&toml::to_string(&t).unwrap());
+        assert!(text.contains("big = 1e100"), "{text}");
+        assert!(text.contains("tiny = -1.5e-300"), "{text}");
+        assert!(text.contains("plain = 0.125"), "{text}");
+        assert!(text.contains("e12 = 0.0000000000021"), "{text}");
+        let back: toml::Table = text.parse().unwrap();
+        assert_eq!(back, t, "values and the string survive");
     }
 }

@@ -103,6 +103,26 @@ impl PerTerm {
         *slot = value;
         Ok(())
     }
+
+    /// Refuses weights that are all 0: J would be 0 for every candidate, so the search
+    /// could not tell one filter from another. The error's setting is `weights`.
+    pub fn check_not_all_zero(&self) -> Result<(), SettingError> {
+        let w = [
+            self.mean,
+            self.interval,
+            self.per_step,
+            self.components,
+            self.whiteness,
+            self.shape,
+        ];
+        if w.iter().all(|&v| v == 0.0) {
+            return Err(SettingError::new(
+                "weights",
+                "every weight is 0, so every candidate would score 0: give at least one weight > 0",
+            ));
+        }
+        Ok(())
+    }
 }
 
 /// The objective's value split into its terms (each already weighted).

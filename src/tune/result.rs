@@ -109,6 +109,8 @@ pub struct TuneResult {
     pub after: ConsistencyReport,
     /// How the run ended.
     pub status: TuneStatus,
-    /// Wall time of the search and confirmation, s.
+    /// Wall time of the search and confirmation, s. Not serialized: a report of the same
+    /// run must be the same file every time (the command line prints it on stdout).
+    #[serde(skip_serializing)]
     pub seconds: f64,
 }

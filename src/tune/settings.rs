@@ -3,7 +3,22 @@
 use serde::Serialize;
 
 use super::objective::Weights;
-use crate::input::{SettingError, at_least};
+use crate::input::{SettingError, at_least, at_most};
+use crate::montecarlo::MAX_RUNS;
+
+/// Largest wall-time budget, s: 10⁹ s, about 32 years. The search's deadline is the start
+/// time plus this budget, and that sum must be representable: `Duration::from_secs_f64`
+/// panics above 2⁶⁴ s and adding a `Duration` to an `Instant` overflows above about
+/// 2⁶³ s less the clock's own value. A billion seconds is far inside both and longer than
+/// any search.
+pub const MAX_SECONDS: f64 = 1e9;
+
+/// Largest number of quasi-random points of the global stage per free parameter: 1000
+/// (the default is 16). The stage builds all of its 1 + points·d candidates of d
+/// coordinates before scoring them, so this bounds its memory (about 80 MB for 100 free
+/// parameters) whatever the evaluation budget; the budget itself stops the scoring, and
+/// more points than it can score would only be built to be thrown away.
+pub const MAX_GLOBAL_POINTS: usize = 1000;
 
 /// How candidates are scored during the search.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, clap::ValueEnum)]
@@ -119,17 +134,34 @@ impl Default for TuneSettings {
 }
 
 impl TuneSettings {
-    /// Objective weights.
-    pub fn with_weights(mut self, weights: Weights) -> Self {
+    /// Objective weights, each finite and ≥ 0 and not all 0 (J would then be 0 for every
+    /// candidate).
+    pub fn with_weights(mut self, weights: Weights) -> Result<Self, SettingError> {
+        weights.check_not_all_zero()?;
         self.weights = weights;
-        self
+        Ok(self)
     }
 
     /// One objective weight by name (`mean`, `interval`, `per_step`, `components`,
-    /// `whiteness`, `shape`), finite and ≥ 0.
-    pub fn with_weight(mut self, name: &str, value: f64) -> Result<Self, SettingError> {
-        self.weights.set(name, value)?;
-        Ok(self)
+    /// `whiteness`, `shape`), finite and ≥ 0; the weights may not all be 0 afterwards. To
+    /// zero every default weight but one, set that one first, or use
+    /// [`TuneSettings::with_named_weights`].
+    pub fn with_weight(self, name: &str, value: f64) -> Result<Self, SettingError> {
+        self.with_named_weights([(name, value)])
+    }
+
+    /// Several objective weights by name, as a problem file's `[tune.weights]` or repeated
+    /// `--weight` flags give them, set together: each is checked as by
+    /// [`TuneSettings::with_weight`], and only the result must not be all 0.
+    pub fn with_named_weights<'a>(
+        self,
+        weights: impl IntoIterator<Item = (&'a str, f64)>,
+    ) -> Result<Self, SettingError> {
+        let mut w = self.weights;
+        for (name, value) in weights {
+            w.set(name, value)?;
+        }
+        self.with_weights(w)
     }
 
     /// Score NIS and measurement statistics only (no trusted ground truth).
@@ -147,10 +179,16 @@ impl TuneSettings {
         Ok(self)
     }
 
-    /// Wall-time budget of the search, s (finite, > 0).
+    /// Wall-time budget of the search, s (finite, > 0 and ≤ `MAX_SECONDS`, 10⁹ s).
     pub fn with_max_seconds(mut self, s: f64) -> Result<Self, SettingError> {
         if !(s.is_finite() && s > 0.0) {
             return Err(SettingError::new("max_seconds", format!("{s} must be > 0")));
+        }
+        if s > MAX_SECONDS {
+            return Err(SettingError::new(
+                "max_seconds",
+                format!("{s:e} must be ≤ {MAX_SECONDS:e} (about 32 years)"),
+            ));
         }
         self.max_seconds = s;
         Ok(self)
@@ -165,12 +203,14 @@ impl TuneSettings {
         Ok(self)
     }
 
-    /// Quasi-random points of the global stage per free parameter (≥ 1).
+    /// Quasi-random points of the global stage per free parameter, in
+    /// 1..=`MAX_GLOBAL_POINTS` (1000).
     pub fn with_global_points<N: TryInto<usize> + std::fmt::Display + Copy>(
         mut self,
         n: N,
     ) -> Result<Self, SettingError> {
-        self.global_points = at_least("global_points", n, 1)?;
+        let n = at_least("global_points", n, 1)?;
+        self.global_points = at_most("global_points", n, MAX_GLOBAL_POINTS)?;
         Ok(self)
     }
 
@@ -192,12 +232,14 @@ impl TuneSettings {
         self
     }
 
-    /// Runs per Monte Carlo evaluation in the search (≥ 1; default 4 N).
+    /// Runs per Monte Carlo evaluation in the search, in 1..=`MAX_RUNS` (the Monte Carlo
+    /// test's own bound; default 4 N, see [`TuneSettings::search_runs_for`]).
     pub fn with_search_runs<N: TryInto<usize> + std::fmt::Display + Copy>(
         mut self,
         n: N,
     ) -> Result<Self, SettingError> {
-        self.search_runs = Some(at_least("search_runs", n, 1)?);
+        let n = at_least("search_runs", n, 1)?;
+        self.search_runs = Some(at_most("search_runs", n, MAX_RUNS)?);
         Ok(self)
     }
 
@@ -264,14 +306,18 @@ impl TuneSettings {
         self.confirm_seeds
     }
 
-    /// Runs of the final refinement under Monte Carlo scoring (≥ 1; default four times the
-    /// search's runs).
+    /// Runs of the final refinement under Monte Carlo scoring, in 1..=`MAX_RUNS` (the Monte
+    /// Carlo test's own bound; default four times the search's runs).
     pub fn with_refine_runs<N: TryInto<usize> + std::fmt::Display + Copy>(
         mut self,
         n: Option<N>,
     ) -> Result<Self, SettingError> {
         self.refine_runs = match n {
-            Some(n) => Some(at_least("refine_runs", n, 1)?),
+            Some(n) => Some(at_most(
+                "refine_runs",
+                at_least("refine_runs", n, 1)?,
+                MAX_RUNS,
+            )?),
             None => None,
         };
         Ok(self)
@@ -292,6 +338,27 @@ impl TuneSettings {
     /// confirmation would fail far more often than α; four times the runs halve the noise).
     pub fn search_runs(&self) -> Option<usize> {
         self.search_runs
+    }
+
+    /// Runs per Monte Carlo evaluation in the search for a confirmation of `runs` runs: the
+    /// set value, or 4 `runs` computed without overflow and refused above `MAX_RUNS`
+    /// (the error's setting is `runs`, whose value is too large for the default).
+    pub fn search_runs_for(&self, runs: usize) -> Result<usize, SettingError> {
+        match self.search_runs {
+            Some(n) => Ok(n),
+            None => runs
+                .checked_mul(4)
+                .filter(|&n| n <= MAX_RUNS)
+                .ok_or_else(|| {
+                    SettingError::new(
+                        "runs",
+                        format!(
+                            "{runs} must be ≤ {} for the search's default 4 N runs (or set search_runs)",
+                            MAX_RUNS / 4
+                        ),
+                    )
+                }),
+        }
     }
 }
 
@@ -322,7 +389,42 @@ mod tests {
         assert_eq!(s.clone().with_starts(2).unwrap().starts(), 2);
         assert!(s.clone().with_global_points(0).is_err());
         assert_eq!(s.clone().with_global_points(3).unwrap().global_points(), 3);
+        assert_eq!(
+            s.clone().with_max_seconds(1e19).unwrap_err(),
+            SettingError::new("max_seconds", "1e19 must be ≤ 1e9 (about 32 years)")
+        );
+        assert_eq!(
+            s.clone()
+                .with_max_seconds(MAX_SECONDS)
+                .unwrap()
+                .max_seconds(),
+            1e9
+        );
+        assert_eq!(
+            s.clone().with_global_points(i64::MAX).unwrap_err(),
+            SettingError::new("global_points", "9223372036854775807 must be ≤ 1000")
+        );
         assert!(s.clone().with_search_runs(0).is_err());
+        assert_eq!(
+            s.clone()
+                .with_refine_runs(Some(i64::MAX))
+                .unwrap_err()
+                .setting,
+            "refine_runs"
+        );
+        assert_eq!(
+            s.clone().with_search_runs(u64::MAX).unwrap_err().setting,
+            "search_runs"
+        );
+        assert_eq!(s.search_runs_for(10), Ok(40));
+        assert_eq!(s.search_runs_for(usize::MAX).unwrap_err().setting, "runs");
+        assert_eq!(
+            s.clone()
+                .with_search_runs(7)
+                .unwrap()
+                .search_runs_for(usize::MAX),
+            Ok(7)
+        );
         assert_eq!(
             s.clone().with_search_runs(9).unwrap().search_runs(),
             Some(9)
@@ -335,6 +437,26 @@ mod tests {
         assert_eq!(
             s.clone().with_weight("shape", 2.0).unwrap().weights().shape,
             2.0
+        );
+        // All-zero weights make every candidate score 0; zeroing all but shape works when
+        // the weights are set together, whatever their order.
+        let zeros = ["mean", "interval", "per_step", "components", "whiteness"].map(|n| (n, 0.0));
+        assert_eq!(
+            s.clone().with_named_weights(zeros).unwrap_err().setting,
+            "weights"
+        );
+        let only_shape = zeros.into_iter().chain([("shape", 1.0)]);
+        assert_eq!(
+            s.clone()
+                .with_named_weights(only_shape)
+                .unwrap()
+                .weights()
+                .shape,
+            1.0
+        );
+        assert_eq!(
+            s.clone().with_weights(Weights::ZERO).unwrap_err().setting,
+            "weights"
         );
     }
 

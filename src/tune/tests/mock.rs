@@ -178,6 +178,7 @@ const COMPONENTS_ONLY: Weights = Weights {
 pub(crate) fn settings(scoring: Scoring) -> TuneSettings {
     TuneSettings::default()
         .with_weights(COMPONENTS_ONLY)
+        .expect("weights not all zero")
         .with_scoring(scoring)
 }
 

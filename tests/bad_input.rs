@@ -299,6 +299,92 @@ fn linear_rows() -> Vec<Row> {
             &[("[filter]\n", "[filter]\nx0 = [0.0]\n")],
             &["filter.x0"],
         ),
+        // --- filter.map: a filter with other states than the truth (issue 11, item 13).
+        edit(
+            "map has 3 columns for 2 truth states",
+            &[(
+                "[filter]\n",
+                "[filter]\nmap = [[1.0, 0.0, 0.0]]\nF = [[1.0]]\nH = [[1.0]]\n",
+            )],
+            &["filter.map", "3 columns", "one per truth state"],
+        ),
+        edit(
+            "map rows of different lengths",
+            &[("[filter]\n", "[filter]\nmap = [[1.0, 0.0], [1.0]]\n")],
+            &["filter.map"],
+        ),
+        edit(
+            "map with no rows",
+            &[("[filter]\n", "[filter]\nmap = []\n")],
+            &["filter.map"],
+        ),
+        edit(
+            "map entry not finite",
+            &[(
+                "[filter]\n",
+                "[filter]\nmap = [[1.0, nan]]\nF = [[1.0]]\nH = [[1.0]]\n",
+            )],
+            &["filter.map"],
+        ),
+        edit(
+            "map without the filter's own F",
+            &[("[filter]\n", "[filter]\nmap = [[1.0, 0.0]]\nH = [[1.0]]\n")],
+            &["filter.F", "the filter has 1 state ", "filter.map", "own F"],
+        ),
+        edit(
+            "map without the filter's own H",
+            &[("[filter]\n", "[filter]\nmap = [[1.0, 0.0]]\nF = [[1.0]]\n")],
+            &["filter.H", "filter.map", "own H"],
+        ),
+        edit(
+            "filter F of another size without a map",
+            &[("[filter]\n", "[filter]\nF = [[1.0]]\n")],
+            &["filter.F", "filter.map"],
+        ),
+        edit(
+            "filter H of another width with a map",
+            &[(
+                "[filter]\n",
+                "[filter]\nmap = [[1.0, 0.0]]\nF = [[1.0]]\nH = [[1.0, 0.0]]\n",
+            )],
+            &["filter.H"],
+        ),
+        edit(
+            "filter Q index beyond the mapped state",
+            &[
+                (
+                    "[filter]\n",
+                    "[filter]\nmap = [[1.0, 0.0]]\nF = [[1.0]]\nH = [[1.0]]\n",
+                ),
+                (
+                    r#"{ kind = "dwna", indices = [0, 1], param = "q_accel" }"#,
+                    r#"{ kind = "diag", indices = [1], param = "q_accel" }"#,
+                ),
+            ],
+            &["filter.Q[0].indices", "out of range 0..1"],
+        ),
+        edit(
+            "state_names name the truth's states, not the filter's",
+            &[
+                (
+                    "[filter]\n",
+                    "[filter]\nmap = [[1.0, 0.0]]\nF = [[1.0]]\nH = [[1.0]]\n",
+                ),
+                (
+                    r#"{ kind = "dwna", indices = [0, 1], param = "q_accel" }"#,
+                    r#"{ kind = "diag", indices = [0], param = "q_accel" }"#,
+                ),
+            ],
+            &["state_names", "filter's states"],
+        ),
+        edit(
+            "map makes the default filter P0 singular",
+            &[(
+                "[filter]\n",
+                "[filter]\nmap = [[1.0, 0.0], [1.0, 0.0]]\nF = [[1.0, 0.0], [0.0, 1.0]]\nH = [[1.0, 0.0]]\n",
+            )],
+            &["truth.P0 through filter.map"],
+        ),
         edit(
             "state_names has 1 name for 2 states",
             &[(

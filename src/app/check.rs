@@ -9,13 +9,15 @@ use indicatif::{ProgressBar, ProgressStyle};
 use super::args::{McArgs, OneOf};
 use super::{AppError, paint_verdict, print_stdout};
 use crate::check::check_with;
-use crate::experiment::{Experiment, RunOptions};
+use crate::experiment::{Experiment, RunOptions, Source};
+use crate::input::FileError;
 use crate::montecarlo::Engine;
 use crate::report::html::{check_html, check_markdown};
 use crate::report::{
     CheckOutput, Outputs, check_output_file, check_report_dir, junit_xml, summary_text,
     tuned::TunedConfig,
 };
+use crate::stats::{ConsistencyReport, Verdict};
 
 /// The options of `check`.
 #[derive(Debug, Clone, clap::Args)]
@@ -157,5 +159,35 @@ pub fn run(experiment: &dyn Experiment, a: CheckOptions) -> Result<ExitCode, App
         }
         Ok(())
     })?;
+    if report.verdict == Verdict::TruthOverflow {
+        return Err(truth_overflow(experiment, &report));
+    }
     Ok(code)
+}
+
+/// A truth that overflows over the horizon as the bad input it is (exit 2, one line naming
+/// the file and the section that must change), after the report that shows it: nothing
+/// about the filter was tested.
+pub(super) fn truth_overflow(experiment: &dyn Experiment, report: &ConsistencyReport) -> AppError {
+    let first = report
+        .divergences
+        .first()
+        .map(|d| format!(" (first: run {}, {})", d.run, d.reason))
+        .unwrap_or_default();
+    let message = format!(
+        "the truth overflowed in {} of {} runs{first}; use fewer steps or a stable model",
+        report.diverged_runs, report.runs
+    );
+    match &experiment.info().source {
+        Source::File { path, .. } => {
+            // A linear problem's truth is its [truth]; a catalog model's, its [model].
+            let field = if experiment.supports(Engine::Linear) {
+                "truth"
+            } else {
+                "model"
+            };
+            FileError::new(path, field, message).into()
+        }
+        Source::Program { name } => AppError::Refused(format!("{name}: {message}")),
+    }
 }

@@ -15,7 +15,7 @@ use crate::report::html::tune_html;
 use crate::report::tune::{TuneReport, tune_markdown};
 use crate::report::tuned::tuned_config_toml;
 use crate::report::{Outputs, check_output_file, check_report_dir, fmt_fixed, fmt_g};
-use crate::stats::StatisticSummary;
+use crate::stats::{StatisticSummary, Verdict};
 use crate::tune::{LocalSearch, Observer, Scoring, TuneError, TuneSettings, TuneStatus, tune};
 
 /// The options of `tune`.
@@ -323,6 +323,10 @@ pub fn run(
         }
         Ok(())
     })?;
+    // A truth that overflows is the problem file's fault, as in `check`.
+    if result.after.verdict == Verdict::TruthOverflow {
+        return Err(super::check::truth_overflow(experiment, &result.after));
+    }
     Ok(code)
 }
 

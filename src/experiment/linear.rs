@@ -5,7 +5,8 @@
 use nalgebra::{DMatrix, DVector};
 
 use super::{Covariances, Definition, Experiment, RunOptions};
-use crate::filter::KalmanFilter;
+use crate::filter::{Estimate, Filter, KalmanFilter, PredictResult, UpdateResult};
+use crate::measurement::Measurement;
 use crate::model::LinearGaussianModel;
 use crate::montecarlo::{self, Engine, McConfig, expected_accumulator, models_match};
 use crate::params::{CovModel, NoiseKind, Target};
@@ -14,7 +15,7 @@ use crate::stats::Accumulator;
 /// The filter's model with Q and R as functions of the parameters.
 #[derive(Debug, Clone)]
 pub struct FilterModel {
-    /// State transition, n × n.
+    /// State transition, n × n (n: the filter's states, n_t without a map).
     pub F: DMatrix<f64>,
     /// Measurement matrix, m × n.
     pub H: DMatrix<f64>,
@@ -26,11 +27,19 @@ pub struct FilterModel {
     pub q: CovModel,
     /// Measurement noise as a function of the parameters.
     pub r: CovModel,
+    /// From the truth's state (n_t) to the filter's (n), n × n_t, with the NEES taken on
+    /// `e = map · x_true − x̂`; `None` when the filter has the truth's states (an identity
+    /// map in the file is stored as `None`).
+    pub map: Option<DMatrix<f64>>,
 }
 
 /// A linear-Gaussian truth and a Kalman filter whose Q and R are sums of parameterized
-/// terms. It runs on the linear fast path, and when the filter uses the truth's F and H its
-/// expected statistics have a closed form ([`expected_accumulator`]).
+/// terms. It runs on the linear fast path, and when the filter has the truth's states and uses
+/// its F and H its expected statistics have a closed form ([`expected_accumulator`]).
+///
+/// The filter may have other states than the truth ([`FilterModel::map`]): the truth-model
+/// test of a filter that omits what the truth carries (an acceleration, a bias, a flexible
+/// mode). Both engines then take the NEES on the mapped error, in the filter's dimension.
 #[derive(Debug, Clone)]
 pub struct LinearExperiment {
     /// Name, source, parameters, component names (n states, m measurements), Monte Carlo.
@@ -62,13 +71,20 @@ impl Experiment for LinearExperiment {
 
     fn monte_carlo_with(&self, theta: &[f64], mc: &McConfig, run: RunOptions<'_>) -> Accumulator {
         let kf = self.filter_at(theta);
-        match run.engine {
-            Engine::Auto | Engine::Linear => {
-                montecarlo::run_linear_with_progress(&self.truth, &kf, mc, run.progress)
+        let map = self.filter.map.as_ref();
+        match (run.engine, map) {
+            (Engine::Auto | Engine::Linear, _) => {
+                montecarlo::run_linear_with_progress(&self.truth, &kf, map, mc, run.progress)
             }
-            Engine::Generic => {
+            (Engine::Generic, None) => {
                 montecarlo::run_generic_with_progress(&self.truth, &kf, mc, run.progress)
             }
+            (Engine::Generic, Some(map)) => montecarlo::run_generic_with_progress(
+                &self.truth,
+                &Mapped { kf: &kf, map },
+                mc,
+                run.progress,
+            ),
         }
     }
 
@@ -78,16 +94,12 @@ impl Experiment for LinearExperiment {
 
     fn expected(&self, theta: &[f64], mc: &McConfig) -> Option<Accumulator> {
         let kf = self.filter_at(theta);
-        if !models_match(&self.truth, &kf) {
+        if self.filter.map.is_some() || !models_match(&self.truth, &kf) {
             return None;
         }
         Some(
-            expected_accumulator(&self.truth, &kf, mc).unwrap_or_else(|_| {
-                let mut a = Accumulator::new(mc.steps(), kf.F.nrows(), kf.H.nrows(), mc.lags());
-                a.diverged_runs = mc.runs();
-                a.runs = mc.runs();
-                a
-            }),
+            expected_accumulator(&self.truth, &kf, mc)
+                .unwrap_or_else(|e| montecarlo::all_stopped(mc, kf.F.nrows(), kf.H.nrows(), &e)),
         )
     }
 
@@ -110,5 +122,39 @@ impl Experiment for LinearExperiment {
             Q: self.filter.q.build(theta),
             R: self.filter.r.build(theta),
         })
+    }
+}
+
+/// The Kalman filter as the generic engine sees it when it has other states than the truth:
+/// its estimation error is `map · x_true − x̂` (the linear fast path applies the same map to
+/// its batch of runs).
+struct Mapped<'a> {
+    kf: &'a KalmanFilter,
+    map: &'a DMatrix<f64>,
+}
+
+impl Filter for Mapped<'_> {
+    fn n_x(&self) -> usize {
+        self.kf.n_x()
+    }
+
+    fn sensor_dims(&self) -> Vec<usize> {
+        self.kf.sensor_dims()
+    }
+
+    fn initial(&self) -> Estimate {
+        self.kf.initial()
+    }
+
+    fn predict(&self, k: usize, est: &mut Estimate) -> PredictResult {
+        self.kf.predict(k, est)
+    }
+
+    fn update(&self, k: usize, est: &mut Estimate, meas: &Measurement) -> UpdateResult {
+        self.kf.update(k, est, meas)
+    }
+
+    fn state_error(&self, truth: &DVector<f64>, estimate: &DVector<f64>) -> DVector<f64> {
+        self.map * truth - estimate
     }
 }

@@ -4,9 +4,10 @@
 
 use nalgebra::DMatrix;
 
+use super::conditioning::check_conditioned;
 use super::joseph::{CovarianceUpdate, joseph_update};
 use super::{Estimate, Filter, FilterError, Innovation, PredictResult, UpdateResult};
-use crate::linalg::{mahalanobis_sq, symmetrize};
+use crate::linalg::{cholesky, mahalanobis_sq, symmetrize};
 use crate::measurement::Measurement;
 use crate::statespace::LinearGaussian;
 
@@ -27,12 +28,32 @@ impl KalmanFilter {
     /// `S = H P⁻ H' + R`, its Cholesky factor, and the Joseph-form posterior
     /// `P = (I − K H) P⁻ (I − K H)' + K R K'`, symmetrized. K solves `S K' = H P⁻` by
     /// Cholesky; no inverse is formed.
+    ///
+    /// Fails, besides [`joseph_update`]'s errors, when `P⁻` or `S` is too ill-conditioned for
+    /// the update to keep its digits ([`super::conditioning`]): the posterior is `P⁻` minus a
+    /// nearly equal matrix when `P⁻` is nearly singular (a process noise far above what the
+    /// measurements pin down), and the gain solves with `S`.
     pub fn update_covariance(
         &self,
         Pp: &DMatrix<f64>,
         step: usize,
     ) -> Result<CovarianceUpdate, FilterError> {
-        joseph_update(Pp, &self.H, &self.R, step)
+        // P⁻ = F P F' + Q is positive semidefinite in exact arithmetic, so a P⁻ with no
+        // Cholesky factor (or with entries that overflowed) is numerically singular: the far
+        // end of ill-conditioning, not a different failure.
+        match cholesky(Pp) {
+            Some(chol) => check_conditioned("P⁻", Pp, &chol, step)?,
+            None => {
+                return Err(FilterError::IllConditioned {
+                    which: "P⁻",
+                    step,
+                    condition: f64::INFINITY,
+                });
+            }
+        }
+        let cu = joseph_update(Pp, &self.H, &self.R, step)?;
+        check_conditioned("S", &cu.S, &cu.chol, step)?;
+        Ok(cu)
     }
 }
 

@@ -3,6 +3,7 @@
 //! The [`Filter`] trait is what the Monte Carlo engine runs; the linear Kalman filter
 //! ([`KalmanFilter`]) implements it, and so can a user's own filter.
 
+pub mod conditioning;
 mod joseph;
 mod kf;
 mod nonlinear;
@@ -136,6 +137,20 @@ pub enum FilterError {
         which: &'static str,
         /// Time step.
         step: usize,
+    },
+    /// A covariance the filter or the engine inverts is too ill-conditioned for the result
+    /// to mean anything: its Jacobi-scaled condition number exceeds
+    /// [`conditioning::MAX_CONDITION`] (see [`conditioning`]).
+    #[error("{which} is ill-conditioned at step {step} ({}): its inverse keeps fewer than 4 significant digits", conditioning::describe(*condition))]
+    IllConditioned {
+        /// "P⁻" (predicted covariance), "S" (innovation covariance) or "P" (state
+        /// covariance).
+        which: &'static str,
+        /// Time step.
+        step: usize,
+        /// Its Jacobi-scaled condition number (infinite when numerically singular: no
+        /// Cholesky factor, or entries that overflowed).
+        condition: f64,
     },
     /// The filter needs something its model does not provide.
     #[error("the model does not provide {what}")]

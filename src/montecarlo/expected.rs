@@ -15,6 +15,7 @@
 use nalgebra::{DMatrix, DVector};
 
 use super::McConfig;
+use super::generic::Fault;
 use crate::filter::{Filter, FilterError, KalmanFilter};
 use crate::linalg::cholesky;
 use crate::model::LinearGaussianModel;
@@ -67,9 +68,18 @@ pub fn expected_accumulator(
     // History of expected u_j² per step, most recent first.
     let mut comp_z_hist: Vec<Vec<f64>> = Vec::with_capacity(lags);
 
+    // The truth's second moment E[x x'], to stop where the Monte Carlo runs would: a truth
+    // that overflows or outgrows double precision relative to the filter's P ([`Fault`]).
+    // The error moments above stay bounded for a truth-matched filter on an unstable model,
+    // so without this the exact path would grade a test no run can carry out.
+    let mut truth_m2 = TruthMoment::new(truth);
+
     for k in 1..=mc.steps() {
         let i = k - 1;
         if let Some(v) = &steady {
+            if let Some(fault) = truth_m2.step(truth, &P, &v.comp_x) {
+                return Ok(stop_all(acc, mc, k, fault));
+            }
             v.add(&mut acc, i, runs, n, m, &mut comp_x, &mut comp_z, lags, k);
             if let Some((a, p, c)) = &last_null {
                 null_var.step(a, p, c);
@@ -122,6 +132,9 @@ pub fn expected_accumulator(
                 .collect(),
             lagged_b2: comp_z_hist.clone(),
         };
+        if let Some(fault) = truth_m2.step(truth, &cu.P, &values.comp_x) {
+            return Ok(stop_all(acc, mc, k, fault));
+        }
         values.add(&mut acc, i, runs, n, m, &mut comp_x, &mut comp_z, lags, k);
 
         // Advance the cross-moment window: E[e_k ν_k'] and older ones through A_k.
@@ -170,6 +183,54 @@ pub fn expected_accumulator(
     acc.nees_null_var = runs * null_var.variance();
     acc.null_var_runs = mc.runs();
     Ok(acc)
+}
+
+/// The truth's second moment `E[x_k x_k']`, propagated until it settles (a stable truth)
+/// or stops the test (an unstable one).
+struct TruthMoment(Option<DMatrix<f64>>);
+
+impl TruthMoment {
+    fn new(truth: &LinearGaussianModel) -> Self {
+        TruthMoment(Some(&truth.P0 + &truth.x0 * truth.x0.transpose()))
+    }
+
+    /// Advance to the next step, whose filter covariance is `P` and expected normalized
+    /// errors `E[e_j²] / P_jj` are `comp_x`: the [`Fault`] that stops the runs there, as the
+    /// Monte Carlo engines judge it with the truth's root mean square in place of one run's
+    /// estimate.
+    fn step(
+        &mut self,
+        truth: &LinearGaussianModel,
+        P: &DMatrix<f64>,
+        comp_x: &[f64],
+    ) -> Option<Fault> {
+        let x2 = self.0.as_ref()?;
+        let mut next = &truth.F * x2 * truth.F.transpose() + &truth.Q;
+        crate::linalg::symmetrize(&mut next);
+        if next.iter().any(|v| !v.is_finite()) {
+            return Some(Fault::TruthOverflow);
+        }
+        if let Some(fault) = Fault::resolution(P.nrows(), |j| {
+            next[(j, j)] / (P[(j, j)] * comp_x[j].max(1.0))
+        }) {
+            return Some(fault);
+        }
+        let settled = x2.iter().zip(next.iter()).all(|(a, b)| {
+            (a - b).abs() <= STEADY_RTOL * a.abs().max(b.abs()).max(f64::MIN_POSITIVE)
+        });
+        self.0 = (!settled).then_some(next);
+        None
+    }
+}
+
+/// `acc` with every run stopped at step `k` by `fault`: the steps before it keep their
+/// sums, as in the Monte Carlo runs that stop there; no run finishes.
+fn stop_all(mut acc: Accumulator, mc: &McConfig, k: usize, fault: Fault) -> Accumulator {
+    acc.runs = mc.runs();
+    for run in 0..mc.runs() {
+        acc.record_stop(run, k, fault.cause(), fault.reason(k));
+    }
+    acc
 }
 
 /// `E[(x' M⁻¹ x)²]` for x ~ N(μ, Σ), with M given by its Cholesky factor:

@@ -1,13 +1,100 @@
 //! The generic engine: any [`TruthModel`] against any [`Filter`], one run at a time.
+//!
+//! A run stops, recorded with its cause and reason ([`StopCause`]) and contributing nothing
+//! at the step it stops, when its filter fails ([`FilterError`], including a covariance too
+//! ill-conditioned to invert: [`crate::filter::conditioning`]) or when its numbers stop
+//! meaning anything ([`Fault`]): the truth state overflows, the state outgrows double
+//! precision relative to the filter's standard deviation, or the NEES or NIS overflows.
 
 use nalgebra::DVector;
 
 use super::{McConfig, Progress, record_divergence, run_chunked, run_rng};
+use crate::filter::conditioning::{MAX_CONDITION, check_conditioned};
 use crate::filter::{Filter, FilterError, check_measurement};
 use crate::linalg::cholesky;
 use crate::measurement::{Measurement, sensor_offsets};
 use crate::model::TruthModel;
-use crate::stats::{Accumulator, ComponentNullVariance, GateMode, NeesNullVariance};
+use crate::stats::{Accumulator, ComponentNullVariance, GateMode, NeesNullVariance, StopCause};
+
+/// Why a run stopped though its filter did not fail: its numbers would mean nothing.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(super) enum Fault {
+    /// The truth state stopped being finite.
+    TruthOverflow,
+    /// The estimate of `state` (on the exact path, the truth's root mean square) is `ratio`
+    /// times both its standard deviation `√P_jj` and its actual error `|e_j|` away from
+    /// zero, above [`MAX_CONDITION`]: the error `x − x̂` is then formed from two numbers
+    /// whose rounding (`u |x̂|`, u = 1.1e-16) exceeds 1e-4 of the error's own size, the same
+    /// loss the conditioning bound allows ([`crate::filter::conditioning`]). Both scales
+    /// count, so that a filter whose P is far too small (its error is then far above √P,
+    /// and its NEES a true "overconfident") is not mistaken for a truth outgrowing the
+    /// double format.
+    Resolution {
+        /// Index of the filter's state.
+        state: usize,
+        /// `|x̂_j| / max(√P_jj, |e_j|)` (exact path: `√E[x_j²] / max(√P_jj, √E[e_j²])`).
+        ratio: f64,
+    },
+    /// The NEES or NIS is not finite although truth and estimate are.
+    Overflow,
+}
+
+/// `ratio²` above which [`Fault::Resolution`] stops a run.
+pub(super) const MAX_RATIO_SQ: f64 = MAX_CONDITION * MAX_CONDITION;
+
+impl Fault {
+    /// How the report counts a run stopped by this fault: an estimate beyond double
+    /// precision means the truth it tracks is (the filter's error is within its covariance
+    /// until then, or the NEES would have said so); an overflowing NEES with finite truth
+    /// and estimate is a filter whose error has left its covariance.
+    pub(super) fn cause(self) -> StopCause {
+        match self {
+            Fault::TruthOverflow | Fault::Resolution { .. } => StopCause::TruthOverflow,
+            Fault::Overflow => StopCause::Diverged,
+        }
+    }
+
+    /// The divergence reason for a run stopped by this fault at `step`.
+    pub(super) fn reason(self, step: usize) -> String {
+        match self {
+            Fault::TruthOverflow => format!(
+                "the truth state overflowed at step {step}: the truth model is unstable over this horizon"
+            ),
+            Fault::Resolution { state, ratio } => format!(
+                "state {state} outgrew double precision at step {step}: it is {ratio:.1e} standard deviations from zero (above {MAX_CONDITION:.0e}), so x − x̂ keeps fewer than 4 digits; the truth model is unstable over this horizon"
+            ),
+            Fault::Overflow => {
+                format!(
+                    "the NEES or NIS overflowed at step {step}: the error is beyond 1e154 standard deviations"
+                )
+            }
+        }
+    }
+
+    /// The first of `n` states whose estimate has outgrown double precision, given
+    /// `ratio_sq(j) = x̂_j² / max(P_jj, e_j²)` (a NaN is left to the NEES check).
+    pub(super) fn resolution(n: usize, ratio_sq: impl Fn(usize) -> f64) -> Option<Fault> {
+        (0..n).find_map(|j| {
+            let r = ratio_sq(j);
+            (r > MAX_RATIO_SQ).then(|| Fault::Resolution {
+                state: j,
+                ratio: r.sqrt(),
+            })
+        })
+    }
+}
+
+/// Why [`one_run`] stopped.
+enum Stop {
+    Filter(FilterError),
+    Fault(Fault, usize),
+}
+
+impl From<FilterError> for Stop {
+    fn from(e: FilterError) -> Self {
+        Stop::Filter(e)
+    }
+}
 
 /// Per-run working state for the component and whiteness statistics.
 struct RunScratch {
@@ -23,6 +110,8 @@ struct RunScratch {
     ring: Vec<f64>,
     /// The current step's normalized innovations.
     u: Vec<f64>,
+    /// The current step's `(component, u²)`, added to the sums when the step closes.
+    pending: Vec<(usize, f64)>,
 }
 
 impl RunScratch {
@@ -37,6 +126,7 @@ impl RunScratch {
             comp_z_n: vec![0.0; n_z],
             ring: vec![f64::NAN; lags.max(1) * n_z],
             u: vec![f64::NAN; n_z],
+            pending: Vec::new(),
         }
     }
 
@@ -47,6 +137,7 @@ impl RunScratch {
         self.comp_z_n.fill(0.0);
         self.ring.fill(f64::NAN);
         self.u.fill(f64::NAN);
+        self.pending.clear();
     }
 
     /// Record normalized state errors `e_j/√P_jj` for one step.
@@ -60,18 +151,21 @@ impl RunScratch {
     }
 
     /// Record one normalized innovation component `u = ν_j/√S_jj` at the current step.
-    fn innovation(&mut self, acc: &mut Accumulator, j: usize, u: f64) {
-        let v = u * u;
-        self.comp_z[j] += v;
-        self.comp_z_n[j] += 1.0;
-        acc.meas_comp_total[j] += v;
-        acc.meas_comp_samples[j] += 1.0;
+    fn innovation(&mut self, j: usize, u: f64) {
+        self.pending.push((j, u * u));
         self.u[j] = u;
     }
 
-    /// Close step `k` (1-based): pair this step's innovations with earlier steps' and
-    /// store them for later lags.
+    /// Close step `k` (1-based): add its innovation components, pair its innovations with
+    /// earlier steps' and store them for later lags.
     fn end_step(&mut self, acc: &mut Accumulator, k: usize) {
+        for &(j, v) in &self.pending {
+            self.comp_z[j] += v;
+            self.comp_z_n[j] += 1.0;
+            acc.meas_comp_total[j] += v;
+            acc.meas_comp_samples[j] += 1.0;
+        }
+        self.pending.clear();
         let (m, lags) = (self.n_z, self.lags);
         if lags > 0 {
             for lag in 1..=lags.min(k - 1) {
@@ -158,7 +252,10 @@ where
                 &mut scratch,
                 &mut meas,
             ) {
-                record_divergence(acc, run, &e);
+                match e {
+                    Stop::Filter(e) => record_divergence(acc, run, &e),
+                    Stop::Fault(f, step) => acc.record_stop(run, step, f.cause(), f.reason(step)),
+                }
                 acc.runs += 1;
             } else {
                 scratch.end_run(acc);
@@ -178,7 +275,7 @@ fn one_run<M, F>(
     acc: &mut Accumulator,
     scratch: &mut RunScratch,
     meas: &mut Vec<Measurement>,
-) -> Result<(), FilterError>
+) -> Result<(), Stop>
 where
     M: TruthModel + ?Sized,
     F: Filter + ?Sized,
@@ -196,6 +293,9 @@ where
     for k in 1..=mc.steps() {
         let i = k - 1;
         x = truth.propagate(k, &x, &mut rng);
+        if x.iter().any(|v| !v.is_finite()) {
+            return Err(Stop::Fault(Fault::TruthOverflow, k));
+        }
         let input = truth.input(k, &x, &mut rng);
         meas.clear();
         truth.measure(k, &x, &mut rng, meas);
@@ -210,8 +310,28 @@ where
             nis += inn.nis;
             dof += m.z.len();
             for j in 0..m.z.len() {
-                scratch.innovation(acc, offsets[m.sensor] + j, inn.nu[j] / inn.S[(j, j)].sqrt());
+                scratch.innovation(offsets[m.sensor] + j, inn.nu[j] / inn.S[(j, j)].sqrt());
             }
+        }
+
+        let e: DVector<f64> = filter.state_error(&x, &est.x);
+        let chol = cholesky(&est.P).ok_or(FilterError::NotPositiveDefinite {
+            which: "P",
+            step: k,
+        })?;
+        check_conditioned("P", &est.P, &chol, k)?;
+        // The estimate's magnitude is comparable with P only when it is laid out as the
+        // error state (an error-state filter's nominal state is not).
+        if est.x.len() == n_x
+            && let Some(f) = Fault::resolution(n_x, |j| {
+                est.x[j] * est.x[j] / est.P[(j, j)].max(e[j] * e[j])
+            })
+        {
+            return Err(Stop::Fault(f, k));
+        }
+        let nees = crate::linalg::mahalanobis_sq(&chol, &e);
+        if !nees.is_finite() || !nis.is_finite() {
+            return Err(Stop::Fault(Fault::Overflow, k));
         }
         if dof > 0 {
             acc.nis_sum[i] += nis;
@@ -220,13 +340,6 @@ where
             acc.nis_count[i] += 1.0;
         }
         scratch.end_step(acc, k);
-
-        let e: DVector<f64> = filter.state_error(&x, &est.x);
-        let chol = cholesky(&est.P).ok_or(FilterError::NotPositiveDefinite {
-            which: "P",
-            step: k,
-        })?;
-        let nees = crate::linalg::mahalanobis_sq(&chol, &e);
         acc.nees_sum[i] += nees;
         acc.nees_sq[i] += nees * nees;
         acc.nees_dof[i] += n_x as f64;

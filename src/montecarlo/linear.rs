@@ -12,7 +12,9 @@ use nalgebra::{DMatrix, DVector};
 use rand::RngExt;
 use rand_distr::StandardNormal;
 
-use super::{McConfig, record_divergence, run_chunked, run_rng};
+use super::generic::{Fault, MAX_RATIO_SQ};
+use super::{McConfig, run_chunked, run_rng};
+use crate::filter::conditioning::check_conditioned;
 use crate::filter::{Filter, FilterError, KalmanFilter};
 use crate::linalg::{cholesky, inverse_cholesky_factor};
 use crate::model::{LinearGaussianModel, sample_gaussian};
@@ -95,6 +97,7 @@ impl Schedule {
                 which: "P",
                 step: k,
             })?;
+            check_conditioned("P", &cu.P, &chol, k)?;
             let map = &cu.IKH * &f.F;
             let inc = nv.step(&map, &cu.P, &chol);
             let cinc = cv
@@ -146,38 +149,38 @@ pub fn run_linear(
     filter: &KalmanFilter,
     mc: &McConfig,
 ) -> Accumulator {
-    run_linear_with_progress(truth, filter, mc, None)
+    run_linear_with_progress(truth, filter, None, mc, None)
 }
 
-/// [`run_linear`], reporting the runs completed after each parallel wave.
+/// [`run_linear`] for a filter whose state is `map · x_true` (n_f × n_t; `None`: the
+/// truth's state), the NEES taken on `map · x_true − x̂`, reporting the runs completed after
+/// each parallel wave. A run whose numbers stop meaning anything (the truth overflows, the
+/// state outgrows double precision, the NEES or NIS overflows) stops there as a divergence,
+/// as on the generic path.
 pub fn run_linear_with_progress(
     truth: &LinearGaussianModel,
     filter: &KalmanFilter,
+    map: Option<&DMatrix<f64>>,
     mc: &McConfig,
     progress: super::Progress<'_>,
 ) -> Accumulator {
     let n = filter.n_x();
     let m = filter.H.nrows();
+    let map_t = map.map(|m| m.transpose());
     match Schedule::compute(filter, mc.steps(), mc.gate() == GateMode::Full) {
         Ok(sched) => run_chunked(mc, n, m, progress, |range, acc| {
             let job = Job {
                 truth,
                 f: filter,
+                map_t: map_t.as_ref(),
                 sched: &sched,
                 mc,
             };
             chunk_dispatch(&job, range, acc)
         }),
-        Err(e) => {
-            // The covariance recursion is the same in every run, so every run diverges at
-            // the same step.
-            let mut acc = Accumulator::new(mc.steps(), n, m, mc.lags());
-            for run in 0..mc.runs() {
-                record_divergence(&mut acc, run, &e);
-            }
-            acc.runs = mc.runs();
-            acc
-        }
+        // The covariance recursion is the same in every run, so every run stops at the same
+        // step.
+        Err(e) => super::all_stopped(mc, n, m, &e),
     }
 }
 
@@ -262,21 +265,59 @@ fn chunk_avx2(job: &Job<'_>, range: Range<usize>, acc: &mut Accumulator) {
 struct Job<'a> {
     truth: &'a LinearGaussianModel,
     f: &'a KalmanFilter,
+    /// The truth-to-filter map, transposed (n_t × n_f), to multiply run rows from the right.
+    map_t: Option<&'a DMatrix<f64>>,
     sched: &'a Schedule,
     mc: &'a McConfig,
 }
 
+/// The largest magnitude in `v` as a bit pattern: the bits of `|x|` order as the numbers do
+/// and a NaN's lie above infinity's, so one integer maximum (which vectorizes) finds both.
+#[inline(always)]
+fn max_abs_bits(acc: i64, v: f64) -> i64 {
+    acc.max(v.to_bits() as i64 & i64::MAX)
+}
+
+/// `|x|` from [`max_abs_bits`].
+#[inline(always)]
+fn from_abs_bits(b: i64) -> f64 {
+    f64::from_bits(b as u64)
+}
+
+/// Per-row `Σ_j mat[r, j]²` into `sq`, and its total.
+#[inline(always)]
+fn row_norms(sq: &mut [f64], mat: &DMatrix<f64>) -> f64 {
+    sq.fill(0.0);
+    for j in 0..mat.ncols() {
+        for (s, v) in sq.iter_mut().zip(col(mat, j)) {
+            *s += v * v;
+        }
+    }
+    sq.iter().sum::<f64>()
+}
+
+/// Zero row `r` of each matrix.
+fn zero_row(r: usize, mats: &mut [&mut DMatrix<f64>]) {
+    for m in mats.iter_mut() {
+        m.row_mut(r).fill(0.0);
+    }
+}
+
 /// Runs `range` as the rows of B × n matrices (one row per run), so every product is a few
-/// vector operations of length B.
+/// vector operations of length B. A run that faults ([`Fault`]) is recorded as diverged at
+/// that step and its rows are zeroed from then on (its error and innovation contribute
+/// nothing; the counts are of the live runs), so the sums equal the generic path's.
 #[inline(always)]
 fn chunk(job: &Job<'_>, range: Range<usize>, acc: &mut Accumulator) {
     let Job {
         truth,
         f,
+        map_t,
         sched,
         mc,
     } = *job;
     let n = f.n_x();
+    let nt = truth.F.nrows();
     let m = f.H.nrows();
     let b = range.len();
     let lags = mc.lags();
@@ -289,7 +330,7 @@ fn chunk(job: &Job<'_>, range: Range<usize>, acc: &mut Accumulator) {
     let hf_t = f.H.transpose();
 
     let mut rngs: Vec<_> = range.clone().map(|i| run_rng(mc.seed(), i)).collect();
-    let mut xt = DMatrix::zeros(b, n);
+    let mut xt = DMatrix::zeros(b, nt);
     for (c, rng) in rngs.iter_mut().enumerate() {
         xt.set_row(
             c,
@@ -297,7 +338,10 @@ fn chunk(job: &Job<'_>, range: Range<usize>, acc: &mut Accumulator) {
         );
     }
     let mut xh = DMatrix::from_fn(b, n, |_, j| f.x0[j]);
+    let mut tmp_t = DMatrix::zeros(b, nt);
     let mut tmp = DMatrix::zeros(b, n);
+    // The truth in the filter's state, when it has its own.
+    let mut mx = DMatrix::zeros(if map_t.is_some() { b } else { 0 }, n);
     let mut wq = DMatrix::zeros(b, rq);
     let mut wr = DMatrix::zeros(b, rr);
     let mut z = DMatrix::zeros(b, m);
@@ -305,7 +349,7 @@ fn chunk(job: &Job<'_>, range: Range<usize>, acc: &mut Accumulator) {
     let mut e = DMatrix::zeros(b, n);
     let mut we = DMatrix::zeros(b, n);
     let mut vn = DMatrix::zeros(b, m);
-    let mut sq = vec![0.0; b];
+    let (mut sq_x, mut sq_z) = (vec![0.0; b], vec![0.0; b]);
     // Each run's NEES sum over its steps.
     let mut run_nees = vec![0.0; b];
     // Per-run sums of e_j²/P_jj and u_j², and the last `lags` normalized innovations.
@@ -314,6 +358,9 @@ fn chunk(job: &Job<'_>, range: Range<usize>, acc: &mut Accumulator) {
     let mut u = DMatrix::<f64>::zeros(b, m);
     let mut ring: Vec<DMatrix<f64>> = (0..lags).map(|_| DMatrix::zeros(b, m)).collect();
     let mut ring_sq = vec![0.0; lags * m];
+    // Runs stopped by a fault, and (run, step, fault) in the order found.
+    let mut dead = vec![false; b];
+    let mut faults: Vec<(usize, usize, Fault)> = Vec::new();
 
     for k in 1..=mc.steps() {
         let i = k - 1;
@@ -327,9 +374,9 @@ fn chunk(job: &Job<'_>, range: Range<usize>, acc: &mut Accumulator) {
                 wr[(c, r)] = rng.sample(StandardNormal);
             }
         }
-        gemm_rows(&mut tmp, 1.0, &xt, &ft_t, 0.0);
-        gemm_rows(&mut tmp, 1.0, &wq, &lq_t, 1.0);
-        std::mem::swap(&mut xt, &mut tmp);
+        gemm_rows(&mut tmp_t, 1.0, &xt, &ft_t, 0.0);
+        gemm_rows(&mut tmp_t, 1.0, &wq, &lq_t, 1.0);
+        std::mem::swap(&mut xt, &mut tmp_t);
         gemm_rows(&mut z, 1.0, &xt, &ht_t, 0.0);
         gemm_rows(&mut z, 1.0, &wr, &lr_t, 1.0);
 
@@ -338,46 +385,85 @@ fn chunk(job: &Job<'_>, range: Range<usize>, acc: &mut Accumulator) {
         nu.copy_from(&z);
         gemm_rows(&mut nu, -1.0, &xh, &hf_t, 1.0);
         gemm_rows(&mut xh, 1.0, &nu, &sched.Kt[si], 1.0);
-        for ((ev, t), h) in e
-            .as_mut_slice()
-            .iter_mut()
-            .zip(xt.as_slice())
-            .zip(xh.as_slice())
-        {
-            *ev = t - h;
+        let pinv = &sched.p_inv_diag[si];
+        // e = (map ·) x_true − x̂, noting the largest magnitude of the estimate. A truth that
+        // overflows needs no screen of its own: it makes e, and so the NEES, non-finite.
+        let truth_f = match map_t {
+            Some(mt) => {
+                gemm_rows(&mut mx, 1.0, &xt, mt, 0.0);
+                &mx
+            }
+            None => &xt,
+        };
+        let mut suspect = false;
+        for j in 0..n {
+            let mut hb = 0;
+            let (tj, hj) = (col(truth_f, j), col(&xh, j));
+            for ((ev, t), h) in col_mut(&mut e, j).iter_mut().zip(tj).zip(hj) {
+                *ev = t - h;
+                hb = max_abs_bits(hb, *h);
+            }
+            let h = from_abs_bits(hb);
+            // A NaN (an overflowed estimate) is suspect too.
+            let r = h * h * pinv[j];
+            suspect |= r > MAX_RATIO_SQ || r.is_nan();
+        }
+        // Truth states the map leaves out can overflow unseen by e.
+        suspect |= map_t.is_some() && xt.iter().any(|v| !v.is_finite());
+        for r in (0..b).filter(|&r| dead[r]) {
+            zero_row(r, &mut [&mut e, &mut nu]);
         }
         gemm_rows(&mut we, 1.0, &e, &sched.Wt[si], 0.0);
         gemm_rows(&mut vn, 1.0, &nu, &sched.Vt[si], 0.0);
-
         // NEES and NIS per run are row norms.
-        for (is_nees, mat, sum, sqsum) in [
-            (true, &we, &mut acc.nees_sum[i], &mut acc.nees_sq[i]),
-            (false, &vn, &mut acc.nis_sum[i], &mut acc.nis_sq[i]),
-        ] {
-            sq.fill(0.0);
-            for j in 0..mat.ncols() {
-                for (s, v) in sq.iter_mut().zip(col(mat, j)) {
-                    *s += v * v;
+        let mut tot_x = row_norms(&mut sq_x, &we);
+        let mut tot_z = row_norms(&mut sq_z, &vn);
+        if suspect || !tot_x.is_finite() || !tot_z.is_finite() {
+            for r in 0..b {
+                let fault = if dead[r] {
+                    None
+                } else if xt.row(r).iter().any(|v| !v.is_finite()) {
+                    Some(Fault::TruthOverflow)
+                } else if let Some(f) = Fault::resolution(n, |j| {
+                    xh[(r, j)].powi(2) / (1.0 / pinv[j]).max(e[(r, j)].powi(2))
+                }) {
+                    Some(f)
+                } else if !sq_x[r].is_finite() || !sq_z[r].is_finite() {
+                    Some(Fault::Overflow)
+                } else {
+                    None
+                };
+                if let Some(fault) = fault {
+                    dead[r] = true;
+                    faults.push((range.start + r, k, fault));
+                }
+                if dead[r] {
+                    // Restart the stopped run's rows from zero so that they stay finite.
+                    zero_row(r, &mut [&mut e, &mut nu, &mut xt, &mut xh]);
                 }
             }
-            *sum += sq.iter().sum::<f64>();
-            *sqsum += dot(&sq, &sq);
-            if is_nees {
-                for (r, s) in run_nees.iter_mut().zip(&sq) {
-                    *r += s;
-                }
-            }
+            gemm_rows(&mut we, 1.0, &e, &sched.Wt[si], 0.0);
+            gemm_rows(&mut vn, 1.0, &nu, &sched.Vt[si], 0.0);
+            tot_x = row_norms(&mut sq_x, &we);
+            tot_z = row_norms(&mut sq_z, &vn);
         }
-        acc.nees_dof[i] += (n * b) as f64;
-        acc.nees_count[i] += b as f64;
-        acc.nis_dof[i] += (m * b) as f64;
-        acc.nis_count[i] += b as f64;
+        let live = dead.iter().filter(|d| !**d).count();
+        acc.nees_sum[i] += tot_x;
+        acc.nees_sq[i] += dot(&sq_x, &sq_x);
+        acc.nis_sum[i] += tot_z;
+        acc.nis_sq[i] += dot(&sq_z, &sq_z);
+        for (r, s) in run_nees.iter_mut().zip(&sq_x) {
+            *r += s;
+        }
+        acc.nees_dof[i] += (n * live) as f64;
+        acc.nees_count[i] += live as f64;
+        acc.nis_dof[i] += (m * live) as f64;
+        acc.nis_count[i] += live as f64;
 
-        let pinv = &sched.p_inv_diag[si];
         for j in 0..n {
             let ej = col(&e, j);
             acc.state_comp_total[j] += dot(ej, ej) * pinv[j];
-            acc.state_comp_samples[j] += b as f64;
+            acc.state_comp_samples[j] += live as f64;
             for (r, v) in col_mut(&mut run_x, j).iter_mut().zip(ej) {
                 *r += v * v * pinv[j];
             }
@@ -394,14 +480,14 @@ fn chunk(job: &Job<'_>, range: Range<usize>, acc: &mut Accumulator) {
                 *r += v * v;
             }
             acc.meas_comp_total[j] += total;
-            acc.meas_comp_samples[j] += b as f64;
+            acc.meas_comp_samples[j] += live as f64;
             for lag in 1..=lags.min(k - 1) {
                 let prev = (k - lag) % lags;
                 let o = (lag - 1) * m + j;
                 acc.white_ab[o] += dot(uj, col(&ring[prev], j));
                 acc.white_a2[o] += total;
                 acc.white_b2[o] += ring_sq[prev * m + j];
-                acc.white_pairs[o] += b as f64;
+                acc.white_pairs[o] += live as f64;
             }
             if lags > 0 {
                 ring_sq[slot * m + j] = total;
@@ -412,28 +498,34 @@ fn chunk(job: &Job<'_>, range: Range<usize>, acc: &mut Accumulator) {
         }
     }
     let t = mc.steps() as f64;
+    let live = dead.iter().filter(|d| !**d).count();
     for (j, col) in run_x.column_iter().enumerate() {
-        for v in col.iter() {
+        for (v, _) in col.iter().zip(&dead).filter(|(_, d)| !**d) {
             acc.add_run_component(true, j, v / t);
         }
     }
     for (j, col) in run_z.column_iter().enumerate() {
-        for v in col.iter() {
+        for (v, _) in col.iter().zip(&dead).filter(|(_, d)| !**d) {
             acc.add_run_component(false, j, v / t);
         }
-        acc.meas_comp_runs[j] += b;
+        acc.meas_comp_runs[j] += live;
     }
-    for &total in &run_nees {
+    for (&total, _) in run_nees.iter().zip(&dead).filter(|(_, d)| !**d) {
         acc.add_run_nees_total(total);
     }
+    // In run order, as the generic path records them.
+    faults.sort_by_key(|&(run, ..)| run);
+    for (run, step, fault) in faults {
+        acc.record_stop(run, step, fault.cause(), fault.reason(step));
+    }
     acc.runs += b;
-    acc.nees_null_var += sched.null_var * b as f64;
-    acc.null_var_runs += b;
+    acc.nees_null_var += sched.null_var * live as f64;
+    acc.null_var_runs += live;
     if !sched.comp_null_var.is_empty() {
         for (s, v) in acc.state_comp_null_var.iter_mut().zip(&sched.comp_null_var) {
-            *s += v * b as f64;
+            *s += v * live as f64;
         }
-        acc.comp_null_var_runs += b;
+        acc.comp_null_var_runs += live;
     }
 }
 
@@ -473,6 +565,7 @@ mod tests {
         let job = Job {
             truth: &truth,
             f: &kf,
+            map_t: None,
             sched: &sched,
             mc: &mc,
         };

@@ -24,7 +24,7 @@ use rayon::prelude::*;
 
 use crate::SimRng;
 use crate::filter::FilterError;
-use crate::stats::Accumulator;
+use crate::stats::{Accumulator, StopCause};
 
 /// Runs per chunk: the unit of parallel work and of summation order.
 pub const CHUNK: usize = 64;
@@ -102,9 +102,24 @@ pub type Progress<'a> = Option<&'a (dyn Fn(usize) + Sync)>;
 
 /// Record that run `run` stopped on `err`.
 fn record_divergence(acc: &mut Accumulator, run: usize, err: &FilterError) {
-    let step = match err {
-        FilterError::NotPositiveDefinite { step, .. } => *step,
-        FilterError::BadMeasurement { .. } | FilterError::Unsupported { .. } => 0,
+    let (step, cause) = match err {
+        FilterError::NotPositiveDefinite { step, .. } => (*step, StopCause::Diverged),
+        FilterError::IllConditioned { step, .. } => (*step, StopCause::IllConditioned),
+        FilterError::BadMeasurement { .. } | FilterError::Unsupported { .. } => {
+            (0, StopCause::Diverged)
+        }
     };
-    acc.record_divergence(run, step, err.to_string());
+    acc.record_stop(run, step, cause, err.to_string());
+}
+
+/// The sums of `mc.runs()` runs that all stopped on `err` before contributing anything: a
+/// data-independent covariance recursion (the linear fast path's, the exact path's) fails
+/// at the same step in every run.
+pub fn all_stopped(mc: &McConfig, n_x: usize, n_z: usize, err: &FilterError) -> Accumulator {
+    let mut acc = Accumulator::new(mc.steps(), n_x, n_z, mc.lags());
+    for run in 0..mc.runs() {
+        record_divergence(&mut acc, run, err);
+    }
+    acc.runs = mc.runs();
+    acc
 }

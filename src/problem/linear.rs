@@ -1,8 +1,15 @@
 //! A linear problem: `[truth]` and `[filter]` become a [`LinearExperiment`].
+//!
+//! The filter may carry other states than the truth (fewer, typically: the truth has an
+//! acceleration, a sensor bias or a flexible mode the filter omits). `filter.map` (n_f × n_t)
+//! takes the truth's state to the filter's, and the filter then gives its own F (or A) and H;
+//! its x0 and P0 default to the truth's through the map (`map · x0`, `map · P0 · map'`).
 
 #![allow(non_snake_case)]
 
-use super::spec::{FilterSpec, ProblemSpec, TruthSpec};
+use nalgebra::DMatrix;
+
+use super::spec::{FilterSpec, MatrixSpec, ProblemSpec, TruthSpec};
 use super::validate::{VResult, Validator};
 use crate::experiment::{Definition, FilterModel, Info, LinearExperiment};
 use crate::input::FileError;
@@ -39,24 +46,58 @@ impl Validator<'_> {
         self.symmetric_psd("truth.R", &tR, false)?;
 
         let params = self.params(&s.params)?;
-        let (fF, fA) = match self.dynamics("filter", &f.F, &f.A, dt, Some(n))? {
+        let map = match &f.map {
+            Some(spec) => self.truth_map(spec, n)?,
+            None => None,
+        };
+        let nf = map.as_ref().map_or(n, |m| m.nrows());
+        // Without a map the filter's matrices have the truth's number of states; a filter
+        // of another size is what a map is for, so say so (not for H's rows, which count
+        // measurements).
+        let hint = |e: FileError| match &map {
+            None if e.message.contains("expected") && e.field != "filter.H" => FileError {
+                message: format!(
+                    "{} (the truth's {n} states; a filter with other states needs filter.map)",
+                    e.message
+                ),
+                ..e
+            },
+            _ => e,
+        };
+        let (fF, fA) = match self
+            .dynamics("filter", &f.F, &f.A, dt, Some(nf))
+            .map_err(hint)?
+        {
             Some(d) => d,
-            None => (tF.clone(), tA.clone()),
+            None if map.is_none() => (tF.clone(), tA.clone()),
+            None => return self.err("filter.F", own_matrix(nf, n, "F (or A), n_f × n_f")),
         };
         let fH = match &f.H {
-            Some(h) => self.matrix("filter.H", h, Some(m), Some(n))?,
-            None => tH.clone(),
+            Some(h) => self
+                .matrix("filter.H", h, Some(m), Some(nf))
+                .map_err(hint)?,
+            None if map.is_none() => tH.clone(),
+            None => return self.err("filter.H", own_matrix(nf, n, "H, m × n_f")),
         };
-        let fx0 = match &f.x0 {
-            Some(x) => self.vector("filter.x0", x, n)?,
-            None => tx0.clone(),
+        let fx0 = match (&f.x0, &map) {
+            (Some(x), _) => self.vector("filter.x0", x, nf).map_err(hint)?,
+            (None, Some(M)) => M * &tx0,
+            (None, None) => tx0.clone(),
         };
-        let (fP0, p0_field) = match &f.P0 {
-            Some(p) => (self.matrix("filter.P0", p, Some(n), Some(n))?, "filter.P0"),
-            None => (tP0.clone(), "truth.P0 (used as filter.P0)"),
+        let (fP0, p0_field) = match (&f.P0, &map) {
+            (Some(p), _) => (
+                self.matrix("filter.P0", p, Some(nf), Some(nf))
+                    .map_err(hint)?,
+                "filter.P0",
+            ),
+            (None, Some(M)) => (
+                M * &tP0 * M.transpose(),
+                "truth.P0 through filter.map (used as filter.P0)",
+            ),
+            (None, None) => (tP0.clone(), "truth.P0 (used as filter.P0)"),
         };
         self.symmetric_psd(p0_field, &fP0, true)?;
-        let q = self.cov_model("filter.Q", &f.Q, n, true, dt, fA.as_ref(), Some(&params))?;
+        let q = self.cov_model("filter.Q", &f.Q, nf, true, dt, fA.as_ref(), Some(&params))?;
         let r = self.cov_model("filter.R", &f.R, m, false, dt, None, Some(&params))?;
         for (i, p) in params.params.iter().enumerate() {
             if !q.uses(i) && !r.uses(i) {
@@ -68,7 +109,15 @@ impl Validator<'_> {
         }
         let truth = LinearGaussianModel::new(tF, tH, tQ, tR, tx0, tP0)
             .map_err(|e| FileError::new(self.file, format!("truth.{}", e.which), e.to_string()))?;
-        let state_names = self.names("state_names", &s.state_names, n, "x")?;
+        let state_names =
+            self.names("state_names", &s.state_names, nf, "x")
+                .map_err(|e| match &map {
+                    Some(_) => FileError {
+                        message: format!("{} (they name the filter's states)", e.message),
+                        ..e
+                    },
+                    None => e,
+                })?;
         let measurement_names = self.names("measurement_names", &s.measurement_names, m, "z")?;
         Ok(LinearExperiment {
             definition: Definition {
@@ -86,7 +135,42 @@ impl Validator<'_> {
                 P0: fP0,
                 q,
                 r,
+                map,
             },
         })
     }
+
+    /// `filter.map`: n_f × n_t, finite; `None` when it is the identity (the filter then has
+    /// the truth's states, exactly as without a map).
+    fn truth_map(&self, spec: &MatrixSpec, n_t: usize) -> VResult<Option<DMatrix<f64>>> {
+        if let Some(row) = spec.first()
+            && row.len() != n_t
+        {
+            return self.err(
+                "filter.map",
+                format!(
+                    "has {} columns, expected {n_t}: one per truth state (map is n_f × n_t, \
+                     e = map · x_true − x̂)",
+                    row.len()
+                ),
+            );
+        }
+        let M = self.matrix("filter.map", spec, None, Some(n_t))?;
+        let identity = M.nrows() == n_t && M == DMatrix::identity(n_t, n_t);
+        Ok((!identity).then_some(M))
+    }
+}
+
+/// Why the filter must give its own `what` when it has a map.
+fn own_matrix(n_f: usize, n_t: usize, what: &str) -> String {
+    let states = |n: usize| format!("{n} state{}", if n == 1 { "" } else { "s" });
+    let dims = if n_f == n_t {
+        format!("filter.map changes the state ({})", states(n_f))
+    } else {
+        format!(
+            "the filter has {} (filter.map's rows) and the truth {n_t}",
+            states(n_f)
+        )
+    };
+    format!("missing: {dims}, so the truth's cannot be used; give the filter's own {what}")
 }

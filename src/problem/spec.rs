@@ -119,18 +119,24 @@ pub struct TruthSpec {
 }
 
 /// `[filter]`: the filter's own model; omitted matrices are the truth's.
+///
+/// A filter may carry fewer (or other) states than the truth: `map` (n_f × n_t) takes the
+/// truth's state to the filter's, the NEES is taken on `e = map · x_true − x̂`, and the
+/// filter then gives its own F (or A) and H of its own dimension n_f.
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct FilterSpec {
-    /// Discrete state transition (default: the truth's).
+    /// From the truth's state to the filter's, n_f × n_t (default: the identity, n_f = n_t).
+    pub map: Option<MatrixSpec>,
+    /// Discrete state transition (default: the truth's; required with a map).
     pub F: Option<MatrixSpec>,
-    /// Continuous-time system matrix (default: the truth's).
+    /// Continuous-time system matrix (default: the truth's; required with a map, or F).
     pub A: Option<MatrixSpec>,
-    /// Measurement matrix (default: the truth's).
+    /// Measurement matrix, m × n_f (default: the truth's; required with a map).
     pub H: Option<MatrixSpec>,
-    /// Initial estimate (default: the truth's x0).
+    /// Initial estimate (default: the truth's x0, through the map if there is one).
     pub x0: Option<Vec<f64>>,
-    /// Initial covariance (default: the truth's P0).
+    /// Initial covariance (default: the truth's P0, through the map if there is one).
     pub P0: Option<MatrixSpec>,
     /// Process-noise terms, each a named parameter or a fixed value.
     pub Q: Vec<TermSpec>,

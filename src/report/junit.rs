@@ -84,8 +84,10 @@ pub fn junit_xml(problem: &str, report: &ConsistencyReport) -> String {
             .unwrap_or_default();
         (
             format!(
-                "filter diverged in {} of {} runs",
-                report.diverged_runs, report.runs
+                "{} in {} of {} runs",
+                super::summary::stopped_runs(report.verdict),
+                report.diverged_runs,
+                report.runs
             ),
             first,
         )

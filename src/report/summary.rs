@@ -71,8 +71,13 @@ pub(crate) fn has_data(s: &StatisticSummary) -> bool {
 /// Why `s` has no data, in words, for a report of `r`.
 pub(crate) fn no_data_reason(s: &StatisticSummary, r: &ConsistencyReport) -> String {
     if r.diverged_runs > 0 && r.diverged_runs == r.runs {
+        let why = match r.verdict {
+            Verdict::TruthOverflow => "its truth overflowed",
+            Verdict::IllConditioned => "a covariance was too ill-conditioned to invert",
+            _ => "its filter diverged",
+        };
         format!(
-            "the A{} test has no data: every run's filter diverged before a step could be scored",
+            "the A{} test has no data: in every run {why} before a step could be scored",
             s.name
         )
     } else {
@@ -199,6 +204,9 @@ pub fn summary_text(problem: &str, params: &[(String, f64)], r: &ConsistencyRepo
         }
         if !has_data(s) {
             let _ = writeln!(out, "  note: {}", no_data_reason(s, r));
+        } else if r.diverged_runs >= r.runs {
+            // Every run stopped part-way: the stopped-runs line below says why, and "add
+            // runs or steps" would be the wrong advice.
         } else if !s.has_power {
             let _ = writeln!(
                 out,
@@ -221,8 +229,10 @@ pub fn summary_text(problem: &str, params: &[(String, f64)], r: &ConsistencyRepo
             .unwrap_or_default();
         let _ = writeln!(
             out,
-            "  filter diverged in {} of {} runs{first}",
-            r.diverged_runs, r.runs
+            "  {} in {} of {} runs{first}",
+            stopped_runs(r.verdict),
+            r.diverged_runs,
+            r.runs
         );
     }
     let _ = writeln!(out, "verdict: {}", r.verdict.describe());
@@ -239,6 +249,15 @@ pub fn gate_text(r: &ConsistencyReport) -> String {
         "{what}; {} tests, each at level {:.4} so that a consistent filter fails with probability at most α = {} (Šidák)",
         r.tests, r.statistic_alpha, r.alpha
     )
+}
+
+/// What stopped runs early, in words, by the verdict it set.
+pub(crate) fn stopped_runs(verdict: Verdict) -> &'static str {
+    match verdict {
+        Verdict::TruthOverflow => "the truth overflowed",
+        Verdict::IllConditioned => "a covariance was too ill-conditioned to invert",
+        _ => "filter diverged",
+    }
 }
 
 /// For a statistic whose gate interval rests on the spread of the per-run sums (a filter that

@@ -154,8 +154,17 @@ pub enum Verdict {
     NotWhite,
     /// Passed, but with too few degrees of freedom for the test to mean anything.
     Inconclusive,
-    /// The filter's covariance stopped being positive definite.
+    /// The filter broke down in some runs (a covariance stopped being positive definite,
+    /// or its error left its covariance by more than 1e154 standard deviations).
     Diverged,
+    /// A covariance the filter inverts (P⁻, S or P) is too ill-conditioned for its NEES or
+    /// NIS to mean anything (see `crate::filter::conditioning`): a noise parameter is far
+    /// off the scale the measurements pin down. Fails the gate like a divergence.
+    IllConditioned,
+    /// The truth state overflowed or outgrew double precision: the truth model is unstable
+    /// over this horizon, so nothing about the filter was tested. A problem to fix, not a
+    /// verdict on the filter (the command line exits 2).
+    TruthOverflow,
 }
 
 impl Verdict {
@@ -173,7 +182,15 @@ impl Verdict {
             Verdict::Mixed => "inconsistent (some statistics too high, some too low)",
             Verdict::NotWhite => "inconsistent (innovations correlated in time)",
             Verdict::Inconclusive => "inconclusive (too little data for the test to have power)",
-            Verdict::Diverged => "diverged (covariance not positive definite)",
+            Verdict::Diverged => {
+                "diverged (the filter broke down in some runs: its covariance stopped being positive definite, or its error left it)"
+            }
+            Verdict::IllConditioned => {
+                "ill-conditioned (a covariance the filter inverts lost its digits to rounding, so its NEES/NIS would be noise: a noise parameter is far off scale)"
+            }
+            Verdict::TruthOverflow => {
+                "truth overflow (the truth state outgrows double precision over this horizon: the truth model is unstable; shorten the runs or fix the model; the filter was not tested)"
+            }
         }
     }
 
@@ -187,6 +204,8 @@ impl Verdict {
             Verdict::NotWhite => "not white",
             Verdict::Inconclusive => "inconclusive",
             Verdict::Diverged => "diverged",
+            Verdict::IllConditioned => "ill-conditioned",
+            Verdict::TruthOverflow => "truth overflow",
         }
     }
 }
@@ -215,8 +234,14 @@ pub fn gate_alpha(alpha: f64, k: usize) -> f64 {
 
 /// Combine the verdicts of several statistics into one.
 pub fn combine(verdicts: &[Verdict]) -> Verdict {
-    if verdicts.contains(&Verdict::Diverged) {
-        return Verdict::Diverged;
+    for stop in [
+        Verdict::TruthOverflow,
+        Verdict::IllConditioned,
+        Verdict::Diverged,
+    ] {
+        if verdicts.contains(&stop) {
+            return stop;
+        }
     }
     let over = verdicts.contains(&Verdict::Overconfident);
     let under = verdicts.contains(&Verdict::Underconfident);

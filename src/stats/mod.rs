@@ -33,7 +33,7 @@ pub use interval::{
     gate_interval, has_power, normal_two_sided_quantile, scaled_chi2_interval,
 };
 pub use null_variance::{ComponentNullVariance, NeesNullVariance};
-pub use sums::{Accumulator, Divergence};
+pub use sums::{Accumulator, Divergence, StopCause};
 
 use serde::Serialize;
 
@@ -114,9 +114,9 @@ pub struct ConsistencyReport {
     /// The portmanteau whiteness test of each measurement component over all lags, at the
     /// gate's level in the full gate (at α as a diagnostic in the mean gate).
     pub whiteness_tests: Vec<WhitenessTest>,
-    /// Runs whose filter diverged (the first few).
+    /// Runs that stopped early (the first few), each with its cause.
     pub divergences: Vec<Divergence>,
-    /// Number of runs whose filter diverged.
+    /// Number of runs that stopped early, for any cause.
     pub diverged_runs: usize,
     /// The gate's verdict.
     pub verdict: Verdict,
@@ -243,10 +243,7 @@ impl ConsistencyReport {
             );
             verdicts.extend(whiteness_tests.iter().map(|w| w.verdict));
         }
-        let mut verdict = combine(&verdicts);
-        if acc.diverged_runs > 0 {
-            verdict = Verdict::Diverged;
-        }
+        let verdict = acc.stop_verdict().unwrap_or_else(|| combine(&verdicts));
         let mut report = ConsistencyReport {
             runs: acc.runs,
             steps: acc.steps,
@@ -269,7 +266,8 @@ impl ConsistencyReport {
                 states_off_too: false,
             },
         };
-        if !verdict.passes() && verdict != Verdict::Diverged {
+        // Runs that stopped early leave numbers no diagnosis can rest on.
+        if !verdict.passes() && acc.stop_verdict().is_none() {
             report.diagnosis = diagnose(&report);
         }
         report

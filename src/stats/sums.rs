@@ -3,19 +3,37 @@
 
 use serde::Serialize;
 
-use super::SumVariance;
+use super::{SumVariance, Verdict};
 
 /// How many divergences are kept with their details.
 const MAX_DIVERGENCES: usize = 10;
 
-/// A run in which the filter's covariance stopped being positive definite.
+/// Why a run stopped before its last step.
+#[derive(Debug, Clone, Copy, Serialize, PartialEq, Eq)]
+#[serde(rename_all = "snake_case")]
+pub enum StopCause {
+    /// The filter broke down: a covariance stopped being positive definite, a measurement
+    /// did not fit, or its error left its covariance by more than 1e154 standard deviations.
+    Diverged,
+    /// A covariance the filter inverts (P⁻, S or P) was too ill-conditioned for its NEES,
+    /// NIS or gain to keep their digits: the numbers would be rounding noise.
+    IllConditioned,
+    /// The truth state overflowed, or outgrew double precision relative to the filter's
+    /// standard deviations: the truth model is unstable over this horizon, and nothing about
+    /// the filter can be computed.
+    TruthOverflow,
+}
+
+/// A run that stopped early, and why.
 #[derive(Debug, Clone, Serialize, PartialEq)]
 pub struct Divergence {
     /// Run index (0-based).
     pub run: usize,
     /// Time step (1-based).
     pub step: usize,
-    /// What failed.
+    /// The kind of stop, which sets the report's verdict.
+    pub cause: StopCause,
+    /// What failed, in words.
     pub reason: String,
 }
 
@@ -99,8 +117,12 @@ pub struct Accumulator {
     pub white_b2: Vec<f64>,
     /// Number of pairs.
     pub white_pairs: Vec<f64>,
-    /// Number of runs whose filter diverged.
+    /// Number of runs that stopped early, for any [`StopCause`].
     pub diverged_runs: usize,
+    /// Of those, the runs stopped by an ill-conditioned covariance.
+    pub ill_conditioned_runs: usize,
+    /// Of those, the runs stopped by a truth state that overflowed.
+    pub truth_overflow_runs: usize,
     /// The first few divergences, by run index.
     pub divergences: Vec<Divergence>,
 }
@@ -143,6 +165,8 @@ impl Accumulator {
             white_b2: z(lags * n_z),
             white_pairs: z(lags * n_z),
             diverged_runs: 0,
+            ill_conditioned_runs: 0,
+            truth_overflow_runs: 0,
             divergences: Vec::new(),
         }
     }
@@ -272,6 +296,8 @@ impl Accumulator {
         add(&mut self.white_b2, &o.white_b2);
         add(&mut self.white_pairs, &o.white_pairs);
         self.diverged_runs += o.diverged_runs;
+        self.ill_conditioned_runs += o.ill_conditioned_runs;
+        self.truth_overflow_runs += o.truth_overflow_runs;
         let room = MAX_DIVERGENCES.saturating_sub(self.divergences.len());
         self.divergences
             .extend(o.divergences.iter().take(room).cloned());
@@ -280,9 +306,40 @@ impl Accumulator {
     /// Count run `run` as diverged at `step` (0 if not tied to a step) for `reason`; the
     /// first few are kept with their details.
     pub fn record_divergence(&mut self, run: usize, step: usize, reason: String) {
+        self.record_stop(run, step, StopCause::Diverged, reason);
+    }
+
+    /// Count run `run` as stopped at `step` (0 if not tied to a step) by `cause`, for
+    /// `reason`; the first few are kept with their details.
+    pub fn record_stop(&mut self, run: usize, step: usize, cause: StopCause, reason: String) {
         self.diverged_runs += 1;
+        match cause {
+            StopCause::Diverged => {}
+            StopCause::IllConditioned => self.ill_conditioned_runs += 1,
+            StopCause::TruthOverflow => self.truth_overflow_runs += 1,
+        }
         if self.divergences.len() < MAX_DIVERGENCES {
-            self.divergences.push(Divergence { run, step, reason });
+            self.divergences.push(Divergence {
+                run,
+                step,
+                cause,
+                reason,
+            });
+        }
+    }
+
+    /// The verdict the runs that stopped early impose, if any: a truth overflow before an
+    /// ill-conditioned covariance before a divergence (the first makes the others
+    /// meaningless; the second is a numerical, not a statistical, failure).
+    pub fn stop_verdict(&self) -> Option<Verdict> {
+        if self.truth_overflow_runs > 0 {
+            Some(Verdict::TruthOverflow)
+        } else if self.ill_conditioned_runs > 0 {
+            Some(Verdict::IllConditioned)
+        } else if self.diverged_runs > 0 {
+            Some(Verdict::Diverged)
+        } else {
+            None
         }
     }
 }

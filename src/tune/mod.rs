@@ -93,7 +93,7 @@ fn exact_scoring(
         Scoring::Auto => Ok(available),
         Scoring::Exact if !available => Err(SettingError::new(
             "scoring",
-            "exact scoring needs a linear filter that uses the truth's F and H",
+            "exact scoring needs a linear filter with the truth's states that uses its F and H",
         )
         .into()),
         Scoring::Exact => Ok(true),

@@ -46,6 +46,26 @@ fn failures_at_best_point(file: &str) -> (usize, Vec<f64>) {
     .unwrap();
     // The tuner itself finds no consistent value (its own confirmation on 20 seeds).
     assert_eq!(r.status, TuneStatus::Inconsistent, "{file}: {:?}", r.tuned);
+    // And says so plainly (issue 11, item 3): no consistent value, what stays off, and a
+    // richer model, not a confident number or "increase Q".
+    let finding = autotune::report::advice::family_finding(&r)
+        .expect("an inconsistent family is reported")
+        .join("\n");
+    assert!(
+        finding.contains("no value of the free parameters"),
+        "{finding}"
+    );
+    assert!(finding.contains("components that stay off"), "{finding}");
+    assert!(finding.contains("richer motion model"), "{finding}");
+    let recs = autotune::report::advice::recommendations(&p, &r, &r.before);
+    for rec in &recs {
+        assert!(!rec.advice.contains("not identifiable"), "{}", rec.advice);
+        assert!(
+            !rec.fixed && rec.advice.contains("no value of the free parameters") || rec.fixed,
+            "{}",
+            rec.advice
+        );
+    }
     let mut failed = 0;
     for seed in 1000..1100 {
         let mc = p.mc().with_seed(seed);

@@ -299,14 +299,24 @@ pub fn family_finding(result: &TuneResult) -> Option<Vec<String>> {
         .measurement_components
         .iter()
         .any(|c| matches!(c.verdict, Verdict::Overconfident | Verdict::Underconfident));
+    let richer = "a richer motion model would help (e.g. an acceleration state for a manoeuvring target, or a Gauss–Markov state for a slowly varying disturbance)";
     let help = if positive {
-        "the filter lags the truth at every setting of these parameters: its model misses dynamics the truth has; a richer model would help (e.g. an acceleration state for a manoeuvring target, or a Gauss–Markov state for a slowly varying disturbance)"
+        format!(
+            "the filter lags the truth at every setting of these parameters: its model misses dynamics the truth has; {richer}"
+        )
+    } else if states_off {
+        // The truth's errors do not have the shape any Q of this family gives P: some state
+        // components stay too large while others stay too small. Most often the motion
+        // model lacks a state the truth has.
+        format!(
+            "the state errors keep a shape no Q of this family gives (some components too large, others too small, whatever the parameters): {richer}, or free more entries of Q"
+        )
     } else if negative {
-        "the filter over-corrects at every setting of these parameters: check the measurement model (correlated or coloured measurement noise, a wrong H)"
-    } else if meas_off && !states_off {
-        "the innovations do not fit while the states do: a sensor bias or a wrong measurement model; add a bias state or fix the measurement model"
+        "the filter over-corrects at every setting of these parameters: check the measurement model (correlated or coloured measurement noise, a wrong H)".to_string()
+    } else if meas_off {
+        "the innovations do not fit while the states do: a sensor bias or a wrong measurement model; add a bias state or fix the measurement model".to_string()
     } else {
-        "the shape of the noise model does not fit (which states Q drives, their correlations): free more entries of Q or R, or add states"
+        "the shape of the noise model does not fit (which states Q drives, their correlations): free more entries of Q or R, or add states".to_string()
     };
     lines.push(format!("what would help: {help}"));
     Some(lines)

@@ -20,6 +20,20 @@ use autotune::problem::Problem;
 use autotune::stats::{ConsistencyReport, StopCause, Verdict};
 use common::{load, problem_path};
 
+/// `check` of `p` at `theta` with its own Monte Carlo settings on `engine`, with the truth.
+fn check_on(p: &Problem, theta: &[f64], engine: Engine) -> autotune::stats::ConsistencyReport {
+    check_with(
+        p,
+        theta,
+        p.mc(),
+        RunOptions {
+            engine,
+            progress: None,
+        },
+        true,
+    )
+}
+
 /// cv1d's verdict at `q_accel = q` (r_pos as shipped) on `engine`, with `runs` runs.
 fn cv1d_verdict(p: &Problem, q: f64, engine: Engine, runs: usize) -> ConsistencyReport {
     let mut theta = p.params().values();
@@ -136,16 +150,7 @@ fn a_truth_that_outgrows_double_precision_is_a_truth_overflow_on_every_path() {
     let p = Problem::load(&path).unwrap();
     let theta = [0.5, 1.0];
     for engine in [Engine::Linear, Engine::Generic] {
-        let r = check_with(
-            &p,
-            &theta,
-            p.mc(),
-            RunOptions {
-                engine,
-                progress: None,
-            },
-            true,
-        );
+        let r = check_on(&p, &theta, engine);
         assert_eq!(r.verdict, Verdict::TruthOverflow, "{engine:?}");
         assert_eq!(r.diverged_runs, r.runs, "{engine:?}");
         let d = &r.divergences[0];
@@ -274,16 +279,7 @@ fn a_filter_far_too_sure_of_itself_reads_overconfident_not_truth_overflow() {
     let p = Problem::from_toml(text, Path::new("sure.toml")).unwrap();
     let theta = p.params().values();
     for engine in [Engine::Linear, Engine::Generic] {
-        let r = check_with(
-            &p,
-            &theta,
-            p.mc(),
-            RunOptions {
-                engine,
-                progress: None,
-            },
-            true,
-        );
+        let r = check_on(&p, &theta, engine);
         assert_eq!(r.verdict, Verdict::Overconfident, "{engine:?}: {r:?}");
         assert_eq!(r.diverged_runs, 0);
     }

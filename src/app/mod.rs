@@ -61,6 +61,10 @@ pub enum AppError {
     /// A refusal that names its own subject (e.g. an existing file).
     #[error("{0}")]
     Refused(String),
+    /// The experiment could not run: an external worker broke the protocol, records were
+    /// malformed.
+    #[error(transparent)]
+    Experiment(#[from] crate::experiment::ExperimentError),
     /// Standard output failed (a closed pipe is not reported).
     #[error(transparent)]
     Io(#[from] std::io::Error),

@@ -108,6 +108,13 @@ pub struct Covariances {
     pub R: DMatrix<f64>,
 }
 
+/// An experiment that could not produce its sums at all: its worker failed, its records
+/// were malformed. This is bad input or a broken setup (exit code 2), not a verdict on the
+/// filter: a filter that diverged gives sums with its runs marked diverged instead.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("{0}")]
+pub struct ExperimentError(pub String);
+
 /// How one Monte Carlo evaluation runs: the engine path and a progress callback.
 #[derive(Clone, Copy, Default)]
 pub struct RunOptions<'a> {
@@ -155,16 +162,18 @@ pub trait Experiment: Sync {
     }
 
     /// The Monte Carlo sums of the filter with parameters `theta` (one value per parameter,
-    /// in [`Experiment::params`] order) against the truth, under `mc`.
+    /// in [`Experiment::params`] order) against the truth, under `mc`. Fails only when the
+    /// experiment cannot run at all (an external worker broke the protocol); the built-in
+    /// experiments never fail.
     fn monte_carlo_with(
         &self,
         theta: &[f64],
         mc: &McConfig,
         options: RunOptions<'_>,
-    ) -> Accumulator;
+    ) -> Result<Accumulator, ExperimentError>;
 
     /// [`Experiment::monte_carlo_with`] on the fastest valid path, without progress.
-    fn monte_carlo(&self, theta: &[f64], mc: &McConfig) -> Accumulator {
+    fn monte_carlo(&self, theta: &[f64], mc: &McConfig) -> Result<Accumulator, ExperimentError> {
         self.monte_carlo_with(theta, mc, RunOptions::default())
     }
 

@@ -13,8 +13,8 @@ use std::path::{Path, PathBuf};
 use sha2::{Digest, Sha256};
 
 use crate::experiment::{
-    CatalogExperiment, Covariances, Definition, Experiment, Info, LinearExperiment, RunOptions,
-    Source,
+    CatalogExperiment, Covariances, Definition, Experiment, ExperimentError, Info,
+    LinearExperiment, RunOptions, Source,
 };
 use crate::input::{FileError, SettingError, parse_toml, read_text};
 use crate::montecarlo::{Engine, McConfig};
@@ -115,7 +115,12 @@ impl Experiment for Problem {
         self.experiment().definition()
     }
 
-    fn monte_carlo_with(&self, theta: &[f64], mc: &McConfig, run: RunOptions<'_>) -> Accumulator {
+    fn monte_carlo_with(
+        &self,
+        theta: &[f64],
+        mc: &McConfig,
+        run: RunOptions<'_>,
+    ) -> Result<Accumulator, ExperimentError> {
         self.experiment().monte_carlo_with(theta, mc, run)
     }
 

@@ -42,6 +42,7 @@ pub mod model;
 pub mod montecarlo;
 pub mod params;
 pub mod problem;
+pub mod records;
 pub mod report;
 pub mod statespace;
 pub mod stats;

@@ -198,5 +198,8 @@ pub(super) fn truth_overflow(experiment: &dyn Experiment, report: &ConsistencyRe
             FileError::new(path, field, message).into()
         }
         Source::Program { name } => AppError::Refused(format!("{name}: {message}")),
+        Source::Records { .. } => {
+            AppError::Refused(format!("{}: {message}", experiment.info().source.label()))
+        }
     }
 }

@@ -41,6 +41,11 @@ pub enum Source {
         /// The program's name, as it is run (`cargo run --example custom_model`: `custom_model`).
         name: String,
     },
+    /// Records of a Monte Carlo experiment that another program ran and wrote.
+    Records {
+        /// The records files, as given.
+        files: Vec<PathBuf>,
+    },
 }
 
 impl Source {
@@ -49,6 +54,7 @@ impl Source {
         match self {
             Source::File { path, .. } => path.display().to_string(),
             Source::Program { name } => format!("{name} (Rust model)"),
+            Source::Records { files } => format!("records {}", join_paths(files)),
         }
     }
 
@@ -56,7 +62,7 @@ impl Source {
     pub fn sha256(&self) -> Option<&str> {
         match self {
             Source::File { sha256, .. } => Some(sha256),
-            Source::Program { .. } => None,
+            Source::Program { .. } | Source::Records { .. } => None,
         }
     }
 
@@ -65,8 +71,17 @@ impl Source {
         match self {
             Source::File { path, .. } => format!("autotune check {}", path.display()),
             Source::Program { name } => format!("{name} check"),
+            Source::Records { files } => format!("autotune check --records {}", join_paths(files)),
         }
     }
+}
+
+fn join_paths(files: &[PathBuf]) -> String {
+    files
+        .iter()
+        .map(|f| f.display().to_string())
+        .collect::<Vec<_>>()
+        .join(" ")
 }
 
 /// What an experiment is called and where it comes from.

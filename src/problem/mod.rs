@@ -106,6 +106,7 @@ impl Problem {
         match &self.info().source {
             Source::File { path, .. } => path.clone(),
             Source::Program { name } => PathBuf::from(name),
+            Source::Records { files } => files.first().cloned().unwrap_or_default(),
         }
     }
 }

@@ -34,6 +34,7 @@ pub mod app;
 pub mod catalog;
 pub mod check;
 pub mod experiment;
+pub mod external;
 pub mod filter;
 pub mod input;
 pub mod linalg;

@@ -382,6 +382,19 @@ pub fn read_files(paths: &[PathBuf], lags: Option<usize>) -> Result<Recorded, Fi
     })
 }
 
+/// Stream the records file `path` (CSV, NumPy `.npz` or JSON Lines) into `sink`, an
+/// experiment of `layout` with `steps` steps; a NumPy file's runs are numbered from
+/// `first_run`.
+pub fn feed_file(
+    path: &Path,
+    layout: &Layout,
+    steps: usize,
+    first_run: usize,
+    sink: &mut RecordSink,
+) -> Result<(), FileError> {
+    feed(&[path.to_path_buf()], layout, steps, first_run, sink)
+}
+
 /// The layout and the number of steps of one source.
 fn scan(src: &[PathBuf]) -> Result<(Layout, usize), FileError> {
     match format_of(&src[0])? {

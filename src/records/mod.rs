@@ -17,10 +17,9 @@ mod npy;
 mod sink;
 
 pub use experiment::RecordedExperiment;
-pub use files::{Recorded, read_files};
+pub use files::{Recorded, feed_file, read_files};
 pub use json::parse_record_line;
-pub use names::Quantity;
-pub use npy::read_npy_archive;
+pub use names::{Quantity, valid_sensor};
 pub use sink::RecordSink;
 
 /// The state quantities of a record: the ground-truth side.

@@ -332,18 +332,3 @@ impl Row for NpyRow<'_> {
         Ok(None)
     }
 }
-
-/// Read an `.npz` archive's records and stream them into `sink` for an experiment of
-/// `layout` and `steps` steps, its runs numbered from `first_run`; the number of runs it
-/// held is returned.
-pub fn read_npy_archive(
-    path: &Path,
-    layout: &Layout,
-    steps: usize,
-    first_run: usize,
-    sink: &mut RecordSink,
-) -> Result<usize, FileError> {
-    let arrays = Arrays::read(&[path.to_path_buf()])?;
-    arrays.feed(layout, steps, first_run, sink)?;
-    Ok(arrays.runs)
-}

@@ -39,6 +39,8 @@ pub struct RecordSink {
     recorder: RunRecorder,
     current: Option<Current>,
     seen: HashSet<usize>,
+    /// The runs expected, where known (a worker's answer to a request).
+    expected: Option<std::ops::Range<usize>>,
 }
 
 impl RecordSink {
@@ -53,7 +55,15 @@ impl RecordSink {
             recorder: RunRecorder::new(n_x, n_z, lags),
             current: None,
             seen: HashSet::new(),
+            expected: None,
         }
+    }
+
+    /// Expect exactly the runs in `runs`: another run is an error, and so is a missing one
+    /// at [`RecordSink::finish`].
+    pub fn expecting(mut self, runs: std::ops::Range<usize>) -> Self {
+        self.expected = Some(runs);
+        self
     }
 
     /// Runs read so far (finished or stopped).
@@ -65,6 +75,14 @@ impl RecordSink {
     pub fn push(&mut self, r: StepRecord) -> Result<(), String> {
         let (run, k) = (r.run, r.step);
         if self.current.as_ref().is_none_or(|c| c.run != run) {
+            if let Some(range) = &self.expected
+                && !range.contains(&run)
+            {
+                return Err(format!(
+                    "run {run} was not asked for (runs {}..{})",
+                    range.start, range.end
+                ));
+            }
             self.close()?;
             if !self.seen.insert(run) {
                 return Err(format!(
@@ -114,6 +132,21 @@ impl RecordSink {
     /// The sums, once every run is complete.
     pub fn finish(mut self) -> Result<Accumulator, String> {
         self.close()?;
+        if let Some(range) = &self.expected
+            && self.seen.len() != range.len()
+        {
+            let missing = range
+                .clone()
+                .find(|r| !self.seen.contains(r))
+                .unwrap_or(range.start);
+            return Err(format!(
+                "{} of the {} runs asked for ({}..{}) came back; run {missing} is missing",
+                self.seen.len(),
+                range.len(),
+                range.start,
+                range.end
+            ));
+        }
         if self.acc.runs == 0 {
             return Err("no runs".into());
         }

@@ -197,7 +197,7 @@ impl Worker {
             if trimmed.is_empty() {
                 continue;
             }
-            let Ok(Value::Object(obj)) = serde_json::from_str::<Value>(trimmed) else {
+            let Ok(obj) = crate::records::json_object(trimmed) else {
                 return Err(format!(
                     "printed {} on stdout, which is not a protocol line (print diagnostics to stderr)",
                     quote(trimmed)

@@ -127,8 +127,21 @@ impl Row for JsonRow<'_> {
     }
 }
 
-fn object(line: &str) -> Result<Map<String, Value>, String> {
-    match serde_json::from_str::<Value>(line) {
+pub(crate) fn object(line: &str) -> Result<Map<String, Value>, String> {
+    let parsed = serde_json::from_str::<Value>(line).or_else(|e| {
+        // Python's json module writes NaN and Infinity, which JSON has not: read them as
+        // the null (NaN) they stand for, so a diverged filter reads as diverged.
+        if line.contains("NaN") || line.contains("Infinity") {
+            let fixed = line
+                .replace("-Infinity", "null")
+                .replace("Infinity", "null")
+                .replace("NaN", "null");
+            serde_json::from_str::<Value>(&fixed).map_err(|_| e)
+        } else {
+            Err(e)
+        }
+    });
+    match parsed {
         Ok(Value::Object(m)) => Ok(m),
         Ok(_) => Err("not a JSON object".into()),
         Err(e) => Err(format!("not JSON: {e}")),

@@ -18,6 +18,7 @@ mod sink;
 
 pub use experiment::RecordedExperiment;
 pub use files::{Recorded, feed_file, read_files};
+pub(crate) use json::object as json_object;
 pub use json::parse_record_line;
 pub use names::{Quantity, valid_sensor};
 pub use sink::RecordSink;

@@ -1,0 +1,84 @@
+#!/usr/bin/env python3
+"""A scripted worker for autotune's protocol tests (tests/external.rs), pure Python.
+
+A scalar random walk x_k = x_{k-1} + w_k, w ~ N(0, 0.5), measured as z = x + v, v ~ N(0, 2),
+and a Kalman filter with parameters q and r. Run i's noise comes from random.Random of
+(seed, i) alone (the seed contract). The first argument picks a behaviour: "good" answers
+inline, "file" writes a JSON Lines file; every other mode breaks the protocol in one way.
+"""
+import json
+import math
+import os
+import random
+import sys
+import time
+
+MODE = sys.argv[1] if len(sys.argv) > 1 else "good"
+Q_TRUE, R_TRUE = 0.5, 2.0
+shared = random.Random(12345)  # for "unseeded": noise that depends on the request order
+
+
+def run_records(theta, seed, i, steps):
+    rng = shared if MODE == "unseeded" else random.Random(f"{seed}:{i}")
+    q, r = theta["q"], theta["r"]
+    x = rng.gauss(0.0, 1.0)
+    xh, p = 0.0, 1.0
+    out = []
+    for k in range(1, steps + 1):
+        x += rng.gauss(0.0, math.sqrt(Q_TRUE))
+        z = x + rng.gauss(0.0, math.sqrt(R_TRUE))
+        p += q
+        s = p + r
+        nu = z - xh
+        g = p / s
+        xh += g * nu
+        p = (1.0 - g) * p
+        if MODE == "nan" and q > 1.0:
+            p = float("nan")
+        rec = {"run": i, "step": k, "e": [x - xh], "P": [[p]], "nu_z": [nu], "S_z": [[s]]}
+        if MODE == "wrong_shape":
+            rec["e"] = [x - xh, 0.0]
+        out.append(rec)
+    return out
+
+
+def main():
+    if MODE == "exit_at_start":
+        print("cannot import the filter module", file=sys.stderr)
+        sys.exit(3)
+    for line in sys.stdin:
+        req = json.loads(line)
+        a, b = req["runs"]
+        if MODE == "exit_mid":
+            print(json.dumps(run_records(req["theta"], req["seed"], a, req["steps"])[0]), flush=True)
+            print("Traceback: ZeroDivisionError in update()", file=sys.stderr, flush=True)
+            sys.exit(1)
+        if MODE == "garbage":
+            print("iteration 1: P = 3.2", flush=True)
+            continue
+        if MODE == "wrong_id":
+            print(json.dumps({"id": req["id"] + 1000, "done": True}), flush=True)
+            continue
+        if MODE == "timeout":
+            time.sleep(30)
+        if MODE == "error":
+            print(json.dumps({"id": req["id"], "error": "theta out of range"}), flush=True)
+            continue
+        if MODE == "missing_run":
+            b -= 1
+        records = [rec for i in range(a, b) for rec in run_records(req["theta"], req["seed"], i, req["steps"])]
+        if MODE in ("file", "bad_file"):
+            path = os.path.join(req["dir"], "%d.jsonl" % req["id"])
+            with open(path, "w") as f:
+                for rec in records:
+                    f.write(json.dumps(rec) + "\n")
+                if MODE == "bad_file":
+                    f.write('{"run": %d, "step": 1, "e": [0.1], "P": "oops"}\n' % b)
+            print(json.dumps({"id": req["id"], "file": path}), flush=True)
+            continue
+        for rec in records:
+            sys.stdout.write(json.dumps(rec) + "\n")
+        print(json.dumps({"id": req["id"], "done": True}), flush=True)
+
+
+main()

@@ -5,7 +5,7 @@
 use std::collections::HashMap;
 use std::path::Path;
 
-use super::files::{Found, Row, fits, infer_layout, step_record};
+use super::files::{Found, Keys, Row, fits, infer_layout, step_record};
 use super::names::{Quantity, parse_column};
 use super::{Layout, RecordSink};
 use crate::input::FileError;
@@ -262,6 +262,7 @@ pub(super) fn feed(path: &Path, layout: &Layout, sink: &mut RecordSink) -> Resul
         .headers()
         .map_err(|e| line_error(path, Some(1), "header", csv_message(&e)))?
         .clone();
+    let keys = Keys::new(layout);
     let mut rec = csv::StringRecord::new();
     loop {
         match rdr.read_record(&mut rec) {
@@ -296,8 +297,8 @@ pub(super) fn feed(path: &Path, layout: &Layout, sink: &mut RecordSink) -> Resul
             cols: &cols,
             headers: &headers,
         };
-        let r =
-            step_record(layout, run, step, &mut row).map_err(|m| line_error(path, line, "", m))?;
+        let r = step_record(layout, &keys, run, step, &mut row)
+            .map_err(|m| line_error(path, line, "", m))?;
         sink.push(r).map_err(|m| line_error(path, line, "", m))?;
     }
     Ok(())

@@ -155,9 +155,38 @@ pub(super) trait Row {
     fn diverged(&mut self) -> Result<Option<String>, String>;
 }
 
-/// The record of run `run` at step `step` of `layout` from `row`.
+/// The quantities of each sensor of a layout, named once rather than at every step.
+pub(super) struct Keys {
+    /// Per sensor: ν, S, NIS, its degrees of freedom, u.
+    sensors: Vec<[Quantity; 5]>,
+}
+
+impl Keys {
+    pub(super) fn new(layout: &Layout) -> Keys {
+        Keys {
+            sensors: layout
+                .sensors
+                .iter()
+                .map(|s| {
+                    let n = || s.name.clone();
+                    [
+                        Quantity::Nu(n()),
+                        Quantity::S(n()),
+                        Quantity::Nis(n()),
+                        Quantity::NisDof(n()),
+                        Quantity::U(n()),
+                    ]
+                })
+                .collect(),
+        }
+    }
+}
+
+/// The record of run `run` at step `step` of `layout` (whose [`Keys`] are `keys`) from
+/// `row`.
 pub(super) fn step_record(
     layout: &Layout,
+    keys: &Keys,
     run: usize,
     step: usize,
     row: &mut impl Row,
@@ -195,13 +224,14 @@ pub(super) fn step_record(
             }
         };
     }
-    for (idx, s) in layout.sensors.iter().enumerate() {
-        let name = s.name.as_str();
+    for (idx, (s, [q_nu, q_s, q_nis, q_dof, q_u])) in
+        layout.sensors.iter().zip(&keys.sensors).enumerate()
+    {
         let measured =
             |v: &Option<Vec<f64>>| v.as_ref().is_some_and(|v| v.iter().any(|x| !x.is_nan()));
-        let nu = row.values(&Quantity::Nu(name.into()))?;
+        let nu = row.values(q_nu)?;
         if measured(&nu) {
-            let sm = row.values(&Quantity::S(name.into()))?.unwrap_or_default();
+            let sm = row.values(q_s)?.unwrap_or_default();
             r.sensors.push((
                 idx,
                 SensorRecord::Raw {
@@ -211,15 +241,15 @@ pub(super) fn step_record(
             ));
             continue;
         }
-        let nis = row.values(&Quantity::Nis(name.into()))?;
+        let nis = row.values(q_nis)?;
         if measured(&nis) {
-            let dof = scalar(row.values(&Quantity::NisDof(name.into()))?).unwrap_or(s.dim as f64);
+            let dof = scalar(row.values(q_dof)?).unwrap_or(s.dim as f64);
             r.sensors.push((
                 idx,
                 SensorRecord::Normalized {
                     nis: scalar(nis).unwrap_or(f64::NAN),
                     dof,
-                    u: row.values(&Quantity::U(name.into()))?,
+                    u: row.values(q_u)?,
                 },
             ));
         }

@@ -7,7 +7,7 @@ use std::path::Path;
 
 use serde_json::{Map, Value};
 
-use super::files::{Found, Row, infer_layout, step_record};
+use super::files::{Found, Keys, Row, infer_layout, step_record};
 use super::names::Quantity;
 use super::{Layout, RecordSink, StepRecord};
 use crate::input::FileError;
@@ -171,7 +171,7 @@ pub fn parse_record_line(line: &str, layout: &Layout) -> Result<StepRecord, Stri
             ));
         }
     }
-    step_record(layout, run, step, &mut JsonRow(&obj))
+    step_record(layout, &Keys::new(layout), run, step, &mut JsonRow(&obj))
 }
 
 /// The layout and the number of steps of a JSON Lines records file.

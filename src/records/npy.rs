@@ -4,7 +4,7 @@
 use std::io::Read;
 use std::path::{Path, PathBuf};
 
-use super::files::{Found, Row, fits, infer_layout, step_record};
+use super::files::{Found, Keys, Row, fits, infer_layout, step_record};
 use super::names::Quantity;
 use super::{Layout, RecordSink};
 use crate::input::FileError;
@@ -49,6 +49,26 @@ fn read_array<R: Read>(
     let shape: Vec<usize> = npy.shape().iter().map(|&d| d as usize).collect();
     let order = npy.order();
     let dtype = npy.dtype().descr();
+    // The common case, little-endian float64, in one read: element by element, the zip
+    // reader's checksum and the buffering cost more than the numbers.
+    if dtype == "'<f8'" || (dtype == "'=f8'" && cfg!(target_endian = "little")) {
+        let len = npy.len() as usize;
+        let mut bytes = Vec::with_capacity(len * 8);
+        npy.into_inner()
+            .read_to_end(&mut bytes)
+            .map_err(|e| err(format!("cannot read: {e}")))?;
+        if bytes.len() < len * 8 {
+            return Err(err(format!(
+                "truncated: {} bytes of data for {len} float64 numbers",
+                bytes.len()
+            )));
+        }
+        let data = bytes[..len * 8]
+            .chunks_exact(8)
+            .map(|c| f64::from_le_bytes(c.try_into().expect("8 bytes")))
+            .collect();
+        return Ok((shape.clone(), c_order(&shape, order, data)));
+    }
     macro_rules! try_types {
         ($npy:expr, $($t:ty),*) => {{
             let npy = $npy;
@@ -284,6 +304,7 @@ impl Arrays {
                 format!("{} steps per run, expected {steps}", self.steps),
             ));
         }
+        let keys = Keys::new(layout);
         for r in 0..self.runs {
             for k in 1..=self.steps {
                 let at = |m: String| FileError::new(&self.file, format!("run {r}, step {k}"), m);
@@ -292,7 +313,7 @@ impl Arrays {
                     r,
                     t: k - 1,
                 };
-                let mut rec = step_record(layout, first_run + r, k, &mut row).map_err(at)?;
+                let mut rec = step_record(layout, &keys, first_run + r, k, &mut row).map_err(at)?;
                 if self.diverged[r] == k {
                     rec = super::StepRecord::new(first_run + r, k);
                     rec.diverged = Some("marked diverged in the records".into());

@@ -1,0 +1,356 @@
+//! Issue #12, item 1: `autotune check --records`. Hand-computed NEES and NIS read alike
+//! from CSV, JSON Lines and `.npy` files (written here byte by byte from the NumPy format's
+//! specification); malformed files name the file, the row or array and the field; and,
+//! with python3 and numpy (required in CI), records written by the Python example agree
+//! with the built-in problem to Monte Carlo precision and precomputed NEES/NIS with raw
+//! e, P, ν, S.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use assert_cmd::cargo::CommandCargoExt;
+use serde_json::Value;
+
+fn autotune(args: &[&str]) -> (Option<i32>, String, String) {
+    let out = Command::cargo_bin("autotune")
+        .unwrap()
+        .args(args)
+        .output()
+        .unwrap();
+    (
+        out.status.code(),
+        String::from_utf8_lossy(&out.stdout).into_owned(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+/// `check --records FILES --json`, its exit code and report.
+fn check_json(files: &[&Path], extra: &[&str]) -> (Option<i32>, Value) {
+    let mut args = vec!["check", "--json"];
+    args.extend(extra);
+    args.push("--records");
+    let names: Vec<String> = files.iter().map(|f| f.display().to_string()).collect();
+    args.extend(names.iter().map(String::as_str));
+    let (code, stdout, stderr) = autotune(&args);
+    let v: Value = serde_json::from_str(&stdout)
+        .unwrap_or_else(|e| panic!("{e}: stdout {stdout}\nstderr {stderr}"));
+    (code, v)
+}
+
+fn per_step(v: &Value, stat: &str) -> Vec<Option<f64>> {
+    v["report"][stat]["per_step"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(Value::as_f64)
+        .collect()
+}
+
+/// Two runs of two steps, two states, one sensor `r` of one component, not measured at
+/// run 0's step 2. By hand: NEES 1.5, 4/3 (run 0) and 1, 2 (run 1); NIS 1 wherever
+/// measured.
+const E: [[[f64; 2]; 2]; 2] = [[[1.0, 2.0], [1.0, 0.0]], [[0.0, 1.0], [2.0, 2.0]]];
+const P: [[[f64; 4]; 2]; 2] = [
+    [[2.0, 0.0, 0.0, 4.0], [1.0, 0.5, 0.5, 1.0]],
+    [[1.0, 0.0, 0.0, 1.0], [4.0, 0.0, 0.0, 4.0]],
+];
+const NU: [[f64; 2]; 2] = [[3.0, f64::NAN], [2.0, 1.0]];
+const S: [[f64; 2]; 2] = [[9.0, 1.0], [4.0, 1.0]];
+
+fn write_csv(dir: &Path) -> PathBuf {
+    let mut t = String::from("run,step,e_1,e_2,P_1_1,P_1_2,P_2_2,nu_r_1,S_r_1_1\n");
+    for r in 0..2 {
+        for k in 0..2 {
+            let (nu, s) = if NU[r][k].is_nan() {
+                (String::new(), String::new())
+            } else {
+                (NU[r][k].to_string(), S[r][k].to_string())
+            };
+            t += &format!(
+                "{r},{},{},{},{},{},{},{nu},{s}\n",
+                k + 1,
+                E[r][k][0],
+                E[r][k][1],
+                P[r][k][0],
+                P[r][k][1],
+                P[r][k][3]
+            );
+        }
+    }
+    let path = dir.join("hand.csv");
+    std::fs::write(&path, t).unwrap();
+    path
+}
+
+fn write_jsonl(dir: &Path) -> PathBuf {
+    let mut t = String::new();
+    for r in 0..2 {
+        for k in 0..2 {
+            let p = P[r][k];
+            let mut o = serde_json::json!({
+                "run": r, "step": k + 1, "e": E[r][k],
+                "P": [[p[0], p[1]], [p[2], p[3]]],
+            });
+            if !NU[r][k].is_nan() {
+                o["nu_r"] = serde_json::json!([NU[r][k]]);
+                o["S_r"] = serde_json::json!([[S[r][k]]]);
+            }
+            t += &format!("{o}\n");
+        }
+    }
+    let path = dir.join("hand.jsonl");
+    std::fs::write(&path, t).unwrap();
+    path
+}
+
+/// A `.npy` file (format version 1.0): magic, header length, the header dictionary padded
+/// with spaces to a multiple of 64 bytes, then little-endian float64 data in C order.
+fn write_npy(path: &Path, shape: &[usize], data: &[f64]) {
+    let dims: Vec<String> = shape.iter().map(|d| d.to_string()).collect();
+    let shape_text = if dims.len() == 1 {
+        format!("({},)", dims[0])
+    } else {
+        format!("({})", dims.join(", "))
+    };
+    let mut header =
+        format!("{{'descr': '<f8', 'fortran_order': False, 'shape': {shape_text}, }}");
+    while (10 + header.len() + 1) % 64 != 0 {
+        header.push(' ');
+    }
+    header.push('\n');
+    let mut bytes = b"\x93NUMPY\x01\x00".to_vec();
+    bytes.extend((header.len() as u16).to_le_bytes());
+    bytes.extend(header.as_bytes());
+    for v in data {
+        bytes.extend(v.to_le_bytes());
+    }
+    std::fs::write(path, bytes).unwrap();
+}
+
+fn write_npy_set(dir: &Path) -> Vec<PathBuf> {
+    let e: Vec<f64> = E.iter().flatten().flatten().copied().collect();
+    let p: Vec<f64> = P.iter().flatten().flatten().copied().collect();
+    let nu: Vec<f64> = NU.iter().flatten().copied().collect();
+    let s: Vec<f64> = S.iter().flatten().copied().collect();
+    let files = [
+        ("e", vec![2, 2, 2], e),
+        ("P", vec![2, 2, 2, 2], p),
+        ("nu_r", vec![2, 2, 1], nu),
+        ("S_r", vec![2, 2, 1, 1], s),
+    ];
+    files
+        .into_iter()
+        .map(|(name, shape, data)| {
+            let path = dir.join(format!("{name}.npy"));
+            write_npy(&path, &shape, &data);
+            path
+        })
+        .collect()
+}
+
+#[test]
+fn hand_computed_nees_and_nis_read_alike_from_csv_jsonl_and_npy() {
+    let dir = tempfile::tempdir().unwrap();
+    let csv = write_csv(dir.path());
+    let jsonl = write_jsonl(dir.path());
+    let npy = write_npy_set(dir.path());
+    let npy_refs: Vec<&Path> = npy.iter().map(PathBuf::as_path).collect();
+    let reports = [
+        check_json(&[&csv], &["--gate", "mean"]).1,
+        check_json(&[&jsonl], &["--gate", "mean"]).1,
+        check_json(&npy_refs, &["--gate", "mean"]).1,
+    ];
+    for v in &reports {
+        let nees = per_step(v, "nees");
+        assert!((nees[0].unwrap() - 1.25).abs() < 1e-12, "{nees:?}");
+        assert!((nees[1].unwrap() - (4.0 / 3.0 + 2.0) / 2.0).abs() < 1e-12, "{nees:?}");
+        assert_eq!(per_step(v, "nis"), vec![Some(1.0), Some(1.0)]);
+        assert_eq!(v["report"]["runs"], 2);
+        assert_eq!(v["report"]["steps"], 2);
+    }
+    assert_eq!(reports[0]["report"], reports[1]["report"], "CSV vs JSON Lines");
+    assert_eq!(reports[0]["report"], reports[2]["report"], "CSV vs .npy");
+}
+
+/// Each malformed file: exit 2, nothing on stdout, one line naming the file and where.
+#[test]
+fn malformed_records_name_the_file_the_row_and_the_field() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let head = "run,step,e_1,P_1_1\n";
+    let cases: Vec<(&str, String, &[&str])> = vec![
+        ("number.csv", format!("{head}0,1,0.5,1\n0,2,0.5,abc\n"), &["number.csv:3", "P_1_1", "'abc' is not a number"]),
+        ("column.csv", "run,step,e_1,e_3,P_1_1\n0,1,1,1,1\n".into(), &["column.csv:1", "header", "column e_2 missing"]),
+        ("unknown.csv", "run,step,e_1,P_1_1,Q_1_1\n0,1,1,1,1\n".into(), &["unknown column 'Q_1_1'"]),
+        ("twice.csv", format!("{head}0,1,1,1\n1,1,1,1\n0,1,1,1\n"), &["twice.csv:4", "run 0 appears twice"]),
+        ("gap.csv", format!("{head}0,1,1,1\n0,3,1,1\n"), &["gap.csv:3", "step 3 follows step 1"]),
+        ("short.csv", format!("{head}0,1,1,1\n0,2,1,1\n1,1,1,1\n"), &["run 1: ends at step 1 of 2"]),
+        ("nodof.csv", "run,step,nees\n0,1,3.2\n".into(), &["nees without nees_dof or e2p"]),
+        ("fields.csv", format!("{head}0,1,1\n"), &["fields.csv:2", "3 fields where the header has 4"]),
+        ("key.jsonl", "{\"run\":0,\"step\":1,\"e\":[1],\"P\":[[1]]}\n{\"run\":0,\"step\":2,\"foo\":1}\n".into(), &["key.jsonl:2", "unknown key 'foo'"]),
+        ("json.jsonl", "{\"run\":0,\"step\":1,\"e\":[1],\"P\":[[1]]}\nnot json\n".into(), &["json.jsonl:2", "not JSON"]),
+        ("records.txt", "x".into(), &["records.txt", "not a records file"]),
+    ];
+    for (name, text, expect) in cases {
+        let path = d.join(name);
+        std::fs::write(&path, text).unwrap();
+        let (code, stdout, stderr) = autotune(&["check", "--records", path.to_str().unwrap()]);
+        assert_eq!(code, Some(2), "{name}: {stdout}{stderr}");
+        assert!(stdout.is_empty(), "{name}: {stdout}");
+        assert_eq!(stderr.lines().count(), 1, "{name}: {stderr}");
+        for e in expect {
+            assert!(stderr.contains(e), "{name}: expected '{e}' in {stderr}");
+        }
+    }
+    // A NumPy array of the wrong shape is named.
+    let npy = d.join("npy");
+    std::fs::create_dir(&npy).unwrap();
+    write_npy(&npy.join("e.npy"), &[1, 2, 2], &[0.0; 4]);
+    write_npy(&npy.join("P.npy"), &[1, 2, 3, 3], &[1.0; 18]);
+    let (code, _, stderr) = autotune(&[
+        "check",
+        "--records",
+        npy.join("e.npy").to_str().unwrap(),
+        npy.join("P.npy").to_str().unwrap(),
+    ]);
+    assert_eq!(code, Some(2), "{stderr}");
+    assert!(stderr.contains("P is 3×3 but e has 2 entries"), "{stderr}");
+    write_npy(&npy.join("P.npy"), &[1, 3, 2, 2], &[1.0; 12]);
+    let (code, _, stderr) = autotune(&[
+        "check",
+        "--records",
+        npy.join("e.npy").to_str().unwrap(),
+        npy.join("P.npy").to_str().unwrap(),
+    ]);
+    assert_eq!(code, Some(2), "{stderr}");
+    assert!(stderr.contains("array P"), "{stderr}");
+    assert!(stderr.contains("differ from e's (1, 2)"), "{stderr}");
+}
+
+/// NaN covariances in records are a diverged filter: exit 1, not a bad file.
+#[test]
+fn nan_in_records_is_a_diverged_run() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("nan.csv");
+    std::fs::write(&path, "run,step,e_1,P_1_1\n0,1,0.5,1\n0,2,0.5,NaN\n1,1,0.1,1\n1,2,0.2,1\n").unwrap();
+    let (code, stdout, _) = autotune(&["check", "--records", path.to_str().unwrap()]);
+    assert_eq!(code, Some(1), "{stdout}");
+    assert!(stdout.contains("diverged in 1 of 2 runs"), "{stdout}");
+}
+
+/// Whether python3 with numpy can run the Python example; required where
+/// AUTOTUNE_REQUIRE_PYTHON is set (CI installs numpy).
+fn numpy() -> bool {
+    let ok = Command::new("python3")
+        .args(["-c", "import numpy"])
+        .status()
+        .is_ok_and(|s| s.success());
+    if !ok && std::env::var_os("AUTOTUNE_REQUIRE_PYTHON").is_some() {
+        panic!("python3 with numpy is required (AUTOTUNE_REQUIRE_PYTHON is set)");
+    }
+    if !ok {
+        eprintln!("skipped: python3 with numpy is not available");
+    }
+    ok
+}
+
+fn write_records(out: &Path, theta: &str, seed: u64, runs: usize, steps: usize, normalized: bool) {
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/python/write_records.py");
+    let mut cmd = Command::new("python3");
+    cmd.arg(&script)
+        .args(["--theta", theta, "--seed", &seed.to_string()])
+        .args(["--runs", &runs.to_string(), "--steps", &steps.to_string()])
+        .arg("--out")
+        .arg(out);
+    if normalized {
+        cmd.arg("--normalized");
+    }
+    let o = cmd.output().unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+}
+
+/// Raw e, P, ν, S and the NEES, NIS, e²/P and ν/√S numpy computed from them give the
+/// same statistics to rounding (1e-9 relative: numpy inverts, autotune factors).
+#[test]
+fn precomputed_nees_and_nis_give_the_numbers_of_raw_records() {
+    if !numpy() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let theta = "q_accel_x=0.3,q_accel_y=0.2,r_pos_x=1.5,r_pos_y=3";
+    let raw = dir.path().join("raw.npz");
+    let norm = dir.path().join("norm.npz");
+    write_records(&raw, theta, 9, 64, 50, false);
+    write_records(&norm, theta, 9, 64, 50, true);
+    let (c1, a) = check_json(&[&raw], &[]);
+    let (c2, b) = check_json(&[&norm], &[]);
+    assert_eq!(c1, c2);
+    for stat in ["nees", "nis"] {
+        let (x, y) = (per_step(&a, stat), per_step(&b, stat));
+        for (u, v) in x.iter().zip(&y) {
+            let (u, v) = (u.unwrap(), v.unwrap());
+            assert!((u - v).abs() <= 1e-9 * u.abs(), "{stat}: {u} vs {v}");
+        }
+        let (u, v) = (
+            a["report"][stat]["time_average"].as_f64().unwrap(),
+            b["report"][stat]["time_average"].as_f64().unwrap(),
+        );
+        assert!((u - v).abs() <= 1e-9 * u, "{stat} time average: {u} vs {v}");
+    }
+    for list in ["state_components", "measurement_components"] {
+        let (x, y) = (&a["report"][list], &b["report"][list]);
+        assert_eq!(x.as_array().unwrap().len(), y.as_array().unwrap().len());
+        for (u, v) in x.as_array().unwrap().iter().zip(y.as_array().unwrap()) {
+            let (u, v) = (u["value"].as_f64().unwrap(), v["value"].as_f64().unwrap());
+            assert!((u - v).abs() <= 1e-9 * u, "{list}: {u} vs {v}");
+        }
+    }
+    assert_eq!(a["report"]["verdict"], b["report"]["verdict"]);
+}
+
+/// Records of the Python example at θ against `autotune check problems/cv2d.toml` at the
+/// same θ: two independent Monte Carlo estimates of the same filter (other random
+/// streams), so their time averages differ by Monte Carlo noise only. Each average's
+/// standard deviation is read off its gate interval; the difference must lie within 4.5
+/// combined standard deviations (two-sided 7e-6 for each of the 6 comparisons), and the
+/// verdicts must agree at the truth (consistent) and at a wrong θ (both inconsistent).
+#[test]
+fn python_records_agree_with_the_built_in_problem_to_monte_carlo_precision() {
+    if !numpy() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let problem = Path::new(env!("CARGO_MANIFEST_DIR")).join("problems/cv2d.toml");
+    for (theta, sets) in [
+        ("q_accel_x=0.5,q_accel_y=0.1,r_pos_x=1,r_pos_y=4", ["q_accel_x=0.5", "q_accel_y=0.1", "r_pos_x=1", "r_pos_y=4"]),
+        ("q_accel_x=0.3,q_accel_y=0.1,r_pos_x=1,r_pos_y=2.5", ["q_accel_x=0.3", "q_accel_y=0.1", "r_pos_x=1", "r_pos_y=2.5"]),
+        ("q_accel_x=0.5,q_accel_y=0.2,r_pos_x=1.5,r_pos_y=4", ["q_accel_x=0.5", "q_accel_y=0.2", "r_pos_x=1.5", "r_pos_y=4"]),
+    ] {
+        let rec = dir.path().join("cv2d.npz");
+        write_records(&rec, theta, 11, 200, 200, false);
+        let (code_rec, a) = check_json(&[&rec], &[]);
+        let mut args = vec!["check", problem.to_str().unwrap(), "--json", "--seed", "11"];
+        for s in &sets {
+            args.extend(["--set", s]);
+        }
+        let (code_prob, stdout, stderr) = autotune(&args);
+        let b: Value = serde_json::from_str(&stdout).unwrap_or_else(|e| panic!("{e}: {stderr}"));
+        assert_eq!(code_rec, code_prob, "θ = {theta}: verdicts {} vs {}", a["report"]["verdict"], b["report"]["verdict"]);
+        for stat in ["nees", "nis"] {
+            let sd = |v: &Value| {
+                let i = &v["report"][stat]["interval"];
+                let (lo, hi) = (i["lower"].as_f64().unwrap(), i["upper"].as_f64().unwrap());
+                let z = autotune::stats::normal_two_sided_quantile(
+                    v["report"]["statistic_alpha"].as_f64().unwrap(),
+                );
+                (hi - lo) / (2.0 * z)
+            };
+            let (x, y) = (
+                a["report"][stat]["time_average"].as_f64().unwrap(),
+                b["report"][stat]["time_average"].as_f64().unwrap(),
+            );
+            let tol = 4.5 * (sd(&a).powi(2) + sd(&b).powi(2)).sqrt();
+            assert!((x - y).abs() <= tol, "θ = {theta}, {stat}: records {x} vs problem {y} (tolerance {tol})");
+        }
+    }
+}

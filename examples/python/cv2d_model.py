@@ -99,38 +99,45 @@ def _simulate_truth(seed: int, a: int, b: int, steps: int) -> tuple[np.ndarray, 
         xk = xk @ F.T + w[:, k]
         x[:, k] = xk
     z = x @ H.T + d[:, :, 2:4] * sd_r
-    x.flags.writeable = False
-    z.flags.writeable = False
     return x, z
 
 
-# The truth does not depend on θ and a tune asks for the same (seed, range) many times: keep
-# the last few.
+# The truth does not depend on θ, and a tune asks for the same runs of the same seed many
+# times (in whatever ranges autotune splits them into): keep the last runs, one entry each.
 _CACHE: OrderedDict = OrderedDict()
-_CACHE_SIZE = 8
+_CACHE_RUNS = 4096  # about 10 kB a run at 200 steps
 
 
 def truth(seed: int, runs: tuple[int, int], steps: int) -> tuple[np.ndarray, np.ndarray]:
     """True states x (n, T, 4) and measurements z (n, T, 2) of runs [a, b), steps 1..T.
 
-    Step k (1-based) is row k-1: x_k = F x_{k-1} + w_k, z_k = H x_k + v_k. The arrays are
-    read-only (they may be shared by later calls).
+    Step k (1-based) is row k-1: x_k = F x_{k-1} + w_k, z_k = H x_k + v_k.
     """
     a, b = int(runs[0]), int(runs[1])
+    seed, steps = int(seed), int(steps)
     if not 0 <= a <= b:
         raise ValueError(f"bad run range [{a}, {b})")
     if steps < 1:
         raise ValueError(f"steps must be at least 1, not {steps}")
-    key = (int(seed), a, b, int(steps))
-    hit = _CACHE.get(key)
-    if hit is not None:
+    keys = [(seed, i, steps) for i in range(a, b)]
+    missing = [i for i, key in zip(range(a, b), keys) if key not in _CACHE]
+    # Fresh runs in maximal contiguous stretches, each simulated at once.
+    j = 0
+    while j < len(missing):
+        k = j
+        while k + 1 < len(missing) and missing[k + 1] == missing[k] + 1:
+            k += 1
+        x, z = _simulate_truth(seed, missing[j], missing[k] + 1, steps)
+        for r in range(k - j + 1):
+            _CACHE[(seed, missing[j] + r, steps)] = (x[r], z[r])
+        j = k + 1
+    for key in keys:
         _CACHE.move_to_end(key)
-        return hit
-    out = _simulate_truth(int(seed), a, b, int(steps))
-    _CACHE[key] = out
-    while len(_CACHE) > _CACHE_SIZE:
+    x = np.stack([_CACHE[key][0] for key in keys]) if keys else np.empty((0, steps, 4))
+    z = np.stack([_CACHE[key][1] for key in keys]) if keys else np.empty((0, steps, 2))
+    while len(_CACHE) > max(_CACHE_RUNS, len(keys)):
         _CACHE.popitem(last=False)
-    return out
+    return x, z
 
 
 def normalize(rec: dict) -> dict:

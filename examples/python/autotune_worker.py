@@ -22,6 +22,11 @@ The protocol owns stdout: while ``serve`` runs, ``sys.stdout`` and file descript
 point to stderr, so a stray ``print`` (or a C library writing to fd 1) shows up as a
 diagnostic instead of corrupting the answers.
 
+With the environment variable ``AUTOTUNE_WORKER_STATS`` set to a file name, the worker
+appends one JSON line to that file when it exits: its requests and the seconds spent in
+``simulate``, in writing the records, and waiting for requests (to tell the protocol's
+cost from the filter's).
+
 ``write_records(path, arrays)`` writes the same arrays as a records file (.npz, .csv or
 .jsonl) for ``autotune check --records``.
 
@@ -34,6 +39,7 @@ import json
 import math
 import os
 import sys
+import time
 import traceback
 
 import numpy as np
@@ -89,9 +95,12 @@ def serve(simulate, stdin=None) -> int:
         proto.write(json.dumps(obj, allow_nan=False) + "\n")
         proto.flush()
 
+    stats = {"pid": os.getpid(), "requests": 0, "simulate_s": 0.0, "write_s": 0.0, "wait_s": 0.0}
+    t_start = clock = time.perf_counter()
     try:
         while True:
             line = stdin.readline()
+            stats["wait_s"] += time.perf_counter() - clock
             if not line:
                 break  # EOF: autotune closed our stdin
             if not line.strip():
@@ -103,18 +112,31 @@ def serve(simulate, stdin=None) -> int:
                 if not isinstance(req, dict):
                     raise ValueError("a request must be a JSON object")
                 theta, seed, runs, steps, directory = _request_fields(req)
+                stats["requests"] += 1
+                t0 = time.perf_counter()
                 arrays = simulate(theta, seed, runs, steps)
+                t1 = time.perf_counter()
                 check_shapes(arrays, runs[1] - runs[0], steps)
                 path = os.path.join(directory, f"{rid}.npz")
                 np.savez(path, **arrays)
                 answer({"id": rid, "file": path})
+                stats["simulate_s"] += t1 - t0
+                stats["write_s"] += time.perf_counter() - t1
             except Exception as exc:  # noqa: BLE001 - every failure becomes an answer
                 traceback.print_exc(file=sys.stderr)
                 sys.stderr.flush()
                 answer({"id": rid, "error": f"{type(exc).__name__}: {exc}"})
+            clock = time.perf_counter()
     except (BrokenPipeError, KeyboardInterrupt):
         pass
     finally:
+        if os.environ.get("AUTOTUNE_WORKER_STATS"):
+            stats["total_s"] = time.perf_counter() - t_start
+            try:
+                with open(os.environ["AUTOTUNE_WORKER_STATS"], "a", encoding="utf-8") as f:
+                    f.write(json.dumps(stats) + "\n")
+            except OSError as exc:
+                print(f"autotune_worker: cannot write stats: {exc}", file=sys.stderr)
         sys.stdout = saved_stdout
         os.dup2(saved_fd1, 1)
         os.close(saved_fd1)

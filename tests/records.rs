@@ -112,8 +112,7 @@ fn write_npy(path: &Path, shape: &[usize], data: &[f64]) {
     } else {
         format!("({})", dims.join(", "))
     };
-    let mut header =
-        format!("{{'descr': '<f8', 'fortran_order': False, 'shape': {shape_text}, }}");
+    let mut header = format!("{{'descr': '<f8', 'fortran_order': False, 'shape': {shape_text}, }}");
     while (10 + header.len() + 1) % 64 != 0 {
         header.push(' ');
     }
@@ -163,12 +162,18 @@ fn hand_computed_nees_and_nis_read_alike_from_csv_jsonl_and_npy() {
     for v in &reports {
         let nees = per_step(v, "nees");
         assert!((nees[0].unwrap() - 1.25).abs() < 1e-12, "{nees:?}");
-        assert!((nees[1].unwrap() - (4.0 / 3.0 + 2.0) / 2.0).abs() < 1e-12, "{nees:?}");
+        assert!(
+            (nees[1].unwrap() - (4.0 / 3.0 + 2.0) / 2.0).abs() < 1e-12,
+            "{nees:?}"
+        );
         assert_eq!(per_step(v, "nis"), vec![Some(1.0), Some(1.0)]);
         assert_eq!(v["report"]["runs"], 2);
         assert_eq!(v["report"]["steps"], 2);
     }
-    assert_eq!(reports[0]["report"], reports[1]["report"], "CSV vs JSON Lines");
+    assert_eq!(
+        reports[0]["report"], reports[1]["report"],
+        "CSV vs JSON Lines"
+    );
     assert_eq!(reports[0]["report"], reports[2]["report"], "CSV vs .npy");
 }
 
@@ -179,17 +184,62 @@ fn malformed_records_name_the_file_the_row_and_the_field() {
     let d = dir.path();
     let head = "run,step,e_1,P_1_1\n";
     let cases: Vec<(&str, String, &[&str])> = vec![
-        ("number.csv", format!("{head}0,1,0.5,1\n0,2,0.5,abc\n"), &["number.csv:3", "P_1_1", "'abc' is not a number"]),
-        ("column.csv", "run,step,e_1,e_3,P_1_1\n0,1,1,1,1\n".into(), &["column.csv:1", "header", "column e_2 missing"]),
-        ("unknown.csv", "run,step,e_1,P_1_1,Q_1_1\n0,1,1,1,1\n".into(), &["unknown column 'Q_1_1'"]),
-        ("twice.csv", format!("{head}0,1,1,1\n1,1,1,1\n0,1,1,1\n"), &["twice.csv:4", "run 0 appears twice"]),
-        ("gap.csv", format!("{head}0,1,1,1\n0,3,1,1\n"), &["gap.csv:3", "step 3 follows step 1"]),
-        ("short.csv", format!("{head}0,1,1,1\n0,2,1,1\n1,1,1,1\n"), &["run 1: ends at step 1 of 2"]),
-        ("nodof.csv", "run,step,nees\n0,1,3.2\n".into(), &["nees without nees_dof or e2p"]),
-        ("fields.csv", format!("{head}0,1,1\n"), &["fields.csv:2", "3 fields where the header has 4"]),
-        ("key.jsonl", "{\"run\":0,\"step\":1,\"e\":[1],\"P\":[[1]]}\n{\"run\":0,\"step\":2,\"foo\":1}\n".into(), &["key.jsonl:2", "unknown key 'foo'"]),
-        ("json.jsonl", "{\"run\":0,\"step\":1,\"e\":[1],\"P\":[[1]]}\nnot json\n".into(), &["json.jsonl:2", "not JSON"]),
-        ("records.txt", "x".into(), &["records.txt", "not a records file"]),
+        (
+            "number.csv",
+            format!("{head}0,1,0.5,1\n0,2,0.5,abc\n"),
+            &["number.csv:3", "P_1_1", "'abc' is not a number"],
+        ),
+        (
+            "column.csv",
+            "run,step,e_1,e_3,P_1_1\n0,1,1,1,1\n".into(),
+            &["column.csv:1", "header", "column e_2 missing"],
+        ),
+        (
+            "unknown.csv",
+            "run,step,e_1,P_1_1,Q_1_1\n0,1,1,1,1\n".into(),
+            &["unknown column 'Q_1_1'"],
+        ),
+        (
+            "twice.csv",
+            format!("{head}0,1,1,1\n1,1,1,1\n0,1,1,1\n"),
+            &["twice.csv:4", "run 0 appears twice"],
+        ),
+        (
+            "gap.csv",
+            format!("{head}0,1,1,1\n0,3,1,1\n"),
+            &["gap.csv:3", "step 3 follows step 1"],
+        ),
+        (
+            "short.csv",
+            format!("{head}0,1,1,1\n0,2,1,1\n1,1,1,1\n"),
+            &["run 1: ends at step 1 of 2"],
+        ),
+        (
+            "nodof.csv",
+            "run,step,nees\n0,1,3.2\n".into(),
+            &["nees without nees_dof or e2p"],
+        ),
+        (
+            "fields.csv",
+            format!("{head}0,1,1\n"),
+            &["fields.csv:2", "3 fields where the header has 4"],
+        ),
+        (
+            "key.jsonl",
+            "{\"run\":0,\"step\":1,\"e\":[1],\"P\":[[1]]}\n{\"run\":0,\"step\":2,\"foo\":1}\n"
+                .into(),
+            &["key.jsonl:2", "unknown key 'foo'"],
+        ),
+        (
+            "json.jsonl",
+            "{\"run\":0,\"step\":1,\"e\":[1],\"P\":[[1]]}\nnot json\n".into(),
+            &["json.jsonl:2", "not JSON"],
+        ),
+        (
+            "records.txt",
+            "x".into(),
+            &["records.txt", "not a records file"],
+        ),
     ];
     for (name, text, expect) in cases {
         let path = d.join(name);
@@ -232,7 +282,11 @@ fn malformed_records_name_the_file_the_row_and_the_field() {
 fn nan_in_records_is_a_diverged_run() {
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("nan.csv");
-    std::fs::write(&path, "run,step,e_1,P_1_1\n0,1,0.5,1\n0,2,0.5,NaN\n1,1,0.1,1\n1,2,0.2,1\n").unwrap();
+    std::fs::write(
+        &path,
+        "run,step,e_1,P_1_1\n0,1,0.5,1\n0,2,0.5,NaN\n1,1,0.1,1\n1,2,0.2,1\n",
+    )
+    .unwrap();
     let (code, stdout, _) = autotune(&["check", "--records", path.to_str().unwrap()]);
     assert_eq!(code, Some(1), "{stdout}");
     assert!(stdout.contains("diverged in 1 of 2 runs"), "{stdout}");
@@ -322,9 +376,18 @@ fn python_records_agree_with_the_built_in_problem_to_monte_carlo_precision() {
     let dir = tempfile::tempdir().unwrap();
     let problem = Path::new(env!("CARGO_MANIFEST_DIR")).join("problems/cv2d.toml");
     for (theta, sets) in [
-        ("q_accel_x=0.5,q_accel_y=0.1,r_pos_x=1,r_pos_y=4", ["q_accel_x=0.5", "q_accel_y=0.1", "r_pos_x=1", "r_pos_y=4"]),
-        ("q_accel_x=0.3,q_accel_y=0.1,r_pos_x=1,r_pos_y=2.5", ["q_accel_x=0.3", "q_accel_y=0.1", "r_pos_x=1", "r_pos_y=2.5"]),
-        ("q_accel_x=0.5,q_accel_y=0.2,r_pos_x=1.5,r_pos_y=4", ["q_accel_x=0.5", "q_accel_y=0.2", "r_pos_x=1.5", "r_pos_y=4"]),
+        (
+            "q_accel_x=0.5,q_accel_y=0.1,r_pos_x=1,r_pos_y=4",
+            ["q_accel_x=0.5", "q_accel_y=0.1", "r_pos_x=1", "r_pos_y=4"],
+        ),
+        (
+            "q_accel_x=0.3,q_accel_y=0.1,r_pos_x=1,r_pos_y=2.5",
+            ["q_accel_x=0.3", "q_accel_y=0.1", "r_pos_x=1", "r_pos_y=2.5"],
+        ),
+        (
+            "q_accel_x=0.5,q_accel_y=0.2,r_pos_x=1.5,r_pos_y=4",
+            ["q_accel_x=0.5", "q_accel_y=0.2", "r_pos_x=1.5", "r_pos_y=4"],
+        ),
     ] {
         let rec = dir.path().join("cv2d.npz");
         write_records(&rec, theta, 11, 200, 200, false);
@@ -335,7 +398,11 @@ fn python_records_agree_with_the_built_in_problem_to_monte_carlo_precision() {
         }
         let (code_prob, stdout, stderr) = autotune(&args);
         let b: Value = serde_json::from_str(&stdout).unwrap_or_else(|e| panic!("{e}: {stderr}"));
-        assert_eq!(code_rec, code_prob, "θ = {theta}: verdicts {} vs {}", a["report"]["verdict"], b["report"]["verdict"]);
+        assert_eq!(
+            code_rec, code_prob,
+            "θ = {theta}: verdicts {} vs {}",
+            a["report"]["verdict"], b["report"]["verdict"]
+        );
         for stat in ["nees", "nis"] {
             let sd = |v: &Value| {
                 let i = &v["report"][stat]["interval"];
@@ -350,7 +417,10 @@ fn python_records_agree_with_the_built_in_problem_to_monte_carlo_precision() {
                 b["report"][stat]["time_average"].as_f64().unwrap(),
             );
             let tol = 4.5 * (sd(&a).powi(2) + sd(&b).powi(2)).sqrt();
-            assert!((x - y).abs() <= tol, "θ = {theta}, {stat}: records {x} vs problem {y} (tolerance {tol})");
+            assert!(
+                (x - y).abs() <= tol,
+                "θ = {theta}, {stat}: records {x} vs problem {y} (tolerance {tol})"
+            );
         }
     }
 }

@@ -32,9 +32,9 @@ use std::process::ExitCode;
 use clap::{CommandFactory, FromArgMatches, Parser, Subcommand};
 
 use crate::experiment::Experiment;
+use crate::experiment::RecordedExperiment;
 use crate::input::FileError;
 use crate::problem::Problem;
-use crate::records::RecordedExperiment;
 use crate::report::WriteError;
 use crate::tune::TuneSettings;
 

@@ -5,7 +5,9 @@
 //! Every source of a filter to judge is one implementation:
 //! - a problem file's linear `[truth]`/`[filter]` ([`LinearExperiment`]) or catalog `[model]`
 //!   ([`CatalogExperiment`]), both built by [`crate::problem::Problem`];
-//! - a Rust user's own truth model and filter ([`Custom`], built with [`Custom::builder`]).
+//! - a Rust user's own truth model and filter ([`Custom`], built with [`Custom::builder`]);
+//! - records another program wrote ([`RecordedExperiment`]);
+//! - a worker program in another language ([`crate::external::ExternalExperiment`]).
 //!
 //! [`crate::check`], [`crate::tune`], [`crate::report`] and [`crate::app`] take
 //! `&dyn Experiment` and nothing more concrete.
@@ -13,10 +15,12 @@
 mod catalog;
 mod custom;
 mod linear;
+mod recorded;
 
 pub use catalog::CatalogExperiment;
 pub use custom::{Custom, CustomBuilder};
 pub use linear::{FilterModel, LinearExperiment};
+pub use recorded::RecordedExperiment;
 
 use std::path::PathBuf;
 

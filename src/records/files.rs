@@ -358,10 +358,10 @@ pub(super) fn format_of(path: &Path) -> Result<Format, FileError> {
 
 /// Read the records in `paths` (CSV, NumPy, JSON Lines, by extension; several `.npy` files
 /// are one set of arrays, each named after its quantity) into one experiment's sums, with
-/// `lags` whiteness lags (`None`: the default for its number of steps). Every file is read
+/// `lags(T)` whiteness lags for records of T steps. Every file is read
 /// whole, and twice (once for its layout and length, once for its numbers), before any sum
 /// is returned; an error names the file, the row or array, and the field.
-pub fn read_files(paths: &[PathBuf], lags: Option<usize>) -> Result<Recorded, FileError> {
+pub fn read_files(paths: &[PathBuf], lags: &dyn Fn(usize) -> usize) -> Result<Recorded, FileError> {
     let first = paths
         .first()
         .ok_or_else(|| FileError::new(Path::new("--records"), "", "no records files given"))?;
@@ -397,7 +397,7 @@ pub fn read_files(paths: &[PathBuf], lags: Option<usize>) -> Result<Recorded, Fi
             FileError::new(&src[0], "", format!("{m} (in {})", sources[0][0].display()))
         })?;
     }
-    let lags = lags.unwrap_or_else(|| crate::montecarlo::DEFAULT_LAGS.min(steps.saturating_sub(1)));
+    let lags = lags(steps);
     let mut sink = RecordSink::new(&layout, steps, lags);
     for src in &sources {
         feed(src, &layout, steps, 0, &mut sink)?;

@@ -9,14 +9,12 @@
 //! with the number of runs.
 
 mod csv;
-mod experiment;
 mod files;
 mod json;
 mod names;
 mod npy;
 mod sink;
 
-pub use experiment::RecordedExperiment;
 pub use files::{Recorded, feed_file, read_files};
 pub(crate) use json::object as json_object;
 pub use json::parse_record_line;

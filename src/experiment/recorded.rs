@@ -3,11 +3,11 @@
 
 use std::path::PathBuf;
 
-use super::{Recorded, read_files};
-use crate::experiment::{Definition, Experiment, ExperimentError, Info, RunOptions, Source};
+use super::{Definition, Experiment, ExperimentError, Info, RunOptions, Source};
 use crate::input::FileError;
-use crate::montecarlo::McConfig;
+use crate::montecarlo::{DEFAULT_LAGS, McConfig};
 use crate::params::ParamSpace;
+use crate::records::{Recorded, read_files};
 use crate::stats::Accumulator;
 
 /// Records of one Monte Carlo experiment, summed: an experiment without parameters whose
@@ -19,10 +19,10 @@ pub struct RecordedExperiment {
 }
 
 impl RecordedExperiment {
-    /// Read the records in `files` (see [`read_files`]); the experiment is named after the
+    /// Read the records in `files` (see [`read_files`], with the engines' default lags); the experiment is named after the
     /// first file's stem, its components `x1 … xn` and `<sensor>_<j>`.
     pub fn read(files: &[PathBuf]) -> Result<RecordedExperiment, FileError> {
-        let recorded = read_files(files, None)?;
+        let recorded = read_files(files, &|steps| DEFAULT_LAGS.min(steps.saturating_sub(1)))?;
         let mc = McConfig::new(recorded.runs, recorded.steps)
             .and_then(|mc| mc.with_lags(recorded.sums.lags))
             .map_err(|e| FileError::new(&files[0], "", e.to_string()))?;

@@ -655,7 +655,12 @@ fn linear_rows() -> Vec<Row> {
         // --- Unreadable files.
         file("missing file", Problem::Missing, &["cannot read"]),
         file("directory", Problem::Directory, &["cannot read"]),
-        file("empty file", Problem::Bytes(b""), &["dt"]),
+        file("empty file", Problem::Bytes(b""), &["montecarlo"]),
+        file(
+            "no dt",
+            Problem::Bytes(b"[montecarlo]\nruns = 10\nsteps = 10\n[model]\nname = \"ctrv_radar_lidar\"\n"),
+            &["dt", "missing"],
+        ),
         file(
             "not UTF-8",
             Problem::Bytes(b"dt = 1.0 # \xff\n"),

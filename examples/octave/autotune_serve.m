@@ -224,7 +224,9 @@ function write_records_csv(path, rec, runs, steps)
         if numel(A) == 1
           A = repmat(A, nr, T);
         end
-        check_size(name, A, [nr, T], 'runs x steps');
+        if ~isequal(size(A), [nr, T])
+          check_size(name, A, [nr, T], 'runs x steps');
+        end
         blocks{end+1} = reshape(A.', nr * T, 1);
         header{end+1} = name;
       case 'vector'

@@ -34,13 +34,19 @@ function autotune_serve(simulate)
 %   A single sensor may drop its name (nu, S, u, nis, nis_dof).
 %
 %   Nothing but protocol lines may reach stdout: end every statement in simulate with a
-%   semicolon and print diagnostics with fprintf(stderr, ...). Run Octave as
+%   semicolon and print diagnostics with fprintf(stderr, ...). (What simulate prints
+%   anyway is caught with evalc and moved to stderr.) Run Octave as
 %     octave --no-gui --quiet --norc --no-window-system worker.m
 
   more off;
+  out = 1;                                % stdout: protocol lines only
+  err = 2;                                % stderr: everything else
   is_octave = exist('OCTAVE_VERSION', 'builtin') ~= 0;
   if is_octave
     page_screen_output(false);
+    % Octave saves its command history at exit and, where ~/.local/share does not exist,
+    % says "error: ignoring const execution_exception& while preparing to exit".
+    history_save(false);
   end
   while true
     line = read_line(is_octave);
@@ -60,23 +66,31 @@ function autotune_serve(simulate)
       end
       id_text = id_json(req.id);
       [theta, seed, runs, steps, dir] = parse_request(req, line);
-      rec = simulate(theta, seed, runs, steps);
+      % evalc catches what simulate prints (a missing semicolon, a disp) so that it
+      % cannot corrupt the protocol; it goes to stderr instead.
+      rec = [];
+      printed = evalc('rec = simulate(theta, seed, runs, steps);');
+      if ~isempty(printed)
+        fprintf(err, 'autotune_serve: simulate printed (moved to stderr):\n%s\n', printed);
+      end
       path = fullfile(dir, [id_file(req.id) '.csv']);
       write_records_csv(path, rec, runs, steps);
       reply = sprintf('{"id":%s,"file":%s}', id_text, jsonencode(path));
-      fprintf(stderr, 'autotune_serve: request %s, runs [%d, %d) x %d steps in %.3f s\n', ...
+      fprintf(err, 'autotune_serve: request %s, runs [%d, %d) x %d steps in %.3f s\n', ...
               id_text, runs(1), runs(2), steps, toc(t0));
-    catch err
-      msg = err.message;
+    catch e
+      msg = e.message;
       where = '';
-      if ~isempty(err.stack)
-        where = sprintf(' (in %s, line %d)', err.stack(1).name, err.stack(1).line);
+      if ~isempty(e.stack)
+        where = sprintf(' (in %s, line %d)', e.stack(1).name, e.stack(1).line);
       end
-      fprintf(stderr, 'autotune_serve: request %s failed: %s%s\n', id_text, msg, where);
+      fprintf(err, 'autotune_serve: request %s failed: %s%s\n', id_text, msg, where);
       reply = sprintf('{"id":%s,"error":%s}', id_text, jsonencode([msg where]));
     end
-    fprintf(stdout, '%s\n', reply);
-    fflush(stdout);
+    fprintf(out, '%s\n', reply);
+    if is_octave
+      fflush(stdout);
+    end
   end
 end
 

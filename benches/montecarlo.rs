@@ -48,7 +48,7 @@ fn montecarlo(c: &mut Criterion) {
         mc = mc.with_steps(steps).unwrap();
         g.throughput(Throughput::Elements((runs * steps) as u64));
         g.bench_function(label, |b| {
-            b.iter(|| accumulate(black_box(&p), black_box(&theta), black_box(&mc), engine))
+            b.iter(|| accumulate(black_box(&p), black_box(&theta), black_box(&mc), engine).unwrap())
         });
     }
     g.finish();
@@ -73,6 +73,7 @@ fn catalog(c: &mut Criterion) {
                     black_box(&mc),
                     Engine::Auto,
                 )
+                .unwrap()
             })
         });
     }

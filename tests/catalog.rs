@@ -113,6 +113,7 @@ fn false_alarms(name: &str, seeds: u64) -> u64 {
         .filter(|s| {
             let mc = p.mc().with_seed(7000 + s);
             !autotune::check::check(&p, &truth, &mc, true)
+                .unwrap()
                 .verdict
                 .passes()
         })

@@ -24,7 +24,7 @@ fn expected_sums_match_large_monte_carlo() {
         let kf = p.linear().unwrap().filter_at(&theta);
         assert!(models_match(&p.linear().unwrap().truth, &kf));
         let exp = expected_accumulator(&p.linear().unwrap().truth, &kf, &mc).unwrap();
-        let sim = accumulate(&p, &theta, &mc, Engine::Linear);
+        let sim = accumulate(&p, &theta, &mc, Engine::Linear).unwrap();
         let nn = mc.runs() as f64;
         // Each per-step mean over N runs has standard deviation sqrt(Var/N), with Var from the
         // exact second moment; 5 standard deviations keeps the chance of a false failure over
@@ -106,7 +106,7 @@ value = 4e-10
     let theta = p.params().values();
     let kf = p.linear().unwrap().filter_at(&theta);
     let exp = expected_accumulator(&p.linear().unwrap().truth, &kf, p.mc()).unwrap();
-    let sim = accumulate(&p, &theta, p.mc(), Engine::Linear);
+    let sim = accumulate(&p, &theta, p.mc(), Engine::Linear).unwrap();
     let nn = p.mc().runs() as f64;
     for i in [99, 199, 399] {
         let mean = exp.nees_sum[i] / nn;

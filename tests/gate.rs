@@ -20,7 +20,7 @@ fn false_alarms(name: &str, seeds: u64) -> u64 {
     (0..seeds)
         .filter(|s| {
             let mc = p.mc().with_seed(90_000 + s);
-            !check(&p, &truth, &mc, true).verdict.passes()
+            !check(&p, &truth, &mc, true).unwrap().verdict.passes()
         })
         .count() as u64
 }
@@ -51,16 +51,16 @@ fn the_gate_counts_its_tests_and_corrects_for_them() {
     // cv2d: ANEES, ANIS, 4 state components, 2 measurement components, 2 whiteness tests.
     let p = load("cv2d");
     let truth = truth_values(&p);
-    let r = check(&p, &truth, p.mc(), true);
+    let r = check(&p, &truth, p.mc(), true).unwrap();
     assert_eq!(r.gate, GateMode::Full);
     assert_eq!(r.tests, 10);
     assert!((r.statistic_alpha - gate_alpha(0.05, 10)).abs() < 1e-15);
     assert_eq!(r.whiteness_tests.len(), 2);
     // NIS-only: ANIS, 2 measurement components, 2 whiteness tests.
-    let r = check(&p, &truth, p.mc(), false);
+    let r = check(&p, &truth, p.mc(), false).unwrap();
     assert_eq!(r.tests, 5);
     // The textbook gate: the two time averages.
-    let r = check(&p, &truth, &p.mc().with_gate(GateMode::Mean), true);
+    let r = check(&p, &truth, &p.mc().with_gate(GateMode::Mean), true).unwrap();
     assert_eq!(r.tests, 2);
     assert!((r.statistic_alpha - gate_alpha(0.05, 2)).abs() < 1e-15);
 }
@@ -94,8 +94,8 @@ fn regression_issue_11_item_1_a_rejection_in_the_diagnostics_fails_the_gate() {
     let (mut mean_passes, mut full_fails, mut shown) = (0, 0, 0);
     for seed in 0..40 {
         let mc = p.mc().with_seed(seed);
-        let full = check(&p, &theta, &mc, true);
-        let mean = check(&p, &theta, &mc.with_gate(GateMode::Mean), true);
+        let full = check(&p, &theta, &mc, true).unwrap();
+        let mean = check(&p, &theta, &mc.with_gate(GateMode::Mean), true).unwrap();
         mean_passes += usize::from(mean.verdict.passes());
         full_fails += usize::from(!full.verdict.passes());
         // What the summary shows is what the gate decides.
@@ -110,7 +110,7 @@ fn regression_issue_11_item_1_a_rejection_in_the_diagnostics_fails_the_gate() {
         "mean gate passes only {mean_passes} of 40"
     );
     assert_eq!(shown, 40);
-    let full = check(&p, &theta, p.mc(), true);
+    let full = check(&p, &theta, p.mc(), true).unwrap();
     let text = autotune::report::summary_text("cv2d", &[], &full);
     assert!(text.contains("gate: full"), "{text}");
     assert!(text.contains("components off"), "{text}");
@@ -122,14 +122,14 @@ fn regression_issue_11_item_6_a_wrong_r_is_blamed_on_r() {
     // too high (ρ₁ < 0), which the table in stats::attribution reads as R too small.
     let p = load("cv2d");
     let truth = truth_values(&p);
-    let r = check(&p, &scaled(&p, &truth, "r_", 0.5), p.mc(), true);
+    let r = check(&p, &scaled(&p, &truth, "r_", 0.5), p.mc(), true).unwrap();
     assert_eq!(r.diagnosis.suspect, Some(Suspect::R), "{:?}", r.diagnosis);
     let text = autotune::report::summary_text("cv2d", &[], &r);
     assert!(text.contains("points to R"), "{text}");
     assert!(text.contains("increase R"), "{text}");
     assert!(!text.contains("increase Q"), "{text}");
     // And Q × 0.3, R right, is blamed on Q.
-    let r = check(&p, &scaled(&p, &truth, "q_", 0.3), p.mc(), true);
+    let r = check(&p, &scaled(&p, &truth, "q_", 0.3), p.mc(), true).unwrap();
     assert_eq!(r.diagnosis.suspect, Some(Suspect::Q), "{:?}", r.diagnosis);
     let text = autotune::report::summary_text("cv2d", &[], &r);
     assert!(text.contains("increase Q"), "{text}");
@@ -149,7 +149,8 @@ fn the_mean_gate_is_the_textbook_test() {
             .with_seed(3)
             .with_gate(GateMode::Mean),
         true,
-    );
+    )
+    .unwrap();
     assert_eq!(r.verdict, Verdict::Consistent);
     assert!(!r.state_components.is_empty() && !r.whiteness_tests.is_empty());
 }

@@ -32,6 +32,7 @@ fn check_on(p: &Problem, theta: &[f64], engine: Engine) -> autotune::stats::Cons
         },
         true,
     )
+    .unwrap()
 }
 
 /// cv1d's verdict at `q_accel = q` (r_pos as shipped) on `engine`, with `runs` runs.
@@ -49,6 +50,7 @@ fn cv1d_verdict(p: &Problem, q: f64, engine: Engine, runs: usize) -> Consistency
         },
         true,
     )
+    .unwrap()
 }
 
 /// The exact path's report at `theta`, if the experiment has one.
@@ -234,7 +236,8 @@ fn a_truth_state_that_overflows_to_infinity_is_a_truth_overflow_not_inconclusive
                 progress: None,
             },
             true,
-        );
+        )
+        .unwrap();
         assert_eq!(r.verdict, Verdict::TruthOverflow, "{engine:?}");
         let d = &r.divergences[0];
         assert_eq!((d.cause, d.step), (StopCause::TruthOverflow, 1024), "{d:?}");

@@ -112,8 +112,8 @@ fn a_truth_with_more_states_than_the_filter_runs_on_both_engines_alike() {
     // the truth's states (tests/consistency.rs).
     let theta = [2.0, 1.0];
     let mc = p.mc().with_runs(150).unwrap().with_steps(80).unwrap();
-    let a = accumulate(&p, &theta, &mc, Engine::Linear);
-    let b = accumulate(&p, &theta, &mc, Engine::Generic);
+    let a = accumulate(&p, &theta, &mc, Engine::Linear).unwrap();
+    let b = accumulate(&p, &theta, &mc, Engine::Generic).unwrap();
     let close = |x: &[f64], y: &[f64], what: &str| {
         assert_eq!(x.len(), y.len());
         for (i, (u, v)) in x.iter().zip(y).enumerate() {
@@ -152,7 +152,7 @@ fn mapped_nees_nis_and_components_match_the_joint_closed_form() {
         let p = Problem::load(&data(file)).unwrap();
         let exact = joint_expectation(&p, &theta);
         let mc = p.mc().with_runs(4000).unwrap();
-        let acc = accumulate(&p, &theta, &mc, Engine::Linear);
+        let acc = accumulate(&p, &theta, &mc, Engine::Linear).unwrap();
         let runs = mc.runs() as f64;
         for (what, sum, sq, want) in [
             ("NEES", &acc.nees_sum, &acc.nees_sq, &exact.nees),
@@ -226,8 +226,8 @@ fn a_problem_without_a_map_is_unchanged_by_an_identity_map() {
     let theta = a.params().values();
     for engine in [Engine::Linear, Engine::Generic] {
         assert_eq!(
-            accumulate(&a, &theta, a.mc(), engine),
-            accumulate(&b, &theta, b.mc(), engine)
+            accumulate(&a, &theta, a.mc(), engine).unwrap(),
+            accumulate(&b, &theta, b.mc(), engine).unwrap()
         );
     }
 }

@@ -128,7 +128,7 @@ fn nis_only_tuning_passes_check() {
         // Innovations alone pin dcmotor's voltage noise less sharply: the objective is flat
         // enough there that the simplex stops 3e-3 away (measured); 1e-2 for all three.
         assert_within(&p, &r, 1e-2);
-        let full = autotune::check::check(&p, &r.tuned, p.mc(), true);
+        let full = autotune::check::check(&p, &r.tuned, p.mc(), true).unwrap();
         assert!(full.verdict.passes(), "{name}: {:?}", full.verdict);
     }
 }
@@ -165,7 +165,7 @@ fn residuals_square_to_the_objective() {
     let p = load("cv2d");
     let settings = p.mc().with_lags(3).unwrap();
     let theta: Vec<f64> = p.params().values().iter().map(|v| v * 3.0).collect();
-    let acc = p.monte_carlo(&theta, &settings);
+    let acc = p.monte_carlo(&theta, &settings).unwrap();
     let weights = Weights {
         shape: 0.5,
         ..Weights::default()

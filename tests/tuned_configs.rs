@@ -18,6 +18,7 @@ fn passes(name: &str) -> usize {
     (3001..=3100)
         .filter(|&s| {
             check(&p, &theta, &p.mc().with_seed(s), true)
+                .unwrap()
                 .verdict
                 .passes()
         })

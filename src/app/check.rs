@@ -103,6 +103,15 @@ pub fn run(experiment: &dyn Experiment, a: CheckOptions) -> Result<ExitCode, App
         progress: Some(&on_runs),
     };
     let report = check_with(experiment, &theta, &mc, options, !a.nis_only);
+    let report = match report {
+        Ok(r) => r,
+        Err(e) => {
+            if let Some(b) = &bar {
+                b.finish_and_clear();
+            }
+            return Err(e.into());
+        }
+    };
     if let Some(b) = &bar {
         b.finish_and_clear();
     }
@@ -189,5 +198,8 @@ pub(super) fn truth_overflow(experiment: &dyn Experiment, report: &ConsistencyRe
             FileError::new(path, field, message).into()
         }
         Source::Program { name } => AppError::Refused(format!("{name}: {message}")),
+        Source::Records { .. } => {
+            AppError::Refused(format!("{}: {message}", experiment.info().source.label()))
+        }
     }
 }

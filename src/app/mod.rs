@@ -34,6 +34,7 @@ use clap::{CommandFactory, FromArgMatches, Parser, Subcommand};
 use crate::experiment::Experiment;
 use crate::input::FileError;
 use crate::problem::Problem;
+use crate::records::RecordedExperiment;
 use crate::report::WriteError;
 use crate::tune::TuneSettings;
 
@@ -61,6 +62,10 @@ pub enum AppError {
     /// A refusal that names its own subject (e.g. an existing file).
     #[error("{0}")]
     Refused(String),
+    /// The experiment could not run: an external worker broke the protocol, records were
+    /// malformed.
+    #[error(transparent)]
+    Experiment(#[from] crate::experiment::ExperimentError),
     /// Standard output failed (a closed pipe is not reported).
     #[error(transparent)]
     Io(#[from] std::io::Error),
@@ -103,7 +108,13 @@ enum Command {
 #[derive(Debug, clap::Args)]
 struct ProblemCheck {
     /// Problem file (TOML).
-    problem: PathBuf,
+    #[arg(required_unless_present = "records")]
+    problem: Option<PathBuf>,
+    /// Judge the records another program wrote instead of a problem file: CSV, NumPy
+    /// (.npz, or .npy files named after their quantities) or JSON Lines; several files are
+    /// one experiment (format: docs/external.md).
+    #[arg(long, num_args = 1.., value_name = "FILE", conflicts_with_all = ["problem", "config", "runs", "steps", "seed", "set", "engine"])]
+    records: Vec<PathBuf>,
     #[command(flatten)]
     options: CheckOptions,
 }
@@ -153,7 +164,10 @@ where
         Err(e) => return usage_error(e, "autotune"),
     };
     match cli.command {
-        Command::Check(a) => check::run(&Problem::load(&a.problem)?, a.options),
+        Command::Check(a) => match a.problem {
+            Some(p) => check::run(&Problem::load(&p)?, a.options),
+            None => check::run(&RecordedExperiment::read(&a.records)?, a.options),
+        },
         Command::Tune(a) => {
             let p = Problem::load(&a.problem)?;
             tune::run(&p, &p.tune, a.options)
@@ -230,7 +244,9 @@ where
 {
     let program = match &experiment.info().source {
         crate::experiment::Source::Program { name } => name.clone(),
-        crate::experiment::Source::File { .. } => experiment.info().name.clone(),
+        crate::experiment::Source::File { .. } | crate::experiment::Source::Records { .. } => {
+            experiment.info().name.clone()
+        }
     };
     let cmd = ModelCli::command()
         .name(program.clone())

@@ -351,6 +351,7 @@ fn tune_error(e: TuneError, experiment: &dyn Experiment, from_flag: bool) -> App
         (TuneError::Setting(s), Source::File { path, .. }) => {
             FileError::from_setting(path, "tune.", s).into()
         }
+        (TuneError::Experiment(e), _) => e.into(),
         (e, _) => AppError::Refused(e.to_string()),
     }
 }

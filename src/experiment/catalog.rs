@@ -1,6 +1,6 @@
 //! A problem file's catalog `[model]` as an [`Experiment`].
 
-use super::{Definition, Experiment, RunOptions};
+use super::{Definition, Experiment, ExperimentError, RunOptions};
 use crate::catalog::{CatalogEntry, CatalogModel};
 use crate::montecarlo::{self, McConfig};
 use crate::params::Target;
@@ -24,13 +24,18 @@ impl Experiment for CatalogExperiment {
         &self.definition
     }
 
-    fn monte_carlo_with(&self, theta: &[f64], mc: &McConfig, run: RunOptions<'_>) -> Accumulator {
-        montecarlo::run_generic_with_progress(
+    fn monte_carlo_with(
+        &self,
+        theta: &[f64],
+        mc: &McConfig,
+        run: RunOptions<'_>,
+    ) -> Result<Accumulator, ExperimentError> {
+        Ok(montecarlo::run_generic_with_progress(
             self.model.truth(),
             &self.model.filter(theta),
             mc,
             run.progress,
-        )
+        ))
     }
 
     fn target(&self, i: usize) -> Option<Target> {

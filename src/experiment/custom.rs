@@ -1,6 +1,6 @@
 //! A Rust user's own truth model and filter family as an [`Experiment`].
 
-use super::{Covariances, Definition, Experiment, Info, RunOptions, Source};
+use super::{Covariances, Definition, Experiment, ExperimentError, Info, RunOptions, Source};
 use crate::filter::Filter;
 use crate::input::SettingError;
 use crate::model::TruthModel;
@@ -259,8 +259,18 @@ where
         &self.definition
     }
 
-    fn monte_carlo_with(&self, theta: &[f64], mc: &McConfig, run: RunOptions<'_>) -> Accumulator {
-        montecarlo::run_generic_with_progress(&self.truth, &(self.build)(theta), mc, run.progress)
+    fn monte_carlo_with(
+        &self,
+        theta: &[f64],
+        mc: &McConfig,
+        run: RunOptions<'_>,
+    ) -> Result<Accumulator, ExperimentError> {
+        Ok(montecarlo::run_generic_with_progress(
+            &self.truth,
+            &(self.build)(theta),
+            mc,
+            run.progress,
+        ))
     }
 
     fn target(&self, i: usize) -> Option<Target> {

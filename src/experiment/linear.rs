@@ -4,7 +4,7 @@
 
 use nalgebra::{DMatrix, DVector};
 
-use super::{Covariances, Definition, Experiment, RunOptions};
+use super::{Covariances, Definition, Experiment, ExperimentError, RunOptions};
 use crate::filter::{Estimate, Filter, KalmanFilter, PredictResult, UpdateResult};
 use crate::measurement::Measurement;
 use crate::model::LinearGaussianModel;
@@ -69,10 +69,15 @@ impl Experiment for LinearExperiment {
         &self.definition
     }
 
-    fn monte_carlo_with(&self, theta: &[f64], mc: &McConfig, run: RunOptions<'_>) -> Accumulator {
+    fn monte_carlo_with(
+        &self,
+        theta: &[f64],
+        mc: &McConfig,
+        run: RunOptions<'_>,
+    ) -> Result<Accumulator, ExperimentError> {
         let kf = self.filter_at(theta);
         let map = self.filter.map.as_ref();
-        match (run.engine, map) {
+        Ok(match (run.engine, map) {
             (Engine::Auto | Engine::Linear, _) => {
                 montecarlo::run_linear_with_progress(&self.truth, &kf, map, mc, run.progress)
             }
@@ -85,7 +90,7 @@ impl Experiment for LinearExperiment {
                 mc,
                 run.progress,
             ),
-        }
+        })
     }
 
     fn supports(&self, _engine: Engine) -> bool {

@@ -41,6 +41,11 @@ pub enum Source {
         /// The program's name, as it is run (`cargo run --example custom_model`: `custom_model`).
         name: String,
     },
+    /// Records of a Monte Carlo experiment that another program ran and wrote.
+    Records {
+        /// The records files, as given.
+        files: Vec<PathBuf>,
+    },
 }
 
 impl Source {
@@ -49,6 +54,7 @@ impl Source {
         match self {
             Source::File { path, .. } => path.display().to_string(),
             Source::Program { name } => format!("{name} (Rust model)"),
+            Source::Records { files } => format!("records {}", join_paths(files)),
         }
     }
 
@@ -56,7 +62,7 @@ impl Source {
     pub fn sha256(&self) -> Option<&str> {
         match self {
             Source::File { sha256, .. } => Some(sha256),
-            Source::Program { .. } => None,
+            Source::Program { .. } | Source::Records { .. } => None,
         }
     }
 
@@ -65,8 +71,17 @@ impl Source {
         match self {
             Source::File { path, .. } => format!("autotune check {}", path.display()),
             Source::Program { name } => format!("{name} check"),
+            Source::Records { files } => format!("autotune check --records {}", join_paths(files)),
         }
     }
+}
+
+fn join_paths(files: &[PathBuf]) -> String {
+    files
+        .iter()
+        .map(|f| f.display().to_string())
+        .collect::<Vec<_>>()
+        .join(" ")
 }
 
 /// What an experiment is called and where it comes from.
@@ -107,6 +122,13 @@ pub struct Covariances {
     /// components in sensor order).
     pub R: DMatrix<f64>,
 }
+
+/// An experiment that could not produce its sums at all: its worker failed, its records
+/// were malformed. This is bad input or a broken setup (exit code 2), not a verdict on the
+/// filter: a filter that diverged gives sums with its runs marked diverged instead.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("{0}")]
+pub struct ExperimentError(pub String);
 
 /// How one Monte Carlo evaluation runs: the engine path and a progress callback.
 #[derive(Clone, Copy, Default)]
@@ -155,16 +177,18 @@ pub trait Experiment: Sync {
     }
 
     /// The Monte Carlo sums of the filter with parameters `theta` (one value per parameter,
-    /// in [`Experiment::params`] order) against the truth, under `mc`.
+    /// in [`Experiment::params`] order) against the truth, under `mc`. Fails only when the
+    /// experiment cannot run at all (an external worker broke the protocol); the built-in
+    /// experiments never fail.
     fn monte_carlo_with(
         &self,
         theta: &[f64],
         mc: &McConfig,
         options: RunOptions<'_>,
-    ) -> Accumulator;
+    ) -> Result<Accumulator, ExperimentError>;
 
     /// [`Experiment::monte_carlo_with`] on the fastest valid path, without progress.
-    fn monte_carlo(&self, theta: &[f64], mc: &McConfig) -> Accumulator {
+    fn monte_carlo(&self, theta: &[f64], mc: &McConfig) -> Result<Accumulator, ExperimentError> {
         self.monte_carlo_with(theta, mc, RunOptions::default())
     }
 

@@ -14,7 +14,9 @@ use crate::filter::{Filter, FilterError, check_measurement};
 use crate::linalg::cholesky;
 use crate::measurement::{Measurement, sensor_offsets};
 use crate::model::TruthModel;
-use crate::stats::{Accumulator, ComponentNullVariance, GateMode, NeesNullVariance, StopCause};
+use crate::stats::{
+    Accumulator, ComponentNullVariance, GateMode, NeesNullVariance, RunRecorder, StopCause,
+};
 
 /// Why a run stopped though its filter did not fail: its numbers would mean nothing.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -96,114 +98,6 @@ impl From<FilterError> for Stop {
     }
 }
 
-/// Per-run working state for the component and whiteness statistics.
-struct RunScratch {
-    n_x: usize,
-    n_z: usize,
-    lags: usize,
-    comp_x: Vec<f64>,
-    comp_x_n: f64,
-    comp_z: Vec<f64>,
-    comp_z_n: Vec<f64>,
-    /// The last `lags` normalized innovation vectors (NaN where not measured), ring-indexed
-    /// by step.
-    ring: Vec<f64>,
-    /// The current step's normalized innovations.
-    u: Vec<f64>,
-    /// The current step's `(component, u²)`, added to the sums when the step closes.
-    pending: Vec<(usize, f64)>,
-}
-
-impl RunScratch {
-    fn new(n_x: usize, n_z: usize, lags: usize) -> Self {
-        RunScratch {
-            n_x,
-            n_z,
-            lags,
-            comp_x: vec![0.0; n_x],
-            comp_x_n: 0.0,
-            comp_z: vec![0.0; n_z],
-            comp_z_n: vec![0.0; n_z],
-            ring: vec![f64::NAN; lags.max(1) * n_z],
-            u: vec![f64::NAN; n_z],
-            pending: Vec::new(),
-        }
-    }
-
-    fn reset(&mut self) {
-        self.comp_x.fill(0.0);
-        self.comp_x_n = 0.0;
-        self.comp_z.fill(0.0);
-        self.comp_z_n.fill(0.0);
-        self.ring.fill(f64::NAN);
-        self.u.fill(f64::NAN);
-        self.pending.clear();
-    }
-
-    /// Record normalized state errors `e_j/√P_jj` for one step.
-    fn state_step(&mut self, acc: &mut Accumulator, scaled_sq: impl Iterator<Item = f64>) {
-        for (j, v) in scaled_sq.enumerate() {
-            self.comp_x[j] += v;
-            acc.state_comp_total[j] += v;
-            acc.state_comp_samples[j] += 1.0;
-        }
-        self.comp_x_n += 1.0;
-    }
-
-    /// Record one normalized innovation component `u = ν_j/√S_jj` at the current step.
-    fn innovation(&mut self, j: usize, u: f64) {
-        self.pending.push((j, u * u));
-        self.u[j] = u;
-    }
-
-    /// Close step `k` (1-based): add its innovation components, pair its innovations with
-    /// earlier steps' and store them for later lags.
-    fn end_step(&mut self, acc: &mut Accumulator, k: usize) {
-        for &(j, v) in &self.pending {
-            self.comp_z[j] += v;
-            self.comp_z_n[j] += 1.0;
-            acc.meas_comp_total[j] += v;
-            acc.meas_comp_samples[j] += 1.0;
-        }
-        self.pending.clear();
-        let (m, lags) = (self.n_z, self.lags);
-        if lags > 0 {
-            for lag in 1..=lags.min(k - 1) {
-                let slot = ((k - lag) % lags) * m;
-                for j in 0..m {
-                    let (a, b) = (self.u[j], self.ring[slot + j]);
-                    if a.is_finite() && b.is_finite() {
-                        let idx = (lag - 1) * m + j;
-                        acc.white_ab[idx] += a * b;
-                        acc.white_a2[idx] += a * a;
-                        acc.white_b2[idx] += b * b;
-                        acc.white_pairs[idx] += 1.0;
-                    }
-                }
-            }
-            let slot = (k % lags) * m;
-            self.ring[slot..slot + m].copy_from_slice(&self.u);
-        }
-        self.u.fill(f64::NAN);
-    }
-
-    /// Close the run: fold its per-run component averages into the accumulator.
-    fn end_run(&self, acc: &mut Accumulator) {
-        if self.comp_x_n > 0.0 {
-            for j in 0..self.n_x {
-                acc.add_run_component(true, j, self.comp_x[j] / self.comp_x_n);
-            }
-        }
-        for j in 0..self.n_z {
-            if self.comp_z_n[j] > 0.0 {
-                acc.add_run_component(false, j, self.comp_z[j] / self.comp_z_n[j]);
-                acc.meas_comp_runs[j] += 1;
-            }
-        }
-        acc.runs += 1;
-    }
-}
-
 /// The generic engine computes the NEES-sum variance its filter predicts (an O(n³) matrix
 /// recursion per step, as costly as a 15-state filter itself) on every this-many-th run
 /// only. The predicted variance depends on the data only through the linearization
@@ -237,7 +131,7 @@ where
     let offsets = sensor_offsets(&dims);
     let n_z: usize = dims.iter().sum();
     run_chunked(mc, n_x, n_z, progress, |range, acc| {
-        let mut scratch = RunScratch::new(n_x, n_z, mc.lags());
+        let mut scratch = RunRecorder::new(n_x, n_z, mc.lags());
         let mut meas: Vec<Measurement> = Vec::new();
         for run in range {
             scratch.reset();
@@ -273,7 +167,7 @@ fn one_run<M, F>(
     offsets: &[usize],
     dims: &[usize],
     acc: &mut Accumulator,
-    scratch: &mut RunScratch,
+    scratch: &mut RunRecorder,
     meas: &mut Vec<Measurement>,
 ) -> Result<(), Stop>
 where
@@ -334,16 +228,10 @@ where
             return Err(Stop::Fault(Fault::Overflow, k));
         }
         if dof > 0 {
-            acc.nis_sum[i] += nis;
-            acc.nis_sq[i] += nis * nis;
-            acc.nis_dof[i] += dof as f64;
-            acc.nis_count[i] += 1.0;
+            acc.add_nis(i, nis, dof as f64);
         }
         scratch.end_step(acc, k);
-        acc.nees_sum[i] += nees;
-        acc.nees_sq[i] += nees * nees;
-        acc.nees_dof[i] += n_x as f64;
-        acc.nees_count[i] += 1.0;
+        acc.add_nees(i, nees, n_x as f64);
         run_nees += nees;
         scratch.state_step(acc, (0..n_x).map(|j| e[j] * e[j] / est.P[(j, j)]));
         if sample_null_var && !map_missing {

@@ -53,7 +53,7 @@ impl Validator<'_> {
         let mut rest = table.clone();
         rest.remove("name");
         let ctx = ModelContext {
-            dt: s.dt,
+            dt: s.dt.unwrap_or(1.0),
             steps: mc.steps(),
         };
         let model = (entry.build)(&rest, &ctx).map_err(|e| {

@@ -26,7 +26,7 @@ impl Validator<'_> {
         info: Info,
         mc: McConfig,
     ) -> VResult<LinearExperiment> {
-        let dt = s.dt;
+        let dt = s.dt.unwrap_or(1.0);
         let Some((tF, tA)) = self.dynamics("truth", &t.F, &t.A, dt, None)? else {
             return self.err("truth.F", "missing: give F (discrete) or A (continuous)");
         };

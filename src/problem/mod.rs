@@ -4,6 +4,7 @@
 
 mod catalog;
 mod covariance;
+mod external;
 mod linear;
 pub mod spec;
 mod validate;
@@ -13,9 +14,10 @@ use std::path::{Path, PathBuf};
 use sha2::{Digest, Sha256};
 
 use crate::experiment::{
-    CatalogExperiment, Covariances, Definition, Experiment, Info, LinearExperiment, RunOptions,
-    Source,
+    CatalogExperiment, Covariances, Definition, Experiment, ExperimentError, Info,
+    LinearExperiment, RunOptions, Source,
 };
+use crate::external::ExternalExperiment;
 use crate::input::{FileError, SettingError, parse_toml, read_text};
 use crate::montecarlo::{Engine, McConfig};
 use crate::params::{ParamDef, ParamSpace, Target};
@@ -31,6 +33,8 @@ enum System {
     Linear(Box<LinearExperiment>),
     /// `[model]`.
     Catalog(Box<CatalogExperiment>),
+    /// `[external]`.
+    External(Box<ExternalExperiment>),
 }
 
 /// A validated problem file: the experiment it describes, and its `[tune]` settings. It is
@@ -61,6 +65,7 @@ impl Problem {
         match &self.system {
             System::Linear(l) => l.as_ref(),
             System::Catalog(c) => c.as_ref(),
+            System::External(e) => e.as_ref(),
         }
     }
 
@@ -68,7 +73,7 @@ impl Problem {
     pub fn linear(&self) -> Option<&LinearExperiment> {
         match &self.system {
             System::Linear(l) => Some(l),
-            System::Catalog(_) => None,
+            System::Catalog(_) | System::External(_) => None,
         }
     }
 
@@ -76,14 +81,14 @@ impl Problem {
     pub fn linear_mut(&mut self) -> Option<&mut LinearExperiment> {
         match &mut self.system {
             System::Linear(l) => Some(l),
-            System::Catalog(_) => None,
+            System::Catalog(_) | System::External(_) => None,
         }
     }
 
     /// The catalog model, if the problem names one.
     pub fn catalog(&self) -> Option<&CatalogExperiment> {
         match &self.system {
-            System::Linear(_) => None,
+            System::Linear(_) | System::External(_) => None,
             System::Catalog(c) => Some(c),
         }
     }
@@ -91,7 +96,7 @@ impl Problem {
     /// Mutable access to the catalog model, if the problem names one.
     pub fn catalog_mut(&mut self) -> Option<&mut CatalogExperiment> {
         match &mut self.system {
-            System::Linear(_) => None,
+            System::Linear(_) | System::External(_) => None,
             System::Catalog(c) => Some(c),
         }
     }
@@ -106,6 +111,7 @@ impl Problem {
         match &self.info().source {
             Source::File { path, .. } => path.clone(),
             Source::Program { name } => PathBuf::from(name),
+            Source::Records { files } => files.first().cloned().unwrap_or_default(),
         }
     }
 }
@@ -115,7 +121,12 @@ impl Experiment for Problem {
         self.experiment().definition()
     }
 
-    fn monte_carlo_with(&self, theta: &[f64], mc: &McConfig, run: RunOptions<'_>) -> Accumulator {
+    fn monte_carlo_with(
+        &self,
+        theta: &[f64],
+        mc: &McConfig,
+        run: RunOptions<'_>,
+    ) -> Result<Accumulator, ExperimentError> {
         self.experiment().monte_carlo_with(theta, mc, run)
     }
 
@@ -150,7 +161,11 @@ pub fn sha256_hex(bytes: &[u8]) -> String {
 
 impl Validator<'_> {
     fn problem(&self, s: ProblemSpec, sha256: String) -> VResult<Problem> {
-        let dt = self.finite("dt", s.dt)?;
+        let dt = match s.dt {
+            Some(dt) => self.finite("dt", dt)?,
+            None if s.external.is_some() => 1.0,
+            None => return self.err("dt", "missing: the sample period between steps, s"),
+        };
         if dt <= 0.0 {
             return self.err("dt", format!("{dt} must be > 0 (seconds per step)"));
         }
@@ -185,6 +200,17 @@ impl Validator<'_> {
                 sha256,
             },
         };
+        if let Some(ext) = &s.external {
+            if s.truth.is_some() || s.filter.is_some() || s.model.is_some() {
+                return self.err(
+                    "external",
+                    "give [external] alone, without [truth], [filter] or [model]",
+                );
+            }
+            let system = System::External(Box::new(self.external_problem(&s, ext, info, mc)?));
+            let tune = self.tune_settings(&s.tune)?;
+            return Ok(Problem { system, dt, tune });
+        }
         let system = match (&s.truth, &s.filter, &s.model) {
             (None, None, Some(model)) => {
                 System::Catalog(Box::new(self.catalog_problem(&s, model, info, mc)?))

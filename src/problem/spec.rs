@@ -17,8 +17,8 @@ pub struct ProblemSpec {
     pub name: Option<String>,
     /// One line saying what is modelled.
     pub description: Option<String>,
-    /// Sample period between filter steps, s.
-    pub dt: f64,
+    /// Sample period between filter steps, s (required but for `[external]` problems).
+    pub dt: Option<f64>,
     /// Names of the state components (default `x0`, `x1`, …).
     pub state_names: Option<Vec<String>>,
     /// Names of the measurement components (default `z0`, `z1`, …).
@@ -32,6 +32,9 @@ pub struct ProblemSpec {
     /// A named catalog model (`name = "…"` plus the model's own settings), instead of
     /// `[truth]` and `[filter]`.
     pub model: Option<toml::Table>,
+    /// A filter and simulator in another program, driven over the worker protocol
+    /// (docs/external.md), instead of `[truth]`/`[filter]` or `[model]`.
+    pub external: Option<ExternalSpec>,
     /// Named parameters, in file order.
     #[serde(default)]
     pub params: IndexMap<String, ParamSpec>,
@@ -68,6 +71,26 @@ pub struct TuneSpec {
     pub global_points: Option<i64>,
     /// "simplex" or "gauss_newton".
     pub local: Option<String>,
+}
+
+/// `[external]`: the worker program and what its records hold.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ExternalSpec {
+    /// The program and its arguments, run in the problem file's directory.
+    pub command: Vec<String>,
+    /// Sensor name → its component names, in order.
+    pub sensors: IndexMap<String, Vec<String>>,
+    /// Workers in parallel (default: the number of cores).
+    pub workers: Option<i64>,
+    /// Longest wait for one answer, s, start-up included (default 300).
+    pub timeout: Option<f64>,
+    /// The parameter values equal to the simulated noise, by name (optional; reports and
+    /// tests compare with them).
+    pub truth: Option<IndexMap<String, f64>>,
+    /// Check on the first evaluation that run i's records depend on (seed, i) alone
+    /// (default true).
+    pub check_seed_contract: Option<bool>,
 }
 
 /// `[montecarlo]`.

@@ -77,7 +77,7 @@ pub fn tune_markdown(
             path.display(),
             &sha256[..sha256.len().min(12)],
         ),
-        Source::Program { .. } => {
+        Source::Program { .. } | Source::Records { .. } => {
             writeln!(o, "Model `{}`, autotune {version}.\n", info.source.label())
         }
     };

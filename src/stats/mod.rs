@@ -22,6 +22,7 @@ mod attribution;
 mod diagnostics;
 mod interval;
 mod null_variance;
+mod recorder;
 mod sums;
 
 pub use attribution::{Diagnosis, Finding, Suspect, diagnose};
@@ -33,6 +34,7 @@ pub use interval::{
     gate_interval, has_power, normal_two_sided_quantile, scaled_chi2_interval,
 };
 pub use null_variance::{ComponentNullVariance, NeesNullVariance};
+pub use recorder::RunRecorder;
 pub use sums::{Accumulator, Divergence, StopCause};
 
 use serde::Serialize;

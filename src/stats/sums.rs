@@ -181,6 +181,23 @@ impl Accumulator {
         self.nees_null_var * finished as f64 / self.null_var_runs as f64
     }
 
+    /// Add one run's NEES `nees` with `dof` degrees of freedom at step index `i` (step i + 1).
+    pub fn add_nees(&mut self, i: usize, nees: f64, dof: f64) {
+        self.nees_sum[i] += nees;
+        self.nees_sq[i] += nees * nees;
+        self.nees_dof[i] += dof;
+        self.nees_count[i] += 1.0;
+    }
+
+    /// Add one run's NIS `nis` with `dof` degrees of freedom (the step's measurement
+    /// dimension) at step index `i` (step i + 1).
+    pub fn add_nis(&mut self, i: usize, nis: f64, dof: f64) {
+        self.nis_sum[i] += nis;
+        self.nis_sq[i] += nis * nis;
+        self.nis_dof[i] += dof;
+        self.nis_count[i] += 1.0;
+    }
+
     /// Add one finished run's NEES sum `S_i = Σ_k ε_ik`.
     pub fn add_run_nees_total(&mut self, total: f64) {
         self.nees_run_total += total;

@@ -84,7 +84,11 @@ impl<'a> Budget<'a> {
         y: &[f64],
         f: impl FnOnce(&Cost<'a>, &[f64]) -> Evaluation<T>,
     ) -> Result<T, Exhausted> {
-        if self.exhausted || self.booked.len() >= self.max_evals || Instant::now() > self.deadline {
+        if self.exhausted
+            || self.booked.len() >= self.max_evals
+            || Instant::now() > self.deadline
+            || self.cost.failure().is_some()
+        {
             self.exhausted = true;
             return Err(Exhausted);
         }

@@ -7,9 +7,11 @@
 //! or a Monte Carlo run with common random numbers. Nothing here counts evaluations; the
 //! [`super::budget::Budget`] wraps this and does.
 
+use std::sync::Mutex;
+
 use super::budget::Evaluation;
 use super::objective::Objective;
-use crate::experiment::Experiment;
+use crate::experiment::{Experiment, ExperimentError};
 use crate::montecarlo::McConfig;
 use crate::params::Target;
 use crate::stats::Accumulator;
@@ -34,6 +36,10 @@ pub(super) struct Cost<'a> {
     pub(super) hi: Vec<f64>,
     /// Per free parameter, the components it drives (all known, or `None`).
     pub(super) targets: Option<Vec<Target>>,
+    /// The first failure of the experiment itself (an external worker that broke the
+    /// protocol), not of a candidate's filter: once set, the budget refuses every further
+    /// evaluation and [`super::tune`] returns it.
+    failure: Mutex<Option<ExperimentError>>,
 }
 
 impl<'a> Cost<'a> {
@@ -62,7 +68,38 @@ impl<'a> Cost<'a> {
                 .map(|&i| model.target(i).filter(|t| !t.components.is_empty()))
                 .collect(),
             free,
+            failure: Mutex::new(None),
         }
+    }
+
+    /// The experiment's sums at `theta` under `mc`; when the experiment itself fails, the
+    /// failure is kept and the sums returned mark every run diverged (a candidate scoring
+    /// +∞), so that the search stops at its next evaluation instead of panicking mid-way.
+    pub(super) fn monte_carlo(&self, theta: &[f64], mc: &McConfig) -> Accumulator {
+        match self.model.monte_carlo(theta, mc) {
+            Ok(acc) => acc,
+            Err(e) => {
+                let mut acc = Accumulator::new(
+                    mc.steps(),
+                    self.model.state_names().len(),
+                    self.model.measurement_names().len(),
+                    mc.lags(),
+                );
+                acc.record_divergence(0, 0, e.to_string());
+                acc.runs = mc.runs();
+                let mut slot = self.failure.lock().unwrap_or_else(|p| p.into_inner());
+                slot.get_or_insert(e);
+                acc
+            }
+        }
+    }
+
+    /// The experiment's first failure, if it failed.
+    pub(super) fn failure(&self) -> Option<ExperimentError> {
+        self.failure
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .clone()
     }
 
     /// Number of free parameters.
@@ -101,7 +138,7 @@ impl<'a> Cost<'a> {
             .flatten()
         {
             Some(acc) => acc,
-            None => self.model.monte_carlo(theta, &self.mc),
+            None => self.monte_carlo(theta, &self.mc),
         }
     }
 

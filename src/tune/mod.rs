@@ -48,7 +48,7 @@ use std::time::{Duration, Instant};
 use self::budget::Budget;
 use self::cost::{Candidate, Cost};
 use self::refine::Gate;
-use crate::experiment::Experiment;
+use crate::experiment::{Experiment, ExperimentError};
 use crate::input::SettingError;
 use crate::montecarlo::McConfig;
 use crate::stats::GateMode;
@@ -69,6 +69,9 @@ pub enum TuneError {
         /// Parameters of the experiment.
         params: usize,
     },
+    /// The experiment itself failed (an external worker broke the protocol).
+    #[error(transparent)]
+    Experiment(#[from] ExperimentError),
 }
 
 /// The seed of the confirmation runs when none is given: a fixed mix of the search seed,
@@ -159,7 +162,10 @@ pub fn tune(
     // The gate's own deviates at the optimum: how they move with each parameter (for the
     // refinement and the resolution), on the search's runs from its seed.
     let use_nees = !settings.nis_only();
-    let gate = Gate::new(model, *mc, use_nees);
+    if let Some(e) = cost.failure() {
+        return Err(e.into());
+    }
+    let gate = Gate::new(model, &cost, *mc, use_nees);
     let searched = budget.evaluations() > 0 && !budget.exhausted();
     let sens_runs = search_mc.runs();
     let mut point = best.point.clone();
@@ -206,6 +212,9 @@ pub fn tune(
             refine::resolution(&cost, &point, &d_n, &deviates, fixed)
         })
     };
+    if let Some(e) = cost.failure() {
+        return Err(e.into());
+    }
     let status = if cost.dim() > 0 && budget.evaluations() == 0 {
         TuneStatus::BudgetExhausted
     } else if !best.cost.is_finite() {

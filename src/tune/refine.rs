@@ -46,15 +46,23 @@ const BAND: f64 = 0.01;
 /// The gate run at one parameter point.
 pub(super) struct Gate<'a> {
     model: &'a dyn Experiment,
+    /// Where the experiment's own failures are kept.
+    cost: &'a Cost<'a>,
     /// The problem's Monte Carlo settings (N, gate, α).
     mc: McConfig,
     use_nees: bool,
 }
 
 impl<'a> Gate<'a> {
-    pub(super) fn new(model: &'a dyn Experiment, mc: McConfig, use_nees: bool) -> Self {
+    pub(super) fn new(
+        model: &'a dyn Experiment,
+        cost: &'a Cost<'a>,
+        mc: McConfig,
+        use_nees: bool,
+    ) -> Self {
         Gate {
             model,
+            cost,
             mc,
             use_nees,
         }
@@ -63,7 +71,7 @@ impl<'a> Gate<'a> {
     /// The gate's report at `theta` on `runs` runs from `seed`.
     pub(super) fn report(&self, theta: &[f64], runs: usize, seed: u64) -> ConsistencyReport {
         let mc = self.mc.with_runs(runs).unwrap_or(self.mc).with_seed(seed);
-        let acc = self.model.monte_carlo(theta, &mc);
+        let acc = self.cost.monte_carlo(theta, &mc);
         ConsistencyReport::from_accumulator(
             &acc,
             &mc.gate_spec(self.use_nees),

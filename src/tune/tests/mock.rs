@@ -15,7 +15,7 @@
 
 use std::sync::atomic::{AtomicUsize, Ordering};
 
-use crate::experiment::{Definition, Experiment, Info, RunOptions, Source};
+use crate::experiment::{Definition, Experiment, ExperimentError, Info, RunOptions, Source};
 use crate::montecarlo::McConfig;
 use crate::params::{ParamDef, ParamSpace, Target};
 use crate::stats::Accumulator;
@@ -148,8 +148,13 @@ impl Experiment for Mock {
         &self.definition
     }
 
-    fn monte_carlo_with(&self, theta: &[f64], _mc: &McConfig, _o: RunOptions<'_>) -> Accumulator {
-        self.sums(theta)
+    fn monte_carlo_with(
+        &self,
+        theta: &[f64],
+        _mc: &McConfig,
+        _o: RunOptions<'_>,
+    ) -> Result<Accumulator, ExperimentError> {
+        Ok(self.sums(theta))
     }
 
     fn expected(&self, theta: &[f64], _mc: &McConfig) -> Option<Accumulator> {

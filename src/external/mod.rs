@@ -1,0 +1,323 @@
+//! A filter and simulator in another program (Python, MATLAB/Octave, C++, …) as an
+//! [`Experiment`]: autotune starts the program as long-lived workers and asks them, over the
+//! line protocol of `docs/external.md`, for the records of the filter at parameter values θ,
+//! seed s and runs [a, b). The records stream into the sums chunk by chunk.
+//!
+//! Reproducibility: runs are asked for in the engine's fixed chunks of
+//! [`crate::montecarlo::CHUNK`] runs, whatever the number of workers, and the chunk sums
+//! are merged in chunk order; a worker that honours the seed contract (run i's noise from
+//! (seed, i) alone) therefore gives bit-identical statistics on any number of workers. The
+//! contract is checked once, on the first evaluation, by asking for the first chunk's two
+//! halves again from other workers.
+
+mod worker;
+
+use std::path::PathBuf;
+use std::sync::Mutex;
+use std::sync::atomic::{AtomicBool, AtomicU64, AtomicUsize, Ordering};
+use std::time::Duration;
+
+use crate::experiment::{Definition, Experiment, ExperimentError, RunOptions};
+use crate::montecarlo::{CHUNK, McConfig};
+use crate::records::{Layout, RecordSink};
+use crate::stats::Accumulator;
+use worker::{Request, Worker};
+
+/// How to run the worker program.
+#[derive(Debug, Clone, PartialEq)]
+pub struct WorkerCommand {
+    /// The program and its arguments.
+    pub command: Vec<String>,
+    /// The directory it runs in (a problem file's own).
+    pub dir: PathBuf,
+    /// Workers started in parallel (each answers whole chunks of runs).
+    pub workers: usize,
+    /// Longest wait for one answer, start-up included.
+    pub timeout: Duration,
+    /// Check the seed contract on the first evaluation.
+    pub check_seed_contract: bool,
+}
+
+impl WorkerCommand {
+    /// The command as one would type it.
+    pub fn display(&self) -> String {
+        self.command.join(" ")
+    }
+}
+
+/// An experiment run by an external worker program.
+pub struct ExternalExperiment {
+    definition: Definition,
+    layout: Layout,
+    command: WorkerCommand,
+    truth: Option<Vec<f64>>,
+    /// The running workers, started at the first evaluation.
+    pool: Mutex<Vec<Worker>>,
+    /// The first failure: the workers are gone, and every later evaluation gives it again.
+    failed: Mutex<Option<ExperimentError>>,
+    next_id: AtomicU64,
+    contract_checked: AtomicBool,
+}
+
+impl std::fmt::Debug for ExternalExperiment {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("ExternalExperiment")
+            .field("definition", &self.definition)
+            .field("command", &self.command)
+            .finish_non_exhaustive()
+    }
+}
+
+impl ExternalExperiment {
+    /// An experiment whose records, of `layout`, come from `command`; `truth` is the
+    /// parameter values equal to the simulated noise, where known.
+    pub fn new(
+        definition: Definition,
+        layout: Layout,
+        command: WorkerCommand,
+        truth: Option<Vec<f64>>,
+    ) -> Self {
+        ExternalExperiment {
+            definition,
+            layout,
+            command,
+            truth,
+            pool: Mutex::new(Vec::new()),
+            failed: Mutex::new(None),
+            next_id: AtomicU64::new(1),
+            contract_checked: AtomicBool::new(false),
+        }
+    }
+
+    /// The worker command.
+    pub fn command(&self) -> &WorkerCommand {
+        &self.command
+    }
+
+    /// The records' layout.
+    pub fn layout(&self) -> &Layout {
+        &self.layout
+    }
+
+    /// A one-line error about `worker`'s request `req`.
+    fn error(&self, w: &Worker, req: &Request<'_>, what: &str) -> ExperimentError {
+        ExperimentError(format!(
+            "worker `{}` (worker {} of {}), request {} (seed {}, runs {}..{}, {} steps): {what}; {}",
+            self.command.display(),
+            w.index + 1,
+            self.command.workers,
+            req.id,
+            req.seed,
+            req.runs.start,
+            req.runs.end,
+            req.steps,
+            w.stderr_tail()
+        ))
+    }
+
+    /// θ as the request's JSON object, in parameter order.
+    fn theta_json(&self, theta: &[f64]) -> String {
+        let pairs: Vec<String> = self
+            .definition
+            .params
+            .params
+            .iter()
+            .zip(theta)
+            .map(|(p, v)| {
+                format!(
+                    "{}:{}",
+                    serde_json::to_string(&p.name).expect("a string serializes"),
+                    serde_json::to_string(v).expect("a number serializes")
+                )
+            })
+            .collect();
+        format!("{{{}}}", pairs.join(","))
+    }
+
+    fn sink(&self, mc: &McConfig, runs: std::ops::Range<usize>) -> RecordSink {
+        RecordSink::new(&self.layout, mc.steps(), mc.lags()).expecting(runs)
+    }
+
+    /// Ask worker `w` for `runs` and sum them.
+    fn ask(
+        &self,
+        w: &mut Worker,
+        theta: &str,
+        mc: &McConfig,
+        runs: std::ops::Range<usize>,
+    ) -> Result<Accumulator, ExperimentError> {
+        let req = Request {
+            id: self.next_id.fetch_add(1, Ordering::Relaxed),
+            theta,
+            seed: mc.seed(),
+            runs: runs.clone(),
+            steps: mc.steps(),
+        };
+        let mut sink = self.sink(mc, runs);
+        w.request(&req, &self.layout, &mut sink, self.command.timeout)
+            .and_then(|()| sink.finish())
+            .map_err(|m| self.error(w, &req, &m))
+    }
+
+    fn run(
+        &self,
+        theta: &[f64],
+        mc: &McConfig,
+        options: RunOptions<'_>,
+    ) -> Result<Accumulator, ExperimentError> {
+        let mut pool = self.pool.lock().unwrap_or_else(|p| p.into_inner());
+        if pool.is_empty() {
+            for k in 0..self.command.workers {
+                let w =
+                    Worker::start(&self.command.command, &self.command.dir, k).map_err(|m| {
+                        ExperimentError(format!(
+                            "worker `{}` (in {}): {m}",
+                            self.command.display(),
+                            self.command.dir.display()
+                        ))
+                    })?;
+                pool.push(w);
+            }
+        }
+        let theta_json = self.theta_json(theta);
+        let runs = mc.runs();
+        let chunks = runs.div_ceil(CHUNK);
+        let range = |c: usize| c * CHUNK..(c * CHUNK + CHUNK).min(runs);
+        let slots: Vec<Mutex<Option<Accumulator>>> =
+            (0..chunks).map(|_| Mutex::new(None)).collect();
+        let next = AtomicUsize::new(0);
+        let done = AtomicUsize::new(0);
+        let failure: Mutex<Option<ExperimentError>> = Mutex::new(None);
+        std::thread::scope(|scope| {
+            for w in pool.iter_mut() {
+                let (slots, next, done, failure, theta_json) =
+                    (&slots, &next, &done, &failure, &theta_json);
+                scope.spawn(move || {
+                    loop {
+                        if failure.lock().unwrap_or_else(|p| p.into_inner()).is_some() {
+                            return;
+                        }
+                        let c = next.fetch_add(1, Ordering::Relaxed);
+                        if c >= chunks {
+                            return;
+                        }
+                        match self.ask(w, theta_json, mc, range(c)) {
+                            Ok(acc) => {
+                                *slots[c].lock().unwrap_or_else(|p| p.into_inner()) = Some(acc);
+                                let n = done.fetch_add(range(c).len(), Ordering::Relaxed);
+                                if let Some(report) = options.progress {
+                                    report(n + range(c).len());
+                                }
+                            }
+                            Err(e) => {
+                                failure
+                                    .lock()
+                                    .unwrap_or_else(|p| p.into_inner())
+                                    .get_or_insert(e);
+                                return;
+                            }
+                        }
+                    }
+                });
+            }
+        });
+        if let Some(e) = failure.into_inner().unwrap_or_else(|p| p.into_inner()) {
+            return Err(e);
+        }
+        let mut total =
+            Accumulator::new(mc.steps(), self.layout.n_x(), self.layout.n_z(), mc.lags());
+        let mut first = None;
+        for s in &slots {
+            let part = s.lock().unwrap_or_else(|p| p.into_inner()).take();
+            let part = part.expect("every chunk answered");
+            total.merge(&part);
+            first.get_or_insert(part);
+        }
+        if !self.contract_checked.swap(true, Ordering::Relaxed)
+            && self.command.check_seed_contract
+            && let Some(first) = first
+        {
+            self.check_contract(&mut pool, &theta_json, mc, &first)?;
+        }
+        Ok(total)
+    }
+
+    /// Ask for the first chunk's two halves separately, from other workers than the first
+    /// chunk's where there are, and compare their sums with the chunk's own.
+    fn check_contract(
+        &self,
+        pool: &mut [Worker],
+        theta: &str,
+        mc: &McConfig,
+        whole: &Accumulator,
+    ) -> Result<(), ExperimentError> {
+        let first = 0..CHUNK.min(mc.runs());
+        if first.len() < 2 {
+            return Ok(());
+        }
+        let mid = first.len() / 2;
+        let n = pool.len();
+        let mut sink = self.sink(mc, first.clone());
+        let halves = [first.start..mid, mid..first.end];
+        for (h, half) in halves.iter().enumerate() {
+            let w = &mut pool[(h + 1) % n];
+            let id = self.next_id.fetch_add(1, Ordering::Relaxed);
+            let req = Request {
+                id,
+                theta,
+                seed: mc.seed(),
+                runs: half.clone(),
+                steps: mc.steps(),
+            };
+            w.request(&req, &self.layout, &mut sink, self.command.timeout)
+                .map_err(|m| self.error(w, &req, &m))?;
+        }
+        let split = sink.finish().map_err(ExperimentError)?;
+        if split != *whole {
+            return Err(ExperimentError(format!(
+                "worker `{}` breaks the seed contract: runs {}..{} asked for as {}..{} and {}..{} gave other records than asked for at once (run i's random numbers must depend on the seed and i alone; see docs/external.md)",
+                self.command.display(),
+                first.start,
+                first.end,
+                halves[0].start,
+                halves[0].end,
+                halves[1].start,
+                halves[1].end
+            )));
+        }
+        Ok(())
+    }
+}
+
+impl Experiment for ExternalExperiment {
+    fn definition(&self) -> &Definition {
+        &self.definition
+    }
+
+    fn monte_carlo_with(
+        &self,
+        theta: &[f64],
+        mc: &McConfig,
+        options: RunOptions<'_>,
+    ) -> Result<Accumulator, ExperimentError> {
+        if let Some(e) = self
+            .failed
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .clone()
+        {
+            return Err(e);
+        }
+        let result = self.run(theta, mc, options);
+        if let Err(e) = &result {
+            // The workers may be mid-answer or gone: stop them all.
+            self.pool.lock().unwrap_or_else(|p| p.into_inner()).clear();
+            *self.failed.lock().unwrap_or_else(|p| p.into_inner()) = Some(e.clone());
+        }
+        result
+    }
+
+    fn truth_values(&self) -> Option<Vec<f64>> {
+        self.truth.clone()
+    }
+}

@@ -1,0 +1,280 @@
+//! One worker process and the line protocol (docs/external.md): a request per line on its
+//! stdin, records (inline or in a file) and one closing line on its stdout; its stderr is
+//! kept (the last lines) for error messages.
+
+use std::collections::VecDeque;
+use std::io::{BufRead, BufReader, Write};
+use std::path::{Path, PathBuf};
+use std::process::{Child, ChildStdin, Command, Stdio};
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::mpsc::{Receiver, RecvTimeoutError, channel};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use serde_json::Value;
+
+use crate::records::{Layout, RecordSink, feed_file, parse_record_line};
+
+/// Lines of a worker's stderr kept for error messages.
+const STDERR_LINES: usize = 3;
+/// Longest protocol line quoted in an error.
+const QUOTE: usize = 120;
+
+/// What a request asks for.
+pub(super) struct Request<'a> {
+    pub id: u64,
+    /// `{"name": value, …}`, in parameter order.
+    pub theta: &'a str,
+    pub seed: u64,
+    pub runs: std::ops::Range<usize>,
+    pub steps: usize,
+}
+
+/// A running worker.
+pub(super) struct Worker {
+    /// Which worker of the pool (0-based), for messages.
+    pub index: usize,
+    child: Child,
+    stdin: Option<ChildStdin>,
+    lines: Receiver<std::io::Result<String>>,
+    stderr: Arc<Mutex<VecDeque<String>>>,
+    /// Scratch directory for records files.
+    dir: PathBuf,
+}
+
+fn quote(line: &str) -> String {
+    let t: String = line.chars().take(QUOTE).collect();
+    if t.len() < line.len() {
+        format!("'{t}…'")
+    } else {
+        format!("'{t}'")
+    }
+}
+
+impl Worker {
+    /// Start `command` in `cwd` as worker `index`.
+    pub(super) fn start(command: &[String], cwd: &Path, index: usize) -> Result<Worker, String> {
+        static STARTED: AtomicU64 = AtomicU64::new(0);
+        let dir = std::env::temp_dir().join(format!(
+            "autotune-{}-w{index}-{}",
+            std::process::id(),
+            STARTED.fetch_add(1, Ordering::Relaxed)
+        ));
+        std::fs::create_dir_all(&dir)
+            .map_err(|e| format!("cannot create the scratch directory {}: {e}", dir.display()))?;
+        let mut child = Command::new(&command[0])
+            .args(&command[1..])
+            .current_dir(cwd)
+            .env("AUTOTUNE_WORKER", "1")
+            .stdin(Stdio::piped())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .map_err(|e| {
+                let _ = std::fs::remove_dir_all(&dir);
+                format!("cannot start it: {e}")
+            })?;
+        let stdout = child.stdout.take().expect("piped");
+        let stderr = child.stderr.take().expect("piped");
+        let (tx, lines) = channel();
+        std::thread::spawn(move || {
+            for line in BufReader::new(stdout).lines() {
+                let stop = line.is_err();
+                if tx.send(line).is_err() || stop {
+                    break;
+                }
+            }
+        });
+        let tail = Arc::new(Mutex::new(VecDeque::new()));
+        let t = Arc::clone(&tail);
+        std::thread::spawn(move || {
+            for line in BufReader::new(stderr).lines() {
+                let Ok(line) = line else { break };
+                if line.trim().is_empty() {
+                    continue;
+                }
+                let mut q = t.lock().unwrap_or_else(|p| p.into_inner());
+                if q.len() == STDERR_LINES {
+                    q.pop_front();
+                }
+                q.push_back(line);
+            }
+        });
+        Ok(Worker {
+            index,
+            stdin: child.stdin.take(),
+            child,
+            lines,
+            stderr: tail,
+            dir,
+        })
+    }
+
+    /// The last lines of the worker's stderr, as a clause for an error message.
+    pub(super) fn stderr_tail(&self) -> String {
+        // Give the stderr reader a moment to catch up with a worker that just exited.
+        std::thread::sleep(Duration::from_millis(50));
+        let q = self.stderr.lock().unwrap_or_else(|p| p.into_inner());
+        if q.is_empty() {
+            "its stderr is empty".to_string()
+        } else {
+            let parts: Vec<String> = q.iter().map(|l| quote(l.trim_end())).collect();
+            format!("its stderr ends: {}", parts.join(" | "))
+        }
+    }
+
+    /// How the worker ended, if it has.
+    fn exit_status(&mut self) -> Option<String> {
+        let deadline = Instant::now() + Duration::from_millis(500);
+        loop {
+            match self.child.try_wait() {
+                Ok(Some(s)) => {
+                    return Some(match s.code() {
+                        Some(c) => format!("exited with status {c}"),
+                        None => format!("was killed ({s})"),
+                    });
+                }
+                Ok(None) if Instant::now() < deadline => {
+                    std::thread::sleep(Duration::from_millis(10))
+                }
+                _ => return None,
+            }
+        }
+    }
+
+    /// Ask for the records of `req` and stream them into `sink` (an experiment of
+    /// `layout`), within `timeout`. The error says what went wrong, in words.
+    pub(super) fn request(
+        &mut self,
+        req: &Request<'_>,
+        layout: &Layout,
+        sink: &mut RecordSink,
+        timeout: Duration,
+    ) -> Result<(), String> {
+        let line = format!(
+            "{{\"id\":{},\"theta\":{},\"seed\":{},\"runs\":[{},{}],\"steps\":{},\"dir\":{}}}\n",
+            req.id,
+            req.theta,
+            req.seed,
+            req.runs.start,
+            req.runs.end,
+            req.steps,
+            serde_json::to_string(&self.dir.to_string_lossy()).expect("a string serializes")
+        );
+        let sent = match self.stdin.as_mut() {
+            Some(stdin) => stdin
+                .write_all(line.as_bytes())
+                .and_then(|()| stdin.flush()),
+            None => Err(std::io::ErrorKind::BrokenPipe.into()),
+        };
+        if sent.is_err() {
+            let how = self
+                .exit_status()
+                .unwrap_or_else(|| "closed its stdin".into());
+            return Err(format!("{how} before it was asked"));
+        }
+        let deadline = Instant::now() + timeout;
+        loop {
+            let left = deadline.saturating_duration_since(Instant::now());
+            let line = match self.lines.recv_timeout(left) {
+                Ok(Ok(line)) => line,
+                Ok(Err(e)) => return Err(format!("its stdout failed: {e}")),
+                Err(RecvTimeoutError::Timeout) => {
+                    self.kill();
+                    return Err(format!(
+                        "no answer within the timeout of {} s (killed)",
+                        timeout.as_secs_f64()
+                    ));
+                }
+                Err(RecvTimeoutError::Disconnected) => {
+                    let how = self
+                        .exit_status()
+                        .unwrap_or_else(|| "closed its stdout".into());
+                    return Err(format!("{how} before answering"));
+                }
+            };
+            let trimmed = line.trim();
+            if trimmed.is_empty() {
+                continue;
+            }
+            let Ok(Value::Object(obj)) = serde_json::from_str::<Value>(trimmed) else {
+                return Err(format!(
+                    "printed {} on stdout, which is not a protocol line (print diagnostics to stderr)",
+                    quote(trimmed)
+                ));
+            };
+            if obj.contains_key("run") && !obj.contains_key("id") {
+                let r = parse_record_line(trimmed, layout)
+                    .map_err(|m| format!("inline record: {m}"))?;
+                sink.push(r).map_err(|m| format!("inline record: {m}"))?;
+                continue;
+            }
+            let id = obj.get("id").and_then(Value::as_u64);
+            if id != Some(req.id) {
+                return Err(format!(
+                    "answered {} to request {}",
+                    match obj.get("id") {
+                        Some(v) => format!("id {v}"),
+                        None => format!("{} without an id", quote(trimmed)),
+                    },
+                    req.id
+                ));
+            }
+            if let Some(msg) = obj.get("error") {
+                let msg = msg.as_str().map_or_else(|| msg.to_string(), str::to_string);
+                return Err(format!("reported an error: {}", quote(&msg)));
+            }
+            if obj.get("done").and_then(Value::as_bool) == Some(true) {
+                return Ok(());
+            }
+            if let Some(file) = obj.get("file") {
+                let Some(file) = file.as_str() else {
+                    return Err(format!("answered {}: 'file' is not a path", quote(trimmed)));
+                };
+                let path = PathBuf::from(file);
+                let path = if path.is_relative() {
+                    self.dir.join(path)
+                } else {
+                    path
+                };
+                let read = feed_file(&path, layout, req.steps, req.runs.start, sink)
+                    .map_err(|e| format!("its records file {e}"));
+                // The scratch directory is autotune's: its files go once read.
+                if path.starts_with(&self.dir) {
+                    let _ = std::fs::remove_file(&path);
+                }
+                return read;
+            }
+            return Err(format!(
+                "answered {}: expected \"file\", \"done\" or \"error\"",
+                quote(trimmed)
+            ));
+        }
+    }
+
+    fn kill(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+impl Drop for Worker {
+    fn drop(&mut self) {
+        // Closing stdin asks the worker to exit; one that does not within a second is killed.
+        drop(self.stdin.take());
+        let deadline = Instant::now() + Duration::from_secs(1);
+        loop {
+            match self.child.try_wait() {
+                Ok(Some(_)) | Err(_) => break,
+                Ok(None) if Instant::now() < deadline => {
+                    std::thread::sleep(Duration::from_millis(10))
+                }
+                Ok(None) => {
+                    self.kill();
+                    break;
+                }
+            }
+        }
+        let _ = std::fs::remove_dir_all(&self.dir);
+    }
+}

@@ -1,0 +1,152 @@
+//! An external problem: `[external]` names the worker program whose records the
+//! experiment reads (docs/external.md) and becomes an [`ExternalExperiment`].
+
+use std::time::Duration;
+
+use super::spec::{ExternalSpec, ProblemSpec};
+use super::validate::{VResult, Validator};
+use crate::experiment::{Definition, Info};
+use crate::external::{ExternalExperiment, WorkerCommand};
+use crate::montecarlo::McConfig;
+use crate::records::{Layout, SensorLayout, StateLayout};
+
+/// Most workers a problem may ask for.
+const MAX_WORKERS: i64 = 256;
+/// Longest timeout accepted, s (a day).
+const MAX_TIMEOUT: f64 = 86_400.0;
+
+impl Validator<'_> {
+    /// Build the external experiment of `[external]`, with the file's parameters in file
+    /// order.
+    pub(super) fn external_problem(
+        &self,
+        s: &ProblemSpec,
+        e: &ExternalSpec,
+        info: Info,
+        mc: McConfig,
+    ) -> VResult<ExternalExperiment> {
+        if e.command.is_empty() || e.command[0].trim().is_empty() {
+            return self.err(
+                "external.command",
+                "empty: give the program and its arguments, e.g. [\"python3\", \"worker.py\"]",
+            );
+        }
+        if s.measurement_names.is_some() {
+            return self.err(
+                "measurement_names",
+                "an external problem names its measurements in [external.sensors]",
+            );
+        }
+        if e.sensors.is_empty() && s.state_names.is_none() {
+            return self.err(
+                "external.sensors",
+                "missing: name the sensors and their components (and state_names, with ground truth)",
+            );
+        }
+        let mut sensors = Vec::new();
+        let mut measurement_names = Vec::new();
+        for (name, comps) in &e.sensors {
+            if !crate::records::valid_sensor(name) {
+                return self.err(
+                    format!("external.sensors.{name}"),
+                    "a sensor name is a letter, then letters, digits and _ (not 'dof')",
+                );
+            }
+            if comps.is_empty() {
+                return self.err(format!("external.sensors.{name}"), "no components");
+            }
+            measurement_names.extend(comps.iter().map(|c| format!("{name}_{c}")));
+            sensors.push(SensorLayout {
+                name: name.clone(),
+                dim: comps.len(),
+                components: true,
+            });
+        }
+        let state_names = s.state_names.clone().unwrap_or_default();
+        if s.state_names.as_ref().is_some_and(Vec::is_empty) {
+            return self.err(
+                "state_names",
+                "empty: leave it out for a problem without ground truth",
+            );
+        }
+        let layout = Layout {
+            state: (!state_names.is_empty()).then_some(StateLayout {
+                dim: state_names.len(),
+                components: true,
+            }),
+            sensors,
+        };
+        let workers = match e.workers {
+            None => std::thread::available_parallelism().map_or(1, |n| n.get()),
+            Some(n) if (1..=MAX_WORKERS).contains(&n) => n as usize,
+            Some(n) => {
+                return self.err(
+                    "external.workers",
+                    format!("{n}: must be 1 to {MAX_WORKERS}"),
+                );
+            }
+        };
+        let timeout = match e.timeout {
+            None => 300.0,
+            Some(t) if t.is_finite() && t > 0.0 && t <= MAX_TIMEOUT => t,
+            Some(t) => {
+                return self.err(
+                    "external.timeout",
+                    format!("{t}: must be a number of seconds in (0, {MAX_TIMEOUT}]"),
+                );
+            }
+        };
+        let params = self.params(&s.params)?;
+        if params.params.is_empty() {
+            return self.err(
+                "params",
+                "missing: an external problem's parameters are what the worker is given",
+            );
+        }
+        let truth = match &e.truth {
+            None => None,
+            Some(t) => {
+                for name in t.keys() {
+                    if params.index(name).is_none() {
+                        return self.err(format!("external.truth.{name}"), "not one of [params]");
+                    }
+                }
+                let mut v = Vec::new();
+                for p in &params.params {
+                    match t.get(&p.name) {
+                        Some(&x) if x.is_finite() && x > 0.0 => v.push(x),
+                        Some(&x) => {
+                            return self.err(
+                                format!("external.truth.{}", p.name),
+                                format!("{x}: must be > 0"),
+                            );
+                        }
+                        None => {
+                            return self.err("external.truth", format!("no value for {}", p.name));
+                        }
+                    }
+                }
+                Some(v)
+            }
+        };
+        let dir = match self.file.parent() {
+            Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
+            _ => std::path::PathBuf::from("."),
+        };
+        let command = WorkerCommand {
+            command: e.command.clone(),
+            dir,
+            workers,
+            timeout: Duration::from_secs_f64(timeout),
+            check_seed_contract: e.check_seed_contract.unwrap_or(true),
+        };
+        let definition = Definition {
+            info,
+            params,
+            state_names,
+            measurement_names,
+            mc,
+        };
+        Ok(ExternalExperiment::new(definition, layout, command, truth))
+    }
+}

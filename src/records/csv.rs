@@ -1,0 +1,304 @@
+//! CSV records: a header, then one row per run and step; each quantity flattened into
+//! columns with 1-based indices (`e_1`, `P_1_2`, `nu_radar_1`). What MATLAB's
+//! `writetable`, Octave's `csvwrite` after a header line, and pandas write.
+
+use std::collections::HashMap;
+use std::path::Path;
+
+use super::files::{Found, Row, fits, infer_layout, step_record};
+use super::names::{Quantity, parse_column};
+use super::{Layout, RecordSink};
+use crate::input::FileError;
+
+/// Where each quantity's numbers sit in a row.
+struct Columns {
+    run: usize,
+    step: usize,
+    /// Per quantity, the column of each entry (row-major), `None` for a matrix entry given
+    /// only in the other triangle's column.
+    quantities: HashMap<Quantity, Vec<Option<usize>>>,
+    /// The quantity columns' sizes, for the layout.
+    found: Found,
+}
+
+fn open(path: &Path) -> Result<csv::Reader<std::fs::File>, FileError> {
+    csv::ReaderBuilder::new()
+        .has_headers(true)
+        .trim(csv::Trim::All)
+        .from_path(path)
+        .map_err(|e| FileError::new(path, "", format!("cannot read: {}", csv_message(&e))))
+}
+
+fn csv_message(e: &csv::Error) -> String {
+    match e.kind() {
+        csv::ErrorKind::Io(io) => io.to_string(),
+        csv::ErrorKind::Utf8 { .. } => "not UTF-8 text".into(),
+        csv::ErrorKind::UnequalLengths {
+            expected_len, len, ..
+        } => format!("{len} fields where the header has {expected_len}"),
+        _ => e.to_string(),
+    }
+}
+
+fn line_error(
+    path: &Path,
+    line: Option<u64>,
+    field: &str,
+    message: impl Into<String>,
+) -> FileError {
+    let mut e = FileError::new(path, field, message);
+    e.line = line.map(|l| l as usize);
+    e
+}
+
+fn columns(path: &Path, rdr: &mut csv::Reader<std::fs::File>) -> Result<Columns, FileError> {
+    let header = rdr
+        .headers()
+        .map_err(|e| line_error(path, Some(1), "header", csv_message(&e)))?
+        .clone();
+    let mut run = None;
+    let mut step = None;
+    // Per quantity: (indices, column).
+    let mut cells: HashMap<Quantity, Vec<(Vec<usize>, usize)>> = HashMap::new();
+    let mut order: Vec<Quantity> = Vec::new();
+    for (c, name) in header.iter().enumerate() {
+        // MATLAB's writetable may start the file with a byte-order mark.
+        let name = name.trim_start_matches('\u{feff}');
+        let (q, idx) = parse_column(name)
+            .or_else(|| {
+                Quantity::parse(name)
+                    .filter(|q| q.rank() == 0)
+                    .map(|q| (q, vec![]))
+            })
+            .ok_or_else(|| {
+                line_error(
+                    path,
+                    Some(1),
+                    "header",
+                    format!("unknown column '{name}' (see docs/external.md for the names)"),
+                )
+            })?;
+        match q {
+            Quantity::Run => run = Some(c),
+            Quantity::Step => step = Some(c),
+            q => {
+                let list = cells.entry(q.clone()).or_default();
+                if list.iter().any(|(i, _)| *i == idx) {
+                    return Err(line_error(path, Some(1), name, "column appears twice"));
+                }
+                if list.is_empty() {
+                    order.push(q);
+                }
+                list.push((idx, c));
+            }
+        }
+    }
+    let run = run.ok_or_else(|| line_error(path, Some(1), "header", "no 'run' column"))?;
+    let step = step.ok_or_else(|| line_error(path, Some(1), "header", "no 'step' column"))?;
+    let mut quantities = HashMap::new();
+    let mut found = Found::new();
+    for q in order {
+        let list = &cells[&q];
+        let label = q.name();
+        let (dims, slots) = match q.rank() {
+            0 => (vec![], vec![Some(list[0].1)]),
+            1 => {
+                let n = list.iter().map(|(i, _)| i[0] + 1).max().unwrap_or(0);
+                let mut slots = vec![None; n];
+                for (i, c) in list {
+                    slots[i[0]] = Some(*c);
+                }
+                if let Some(j) = slots.iter().position(Option::is_none) {
+                    return Err(line_error(
+                        path,
+                        Some(1),
+                        "header",
+                        format!("column {label}_{} missing ({label} has {n} entries)", j + 1),
+                    ));
+                }
+                (vec![n], slots)
+            }
+            _ => {
+                let n = list
+                    .iter()
+                    .map(|(i, _)| i[0].max(i[1]) + 1)
+                    .max()
+                    .unwrap_or(0);
+                let mut slots = vec![None; n * n];
+                for (i, c) in list {
+                    slots[i[0] * n + i[1]] = Some(*c);
+                }
+                for a in 0..n {
+                    for b in 0..n {
+                        if slots[a * n + b].is_none() && slots[b * n + a].is_none() {
+                            return Err(line_error(
+                                path,
+                                Some(1),
+                                "header",
+                                format!(
+                                    "column {label}_{}_{} missing ({label} is {n}×{n}: give every entry of one triangle)",
+                                    a + 1,
+                                    b + 1
+                                ),
+                            ));
+                        }
+                    }
+                }
+                (vec![n, n], slots)
+            }
+        };
+        found.push((q.clone(), dims));
+        quantities.insert(q, slots);
+    }
+    Ok(Columns {
+        run,
+        step,
+        quantities,
+        found,
+    })
+}
+
+/// An unsigned integer cell (`3`, or `3.0` as MATLAB may write it).
+fn index_cell(cell: &str) -> Option<usize> {
+    if let Ok(v) = cell.parse::<usize>() {
+        return Some(v);
+    }
+    let v = cell.parse::<f64>().ok()?;
+    (v >= 0.0 && v.fract() == 0.0 && v < 9.0e15).then_some(v as usize)
+}
+
+/// The layout and the number of steps (the largest step) of a CSV records file.
+pub(super) fn scan(path: &Path) -> Result<(Layout, usize), FileError> {
+    let mut rdr = open(path)?;
+    let cols = columns(path, &mut rdr)?;
+    let layout = infer_layout(&cols.found).map_err(|m| line_error(path, Some(1), "header", m))?;
+    let mut steps = 0;
+    let mut rec = csv::StringRecord::new();
+    loop {
+        match rdr.read_record(&mut rec) {
+            Ok(true) => {}
+            Ok(false) => break,
+            Err(e) => {
+                let line = e.position().map(|p| p.line());
+                return Err(line_error(path, line, "", csv_message(&e)));
+            }
+        }
+        let line = rec.position().map(|p| p.line());
+        let k = index_cell(&rec[cols.step])
+            .filter(|&k| k >= 1)
+            .ok_or_else(|| {
+                line_error(
+                    path,
+                    line,
+                    "step",
+                    format!("'{}' is not a step (1, 2, …)", &rec[cols.step]),
+                )
+            })?;
+        steps = steps.max(k);
+    }
+    if steps == 0 {
+        return Err(FileError::new(path, "", "no rows"));
+    }
+    Ok((layout, steps))
+}
+
+/// One CSV row as a [`Row`].
+struct CsvRow<'a> {
+    rec: &'a csv::StringRecord,
+    cols: &'a Columns,
+    headers: &'a csv::StringRecord,
+}
+
+impl CsvRow<'_> {
+    fn number(&self, c: usize) -> Result<f64, String> {
+        let cell = &self.rec[c];
+        if cell.is_empty() {
+            return Ok(f64::NAN);
+        }
+        cell.parse::<f64>()
+            .map_err(|_| format!("{}: '{cell}' is not a number", &self.headers[c]))
+    }
+}
+
+impl Row for CsvRow<'_> {
+    fn values(&mut self, q: &Quantity) -> Result<Option<Vec<f64>>, String> {
+        let Some(slots) = self.cols.quantities.get(q) else {
+            return Ok(None);
+        };
+        let n = if q.rank() == 2 {
+            (slots.len() as f64).sqrt() as usize
+        } else {
+            0
+        };
+        let mut out = Vec::with_capacity(slots.len());
+        for (k, slot) in slots.iter().enumerate() {
+            let c = match slot {
+                Some(c) => *c,
+                // The other triangle's column.
+                None => slots[(k % n) * n + k / n].expect("one triangle is complete"),
+            };
+            out.push(self.number(c)?);
+        }
+        Ok(Some(out))
+    }
+
+    fn diverged(&mut self) -> Result<Option<String>, String> {
+        let Some(slots) = self.cols.quantities.get(&Quantity::Diverged) else {
+            return Ok(None);
+        };
+        let c = slots[0].expect("a scalar column");
+        let v = self.number(c)?;
+        Ok((v.is_finite() && v != 0.0).then(|| "marked diverged in the records".to_string()))
+    }
+}
+
+/// Stream a CSV records file into `sink`, which expects `layout`.
+pub(super) fn feed(path: &Path, layout: &Layout, sink: &mut RecordSink) -> Result<(), FileError> {
+    let mut rdr = open(path)?;
+    let cols = columns(path, &mut rdr)?;
+    let own = infer_layout(&cols.found).map_err(|m| line_error(path, Some(1), "header", m))?;
+    fits(&own, layout).map_err(|m| line_error(path, Some(1), "header", m))?;
+    let headers = rdr
+        .headers()
+        .map_err(|e| line_error(path, Some(1), "header", csv_message(&e)))?
+        .clone();
+    let mut rec = csv::StringRecord::new();
+    loop {
+        match rdr.read_record(&mut rec) {
+            Ok(true) => {}
+            Ok(false) => break,
+            Err(e) => {
+                let line = e.position().map(|p| p.line());
+                return Err(line_error(path, line, "", csv_message(&e)));
+            }
+        }
+        let line = rec.position().map(|p| p.line());
+        let run = index_cell(&rec[cols.run]).ok_or_else(|| {
+            line_error(
+                path,
+                line,
+                "run",
+                format!("'{}' is not a run index (0, 1, …)", &rec[cols.run]),
+            )
+        })?;
+        let step = index_cell(&rec[cols.step])
+            .filter(|&k| k >= 1)
+            .ok_or_else(|| {
+                line_error(
+                    path,
+                    line,
+                    "step",
+                    format!("'{}' is not a step (1, 2, …)", &rec[cols.step]),
+                )
+            })?;
+        let mut row = CsvRow {
+            rec: &rec,
+            cols: &cols,
+            headers: &headers,
+        };
+        let r =
+            step_record(layout, run, step, &mut row).map_err(|m| line_error(path, line, "", m))?;
+        sink.push(r).map_err(|m| line_error(path, line, "", m))?;
+    }
+    Ok(())
+}

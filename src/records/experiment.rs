@@ -1,0 +1,94 @@
+//! A recorded experiment as an [`Experiment`]: records another program wrote, judged by the
+//! same gate, reports and exit codes as a problem file.
+
+use std::path::PathBuf;
+
+use super::{Recorded, read_files};
+use crate::experiment::{Definition, Experiment, ExperimentError, Info, RunOptions, Source};
+use crate::input::FileError;
+use crate::montecarlo::McConfig;
+use crate::params::ParamSpace;
+use crate::stats::Accumulator;
+
+/// Records of one Monte Carlo experiment, summed: an experiment without parameters whose
+/// sums are the records' (N and T are theirs; asking for other runs or steps is an error).
+#[derive(Debug, Clone)]
+pub struct RecordedExperiment {
+    definition: Definition,
+    recorded: Recorded,
+}
+
+impl RecordedExperiment {
+    /// Read the records in `files` (see [`read_files`]); the experiment is named after the
+    /// first file's stem, its components `x1 … xn` and `<sensor>_<j>`.
+    pub fn read(files: &[PathBuf]) -> Result<RecordedExperiment, FileError> {
+        let recorded = read_files(files, None)?;
+        let mc = McConfig::new(recorded.runs, recorded.steps)
+            .and_then(|mc| mc.with_lags(recorded.sums.lags))
+            .map_err(|e| FileError::new(&files[0], "", e.to_string()))?;
+        let name = files[0]
+            .file_stem()
+            .and_then(|s| s.to_str())
+            .map(|s| {
+                s.chars()
+                    .map(|c| {
+                        if c.is_ascii_alphanumeric() || c == '-' {
+                            c
+                        } else {
+                            '_'
+                        }
+                    })
+                    .collect()
+            })
+            .unwrap_or_else(|| "records".to_string());
+        Ok(RecordedExperiment {
+            definition: Definition {
+                info: Info {
+                    name,
+                    description: String::new(),
+                    source: Source::Records {
+                        files: files.to_vec(),
+                    },
+                },
+                params: ParamSpace { params: Vec::new() },
+                state_names: recorded.layout.default_state_names(),
+                measurement_names: recorded.layout.default_measurement_names(),
+                mc,
+            },
+            recorded,
+        })
+    }
+
+    /// What was read.
+    pub fn recorded(&self) -> &Recorded {
+        &self.recorded
+    }
+}
+
+impl Experiment for RecordedExperiment {
+    fn definition(&self) -> &Definition {
+        &self.definition
+    }
+
+    fn monte_carlo_with(
+        &self,
+        _theta: &[f64],
+        mc: &McConfig,
+        _options: RunOptions<'_>,
+    ) -> Result<Accumulator, ExperimentError> {
+        let r = &self.recorded;
+        if (mc.runs(), mc.steps(), mc.lags()) != (r.runs, r.steps, r.sums.lags) {
+            return Err(ExperimentError(format!(
+                "{}: the records hold {} runs × {} steps ({} lags); they cannot give {} runs × {} steps ({} lags)",
+                self.definition.info.source.label(),
+                r.runs,
+                r.steps,
+                r.sums.lags,
+                mc.runs(),
+                mc.steps(),
+                mc.lags()
+            )));
+        }
+        Ok(r.sums.clone())
+    }
+}

@@ -1,0 +1,426 @@
+//! What every reader shares: the layout a file's quantities imply, one step's record from
+//! whatever holds its numbers (a CSV row, NumPy arrays, a JSON object), and reading a set of
+//! files into one experiment's sums.
+
+use std::path::{Path, PathBuf};
+
+use super::names::Quantity;
+use super::{Layout, RecordSink, SensorLayout, SensorRecord, StateLayout, StateRecord, StepRecord};
+use crate::input::FileError;
+use crate::stats::Accumulator;
+
+/// The quantities a file holds, each with its dimensions beyond (run, step): `[]` for a
+/// scalar, `[n]` for a vector, `[n, n]` for a matrix.
+pub(super) type Found = Vec<(Quantity, Vec<usize>)>;
+
+/// The layout implied by the quantities a file holds; an error names what is missing,
+/// contradictory or of mismatched size.
+pub(super) fn infer_layout(found: &Found) -> Result<Layout, String> {
+    let dims = |q: &Quantity| found.iter().find(|(f, _)| f == q).map(|(_, d)| d.clone());
+    let has = |q: &Quantity| dims(q).is_some();
+    let square = |q: &Quantity, name: &str| -> Result<Option<usize>, String> {
+        match dims(q) {
+            Some(d) if d.len() == 2 && d[0] == d[1] => Ok(Some(d[0])),
+            Some(d) => Err(format!("{name} is {d:?}, not square")),
+            None => Ok(None),
+        }
+    };
+    let vec_dim = |q: &Quantity| dims(q).and_then(|d| d.first().copied());
+
+    let raw_state = has(&Quantity::E) || has(&Quantity::X) || has(&Quantity::Xhat);
+    let state = if raw_state || has(&Quantity::P) {
+        if has(&Quantity::Nees) {
+            return Err("give e and P, or nees, not both".into());
+        }
+        let n = match (
+            vec_dim(&Quantity::E),
+            vec_dim(&Quantity::X),
+            vec_dim(&Quantity::Xhat),
+        ) {
+            (Some(n), None, None) => n,
+            (None, Some(a), Some(b)) if a == b => a,
+            (None, Some(a), Some(b)) => {
+                return Err(format!("x has {a} entries and xhat {b}"));
+            }
+            (None, _, _) => return Err("P without e (or x and xhat)".into()),
+            _ => return Err("give e, or x and xhat, not both".into()),
+        };
+        match square(&Quantity::P, "P")? {
+            Some(p) if p == n => {}
+            Some(p) => return Err(format!("P is {p}×{p} but e has {n} entries")),
+            None => return Err("e without P".into()),
+        }
+        Some(StateLayout {
+            dim: n,
+            components: true,
+        })
+    } else if has(&Quantity::Nees) {
+        let n = vec_dim(&Quantity::E2p);
+        if n.is_none() && !has(&Quantity::NeesDof) {
+            return Err("nees without nees_dof or e2p: its degrees of freedom are unknown".into());
+        }
+        Some(StateLayout {
+            dim: n.unwrap_or(0),
+            components: n.is_some(),
+        })
+    } else if has(&Quantity::E2p) || has(&Quantity::NeesDof) {
+        return Err("e2p or nees_dof without nees".into());
+    } else {
+        None
+    };
+
+    let mut sensors: Vec<SensorLayout> = Vec::new();
+    for (q, _) in found {
+        let Some(name) = q.sensor() else { continue };
+        if sensors.iter().any(|s| s.name == name) {
+            continue;
+        }
+        let label = |base: &str| {
+            if name.is_empty() {
+                base.to_string()
+            } else {
+                format!("{base}_{name}")
+            }
+        };
+        let nu = vec_dim(&Quantity::Nu(name.into()));
+        let s = square(&Quantity::S(name.into()), &label("S"))?;
+        let nis = has(&Quantity::Nis(name.into()));
+        let u = vec_dim(&Quantity::U(name.into()));
+        let nis_dof = has(&Quantity::NisDof(name.into()));
+        let layout = match (nu, s, nis) {
+            (Some(_), _, true) | (None, Some(_), true) => {
+                return Err(format!(
+                    "give {} and {}, or {}, not both",
+                    label("nu"),
+                    label("S"),
+                    label("nis")
+                ));
+            }
+            (Some(m), Some(ms), false) if m == ms => SensorLayout {
+                name: name.into(),
+                dim: m,
+                components: true,
+            },
+            (Some(m), Some(ms), false) => {
+                return Err(format!(
+                    "{} is {ms}×{ms} but {} has {m} entries",
+                    label("S"),
+                    label("nu")
+                ));
+            }
+            (Some(_), None, false) => {
+                return Err(format!("{} without {}", label("nu"), label("S")));
+            }
+            (None, Some(_), false) => {
+                return Err(format!("{} without {}", label("S"), label("nu")));
+            }
+            (None, None, true) => {
+                if u.is_none() && !nis_dof {
+                    return Err(format!(
+                        "{} without {} or {}: its degrees of freedom are unknown",
+                        label("nis"),
+                        label("nis_dof"),
+                        label("u")
+                    ));
+                }
+                SensorLayout {
+                    name: name.into(),
+                    dim: u.unwrap_or(0),
+                    components: u.is_some(),
+                }
+            }
+            (None, None, false) => {
+                return Err(format!(
+                    "{} or {} without {}",
+                    label("u"),
+                    label("nis_dof"),
+                    label("nis")
+                ));
+            }
+        };
+        sensors.push(layout);
+    }
+    if state.is_none() && sensors.is_empty() {
+        return Err("no state or sensor quantities (see docs/external.md)".into());
+    }
+    Ok(Layout { state, sensors })
+}
+
+/// Where one step's numbers come from.
+pub(super) trait Row {
+    /// The numbers of quantity `q` (row-major for a matrix; NaN where a cell is empty), or
+    /// `None` where the source has no such quantity at this step.
+    fn values(&mut self, q: &Quantity) -> Result<Option<Vec<f64>>, String>;
+    /// Why the run diverged at this step, if it is marked so.
+    fn diverged(&mut self) -> Result<Option<String>, String>;
+}
+
+/// The record of run `run` at step `step` of `layout` from `row`.
+pub(super) fn step_record(
+    layout: &Layout,
+    run: usize,
+    step: usize,
+    row: &mut impl Row,
+) -> Result<StepRecord, String> {
+    let mut r = StepRecord::new(run, step);
+    if let Some(reason) = row.diverged()? {
+        r.diverged = Some(reason);
+        return Ok(r);
+    }
+    let scalar = |v: Option<Vec<f64>>| v.and_then(|v| v.first().copied());
+    if let Some(state) = &layout.state {
+        r.state = if let Some(nees) = scalar(row.values(&Quantity::Nees)?) {
+            let dof = scalar(row.values(&Quantity::NeesDof)?).unwrap_or(state.dim as f64);
+            Some(StateRecord::Normalized {
+                nees,
+                dof,
+                e2p: row.values(&Quantity::E2p)?,
+            })
+        } else {
+            let e = match row.values(&Quantity::E)? {
+                Some(e) => Some(e),
+                None => match (row.values(&Quantity::X)?, row.values(&Quantity::Xhat)?) {
+                    (Some(x), Some(xh)) if x.len() == xh.len() => {
+                        Some(x.iter().zip(&xh).map(|(a, b)| a - b).collect())
+                    }
+                    (Some(x), Some(xh)) => {
+                        return Err(format!("x has {} entries and xhat {}", x.len(), xh.len()));
+                    }
+                    _ => None,
+                },
+            };
+            match (e, row.values(&Quantity::P)?) {
+                (Some(e), Some(p)) => Some(StateRecord::Raw { e, p }),
+                _ => None,
+            }
+        };
+    }
+    for (idx, s) in layout.sensors.iter().enumerate() {
+        let name = s.name.as_str();
+        let measured =
+            |v: &Option<Vec<f64>>| v.as_ref().is_some_and(|v| v.iter().any(|x| !x.is_nan()));
+        let nu = row.values(&Quantity::Nu(name.into()))?;
+        if measured(&nu) {
+            let sm = row.values(&Quantity::S(name.into()))?.unwrap_or_default();
+            r.sensors.push((
+                idx,
+                SensorRecord::Raw {
+                    nu: nu.unwrap_or_default(),
+                    s: sm,
+                },
+            ));
+            continue;
+        }
+        let nis = row.values(&Quantity::Nis(name.into()))?;
+        if measured(&nis) {
+            let dof = scalar(row.values(&Quantity::NisDof(name.into()))?).unwrap_or(s.dim as f64);
+            r.sensors.push((
+                idx,
+                SensorRecord::Normalized {
+                    nis: scalar(nis).unwrap_or(f64::NAN),
+                    dof,
+                    u: row.values(&Quantity::U(name.into()))?,
+                },
+            ));
+        }
+    }
+    Ok(r)
+}
+
+/// Check that a file's own layout fits the experiment's: the same state dimension and
+/// per-component data, and only sensors the experiment has, of their dimensions.
+pub(super) fn fits(own: &Layout, expected: &Layout) -> Result<(), String> {
+    match (own.state, expected.state) {
+        (None, None) => {}
+        (Some(_), None) => {
+            return Err("state quantities, but the experiment has no ground truth".into());
+        }
+        (None, Some(_)) => return Err("no state quantities (e and P, or nees)".into()),
+        (Some(a), Some(b)) => {
+            if a.components != b.components || (a.components && a.dim != b.dim) {
+                return Err(format!(
+                    "a state of dimension {}{}, expected {}{}",
+                    a.dim,
+                    if a.components {
+                        ""
+                    } else {
+                        " without components"
+                    },
+                    b.dim,
+                    if b.components {
+                        ""
+                    } else {
+                        " without components"
+                    }
+                ));
+            }
+        }
+    }
+    for s in &own.sensors {
+        let label = if s.name.is_empty() {
+            "the unnamed sensor".to_string()
+        } else {
+            format!("sensor '{}'", s.name)
+        };
+        let Some(e) = expected.sensors.iter().find(|e| e.name == s.name) else {
+            let known: Vec<&str> = expected.sensors.iter().map(|e| e.name.as_str()).collect();
+            return Err(format!(
+                "{label} is not one of the experiment's sensors ({})",
+                known.join(", ")
+            ));
+        };
+        if s.components != e.components || (s.components && s.dim != e.dim) {
+            return Err(format!(
+                "{label} has dimension {}{}, expected {}",
+                s.dim,
+                if s.components {
+                    ""
+                } else {
+                    " without components"
+                },
+                e.dim
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// A recorded experiment read from files.
+#[derive(Debug, Clone)]
+pub struct Recorded {
+    /// What the records hold.
+    pub layout: Layout,
+    /// Runs N.
+    pub runs: usize,
+    /// Steps per run T.
+    pub steps: usize,
+    /// Their sums.
+    pub sums: Accumulator,
+}
+
+/// The format of a records file, by its extension.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(super) enum Format {
+    Csv,
+    Npz,
+    Npy,
+    Jsonl,
+}
+
+pub(super) fn format_of(path: &Path) -> Result<Format, FileError> {
+    match path
+        .extension()
+        .and_then(|e| e.to_str())
+        .map(str::to_ascii_lowercase)
+        .as_deref()
+    {
+        Some("csv") => Ok(Format::Csv),
+        Some("npz") => Ok(Format::Npz),
+        Some("npy") => Ok(Format::Npy),
+        Some("jsonl") | Some("ndjson") => Ok(Format::Jsonl),
+        _ => Err(FileError::new(
+            path,
+            "",
+            "not a records file: expected .csv, .npz, .npy or .jsonl (see docs/external.md)",
+        )),
+    }
+}
+
+/// Read the records in `paths` (CSV, NumPy, JSON Lines, by extension; several `.npy` files
+/// are one set of arrays, each named after its quantity) into one experiment's sums, with
+/// `lags` whiteness lags (`None`: the default for its number of steps). Every file is read
+/// whole, and twice (once for its layout and length, once for its numbers), before any sum
+/// is returned; an error names the file, the row or array, and the field.
+pub fn read_files(paths: &[PathBuf], lags: Option<usize>) -> Result<Recorded, FileError> {
+    let first = paths
+        .first()
+        .ok_or_else(|| FileError::new(Path::new("--records"), "", "no records files given"))?;
+    // The .npy files of one set of arrays form one source; every other file is its own.
+    let mut sources: Vec<Vec<PathBuf>> = Vec::new();
+    let mut npy: Vec<PathBuf> = Vec::new();
+    for p in paths {
+        match format_of(p)? {
+            Format::Npy => npy.push(p.clone()),
+            _ => sources.push(vec![p.clone()]),
+        }
+    }
+    if !npy.is_empty() {
+        sources.push(npy);
+    }
+    let mut scanned: Vec<(Layout, usize)> = Vec::new();
+    for src in &sources {
+        scanned.push(scan(src)?);
+    }
+    let (layout, steps) = scanned[0].clone();
+    for (src, (l, t)) in sources.iter().zip(&scanned).skip(1) {
+        if *t != steps {
+            return Err(FileError::new(
+                &src[0],
+                "step",
+                format!(
+                    "{t} steps per run, but {} has {steps}",
+                    sources[0][0].display()
+                ),
+            ));
+        }
+        fits(l, &layout).map_err(|m| {
+            FileError::new(&src[0], "", format!("{m} (in {})", sources[0][0].display()))
+        })?;
+    }
+    let lags = lags.unwrap_or_else(|| crate::montecarlo::DEFAULT_LAGS.min(steps.saturating_sub(1)));
+    let mut sink = RecordSink::new(&layout, steps, lags);
+    for src in &sources {
+        feed(src, &layout, steps, 0, &mut sink)?;
+    }
+    let runs = sink.runs();
+    let sums = sink.finish().map_err(|m| FileError::new(first, "", m))?;
+    Ok(Recorded {
+        layout,
+        runs,
+        steps,
+        sums,
+    })
+}
+
+/// Stream the records file `path` (CSV, NumPy `.npz` or JSON Lines) into `sink`, an
+/// experiment of `layout` with `steps` steps; a NumPy file's runs are numbered from
+/// `first_run`.
+pub fn feed_file(
+    path: &Path,
+    layout: &Layout,
+    steps: usize,
+    first_run: usize,
+    sink: &mut RecordSink,
+) -> Result<(), FileError> {
+    feed(&[path.to_path_buf()], layout, steps, first_run, sink)
+}
+
+/// The layout and the number of steps of one source.
+fn scan(src: &[PathBuf]) -> Result<(Layout, usize), FileError> {
+    match format_of(&src[0])? {
+        Format::Csv => super::csv::scan(&src[0]),
+        Format::Jsonl => super::json::scan(&src[0]),
+        Format::Npz | Format::Npy => {
+            let arrays = super::npy::Arrays::read(src)?;
+            Ok((arrays.layout.clone(), arrays.steps))
+        }
+    }
+}
+
+/// Stream one source's records into `sink`; NumPy runs are numbered from `first_run`.
+pub(super) fn feed(
+    src: &[PathBuf],
+    layout: &Layout,
+    steps: usize,
+    first_run: usize,
+    sink: &mut RecordSink,
+) -> Result<(), FileError> {
+    match format_of(&src[0])? {
+        Format::Csv => super::csv::feed(&src[0], layout, sink),
+        Format::Jsonl => super::json::feed(&src[0], layout, sink),
+        Format::Npz | Format::Npy => {
+            let arrays = super::npy::Arrays::read(src)?;
+            arrays.feed(layout, steps, first_run, sink)
+        }
+    }
+}

@@ -1,0 +1,221 @@
+//! JSON Lines records: one object per run and step, keyed by quantity name, e.g.
+//! `{"run": 0, "step": 1, "e": [..], "P": [[..], ..], "nu_radar": [..], "S_radar": [[..]]}`.
+//! The same lines are what a worker may answer inline.
+
+use std::io::{BufRead, BufReader};
+use std::path::Path;
+
+use serde_json::{Map, Value};
+
+use super::files::{Found, Row, infer_layout, step_record};
+use super::names::Quantity;
+use super::{Layout, RecordSink, StepRecord};
+use crate::input::FileError;
+
+/// A JSON number, or NaN for `null`.
+fn number(v: &Value) -> Option<f64> {
+    match v {
+        Value::Number(n) => n.as_f64(),
+        Value::Null => Some(f64::NAN),
+        _ => None,
+    }
+}
+
+/// A quantity's numbers and dimensions: a number, an array of numbers, or an array of
+/// equal-length arrays (a matrix, row by row).
+fn numbers(key: &str, v: &Value) -> Result<(Vec<f64>, Vec<usize>), String> {
+    let bad = || format!("{key}: not a number, a list of numbers, or a list of rows");
+    if let Some(x) = number(v) {
+        return Ok((vec![x], vec![]));
+    }
+    let Value::Array(items) = v else {
+        return Err(bad());
+    };
+    if items.iter().all(|i| number(i).is_some()) {
+        return Ok((items.iter().filter_map(number).collect(), vec![items.len()]));
+    }
+    let mut out = Vec::new();
+    let mut width = None;
+    for row in items {
+        let Value::Array(cells) = row else {
+            return Err(bad());
+        };
+        if *width.get_or_insert(cells.len()) != cells.len() {
+            return Err(format!("{key}: rows of different lengths"));
+        }
+        for c in cells {
+            out.push(number(c).ok_or_else(bad)?);
+        }
+    }
+    Ok((out, vec![items.len(), width.unwrap_or(0)]))
+}
+
+/// The run and step of a record object.
+fn run_step(obj: &Map<String, Value>) -> Result<(usize, usize), String> {
+    let index = |key: &str| -> Result<u64, String> {
+        let v = obj.get(key).ok_or_else(|| format!("no '{key}'"))?;
+        v.as_u64()
+            .or_else(|| {
+                v.as_f64()
+                    .filter(|x| *x >= 0.0 && x.fract() == 0.0 && *x < 9.0e15)
+                    .map(|x| x as u64)
+            })
+            .ok_or_else(|| format!("{key}: {v} is not a non-negative integer"))
+    };
+    let run = index("run")? as usize;
+    let step = index("step")? as usize;
+    if step == 0 {
+        return Err("step: 0 (steps count from 1)".into());
+    }
+    Ok((run, step))
+}
+
+/// The quantities of one object, checked against the names.
+fn found(obj: &Map<String, Value>) -> Result<Found, String> {
+    let mut f = Found::new();
+    for (k, v) in obj {
+        let q = Quantity::parse(k)
+            .ok_or_else(|| format!("unknown key '{k}' (see docs/external.md for the names)"))?;
+        if matches!(q, Quantity::Run | Quantity::Step | Quantity::Diverged) {
+            continue;
+        }
+        let (_, dims) = numbers(k, v)?;
+        let dims = if q.rank() == 2 && dims.len() == 1 {
+            // A matrix given flat, row-major.
+            let n = (dims[0] as f64).sqrt().round() as usize;
+            if n * n != dims[0] {
+                return Err(format!("{k}: {} numbers, not a square matrix", dims[0]));
+            }
+            vec![n, n]
+        } else {
+            dims
+        };
+        if dims.len() != q.rank() {
+            return Err(format!(
+                "{k}: {} where a {} is expected",
+                match dims.len() {
+                    0 => "a number",
+                    1 => "a list",
+                    _ => "a matrix",
+                },
+                ["number", "list", "matrix"][q.rank()]
+            ));
+        }
+        f.push((q, dims));
+    }
+    Ok(f)
+}
+
+struct JsonRow<'a>(&'a Map<String, Value>);
+
+impl Row for JsonRow<'_> {
+    fn values(&mut self, q: &Quantity) -> Result<Option<Vec<f64>>, String> {
+        let key = q.name();
+        match self.0.get(&key) {
+            None => Ok(None),
+            Some(v) => numbers(&key, v).map(|(x, _)| Some(x)),
+        }
+    }
+
+    fn diverged(&mut self) -> Result<Option<String>, String> {
+        Ok(match self.0.get("diverged") {
+            None | Some(Value::Null) | Some(Value::Bool(false)) => None,
+            Some(Value::String(s)) => Some(s.clone()),
+            Some(Value::Number(n)) if n.as_f64() == Some(0.0) => None,
+            Some(_) => Some("marked diverged in the records".to_string()),
+        })
+    }
+}
+
+fn object(line: &str) -> Result<Map<String, Value>, String> {
+    match serde_json::from_str::<Value>(line) {
+        Ok(Value::Object(m)) => Ok(m),
+        Ok(_) => Err("not a JSON object".into()),
+        Err(e) => Err(format!("not JSON: {e}")),
+    }
+}
+
+/// One record line of an experiment of `layout`: a JSON object with `run`, `step` and
+/// quantities by name.
+pub fn parse_record_line(line: &str, layout: &Layout) -> Result<StepRecord, String> {
+    let obj = object(line)?;
+    let (run, step) = run_step(&obj)?;
+    for (q, _) in found(&obj)? {
+        if let Some(s) = q.sensor()
+            && layout.sensor(s).is_none()
+        {
+            let known: Vec<&str> = layout.sensors.iter().map(|e| e.name.as_str()).collect();
+            return Err(format!(
+                "{}: '{s}' is not one of the experiment's sensors ({})",
+                q.name(),
+                known.join(", ")
+            ));
+        }
+        if q.sensor().is_none() && layout.state.is_none() {
+            return Err(format!(
+                "{}: state quantities, but the experiment has no ground truth",
+                q.name()
+            ));
+        }
+    }
+    step_record(layout, run, step, &mut JsonRow(&obj))
+}
+
+/// The layout and the number of steps of a JSON Lines records file.
+pub(super) fn scan(path: &Path) -> Result<(Layout, usize), FileError> {
+    let file = std::fs::File::open(path)
+        .map_err(|e| FileError::new(path, "", format!("cannot read: {e}")))?;
+    let mut all = Found::new();
+    let mut steps = 0;
+    for (i, line) in BufReader::new(file).lines().enumerate() {
+        let at = |m: String| {
+            let mut e = FileError::new(path, "", m);
+            e.line = Some(i + 1);
+            e
+        };
+        let line = line.map_err(|e| at(format!("cannot read: {e}")))?;
+        if line.trim().is_empty() {
+            continue;
+        }
+        let obj = object(&line).map_err(at)?;
+        let (_, step) = run_step(&obj).map_err(at)?;
+        steps = steps.max(step);
+        for (q, dims) in found(&obj).map_err(at)? {
+            match all.iter().find(|(f, _)| *f == q) {
+                Some((_, d)) if *d != dims => {
+                    return Err(at(format!(
+                        "{}: dimensions {dims:?}, but {d:?} on an earlier line",
+                        q.name()
+                    )));
+                }
+                Some(_) => {}
+                None => all.push((q, dims)),
+            }
+        }
+    }
+    if steps == 0 {
+        return Err(FileError::new(path, "", "no records"));
+    }
+    let layout = infer_layout(&all).map_err(|m| FileError::new(path, "", m))?;
+    Ok((layout, steps))
+}
+
+/// Stream a JSON Lines records file into `sink`, which expects `layout`.
+pub(super) fn feed(path: &Path, layout: &Layout, sink: &mut RecordSink) -> Result<(), FileError> {
+    let file = std::fs::File::open(path)
+        .map_err(|e| FileError::new(path, "", format!("cannot read: {e}")))?;
+    for (i, line) in BufReader::new(file).lines().enumerate() {
+        let at = |m: String| {
+            let mut e = FileError::new(path, "", m);
+            e.line = Some(i + 1);
+            e
+        };
+        let line = line.map_err(|e| at(format!("cannot read: {e}")))?;
+        if line.trim().is_empty() {
+            continue;
+        }
+        let r = parse_record_line(&line, layout).map_err(at)?;
+        sink.push(r).map_err(at)?;
+    }
+    Ok(())
+}

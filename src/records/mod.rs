@@ -1,0 +1,183 @@
+//! Recorded Monte Carlo experiments: what a program in any language writes about its own
+//! filter's runs (estimation errors and covariances, innovations and their covariances, or
+//! their normalized forms), read from CSV, NumPy (`.npy`/`.npz`) and JSON Lines and summed
+//! into the same [`Accumulator`] the built-in engines fill.
+//!
+//! The format is documented in `docs/external.md`. Every reader turns its rows or arrays
+//! into [`StepRecord`]s, one per run and step, in order; a [`RecordSink`] checks their order
+//! and shapes against a [`Layout`] and streams them into the sums, so memory does not grow
+//! with the number of runs.
+
+mod csv;
+mod experiment;
+mod files;
+mod json;
+mod names;
+mod npy;
+mod sink;
+
+pub use experiment::RecordedExperiment;
+pub use files::{Recorded, feed_file, read_files};
+pub use json::parse_record_line;
+pub use names::{Quantity, valid_sensor};
+pub use sink::RecordSink;
+
+/// The state quantities of a record: the ground-truth side.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct StateLayout {
+    /// n, the dimension of the error state (the NEES's degrees of freedom).
+    pub dim: usize,
+    /// Whether the records give per-component data (`e`/`P`, or `e2p`).
+    pub components: bool,
+}
+
+/// One sensor of a record.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct SensorLayout {
+    /// The sensor's name (empty for a single unnamed sensor).
+    pub name: String,
+    /// m_s, its measurement dimension.
+    pub dim: usize,
+    /// Whether the records give per-component data (`nu`/`S`, or `u`).
+    pub components: bool,
+}
+
+/// What the records of one experiment hold: the state quantities (absent without ground
+/// truth) and the sensors, in order.
+#[derive(Debug, Clone, PartialEq, Eq, Default)]
+pub struct Layout {
+    /// The state quantities, `None` when the records carry no ground truth.
+    pub state: Option<StateLayout>,
+    /// The sensors, in the order their components are numbered.
+    pub sensors: Vec<SensorLayout>,
+}
+
+impl Layout {
+    /// State components the sums keep (n when the records give them, else 0).
+    pub fn n_x(&self) -> usize {
+        self.state.filter(|s| s.components).map_or(0, |s| s.dim)
+    }
+
+    /// Measurement components the sums keep: the sensors with per-component data.
+    pub fn n_z(&self) -> usize {
+        self.sensors
+            .iter()
+            .filter(|s| s.components)
+            .map(|s| s.dim)
+            .sum()
+    }
+
+    /// The index of sensor `name`.
+    pub fn sensor(&self, name: &str) -> Option<usize> {
+        self.sensors.iter().position(|s| s.name == name)
+    }
+
+    /// Where each sensor's components start among the measurement components (sensors
+    /// without components take none).
+    pub fn offsets(&self) -> Vec<usize> {
+        let mut at = 0;
+        self.sensors
+            .iter()
+            .map(|s| {
+                let o = at;
+                if s.components {
+                    at += s.dim;
+                }
+                o
+            })
+            .collect()
+    }
+
+    /// State component names for reports: `x1 … xn`.
+    pub fn default_state_names(&self) -> Vec<String> {
+        (1..=self.n_x()).map(|j| format!("x{j}")).collect()
+    }
+
+    /// Measurement component names for reports: `<sensor>_<j>` (`z<j>` for an unnamed
+    /// sensor), 1-based as in the files.
+    pub fn default_measurement_names(&self) -> Vec<String> {
+        self.sensors
+            .iter()
+            .filter(|s| s.components)
+            .flat_map(|s| {
+                (1..=s.dim).map(move |j| {
+                    if s.name.is_empty() {
+                        format!("z{j}")
+                    } else {
+                        format!("{}_{j}", s.name)
+                    }
+                })
+            })
+            .collect()
+    }
+}
+
+/// The state side of one step: raw, or already normalized.
+#[derive(Debug, Clone, PartialEq)]
+pub enum StateRecord {
+    /// Estimation error e (n) and covariance P (n × n, row-major).
+    Raw {
+        /// `x − x̂`.
+        e: Vec<f64>,
+        /// P, row-major.
+        p: Vec<f64>,
+    },
+    /// A precomputed NEES.
+    Normalized {
+        /// `e' P⁻¹ e`.
+        nees: f64,
+        /// Its degrees of freedom.
+        dof: f64,
+        /// `e_j² / P_jj` per component, where given.
+        e2p: Option<Vec<f64>>,
+    },
+}
+
+/// One sensor's measurement at one step: raw, or already normalized.
+#[derive(Debug, Clone, PartialEq)]
+pub enum SensorRecord {
+    /// Innovation ν (m) and its covariance S (m × m, row-major).
+    Raw {
+        /// ν.
+        nu: Vec<f64>,
+        /// S, row-major.
+        s: Vec<f64>,
+    },
+    /// A precomputed NIS.
+    Normalized {
+        /// `ν' S⁻¹ ν`.
+        nis: f64,
+        /// Its degrees of freedom.
+        dof: f64,
+        /// `ν_j / √S_jj` per component, where given.
+        u: Option<Vec<f64>>,
+    },
+}
+
+/// What one run recorded at one step.
+#[derive(Debug, Clone, PartialEq)]
+pub struct StepRecord {
+    /// Run index (0-based).
+    pub run: usize,
+    /// Step (1-based).
+    pub step: usize,
+    /// The state side (absent without ground truth).
+    pub state: Option<StateRecord>,
+    /// The sensors that measured, by index into [`Layout::sensors`].
+    pub sensors: Vec<(usize, SensorRecord)>,
+    /// Set when the run's filter broke down at this step: the reason.
+    pub diverged: Option<String>,
+}
+
+impl StepRecord {
+    /// An empty record of run `run` at step `step`.
+    pub fn new(run: usize, step: usize) -> Self {
+        StepRecord {
+            run,
+            step,
+            state: None,
+            sensors: Vec::new(),
+            diverged: None,
+        }
+    }
+}

@@ -1,0 +1,359 @@
+//! Records into sums: [`RecordSink`] checks each run's steps arrive in order with the
+//! layout's shapes, normalizes raw errors and innovations exactly as the built-in engines
+//! do, and streams them into an [`Accumulator`].
+
+use std::collections::HashSet;
+
+use nalgebra::{DMatrix, DVector};
+
+use super::{Layout, SensorRecord, StateRecord, StepRecord};
+use crate::linalg::{cholesky, mahalanobis_sq};
+use crate::stats::{Accumulator, RunRecorder, StopCause};
+
+/// The run being read.
+struct Current {
+    run: usize,
+    last_step: usize,
+    stopped: bool,
+    nees_total: f64,
+}
+
+/// A step's numbers, normalized, before they join the sums.
+struct Normalized {
+    nees: Option<(f64, f64)>,
+    e2p: Option<Vec<f64>>,
+    nis: Option<(f64, f64)>,
+    /// `(component, ν_j/√S_jj)`.
+    u: Vec<(usize, f64)>,
+}
+
+/// Streams [`StepRecord`]s of one experiment (T steps, `lags` whiteness lags) into an
+/// [`Accumulator`]. A record out of order or of the wrong shape is an error (a message
+/// naming the run, the step and the quantity); numbers that show the filter broke down
+/// (NaN, infinite, a covariance that is not positive definite) stop the run as diverged.
+pub struct RecordSink {
+    layout: Layout,
+    steps: usize,
+    offsets: Vec<usize>,
+    acc: Accumulator,
+    recorder: RunRecorder,
+    current: Option<Current>,
+    seen: HashSet<usize>,
+    /// The runs expected, where known (a worker's answer to a request).
+    expected: Option<std::ops::Range<usize>>,
+}
+
+impl RecordSink {
+    /// A sink for records of `layout`, T = `steps`, with `lags` whiteness lags.
+    pub fn new(layout: &Layout, steps: usize, lags: usize) -> Self {
+        let (n_x, n_z) = (layout.n_x(), layout.n_z());
+        RecordSink {
+            layout: layout.clone(),
+            steps,
+            offsets: layout.offsets(),
+            acc: Accumulator::new(steps, n_x, n_z, lags),
+            recorder: RunRecorder::new(n_x, n_z, lags),
+            current: None,
+            seen: HashSet::new(),
+            expected: None,
+        }
+    }
+
+    /// Expect exactly the runs in `runs`: another run is an error, and so is a missing one
+    /// at [`RecordSink::finish`].
+    pub fn expecting(mut self, runs: std::ops::Range<usize>) -> Self {
+        self.expected = Some(runs);
+        self
+    }
+
+    /// Runs read so far (finished or stopped).
+    pub fn runs(&self) -> usize {
+        self.seen.len()
+    }
+
+    /// Add the next record.
+    pub fn push(&mut self, r: StepRecord) -> Result<(), String> {
+        let (run, k) = (r.run, r.step);
+        if self.current.as_ref().is_none_or(|c| c.run != run) {
+            if let Some(range) = &self.expected
+                && !range.contains(&run)
+            {
+                return Err(format!(
+                    "run {run} was not asked for (runs {}..{})",
+                    range.start, range.end
+                ));
+            }
+            self.close()?;
+            if !self.seen.insert(run) {
+                return Err(format!(
+                    "run {run} appears twice (a run's records must come together)"
+                ));
+            }
+            self.recorder.reset();
+            self.current = Some(Current {
+                run,
+                last_step: 0,
+                stopped: false,
+                nees_total: 0.0,
+            });
+        }
+        let cur = self.current.as_mut().expect("set above");
+        if cur.stopped {
+            return Err(format!(
+                "run {run}: a record at step {k} after the run diverged at step {}",
+                cur.last_step
+            ));
+        }
+        if k != cur.last_step + 1 {
+            return Err(format!(
+                "run {run}: step {k} follows step {} (steps go 1, 2, …, {} without gaps)",
+                cur.last_step, self.steps
+            ));
+        }
+        if k > self.steps {
+            return Err(format!(
+                "run {run}: step {k} beyond the {} steps of the experiment",
+                self.steps
+            ));
+        }
+        cur.last_step = k;
+        if let Some(reason) = r.diverged {
+            return Ok(self.stop(run, k, reason));
+        }
+        match self.normalize(&r)? {
+            Ok(n) => {
+                self.add(k, n);
+                Ok(())
+            }
+            Err(reason) => Ok(self.stop(run, k, reason)),
+        }
+    }
+
+    /// The sums, once every run is complete.
+    pub fn finish(mut self) -> Result<Accumulator, String> {
+        self.close()?;
+        if let Some(range) = &self.expected
+            && self.seen.len() != range.len()
+        {
+            let missing = range
+                .clone()
+                .find(|r| !self.seen.contains(r))
+                .unwrap_or(range.start);
+            return Err(format!(
+                "{} of the {} runs asked for ({}..{}) came back; run {missing} is missing",
+                self.seen.len(),
+                range.len(),
+                range.start,
+                range.end
+            ));
+        }
+        if self.acc.runs == 0 {
+            return Err("no runs".into());
+        }
+        Ok(self.acc)
+    }
+
+    /// Close the current run: it must have reached step T, or have stopped.
+    fn close(&mut self) -> Result<(), String> {
+        let Some(cur) = self.current.take() else {
+            return Ok(());
+        };
+        if cur.stopped {
+            return Ok(());
+        }
+        if cur.last_step != self.steps {
+            return Err(format!(
+                "run {}: ends at step {} of {} without being marked diverged",
+                cur.run, cur.last_step, self.steps
+            ));
+        }
+        if self.layout.state.is_some() {
+            self.acc.add_run_nees_total(cur.nees_total);
+        }
+        self.recorder.end_run(&mut self.acc);
+        Ok(())
+    }
+
+    fn stop(&mut self, run: usize, k: usize, reason: String) {
+        self.acc.record_stop(run, k, StopCause::Diverged, reason);
+        self.acc.runs += 1;
+        if let Some(c) = self.current.as_mut() {
+            c.stopped = true;
+        }
+    }
+
+    /// Check the record's shapes (a shape error is `Err`), then normalize it: `Ok(Err(reason))`
+    /// when its numbers show a filter that broke down.
+    fn normalize(&self, r: &StepRecord) -> Result<Result<Normalized, String>, String> {
+        let (run, k) = (r.run, r.step);
+        let at = |what: &str| format!("run {run}, step {k}: {what}");
+        let mut out = Normalized {
+            nees: None,
+            e2p: None,
+            nis: None,
+            u: Vec::new(),
+        };
+        match (&self.layout.state, &r.state) {
+            (None, None) => {}
+            (None, Some(_)) => {
+                return Err(at(
+                    "state quantities in records whose other steps have none",
+                ));
+            }
+            (Some(_), None) => return Err(at("no state quantities (e and P, or nees)")),
+            (Some(layout), Some(state)) => {
+                let n = layout.dim;
+                match state {
+                    StateRecord::Raw { e, p } => {
+                        if e.len() != n || p.len() != n * n {
+                            return Err(at(&format!(
+                                "e has {} entries and P {}, expected {n} and {n}×{n}",
+                                e.len(),
+                                p.len()
+                            )));
+                        }
+                        if e.iter().chain(p).any(|v| !v.is_finite()) {
+                            return Ok(Err(format!("e or P is not finite at step {k}")));
+                        }
+                        let pm = DMatrix::from_row_slice(n, n, p);
+                        let Some(chol) = cholesky(&pm) else {
+                            return Ok(Err(format!("P is not positive definite at step {k}")));
+                        };
+                        let ev = DVector::from_column_slice(e);
+                        let nees = mahalanobis_sq(&chol, &ev);
+                        if !nees.is_finite() {
+                            return Ok(Err(format!("the NEES overflowed at step {k}")));
+                        }
+                        out.nees = Some((nees, n as f64));
+                        out.e2p = layout
+                            .components
+                            .then(|| (0..n).map(|j| e[j] * e[j] / pm[(j, j)]).collect());
+                    }
+                    StateRecord::Normalized { nees, dof, e2p } => {
+                        if !(*dof > 0.0) {
+                            return Err(at(&format!("nees_dof is {dof}, not positive")));
+                        }
+                        if layout.components != e2p.is_some() {
+                            return Err(at("e2p given at some steps and not at others"));
+                        }
+                        if let Some(c) = e2p
+                            && c.len() != n
+                        {
+                            return Err(at(&format!("e2p has {} entries, expected {n}", c.len())));
+                        }
+                        let bad = !nees.is_finite()
+                            || *nees < 0.0
+                            || e2p
+                                .as_ref()
+                                .is_some_and(|c| c.iter().any(|v| !v.is_finite() || *v < 0.0));
+                        if bad {
+                            return Ok(Err(format!(
+                                "the NEES or e2p is negative or not finite at step {k}"
+                            )));
+                        }
+                        out.nees = Some((*nees, *dof));
+                        out.e2p = e2p.clone();
+                    }
+                }
+            }
+        }
+        let mut nis = 0.0;
+        let mut dof = 0.0;
+        for (s, rec) in &r.sensors {
+            let Some(layout) = self.layout.sensors.get(*s) else {
+                return Err(at(&format!("sensor index {s} out of range")));
+            };
+            let m = layout.dim;
+            let name = if layout.name.is_empty() {
+                "the sensor".to_string()
+            } else {
+                format!("sensor {}", layout.name)
+            };
+            match rec {
+                SensorRecord::Raw { nu, s: sm } => {
+                    if nu.len() != m || sm.len() != m * m {
+                        return Err(at(&format!(
+                            "{name}: nu has {} entries and S {}, expected {m} and {m}×{m}",
+                            nu.len(),
+                            sm.len()
+                        )));
+                    }
+                    if nu.iter().chain(sm).any(|v| !v.is_finite()) {
+                        return Ok(Err(format!("{name}: nu or S is not finite at step {k}")));
+                    }
+                    let smat = DMatrix::from_row_slice(m, m, sm);
+                    let Some(chol) = cholesky(&smat) else {
+                        return Ok(Err(format!(
+                            "{name}: S is not positive definite at step {k}"
+                        )));
+                    };
+                    nis += mahalanobis_sq(&chol, &DVector::from_column_slice(nu));
+                    dof += m as f64;
+                    if layout.components {
+                        let o = self.offsets[*s];
+                        out.u
+                            .extend((0..m).map(|j| (o + j, nu[j] / smat[(j, j)].sqrt())));
+                    }
+                }
+                SensorRecord::Normalized { nis: v, dof: d, u } => {
+                    if !(*d > 0.0) {
+                        return Err(at(&format!("{name}: nis_dof is {d}, not positive")));
+                    }
+                    if layout.components != u.is_some() {
+                        return Err(at(&format!(
+                            "{name}: u given at some steps and not at others"
+                        )));
+                    }
+                    if let Some(u) = u {
+                        if u.len() != m {
+                            return Err(at(&format!(
+                                "{name}: u has {} entries, expected {m}",
+                                u.len()
+                            )));
+                        }
+                        if u.iter().any(|x| !x.is_finite()) {
+                            return Ok(Err(format!("{name}: u is not finite at step {k}")));
+                        }
+                        let o = self.offsets[*s];
+                        out.u.extend(u.iter().enumerate().map(|(j, &x)| (o + j, x)));
+                    }
+                    if !v.is_finite() || *v < 0.0 {
+                        return Ok(Err(format!(
+                            "{name}: the NIS is negative or not finite at step {k}"
+                        )));
+                    }
+                    nis += v;
+                    dof += d;
+                }
+            }
+        }
+        if !nis.is_finite() {
+            return Ok(Err(format!("the NIS overflowed at step {k}")));
+        }
+        if dof > 0.0 {
+            out.nis = Some((nis, dof));
+        }
+        Ok(Ok(out))
+    }
+
+    /// Add a normalized step to the sums, in the generic engine's order.
+    fn add(&mut self, k: usize, n: Normalized) {
+        let i = k - 1;
+        if let Some((nis, dof)) = n.nis {
+            self.acc.add_nis(i, nis, dof);
+        }
+        for (j, u) in n.u {
+            self.recorder.innovation(j, u);
+        }
+        self.recorder.end_step(&mut self.acc, k);
+        if let Some((nees, dof)) = n.nees {
+            self.acc.add_nees(i, nees, dof);
+            if let Some(c) = self.current.as_mut() {
+                c.nees_total += nees;
+            }
+        }
+        if let Some(e2p) = n.e2p {
+            self.recorder.state_step(&mut self.acc, e2p.into_iter());
+        }
+    }
+}

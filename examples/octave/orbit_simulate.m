@@ -134,10 +134,11 @@ end
 function tr = orbit_truth(c, seed, i, T)
   % Truth trajectory and measurements of run i, cached: they depend on (seed, i, T) only.
   %
-  % ode45 costs about 10 ms a call in Octave whatever the state's size, so the runs are
-  % integrated in fixed blocks of c.block runs (block j holds runs j*B .. j*B+B-1),
-  % stacked into one state: a block is always the same runs with the same noise, so
-  % run i's truth is the same whichever range a request asks for.
+  % An ode45 call costs a few ms in Octave (option parsing) before any integration, so
+  % the runs are integrated in fixed blocks of c.block runs (block j holds runs
+  % j*B .. j*B+B-1), stacked into one state: a block is always the same runs with the same
+  % noise, so run i's truth is the same whichever range a request asks for (it may
+  % compute a few runs more than asked, for later requests).
   persistent cache
   if isempty(cache)
     cache = containers.Map();

@@ -3,7 +3,7 @@
 #
 #   examples/octave/ci.sh path/to/autotune
 #
-# Needs GNU Octave (Debian: apt-get install -y octave) and python3 with numpy (for the
+# Needs GNU Octave (Debian: apt-get install -y octave) and python3 (for the
 # protocol smoke test, drive.py). Checks that
 #   1. the worker answers the protocol by itself (drive.py: CSV layout, seed contract,
 #      error replies, consistency at the truth's noise);

@@ -6,18 +6,17 @@ and checks the answers: the CSV header and shapes, the seed contract (the rows o
 do not depend on the range it was asked in, nor on the worker), error replies that keep
 the worker serving, and that the EKF with the truth's noise is consistent (mean NEES
 near n = 4, mean NIS near the mean measured dimension). Prints timings. Exit 0 if all
-checks pass, 1 otherwise. Needs numpy.
+checks pass, 1 otherwise. Plain Python 3, no packages.
 """
 
 import json
+import math
 import os
 import select
 import subprocess
 import sys
 import tempfile
 import time
-
-import numpy as np
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 COMMAND = ["octave", "--no-gui", "--quiet", "--norc", "--no-window-system", "orbit_worker.m"]
@@ -87,27 +86,53 @@ def load(path):
     with open(path) as f:
         header = f.readline().rstrip("\n").split(",")
         lines = f.read().splitlines()
-    data = np.array([[float(v) for v in ln.split(",")] for ln in lines])
+    data = [[float(v) for v in ln.split(",")] for ln in lines]
     return header, lines, data
+
+
+def quad_form(v, A):
+    """v' A^-1 v for a small symmetric positive definite A (Cholesky)."""
+    n = len(v)
+    L = [[0.0] * n for _ in range(n)]
+    for i in range(n):
+        for j in range(i + 1):
+            acc = A[i][j] - sum(L[i][k] * L[j][k] for k in range(j))
+            if i == j:
+                if acc <= 0:
+                    raise ValueError("matrix not positive definite")
+                L[i][i] = math.sqrt(acc)
+            else:
+                L[i][j] = acc / L[j][j]
+    y = []
+    for i in range(n):
+        y.append((v[i] - sum(L[i][k] * y[k] for k in range(i))) / L[i][i])
+    return sum(t * t for t in y)
 
 
 def statistics(header, data):
     """Mean NEES, the sum of the NIS over sensors per row, and the measured dimension."""
     col = {name: k for k, name in enumerate(header)}
-    e = data[:, [col[f"e_{i}"] for i in range(1, N_STATE + 1)]]
-    P = data[:, [col[f"P_{i}_{j}"] for i in range(1, N_STATE + 1)
-                 for j in range(1, N_STATE + 1)]].reshape(-1, N_STATE, N_STATE)
-    nees = np.einsum("ri,ri->r", e, np.linalg.solve(P, e[:, :, None])[:, :, 0])
-    nis = np.zeros(len(data))
-    dim = np.zeros(len(data))
-    for s in STATIONS:
-        nu = data[:, [col[f"nu_{s}_1"], col[f"nu_{s}_2"]]]
-        S = data[:, [col[f"S_{s}_{i}_{j}"] for i in (1, 2) for j in (1, 2)]].reshape(-1, 2, 2)
-        seen = ~np.isnan(nu[:, 0])
-        x = np.linalg.solve(S[seen], nu[seen][:, :, None])[:, :, 0]
-        nis[seen] += np.einsum("ri,ri->r", nu[seen], x)
-        dim[seen] += 2
+    idx = range(1, N_STATE + 1)
+    nees, nis, dim = [], [], []
+    for row in data:
+        e = [row[col[f"e_{i}"]] for i in idx]
+        P = [[row[col[f"P_{i}_{j}"]] for j in idx] for i in idx]
+        nees.append(quad_form(e, P))
+        total, d = 0.0, 0
+        for s in STATIONS:
+            nu = [row[col[f"nu_{s}_{i}"]] for i in (1, 2)]
+            if math.isnan(nu[0]):
+                continue
+            S = [[row[col[f"S_{s}_{i}_{j}"]] for j in (1, 2)] for i in (1, 2)]
+            total += quad_form(nu, S)
+            d += 2
+        nis.append(total)
+        dim.append(d)
     return nees, nis, dim
+
+
+def mean(xs):
+    return sum(xs) / len(xs)
 
 
 def main():
@@ -123,14 +148,16 @@ def main():
     path, _ = w.request(TRUTH, 3, (5, 9), steps, tmp)
     header, lines, data = load(path)
     check(header == expected_header(), "CSV header " + ",".join(header[:8]) + ",...")
-    check(data.shape == (4 * steps, len(header)), f"shape {data.shape} = (4 runs x {steps} steps, {len(header)})")
-    check(np.array_equal(data[:, 0], np.repeat(np.arange(5, 9), steps)), "run column 5..8, run by run")
-    check(np.array_equal(data[:, 1], np.tile(np.arange(1, steps + 1), 4)), "step column 1..T in every run")
-    check(np.all(data[:, -1] == 0), "no run diverged at the truth")
-    seen = [~np.isnan(data[:, header.index(f"nu_{s}_1")]) for s in STATIONS]
-    dims = 2 * np.sum(seen, axis=0)
-    check(dims.min() >= 2 and dims.max() == 4 and np.any(dims == 2),
-          f"measurement dimension varies over time ({sorted(set(dims.tolist()))})")
+    shape = (len(data), sorted(set(len(row) for row in data)))
+    check(shape == (4 * steps, [len(header)]), f"shape {shape} = (4 runs x {steps} steps, [{len(header)}])")
+    check([row[0] for row in data] == [r for r in range(5, 9) for _ in range(steps)],
+          "run column 5..8, run by run")
+    check([row[1] for row in data] == [k for _ in range(4) for k in range(1, steps + 1)],
+          "step column 1..T in every run")
+    check(all(row[-1] == 0 for row in data), "no run diverged at the truth")
+    dims = [2 * sum(not math.isnan(row[header.index(f"nu_{s}_1")]) for s in STATIONS) for row in data]
+    check(min(dims) >= 2 and max(dims) == 4 and 2 in dims,
+          f"measurement dimension varies over time ({sorted(set(dims))})")
     os.remove(path)
 
     # Seed contract: runs 4..7 of [0, 8) equal [4, 8), in this worker and in a fresh one.
@@ -147,7 +174,8 @@ def main():
     _, _, d_theta = load(p_theta)
     _, _, d_all = load(p_all)
     e_cols = [header.index(f"e_{i}") for i in (1, 2)]
-    check(not np.array_equal(d_theta[:, e_cols], d_all[:2 * steps, e_cols]), "theta changes the filter")
+    check([[r[c] for c in e_cols] for r in d_theta] != [[r[c] for c in e_cols] for r in d_all[:2 * steps]],
+          "theta changes the filter")
     p_seed, _ = w2.request(TRUTH, 12, (4, 8), steps, tmp)
     _, lines_seed, _ = load(p_seed)
     check(lines_seed != lines_part, "another seed gives other noise")
@@ -177,18 +205,18 @@ def main():
     path, _ = w.request(TRUTH, 1, (0, n), steps, tmp)
     header, _, data = load(path)
     nees, nis, dim = statistics(header, data)
-    anees = nees.mean()
-    anis = nis.sum() / dim.sum() * 2
-    print(f"at the truth: ANEES {anees:.3f} (n = {N_STATE}), NIS per measured pair {anis:.3f} (2), "
-          f"mean dimension {dim.mean():.2f}, mean NIS {nis.mean():.3f}")
+    anees = mean(nees)
+    print(f"at the truth: ANEES {anees:.3f} (n = {N_STATE}), mean NIS {mean(nis):.3f}, "
+          f"mean measured dimension {mean(dim):.2f}")
     check(abs(anees / N_STATE - 1) < 0.08, f"ANEES {anees:.3f} within 8% of {N_STATE}")
-    check(abs(nis.mean() / dim.mean() - 1) < 0.08, f"mean NIS {nis.mean():.3f} within 8% of the mean dimension {dim.mean():.2f}")
+    check(abs(mean(nis) / mean(dim) - 1) < 0.08,
+          f"mean NIS {mean(nis):.3f} within 8% of the mean measured dimension {mean(dim):.2f}")
     wrong = {"q_accel": 1e-11, "r_range": 4e-4, "r_rate": 4e-8}
     path, _ = w.request(wrong, 1, (0, n), steps, tmp)
     header, _, data = load(path)
     nees, nis, dim = statistics(header, data)
-    print(f"at the wrong start {wrong}: ANEES {nees.mean():.3f}, mean NIS {nis.mean():.3f} "
-          f"(mean dimension {dim.mean():.2f})")
+    print(f"at the wrong start {wrong}: ANEES {mean(nees):.3f}, mean NIS {mean(nis):.3f} "
+          f"(mean measured dimension {mean(dim):.2f})")
     rc, out, err = w.close()
     check(rc == 0 and out == "", "first worker exits 0")
     for f in os.listdir(tmp):

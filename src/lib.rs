@@ -19,7 +19,7 @@
 //!
 //! let p = Problem::load(std::path::Path::new("problems/cv1d.toml")).unwrap();
 //! // Parameters in file order: q_accel ((m/s²)²), r_pos (m²).
-//! let report = check(&p, &[0.5, 1.0], p.mc(), true);
+//! let report = check(&p, &[0.5, 1.0], p.mc(), true).unwrap();
 //! assert!(report.verdict.passes());
 //!
 //! let fixed = vec![false; p.params().params.len()];

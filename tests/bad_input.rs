@@ -658,7 +658,9 @@ fn linear_rows() -> Vec<Row> {
         file("empty file", Problem::Bytes(b""), &["montecarlo"]),
         file(
             "no dt",
-            Problem::Bytes(b"[montecarlo]\nruns = 10\nsteps = 10\n[model]\nname = \"ctrv_radar_lidar\"\n"),
+            Problem::Bytes(
+                b"[montecarlo]\nruns = 10\nsteps = 10\n[model]\nname = \"ctrv_radar_lidar\"\n",
+            ),
             &["dt", "missing"],
         ),
         file(

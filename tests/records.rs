@@ -177,6 +177,29 @@ fn hand_computed_nees_and_nis_read_alike_from_csv_jsonl_and_npy() {
     assert_eq!(reports[0]["report"], reports[2]["report"], "CSV vs .npy");
 }
 
+/// A covariance the same in every run may leave out the runs axis, (T, n, n).
+#[test]
+fn a_covariance_shared_by_all_runs_may_leave_out_the_runs_axis() {
+    let dir = tempfile::tempdir().unwrap();
+    let e: Vec<f64> = E.iter().flatten().flatten().copied().collect();
+    let p_shared: Vec<f64> = P[0].iter().flatten().copied().collect();
+    let (ef, pf) = (dir.path().join("e.npy"), dir.path().join("P.npy"));
+    write_npy(&ef, &[2, 2, 2], &e);
+    write_npy(&pf, &[2, 2, 2], &p_shared);
+    let (_, v) = check_json(&[&ef, &pf], &["--gate", "mean"]);
+    // Run 1 against run 0's covariances: e = (0, 1) with P = diag(2, 4) gives 1/4; e = (2, 2)
+    // with P = [[1, ½], [½, 1]] gives (4 − 4 + 4)/0.75.
+    let nees = per_step(&v, "nees");
+    assert!(
+        (nees[0].unwrap() - (1.5 + 0.25) / 2.0).abs() < 1e-12,
+        "{nees:?}"
+    );
+    assert!(
+        (nees[1].unwrap() - (4.0 / 3.0 + 16.0 / 3.0) / 2.0).abs() < 1e-12,
+        "{nees:?}"
+    );
+}
+
 /// Each malformed file: exit 2, nothing on stdout, one line naming the file and where.
 #[test]
 fn malformed_records_name_the_file_the_row_and_the_field() {

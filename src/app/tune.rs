@@ -314,10 +314,26 @@ pub fn run(
                     dir.display()
                 )?;
             }
+            // The status rests on every confirmation seed, not on the first one's report
+            // shown above: say what it rests on when the two could seem to disagree.
+            let c = &result.confirmation;
+            let after = if c.seeds > 1 && (c.passed < c.seeds || !result.after.verdict.passes()) {
+                format!(
+                    "consistent on {} of {} fresh seeds ({})",
+                    c.passed,
+                    c.seeds,
+                    if c.holds() {
+                        "as a consistent filter would be"
+                    } else {
+                        "fewer than a consistent filter"
+                    }
+                )
+            } else {
+                result.after.verdict.describe().to_string()
+            };
             let verdict = format!(
-                "verdict: before {}, after {}",
+                "verdict: before {}, after {after}",
                 result.before.verdict.label(),
-                result.after.verdict.describe()
             );
             writeln!(stdout, "{}", paint_verdict(&verdict, consistent))?;
         }

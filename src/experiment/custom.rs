@@ -44,7 +44,7 @@ type CovarianceFn = Box<dyn Fn(&[f64]) -> Covariances + Send + Sync>;
 ///     .montecarlo(McConfig::new(50, 100).unwrap())
 ///     .build()
 ///     .unwrap();
-/// let report = autotune::check::check(&model, &[0.5, 1.0], model.mc(), true);
+/// let report = autotune::check::check(&model, &[0.5, 1.0], model.mc(), true).unwrap();
 /// assert_eq!(report.nees.unwrap().target, 2.0);
 /// ```
 pub struct Custom<T, B> {

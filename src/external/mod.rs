@@ -185,20 +185,17 @@ impl ExternalExperiment {
         let range = |c: usize| c * CHUNK..(c * CHUNK + CHUNK).min(runs);
         let slots: Vec<Mutex<Option<Accumulator>>> =
             (0..chunks).map(|_| Mutex::new(None)).collect();
-        let next = AtomicUsize::new(0);
         let done = AtomicUsize::new(0);
+        let n_workers = pool.len();
         let failure: Mutex<Option<ExperimentError>> = Mutex::new(None);
         std::thread::scope(|scope| {
-            for w in pool.iter_mut() {
-                let (slots, next, done, failure, theta_json) =
-                    (&slots, &next, &done, &failure, &theta_json);
+            // Chunk c always goes to worker c mod W: a worker that caches its truth per run
+            // (it does not depend on θ) then finds it at every evaluation.
+            for (k, w) in pool.iter_mut().enumerate() {
+                let (slots, done, failure, theta_json) = (&slots, &done, &failure, &theta_json);
                 scope.spawn(move || {
-                    loop {
+                    for c in (k..chunks).step_by(n_workers) {
                         if failure.lock().unwrap_or_else(|p| p.into_inner()).is_some() {
-                            return;
-                        }
-                        let c = next.fetch_add(1, Ordering::Relaxed);
-                        if c >= chunks {
                             return;
                         }
                         match self.ask(w, theta_json, mc, range(c)) {

@@ -15,6 +15,9 @@ const MAX_ELEMENTS: u64 = 1 << 31;
 /// One array, as doubles in C order.
 struct Array {
     quantity: Quantity,
+    /// A covariance without the runs axis, shape (1, T, n, n) here: the same in every run
+    /// (a linear filter's P and S do not depend on the data).
+    shared: bool,
     shape: Vec<usize>,
     data: Vec<f64>,
 }
@@ -171,6 +174,8 @@ impl Arrays {
         let err = |name: &str, m: String| FileError::new(&file, format!("array {name}"), m);
         // N and T from the first array with both axes.
         let mut nt: Option<(usize, usize, String)> = None;
+        // Covariances without the runs axis, and their steps.
+        let mut shared_steps: Vec<(String, usize)> = Vec::new();
         let mut arrays = Vec::new();
         let mut diverged_raw: Option<(String, Vec<usize>, Vec<f64>)> = None;
         for (name, shape, data) in raw {
@@ -195,7 +200,15 @@ impl Arrays {
             }
             let scalar_dof =
                 matches!(q, Quantity::NeesDof | Quantity::NisDof(_)) && shape.is_empty();
-            if !scalar_dof {
+            let shared = matches!(q, Quantity::P | Quantity::S(_)) && shape.len() == 3;
+            let shape = if shared {
+                [&[1], &shape[..]].concat()
+            } else {
+                shape
+            };
+            if shared {
+                shared_steps.push((name.clone(), shape[1]));
+            } else if !scalar_dof {
                 let want = 2 + q.rank();
                 if shape.len() != want {
                     return Err(err(
@@ -225,6 +238,7 @@ impl Arrays {
             }
             arrays.push(Array {
                 quantity: q,
+                shared,
                 shape,
                 data,
             });
@@ -236,6 +250,14 @@ impl Arrays {
                 "no arrays of records (e, P, nu_<sensor>, …; see docs/external.md)",
             )
         })?;
+        for (name, t) in &shared_steps {
+            if *t != steps {
+                return Err(err(
+                    name,
+                    format!("{t} steps, but the other arrays have {steps}"),
+                ));
+            }
+        }
         if runs == 0 || steps == 0 {
             return Err(FileError::new(
                 &file,
@@ -345,7 +367,8 @@ impl Row for NpyRow<'_> {
             return Ok(Some(a.data.clone()));
         }
         let inner: usize = a.shape[2..].iter().product();
-        let at = (self.r * a.shape[1] + self.t) * inner;
+        let r = if a.shared { 0 } else { self.r };
+        let at = (r * a.shape[1] + self.t) * inner;
         Ok(Some(a.data[at..at + inner].to_vec()))
     }
 

@@ -117,14 +117,18 @@ impl RecordSink {
             return Ok(());
         }
         if let Some(reason) = r.diverged {
-            return Ok(self.stop(run, k, reason));
+            self.stop(run, k, reason);
+            return Ok(());
         }
         match self.normalize(&r)? {
             Ok(n) => {
                 self.add(k, n);
                 Ok(())
             }
-            Err(reason) => Ok(self.stop(run, k, reason)),
+            Err(reason) => {
+                self.stop(run, k, reason);
+                Ok(())
+            }
         }
     }
 
@@ -229,7 +233,7 @@ impl RecordSink {
                             .then(|| (0..n).map(|j| e[j] * e[j] / pm[(j, j)]).collect());
                     }
                     StateRecord::Normalized { nees, dof, e2p } => {
-                        if !(*dof > 0.0) {
+                        if dof.is_nan() || *dof <= 0.0 {
                             return Err(at(&format!("nees_dof is {dof}, not positive")));
                         }
                         if layout.components != e2p.is_some() {
@@ -295,7 +299,7 @@ impl RecordSink {
                     }
                 }
                 SensorRecord::Normalized { nis: v, dof: d, u } => {
-                    if !(*d > 0.0) {
+                    if d.is_nan() || *d <= 0.0 {
                         return Err(at(&format!("{name}: nis_dof is {d}, not positive")));
                     }
                     if layout.components != u.is_some() {

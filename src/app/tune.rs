@@ -317,9 +317,16 @@ pub fn run(
             // The status rests on every confirmation seed, not on the first one's report
             // shown above: say what it rests on when the two could seem to disagree.
             let c = &result.confirmation;
-            let after = if c.seeds > 1 && (c.passed < c.seeds || !result.after.verdict.passes()) {
+            let stopped = matches!(
+                result.after.verdict,
+                Verdict::Diverged | Verdict::IllConditioned | Verdict::TruthOverflow
+            );
+            let after = if c.seeds > 1
+                && !stopped
+                && (c.passed < c.seeds || !result.after.verdict.passes())
+            {
                 format!(
-                    "consistent on {} of {} fresh seeds ({})",
+                    "{} of {} fresh seeds consistent ({})",
                     c.passed,
                     c.seeds,
                     if c.holds() {

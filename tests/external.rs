@@ -219,6 +219,45 @@ fn statistics_are_bit_identical_on_one_two_and_four_workers() {
     );
 }
 
+/// `[external] drives` names what each parameter drives: the advice then shows that
+/// evidence; a component that is not the problem's is a one-line error naming the field.
+#[test]
+fn drives_names_the_evidence_of_the_advice() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = problem(
+        dir.path(),
+        "good",
+        2,
+        128,
+        r#"drives = { q = ["x"], r = ["z_pos"] }"#,
+    );
+    let (code, stdout, stderr) = autotune(&[
+        "tune",
+        p.to_str().unwrap(),
+        "--set",
+        "q=0.1",
+        "--set",
+        "r=10",
+        "--out",
+        dir.path().join("t.toml").to_str().unwrap(),
+    ]);
+    assert!(code == Some(0) || code == Some(1), "{stdout}\n{stderr}");
+    assert!(stdout.contains("q: x (e²/P ="), "{stdout}");
+    assert!(stdout.contains("r: z_pos (ν²/S ="), "{stdout}");
+
+    let bad = problem(
+        dir.path(),
+        "good",
+        2,
+        128,
+        r#"drives = { q = ["velocity"] }"#,
+    );
+    let (code, _, stderr) = autotune(&["check", bad.to_str().unwrap()]);
+    assert_eq!(code, Some(2), "{stderr}");
+    assert!(stderr.contains("external.drives.q"), "{stderr}");
+    assert!(stderr.contains("x, z_pos"), "{stderr}");
+}
+
 /// A protocol failure inside a tune stops it with the error, not a verdict.
 #[test]
 fn a_protocol_failure_stops_a_tune_with_the_error() {

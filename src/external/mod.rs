@@ -19,6 +19,7 @@ use std::time::Duration;
 
 use crate::experiment::{Definition, Experiment, ExperimentError, RunOptions};
 use crate::montecarlo::{CHUNK, McConfig};
+use crate::params::Target;
 use crate::records::{Layout, RecordSink};
 use crate::stats::Accumulator;
 use worker::{Request, Worker};
@@ -51,6 +52,8 @@ pub struct ExternalExperiment {
     layout: Layout,
     command: WorkerCommand,
     truth: Option<Vec<f64>>,
+    /// What each parameter drives, where declared.
+    targets: Vec<Option<Target>>,
     /// The running workers, started at the first evaluation.
     pool: Mutex<Vec<Worker>>,
     /// The first failure: the workers are gone, and every later evaluation gives it again.
@@ -82,11 +85,19 @@ impl ExternalExperiment {
             layout,
             command,
             truth,
+            targets: Vec::new(),
             pool: Mutex::new(Vec::new()),
             failed: Mutex::new(None),
             next_id: AtomicU64::new(1),
             contract_checked: AtomicBool::new(false),
         }
+    }
+
+    /// Declare what each parameter drives (by index; `None` where unknown): the advice
+    /// names that evidence and the Gauss–Newton search matches it.
+    pub fn with_targets(mut self, targets: Vec<Option<Target>>) -> Self {
+        self.targets = targets;
+        self
     }
 
     /// The worker command.
@@ -316,5 +327,9 @@ impl Experiment for ExternalExperiment {
 
     fn truth_values(&self) -> Option<Vec<f64>> {
         self.truth.clone()
+    }
+
+    fn target(&self, i: usize) -> Option<Target> {
+        self.targets.get(i).cloned().flatten()
     }
 }

@@ -8,6 +8,7 @@ use super::validate::{VResult, Validator};
 use crate::experiment::{Definition, Info};
 use crate::external::{ExternalExperiment, WorkerCommand};
 use crate::montecarlo::McConfig;
+use crate::params::Target;
 use crate::records::{Layout, SensorLayout, StateLayout};
 
 /// Most workers a problem may ask for.
@@ -129,6 +130,41 @@ impl Validator<'_> {
                 Some(v)
             }
         };
+        let mut targets = vec![None; params.params.len()];
+        for (name, comps) in e.drives.iter().flatten() {
+            let field = format!("external.drives.{name}");
+            let Some(i) = params.index(name) else {
+                return self.err(field, "not one of [params]");
+            };
+            if comps.is_empty() {
+                return self.err(
+                    field,
+                    "empty: name the state or measurement components it drives",
+                );
+            }
+            let find = |list: &[String], c: &str| list.iter().position(|n| n == c);
+            let states: Option<Vec<usize>> = comps.iter().map(|c| find(&state_names, c)).collect();
+            let meas: Option<Vec<usize>> =
+                comps.iter().map(|c| find(&measurement_names, c)).collect();
+            targets[i] = Some(match (states, meas) {
+                (Some(s), _) => Target::process(&s),
+                (None, Some(m)) => Target::measurement(&m),
+                (None, None) => {
+                    let known: Vec<&str> = state_names
+                        .iter()
+                        .chain(&measurement_names)
+                        .map(String::as_str)
+                        .collect();
+                    return self.err(
+                        field,
+                        format!(
+                            "give state components (process noise) or measurement components (measurement noise), all of one kind, from: {}",
+                            known.join(", ")
+                        ),
+                    );
+                }
+            });
+        }
         let dir = match self.file.parent() {
             Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
             _ => std::path::PathBuf::from("."),
@@ -147,6 +183,6 @@ impl Validator<'_> {
             measurement_names,
             mc,
         };
-        Ok(ExternalExperiment::new(definition, layout, command, truth))
+        Ok(ExternalExperiment::new(definition, layout, command, truth).with_targets(targets))
     }
 }

@@ -91,6 +91,10 @@ pub struct ExternalSpec {
     /// Check on the first evaluation that run i's records depend on (seed, i) alone
     /// (default true).
     pub check_seed_contract: Option<bool>,
+    /// Parameter name → the components it drives: state names (process noise) or
+    /// measurement names `<sensor>_<component>` (measurement noise). Optional; it lets the
+    /// advice and the diagnosis name the evidence, and the Gauss–Newton search match it.
+    pub drives: Option<IndexMap<String, Vec<String>>>,
 }
 
 /// `[montecarlo]`.

@@ -56,7 +56,7 @@ fn cv2d_report_says_which_axis_and_by_what_factor() {
         );
     }
     assert!(
-        md.contains("Verdict before: mixed. After: consistent."),
+        md.contains("Verdict before: mixed. After (first fresh seed): consistent."),
         "{md}"
     );
     let json: serde_json::Value =

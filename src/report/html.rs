@@ -206,8 +206,9 @@ pub fn tune_html(experiment: &dyn Experiment, res: &TuneResult, recs: &[Recommen
     );
     let _ = writeln!(
         o,
-        "<p class=\"verdict\">Before: {}. After: {}. Confirmation: {}.</p>",
+        "<p class=\"verdict\">Before: {}. {}: {}. Confirmation: {}.</p>",
         escape(res.before.verdict.label()),
+        super::tune::after_heading(res),
         escape(res.after.verdict.describe()),
         escape(&res.confirmation.text())
     );

@@ -83,8 +83,9 @@ pub fn tune_markdown(
     };
     let _ = writeln!(
         o,
-        "**Verdict before: {}. After: {}.** Status: {:?}.\n",
+        "**Verdict before: {}. {}: {}.** Status: {:?}.\n",
         r.before.verdict.label(),
+        after_heading(r),
         r.after.verdict.label(),
         r.status
     );
@@ -180,4 +181,15 @@ pub fn tune_markdown(
         r.confirmation.seeds
     );
     o
+}
+
+/// What the "after" verdict of a tune report is: with several confirmation seeds it is the
+/// first seed's report, while the status rests on all of them; saying so keeps a failed
+/// first seed from reading as the verdict on a tune whose confirmation holds.
+pub(crate) fn after_heading(r: &TuneResult) -> &'static str {
+    if r.confirmation.seeds > 1 {
+        "After (first fresh seed)"
+    } else {
+        "After"
+    }
 }

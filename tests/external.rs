@@ -5,12 +5,12 @@
 //! filter).
 
 use std::path::{Path, PathBuf};
-use std::process::Command;
 
-use assert_cmd::cargo::CommandCargoExt;
+mod common;
 use autotune::experiment::Experiment;
 use autotune::problem::Problem;
 use autotune::tune::{Silent, TuneError, TuneSettings, tune};
+use common::autotune;
 
 fn worker_script() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/workers/fake_worker.py")
@@ -50,19 +50,6 @@ upper = 100.0
     let path = dir.join(format!("walk_{mode}_{workers}.toml"));
     std::fs::write(&path, text).unwrap();
     path
-}
-
-fn autotune(args: &[&str]) -> (Option<i32>, String, String) {
-    let out = Command::cargo_bin("autotune")
-        .unwrap()
-        .args(args)
-        .output()
-        .unwrap();
-    (
-        out.status.code(),
-        String::from_utf8_lossy(&out.stdout).into_owned(),
-        String::from_utf8_lossy(&out.stderr).into_owned(),
-    )
 }
 
 /// `autotune check` on the fake worker in `mode`: exit 2, one line of stderr that names the

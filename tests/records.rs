@@ -8,21 +8,9 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use assert_cmd::cargo::CommandCargoExt;
+mod common;
+use common::autotune;
 use serde_json::Value;
-
-fn autotune(args: &[&str]) -> (Option<i32>, String, String) {
-    let out = Command::cargo_bin("autotune")
-        .unwrap()
-        .args(args)
-        .output()
-        .unwrap();
-    (
-        out.status.code(),
-        String::from_utf8_lossy(&out.stdout).into_owned(),
-        String::from_utf8_lossy(&out.stderr).into_owned(),
-    )
-}
 
 /// `check --records FILES --json`, its exit code and report.
 fn check_json(files: &[&Path], extra: &[&str]) -> (Option<i32>, Value) {
@@ -279,25 +267,23 @@ fn malformed_records_name_the_file_the_row_and_the_field() {
     let npy = d.join("npy");
     std::fs::create_dir(&npy).unwrap();
     write_npy(&npy.join("e.npy"), &[1, 2, 2], &[0.0; 4]);
-    write_npy(&npy.join("P.npy"), &[1, 2, 3, 3], &[1.0; 18]);
-    let (code, _, stderr) = autotune(&[
-        "check",
-        "--records",
-        npy.join("e.npy").to_str().unwrap(),
-        npy.join("P.npy").to_str().unwrap(),
-    ]);
-    assert_eq!(code, Some(2), "{stderr}");
-    assert!(stderr.contains("P is 3×3 but e has 2 entries"), "{stderr}");
-    write_npy(&npy.join("P.npy"), &[1, 3, 2, 2], &[1.0; 12]);
-    let (code, _, stderr) = autotune(&[
-        "check",
-        "--records",
-        npy.join("e.npy").to_str().unwrap(),
-        npy.join("P.npy").to_str().unwrap(),
-    ]);
-    assert_eq!(code, Some(2), "{stderr}");
-    assert!(stderr.contains("array P"), "{stderr}");
-    assert!(stderr.contains("differ from e's (1, 2)"), "{stderr}");
+    let cases: [(&[usize], usize, &[&str]); 2] = [
+        (&[1, 2, 3, 3], 18, &["P is 3×3 but e has 2 entries"]),
+        (&[1, 3, 2, 2], 12, &["array P", "differ from e's (1, 2)"]),
+    ];
+    for (shape, len, expect) in cases {
+        write_npy(&npy.join("P.npy"), shape, &vec![1.0; len]);
+        let (code, _, stderr) = autotune(&[
+            "check",
+            "--records",
+            npy.join("e.npy").to_str().unwrap(),
+            npy.join("P.npy").to_str().unwrap(),
+        ]);
+        assert_eq!(code, Some(2), "{stderr}");
+        for e in expect {
+            assert!(stderr.contains(e), "{shape:?}: expected '{e}' in {stderr}");
+        }
+    }
 }
 
 /// NaN covariances in records are a diverged filter: exit 1, not a bad file.

@@ -1,6 +1,7 @@
 //! Helpers shared by the integration tests.
 #![allow(dead_code)]
 
+use assert_cmd::cargo::CommandCargoExt;
 use std::path::PathBuf;
 
 use autotune::experiment::Experiment;
@@ -64,4 +65,18 @@ pub fn scaled(problem: &Problem, theta: &[f64], prefix: &str, factor: f64) -> Ve
             }
         })
         .collect()
+}
+
+/// Run the `autotune` binary with `args`: its exit code, stdout and stderr.
+pub fn autotune(args: &[&str]) -> (Option<i32>, String, String) {
+    let out = std::process::Command::cargo_bin("autotune")
+        .unwrap()
+        .args(args)
+        .output()
+        .unwrap();
+    (
+        out.status.code(),
+        String::from_utf8_lossy(&out.stdout).into_owned(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
 }

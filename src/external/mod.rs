@@ -14,7 +14,7 @@ mod worker;
 
 use std::path::PathBuf;
 use std::sync::Mutex;
-use std::sync::atomic::{AtomicBool, AtomicU64, AtomicUsize, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::Duration;
 
 use crate::experiment::{Definition, Experiment, ExperimentError, RunOptions};
@@ -194,52 +194,59 @@ impl ExternalExperiment {
         let runs = mc.runs();
         let chunks = runs.div_ceil(CHUNK);
         let range = |c: usize| c * CHUNK..(c * CHUNK + CHUNK).min(runs);
-        let slots: Vec<Mutex<Option<Accumulator>>> =
-            (0..chunks).map(|_| Mutex::new(None)).collect();
-        let done = AtomicUsize::new(0);
         let n_workers = pool.len();
-        let failure: Mutex<Option<ExperimentError>> = Mutex::new(None);
-        std::thread::scope(|scope| {
-            // Chunk c always goes to worker c mod W: a worker that caches its truth per run
-            // (it does not depend on θ) then finds it at every evaluation.
-            for (k, w) in pool.iter_mut().enumerate() {
-                let (slots, done, failure, theta_json) = (&slots, &done, &failure, &theta_json);
-                scope.spawn(move || {
-                    for c in (k..chunks).step_by(n_workers) {
-                        if failure.lock().unwrap_or_else(|p| p.into_inner()).is_some() {
-                            return;
-                        }
-                        match self.ask(w, theta_json, mc, range(c)) {
-                            Ok(acc) => {
-                                *slots[c].lock().unwrap_or_else(|p| p.into_inner()) = Some(acc);
-                                let n = done.fetch_add(range(c).len(), Ordering::Relaxed);
-                                if let Some(report) = options.progress {
-                                    report(n + range(c).len());
-                                }
-                            }
-                            Err(e) => {
-                                failure
-                                    .lock()
-                                    .unwrap_or_else(|p| p.into_inner())
-                                    .get_or_insert(e);
-                                return;
-                            }
-                        }
-                    }
-                });
-            }
-        });
-        if let Some(e) = failure.into_inner().unwrap_or_else(|p| p.into_inner()) {
-            return Err(e);
-        }
         let mut total =
             Accumulator::new(mc.steps(), self.layout.n_x(), self.layout.n_z(), mc.lags());
         let mut first = None;
-        for s in &slots {
-            let part = s.lock().unwrap_or_else(|p| p.into_inner()).take();
-            let part = part.expect("every chunk answered");
-            total.merge(&part);
-            first.get_or_insert(part);
+        // Waves of a few chunks per worker, merged in chunk order as they complete: memory
+        // holds one wave's sums whatever N.
+        let wave = 4 * n_workers;
+        for wave_start in (0..chunks).step_by(wave) {
+            let wave_chunks = wave_start..chunks.min(wave_start + wave);
+            let slots: Vec<Mutex<Option<Accumulator>>> =
+                wave_chunks.clone().map(|_| Mutex::new(None)).collect();
+            let failure: Mutex<Option<ExperimentError>> = Mutex::new(None);
+            std::thread::scope(|scope| {
+                // Chunk c always goes to worker c mod W: a worker that caches its truth per
+                // run (it does not depend on θ) then finds it at every evaluation.
+                for (k, w) in pool.iter_mut().enumerate() {
+                    let (slots, failure, theta_json, wave_chunks) =
+                        (&slots, &failure, &theta_json, wave_chunks.clone());
+                    scope.spawn(move || {
+                        for c in wave_chunks.filter(|c| c % n_workers == k) {
+                            if failure.lock().unwrap_or_else(|p| p.into_inner()).is_some() {
+                                return;
+                            }
+                            match self.ask(w, theta_json, mc, range(c)) {
+                                Ok(acc) => {
+                                    *slots[c - wave_start]
+                                        .lock()
+                                        .unwrap_or_else(|p| p.into_inner()) = Some(acc);
+                                }
+                                Err(e) => {
+                                    failure
+                                        .lock()
+                                        .unwrap_or_else(|p| p.into_inner())
+                                        .get_or_insert(e);
+                                    return;
+                                }
+                            }
+                        }
+                    });
+                }
+            });
+            if let Some(e) = failure.into_inner().unwrap_or_else(|p| p.into_inner()) {
+                return Err(e);
+            }
+            for s in slots {
+                let part = s.into_inner().unwrap_or_else(|p| p.into_inner());
+                let part = part.expect("every chunk of the wave answered");
+                total.merge(&part);
+                first.get_or_insert(part);
+            }
+            if let Some(report) = options.progress {
+                report(total.runs);
+            }
         }
         if !self.contract_checked.swap(true, Ordering::Relaxed)
             && self.command.check_seed_contract

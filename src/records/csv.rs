@@ -2,12 +2,12 @@
 //! columns with 1-based indices (`e_1`, `P_1_2`, `nu_radar_1`). What MATLAB's
 //! `writetable`, Octave's `csvwrite` after a header line, and pandas write.
 
-use std::collections::HashMap;
+use std::collections::{HashMap, HashSet};
 use std::path::Path;
 
 use super::files::{Found, Keys, Row, fits, infer_layout, step_record};
 use super::names::{Quantity, parse_column};
-use super::{Layout, RecordSink};
+use super::{Layout, MAX_STEPS, RecordSink};
 use crate::input::FileError;
 
 /// Where each quantity's numbers sit in a row.
@@ -104,17 +104,20 @@ fn columns(path: &Path, rdr: &mut csv::Reader<std::fs::File>) -> Result<Columns,
             0 => (vec![], vec![Some(list[0].1)]),
             1 => {
                 let n = list.iter().map(|(i, _)| i[0] + 1).max().unwrap_or(0);
-                let mut slots = vec![None; n];
-                for (i, c) in list {
-                    slots[i[0]] = Some(*c);
-                }
-                if let Some(j) = slots.iter().position(Option::is_none) {
+                // The first gap is found among the columns there are, before anything the
+                // size of an index (`e_99999999999`) is allocated.
+                let given: HashSet<usize> = list.iter().map(|(i, _)| i[0]).collect();
+                if let Some(j) = (0..n).find(|j| !given.contains(j)) {
                     return Err(line_error(
                         path,
                         Some(1),
                         "header",
                         format!("column {label}_{} missing ({label} has {n} entries)", j + 1),
                     ));
+                }
+                let mut slots = vec![None; n];
+                for (i, c) in list {
+                    slots[i[0]] = Some(*c);
                 }
                 (vec![n], slots)
             }
@@ -124,13 +127,14 @@ fn columns(path: &Path, rdr: &mut csv::Reader<std::fs::File>) -> Result<Columns,
                     .map(|(i, _)| i[0].max(i[1]) + 1)
                     .max()
                     .unwrap_or(0);
-                let mut slots = vec![None; n * n];
-                for (i, c) in list {
-                    slots[i[0] * n + i[1]] = Some(*c);
-                }
+                // As for vectors: every (a, b) column present covers at most two entries,
+                // so a gap turns up within 2·len + 1 entries, and the n × n slots are
+                // allocated only for a matrix whose triangle is complete (n² ≤ 2·len + n).
+                let given: HashSet<(usize, usize)> =
+                    list.iter().map(|(i, _)| (i[0], i[1])).collect();
                 for a in 0..n {
                     for b in 0..n {
-                        if slots[a * n + b].is_none() && slots[b * n + a].is_none() {
+                        if !given.contains(&(a, b)) && !given.contains(&(b, a)) {
                             return Err(line_error(
                                 path,
                                 Some(1),
@@ -143,6 +147,10 @@ fn columns(path: &Path, rdr: &mut csv::Reader<std::fs::File>) -> Result<Columns,
                             ));
                         }
                     }
+                }
+                let mut slots = vec![None; n * n];
+                for (i, c) in list {
+                    slots[i[0] * n + i[1]] = Some(*c);
                 }
                 (vec![n, n], slots)
             }
@@ -194,6 +202,14 @@ pub(super) fn scan(path: &Path) -> Result<(Layout, usize), FileError> {
                     format!("'{}' is not a step (1, 2, …)", &rec[cols.step]),
                 )
             })?;
+        if k > MAX_STEPS {
+            return Err(line_error(
+                path,
+                line,
+                "step",
+                format!("{k} is above the limit of {MAX_STEPS} steps per run"),
+            ));
+        }
         steps = steps.max(k);
     }
     if steps == 0 {

@@ -9,7 +9,7 @@ use serde_json::{Map, Value};
 
 use super::files::{Found, Keys, Row, infer_layout, step_record};
 use super::names::Quantity;
-use super::{Layout, RecordSink, StepRecord};
+use super::{Layout, MAX_STEPS, RecordSink, StepRecord};
 use crate::input::FileError;
 
 /// A JSON number, or NaN for `null`.
@@ -66,6 +66,11 @@ fn run_step(obj: &Map<String, Value>) -> Result<(usize, usize), String> {
     let step = index("step")? as usize;
     if step == 0 {
         return Err("step: 0 (steps count from 1)".into());
+    }
+    if step > MAX_STEPS {
+        return Err(format!(
+            "step: {step} is above the limit of {MAX_STEPS} steps per run"
+        ));
     }
     Ok((run, step))
 }

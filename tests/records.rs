@@ -485,8 +485,18 @@ fn absurd_sizes_and_headers_are_one_line_errors() {
             "run,step,nees,nees_dof\n0,1,1,18446744073709551616\n".into(),
             &[
                 "dof.csv:2",
-                "nees_dof is 18446744073709552000, not in (0, 1000000]",
+                "nees_dof is 18446744073709552000, not in [1, 1000000]",
             ],
+        ),
+        (
+            "tiny.csv",
+            "run,step,nis,nis_dof\n0,1,1,1e-300\n".into(),
+            &["tiny.csv:2", "nis_dof is 0.000", "not in [1, 1000000]"],
+        ),
+        (
+            "quoted.csv",
+            format!("{head}0,1,1,\"1\n2\"\n"),
+            &["quoted.csv:2", "P_1_1: '1\\n2' is not a number"],
         ),
         (
             "empty.jsonl",

@@ -5,7 +5,7 @@
 use std::collections::{HashMap, HashSet};
 use std::path::Path;
 
-use super::files::{Found, Keys, Row, fits, infer_layout, step_record};
+use super::files::{Found, Keys, Row, fits, infer_layout, shown, step_record};
 use super::names::{Quantity, parse_column};
 use super::{Layout, MAX_STEPS, RecordSink};
 use crate::input::FileError;
@@ -75,7 +75,10 @@ fn columns(path: &Path, rdr: &mut csv::Reader<std::fs::File>) -> Result<Columns,
                     path,
                     Some(1),
                     "header",
-                    format!("unknown column '{name}' (see docs/external.md for the names)"),
+                    format!(
+                        "unknown column '{}' (see docs/external.md for the names)",
+                        shown(name)
+                    ),
                 )
             })?;
         match q {
@@ -199,7 +202,7 @@ pub(super) fn scan(path: &Path) -> Result<(Layout, usize), FileError> {
                     path,
                     line,
                     "step",
-                    format!("'{}' is not a step (1, 2, …)", &rec[cols.step]),
+                    format!("'{}' is not a step (1, 2, …)", shown(&rec[cols.step])),
                 )
             })?;
         if k > MAX_STEPS {
@@ -232,7 +235,7 @@ impl CsvRow<'_> {
             return Ok(f64::NAN);
         }
         cell.parse::<f64>()
-            .map_err(|_| format!("{}: '{cell}' is not a number", &self.headers[c]))
+            .map_err(|_| format!("{}: '{}' is not a number", &self.headers[c], shown(cell)))
     }
 }
 
@@ -295,7 +298,7 @@ pub(super) fn feed(path: &Path, layout: &Layout, sink: &mut RecordSink) -> Resul
                 path,
                 line,
                 "run",
-                format!("'{}' is not a run index (0, 1, …)", &rec[cols.run]),
+                format!("'{}' is not a run index (0, 1, …)", shown(&rec[cols.run])),
             )
         })?;
         let step = index_cell(&rec[cols.step])
@@ -305,7 +308,7 @@ pub(super) fn feed(path: &Path, layout: &Layout, sink: &mut RecordSink) -> Resul
                     path,
                     line,
                     "step",
-                    format!("'{}' is not a step (1, 2, …)", &rec[cols.step]),
+                    format!("'{}' is not a step (1, 2, …)", shown(&rec[cols.step])),
                 )
             })?;
         let mut row = CsvRow {

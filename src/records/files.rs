@@ -153,6 +153,28 @@ pub(super) fn infer_layout(found: &Found) -> Result<Layout, String> {
     Ok(Layout { state, sensors })
 }
 
+/// A cell or key of a file as an error message quotes it: a quoted CSV cell may hold
+/// newlines, and the message must stay on one line; a long one is cut.
+pub(super) fn shown(text: &str) -> String {
+    const LONGEST: usize = 60;
+    let mut out: String = text
+        .chars()
+        .take(LONGEST)
+        .flat_map(|c| {
+            let esc: Vec<char> = if c.is_control() {
+                c.escape_default().collect()
+            } else {
+                vec![c]
+            };
+            esc
+        })
+        .collect();
+    if text.chars().nth(LONGEST).is_some() {
+        out.push('…');
+    }
+    out
+}
+
 /// Where one step's numbers come from.
 pub(super) trait Row {
     /// The numbers of quantity `q` (row-major for a matrix; NaN where a cell is empty), or

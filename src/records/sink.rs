@@ -10,10 +10,11 @@ use super::{Layout, SensorRecord, StateRecord, StepRecord};
 use crate::linalg::{cholesky, mahalanobis_sq};
 use crate::stats::{Accumulator, RunRecorder, StopCause};
 
-/// Most degrees of freedom one record's NEES or NIS may claim: they count a filter's state
-/// or measurement components. The chi-square quantiles of the verdict take seconds from
-/// about 10¹⁵ total degrees of freedom (N runs times this) and never return at 10¹⁹, which a
-/// mistyped `nees_dof` reached.
+/// Most degrees of freedom one record's NEES or NIS may claim (and at least 1): they count
+/// a filter's state or measurement components. Below 1, the gate's moment-matched
+/// chi-square lost its degrees of freedom to underflow (10⁻³⁰⁰ panicked); above, the
+/// verdict's quantiles take seconds from about 10¹⁵ total degrees of freedom (N runs times
+/// this) and never returned at 10¹⁹, which a mistyped `nees_dof` reached.
 const MAX_DOF: f64 = 1e6;
 
 /// The run being read.
@@ -239,8 +240,8 @@ impl RecordSink {
                             .then(|| (0..n).map(|j| e[j] * e[j] / pm[(j, j)]).collect());
                     }
                     StateRecord::Normalized { nees, dof, e2p } => {
-                        if !(*dof > 0.0 && *dof <= MAX_DOF) {
-                            return Err(at(&format!("nees_dof is {dof}, not in (0, {MAX_DOF}]")));
+                        if !(*dof >= 1.0 && *dof <= MAX_DOF) {
+                            return Err(at(&format!("nees_dof is {dof}, not in [1, {MAX_DOF}]")));
                         }
                         if layout.components != e2p.is_some() {
                             return Err(at("e2p given at some steps and not at others"));
@@ -305,9 +306,9 @@ impl RecordSink {
                     }
                 }
                 SensorRecord::Normalized { nis: v, dof: d, u } => {
-                    if !(*d > 0.0 && *d <= MAX_DOF) {
+                    if !(*d >= 1.0 && *d <= MAX_DOF) {
                         return Err(at(&format!(
-                            "{name}: nis_dof is {d}, not in (0, {MAX_DOF}]"
+                            "{name}: nis_dof is {d}, not in [1, {MAX_DOF}]"
                         )));
                     }
                     if layout.components != u.is_some() {

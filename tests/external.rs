@@ -304,3 +304,67 @@ fn a_tune_through_the_worker_finds_the_truth() {
     ]);
     assert_eq!(code, Some(0), "{stdout}");
 }
+
+/// Found by `tests/fuzz.rs`: a worker that prints without newlines was read into one
+/// growing line until the memory ran out; a pool of workers that ignore their stdin took a
+/// second each to stop. Now the line is refused past its limit, and the pool stops in
+/// about a second whatever its size.
+#[test]
+fn an_endless_line_is_an_error_and_a_deaf_pool_stops_together() {
+    let dir = tempfile::tempdir().unwrap();
+    let write = |name: &str, command: &str, workers: usize, timeout: f64| {
+        let path = dir.path().join(name);
+        std::fs::write(
+            &path,
+            format!(
+                r#"name = "deaf"
+state_names = ["x"]
+
+[montecarlo]
+runs = 2
+steps = 3
+seed = 1
+
+[external]
+command = {command}
+sensors = {{ z = ["pos"] }}
+workers = {workers}
+timeout = {timeout}
+
+[params.q]
+value = 1.0
+"#
+            ),
+        )
+        .unwrap();
+        path
+    };
+    let endless = write(
+        "endless.toml",
+        r#"["sh", "-c", "yes | tr -d '\\n'"]"#,
+        1,
+        60.0,
+    );
+    let start = std::time::Instant::now();
+    let (code, _, stderr) = autotune(&["check", endless.to_str().unwrap()]);
+    assert_eq!(code, Some(2), "{stderr}");
+    assert_eq!(stderr.lines().count(), 1, "{stderr}");
+    assert!(stderr.contains("a line longer than 64 MB"), "{stderr}");
+    assert!(start.elapsed().as_secs() < 30, "{:?}", start.elapsed());
+
+    let deaf = write(
+        "deaf.toml",
+        r#"["sh", "-c", "trap '' TERM; sleep 5"]"#,
+        8,
+        0.5,
+    );
+    let start = std::time::Instant::now();
+    let (code, _, stderr) = autotune(&["check", deaf.to_str().unwrap()]);
+    assert_eq!(code, Some(2), "{stderr}");
+    assert!(stderr.contains("no answer within the timeout"), "{stderr}");
+    assert!(
+        start.elapsed().as_secs_f64() < 5.0,
+        "8 deaf workers took {:?} to stop",
+        start.elapsed()
+    );
+}

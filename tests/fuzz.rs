@@ -587,3 +587,915 @@ fn fuzz_loaders_never_panic_and_the_binary_exits_0_1_or_2() {
         panic!("{} inputs failed:{msg}", failures.len());
     }
 }
+
+// ---------------------------------------------------------------------------------------
+// Records (`autotune check --records`) and `[external]` problems.
+//
+// Seeds are built here: 3 runs × 4 steps of 2 states and a sensor `r` of 1 or 2
+// components, not measured at some steps, raw (e, P, ν, S) or precomputed (NEES, NIS), one
+// run sometimes diverged; written as CSV, JSON Lines and `.npy` files (byte by byte, in
+// several dtypes and both orders). Mutants keep the file's structure where they can (a cell,
+// a column name, a shape tuple, a dtype) so that they get past the first check.
+
+/// CSV cells and JSON values that have broken readers before.
+const CELLS: &[&str] = &[
+    "",
+    "NaN",
+    "nan",
+    "inf",
+    "-inf",
+    "-0",
+    "0",
+    "1",
+    "3.0",
+    "-1",
+    "1e308",
+    "-1e308",
+    "1e-320",
+    "9e15",
+    "9.0e15",
+    "18446744073709551615",
+    "18446744073709551616",
+    "1000000",
+    "1000001",
+    "4294967296",
+    "garbage",
+    "\"q\"",
+];
+
+/// Names a column, key or array may be renamed to.
+const NAMES: &[&str] = &[
+    "run",
+    "step",
+    "e_1",
+    "e_3",
+    "e_99999999999",
+    "P_2_1",
+    "P_3_3",
+    "P_99999_99999",
+    "P_9999999999_99999999999",
+    "P_1",
+    "x_1",
+    "xhat_1",
+    "nees",
+    "nees_dof",
+    "e2p_1",
+    "nu_r_1",
+    "nu_r_2",
+    "nu_q_1",
+    "nu_1",
+    "S_r_1_2",
+    "S_r_2_2",
+    "nis_r",
+    "nis_dof_r",
+    "u_r_1",
+    "diverged",
+    "dof",
+    "Q",
+    "",
+];
+
+/// One step of the seed records.
+struct SeedStep {
+    run: usize,
+    step: usize,
+    e: [f64; 2],
+    /// Depends on the step only, so that it may also be written without the runs axis.
+    p: [f64; 4],
+    /// ν and S (m × m, row-major), where measured.
+    nu: Option<(Vec<f64>, Vec<f64>)>,
+    diverged: bool,
+}
+
+/// Seed records: 3 runs × 4 steps, in the raw or the precomputed form, with or without
+/// ground truth.
+struct SeedRecords {
+    m: usize,
+    state: bool,
+    normalized: bool,
+    /// Run 1 diverged at step 3 (its steps 4 are left out of the text formats).
+    diverged: bool,
+    steps: Vec<SeedStep>,
+}
+
+const RUNS: usize = 3;
+const STEPS: usize = 4;
+
+fn seed_records(rng: &mut Rng) -> SeedRecords {
+    let m = 1 + rng.below(2);
+    let state = rng.chance(0.8);
+    let normalized = rng.chance(0.3);
+    let diverged = rng.chance(0.3);
+    let small = |rng: &mut Rng| (rng.below(2001) as f64 - 1000.0) / 500.0;
+    let p_of: Vec<[f64; 4]> = (1..=STEPS)
+        .map(|k| {
+            let d = 1.0 + k as f64 / 4.0;
+            [d, 0.25, 0.25, 2.0 * d]
+        })
+        .collect();
+    let mut steps = Vec::new();
+    for run in 0..RUNS {
+        for step in 1..=STEPS {
+            if diverged && run == 1 && step > 3 {
+                break;
+            }
+            let measured = step == 1 || rng.chance(0.7);
+            let nu = measured.then(|| {
+                let nu: Vec<f64> = (0..m).map(|_| small(rng)).collect();
+                let mut s = vec![0.0; m * m];
+                for a in 0..m {
+                    for b in 0..m {
+                        s[a * m + b] = if a == b { 2.0 + a as f64 } else { 0.5 };
+                    }
+                }
+                (nu, s)
+            });
+            steps.push(SeedStep {
+                run,
+                step,
+                e: [small(rng), small(rng)],
+                p: p_of[step - 1],
+                nu,
+                diverged: diverged && run == 1 && step == 3,
+            });
+        }
+    }
+    SeedRecords {
+        m,
+        state,
+        normalized,
+        diverged,
+        steps,
+    }
+}
+
+fn num(v: f64) -> String {
+    format!("{v:?}")
+}
+
+fn records_csv(s: &SeedRecords, rng: &mut Rng) -> String {
+    let m = s.m;
+    let triangle = rng.chance(0.5);
+    let mut head = vec!["run".to_string(), "step".to_string()];
+    if s.state {
+        if s.normalized {
+            head.extend(["nees", "nees_dof", "e2p_1", "e2p_2"].map(String::from));
+        } else {
+            head.extend(["e_1", "e_2", "P_1_1", "P_1_2"].map(String::from));
+            if !triangle {
+                head.push("P_2_1".into());
+            }
+            head.push("P_2_2".into());
+        }
+    }
+    if s.normalized {
+        head.extend(["nis_r".to_string(), "nis_dof_r".to_string()]);
+        head.extend((1..=m).map(|j| format!("u_r_{j}")));
+    } else {
+        head.extend((1..=m).map(|j| format!("nu_r_{j}")));
+        for a in 1..=m {
+            for b in 1..=m {
+                head.push(format!("S_r_{a}_{b}"));
+            }
+        }
+    }
+    if s.diverged {
+        head.push("diverged".into());
+    }
+    let mut out = head.join(",") + "\n";
+    for st in &s.steps {
+        let mut row = vec![st.run.to_string(), st.step.to_string()];
+        if s.state {
+            let [e1, e2] = st.e;
+            let p = st.p;
+            if s.normalized {
+                row.extend([e1 * e1 + e2 * e2, 2.0, e1 * e1, e2 * e2].map(num));
+            } else {
+                row.extend([e1, e2, p[0], p[1]].map(num));
+                if !triangle {
+                    row.push(num(p[2]));
+                }
+                row.push(num(p[3]));
+            }
+        }
+        match (&st.nu, s.normalized) {
+            (Some((nu, _)), true) => {
+                row.push(num(nu.iter().map(|x| x * x).sum()));
+                row.push(m.to_string());
+                row.extend(nu.iter().map(|&x| num(x)));
+            }
+            (Some((nu, sm)), false) => {
+                row.extend(nu.iter().chain(sm).map(|&x| num(x)));
+            }
+            (None, true) => row.extend(std::iter::repeat_n(String::new(), 2 + m)),
+            (None, false) => row.extend(std::iter::repeat_n(String::new(), m + m * m)),
+        }
+        if s.diverged {
+            row.push(if st.diverged { "1" } else { "0" }.into());
+        }
+        out += &(row.join(",") + "\n");
+    }
+    out
+}
+
+fn records_jsonl(s: &SeedRecords, rng: &mut Rng) -> String {
+    use serde_json::json;
+    let flat = rng.chance(0.3);
+    let mut out = String::new();
+    for st in &s.steps {
+        let mut o = json!({"run": st.run, "step": st.step});
+        if st.diverged {
+            o["diverged"] = json!("P lost positive definiteness");
+        }
+        if s.state {
+            let [e1, e2] = st.e;
+            if s.normalized {
+                o["nees"] = json!(e1 * e1 + e2 * e2);
+                o["nees_dof"] = json!(2);
+                o["e2p"] = json!([e1 * e1, e2 * e2]);
+            } else {
+                o["e"] = json!(st.e);
+                let p = st.p;
+                o["P"] = if flat {
+                    json!(p)
+                } else {
+                    json!([[p[0], p[1]], [p[2], p[3]]])
+                };
+            }
+        }
+        if let Some((nu, sm)) = &st.nu {
+            if s.normalized {
+                o["nis_r"] = json!(nu.iter().map(|x| x * x).sum::<f64>());
+                o["nis_dof_r"] = json!(s.m);
+                o["u_r"] = json!(nu);
+            } else {
+                o["nu_r"] = json!(nu);
+                let rows: Vec<&[f64]> = sm.chunks(s.m).collect();
+                o["S_r"] = json!(rows);
+            }
+        }
+        out += &format!("{o}\n");
+    }
+    out
+}
+
+/// One `.npy` file, before it is written: its header's fields as text (so that they can be
+/// made absurd) and its numbers.
+#[derive(Clone)]
+struct Npy {
+    name: String,
+    descr: String,
+    fortran: bool,
+    shape: Vec<String>,
+    /// The shape the numbers have (C order); the data is written in Fortran order when
+    /// `fortran` is set and `shape` is still this.
+    true_shape: Vec<usize>,
+    values: Vec<f64>,
+}
+
+impl Npy {
+    fn new(name: &str, shape: &[usize], values: Vec<f64>) -> Npy {
+        Npy {
+            name: name.into(),
+            descr: "<f8".into(),
+            fortran: false,
+            shape: shape.iter().map(|d| d.to_string()).collect(),
+            true_shape: shape.to_vec(),
+            values,
+        }
+    }
+
+    /// The file's bytes: format 1.0, the header dict padded with spaces to 64 bytes.
+    fn bytes(&self) -> Vec<u8> {
+        let shape = match self.shape.len() {
+            1 => format!("({},)", self.shape[0]),
+            _ => format!("({})", self.shape.join(", ")),
+        };
+        let mut header = format!(
+            "{{'descr': '{}', 'fortran_order': {}, 'shape': {shape}, }}",
+            self.descr,
+            if self.fortran { "True" } else { "False" }
+        );
+        while (10 + header.len() + 1) % 64 != 0 {
+            header.push(' ');
+        }
+        header.push('\n');
+        let mut out = b"\x93NUMPY\x01\x00".to_vec();
+        out.extend((header.len() as u16).to_le_bytes());
+        out.extend(header.as_bytes());
+        let same: bool = self
+            .shape
+            .iter()
+            .map(|d| d.parse::<usize>().ok())
+            .eq(self.true_shape.iter().map(|&d| Some(d)));
+        let whole = self.values.len() == self.true_shape.iter().product::<usize>();
+        let values = if self.fortran && same && whole {
+            fortran(&self.true_shape, &self.values)
+        } else {
+            self.values.clone()
+        };
+        for v in values {
+            match self.descr.as_str() {
+                "<f4" => out.extend((v as f32).to_le_bytes()),
+                ">f8" => out.extend(v.to_be_bytes()),
+                "<i8" => out.extend((v as i64).to_le_bytes()),
+                "<i4" => out.extend((v as i32).to_le_bytes()),
+                "|u1" => out.push(v as u8),
+                _ => out.extend(v.to_le_bytes()),
+            }
+        }
+        out
+    }
+}
+
+/// `values` (C order, of `shape`) in Fortran order.
+fn fortran(shape: &[usize], values: &[f64]) -> Vec<f64> {
+    let mut out = vec![0.0; values.len()];
+    for (c, &v) in values.iter().enumerate() {
+        // The multi-index of C offset c, then its Fortran offset.
+        let mut rest = c;
+        let mut idx = vec![0; shape.len()];
+        for a in (0..shape.len()).rev() {
+            idx[a] = rest % shape[a];
+            rest /= shape[a];
+        }
+        let (mut off, mut stride) = (0, 1);
+        for (i, d) in idx.iter().zip(shape) {
+            off += i * stride;
+            stride *= d;
+        }
+        out[off] = v;
+    }
+    out
+}
+
+fn records_npy(s: &SeedRecords, rng: &mut Rng) -> Vec<Npy> {
+    let m = s.m;
+    // Runs × steps, NaN after a divergence and where not measured.
+    let at = |run: usize, step: usize| s.steps.iter().find(|x| x.run == run && x.step == step);
+    let grid = |width: usize, f: &dyn Fn(&SeedStep) -> Option<Vec<f64>>| -> Vec<f64> {
+        let mut v = Vec::new();
+        for r in 0..RUNS {
+            for k in 1..=STEPS {
+                match at(r, k).and_then(f) {
+                    Some(x) => v.extend(x),
+                    None => v.extend(std::iter::repeat_n(f64::NAN, width)),
+                }
+            }
+        }
+        v
+    };
+    let shared = rng.chance(0.4);
+    let mut out = Vec::new();
+    if s.state {
+        if s.normalized {
+            out.push(Npy::new(
+                "nees",
+                &[RUNS, STEPS],
+                grid(1, &|x| Some(vec![x.e[0] * x.e[0] + x.e[1] * x.e[1]])),
+            ));
+            out.push(Npy::new("nees_dof", &[], vec![2.0]));
+            out.push(Npy::new(
+                "e2p",
+                &[RUNS, STEPS, 2],
+                grid(2, &|x| Some(vec![x.e[0] * x.e[0], x.e[1] * x.e[1]])),
+            ));
+        } else {
+            out.push(Npy::new(
+                "e",
+                &[RUNS, STEPS, 2],
+                grid(2, &|x| Some(x.e.to_vec())),
+            ));
+            if shared {
+                let p: Vec<f64> = (1..=STEPS).flat_map(|k| at(0, k).unwrap().p).collect();
+                out.push(Npy::new("P", &[STEPS, 2, 2], p));
+            } else {
+                out.push(Npy::new(
+                    "P",
+                    &[RUNS, STEPS, 2, 2],
+                    grid(4, &|x| Some(x.p.to_vec())),
+                ));
+            }
+        }
+    }
+    let sm: Vec<f64> = (0..m * m)
+        .map(|i| {
+            if i / m == i % m {
+                2.0 + (i / m) as f64
+            } else {
+                0.5
+            }
+        })
+        .collect();
+    if s.normalized {
+        out.push(Npy::new(
+            "nis_r",
+            &[RUNS, STEPS],
+            grid(1, &|x| {
+                x.nu.as_ref()
+                    .map(|(nu, _)| vec![nu.iter().map(|v| v * v).sum()])
+            }),
+        ));
+        out.push(Npy::new("nis_dof_r", &[], vec![m as f64]));
+        out.push(Npy::new(
+            "u_r",
+            &[RUNS, STEPS, m],
+            grid(m, &|x| x.nu.as_ref().map(|(nu, _)| nu.clone())),
+        ));
+    } else {
+        out.push(Npy::new(
+            "nu_r",
+            &[RUNS, STEPS, m],
+            grid(m, &|x| x.nu.as_ref().map(|(nu, _)| nu.clone())),
+        ));
+        if shared {
+            let all: Vec<f64> = (0..STEPS).flat_map(|_| sm.clone()).collect();
+            out.push(Npy::new("S_r", &[STEPS, m, m], all));
+        } else {
+            let all: Vec<f64> = (0..RUNS * STEPS).flat_map(|_| sm.clone()).collect();
+            out.push(Npy::new("S_r", &[RUNS, STEPS, m, m], all));
+        }
+    }
+    if s.diverged {
+        let mut d = Npy::new("diverged", &[RUNS], vec![0.0, 3.0, 0.0]);
+        d.descr = "<i8".into();
+        out.push(d);
+    }
+    // Valid variations: another dtype for every array, Fortran order.
+    let descr = *rng.pick(&["<f8", "<f8", "<f4", ">f8", "<i8"]);
+    let fortran = rng.chance(0.3);
+    for a in &mut out {
+        if a.name != "diverged" {
+            a.descr = descr.into();
+        }
+        a.fortran = fortran;
+    }
+    out
+}
+
+/// Dimensions a shape tuple's entry may become.
+const DIMS: &[&str] = &[
+    "0",
+    "1",
+    "2",
+    "3",
+    "4",
+    "5",
+    "-1",
+    "1000000",
+    "1000001",
+    "4294967296",
+    "2147483648",
+    "9223372036854775807",
+    "18446744073709551615",
+    "18446744073709551616",
+    "3.0",
+    "None",
+];
+
+/// Mutate a set of `.npy` files structurally: a shape entry, the shape, the dtype, the
+/// order, a number, an array's name or presence, the data's length.
+fn mutate_npy(files: &mut Vec<Npy>, rng: &mut Rng) {
+    if files.is_empty() {
+        files.push(Npy::new("e", &[1, 1, 1], vec![1.0]));
+    }
+    let i = rng.below(files.len());
+    let a = &mut files[i];
+    match rng.below(12) {
+        0 | 1 => {
+            if a.shape.is_empty() {
+                a.shape.push(rng.pick(DIMS).to_string());
+            } else {
+                let j = rng.below(a.shape.len());
+                a.shape[j] = rng.pick(DIMS).to_string();
+            }
+        }
+        2 => match rng.below(4) {
+            0 => {
+                if !a.shape.is_empty() {
+                    a.shape.remove(rng.below(a.shape.len()));
+                }
+            }
+            1 => {
+                let at = rng.below(a.shape.len() + 1);
+                a.shape.insert(at, rng.pick(DIMS).to_string());
+            }
+            2 => a.shape = vec!["4294967296".into(), "4294967296".into()],
+            _ => {
+                a.shape = vec![
+                    "4294967296".into(),
+                    "4294967296".into(),
+                    "0".into(),
+                    "2".into(),
+                ]
+            }
+        },
+        3 => {
+            a.descr = rng
+                .pick(&[
+                    "<f8", "<f4", ">f8", "<i8", "<i4", "|u1", "<c16", "|b1", "<U3", "O", "<f2",
+                    "V8", "<M8[s]", "xx",
+                ])
+                .to_string()
+        }
+        4 => a.fortran = !a.fortran,
+        5 | 6 => {
+            if !a.values.is_empty() {
+                let j = rng.below(a.values.len());
+                a.values[j] = *rng.pick(&[
+                    f64::NAN,
+                    f64::INFINITY,
+                    f64::NEG_INFINITY,
+                    1e308,
+                    -1e308,
+                    -0.0,
+                    0.0,
+                    -1.0,
+                    9e15,
+                    1e-320,
+                    5.0,
+                    4.5,
+                ]);
+            }
+        }
+        7 => {
+            files.remove(i);
+        }
+        8 => {
+            let mut b = a.clone();
+            b.name = rng.pick(NAMES).to_string();
+            files.push(b);
+        }
+        9 => a.name = rng.pick(NAMES).to_string(),
+        10 => {
+            let keep = rng.below(a.values.len() + 1);
+            a.values.truncate(keep);
+        }
+        _ => {
+            let n = 1 + rng.below(8);
+            a.values.extend(std::iter::repeat_n(1.0, n));
+        }
+    }
+}
+
+/// Byte ranges of the `"…"` strings in `text`.
+fn string_spans(text: &str) -> Vec<(usize, usize)> {
+    let mut spans = Vec::new();
+    let mut start = None;
+    for (i, c) in text.char_indices() {
+        if c == '"' {
+            match start.take() {
+                None => start = Some(i),
+                Some(s) => spans.push((s, i + 1)),
+            }
+        }
+    }
+    spans
+}
+
+/// Mutate CSV or JSON Lines text: a cell or value replaced, a column or key renamed, rows
+/// deleted, duplicated or moved, bytes changed, the text cut short.
+fn mutate_records_text(text: &str, csv: bool, rng: &mut Rng) -> Vec<u8> {
+    let mut lines: Vec<String> = text.lines().map(String::from).collect();
+    if lines.is_empty() {
+        return mutate_text(text, rng);
+    }
+    match rng.below(10) {
+        0..=2 if csv => {
+            let i = rng.below(lines.len());
+            let mut cells: Vec<String> = lines[i].split(',').map(String::from).collect();
+            let j = rng.below(cells.len());
+            cells[j] = if i == 0 {
+                rng.pick(NAMES).to_string()
+            } else {
+                rng.pick(CELLS).to_string()
+            };
+            lines[i] = cells.join(",");
+        }
+        0 | 1 => {
+            // A number replaced by a value of another kind.
+            let i = rng.below(lines.len());
+            let spans = number_spans(&lines[i]);
+            if !spans.is_empty() {
+                let (s, e) = *rng.pick(&spans);
+                let v = *rng.pick(&[
+                    "null",
+                    "NaN",
+                    "-Infinity",
+                    "\"x\"",
+                    "[]",
+                    "[[1]]",
+                    "[[1,2],[3]]",
+                    "{}",
+                    "true",
+                    "1e400",
+                    "18446744073709551616",
+                    "1000001",
+                    "9e15",
+                    "-0",
+                    "1e308",
+                ]);
+                lines[i].replace_range(s..e, v);
+            }
+        }
+        2 => {
+            let i = rng.below(lines.len());
+            let spans = string_spans(&lines[i]);
+            if !spans.is_empty() {
+                let (s, e) = *rng.pick(&spans);
+                let name = format!("\"{}\"", rng.pick(NAMES));
+                lines[i].replace_range(s..e, &name);
+            }
+        }
+        3 => {
+            let i = rng.below(lines.len());
+            let j = rng.below(lines.len());
+            lines.swap(i, j);
+        }
+        4 => {
+            let i = rng.below(lines.len());
+            let l = lines[i].clone();
+            lines.insert(rng.below(lines.len() + 1), l);
+        }
+        5 => {
+            lines.remove(rng.below(lines.len()));
+        }
+        6 => {
+            let mut b = text.as_bytes().to_vec();
+            b.truncate(rng.below(b.len() + 1));
+            return b;
+        }
+        _ => return mutate_text(text, rng),
+    }
+    let mut out = lines.join("\n");
+    if rng.chance(0.8) {
+        out.push('\n');
+    }
+    out.into_bytes()
+}
+
+/// Byte-level damage to a binary file: a byte changed, bytes deleted or inserted, the
+/// file cut short.
+fn mutate_bytes(b: &mut Vec<u8>, rng: &mut Rng) {
+    if b.is_empty() {
+        b.push(0);
+        return;
+    }
+    match rng.below(4) {
+        0 => {
+            let i = rng.below(b.len());
+            b[i] = rng.next() as u8;
+        }
+        1 => {
+            let i = rng.below(b.len());
+            let n = 1 + rng.below(16);
+            b.drain(i..(i + n).min(b.len()));
+        }
+        2 => {
+            let i = rng.below(b.len());
+            let n = 1 + rng.below(16);
+            let junk: Vec<u8> = (0..n).map(|_| rng.next() as u8).collect();
+            b.splice(i..i, junk);
+        }
+        _ => b.truncate(rng.below(b.len())),
+    }
+}
+
+/// The format of a records fuzz input.
+#[derive(Clone, Copy, Debug)]
+enum RecFormat {
+    Csv,
+    Jsonl,
+    Npy,
+    /// CSV and JSON Lines together, the runs split between them.
+    Mixed,
+}
+
+/// Write one mutated records input into `dir` (emptied first); the files to pass.
+fn write_records_input(dir: &Path, format: RecFormat, rng: &mut Rng) -> Vec<PathBuf> {
+    let _ = std::fs::remove_dir_all(dir);
+    std::fs::create_dir_all(dir).unwrap();
+    let s = seed_records(rng);
+    let mutations = rng.below(3);
+    let text_file = |name: &str, text: String, csv: bool, rng: &mut Rng| {
+        let mut bytes = text.clone().into_bytes();
+        for _ in 0..mutations {
+            let cur = String::from_utf8_lossy(&bytes).into_owned();
+            bytes = mutate_records_text(&cur, csv, rng);
+        }
+        let p = dir.join(name);
+        std::fs::write(&p, &bytes).unwrap();
+        p
+    };
+    match format {
+        RecFormat::Csv => vec![text_file("rec.csv", records_csv(&s, rng), true, rng)],
+        RecFormat::Jsonl => vec![text_file("rec.jsonl", records_jsonl(&s, rng), false, rng)],
+        RecFormat::Mixed => {
+            let csv = records_csv(&s, rng);
+            let jsonl = records_jsonl(&s, rng);
+            // Runs 0 and 1 from the CSV, run 2 from the JSON Lines.
+            let csv: Vec<&str> = csv
+                .lines()
+                .enumerate()
+                .filter(|(i, l)| *i == 0 || !l.starts_with("2,"))
+                .map(|(_, l)| l)
+                .collect();
+            let jsonl: Vec<&str> = jsonl
+                .lines()
+                .filter(|l| l.starts_with("{\"run\":2,"))
+                .collect();
+            vec![
+                text_file("a.csv", csv.join("\n") + "\n", true, rng),
+                text_file("b.jsonl", jsonl.join("\n") + "\n", false, rng),
+            ]
+        }
+        RecFormat::Npy => {
+            let mut arrays = records_npy(&s, rng);
+            for _ in 0..mutations {
+                mutate_npy(&mut arrays, rng);
+            }
+            let mut paths = Vec::new();
+            for a in &arrays {
+                let mut bytes = a.bytes();
+                if rng.chance(0.1) {
+                    mutate_bytes(&mut bytes, rng);
+                }
+                let p = dir.join(format!("{}.npy", a.name));
+                std::fs::write(&p, &bytes).unwrap();
+                paths.push(p);
+            }
+            if rng.chance(0.05) && !paths.is_empty() {
+                // The same file twice.
+                paths.push(paths[0].clone());
+            }
+            paths
+        }
+    }
+}
+
+/// An `[external]` problem whose worker never gives records: missing, exiting at once,
+/// silent, printing an endless line, flooding its stderr, or answering wrongly.
+fn external_problem(rng: &mut Rng) -> String {
+    let command = *rng.pick(&[
+        r#"["/nonexistent/autotune-worker"]"#,
+        r#"["python3", "-c", "import sys"]"#,
+        r#"["sh", "-c", "cat > /dev/null"]"#,
+        r#"["sh", "-c", "yes | tr -d '\\n'"]"#,
+        r#"["sh", "-c", "yes autotune >&2"]"#,
+        r#"["sh", "-c", "read l; echo '{\"id\": 1, \"done\": true}'"]"#,
+        r#"["sh", "-c", "read l; echo not json"]"#,
+        r#"["sh", "-c", "read l; echo '{\"run\": 0, \"step\": 99999999999}'"]"#,
+        r#"["sh", "-c", "read l; echo '{\"id\": 1, \"file\": \"nothing.npz\"}'"]"#,
+        r#"["sh", "-c", "read l; printf '\\377\\376\\n'"]"#,
+    ]);
+    format!(
+        r#"name = "fz_external"
+state_names = ["a", "b"]
+
+[montecarlo]
+runs = 2
+steps = 3
+seed = 1
+
+[external]
+command = {command}
+sensors = {{ r = ["u"] }}
+workers = {}
+timeout = 1.0
+truth = {{ q = 1.0 }}
+drives = {{ q = ["a"] }}
+
+[params.q]
+value = 1.0
+lower = 0.1
+upper = 10.0
+"#,
+        1 + rng.below(2)
+    )
+}
+
+/// Keep a mutated external problem quick: a timeout or a worker count the mutation made
+/// large (or removed, which means 300 s and every core) is set back.
+fn bound_external(bytes: Vec<u8>) -> Vec<u8> {
+    let Ok(mut t) = String::from_utf8_lossy(&bytes).parse::<toml::Table>() else {
+        return bytes;
+    };
+    if let Some(toml::Value::Table(e)) = t.get_mut("external") {
+        let slow = match e.get("timeout") {
+            None => true,
+            Some(toml::Value::Float(x)) => *x > 2.0,
+            Some(toml::Value::Integer(x)) => *x > 2,
+            Some(_) => false,
+        };
+        if slow {
+            e.insert("timeout".into(), toml::Value::Float(1.0));
+        }
+        let many = match e.get("workers") {
+            None => true,
+            Some(toml::Value::Integer(x)) => *x > 4,
+            Some(_) => false,
+        };
+        if many {
+            e.insert("workers".into(), toml::Value::Integer(2));
+        }
+    }
+    toml::to_string(&t).map_or(bytes, String::into_bytes)
+}
+
+#[test]
+fn fuzz_records_and_external_problems_through_the_binary() {
+    let seconds: f64 = std::env::var("AUTOTUNE_FUZZ_SECONDS")
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(8.0);
+    let seed: u64 = std::env::var("AUTOTUNE_FUZZ_SEED")
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(1);
+    let failures_dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join("fuzz-failures-records");
+    let _ = std::fs::remove_dir_all(&failures_dir);
+    std::fs::create_dir_all(&failures_dir).unwrap();
+
+    let dir = tempfile::tempdir().unwrap();
+    let input_dir = dir.path().join("in");
+    let mut rng = Rng(seed);
+    let deadline = Instant::now() + Duration::from_secs_f64(seconds);
+    let start = Instant::now();
+    let mut inputs = 0usize;
+    let mut external = 0usize;
+    let mut exits = [0usize; 3];
+    let mut failures: Vec<String> = Vec::new();
+    while Instant::now() < deadline && failures.len() < 10 {
+        inputs += 1;
+        let mut args: Vec<std::ffi::OsString> = vec!["check".into()];
+        // One in twenty inputs is an external problem: those cost a second of timeout.
+        if rng.chance(0.05) {
+            external += 1;
+            let _ = std::fs::remove_dir_all(&input_dir);
+            std::fs::create_dir_all(&input_dir).unwrap();
+            let base = external_problem(&mut rng);
+            let bytes = if rng.chance(0.7) {
+                bound_external(mutant(&base, &mut rng))
+            } else {
+                base.into_bytes()
+            };
+            let p = input_dir.join("ext.toml");
+            std::fs::write(&p, &bytes).unwrap();
+            args.push(p.into());
+            args.extend(["--runs", "2", "--steps", "3"].map(Into::into));
+        } else {
+            let format = *rng.pick(&[
+                RecFormat::Csv,
+                RecFormat::Jsonl,
+                RecFormat::Npy,
+                RecFormat::Npy,
+                RecFormat::Mixed,
+            ]);
+            if rng.chance(0.3) {
+                args.push("--json".into());
+            }
+            args.push("--records".into());
+            args.extend(
+                write_records_input(&input_dir, format, &mut rng)
+                    .into_iter()
+                    .map(Into::into),
+            );
+        }
+        let refs: Vec<&std::ffi::OsStr> = args.iter().map(|a| a.as_os_str()).collect();
+        match run_binary(dir.path(), &refs) {
+            Ok(code) => exits[code] += 1,
+            Err(e) => {
+                // Keep the input directory as it was, and say how to rerun it.
+                let saved = failures_dir.join(format!("{:04}", failures.len()));
+                std::fs::create_dir_all(&saved).unwrap();
+                let mut shown = Vec::new();
+                for a in &args {
+                    let p = Path::new(a);
+                    if p.starts_with(&input_dir) {
+                        let to = saved.join(p.file_name().unwrap());
+                        let _ = std::fs::copy(p, &to);
+                        shown.push(to.display().to_string());
+                    } else {
+                        shown.push(a.to_string_lossy().into_owned());
+                    }
+                }
+                failures.push(format!("autotune {}: {e}", shown.join(" ")));
+            }
+        }
+    }
+    let elapsed = start.elapsed().as_secs_f64();
+    eprintln!(
+        "fuzz records (seed {seed}, {seconds} s): {inputs} inputs in {elapsed:.1} s ({:.0}/s), {external} external problems; exit 0/1/2: {}/{}/{}; {} failures",
+        inputs as f64 / elapsed,
+        exits[0],
+        exits[1],
+        exits[2],
+        failures.len()
+    );
+    assert!(
+        failures.is_empty(),
+        "{} inputs failed:\n{}",
+        failures.len(),
+        failures.join("\n")
+    );
+}

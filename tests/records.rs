@@ -433,3 +433,152 @@ fn python_records_agree_with_the_built_in_problem_to_monte_carlo_precision() {
         }
     }
 }
+
+/// Found by `tests/fuzz.rs`: inputs that aborted on an allocation, hung, or printed a
+/// multi-line error. Each is now exit 2 and one line naming the file and where.
+#[test]
+fn absurd_sizes_and_headers_are_one_line_errors() {
+    assert_eq!(
+        autotune::records::MAX_STEPS,
+        autotune::montecarlo::MAX_STEPS
+    );
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let head = "run,step,e_1,P_1_1\n";
+    let cases: Vec<(&str, String, &[&str])> = vec![
+        (
+            "step.csv",
+            format!("{head}0,1,1,1\n0,1000000000000,1,1\n"),
+            &["step.csv:3", "step", "above the limit of 1000000 steps"],
+        ),
+        (
+            "step.jsonl",
+            "{\"run\":0,\"step\":18446744073709551615,\"e\":[1],\"P\":[[1]]}\n".into(),
+            &["step.jsonl:1", "above the limit of 1000000 steps"],
+        ),
+        (
+            "index.csv",
+            "run,step,e_1,e_99999999999,P_1_1\n0,1,1,1,1\n".into(),
+            &["index.csv:1", "column e_2 missing"],
+        ),
+        (
+            "matrix.csv",
+            "run,step,e_1,P_1_1,P_9999999999_99999999999\n0,1,1,1,1\n".into(),
+            &["matrix.csv:1", "column P_1_2 missing"],
+        ),
+        (
+            "dof.csv",
+            "run,step,nees,nees_dof\n0,1,1,18446744073709551616\n".into(),
+            &[
+                "dof.csv:2",
+                "nees_dof is 18446744073709552000, not in [1, 1000000]",
+            ],
+        ),
+        (
+            "tiny.csv",
+            "run,step,nis,nis_dof\n0,1,1,1e-300\n".into(),
+            &["tiny.csv:2", "nis_dof is 0.000", "not in [1, 1000000]"],
+        ),
+        (
+            "quoted.csv",
+            format!("{head}0,1,1,\"1\n2\"\n"),
+            &["quoted.csv:2", "P_1_1: '1\\n2' is not a number"],
+        ),
+        (
+            "empty.jsonl",
+            "{\"run\":0,\"step\":1,\"e\":[],\"P\":[]}\n".into(),
+            &["empty.jsonl", "has shape [0", "no entries"],
+        ),
+    ];
+    for (name, text, expect) in cases {
+        let path = d.join(name);
+        std::fs::write(&path, text).unwrap();
+        let (code, stdout, stderr) = autotune(&["check", "--records", path.to_str().unwrap()]);
+        assert_eq!(code, Some(2), "{name}: {stdout}{stderr}");
+        assert_eq!(stderr.lines().count(), 1, "{name}: {stderr}");
+        for e in expect {
+            assert!(stderr.contains(e), "{name}: expected '{e}' in {stderr}");
+        }
+    }
+    // NumPy: a shape whose element count wraps a u64, a zero-length axis that would let
+    // any number of runs be claimed, and a header the Python-literal parser refuses (its
+    // error is a drawing over several lines).
+    let npy = |name: &str, header: &str, data: &[u8]| -> PathBuf {
+        let mut h = header.to_string();
+        while (10 + h.len() + 1) % 64 != 0 {
+            h.push(' ');
+        }
+        h.push('\n');
+        let mut bytes = b"\x93NUMPY\x01\x00".to_vec();
+        bytes.extend((h.len() as u16).to_le_bytes());
+        bytes.extend(h.as_bytes());
+        bytes.extend(data);
+        let sub = d.join(name);
+        std::fs::create_dir_all(&sub).unwrap();
+        let p = sub.join("e.npy");
+        std::fs::write(&p, bytes).unwrap();
+        p
+    };
+    let p_file = d.join("P.npy");
+    write_npy(&p_file, &[3, 4, 1, 1], &[1.0; 12]);
+    let cases: Vec<(PathBuf, &[&str])> = vec![
+        (
+            npy(
+                "wrap",
+                "{'descr': '<f8', 'fortran_order': False, 'shape': (4294967296, 4294967296, 1), }",
+                &[0; 8],
+            ),
+            &["e.npy", "array e", "above the limit"],
+        ),
+        (
+            npy(
+                "huge",
+                "{'descr': '<f8', 'fortran_order': False, 'shape': (3, 4, 100000000), }",
+                &[0; 8],
+            ),
+            &["array e", "truncated"],
+        ),
+        (
+            npy(
+                "zero",
+                "{'descr': '<f8', 'fortran_order': True, 'shape': (1000000000000, 4, 0), }",
+                &[],
+            ),
+            &["zero/e.npy", "has shape [0", "no entries"],
+        ),
+        (
+            npy(
+                "syntax",
+                "{'descr': '<f8', 'fortran_order': Falsx, 'shape': (3, 4, 1), }",
+                &[0; 96],
+            ),
+            &["e.npy", "not a .npy file", "expected value"],
+        ),
+    ];
+    let own_p = d.join("zero/P.npy");
+    let mut h =
+        "{'descr': '<f8', 'fortran_order': False, 'shape': (1000000000000, 4, 0, 0), }".to_string();
+    while (10 + h.len() + 1) % 64 != 0 {
+        h.push(' ');
+    }
+    h.push('\n');
+    let mut bytes = b"\x93NUMPY\x01\x00".to_vec();
+    bytes.extend((h.len() as u16).to_le_bytes());
+    bytes.extend(h.as_bytes());
+    std::fs::write(&own_p, bytes).unwrap();
+    for (path, expect) in cases {
+        let p = path.with_file_name("P.npy");
+        let p = if p.exists() { p } else { p_file.clone() };
+        let (code, stdout, stderr) = autotune(&[
+            "check",
+            "--records",
+            path.to_str().unwrap(),
+            p.to_str().unwrap(),
+        ]);
+        assert_eq!(code, Some(2), "{}: {stdout}{stderr}", path.display());
+        assert_eq!(stderr.lines().count(), 1, "{}: {stderr}", path.display());
+        for e in expect {
+            assert!(stderr.contains(e), "expected '{e}' in {stderr}");
+        }
+    }
+}

@@ -304,6 +304,20 @@ impl ExternalExperiment {
     }
 }
 
+/// Stop every worker of `pool`, together.
+fn shut_down(pool: &mut Vec<Worker>) {
+    for w in pool.iter_mut() {
+        w.close();
+    }
+    pool.clear();
+}
+
+impl Drop for ExternalExperiment {
+    fn drop(&mut self) {
+        shut_down(self.pool.get_mut().unwrap_or_else(|p| p.into_inner()));
+    }
+}
+
 impl Experiment for ExternalExperiment {
     fn definition(&self) -> &Definition {
         &self.definition
@@ -326,7 +340,7 @@ impl Experiment for ExternalExperiment {
         let result = self.run(theta, mc, options);
         if let Err(e) = &result {
             // The workers may be mid-answer or gone: stop them all.
-            self.pool.lock().unwrap_or_else(|p| p.into_inner()).clear();
+            shut_down(&mut self.pool.lock().unwrap_or_else(|p| p.into_inner()));
             *self.failed.lock().unwrap_or_else(|p| p.into_inner()) = Some(e.clone());
         }
         result

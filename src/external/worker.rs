@@ -3,7 +3,7 @@
 //! kept (the last lines) for error messages.
 
 use std::collections::VecDeque;
-use std::io::{BufRead, BufReader, Write};
+use std::io::{BufRead, BufReader, Read, Write};
 use std::path::{Path, PathBuf};
 use std::process::{Child, ChildStdin, Command, Stdio};
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -40,11 +40,71 @@ pub(super) struct Worker {
     stderr: Arc<Mutex<VecDeque<String>>>,
     /// Scratch directory for records files.
     dir: PathBuf,
+    /// When its stdin was closed.
+    closed: Option<Instant>,
 }
 
+/// Longest stderr line kept, in bytes (it is quoted by its first characters anyway).
+const STDERR_LINE: usize = 4096;
+/// Longest line read from a worker, in bytes: an inline record of a 300-state filter's
+/// P is a few MB; a worker printing without newlines must not fill the memory.
+const MAX_LINE: usize = 64 << 20;
+
+/// The next line of `r` without its newline (`None` at the end), and whether it ended
+/// within `max` bytes; a longer line is cut there, and its rest left unread.
+fn read_line(r: &mut impl BufRead, max: usize) -> std::io::Result<Option<(Vec<u8>, bool)>> {
+    let mut buf = Vec::new();
+    let n = Read::take(&mut *r, max as u64 + 1).read_until(b'\n', &mut buf)?;
+    if n == 0 {
+        return Ok(None);
+    }
+    if buf.last() == Some(&b'\n') {
+        buf.pop();
+        if buf.last() == Some(&b'\r') {
+            buf.pop();
+        }
+        Ok(Some((buf, true)))
+    } else {
+        // The last line may end without a newline; only an overlong one is cut.
+        let whole = buf.len() <= max;
+        buf.truncate(max);
+        Ok(Some((buf, whole)))
+    }
+}
+
+/// Read past the rest of the current line.
+fn skip_line(r: &mut impl BufRead) -> std::io::Result<()> {
+    loop {
+        let buf = r.fill_buf()?;
+        if buf.is_empty() {
+            return Ok(());
+        }
+        if let Some(i) = buf.iter().position(|&b| b == b'\n') {
+            r.consume(i + 1);
+            return Ok(());
+        }
+        let n = buf.len();
+        r.consume(n);
+    }
+}
+
+/// `line`, cut to [`QUOTE`] characters, in quotes; control characters (a worker's error
+/// message may hold newlines) escaped, so that the error stays on one line.
 fn quote(line: &str) -> String {
-    let t: String = line.chars().take(QUOTE).collect();
-    if t.len() < line.len() {
+    let t: String = line
+        .chars()
+        .take(QUOTE)
+        .flat_map(|c| {
+            let esc: Vec<char> = if c.is_control() {
+                c.escape_default().collect()
+            } else {
+                vec![c]
+            };
+            esc
+        })
+        .collect();
+    let t_len: usize = line.chars().take(QUOTE).map(char::len_utf8).sum();
+    if t_len < line.len() {
         format!("'{t}…'")
     } else {
         format!("'{t}'")
@@ -78,7 +138,19 @@ impl Worker {
         let stderr = child.stderr.take().expect("piped");
         let (tx, lines) = channel();
         std::thread::spawn(move || {
-            for line in BufReader::new(stdout).lines() {
+            let mut out = BufReader::new(stdout);
+            loop {
+                let line = match read_line(&mut out, MAX_LINE) {
+                    Ok(None) => break,
+                    Ok(Some((l, true))) => String::from_utf8(l).map_err(|_| {
+                        std::io::Error::new(std::io::ErrorKind::InvalidData, "a line not UTF-8")
+                    }),
+                    Ok(Some((_, false))) => Err(std::io::Error::new(
+                        std::io::ErrorKind::InvalidData,
+                        format!("a line longer than {} MB", MAX_LINE >> 20),
+                    )),
+                    Err(e) => Err(e),
+                };
                 let stop = line.is_err();
                 if tx.send(line).is_err() || stop {
                     break;
@@ -88,8 +160,13 @@ impl Worker {
         let tail = Arc::new(Mutex::new(VecDeque::new()));
         let t = Arc::clone(&tail);
         std::thread::spawn(move || {
-            for line in BufReader::new(stderr).lines() {
-                let Ok(line) = line else { break };
+            let mut err = BufReader::new(stderr);
+            // Only the tail is kept for messages: an overlong line by its beginning.
+            while let Ok(Some((l, whole))) = read_line(&mut err, STDERR_LINE) {
+                if !whole && skip_line(&mut err).is_err() {
+                    break;
+                }
+                let line = String::from_utf8_lossy(&l).into_owned();
                 if line.trim().is_empty() {
                     continue;
                 }
@@ -107,6 +184,7 @@ impl Worker {
             lines,
             stderr: tail,
             dir,
+            closed: None,
         })
     }
 
@@ -252,6 +330,15 @@ impl Worker {
         }
     }
 
+    /// Close the worker's stdin, which asks it to exit; [`Drop`] waits at most a second
+    /// from here. Closing every worker of a pool first lets them exit together, so a pool
+    /// of workers that ignore their stdin is gone in a second, not a second each.
+    pub(super) fn close(&mut self) {
+        if self.stdin.take().is_some() {
+            self.closed = Some(Instant::now());
+        }
+    }
+
     fn kill(&mut self) {
         let _ = self.child.kill();
         let _ = self.child.wait();
@@ -261,8 +348,8 @@ impl Worker {
 impl Drop for Worker {
     fn drop(&mut self) {
         // Closing stdin asks the worker to exit; one that does not within a second is killed.
-        drop(self.stdin.take());
-        let deadline = Instant::now() + Duration::from_secs(1);
+        self.close();
+        let deadline = self.closed.unwrap_or_else(Instant::now) + Duration::from_secs(1);
         loop {
             match self.child.try_wait() {
                 Ok(Some(_)) | Err(_) => break,

@@ -2,12 +2,12 @@
 //! columns with 1-based indices (`e_1`, `P_1_2`, `nu_radar_1`). What MATLAB's
 //! `writetable`, Octave's `csvwrite` after a header line, and pandas write.
 
-use std::collections::HashMap;
+use std::collections::{HashMap, HashSet};
 use std::path::Path;
 
-use super::files::{Found, Keys, Row, fits, infer_layout, step_record};
+use super::files::{Found, Keys, Row, fits, infer_layout, shown, step_record};
 use super::names::{Quantity, parse_column};
-use super::{Layout, RecordSink};
+use super::{Layout, MAX_STEPS, RecordSink};
 use crate::input::FileError;
 
 /// Where each quantity's numbers sit in a row.
@@ -75,7 +75,10 @@ fn columns(path: &Path, rdr: &mut csv::Reader<std::fs::File>) -> Result<Columns,
                     path,
                     Some(1),
                     "header",
-                    format!("unknown column '{name}' (see docs/external.md for the names)"),
+                    format!(
+                        "unknown column '{}' (see docs/external.md for the names)",
+                        shown(name)
+                    ),
                 )
             })?;
         match q {
@@ -104,17 +107,20 @@ fn columns(path: &Path, rdr: &mut csv::Reader<std::fs::File>) -> Result<Columns,
             0 => (vec![], vec![Some(list[0].1)]),
             1 => {
                 let n = list.iter().map(|(i, _)| i[0] + 1).max().unwrap_or(0);
-                let mut slots = vec![None; n];
-                for (i, c) in list {
-                    slots[i[0]] = Some(*c);
-                }
-                if let Some(j) = slots.iter().position(Option::is_none) {
+                // The first gap is found among the columns there are, before anything the
+                // size of an index (`e_99999999999`) is allocated.
+                let given: HashSet<usize> = list.iter().map(|(i, _)| i[0]).collect();
+                if let Some(j) = (0..n).find(|j| !given.contains(j)) {
                     return Err(line_error(
                         path,
                         Some(1),
                         "header",
                         format!("column {label}_{} missing ({label} has {n} entries)", j + 1),
                     ));
+                }
+                let mut slots = vec![None; n];
+                for (i, c) in list {
+                    slots[i[0]] = Some(*c);
                 }
                 (vec![n], slots)
             }
@@ -124,13 +130,14 @@ fn columns(path: &Path, rdr: &mut csv::Reader<std::fs::File>) -> Result<Columns,
                     .map(|(i, _)| i[0].max(i[1]) + 1)
                     .max()
                     .unwrap_or(0);
-                let mut slots = vec![None; n * n];
-                for (i, c) in list {
-                    slots[i[0] * n + i[1]] = Some(*c);
-                }
+                // As for vectors: every (a, b) column present covers at most two entries,
+                // so a gap turns up within 2·len + 1 entries, and the n × n slots are
+                // allocated only for a matrix whose triangle is complete (n² ≤ 2·len + n).
+                let given: HashSet<(usize, usize)> =
+                    list.iter().map(|(i, _)| (i[0], i[1])).collect();
                 for a in 0..n {
                     for b in 0..n {
-                        if slots[a * n + b].is_none() && slots[b * n + a].is_none() {
+                        if !given.contains(&(a, b)) && !given.contains(&(b, a)) {
                             return Err(line_error(
                                 path,
                                 Some(1),
@@ -143,6 +150,10 @@ fn columns(path: &Path, rdr: &mut csv::Reader<std::fs::File>) -> Result<Columns,
                             ));
                         }
                     }
+                }
+                let mut slots = vec![None; n * n];
+                for (i, c) in list {
+                    slots[i[0] * n + i[1]] = Some(*c);
                 }
                 (vec![n, n], slots)
             }
@@ -191,9 +202,17 @@ pub(super) fn scan(path: &Path) -> Result<(Layout, usize), FileError> {
                     path,
                     line,
                     "step",
-                    format!("'{}' is not a step (1, 2, …)", &rec[cols.step]),
+                    format!("'{}' is not a step (1, 2, …)", shown(&rec[cols.step])),
                 )
             })?;
+        if k > MAX_STEPS {
+            return Err(line_error(
+                path,
+                line,
+                "step",
+                format!("{k} is above the limit of {MAX_STEPS} steps per run"),
+            ));
+        }
         steps = steps.max(k);
     }
     if steps == 0 {
@@ -216,7 +235,7 @@ impl CsvRow<'_> {
             return Ok(f64::NAN);
         }
         cell.parse::<f64>()
-            .map_err(|_| format!("{}: '{cell}' is not a number", &self.headers[c]))
+            .map_err(|_| format!("{}: '{}' is not a number", &self.headers[c], shown(cell)))
     }
 }
 
@@ -279,7 +298,7 @@ pub(super) fn feed(path: &Path, layout: &Layout, sink: &mut RecordSink) -> Resul
                 path,
                 line,
                 "run",
-                format!("'{}' is not a run index (0, 1, …)", &rec[cols.run]),
+                format!("'{}' is not a run index (0, 1, …)", shown(&rec[cols.run])),
             )
         })?;
         let step = index_cell(&rec[cols.step])
@@ -289,7 +308,7 @@ pub(super) fn feed(path: &Path, layout: &Layout, sink: &mut RecordSink) -> Resul
                     path,
                     line,
                     "step",
-                    format!("'{}' is not a step (1, 2, …)", &rec[cols.step]),
+                    format!("'{}' is not a step (1, 2, …)", shown(&rec[cols.step])),
                 )
             })?;
         let mut row = CsvRow {

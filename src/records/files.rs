@@ -5,7 +5,9 @@
 use std::path::{Path, PathBuf};
 
 use super::names::Quantity;
-use super::{Layout, RecordSink, SensorLayout, SensorRecord, StateLayout, StateRecord, StepRecord};
+use super::{
+    Layout, MAX_STEPS, RecordSink, SensorLayout, SensorRecord, StateLayout, StateRecord, StepRecord,
+};
 use crate::input::FileError;
 use crate::stats::Accumulator;
 
@@ -16,6 +18,11 @@ pub(super) type Found = Vec<(Quantity, Vec<usize>)>;
 /// The layout implied by the quantities a file holds; an error names what is missing,
 /// contradictory or of mismatched size.
 pub(super) fn infer_layout(found: &Found) -> Result<Layout, String> {
+    // A quantity without entries (JSON `[]`, a NumPy axis of length 0) measures nothing,
+    // and lets a NumPy file claim any number of runs without holding a byte of them.
+    if let Some((q, d)) = found.iter().find(|(_, d)| d.contains(&0)) {
+        return Err(format!("{} has shape {d:?}: no entries", q.name()));
+    }
     let dims = |q: &Quantity| found.iter().find(|(f, _)| f == q).map(|(_, d)| d.clone());
     let has = |q: &Quantity| dims(q).is_some();
     let square = |q: &Quantity, name: &str| -> Result<Option<usize>, String> {
@@ -144,6 +151,28 @@ pub(super) fn infer_layout(found: &Found) -> Result<Layout, String> {
         return Err("no state or sensor quantities (see docs/external.md)".into());
     }
     Ok(Layout { state, sensors })
+}
+
+/// A cell or key of a file as an error message quotes it: a quoted CSV cell may hold
+/// newlines, and the message must stay on one line; a long one is cut.
+pub(super) fn shown(text: &str) -> String {
+    const LONGEST: usize = 60;
+    let mut out: String = text
+        .chars()
+        .take(LONGEST)
+        .flat_map(|c| {
+            let esc: Vec<char> = if c.is_control() {
+                c.escape_default().collect()
+            } else {
+                vec![c]
+            };
+            esc
+        })
+        .collect();
+    if text.chars().nth(LONGEST).is_some() {
+        out.push('…');
+    }
+    out
 }
 
 /// Where one step's numbers come from.
@@ -396,6 +425,13 @@ pub fn read_files(paths: &[PathBuf], lags: &dyn Fn(usize) -> usize) -> Result<Re
         fits(l, &layout).map_err(|m| {
             FileError::new(&src[0], "", format!("{m} (in {})", sources[0][0].display()))
         })?;
+    }
+    if steps > MAX_STEPS {
+        return Err(FileError::new(
+            &sources[0][0],
+            "step",
+            format!("{steps} steps per run, above the limit of {MAX_STEPS}"),
+        ));
     }
     let lags = lags(steps);
     let mut sink = RecordSink::new(&layout, steps, lags);

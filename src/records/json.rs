@@ -7,9 +7,9 @@ use std::path::Path;
 
 use serde_json::{Map, Value};
 
-use super::files::{Found, Keys, Row, infer_layout, step_record};
+use super::files::{Found, Keys, Row, infer_layout, shown, step_record};
 use super::names::Quantity;
-use super::{Layout, RecordSink, StepRecord};
+use super::{Layout, MAX_STEPS, RecordSink, StepRecord};
 use crate::input::FileError;
 
 /// A JSON number, or NaN for `null`.
@@ -67,6 +67,11 @@ fn run_step(obj: &Map<String, Value>) -> Result<(usize, usize), String> {
     if step == 0 {
         return Err("step: 0 (steps count from 1)".into());
     }
+    if step > MAX_STEPS {
+        return Err(format!(
+            "step: {step} is above the limit of {MAX_STEPS} steps per run"
+        ));
+    }
     Ok((run, step))
 }
 
@@ -74,8 +79,12 @@ fn run_step(obj: &Map<String, Value>) -> Result<(usize, usize), String> {
 fn found(obj: &Map<String, Value>) -> Result<Found, String> {
     let mut f = Found::new();
     for (k, v) in obj {
-        let q = Quantity::parse(k)
-            .ok_or_else(|| format!("unknown key '{k}' (see docs/external.md for the names)"))?;
+        let q = Quantity::parse(k).ok_or_else(|| {
+            format!(
+                "unknown key '{}' (see docs/external.md for the names)",
+                shown(k)
+            )
+        })?;
         if matches!(q, Quantity::Run | Quantity::Step | Quantity::Diverged) {
             continue;
         }

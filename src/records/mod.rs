@@ -21,6 +21,12 @@ pub use json::parse_record_line;
 pub use names::{Quantity, valid_sensor};
 pub use sink::RecordSink;
 
+/// Largest number of steps per run records may have. The sums take memory proportional to
+/// T, allocated before the first record is read, so T is checked first; this is the
+/// engines' `montecarlo::MAX_STEPS`, repeated here because `records` sits below
+/// `montecarlo` (tests/records.rs checks the two agree).
+pub const MAX_STEPS: usize = 1_000_000;
+
 /// The state quantities of a record: the ground-truth side.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct StateLayout {

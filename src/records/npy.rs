@@ -6,11 +6,13 @@ use std::path::{Path, PathBuf};
 
 use super::files::{Found, Keys, Row, fits, infer_layout, step_record};
 use super::names::Quantity;
-use super::{Layout, RecordSink};
+use super::{Layout, MAX_STEPS, RecordSink};
 use crate::input::FileError;
 
 /// Largest array the reader accepts, in elements: 2³¹ doubles are 16 GiB.
 const MAX_ELEMENTS: u64 = 1 << 31;
+/// Most bytes reserved from an array's header before its data is read.
+const PREALLOCATE: usize = 1 << 24;
 
 /// One array, as doubles in C order.
 struct Array {
@@ -43,23 +45,31 @@ fn read_array<R: Read>(
     npy: npyz::NpyFile<R>,
 ) -> Result<(Vec<usize>, Vec<f64>), FileError> {
     let err = |m: String| FileError::new(file, format!("array {name}"), m);
-    if npy.len() > MAX_ELEMENTS {
-        return Err(err(format!(
-            "{} elements, above the limit of {MAX_ELEMENTS}",
-            npy.len()
-        )));
-    }
+    // npyz's own `len()` wraps on absurd shapes ((2³², 2³²) has "0" elements): count
+    // them here, and trust no index into the data before the count is known to be small.
+    let len = npy
+        .shape()
+        .iter()
+        .try_fold(1u64, |n, &d| n.checked_mul(d))
+        .filter(|&n| n <= MAX_ELEMENTS)
+        .ok_or_else(|| {
+            err(format!(
+                "shape {:?}: above the limit of {MAX_ELEMENTS} elements",
+                npy.shape()
+            ))
+        })? as usize;
     let shape: Vec<usize> = npy.shape().iter().map(|&d| d as usize).collect();
     let order = npy.order();
     let dtype = npy.dtype().descr();
     // The common case, little-endian float64, in one read: element by element, the zip
     // reader's checksum and the buffering cost more than the numbers.
     if dtype == "'<f8'" || (dtype == "'=f8'" && cfg!(target_endian = "little")) {
-        let len = npy.len() as usize;
-        let mut bytes = Vec::with_capacity(len * 8);
+        // The header's size is a claim: memory grows with the bytes actually there.
+        let mut bytes = Vec::with_capacity((len * 8).min(PREALLOCATE));
         npy.into_inner()
+            .take(len as u64 * 8)
             .read_to_end(&mut bytes)
-            .map_err(|e| err(format!("cannot read: {e}")))?;
+            .map_err(|e| err(format!("cannot read: {}", one_line(&e))))?;
         if bytes.len() < len * 8 {
             return Err(err(format!(
                 "truncated: {} bytes of data for {len} float64 numbers",
@@ -78,9 +88,9 @@ fn read_array<R: Read>(
             $(
                 let npy = match npy.try_data::<$t>() {
                     Ok(reader) => {
-                        let mut out = Vec::with_capacity(reader.len() as usize);
+                        let mut out = Vec::with_capacity(len.min(PREALLOCATE / 8));
                         for v in reader {
-                            out.push(v.map_err(|e| err(format!("cannot read: {e}")))? as f64);
+                            out.push(v.map_err(|e| err(format!("cannot read: {}", one_line(&e))))? as f64);
                         }
                         return Ok((shape.clone(), c_order(&shape, order, out)));
                     }
@@ -94,6 +104,25 @@ fn read_array<R: Read>(
     Err(err(format!(
         "dtype {dtype} is not a real number type (use float64)"
     )))
+}
+
+/// An error of the NumPy or zip reader on one line: a header the Python-literal parser
+/// refuses comes with a drawing of where (`--> 1:17`, the header, a caret, `= expected
+/// value`), of which the position and the expectation are kept.
+fn one_line(e: &impl std::fmt::Display) -> String {
+    let text = e.to_string();
+    let kept: Vec<&str> = text
+        .lines()
+        .map(str::trim)
+        .filter(|l| {
+            let drawing = l.starts_with('|')
+                || l.split_once(" |")
+                    .is_some_and(|(n, _)| n.parse::<u64>().is_ok());
+            !l.is_empty() && !drawing
+        })
+        .map(|l| l.strip_prefix("= ").unwrap_or(l))
+        .collect();
+    kept.join(" ")
 }
 
 /// `data` in C order, given in `order`.
@@ -133,14 +162,19 @@ impl Arrays {
                 .extension()
                 .is_some_and(|e| e.eq_ignore_ascii_case("npz"));
         if is_npz {
-            let mut archive = npyz::npz::NpzArchive::open(&file)
-                .map_err(|e| FileError::new(&file, "", format!("not an .npz archive: {e}")))?;
+            let mut archive = npyz::npz::NpzArchive::open(&file).map_err(|e| {
+                FileError::new(&file, "", format!("not an .npz archive: {}", one_line(&e)))
+            })?;
             let names: Vec<String> = archive.array_names().map(str::to_string).collect();
             for name in names {
                 let npy = archive
                     .by_name(&name)
                     .map_err(|e| {
-                        FileError::new(&file, format!("array {name}"), format!("cannot read: {e}"))
+                        FileError::new(
+                            &file,
+                            format!("array {name}"),
+                            format!("cannot read: {}", one_line(&e)),
+                        )
                     })?
                     .ok_or_else(|| FileError::new(&file, format!("array {name}"), "missing"))?;
                 let (shape, data) = read_array(&file, &name, npy)?;
@@ -154,9 +188,10 @@ impl Arrays {
                     .unwrap_or_default()
                     .to_string();
                 let f = std::fs::File::open(p)
-                    .map_err(|e| FileError::new(p, "", format!("cannot read: {e}")))?;
-                let npy = npyz::NpyFile::new(std::io::BufReader::new(f))
-                    .map_err(|e| FileError::new(p, "", format!("not a .npy file: {e}")))?;
+                    .map_err(|e| FileError::new(p, "", format!("cannot read: {}", one_line(&e))))?;
+                let npy = npyz::NpyFile::new(std::io::BufReader::new(f)).map_err(|e| {
+                    FileError::new(p, "", format!("not a .npy file: {}", one_line(&e)))
+                })?;
                 let (shape, data) = read_array(p, &name, npy)?;
                 if raw.iter().any(|(n, _, _)| *n == name) {
                     return Err(FileError::new(p, format!("array {name}"), "given twice"));
@@ -263,6 +298,13 @@ impl Arrays {
                 &file,
                 "",
                 format!("{runs} runs of {steps} steps: no records"),
+            ));
+        }
+        if steps > MAX_STEPS {
+            return Err(FileError::new(
+                &file,
+                "",
+                format!("{steps} steps per run, above the limit of {MAX_STEPS}"),
             ));
         }
         let mut found = Found::new();

@@ -10,6 +10,13 @@ use super::{Layout, SensorRecord, StateRecord, StepRecord};
 use crate::linalg::{cholesky, mahalanobis_sq};
 use crate::stats::{Accumulator, RunRecorder, StopCause};
 
+/// Most degrees of freedom one record's NEES or NIS may claim (and at least 1): they count
+/// a filter's state or measurement components. Below 1, the gate's moment-matched
+/// chi-square lost its degrees of freedom to underflow (10⁻³⁰⁰ panicked); above, the
+/// verdict's quantiles take seconds from about 10¹⁵ total degrees of freedom (N runs times
+/// this) and never returned at 10¹⁹, which a mistyped `nees_dof` reached.
+const MAX_DOF: f64 = 1e6;
+
 /// The run being read.
 struct Current {
     run: usize,
@@ -233,8 +240,8 @@ impl RecordSink {
                             .then(|| (0..n).map(|j| e[j] * e[j] / pm[(j, j)]).collect());
                     }
                     StateRecord::Normalized { nees, dof, e2p } => {
-                        if dof.is_nan() || *dof <= 0.0 {
-                            return Err(at(&format!("nees_dof is {dof}, not positive")));
+                        if !(*dof >= 1.0 && *dof <= MAX_DOF) {
+                            return Err(at(&format!("nees_dof is {dof}, not in [1, {MAX_DOF}]")));
                         }
                         if layout.components != e2p.is_some() {
                             return Err(at("e2p given at some steps and not at others"));
@@ -299,8 +306,10 @@ impl RecordSink {
                     }
                 }
                 SensorRecord::Normalized { nis: v, dof: d, u } => {
-                    if d.is_nan() || *d <= 0.0 {
-                        return Err(at(&format!("{name}: nis_dof is {d}, not positive")));
+                    if !(*d >= 1.0 && *d <= MAX_DOF) {
+                        return Err(at(&format!(
+                            "{name}: nis_dof is {d}, not in [1, {MAX_DOF}]"
+                        )));
                     }
                     if layout.components != u.is_some() {
                         return Err(at(&format!(

@@ -728,6 +728,11 @@ fn linear_rows() -> Vec<Row> {
             &["malformed TOML"],
         ),
         config("config missing", Config::Missing, &["cannot read"]),
+        config(
+            "config tuned for a name with a newline",
+            Config::Text("problem = \"\\n\"\n[params]\nq_accel = 0.5\nr_pos = 1.0\n"),
+            &["problem", "tuned for '\\n'"],
+        ),
         // --- Positive control: the same plumbing on the unmodified file is not an input error.
         Row {
             name: "control: unmodified cv1d at the truth's values",

@@ -222,9 +222,11 @@ impl TunedConfig {
         if self.problem != problem_name {
             return Err(err(
                 "problem".into(),
+                // Escaped: the name is whatever the file says, newlines included, and the
+                // error must stay on one line.
                 format!(
                     "this config was tuned for '{}', not '{problem_name}'",
-                    self.problem
+                    self.problem.escape_debug()
                 ),
             ));
         }

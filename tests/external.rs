@@ -368,3 +368,41 @@ value = 1.0
         start.elapsed()
     );
 }
+
+/// A worker that times out is killed with everything it started: a shell wrapper's child
+/// would otherwise outlive autotune.
+#[cfg(unix)]
+#[test]
+fn a_timed_out_worker_is_killed_with_its_children() {
+    let dir = tempfile::tempdir().unwrap();
+    let marker = format!("{}.{}", 4000 + std::process::id() % 1000, 271);
+    let text = format!(
+        r#"state_names = ["x"]
+[montecarlo]
+runs = 10
+steps = 5
+[external]
+command = ["sh", "-c", "python3 -c 'import time; time.sleep({marker})' ; cat"]
+sensors = {{ z = ["pos"] }}
+workers = 1
+timeout = 1
+[params.q]
+value = 1.0
+"#
+    );
+    let path = dir.path().join("wrapped.toml");
+    std::fs::write(&path, text).unwrap();
+    let (code, _, stderr) = autotune(&["check", path.to_str().unwrap()]);
+    assert_eq!(code, Some(2), "{stderr}");
+    assert!(stderr.contains("no answer within the timeout"), "{stderr}");
+    std::thread::sleep(std::time::Duration::from_millis(300));
+    let left = std::process::Command::new("pgrep")
+        .args(["-f", &format!("time.sleep\\({marker}\\)")])
+        .output()
+        .unwrap();
+    assert!(
+        left.stdout.is_empty(),
+        "the worker's child outlived it: pids {}",
+        String::from_utf8_lossy(&left.stdout)
+    );
+}

@@ -122,7 +122,12 @@ impl Worker {
         ));
         std::fs::create_dir_all(&dir)
             .map_err(|e| format!("cannot create the scratch directory {}: {e}", dir.display()))?;
-        let mut child = Command::new(&command[0])
+        let mut cmd = Command::new(&command[0]);
+        // Its own process group, so that a kill reaches what it started too (a shell
+        // wrapper's interpreter, a MATLAB's helpers), not just the process autotune started.
+        #[cfg(unix)]
+        std::os::unix::process::CommandExt::process_group(&mut cmd, 0);
+        let mut child = cmd
             .args(&command[1..])
             .current_dir(cwd)
             .env("AUTOTUNE_WORKER", "1")
@@ -340,6 +345,14 @@ impl Worker {
     }
 
     fn kill(&mut self) {
+        #[cfg(unix)]
+        if let Ok(pid) = libc::pid_t::try_from(self.child.id()) {
+            // SAFETY: killpg only sends a signal; the group is the worker's own (it was
+            // started as its leader), so nothing of autotune's is in it.
+            unsafe {
+                libc::killpg(pid, libc::SIGKILL);
+            }
+        }
         let _ = self.child.kill();
         let _ = self.child.wait();
     }

@@ -88,27 +88,10 @@ fn skip_line(r: &mut impl BufRead) -> std::io::Result<()> {
     }
 }
 
-/// `line`, cut to [`QUOTE`] characters, in quotes; control characters (a worker's error
+/// `line` in quotes, cut to [`QUOTE`] characters, control characters (a worker's error
 /// message may hold newlines) escaped, so that the error stays on one line.
 fn quote(line: &str) -> String {
-    let t: String = line
-        .chars()
-        .take(QUOTE)
-        .flat_map(|c| {
-            let esc: Vec<char> = if c.is_control() {
-                c.escape_default().collect()
-            } else {
-                vec![c]
-            };
-            esc
-        })
-        .collect();
-    let t_len: usize = line.chars().take(QUOTE).map(char::len_utf8).sum();
-    if t_len < line.len() {
-        format!("'{t}…'")
-    } else {
-        format!("'{t}'")
-    }
+    format!("'{}'", crate::records::shown_up_to(line, QUOTE))
 }
 
 impl Worker {

@@ -178,6 +178,19 @@ fn index_cell(cell: &str) -> Option<usize> {
     (v >= 0.0 && v.fract() == 0.0 && v < 9.0e15).then_some(v as usize)
 }
 
+/// Read the next row into `rec`; `false` at the end. A row that cannot be read is an
+/// error naming its line.
+fn next_row(
+    path: &Path,
+    rdr: &mut csv::Reader<std::fs::File>,
+    rec: &mut csv::StringRecord,
+) -> Result<bool, FileError> {
+    rdr.read_record(rec).map_err(|e| {
+        let line = e.position().map(|p| p.line());
+        line_error(path, line, "", csv_message(&e))
+    })
+}
+
 /// The layout and the number of steps (the largest step) of a CSV records file.
 pub(super) fn scan(path: &Path) -> Result<(Layout, usize), FileError> {
     let mut rdr = open(path)?;
@@ -185,15 +198,7 @@ pub(super) fn scan(path: &Path) -> Result<(Layout, usize), FileError> {
     let layout = infer_layout(&cols.found).map_err(|m| line_error(path, Some(1), "header", m))?;
     let mut steps = 0;
     let mut rec = csv::StringRecord::new();
-    loop {
-        match rdr.read_record(&mut rec) {
-            Ok(true) => {}
-            Ok(false) => break,
-            Err(e) => {
-                let line = e.position().map(|p| p.line());
-                return Err(line_error(path, line, "", csv_message(&e)));
-            }
-        }
+    while next_row(path, &mut rdr, &mut rec)? {
         let line = rec.position().map(|p| p.line());
         let k = index_cell(&rec[cols.step])
             .filter(|&k| k >= 1)
@@ -283,15 +288,7 @@ pub(super) fn feed(path: &Path, layout: &Layout, sink: &mut RecordSink) -> Resul
         .clone();
     let keys = Keys::new(layout);
     let mut rec = csv::StringRecord::new();
-    loop {
-        match rdr.read_record(&mut rec) {
-            Ok(true) => {}
-            Ok(false) => break,
-            Err(e) => {
-                let line = e.position().map(|p| p.line());
-                return Err(line_error(path, line, "", csv_message(&e)));
-            }
-        }
+    while next_row(path, &mut rdr, &mut rec)? {
         let line = rec.position().map(|p| p.line());
         let run = index_cell(&rec[cols.run]).ok_or_else(|| {
             line_error(

@@ -156,10 +156,15 @@ pub(super) fn infer_layout(found: &Found) -> Result<Layout, String> {
 /// A cell or key of a file as an error message quotes it: a quoted CSV cell may hold
 /// newlines, and the message must stay on one line; a long one is cut.
 pub(super) fn shown(text: &str) -> String {
-    const LONGEST: usize = 60;
+    shown_up_to(text, 60)
+}
+
+/// `text` with control characters escaped, cut after `longest` characters (marked `…`):
+/// how an error message quotes what a file or a worker wrote, on one line.
+pub fn shown_up_to(text: &str, longest: usize) -> String {
     let mut out: String = text
         .chars()
-        .take(LONGEST)
+        .take(longest)
         .flat_map(|c| {
             let esc: Vec<char> = if c.is_control() {
                 c.escape_default().collect()
@@ -169,7 +174,7 @@ pub(super) fn shown(text: &str) -> String {
             esc
         })
         .collect();
-    if text.chars().nth(LONGEST).is_some() {
+    if text.chars().nth(longest).is_some() {
         out.push('…');
     }
     out

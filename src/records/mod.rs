@@ -15,7 +15,7 @@ mod names;
 mod npy;
 mod sink;
 
-pub use files::{Recorded, feed_file, read_files};
+pub use files::{Recorded, feed_file, read_files, shown_up_to};
 pub(crate) use json::object as json_object;
 pub use json::parse_record_line;
 pub use names::{Quantity, valid_sensor};

@@ -436,8 +436,9 @@ enum Kind {
     Tuned,
 }
 
-#[test]
-fn fuzz_loaders_never_panic_and_the_binary_exits_0_1_or_2() {
+/// The run's budget (`AUTOTUNE_FUZZ_SECONDS`, default 8), seed (`AUTOTUNE_FUZZ_SEED`,
+/// default 1) and an emptied directory `name` for failing inputs.
+fn settings(name: &str) -> (f64, u64, PathBuf) {
     let seconds: f64 = std::env::var("AUTOTUNE_FUZZ_SECONDS")
         .ok()
         .and_then(|s| s.parse().ok())
@@ -446,9 +447,15 @@ fn fuzz_loaders_never_panic_and_the_binary_exits_0_1_or_2() {
         .ok()
         .and_then(|s| s.parse().ok())
         .unwrap_or(1);
-    let failures_dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join("fuzz-failures");
+    let failures_dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join(name);
     let _ = std::fs::remove_dir_all(&failures_dir);
     std::fs::create_dir_all(&failures_dir).unwrap();
+    (seconds, seed, failures_dir)
+}
+
+#[test]
+fn fuzz_loaders_never_panic_and_the_binary_exits_0_1_or_2() {
+    let (seconds, seed, failures_dir) = settings("fuzz-failures");
 
     let seeds = seeds();
     let problems: Vec<Problem> = seeds
@@ -1404,17 +1411,7 @@ fn bound_external(bytes: Vec<u8>) -> Vec<u8> {
 
 #[test]
 fn fuzz_records_and_external_problems_through_the_binary() {
-    let seconds: f64 = std::env::var("AUTOTUNE_FUZZ_SECONDS")
-        .ok()
-        .and_then(|s| s.parse().ok())
-        .unwrap_or(8.0);
-    let seed: u64 = std::env::var("AUTOTUNE_FUZZ_SEED")
-        .ok()
-        .and_then(|s| s.parse().ok())
-        .unwrap_or(1);
-    let failures_dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join("fuzz-failures-records");
-    let _ = std::fs::remove_dir_all(&failures_dir);
-    std::fs::create_dir_all(&failures_dir).unwrap();
+    let (seconds, seed, failures_dir) = settings("fuzz-failures-records");
 
     let dir = tempfile::tempdir().unwrap();
     let input_dir = dir.path().join("in");

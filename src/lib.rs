@@ -35,6 +35,7 @@ pub mod catalog;
 pub mod check;
 pub mod experiment;
 pub mod external;
+pub mod fieldlog;
 pub mod filter;
 pub mod input;
 pub mod linalg;

@@ -20,9 +20,11 @@ mod args;
 mod check;
 mod completions;
 mod init;
+mod nis;
 mod tune;
 
 pub use check::CheckOptions;
+pub use nis::NisArgs;
 pub use tune::TuneOptions;
 
 use std::ffi::OsString;
@@ -97,6 +99,10 @@ enum Command {
     /// Search the free Q/R parameters for a consistent filter; write a tuned config and a
     /// report; exit 0 if the tuned filter passes the confirmation, 1 if not.
     Tune(ProblemTune),
+    /// Judge a filter's recorded innovations (a field log: PX4 ULog, CSV, JSON Lines) without
+    /// ground truth: NIS per sensor against its chi-square interval, outliers, whiteness;
+    /// exit 0 if consistent, 1 if not, 2 on bad input.
+    Nis(nis::NisArgs),
     /// Write a commented starter problem file (NAME.toml) whose filter equals its truth, so
     /// `autotune check` passes on it; replace its parameter values with your own guesses.
     Init(init::InitArgs),
@@ -172,6 +178,7 @@ where
             let p = Problem::load(&a.problem)?;
             tune::run(&p, &p.tune, a.options)
         }
+        Command::Nis(a) => nis::run(a),
         Command::Init(a) => init::run(a),
         Command::Completions(a) => completions::run(a, Cli::command(), "autotune"),
     }

@@ -7,7 +7,7 @@ use std::path::Path;
 
 use super::files::{Found, Keys, Row, fits, infer_layout, shown, step_record};
 use super::names::{Quantity, parse_column};
-use super::{Layout, MAX_STEPS, RecordSink};
+use super::{Layout, MAX_STEPS, StepSink};
 use crate::input::FileError;
 
 /// Where each quantity's numbers sit in a row.
@@ -277,7 +277,7 @@ impl Row for CsvRow<'_> {
 }
 
 /// Stream a CSV records file into `sink`, which expects `layout`.
-pub(super) fn feed(path: &Path, layout: &Layout, sink: &mut RecordSink) -> Result<(), FileError> {
+pub(super) fn feed(path: &Path, layout: &Layout, sink: &mut dyn StepSink) -> Result<(), FileError> {
     let mut rdr = open(path)?;
     let cols = columns(path, &mut rdr)?;
     let own = infer_layout(&cols.found).map_err(|m| line_error(path, Some(1), "header", m))?;

@@ -6,7 +6,8 @@ use std::path::{Path, PathBuf};
 
 use super::names::Quantity;
 use super::{
-    Layout, MAX_STEPS, RecordSink, SensorLayout, SensorRecord, StateLayout, StateRecord, StepRecord,
+    Layout, MAX_STEPS, RecordSink, SensorLayout, SensorRecord, StateLayout, StateRecord,
+    StepRecord, StepSink,
 };
 use crate::input::FileError;
 use crate::stats::Accumulator;
@@ -396,10 +397,23 @@ pub(super) fn format_of(path: &Path) -> Result<Format, FileError> {
 /// whole, and twice (once for its layout and length, once for its numbers), before any sum
 /// is returned; an error names the file, the row or array, and the field.
 pub fn read_files(paths: &[PathBuf], lags: &dyn Fn(usize) -> usize) -> Result<Recorded, FileError> {
-    let first = paths
-        .first()
-        .ok_or_else(|| FileError::new(Path::new("--records"), "", "no records files given"))?;
-    // The .npy files of one set of arrays form one source; every other file is its own.
+    let (layout, steps) = scan_files(paths)?;
+    let mut sink = RecordSink::new(&layout, steps, lags(steps));
+    feed_files(paths, &layout, steps, &mut sink)?;
+    let runs = sink.runs();
+    let sums = sink
+        .finish()
+        .map_err(|m| FileError::new(&paths[0], "", m))?;
+    Ok(Recorded {
+        layout,
+        runs,
+        steps,
+        sums,
+    })
+}
+
+/// The `.npy` files of one set of arrays form one source; every other file is its own.
+fn sources(paths: &[PathBuf]) -> Result<Vec<Vec<PathBuf>>, FileError> {
     let mut sources: Vec<Vec<PathBuf>> = Vec::new();
     let mut npy: Vec<PathBuf> = Vec::new();
     for p in paths {
@@ -411,6 +425,21 @@ pub fn read_files(paths: &[PathBuf], lags: &dyn Fn(usize) -> usize) -> Result<Re
     if !npy.is_empty() {
         sources.push(npy);
     }
+    Ok(sources)
+}
+
+/// Read the records files `paths` once for what they hold: the layout they share and the
+/// number of steps per run (at most [`MAX_STEPS`]). An error names the file that does not
+/// fit the first.
+pub fn scan_files(paths: &[PathBuf]) -> Result<(Layout, usize), FileError> {
+    if paths.is_empty() {
+        return Err(FileError::new(
+            Path::new("--records"),
+            "",
+            "no records files given",
+        ));
+    }
+    let sources = sources(paths)?;
     let mut scanned: Vec<(Layout, usize)> = Vec::new();
     for src in &sources {
         scanned.push(scan(src)?);
@@ -438,19 +467,21 @@ pub fn read_files(paths: &[PathBuf], lags: &dyn Fn(usize) -> usize) -> Result<Re
             format!("{steps} steps per run, above the limit of {MAX_STEPS}"),
         ));
     }
-    let lags = lags(steps);
-    let mut sink = RecordSink::new(&layout, steps, lags);
-    for src in &sources {
-        feed(src, &layout, steps, 0, &mut sink)?;
+    Ok((layout, steps))
+}
+
+/// Stream the records files `paths`, of the `layout` and `steps` [`scan_files`] found, into
+/// `sink`, file by file in order.
+pub fn feed_files(
+    paths: &[PathBuf],
+    layout: &Layout,
+    steps: usize,
+    sink: &mut dyn StepSink,
+) -> Result<(), FileError> {
+    for src in sources(paths)? {
+        feed(&src, layout, steps, 0, sink)?;
     }
-    let runs = sink.runs();
-    let sums = sink.finish().map_err(|m| FileError::new(first, "", m))?;
-    Ok(Recorded {
-        layout,
-        runs,
-        steps,
-        sums,
-    })
+    Ok(())
 }
 
 /// Stream the records file `path` (CSV, NumPy `.npz` or JSON Lines) into `sink`, an
@@ -461,7 +492,7 @@ pub fn feed_file(
     layout: &Layout,
     steps: usize,
     first_run: usize,
-    sink: &mut RecordSink,
+    sink: &mut dyn StepSink,
 ) -> Result<(), FileError> {
     feed(&[path.to_path_buf()], layout, steps, first_run, sink)
 }
@@ -484,7 +515,7 @@ pub(super) fn feed(
     layout: &Layout,
     steps: usize,
     first_run: usize,
-    sink: &mut RecordSink,
+    sink: &mut dyn StepSink,
 ) -> Result<(), FileError> {
     match format_of(&src[0])? {
         Format::Csv => super::csv::feed(&src[0], layout, sink),

@@ -9,7 +9,7 @@ use serde_json::{Map, Value};
 
 use super::files::{Found, Keys, Row, infer_layout, shown, step_record};
 use super::names::Quantity;
-use super::{Layout, MAX_STEPS, RecordSink, StepRecord};
+use super::{Layout, MAX_STEPS, StepRecord, StepSink};
 use crate::input::FileError;
 
 /// A JSON number, or NaN for `null`.
@@ -223,7 +223,7 @@ pub(super) fn scan(path: &Path) -> Result<(Layout, usize), FileError> {
 }
 
 /// Stream a JSON Lines records file into `sink`, which expects `layout`.
-pub(super) fn feed(path: &Path, layout: &Layout, sink: &mut RecordSink) -> Result<(), FileError> {
+pub(super) fn feed(path: &Path, layout: &Layout, sink: &mut dyn StepSink) -> Result<(), FileError> {
     let file = std::fs::File::open(path)
         .map_err(|e| FileError::new(path, "", format!("cannot read: {e}")))?;
     for (i, line) in BufReader::new(file).lines().enumerate() {

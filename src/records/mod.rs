@@ -15,11 +15,11 @@ mod names;
 mod npy;
 mod sink;
 
-pub use files::{Recorded, feed_file, read_files, shown_up_to};
+pub use files::{Recorded, feed_file, feed_files, read_files, scan_files, shown_up_to};
 pub(crate) use json::object as json_object;
 pub use json::parse_record_line;
 pub use names::{Quantity, valid_sensor};
-pub use sink::RecordSink;
+pub use sink::{NormalizedSensor, RecordSink, StepSink, normalize_sensor};
 
 /// Largest number of steps per run records may have. The sums take memory proportional to
 /// T, allocated before the first record is read, so T is checked first; this is the

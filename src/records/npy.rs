@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 
 use super::files::{Found, Keys, Row, fits, infer_layout, step_record};
 use super::names::Quantity;
-use super::{Layout, MAX_STEPS, RecordSink};
+use super::{Layout, MAX_STEPS, StepSink};
 use crate::input::FileError;
 
 /// Largest array the reader accepts, in elements: 2³¹ doubles are 16 GiB.
@@ -358,7 +358,7 @@ impl Arrays {
         layout: &Layout,
         steps: usize,
         first_run: usize,
-        sink: &mut RecordSink,
+        sink: &mut dyn StepSink,
     ) -> Result<(), FileError> {
         fits(&self.layout, layout).map_err(|m| FileError::new(&self.file, "", m))?;
         if self.steps != steps {

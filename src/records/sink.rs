@@ -17,6 +17,95 @@ use crate::stats::{Accumulator, RunRecorder, StopCause};
 /// this) and never returned at 10¹⁹, which a mistyped `nees_dof` reached.
 const MAX_DOF: f64 = 1e6;
 
+/// One sensor's measurement normalized: its NIS, degrees of freedom and, where the record
+/// gives them, the per-component normalized innovations `ν_j/√S_jj`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct NormalizedSensor {
+    /// `ν' S⁻¹ ν`.
+    pub nis: f64,
+    /// Its degrees of freedom.
+    pub dof: f64,
+    /// `ν_j/√S_jj` per component (`components` set, or `u` given).
+    pub u: Option<Vec<f64>>,
+}
+
+/// Normalize one sensor record of dimension `dim`. `Err` is a shape error (the record does
+/// not fit the layout: a malformed file); `Ok(Err(why))` numbers that show the filter broke
+/// down (NaN, infinite, S not positive definite, a negative NIS). With `components`, a raw
+/// record's per-component values are kept and a normalized one must carry `u`.
+pub fn normalize_sensor(
+    rec: &SensorRecord,
+    dim: usize,
+    components: bool,
+) -> Result<Result<NormalizedSensor, String>, String> {
+    let m = dim;
+    match rec {
+        SensorRecord::Raw { nu, s: sm } => {
+            if nu.len() != m || sm.len() != m * m {
+                return Err(format!(
+                    "nu has {} entries and S {}, expected {m} and {m}×{m}",
+                    nu.len(),
+                    sm.len()
+                ));
+            }
+            if nu.iter().chain(sm).any(|v| !v.is_finite()) {
+                return Ok(Err("nu or S is not finite".into()));
+            }
+            let smat = DMatrix::from_row_slice(m, m, sm);
+            let Some(chol) = cholesky(&smat) else {
+                return Ok(Err("S is not positive definite".into()));
+            };
+            let nis = mahalanobis_sq(&chol, &DVector::from_column_slice(nu));
+            if !nis.is_finite() {
+                return Ok(Err("the NIS overflowed".into()));
+            }
+            let u = components.then(|| (0..m).map(|j| nu[j] / smat[(j, j)].sqrt()).collect());
+            Ok(Ok(NormalizedSensor {
+                nis,
+                dof: m as f64,
+                u,
+            }))
+        }
+        SensorRecord::Normalized { nis, dof, u } => {
+            if !(*dof >= 1.0 && *dof <= MAX_DOF) {
+                return Err(format!("nis_dof is {dof}, not in [1, {MAX_DOF}]"));
+            }
+            if components != u.is_some() {
+                return Err("u given at some steps and not at others".into());
+            }
+            if let Some(u) = u {
+                if u.len() != m {
+                    return Err(format!("u has {} entries, expected {m}", u.len()));
+                }
+                if u.iter().any(|x| !x.is_finite()) {
+                    return Ok(Err("u is not finite".into()));
+                }
+            }
+            if !nis.is_finite() || *nis < 0.0 {
+                return Ok(Err("the NIS is negative or not finite".into()));
+            }
+            Ok(Ok(NormalizedSensor {
+                nis: *nis,
+                dof: *dof,
+                u: u.clone(),
+            }))
+        }
+    }
+}
+
+/// Where a reader's [`StepRecord`]s go: the Monte Carlo sums ([`RecordSink`]), or another
+/// consumer (the field-log reader takes records without truth as a log).
+pub trait StepSink {
+    /// Add the next record; `Err` names what is wrong with it (run, step, quantity).
+    fn push(&mut self, r: StepRecord) -> Result<(), String>;
+}
+
+impl StepSink for RecordSink {
+    fn push(&mut self, r: StepRecord) -> Result<(), String> {
+        RecordSink::push(self, r)
+    }
+}
+
 /// The run being read.
 struct Current {
     run: usize,
@@ -273,70 +362,22 @@ impl RecordSink {
             let Some(layout) = self.layout.sensors.get(*s) else {
                 return Err(at(&format!("sensor index {s} out of range")));
             };
-            let m = layout.dim;
             let name = if layout.name.is_empty() {
                 "the sensor".to_string()
             } else {
                 format!("sensor {}", layout.name)
             };
-            match rec {
-                SensorRecord::Raw { nu, s: sm } => {
-                    if nu.len() != m || sm.len() != m * m {
-                        return Err(at(&format!(
-                            "{name}: nu has {} entries and S {}, expected {m} and {m}×{m}",
-                            nu.len(),
-                            sm.len()
-                        )));
-                    }
-                    if nu.iter().chain(sm).any(|v| !v.is_finite()) {
-                        return Ok(Err(format!("{name}: nu or S is not finite at step {k}")));
-                    }
-                    let smat = DMatrix::from_row_slice(m, m, sm);
-                    let Some(chol) = cholesky(&smat) else {
-                        return Ok(Err(format!(
-                            "{name}: S is not positive definite at step {k}"
-                        )));
-                    };
-                    nis += mahalanobis_sq(&chol, &DVector::from_column_slice(nu));
-                    dof += m as f64;
-                    if layout.components {
-                        let o = self.offsets[*s];
-                        out.u
-                            .extend((0..m).map(|j| (o + j, nu[j] / smat[(j, j)].sqrt())));
-                    }
-                }
-                SensorRecord::Normalized { nis: v, dof: d, u } => {
-                    if !(*d >= 1.0 && *d <= MAX_DOF) {
-                        return Err(at(&format!(
-                            "{name}: nis_dof is {d}, not in [1, {MAX_DOF}]"
-                        )));
-                    }
-                    if layout.components != u.is_some() {
-                        return Err(at(&format!(
-                            "{name}: u given at some steps and not at others"
-                        )));
-                    }
-                    if let Some(u) = u {
-                        if u.len() != m {
-                            return Err(at(&format!(
-                                "{name}: u has {} entries, expected {m}",
-                                u.len()
-                            )));
-                        }
-                        if u.iter().any(|x| !x.is_finite()) {
-                            return Ok(Err(format!("{name}: u is not finite at step {k}")));
-                        }
-                        let o = self.offsets[*s];
-                        out.u.extend(u.iter().enumerate().map(|(j, &x)| (o + j, x)));
-                    }
-                    if !v.is_finite() || *v < 0.0 {
-                        return Ok(Err(format!(
-                            "{name}: the NIS is negative or not finite at step {k}"
-                        )));
-                    }
-                    nis += v;
-                    dof += d;
-                }
+            let n = match normalize_sensor(rec, layout.dim, layout.components) {
+                Ok(Ok(n)) => n,
+                Ok(Err(why)) => return Ok(Err(format!("{name}: {why} at step {k}"))),
+                Err(why) => return Err(at(&format!("{name}: {why}"))),
+            };
+            nis += n.nis;
+            dof += n.dof;
+            if let Some(u) = n.u {
+                let o = self.offsets[*s];
+                out.u
+                    .extend(u.into_iter().enumerate().map(|(j, x)| (o + j, x)));
             }
         }
         if !nis.is_finite() {

@@ -4,6 +4,8 @@
 pub mod advice;
 pub mod html;
 mod junit;
+pub mod nis;
+pub mod nis_html;
 pub mod plots;
 mod summary;
 pub mod tune;

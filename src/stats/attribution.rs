@@ -38,7 +38,8 @@ pub enum Suspect {
 }
 
 impl Suspect {
-    fn words(self) -> &'static str {
+    /// The noise model in words, e.g. "Q (process noise)".
+    pub fn words(self) -> &'static str {
         match self {
             Suspect::Q => "Q (process noise)",
             Suspect::R => "R (measurement noise)",
@@ -110,6 +111,28 @@ fn gain(w: Option<&WhitenessTest>) -> i32 {
     }
 }
 
+/// What a measurement component's level `lv` (+1 above its interval, −1 below, 0 inside)
+/// and the sign `g` of its failed whiteness test's lag-1 autocorrelation (0 when white)
+/// blame, and the change they ask for (the table in the module documentation). Not both 0.
+pub fn blame(lv: i32, g: i32) -> (Suspect, &'static str) {
+    match (lv.signum(), g.signum()) {
+        (1, 1) => (Suspect::Q, "increase Q"),
+        (1, -1) => (Suspect::R, "increase R"),
+        (-1, -1) => (Suspect::Q, "decrease Q"),
+        (-1, 1) => (Suspect::R, "decrease R"),
+        (1, _) => (Suspect::QAndR, "increase Q and R in proportion"),
+        (-1, _) => (Suspect::QAndR, "decrease Q and R in proportion"),
+        (_, 1) => (
+            Suspect::QAndR,
+            "increase Q relative to R (the gain is too low)",
+        ),
+        _ => (
+            Suspect::QAndR,
+            "decrease Q relative to R (the gain is too high)",
+        ),
+    }
+}
+
 /// Read `report`'s components and whiteness for which of Q and R is off (see the module
 /// documentation for the reasoning).
 pub fn diagnose(report: &ConsistencyReport) -> Diagnosis {
@@ -131,22 +154,7 @@ pub fn diagnose(report: &ConsistencyReport) -> Diagnosis {
             // The state errors fit P: the mismatch is in the measurement model.
             (Suspect::R, if lv > 0 { "increase R" } else { "decrease R" })
         } else {
-            match (lv, g) {
-                (1, 1) => (Suspect::Q, "increase Q"),
-                (1, -1) => (Suspect::R, "increase R"),
-                (-1, -1) => (Suspect::Q, "decrease Q"),
-                (-1, 1) => (Suspect::R, "decrease R"),
-                (1, _) => (Suspect::QAndR, "increase Q and R in proportion"),
-                (-1, _) => (Suspect::QAndR, "decrease Q and R in proportion"),
-                (_, 1) => (
-                    Suspect::QAndR,
-                    "increase Q relative to R (the gain is too low)",
-                ),
-                _ => (
-                    Suspect::QAndR,
-                    "decrease Q relative to R (the gain is too high)",
-                ),
-            }
+            blame(lv, g)
         };
         findings.push(Finding {
             component: c.name.clone(),

@@ -142,7 +142,7 @@ pub(super) fn whiteness(acc: &Accumulator, names: &[String], z: f64) -> Vec<Whit
 
 /// The portmanteau test of each measurement component over the lags in `white` (the
 /// per-lag statistics of [`whiteness`]), at `level`; components without pairs get none.
-pub(super) fn whiteness_tests(
+pub fn whiteness_tests(
     white: &[WhitenessStat],
     names: &[String],
     level: f64,

@@ -25,9 +25,11 @@ mod null_variance;
 mod recorder;
 mod sums;
 
-pub use attribution::{Diagnosis, Finding, Suspect, diagnose};
-pub use diagnostics::{ComponentStat, WhitenessStat, WhitenessTest, gate_deviates};
-use diagnostics::{components, whiteness, whiteness_tests};
+pub use attribution::{Diagnosis, Finding, Suspect, blame, diagnose};
+pub use diagnostics::{
+    ComponentStat, WhitenessStat, WhitenessTest, gate_deviates, whiteness_tests,
+};
+use diagnostics::{components, whiteness};
 
 pub use interval::{
     GateMode, Interval, SumVariance, Verdict, chi2_average_interval, chi2_inv, combine, gate_alpha,

@@ -1,0 +1,193 @@
+//! `nis`: a filter's recorded innovations (a field log) judged without ground truth, once or
+//! live while the log is written.
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::time::{Duration, Instant};
+
+use super::args::flag_error;
+use super::{AppError, paint_verdict, print_stdout};
+use crate::fieldlog::{Follower, NisReport, NisSettings, ReadOptions, Window, analyze};
+use crate::report::nis::{nis_junit_xml, nis_markdown, nis_summary_text};
+use crate::report::nis_html::nis_html;
+use crate::report::{Outputs, check_output_file, check_report_dir};
+
+/// The arguments of `nis`.
+#[derive(Debug, Clone, clap::Args)]
+pub struct NisArgs {
+    /// Logs: PX4 ULog (.ulg), CSV or JSON Lines field logs (docs/fieldlog.md), or records
+    /// files (docs/external.md) read without truth. Several files are judged together.
+    #[arg(required_unless_present = "follow", value_name = "LOG")]
+    logs: Vec<PathBuf>,
+    /// Follow a CSV / JSON Lines log while it is written: a status line per second with the
+    /// running and windowed NIS against their intervals; the full summary when it stops
+    /// (Ctrl-C, --for, or --idle).
+    #[arg(long, value_name = "FILE", conflicts_with = "logs")]
+    follow: Option<PathBuf>,
+    /// With --follow: stop after this many seconds.
+    #[arg(
+        long = "for",
+        value_name = "SECONDS",
+        requires = "follow",
+        allow_negative_numbers = true
+    )]
+    for_seconds: Option<f64>,
+    /// With --follow: stop once the file has not grown for this many seconds.
+    #[arg(
+        long,
+        value_name = "SECONDS",
+        requires = "follow",
+        allow_negative_numbers = true
+    )]
+    idle: Option<f64>,
+    /// Family-wise significance level α in (0, 0.5].
+    #[arg(long, default_value_t = 0.05, allow_negative_numbers = true)]
+    alpha: f64,
+    /// Outlier gate: an update whose NIS a consistent filter exceeds with less than this
+    /// probability is counted as an outlier, not averaged.
+    #[arg(long, default_value_t = 1e-5, allow_negative_numbers = true)]
+    gate: f64,
+    /// Moving window: a number of updates (50) or of seconds (10s).
+    #[arg(long, default_value = "50")]
+    window: String,
+    /// Whiteness lags L (in updates of each sensor).
+    #[arg(long, default_value_t = 10, allow_negative_numbers = true)]
+    lags: i64,
+    /// Skip malformed rows of a CSV / JSON Lines log (and say how many) instead of stopping.
+    #[arg(long)]
+    skip_bad_rows: bool,
+    /// PX4: judge only the updates while vehicle_land_detected says the vehicle is flying.
+    #[arg(long)]
+    in_air: bool,
+    /// PX4: judge the data before the cut of a truncated or damaged log.
+    #[arg(long)]
+    allow_truncated: bool,
+    /// Print the full statistics as JSON on stdout instead of the summary.
+    #[arg(long)]
+    json: bool,
+    /// Write report.html, report.md and report.json into this directory.
+    #[arg(long, value_name = "DIR")]
+    report: Option<PathBuf>,
+    /// Also write a JUnit XML report (one test case per sensor) to this file.
+    #[arg(long, value_name = "FILE")]
+    junit: Option<PathBuf>,
+    /// Print nothing; the exit code is the answer.
+    #[arg(long, short, conflicts_with = "json")]
+    quiet: bool,
+}
+
+impl NisArgs {
+    fn settings(&self) -> Result<NisSettings, AppError> {
+        let lags = usize::try_from(self.lags)
+            .map_err(|_| AppError::flag("--lags", format!("{} is not in 1..=100", self.lags)))?;
+        Ok(NisSettings::default()
+            .with_alpha(self.alpha)
+            .map_err(flag_error("--alpha"))?
+            .with_gate(self.gate)
+            .map_err(flag_error("--gate"))?
+            .with_lags(lags)
+            .map_err(flag_error("--lags"))?
+            .with_window(Window::parse(&self.window).map_err(flag_error("--window"))?))
+    }
+
+    fn options(&self) -> ReadOptions {
+        ReadOptions {
+            skip_bad_rows: self.skip_bad_rows,
+            in_air: self.in_air,
+            allow_truncated: self.allow_truncated,
+        }
+    }
+}
+
+fn seconds(flag: &str, v: Option<f64>) -> Result<Option<Duration>, AppError> {
+    v.map(|s| {
+        if s.is_finite() && s > 0.0 && s < 1e9 {
+            Ok(Duration::from_secs_f64(s))
+        } else {
+            Err(AppError::flag(
+                flag,
+                format!("{s} is not a number of seconds > 0"),
+            ))
+        }
+    })
+    .transpose()
+}
+
+/// Run `nis`.
+pub fn run(a: NisArgs) -> Result<ExitCode, AppError> {
+    let settings = a.settings()?;
+    let limit = seconds("--for", a.for_seconds)?;
+    let idle = seconds("--idle", a.idle)?;
+    if let Some(path) = &a.junit {
+        check_output_file(path)?;
+    }
+    if let Some(dir) = &a.report {
+        check_report_dir(dir)?;
+    }
+    let report = match &a.follow {
+        Some(path) => follow(path, settings, &a, limit, idle)?,
+        None => analyze(&a.logs, &a.options(), settings)?,
+    };
+    finish(&a, &report)
+}
+
+fn follow(
+    path: &std::path::Path,
+    settings: NisSettings,
+    a: &NisArgs,
+    limit: Option<Duration>,
+    idle: Option<Duration>,
+) -> Result<NisReport, AppError> {
+    let mut f = Follower::new(path, settings, a.options())?;
+    let start = Instant::now();
+    let mut last_growth = Instant::now();
+    loop {
+        let tick = Instant::now();
+        if f.poll()? > 0 {
+            last_growth = Instant::now();
+        }
+        if !a.quiet && !a.json {
+            print_stdout(|o| writeln!(o, "{}", f.status()))?;
+        }
+        let done = limit.is_some_and(|l| start.elapsed() >= l)
+            || idle.is_some_and(|i| last_growth.elapsed() >= i);
+        if done {
+            f.poll()?;
+            return Ok(f.report());
+        }
+        let spent = tick.elapsed();
+        std::thread::sleep(Duration::from_secs(1).saturating_sub(spent));
+    }
+}
+
+fn finish(a: &NisArgs, report: &NisReport) -> Result<ExitCode, AppError> {
+    let json = serde_json::to_string_pretty(report).expect("the report serializes");
+    let mut outputs = Outputs::new();
+    if let Some(path) = &a.junit {
+        outputs.file(path, nis_junit_xml(report));
+    }
+    if let Some(dir) = &a.report {
+        outputs.report_dir(dir, &nis_html(report), &nis_markdown(report), &json);
+    }
+    outputs.commit()?;
+    print_stdout(|stdout| {
+        if a.json {
+            stdout.write_all(json.as_bytes())?;
+            writeln!(stdout)?;
+        } else if !a.quiet {
+            for line in nis_summary_text(report).lines() {
+                if line.starts_with("verdict:") {
+                    writeln!(stdout, "{}", paint_verdict(line, report.verdict.passes()))?;
+                } else {
+                    writeln!(stdout, "{line}")?;
+                }
+            }
+        }
+        Ok(())
+    })?;
+    Ok(if report.verdict.passes() {
+        ExitCode::SUCCESS
+    } else {
+        ExitCode::from(1)
+    })
+}

@@ -1,0 +1,388 @@
+//! PX4 ULog flight logs: the EKF2 innovations and their variances, per estimator instance.
+//!
+//! PX4 logs each channel's innovation (`estimator_innovations`) and its variance
+//! (`estimator_innovation_variances`), the same message layout, one instance per EKF
+//! (multi-EKF logs have several); releases before v1.11 log one topic `ekf2_innovations`
+//! with `<name>_innov` beside `<name>_innov_var`. No cross-covariances are logged, so each
+//! array element is its own channel with a one-degree-of-freedom NIS `ν²/S`.
+//!
+//! A logged row is a publication of the topic, not a fusion: a channel that was not fused
+//! since the last row repeats its values, and one never fused sits at zero. So per channel,
+//! in row order: a row with innovation and variance both 0 is idle; a non-finite value or a
+//! variance ≤ 0 is invalid; a row whose (innovation, variance) are bit-identical to the
+//! previous row's is a repeat; anything else is an update. The logger may sample the two
+//! topics at different cycles: each innovations row is paired with the variances row of the
+//! same `timestamp_sample`, or else the nearest within 50 ms (noted as approximate).
+
+use std::collections::{BTreeMap, HashMap};
+use std::path::Path;
+
+use px4_ulog::full_parser::Completeness;
+use px4_ulog::stream_parser::model::FlattenedFieldType;
+use px4_ulog::stream_parser::{Message, SimpleCallbackResult, read_file_with_simple_callback};
+
+use super::analysis::{Dropped, NisAnalyzer, SensorInfo, Update};
+use super::{LogSource, ReadOptions};
+use crate::input::FileError;
+
+const INNOVATIONS: &str = "estimator_innovations";
+const VARIANCES: &str = "estimator_innovation_variances";
+const LEGACY: &str = "ekf2_innovations";
+const LAND: &str = "vehicle_land_detected";
+/// Largest gap between an innovations row and the variances row it is paired with, µs.
+const PAIR_WITHIN_US: u64 = 50_000;
+/// Rows of the estimator topics kept in memory at most (about an hour at 100 Hz per
+/// instance for three instances).
+const MAX_ROWS: usize = 5_000_000;
+
+/// The rows of one topic instance: time (µs) and the float fields, by name.
+#[derive(Debug, Default)]
+struct Topic {
+    names: Vec<String>,
+    times: Vec<u64>,
+    values: Vec<Vec<f32>>,
+}
+
+/// Everything read from the file.
+#[derive(Debug, Default)]
+struct Read {
+    topics: BTreeMap<(String, u8), Topic>,
+    /// (time µs, landed).
+    land: Vec<(u64, bool)>,
+    rows: usize,
+}
+
+fn wanted(name: &str) -> bool {
+    matches!(name, INNOVATIONS | VARIANCES | LEGACY)
+}
+
+fn read_file(path: &Path) -> Result<(Read, Completeness), FileError> {
+    let text = path.to_str().ok_or_else(|| {
+        FileError::new(
+            path,
+            "",
+            "the path is not valid UTF-8 (the ULog reader needs one)",
+        )
+    })?;
+    let mut out = Read::default();
+    let mut too_many = false;
+    let mut cb = |m: &Message| {
+        let Message::Data(d) = m else {
+            return SimpleCallbackResult::KeepReading;
+        };
+        let f = d.flattened_format;
+        let name = f.message_name();
+        // Field offsets count from the start of the payload, msg_id included.
+        let data = d.data;
+        let read_u64 = |off: u16| -> Option<u64> {
+            let o = off as usize;
+            data.get(o..o + 8)
+                .map(|b| u64::from_le_bytes(b.try_into().expect("8 bytes")))
+        };
+        if name == LAND {
+            let ts = f
+                .field_iter()
+                .find(|x| x.flattened_field_name == "timestamp");
+            let landed = f.field_iter().find(|x| x.flattened_field_name == "landed");
+            if let (Some(ts), Some(l)) = (ts, landed)
+                && let (Some(t), Some(&b)) = (read_u64(ts.offset), data.get(l.offset as usize))
+            {
+                out.land.push((t, b != 0));
+            }
+            return SimpleCallbackResult::KeepReading;
+        }
+        if !wanted(name) {
+            return SimpleCallbackResult::KeepReading;
+        }
+        out.rows += 1;
+        if out.rows > MAX_ROWS {
+            too_many = true;
+            return SimpleCallbackResult::Stop;
+        }
+        let topic = out
+            .topics
+            .entry((name.to_string(), d.multi_id.value()))
+            .or_default();
+        let floats: Vec<_> = f
+            .field_iter()
+            .filter(|x| x.field_type == FlattenedFieldType::Float)
+            .filter(|x| !x.flattened_field_name.starts_with("_padding"))
+            .collect();
+        if topic.names.is_empty() {
+            topic.names = floats
+                .iter()
+                .map(|x| x.flattened_field_name.clone())
+                .collect();
+        }
+        let time_field = f
+            .field_iter()
+            .find(|x| x.flattened_field_name == "timestamp_sample")
+            .or_else(|| {
+                f.field_iter()
+                    .find(|x| x.flattened_field_name == "timestamp")
+            });
+        let Some(t) = time_field.and_then(|x| read_u64(x.offset)) else {
+            return SimpleCallbackResult::KeepReading;
+        };
+        let vals: Vec<f32> = floats
+            .iter()
+            .map(|x| {
+                let o = x.offset as usize;
+                data.get(o..o + 4).map_or(f32::NAN, |b| {
+                    f32::from_le_bytes(b.try_into().expect("4 bytes"))
+                })
+            })
+            .collect();
+        if vals.len() == topic.names.len() {
+            topic.times.push(t);
+            topic.values.push(vals);
+        }
+        SimpleCallbackResult::KeepReading
+    };
+    let completeness = read_file_with_simple_callback(text, &mut cb).map_err(|e| {
+        let msg = e.to_string();
+        let first = msg.lines().next().unwrap_or("").trim();
+        FileError::new(
+            path,
+            "",
+            format!("not a readable ULog file (its header or definitions are damaged): {first}"),
+        )
+    })?;
+    if too_many {
+        return Err(FileError::new(
+            path,
+            "",
+            format!("more than {MAX_ROWS} rows of the estimator topics"),
+        ));
+    }
+    Ok((out, completeness))
+}
+
+/// Whether the vehicle is in the air at `t` (µs): the latest land-detector row at or
+/// before `t` says not landed; before the first row, on the ground.
+fn in_air(land: &[(u64, bool)], t: u64) -> bool {
+    let i = land.partition_point(|r| r.0 <= t);
+    i > 0 && !land[i - 1].1
+}
+
+/// One channel: the column of its innovation and of its variance.
+struct Channel {
+    name: String,
+    innov: usize,
+    var: usize,
+}
+
+/// Channels of the legacy topic: `<base>_innov[j]` beside `<base>_innov_var[j]`.
+fn legacy_channels(names: &[String]) -> Vec<Channel> {
+    let mut out = Vec::new();
+    for (i, n) in names.iter().enumerate() {
+        let (stem, idx) = match n.find('[') {
+            Some(p) => (&n[..p], &n[p..]),
+            None => (n.as_str(), ""),
+        };
+        let Some(base) = stem.strip_suffix("_innov") else {
+            continue;
+        };
+        let var_name = format!("{stem}_var{idx}");
+        if let Some(v) = names.iter().position(|x| *x == var_name) {
+            out.push(Channel {
+                name: format!("{base}{idx}"),
+                innov: i,
+                var: v,
+            });
+        }
+    }
+    out
+}
+
+/// For each innovations row, the index of its variances row (exact `timestamp_sample`, or
+/// the nearest within 50 ms, the earlier on a tie) and whether it was exact.
+fn pair(innov: &[u64], var: &[u64]) -> Vec<Option<(usize, bool)>> {
+    let mut exact: HashMap<u64, usize> = HashMap::new();
+    for (j, &t) in var.iter().enumerate() {
+        exact.entry(t).or_insert(j);
+    }
+    let mut order: Vec<usize> = (0..var.len()).collect();
+    order.sort_by_key(|&j| (var[j], j));
+    innov
+        .iter()
+        .map(|&t| {
+            if let Some(&j) = exact.get(&t) {
+                return Some((j, true));
+            }
+            let p = order.partition_point(|&j| var[j] < t);
+            let before = p.checked_sub(1).map(|q| order[q]);
+            let after = order.get(p).copied();
+            let best = match (before, after) {
+                (Some(b), Some(a)) => {
+                    if t - var[b] <= var[a] - t {
+                        Some(b)
+                    } else {
+                        Some(a)
+                    }
+                }
+                (b, a) => b.or(a),
+            }?;
+            (var[best].abs_diff(t) <= PAIR_WITHIN_US).then_some((best, false))
+        })
+        .collect()
+}
+
+/// Read a PX4 ULog file into `an`.
+pub(super) fn read(
+    path: &Path,
+    options: &ReadOptions,
+    an: &mut NisAnalyzer,
+) -> Result<LogSource, FileError> {
+    let (read, completeness) = read_file(path)?;
+    let mut source = LogSource::new(path, "px4-ulog");
+    source.rows = read.rows;
+    match completeness {
+        Completeness::Complete => {}
+        Completeness::Truncated if options.allow_truncated => source
+            .notes
+            .push("the file is truncated: the data before the cut were judged".into()),
+        Completeness::Truncated => {
+            return Err(FileError::new(
+                path,
+                "",
+                "the file is truncated (it ends partway through a message); --allow-truncated judges the data before the cut",
+            ));
+        }
+        Completeness::MalformedRecord(why) if options.allow_truncated => {
+            source.notes.push(format!(
+                "a malformed message ({}) ends the readable data: what came before was judged",
+                first_line(&why)
+            ))
+        }
+        Completeness::MalformedRecord(why) => {
+            return Err(FileError::new(
+                path,
+                "",
+                format!(
+                    "a malformed message in the data ({}); --allow-truncated judges the data before it",
+                    first_line(&why)
+                ),
+            ));
+        }
+    }
+    let instances: Vec<u8> = read
+        .topics
+        .keys()
+        .filter(|(n, _)| n == INNOVATIONS || n == LEGACY)
+        .map(|(_, i)| *i)
+        .collect();
+    if instances.is_empty() {
+        return Err(FileError::new(
+            path,
+            "",
+            format!("no {INNOVATIONS} (with {VARIANCES}) or {LEGACY} data: nothing to judge"),
+        ));
+    }
+    if options.in_air && read.land.is_empty() {
+        return Err(FileError::new(
+            path,
+            "",
+            format!("--in-air needs the {LAND} topic, which this log does not have"),
+        ));
+    }
+    let t0 = read
+        .topics
+        .values()
+        .filter_map(|t| t.times.iter().min())
+        .min()
+        .copied()
+        .unwrap_or(0);
+    for ((name, inst), topic) in &read.topics {
+        let legacy = name == LEGACY;
+        if !(legacy || name == INNOVATIONS) {
+            continue;
+        }
+        let (channels, pairing, var_topic) = if legacy {
+            let pairing: Vec<Option<(usize, bool)>> =
+                (0..topic.times.len()).map(|r| Some((r, true))).collect();
+            (legacy_channels(&topic.names), pairing, topic)
+        } else {
+            let Some(vt) = read.topics.get(&(VARIANCES.to_string(), *inst)) else {
+                source.notes.push(format!(
+                    "ekf{inst}: {INNOVATIONS} without {VARIANCES}: skipped"
+                ));
+                continue;
+            };
+            let channels = topic
+                .names
+                .iter()
+                .enumerate()
+                .filter(|(_, n)| *n != "timestamp" && *n != "timestamp_sample")
+                .filter_map(|(i, n)| {
+                    vt.names.iter().position(|v| v == n).map(|v| Channel {
+                        name: n.clone(),
+                        innov: i,
+                        var: v,
+                    })
+                })
+                .collect();
+            (channels, pair(&topic.times, &vt.times), vt)
+        };
+        let exact = pairing
+            .iter()
+            .filter(|p| matches!(p, Some((_, true))))
+            .count();
+        let near = pairing
+            .iter()
+            .filter(|p| matches!(p, Some((_, false))))
+            .count();
+        let unpaired = pairing.len() - exact - near;
+        if !legacy {
+            source.notes.push(format!(
+                "ekf{inst}: {} rows; {exact} paired with a variances row of the same timestamp_sample, {near} with the nearest within 50 ms, {unpaired} unpaired (dropped)",
+                pairing.len()
+            ));
+        }
+        for ch in channels {
+            let i = an
+                .sensor(SensorInfo {
+                    name: format!("ekf{inst}.{}", ch.name),
+                    components: vec![format!("ekf{inst}.{}", ch.name)],
+                    group: format!("ekf{inst}"),
+                })
+                .map_err(|m| FileError::new(path, "", m))?;
+            let mut dropped = Dropped::default();
+            let mut prev: Option<(u32, u32)> = None;
+            for (r, p) in pairing.iter().enumerate() {
+                let Some((vr, _)) = *p else { continue };
+                let nu = topic.values[r][ch.innov];
+                let s = var_topic.values[vr][ch.var];
+                let bits = (nu.to_bits(), s.to_bits());
+                let last = prev.replace(bits);
+                if nu == 0.0 && s == 0.0 {
+                    dropped.idle += 1;
+                } else if !nu.is_finite() || !s.is_finite() || s <= 0.0 {
+                    dropped.invalid += 1;
+                } else if last == Some(bits) {
+                    dropped.repeats += 1;
+                } else if options.in_air && !in_air(&read.land, topic.times[r]) {
+                    dropped.on_ground += 1;
+                } else {
+                    let (nu, s) = (f64::from(nu), f64::from(s));
+                    an.push(
+                        i,
+                        Update {
+                            time: (topic.times[r].saturating_sub(t0)) as f64 * 1e-6,
+                            nis: nu * nu / s,
+                            dof: 1,
+                            u: Some(vec![nu / s.sqrt()]),
+                        },
+                    );
+                }
+            }
+            an.drop_rows(i, dropped);
+        }
+    }
+    Ok(source)
+}
+
+fn first_line(s: &str) -> String {
+    let l = s.lines().next().unwrap_or("");
+    crate::records::shown_up_to(l, 120)
+}

@@ -1,0 +1,128 @@
+//! The records format of `docs/external.md` read as a field log: each run is a sequence of
+//! updates, its step the time; state quantities (ground truth) are ignored.
+
+use std::path::PathBuf;
+
+use super::LogSource;
+use super::analysis::{NisAnalyzer, SensorInfo, Update};
+use crate::input::FileError;
+use crate::records::{Layout, StepRecord, StepSink, feed_files, normalize_sensor, scan_files};
+
+/// Streams records into an analyzer.
+struct Sink<'a> {
+    layout: Layout,
+    an: &'a mut NisAnalyzer,
+    ids: Vec<usize>,
+    run: Option<usize>,
+    stopped: bool,
+    rows: usize,
+    diverged: Vec<String>,
+}
+
+impl StepSink for Sink<'_> {
+    fn push(&mut self, r: StepRecord) -> Result<(), String> {
+        self.rows += 1;
+        if self.run != Some(r.run) {
+            self.run = Some(r.run);
+            self.stopped = false;
+            self.an.break_sequences();
+        }
+        if self.stopped {
+            return Ok(());
+        }
+        if let Some(why) = &r.diverged {
+            self.stop(r.run, r.step, why);
+            return Ok(());
+        }
+        for (s, rec) in &r.sensors {
+            let layout = self
+                .layout
+                .sensors
+                .get(*s)
+                .ok_or_else(|| format!("run {}, step {}: sensor index {s}", r.run, r.step))?;
+            let n = match normalize_sensor(rec, layout.dim, layout.components) {
+                Ok(Ok(n)) => n,
+                Ok(Err(why)) => {
+                    self.stop(r.run, r.step, &why);
+                    return Ok(());
+                }
+                Err(why) => return Err(format!("run {}, step {}: {why}", r.run, r.step)),
+            };
+            if n.dof.fract() != 0.0 {
+                return Err(format!(
+                    "run {}, step {}: nis_dof {} is not a whole number",
+                    r.run, r.step, n.dof
+                ));
+            }
+            self.an.push(
+                self.ids[*s],
+                Update {
+                    time: r.step as f64,
+                    nis: n.nis,
+                    dof: n.dof as usize,
+                    u: n.u,
+                },
+            );
+        }
+        Ok(())
+    }
+}
+
+impl Sink<'_> {
+    fn stop(&mut self, run: usize, step: usize, why: &str) {
+        self.stopped = true;
+        if self.diverged.len() < 3 {
+            self.diverged
+                .push(format!("run {run} stopped at step {step} ({why})"));
+        }
+    }
+}
+
+/// Read records files (one source: several `.npy` files of one set of arrays, or one file).
+pub(super) fn read(paths: &[PathBuf], an: &mut NisAnalyzer) -> Result<LogSource, FileError> {
+    let (layout, steps) = scan_files(paths)?;
+    let names = layout.default_measurement_names();
+    let mut at = 0;
+    let mut ids = Vec::new();
+    for s in &layout.sensors {
+        let components = if s.components {
+            let c = names[at..at + s.dim].to_vec();
+            at += s.dim;
+            c
+        } else {
+            Vec::new()
+        };
+        let name = if s.name.is_empty() { "z" } else { &s.name };
+        ids.push(
+            an.sensor(SensorInfo {
+                name: name.to_string(),
+                components,
+                group: String::new(),
+            })
+            .map_err(|m| FileError::new(&paths[0], "", m))?,
+        );
+    }
+    let mut sink = Sink {
+        layout: layout.clone(),
+        an,
+        ids,
+        run: None,
+        stopped: false,
+        rows: 0,
+        diverged: Vec::new(),
+    };
+    feed_files(paths, &layout, steps, &mut sink)?;
+    let mut source = LogSource::new(&paths[0], "records");
+    source.rows = sink.rows;
+    if layout.state.is_some() {
+        source
+            .notes
+            .push("the records' ground-truth quantities are ignored: judged by the innovations alone (autotune check --records uses them)".into());
+    }
+    for d in &sink.diverged {
+        source
+            .notes
+            .push(format!("{d}: its later steps are not judged"));
+    }
+    Ok(source)
+}

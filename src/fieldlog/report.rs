@@ -1,0 +1,573 @@
+//! From a log's sums to its verdict: per sensor the gated NIS average against its single-run
+//! interval, the outlier count against its binomial tail, each component's `ν_j²/S_jj` and
+//! whiteness, at a family-wise level α (Šidák over every test), and what the evidence
+//! blames.
+
+use serde::Serialize;
+use statrs::function::beta::beta_reg;
+
+use super::analysis::{Dropped, HIST_BINS, NisAnalyzer, SensorSums, SeriesPoint};
+use super::settings::Window;
+use crate::stats::{
+    ComponentStat, Finding, Interval, Suspect, Verdict, WhitenessStat, WhitenessTest, blame,
+    chi2_average_interval, combine, gate_alpha, has_power, normal_two_sided_quantile,
+    scaled_chi2_interval, whiteness_tests,
+};
+
+/// A gated NIS average and its test.
+#[derive(Debug, Clone, Serialize)]
+pub struct NisAverage {
+    /// Average NIS over the updates inside the outlier gate.
+    pub mean: f64,
+    /// What a consistent filter's gated average is (its dimension, less the tail the gate
+    /// cuts off).
+    pub target: f64,
+    /// Single-run interval at the test level: the sum of K truncated `χ²(m)` variables,
+    /// moment-matched (exactly `χ²(K m)/K` without the gate).
+    pub interval: Interval,
+    /// Degrees of freedom summed over the gated updates.
+    pub dof: f64,
+    /// Where the average falls ([`Verdict::Inconclusive`] when inside but the test could
+    /// not tell a factor-2 error).
+    pub verdict: Verdict,
+}
+
+/// The moving-window average over a sensor's log.
+#[derive(Debug, Clone, Serialize)]
+pub struct WindowSummary {
+    /// Windows evaluated (one per gated update once the window has filled).
+    pub windows: usize,
+    /// Of those, outside their interval at α (each window's own `χ²` interval); about α of
+    /// them for a consistent filter, in runs, since windows overlap.
+    pub outside: usize,
+    /// The lowest window average and its time (s).
+    pub min: Option<(f64, f64)>,
+    /// The highest window average and its time (s).
+    pub max: Option<(f64, f64)>,
+    /// The latest window's average and interval.
+    pub last: Option<(f64, f64, f64)>,
+}
+
+/// A histogram of one dimension's NIS values, for the plot against the χ² density.
+#[derive(Debug, Clone, Serialize)]
+pub struct Histogram {
+    /// The measurement dimension m.
+    pub dof: usize,
+    /// Upper end of the bins, `χ²⁻¹(0.999, m)`; bins are equal over `[0, top]`.
+    pub top: f64,
+    /// Counts per bin.
+    pub counts: Vec<u64>,
+    /// Values above `top`.
+    pub above: u64,
+}
+
+/// What a sensor's report needs for its plots (not in the JSON).
+#[derive(Debug, Clone, Default)]
+pub struct SensorPlot {
+    /// NIS and the window average over time, decimated to a few thousand points.
+    pub series: Vec<SeriesPoint>,
+    /// Outliers (time s, NIS), the first thousand.
+    pub outliers: Vec<(f64, f64)>,
+    /// The histogram of the most common dimension.
+    pub histogram: Option<Histogram>,
+}
+
+/// Everything `autotune nis` says about one sensor.
+#[derive(Debug, Clone, Serialize)]
+pub struct SensorReport {
+    /// Name.
+    pub name: String,
+    /// The estimator it belongs to (empty for a single filter).
+    pub group: String,
+    /// Component names (empty when the log gives the NIS alone).
+    pub components: Vec<String>,
+    /// Updates read (outliers included).
+    pub updates: usize,
+    /// Rows the reader dropped before the statistics.
+    pub dropped: Dropped,
+    /// Time of the first and the last update, seconds.
+    pub time_span: (f64, f64),
+    /// Updates whose NIS is beyond the outlier gate: counted, not averaged.
+    pub outliers: usize,
+    /// How many a consistent filter would have, `K · p`.
+    pub outliers_expected: f64,
+    /// `P(X ≥ outliers)` for `X ~ Binomial(K, p)`.
+    pub outliers_p_value: f64,
+    /// [`Verdict::Overconfident`] when that is below the test level: the tails are heavier
+    /// than S allows.
+    pub outliers_verdict: Verdict,
+    /// The gated average NIS and its test.
+    pub nis: NisAverage,
+    /// Average NIS over every update, outliers included.
+    pub nis_mean_all: f64,
+    /// Fraction of updates whose NIS lies in its own two-sided interval at α; about 1 − α
+    /// for a consistent filter.
+    pub inside_fraction: f64,
+    /// The moving window.
+    pub window: WindowSummary,
+    /// `ν_j²/S_jj` per component (sensors of two or more components).
+    pub component_stats: Vec<ComponentStat>,
+    /// Normalized autocorrelation of each component's innovations at lags 1..L, on the
+    /// sensor's own update sequence, with the band of a white sequence at α.
+    pub whiteness: Vec<WhitenessStat>,
+    /// The portmanteau test of each component over the lags, at the test level.
+    pub whiteness_tests: Vec<WhitenessTest>,
+    /// The sensor's verdict (all its tests).
+    pub verdict: Verdict,
+    /// What the evidence blames, when the sensor fails.
+    pub finding: Option<Finding>,
+    /// Data for the plots.
+    #[serde(skip)]
+    pub plot: SensorPlot,
+}
+
+/// A channel the log carries that was never fused.
+#[derive(Debug, Clone, Serialize)]
+pub struct NotFused {
+    /// Name.
+    pub name: String,
+    /// Its rows, by why they were dropped.
+    pub dropped: Dropped,
+}
+
+/// All sensors pooled: NIS per degree of freedom.
+#[derive(Debug, Clone, Serialize)]
+pub struct Overall {
+    /// Updates of all sensors.
+    pub updates: usize,
+    /// Outliers of all sensors.
+    pub outliers: usize,
+    /// `Σ NIS / Σ m` over the gated updates.
+    pub nis_per_dof: f64,
+    /// Its value for a consistent filter (1 less the gate's tail).
+    pub target: f64,
+    /// Its single-run interval at the test level.
+    pub interval: Interval,
+    /// Where the pooled average falls (context: the gate's verdict combines the sensors).
+    pub level: Verdict,
+}
+
+/// Everything `autotune nis` reports about a log.
+#[derive(Debug, Clone, Serialize)]
+pub struct NisReport {
+    /// The files read and what their readers noted.
+    pub sources: Vec<super::LogSource>,
+    /// Family-wise significance level α.
+    pub alpha: f64,
+    /// How many tests the verdict applies.
+    pub tests: usize,
+    /// The level of each, `1 − (1 − α)^{1/tests}` (Šidák).
+    pub test_alpha: f64,
+    /// Tail probability of the outlier gate.
+    pub gate: f64,
+    /// The moving window.
+    pub window: Window,
+    /// Whiteness lags.
+    pub lags: usize,
+    /// The sensors with updates.
+    pub sensors: Vec<SensorReport>,
+    /// Channels the log carries that had no update.
+    pub not_fused: Vec<NotFused>,
+    /// All sensors pooled.
+    pub overall: Overall,
+    /// The verdict of every test together.
+    pub verdict: Verdict,
+    /// What the failing sensors' evidence points to overall.
+    pub suspect: Option<Suspect>,
+}
+
+impl NisReport {
+    /// One line: what the evidence points to, or `None` when nothing is off.
+    pub fn headline(&self) -> Option<String> {
+        self.suspect
+            .map(|s| format!("the evidence points to {}", s.words()))
+    }
+}
+
+/// The interval of `sum / count` for a sum of gated χ² variables with the given mean and
+/// variance.
+fn gated_interval(level: f64, mean: f64, var: f64, count: f64) -> Interval {
+    if var > 0.0 {
+        scaled_chi2_interval(level, mean, var, count).0
+    } else {
+        Interval {
+            lower: mean / count,
+            upper: mean / count,
+        }
+    }
+}
+
+/// `P(X ≥ k)` for `X ~ Binomial(n, p)`.
+fn binomial_tail(k: usize, n: usize, p: f64) -> f64 {
+    if k == 0 {
+        1.0
+    } else if k > n {
+        0.0
+    } else {
+        beta_reg(k as f64, (n - k + 1) as f64, p)
+    }
+}
+
+/// The number of tests a sensor contributes to the family.
+fn tests_of(s: &SensorSums, lags: usize) -> usize {
+    if s.updates == 0 {
+        return 0;
+    }
+    let m = s.info.components.len();
+    let comps = if m > 1 {
+        s.comp_n.iter().filter(|n| **n > 0.0).count()
+    } else {
+        0
+    };
+    let white = (0..m)
+        .filter(|&j| (0..lags).any(|l| s.white_pairs[l * m + j] >= 1.0))
+        .count();
+    usize::from(s.gated > 0) + 1 + comps + white
+}
+
+impl NisAnalyzer {
+    /// The report of everything read so far (a log still being written may be reported
+    /// again later).
+    pub fn report(&self) -> NisReport {
+        let alpha = self.settings.alpha();
+        let lags = self.settings.lags();
+        let gate = self.settings.gate();
+        let tests: usize = self.sensors.iter().map(|s| tests_of(s, lags)).sum();
+        let level = gate_alpha(alpha, tests);
+        let z = normal_two_sided_quantile(alpha);
+        let mut sensors: Vec<SensorReport> = Vec::new();
+        let mut not_fused = Vec::new();
+        for s in &self.sensors {
+            if s.updates == 0 {
+                not_fused.push(NotFused {
+                    name: s.info.name.clone(),
+                    dropped: s.dropped,
+                });
+                continue;
+            }
+            sensors.push(self.sensor_report(s, level, z));
+        }
+        attribute(&mut sensors);
+        let (mut n, mut o, mut nis, mut dof, mut mean, mut var) = (0, 0, 0.0, 0.0, 0.0, 0.0);
+        for s in &self.sensors {
+            n += s.updates;
+            o += s.outliers;
+            nis += s.nis_sum;
+            dof += s.dof_sum;
+            mean += s.mean_sum;
+            var += s.var_sum;
+        }
+        let overall = if dof > 0.0 {
+            let interval = gated_interval(level, mean, var, dof);
+            Overall {
+                updates: n,
+                outliers: o,
+                nis_per_dof: nis / dof,
+                target: mean / dof,
+                interval,
+                level: interval.classify(nis / dof),
+            }
+        } else {
+            let nan = Interval {
+                lower: f64::NAN,
+                upper: f64::NAN,
+            };
+            Overall {
+                updates: n,
+                outliers: o,
+                nis_per_dof: f64::NAN,
+                target: f64::NAN,
+                interval: nan,
+                level: Verdict::Inconclusive,
+            }
+        };
+        let verdict = if sensors.is_empty() {
+            Verdict::Inconclusive
+        } else {
+            combine(&sensors.iter().map(|s| s.verdict).collect::<Vec<_>>())
+        };
+        let blames = |x: Suspect| {
+            sensors
+                .iter()
+                .any(|s| s.finding.as_ref().is_some_and(|f| f.suspect == Some(x)))
+        };
+        let suspect = match (
+            blames(Suspect::Q),
+            blames(Suspect::R),
+            blames(Suspect::QAndR),
+        ) {
+            (false, false, false) => None,
+            (true, false, false) => Some(Suspect::Q),
+            (false, true, false) => Some(Suspect::R),
+            _ => Some(Suspect::QAndR),
+        };
+        NisReport {
+            sources: Vec::new(),
+            alpha,
+            tests,
+            test_alpha: level,
+            gate,
+            window: self.settings.window(),
+            lags,
+            sensors,
+            not_fused,
+            overall,
+            verdict,
+            suspect,
+        }
+    }
+
+    fn sensor_report(&self, s: &SensorSums, level: f64, z: f64) -> SensorReport {
+        let gate = self.settings.gate();
+        let k = s.updates;
+        let nis = if s.gated > 0 {
+            let count = s.gated as f64;
+            let interval = gated_interval(level, s.mean_sum, s.var_sum, count);
+            let mean = s.nis_sum / count;
+            let mut verdict = interval.classify(mean);
+            if verdict == Verdict::Consistent && !has_power(level, s.dof_sum) {
+                verdict = Verdict::Inconclusive;
+            }
+            NisAverage {
+                mean,
+                target: s.mean_sum / count,
+                interval,
+                dof: s.dof_sum,
+                verdict,
+            }
+        } else {
+            NisAverage {
+                mean: f64::NAN,
+                target: f64::NAN,
+                interval: Interval {
+                    lower: f64::NAN,
+                    upper: f64::NAN,
+                },
+                dof: 0.0,
+                verdict: Verdict::Inconclusive,
+            }
+        };
+        let p_value = binomial_tail(s.outliers, k, gate);
+        let outliers_verdict = if p_value < level {
+            Verdict::Overconfident
+        } else {
+            Verdict::Consistent
+        };
+        let m = s.info.components.len();
+        let component_stats: Vec<ComponentStat> = if m > 1 {
+            (0..m)
+                .filter(|&j| s.comp_n[j] > 0.0)
+                .map(|j| {
+                    let n = s.comp_n[j];
+                    let interval = chi2_average_interval(level, n, n);
+                    let value = s.comp_sum[j] / n;
+                    ComponentStat {
+                        name: s.info.components[j].clone(),
+                        kind: "measurement",
+                        value,
+                        interval,
+                        samples: n,
+                        verdict: interval.classify(value),
+                    }
+                })
+                .collect()
+        } else {
+            Vec::new()
+        };
+        let mut whiteness = Vec::new();
+        for lag in 1..=self.settings.lags() {
+            for j in 0..m {
+                let idx = (lag - 1) * m + j;
+                let pairs = s.white_pairs[idx];
+                if pairs < 1.0 {
+                    continue;
+                }
+                let den = (s.white_a2[idx] * s.white_b2[idx]).sqrt();
+                whiteness.push(WhitenessStat {
+                    component: s.info.components[j].clone(),
+                    lag,
+                    rho: if den > 0.0 {
+                        s.white_ab[idx] / den
+                    } else {
+                        0.0
+                    },
+                    band: z / pairs.sqrt(),
+                    pairs,
+                });
+            }
+        }
+        let whiteness_tests = whiteness_tests(&whiteness, &s.info.components, level);
+        let mut all: Vec<Verdict> = vec![nis.verdict, outliers_verdict];
+        all.extend(component_stats.iter().map(|c| c.verdict));
+        all.extend(whiteness_tests.iter().map(|w| w.verdict));
+        let histogram = s
+            .hist
+            .iter()
+            .max_by_key(|h| h.1.iter().sum::<u64>() + h.2)
+            .map(|(dof, counts, above)| Histogram {
+                dof: *dof,
+                top: crate::stats::chi2_inv(0.999, *dof as f64),
+                counts: counts.clone(),
+                above: *above,
+            });
+        debug_assert!(
+            histogram
+                .as_ref()
+                .is_none_or(|h| h.counts.len() == HIST_BINS)
+        );
+        SensorReport {
+            name: s.info.name.clone(),
+            group: s.info.group.clone(),
+            components: s.info.components.clone(),
+            updates: k,
+            dropped: s.dropped,
+            time_span: (s.first_time.unwrap_or(f64::NAN), s.last_time),
+            outliers: s.outliers,
+            outliers_expected: k as f64 * gate,
+            outliers_p_value: p_value,
+            outliers_verdict,
+            nis,
+            nis_mean_all: s.nis_sum_all / k as f64,
+            inside_fraction: s.inside as f64 / k as f64,
+            window: WindowSummary {
+                windows: s.windows,
+                outside: s.windows_outside,
+                min: s.window_min,
+                max: s.window_max,
+                last: s.last_window,
+            },
+            component_stats,
+            whiteness,
+            whiteness_tests,
+            verdict: combine(&all),
+            finding: None,
+            plot: SensorPlot {
+                series: s.series.clone(),
+                outliers: s.outlier_points.clone(),
+                histogram,
+            },
+        }
+    }
+}
+
+impl SensorReport {
+    /// The sign of the sensor's level: +1 when its NIS is above its interval (or its
+    /// outliers are too many with the average inside), −1 below, 0 otherwise.
+    fn level(&self) -> i32 {
+        match self.nis.verdict {
+            Verdict::Overconfident => 1,
+            Verdict::Underconfident => -1,
+            _ if self.outliers_verdict == Verdict::Overconfident => 1,
+            _ => 0,
+        }
+    }
+
+    /// The sign of the lag-1 autocorrelation of the component whose whiteness test fails
+    /// most clearly, 0 when all are white.
+    fn gain(&self) -> (i32, Option<f64>) {
+        self.whiteness_tests
+            .iter()
+            .filter(|w| w.verdict == Verdict::NotWhite)
+            .max_by(|a, b| (a.statistic / a.threshold).total_cmp(&(b.statistic / b.threshold)))
+            .map_or((0, None), |w| {
+                (if w.rho1 > 0.0 { 1 } else { -1 }, Some(w.rho1))
+            })
+    }
+}
+
+/// Give each failing sensor its finding: the level and whiteness table of
+/// [`crate::stats::blame`], and where the innovations are white, the other sensors of the
+/// same estimator: a shared overconfidence points to the Q they share, a sensor off alone to
+/// its own R.
+fn attribute(sensors: &mut [SensorReport]) {
+    let levels: Vec<(String, i32)> = sensors
+        .iter()
+        .map(|s| (s.group.clone(), s.level()))
+        .collect();
+    for (i, s) in sensors.iter_mut().enumerate() {
+        if s.verdict.passes() || s.verdict == Verdict::Inconclusive {
+            continue;
+        }
+        let lv = s.level();
+        let (g, rho1) = s.gain();
+        if lv == 0 && g == 0 {
+            continue;
+        }
+        let peers: Vec<i32> = levels
+            .iter()
+            .enumerate()
+            .filter(|(j, (grp, _))| *j != i && *grp == s.group)
+            .map(|(_, (_, l))| *l)
+            .collect();
+        let heavy_tails_only =
+            s.nis.verdict == Verdict::Consistent && s.outliers_verdict == Verdict::Overconfident;
+        let (suspect, action) = if heavy_tails_only && g == 0 {
+            (
+                Suspect::R,
+                "the average fits but the tails do not: look for glitches the filter should reject, or increase R".to_string(),
+            )
+        } else if g == 0 && lv != 0 && !peers.is_empty() {
+            let dir = if lv > 0 { "increase" } else { "decrease" };
+            if peers.iter().all(|p| *p == lv) {
+                (
+                    Suspect::Q,
+                    format!(
+                        "{dir} Q (every sensor of this estimator is off the same way, and Q is what they share)"
+                    ),
+                )
+            } else if peers.iter().all(|p| *p == 0) {
+                (
+                    Suspect::R,
+                    format!("{dir} this sensor's R (the other sensors of this estimator fit)"),
+                )
+            } else {
+                let (sus, act) = blame(lv, 0);
+                (sus, act.to_string())
+            }
+        } else {
+            let (sus, act) = blame(lv, g);
+            (sus, act.to_string())
+        };
+        let mut evidence = if s.nis.mean.is_finite() {
+            format!(
+                "NIS {} ({} expected, interval [{}, {}])",
+                short(s.nis.mean),
+                short(s.nis.target),
+                short(s.nis.interval.lower),
+                short(s.nis.interval.upper)
+            )
+        } else {
+            "no update inside the gate".to_string()
+        };
+        if s.outliers_verdict == Verdict::Overconfident {
+            evidence.push_str(&format!(
+                ", {} outliers where {} expected",
+                s.outliers,
+                short(s.outliers_expected)
+            ));
+        }
+        if let Some(r) = rho1 {
+            evidence.push_str(&format!(", ρ₁ = {r:+.3}"));
+        }
+        s.finding = Some(Finding {
+            component: s.name.clone(),
+            suspect: Some(suspect),
+            action,
+            evidence,
+        });
+    }
+}
+
+/// A number in 4 significant digits, for the evidence text.
+pub(super) fn short(v: f64) -> String {
+    if v == 0.0 || !v.is_finite() {
+        return format!("{v}");
+    }
+    let a = v.abs();
+    if (1e-3..1e5).contains(&a) {
+        let digits = (3 - a.log10().floor() as i32).clamp(0, 6) as usize;
+        format!("{v:.digits$}")
+    } else {
+        format!("{v:.3e}")
+    }
+}

@@ -1,0 +1,255 @@
+//! What `autotune nis` prints and writes: the summary table, JUnit XML and Markdown.
+
+use std::fmt::Write;
+
+use super::fmt_g;
+use super::html::escape;
+use crate::fieldlog::{NisReport, SensorReport};
+use crate::stats::Verdict;
+
+/// Channels listed by name in the "not fused" line; the JSON lists all.
+const NOT_FUSED_LISTED: usize = 8;
+
+fn rho1(s: &SensorReport) -> String {
+    s.whiteness
+        .iter()
+        .filter(|w| w.lag == 1)
+        .max_by(|a, b| a.rho.abs().total_cmp(&b.rho.abs()))
+        .map_or("–".into(), |w| {
+            let flag = if s
+                .whiteness_tests
+                .iter()
+                .any(|t| t.verdict == Verdict::NotWhite)
+            {
+                " ✗"
+            } else {
+                ""
+            };
+            format!("{:+.3}{flag}", w.rho)
+        })
+}
+
+fn dropped(s: &SensorReport) -> String {
+    let d = &s.dropped;
+    let mut parts = Vec::new();
+    if d.repeats > 0 {
+        parts.push(format!("{} repeats", d.repeats));
+    }
+    if d.idle > 0 {
+        parts.push(format!("{} idle", d.idle));
+    }
+    if d.invalid > 0 {
+        parts.push(format!("{} invalid", d.invalid));
+    }
+    if d.on_ground > 0 {
+        parts.push(format!("{} on ground", d.on_ground));
+    }
+    if parts.is_empty() {
+        "–".into()
+    } else {
+        parts.join(", ")
+    }
+}
+
+/// The gate's settings in one line.
+pub fn nis_gate_text(r: &NisReport) -> String {
+    format!(
+        "gate: α = {} family-wise over {} tests (each at {}); outliers: NIS beyond its {} tail, counted apart; window {}; whiteness lags 1..{}",
+        r.alpha,
+        r.tests,
+        fmt_g(r.test_alpha),
+        r.gate,
+        r.window.describe(),
+        r.lags
+    )
+}
+
+/// The verdict line: the verdict, how many sensors fail, and what the evidence points to.
+pub fn nis_verdict_line(r: &NisReport) -> String {
+    let failing = r.sensors.iter().filter(|s| !s.verdict.passes()).count();
+    let mut line = format!("verdict: {}", r.verdict.describe());
+    if !r.sensors.is_empty() && failing > 0 {
+        let _ = write!(line, " — {failing} of {} sensors fail", r.sensors.len());
+    }
+    if let Some(h) = r.headline() {
+        let _ = write!(line, "; {h}");
+    }
+    line
+}
+
+/// The human summary of a field log.
+pub fn nis_summary_text(r: &NisReport) -> String {
+    let mut o = String::new();
+    let updates: usize = r.sensors.iter().map(|s| s.updates).sum();
+    let _ = writeln!(
+        o,
+        "autotune nis: {} log{}, {} sensor{} with updates, {updates} updates",
+        r.sources.len(),
+        if r.sources.len() == 1 { "" } else { "s" },
+        r.sensors.len(),
+        if r.sensors.len() == 1 { "" } else { "s" },
+    );
+    for src in &r.sources {
+        let _ = writeln!(o, "  {} ({}, {} rows)", src.path, src.format, src.rows);
+        for n in &src.notes {
+            let _ = writeln!(o, "    {n}");
+        }
+    }
+    let _ = writeln!(o, "{}", nis_gate_text(r));
+    let _ = writeln!(o);
+    let inside = format!("in {:.0}%", 100.0 * (1.0 - r.alpha));
+    let width = r
+        .sensors
+        .iter()
+        .map(|s| s.name.chars().count())
+        .max()
+        .unwrap_or(6)
+        .max(6);
+    let _ = writeln!(
+        o,
+        "{:<width$}  {:>7}  {:>10}  {:>10}  {:<22}  {:>6}  {:>8}  {:>9}  {:>8}  verdict   dropped",
+        "sensor", "updates", "NIS avg", "expected", "interval", inside, "outliers", "ρ₁", "windows"
+    );
+    for s in &r.sensors {
+        let interval = format!(
+            "[{}, {}]",
+            fmt_g(s.nis.interval.lower),
+            fmt_g(s.nis.interval.upper)
+        );
+        let windows = if s.window.windows > 0 {
+            format!(
+                "{:.0}% out",
+                100.0 * s.window.outside as f64 / s.window.windows as f64
+            )
+        } else {
+            "–".into()
+        };
+        let _ = writeln!(
+            o,
+            "{:<width$}  {:>7}  {:>10}  {:>10}  {:<22}  {:>5.1}%  {:>8}  {:>9}  {:>8}  {:<8}  {}",
+            s.name,
+            s.updates,
+            fmt_g(s.nis.mean),
+            fmt_g(s.nis.target),
+            interval,
+            100.0 * s.inside_fraction,
+            if s.outliers_verdict == Verdict::Overconfident {
+                format!("{} ✗", s.outliers)
+            } else {
+                s.outliers.to_string()
+            },
+            rho1(s),
+            windows,
+            s.verdict.label(),
+            dropped(s)
+        );
+    }
+    if !r.not_fused.is_empty() {
+        let names: Vec<&str> = r
+            .not_fused
+            .iter()
+            .take(NOT_FUSED_LISTED)
+            .map(|n| n.name.as_str())
+            .collect();
+        let more = r.not_fused.len().saturating_sub(NOT_FUSED_LISTED);
+        let _ = writeln!(
+            o,
+            "not fused (no update): {}{}",
+            names.join(", "),
+            if more > 0 {
+                format!(" and {more} more")
+            } else {
+                String::new()
+            }
+        );
+    }
+    let ov = &r.overall;
+    if ov.nis_per_dof.is_finite() {
+        let _ = writeln!(
+            o,
+            "overall: NIS per degree of freedom {} ({} expected, interval [{}, {}]) over {} updates, {} outliers",
+            fmt_g(ov.nis_per_dof),
+            fmt_g(ov.target),
+            fmt_g(ov.interval.lower),
+            fmt_g(ov.interval.upper),
+            ov.updates,
+            ov.outliers
+        );
+    }
+    let findings: Vec<_> = r
+        .sensors
+        .iter()
+        .filter_map(|s| s.finding.as_ref())
+        .collect();
+    if !findings.is_empty() {
+        let _ = writeln!(
+            o,
+            "\nadvice (from the NIS alone; see the README's Field logs):"
+        );
+        for f in findings {
+            let _ = writeln!(o, "  {}: {} — {}", f.component, f.action, f.evidence);
+        }
+    }
+    let _ = writeln!(o, "\n{}", nis_verdict_line(r));
+    o
+}
+
+/// JUnit XML: one test case per sensor, named after it.
+pub fn nis_junit_xml(r: &NisReport) -> String {
+    let mut cases = String::new();
+    let mut failures = 0;
+    for s in &r.sensors {
+        let name = escape(&s.name);
+        if s.verdict.passes() {
+            let _ = writeln!(cases, "    <testcase name=\"{name}\" classname=\"nis\"/>");
+            continue;
+        }
+        failures += 1;
+        let message = format!(
+            "{}: NIS {} (expected {}, interval [{}, {}]), {} outliers, {}",
+            s.verdict.label(),
+            fmt_g(s.nis.mean),
+            fmt_g(s.nis.target),
+            fmt_g(s.nis.interval.lower),
+            fmt_g(s.nis.interval.upper),
+            s.outliers,
+            s.whiteness_tests
+                .iter()
+                .find(|w| w.verdict == Verdict::NotWhite)
+                .map_or("innovations white".to_string(), |w| format!(
+                    "innovations correlated (ρ₁ = {:+.3})",
+                    w.rho1
+                ))
+        );
+        let body = s
+            .finding
+            .as_ref()
+            .map_or(String::new(), |f| format!("{}: {}", f.action, f.evidence));
+        let _ = writeln!(
+            cases,
+            "    <testcase name=\"{name}\" classname=\"nis\">\n      <failure message=\"{}\" type=\"inconsistent\">{}</failure>\n    </testcase>",
+            escape(&message),
+            escape(&body)
+        );
+    }
+    if r.sensors.is_empty() {
+        failures += 1;
+        let _ = writeln!(
+            cases,
+            "    <testcase name=\"updates\" classname=\"nis\">\n      <failure message=\"no updates in the log\" type=\"inconclusive\"/>\n    </testcase>"
+        );
+    }
+    let tests = r.sensors.len().max(1);
+    format!(
+        "<?xml version=\"1.0\" encoding=\"UTF-8\"?>\n<testsuites>\n  <testsuite name=\"autotune nis\" tests=\"{tests}\" failures=\"{failures}\">\n{cases}  </testsuite>\n</testsuites>\n"
+    )
+}
+
+/// The summary as Markdown (the text table in a code block).
+pub fn nis_markdown(r: &NisReport) -> String {
+    format!(
+        "# autotune nis\n\n**{}**\n\n```text\n{}```\n",
+        nis_verdict_line(r).trim_start_matches("verdict: "),
+        nis_summary_text(r)
+    )
+}

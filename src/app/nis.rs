@@ -48,7 +48,7 @@ pub struct NisArgs {
     #[arg(long, default_value_t = 1e-5, allow_negative_numbers = true)]
     gate: f64,
     /// Moving window: a number of updates (50) or of seconds (10s).
-    #[arg(long, default_value = "50")]
+    #[arg(long, default_value = "50", allow_hyphen_values = true)]
     window: String,
     /// Whiteness lags L (in updates of each sensor).
     #[arg(long, default_value_t = 10, allow_negative_numbers = true)]

@@ -64,6 +64,7 @@ fn read_file(path: &Path) -> Result<(Read, Completeness), FileError> {
             "the path is not valid UTF-8 (the ULog reader needs one)",
         )
     })?;
+    check_magic(path)?;
     let mut out = Read::default();
     let mut too_many = false;
     let mut cb = |m: &Message| {
@@ -156,6 +157,34 @@ fn read_file(path: &Path) -> Result<(Read, Completeness), FileError> {
         ));
     }
     Ok((out, completeness))
+}
+
+/// The 7 bytes every ULog file starts with (then a version byte and a 64-bit timestamp).
+const MAGIC: [u8; 7] = [b'U', b'L', b'o', b'g', 0x01, 0x12, 0x35];
+
+/// Refuse a file that does not start with the ULog header before the parser sees it: a
+/// short file would otherwise read as a truncated log.
+fn check_magic(path: &Path) -> Result<(), FileError> {
+    use std::io::Read as _;
+    let mut head = [0u8; 16];
+    let mut file = std::fs::File::open(path)
+        .map_err(|e| FileError::new(path, "", format!("cannot read: {e}")))?;
+    let mut got = 0;
+    while got < head.len() {
+        match file.read(&mut head[got..]) {
+            Ok(0) => break,
+            Ok(n) => got += n,
+            Err(e) => return Err(FileError::new(path, "", format!("cannot read: {e}"))),
+        }
+    }
+    if got < head.len() || head[..7] != MAGIC {
+        return Err(FileError::new(
+            path,
+            "",
+            "not a ULog file (it does not start with the ULog header)",
+        ));
+    }
+    Ok(())
 }
 
 /// Whether the vehicle is in the air at `t` (µs): the latest land-detector row at or
@@ -333,7 +362,12 @@ pub(super) fn read(
             .filter(|p| matches!(p, Some((_, false))))
             .count();
         let unpaired = pairing.len() - exact - near;
-        if !legacy {
+        if legacy {
+            source.notes.push(format!(
+                "ekf{inst}: {} rows of {LEGACY} (innovations and variances in one message)",
+                pairing.len()
+            ));
+        } else {
             source.notes.push(format!(
                 "ekf{inst}: {} rows; {exact} paired with a variances row of the same timestamp_sample, {near} with the nearest within 50 ms, {unpaired} unpaired (dropped)",
                 pairing.len()

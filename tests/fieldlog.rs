@@ -1,0 +1,629 @@
+//! `autotune nis`: field logs judged without truth.
+//!
+//! - Logs written by a Kalman filter on a simulated 2-D constant-velocity target (a position
+//!   sensor every step, a velocity sensor every fifth) pass at the true Q and R, fail as
+//!   overconfident with Q × 0.01, and a far too small Q on a manoeuvring target is caught by
+//!   the whiteness test.
+//! - The PX4 fixtures (two real logs trimmed to their estimator topics, two synthetic) agree
+//!   with the independent pyulog + numpy computation in `tests/data/px4/reference.json`.
+//! - Malformed rows, `--skip-bad-rows`, truncated and foreign ULog files, and `--follow` on a
+//!   file being appended to.
+
+mod common;
+
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+use autotune::SimRng;
+use common::autotune;
+use nalgebra::{Matrix2, Matrix4, Vector2, Vector4};
+use rand::{RngExt, SeedableRng};
+use rand_distr::StandardNormal;
+use serde_json::Value;
+
+const DT: f64 = 0.1;
+
+fn px4(name: &str) -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/data/px4")
+        .join(name)
+}
+
+/// The truth: white-noise acceleration of spectral density `q` per axis, or with
+/// `manoeuvre`, a piecewise-constant acceleration of ±3 m/s² switching every 10 s on top.
+struct Sim {
+    q_true: f64,
+    r_pos: f64,
+    r_vel: f64,
+    q_filter: f64,
+    manoeuvre: bool,
+    steps: usize,
+}
+
+fn f_q(q: f64) -> (Matrix4<f64>, Matrix4<f64>) {
+    let mut f = Matrix4::identity();
+    f[(0, 1)] = DT;
+    f[(2, 3)] = DT;
+    let (t3, t2) = (DT.powi(3) / 3.0, DT.powi(2) / 2.0);
+    let mut qm = Matrix4::zeros();
+    for a in [0, 2] {
+        qm[(a, a)] = q * t3;
+        qm[(a, a + 1)] = q * t2;
+        qm[(a + 1, a)] = q * t2;
+        qm[(a + 1, a + 1)] = q * DT;
+    }
+    (f, qm)
+}
+
+/// Simulate and filter; the log as CSV text (S as its lower triangle).
+fn log(sim: &Sim, seed: u64) -> String {
+    let mut rng = SimRng::seed_from_u64(seed);
+    let mut n = || rng.sample::<f64, _>(StandardNormal);
+    let (f, q_true) = f_q(sim.q_true);
+    let (_, q_f) = f_q(sim.q_filter);
+    let l_true = q_true.cholesky().expect("Q is positive definite").l();
+    let mut x = Vector4::new(0.0, 5.0, 0.0, -2.0);
+    let mut xh = x;
+    let mut p = Matrix4::from_diagonal(&Vector4::new(1.0, 1.0, 1.0, 1.0));
+    let mut out = String::from("time,sensor,nu_1,nu_2,S_1_1,S_2_1,S_2_2\n");
+    for k in 1..=sim.steps {
+        let w = l_true * Vector4::new(n(), n(), n(), n());
+        x = f * x + w;
+        if sim.manoeuvre {
+            let a = if (k / 100) % 2 == 0 { 3.0 } else { -3.0 };
+            x[1] += a * DT;
+            x[3] -= a * DT;
+        }
+        xh = f * xh;
+        p = f * p * f.transpose() + q_f;
+        let mut sensors = vec![("pos", [0usize, 2usize], sim.r_pos)];
+        if k % 5 == 0 {
+            sensors.push(("vel", [1, 3], sim.r_vel));
+        }
+        for (name, idx, r) in sensors {
+            let z = Vector2::new(x[idx[0]] + r.sqrt() * n(), x[idx[1]] + r.sqrt() * n());
+            let mut h = nalgebra::Matrix2x4::zeros();
+            h[(0, idx[0])] = 1.0;
+            h[(1, idx[1])] = 1.0;
+            let nu = z - h * xh;
+            let s = h * p * h.transpose() + Matrix2::identity() * r;
+            let gain = p * h.transpose() * s.try_inverse().expect("S is invertible");
+            xh += gain * nu;
+            let ikh = Matrix4::identity() - gain * h;
+            p = ikh * p * ikh.transpose() + gain * Matrix2::identity() * r * gain.transpose();
+            let _ = writeln!(
+                out,
+                "{},{name},{},{},{},{},{}",
+                k as f64 * DT,
+                nu[0],
+                nu[1],
+                s[(0, 0)],
+                s[(1, 0)],
+                s[(1, 1)]
+            );
+        }
+    }
+    out
+}
+
+fn nis_json(args: &[&str]) -> (i32, Value) {
+    let mut all = vec!["nis", "--json"];
+    all.extend_from_slice(args);
+    let (code, out, err) = autotune(&all);
+    let v: Value = serde_json::from_str(&out)
+        .unwrap_or_else(|e| panic!("not JSON ({e}); stderr: {err}; stdout: {out}"));
+    (code.expect("exit code"), v)
+}
+
+fn sensor<'a>(v: &'a Value, name: &str) -> &'a Value {
+    v["sensors"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|s| s["name"] == name)
+        .unwrap_or_else(|| panic!("no sensor {name}"))
+}
+
+fn write(dir: &Path, name: &str, text: &str) -> PathBuf {
+    let p = dir.join(name);
+    std::fs::write(&p, text).unwrap();
+    p
+}
+
+const SEEDS: u64 = 100;
+
+/// At the true Q and R the log passes on most seeds. The gate is family-wise α = 0.05, so
+/// the number of failures in 100 independent seeds is at most Binomial(100, 0.05): more than
+/// 10 has probability 0.011 (measured: 3 of 100, Šidák over dependent tests is
+/// conservative); a wrong interval or a whiteness test on the wrong sequence (one crossing
+/// the sensors) fails nearly every seed.
+#[test]
+fn true_q_and_r_pass_on_most_seeds() {
+    let dir = tempfile::tempdir().unwrap();
+    let sim = Sim {
+        q_true: 0.5,
+        r_pos: 1.0,
+        r_vel: 0.04,
+        q_filter: 0.5,
+        manoeuvre: false,
+        steps: 2000,
+    };
+    let mut failed = Vec::new();
+    for seed in 0..SEEDS {
+        let p = write(dir.path(), &format!("ok{seed}.csv"), &log(&sim, seed));
+        let (code, v) = nis_json(&[p.to_str().unwrap()]);
+        assert_eq!(v["sensors"].as_array().unwrap().len(), 2);
+        assert_eq!(sensor(&v, "pos")["updates"], 2000);
+        assert_eq!(sensor(&v, "vel")["updates"], 400);
+        if code != 0 {
+            failed.push((seed, v["verdict"].clone()));
+        }
+    }
+    eprintln!(
+        "failed at the truth: {} of {SEEDS}: {failed:?}",
+        failed.len()
+    );
+    assert!(failed.len() <= 10, "failed at the truth: {failed:?}");
+}
+
+/// With Q × 0.01 the filter believes its prediction far too much: every seed fails as
+/// overconfident, and the positive lag-1 correlation (the gain is too low) makes the advice
+/// "increase Q".
+#[test]
+fn q_scaled_by_a_hundredth_fails_as_overconfident_and_blames_q() {
+    let dir = tempfile::tempdir().unwrap();
+    let sim = Sim {
+        q_true: 0.5,
+        r_pos: 1.0,
+        r_vel: 0.04,
+        q_filter: 0.005,
+        manoeuvre: false,
+        steps: 2000,
+    };
+    for seed in 0..5 {
+        let p = write(dir.path(), &format!("low{seed}.csv"), &log(&sim, seed));
+        let (code, v) = nis_json(&[p.to_str().unwrap()]);
+        assert_eq!(code, 1);
+        assert_eq!(v["verdict"], "overconfident", "seed {seed}");
+        let pos = sensor(&v, "pos");
+        assert_eq!(pos["nis"]["verdict"], "overconfident");
+        assert_eq!(
+            pos["finding"]["action"], "increase Q",
+            "seed {seed}: {pos:#}"
+        );
+        assert_eq!(v["suspect"], "q");
+    }
+    // The summary says it in words.
+    let p = write(dir.path(), "low.csv", &log(&sim, 99));
+    let (code, out, _) = autotune(&["nis", p.to_str().unwrap()]);
+    assert_eq!(code, Some(1));
+    assert!(out.contains("verdict: overconfident"), "{out}");
+    assert!(out.contains("pos: increase Q"), "{out}");
+}
+
+/// A manoeuvring target and a filter whose Q is far too small: the innovations follow the
+/// manoeuvres, and the whiteness test flags every position component on every seed.
+#[test]
+fn correlated_innovations_are_flagged_by_the_whiteness_test() {
+    let dir = tempfile::tempdir().unwrap();
+    let sim = Sim {
+        q_true: 0.05,
+        r_pos: 1.0,
+        r_vel: 0.04,
+        q_filter: 0.0005,
+        manoeuvre: true,
+        steps: 2000,
+    };
+    for seed in 0..5 {
+        let p = write(dir.path(), &format!("man{seed}.csv"), &log(&sim, seed));
+        let (code, v) = nis_json(&[p.to_str().unwrap()]);
+        assert_eq!(code, 1);
+        let pos = sensor(&v, "pos");
+        let tests = pos["whiteness_tests"].as_array().unwrap();
+        assert_eq!(tests.len(), 2);
+        for t in tests {
+            assert_eq!(t["verdict"], "not_white", "seed {seed}: {t}");
+            assert!(t["rho1"].as_f64().unwrap() > 0.3, "{t}");
+        }
+    }
+}
+
+fn close(a: f64, b: f64, tol: f64, what: &str) {
+    let scale = a.abs().max(b.abs()).max(1e-300);
+    assert!((a - b).abs() <= tol * scale, "{what}: {a} vs reference {b}");
+}
+
+/// Every fused channel of every estimator instance, on all four PX4 fixtures: the counts
+/// agree exactly with the pyulog reference, the averages, fractions and autocorrelations to
+/// 1e-9 relative (float32 data summed in a different order), and no channel is missing or
+/// extra.
+#[test]
+fn px4_logs_agree_with_the_pyulog_reference() {
+    let reference: Value =
+        serde_json::from_str(&std::fs::read_to_string(px4("reference.json")).unwrap()).unwrap();
+    let cases = [
+        ("v1_13_three_ekf.ulg", vec![]),
+        ("v1_15_events.ulg", vec![]),
+        ("legacy_ekf2.ulg", vec![]),
+        ("legacy_ekf2.ulg#in_air", vec!["--in-air"]),
+        ("white_new.ulg", vec![]),
+    ];
+    for (key, extra) in cases {
+        let file = key.split('#').next().unwrap();
+        let path = px4(file);
+        let mut args = vec![path.to_str().unwrap()];
+        args.extend(extra);
+        let (_, v) = nis_json(&args);
+        let expected = reference[key].as_object().unwrap();
+        let fused: Vec<(&String, &Value)> = expected
+            .iter()
+            .filter(|(k, c)| !k.starts_with('_') && c["fused"] == true)
+            .collect();
+        let got = v["sensors"].as_array().unwrap();
+        assert_eq!(got.len(), fused.len(), "{key}: fused channels");
+        for (name, c) in fused {
+            let s = sensor(&v, name);
+            let at = |w: &str| format!("{key} {name} {w}");
+            assert_eq!(s["updates"], c["updates"], "{}", at("updates"));
+            assert_eq!(s["dropped"]["repeats"], c["repeats"], "{}", at("repeats"));
+            assert_eq!(s["dropped"]["idle"], c["idle"], "{}", at("idle"));
+            assert_eq!(s["dropped"]["invalid"], c["invalid"], "{}", at("invalid"));
+            assert_eq!(s["outliers"], c["outliers"], "{}", at("outliers"));
+            if let Some(m) = c["nis_mean"].as_f64() {
+                close(s["nis"]["mean"].as_f64().unwrap(), m, 1e-9, &at("nis mean"));
+                let t = c["gated_target"].as_f64().unwrap();
+                close(s["nis"]["target"].as_f64().unwrap(), t, 1e-9, &at("target"));
+            }
+            close(
+                s["nis_mean_all"].as_f64().unwrap(),
+                c["nis_mean_all"].as_f64().unwrap(),
+                1e-9,
+                &at("nis mean (all)"),
+            );
+            close(
+                s["inside_fraction"].as_f64().unwrap(),
+                c["inside_95"].as_f64().unwrap(),
+                1e-12,
+                &at("inside"),
+            );
+            let white = s["whiteness"].as_array().unwrap();
+            for (l, (rho, pairs)) in c["rho"]
+                .as_array()
+                .unwrap()
+                .iter()
+                .zip(c["pairs"].as_array().unwrap())
+                .enumerate()
+            {
+                let w = white.iter().find(|w| w["lag"] == l + 1);
+                match rho.as_f64() {
+                    Some(r) => {
+                        let w = w.unwrap_or_else(|| panic!("{}", at("lag missing")));
+                        close(
+                            w["rho"].as_f64().unwrap(),
+                            r,
+                            1e-9,
+                            &at(&format!("rho_{}", l + 1)),
+                        );
+                        assert_eq!(w["pairs"].as_f64().unwrap(), pairs.as_f64().unwrap());
+                    }
+                    None => assert!(w.is_none(), "{}", at("lag without pairs")),
+                }
+            }
+            if let Some(q) = c["Q"].as_f64() {
+                let t = &s["whiteness_tests"][0];
+                close(t["statistic"].as_f64().unwrap(), q, 1e-9, &at("Q"));
+                assert_eq!(t["dof"], c["Q_dof"], "{}", at("Q dof"));
+            }
+            assert_eq!(s["window"]["windows"], c["windows"], "{}", at("windows"));
+            assert_eq!(
+                s["window"]["outside"],
+                c["windows_outside"],
+                "{}",
+                at("outside")
+            );
+            if let Some(mx) = c["window_max"].as_f64() {
+                close(
+                    s["window"]["max"][0].as_f64().unwrap(),
+                    mx,
+                    1e-9,
+                    &at("window max"),
+                );
+                let mn = c["window_min"].as_f64().unwrap();
+                close(
+                    s["window"]["min"][0].as_f64().unwrap(),
+                    mn,
+                    1e-9,
+                    &at("window min"),
+                );
+            }
+        }
+        // The channels that never fused are listed with their rows.
+        if let Some(nf) = expected.get("_not_fused").and_then(Value::as_object) {
+            let listed = v["not_fused"].as_array().unwrap();
+            assert_eq!(listed.len(), nf.len(), "{key}: not fused");
+            for (name, c) in nf {
+                let l = listed.iter().find(|n| n["name"] == name.as_str()).unwrap();
+                assert_eq!(l["dropped"]["idle"], c["idle"], "{key} {name}");
+                assert_eq!(l["dropped"]["invalid"], c["invalid"], "{key} {name}");
+            }
+        }
+        // The pairing of the two topics, per instance, is in the notes.
+        let legacy = key.starts_with("legacy");
+        if let Some(pairing) = expected
+            .get("_pairing")
+            .and_then(Value::as_object)
+            .filter(|_| !legacy)
+        {
+            let notes = v["sources"][0]["notes"].as_array().unwrap();
+            for (inst, p) in pairing {
+                let line = format!(
+                    "{inst}: {} rows; {} paired with a variances row of the same timestamp_sample, {} with the nearest within 50 ms, {} unpaired (dropped)",
+                    p["rows"], p["paired_exact"], p["paired_near"], p["unpaired"]
+                );
+                assert!(
+                    notes.iter().any(|n| n == line.as_str()),
+                    "{key}: {line} not in {notes:?}"
+                );
+            }
+        }
+    }
+}
+
+/// The consistent synthetic log passes as a whole except where the reference itself shows a
+/// mean outside its interval, and the overconfident legacy channel (variance logged 25 times
+/// too small) is the one that fails, as overconfident.
+#[test]
+fn px4_verdicts_follow_the_evidence() {
+    let (_, v) = nis_json(&[px4("legacy_ekf2.ulg").to_str().unwrap()]);
+    let mag2 = sensor(&v, "ekf0.mag[2]");
+    assert_eq!(mag2["verdict"], "overconfident");
+    for s in v["sensors"].as_array().unwrap() {
+        if s["name"] != "ekf0.mag[2]" {
+            assert_ne!(s["nis"]["verdict"], "overconfident", "{}", s["name"]);
+        }
+    }
+    // white_new: 3 gross baro outliers (40σ) are counted apart, not averaged.
+    let (_, v) = nis_json(&[px4("white_new.ulg").to_str().unwrap()]);
+    let baro = sensor(&v, "ekf0.baro_vpos");
+    assert_eq!(baro["outliers"], 3);
+    assert_eq!(baro["nis"]["verdict"], "consistent");
+    assert_eq!(baro["outliers_verdict"], "overconfident");
+}
+
+#[test]
+fn a_malformed_csv_row_names_the_file_and_line_and_can_be_skipped() {
+    let dir = tempfile::tempdir().unwrap();
+    let text = "time,sensor,nu_1,S_1_1\n0.1,baro,0.3,1.0\n0.2,baro,abc,1.0\n0.3,baro,0.1,1.0\n0.4,baro,0.2\n0.5,baro,0.2,-1\n";
+    let p = write(dir.path(), "bad.csv", text);
+    let (code, out, err) = autotune(&["nis", p.to_str().unwrap()]);
+    assert_eq!(code, Some(2), "{out}");
+    assert_eq!(err.lines().count(), 1, "{err}");
+    assert!(err.contains("bad.csv:3: nu_1"), "{err}");
+    let (code, v) = nis_json(&[p.to_str().unwrap(), "--skip-bad-rows"]);
+    assert_ne!(code, 2);
+    assert_eq!(v["sources"][0]["skipped_rows"], 3);
+    assert_eq!(sensor(&v, "baro")["updates"], 2);
+    let (_, out, _) = autotune(&["nis", p.to_str().unwrap(), "--skip-bad-rows"]);
+    assert!(
+        out.contains("3 malformed rows skipped (first: line 3: nu_1"),
+        "{out}"
+    );
+}
+
+#[test]
+fn json_lines_logs_take_full_lower_and_diagonal_s_and_precomputed_nis() {
+    let dir = tempfile::tempdir().unwrap();
+    // ν' S⁻¹ ν by hand: [1, 2] with S = [[2, 1], [1, 2]] → (2·1 − 2·1·2·1 + 2·4)/3 = 2;
+    // diagonal [4, 1] with ν = [2, 1] → 1 + 1 = 2; scalar 0.5 with S = 0.25 → 1.
+    let text = "{\"time\": 0.1, \"sensor\": \"gps\", \"nu\": [1, 2], \"S\": [[2, 1], [1, 2]]}\n\
+                {\"time\": 0.2, \"sensor\": \"gps\", \"nu\": [1, 2], \"S\": [[2], [1, 2]]}\n\
+                {\"time\": 0.3, \"sensor\": \"gps\", \"nu\": [2, 1], \"S\": [4, 1]}\n\
+                {\"time\": 0.3, \"sensor\": \"baro\", \"nu\": [0.5], \"S\": [0.25]}\n\
+                {\"time\": 0.4, \"sensor\": \"mag\", \"nis\": 2.5, \"dof\": 3}\n";
+    let p = write(dir.path(), "log.jsonl", text);
+    let (_, v) = nis_json(&[p.to_str().unwrap()]);
+    close(
+        sensor(&v, "gps")["nis_mean_all"].as_f64().unwrap(),
+        2.0,
+        1e-12,
+        "gps",
+    );
+    close(
+        sensor(&v, "baro")["nis_mean_all"].as_f64().unwrap(),
+        1.0,
+        1e-12,
+        "baro",
+    );
+    close(
+        sensor(&v, "mag")["nis_mean_all"].as_f64().unwrap(),
+        2.5,
+        1e-12,
+        "mag",
+    );
+    assert_eq!(sensor(&v, "mag")["components"].as_array().unwrap().len(), 0);
+    // The same rows as CSV with the lower triangle.
+    let csv = "time,sensor,nu_1,nu_2,S_1_1,S_2_1,S_2_2,nis,dof\n0.1,gps,1,2,2,1,2,,\n0.3,gps,2,1,4,,1,,\n0.4,mag,,,,,,2.5,3\n";
+    let p = write(dir.path(), "log.csv", csv);
+    let (_, v) = nis_json(&[p.to_str().unwrap()]);
+    close(
+        sensor(&v, "gps")["nis_mean_all"].as_f64().unwrap(),
+        2.0,
+        1e-12,
+        "gps csv",
+    );
+    assert_eq!(sensor(&v, "mag")["updates"], 1);
+}
+
+/// A truncated ULog file, a file that is not ULog, an empty file and a ULog without the
+/// estimator topics: one line, exit 2, never a panic.
+#[test]
+fn truncated_or_foreign_ulog_files_give_one_line() {
+    let dir = tempfile::tempdir().unwrap();
+    let bytes = std::fs::read(px4("v1_15_events.ulg")).unwrap();
+    let mut cases: Vec<(String, Vec<u8>, &str)> = vec![
+        (
+            "cut.ulg".into(),
+            bytes[..bytes.len() - 37].to_vec(),
+            "truncated",
+        ),
+        (
+            "text.ulg".into(),
+            b"time,sensor\n".to_vec(),
+            "not a ULog file",
+        ),
+        ("empty.ulg".into(), Vec::new(), "not a ULog file"),
+        (
+            "csv.ulg".into(),
+            b"time,sensor,nu_1,S_1_1\n0.1,baro,0.3,1.0\n".to_vec(),
+            "not a ULog file",
+        ),
+        ("header.ulg".into(), bytes[..40].to_vec(), ""),
+    ];
+    for cut in [100, 1000, 5000, 20000] {
+        cases.push((format!("cut{cut}.ulg"), bytes[..cut].to_vec(), ""));
+    }
+    for (name, data, want) in cases {
+        let p = dir.path().join(&name);
+        std::fs::write(&p, data).unwrap();
+        let (code, out, err) = autotune(&["nis", p.to_str().unwrap()]);
+        assert_eq!(code, Some(2), "{name}: {out}{err}");
+        assert_eq!(err.lines().count(), 1, "{name}: {err}");
+        assert!(err.contains(&name), "{name}: {err}");
+        assert!(err.contains(want), "{name}: {err}");
+        assert!(!err.contains("panicked"), "{name}: {err}");
+    }
+    // --allow-truncated judges what came before the cut.
+    let p = dir.path().join("cut.ulg");
+    let (code, v) = nis_json(&[p.to_str().unwrap(), "--allow-truncated"]);
+    assert_eq!(code, 1);
+    assert!(
+        v["sources"][0]["notes"][0]
+            .as_str()
+            .unwrap()
+            .contains("truncated")
+    );
+}
+
+/// `--follow` on a log another process appends to: the status lines show the count
+/// growing, and the final summary covers every row written.
+#[test]
+fn follow_reads_a_log_while_it_is_written() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("live.csv");
+    let sim = Sim {
+        q_true: 0.5,
+        r_pos: 1.0,
+        r_vel: 0.04,
+        q_filter: 0.5,
+        manoeuvre: false,
+        steps: 600,
+    };
+    let text = log(&sim, 5);
+    let lines: Vec<String> = text.lines().map(|l| format!("{l}\n")).collect();
+    let writer_path = path.clone();
+    let writer = std::thread::spawn(move || {
+        use std::io::Write;
+        let mut f = std::fs::File::create(&writer_path).unwrap();
+        // The header and the rows in six bursts, one every 0.5 s, the last cut mid-line.
+        let chunk = lines.len().div_ceil(6);
+        for (i, c) in lines.chunks(chunk).enumerate() {
+            let s: String = c.concat();
+            if i == 2 {
+                let (a, b) = s.split_at(s.len() / 2);
+                f.write_all(a.as_bytes()).unwrap();
+                f.flush().unwrap();
+                std::thread::sleep(std::time::Duration::from_millis(300));
+                f.write_all(b.as_bytes()).unwrap();
+            } else {
+                f.write_all(s.as_bytes()).unwrap();
+            }
+            f.flush().unwrap();
+            std::thread::sleep(std::time::Duration::from_millis(500));
+        }
+    });
+    let (code, out, err) = autotune(&[
+        "nis",
+        "--follow",
+        path.to_str().unwrap(),
+        "--idle",
+        "2",
+        "--for",
+        "20",
+    ]);
+    writer.join().unwrap();
+    assert_ne!(code, Some(2), "{err}");
+    let status: Vec<&str> = out.lines().filter(|l| l.starts_with("t ")).collect();
+    assert!(status.len() >= 3, "{out}");
+    let counts: Vec<usize> = status
+        .iter()
+        .map(|l| {
+            l.split(" | ")
+                .nth(1)
+                .unwrap()
+                .split(' ')
+                .next()
+                .unwrap()
+                .parse()
+                .unwrap()
+        })
+        .collect();
+    assert!(counts.windows(2).all(|w| w[0] <= w[1]), "{counts:?}");
+    assert!(counts.first() < counts.last(), "{counts:?}");
+    assert!(
+        status[0].contains("NIS/dof") && status[0].contains("window"),
+        "{}",
+        status[0]
+    );
+    // The final summary has every update: 600 position, 120 velocity.
+    assert!(out.contains("720 updates"), "{out}");
+    assert!(out.contains("verdict:"), "{out}");
+}
+
+#[test]
+fn bad_flags_name_the_flag() {
+    let p = px4("white_new.ulg");
+    let p = p.to_str().unwrap();
+    for (args, flag) in [
+        (vec!["nis", p, "--alpha", "2"], "--alpha"),
+        (vec!["nis", p, "--gate", "0.5"], "--gate"),
+        (vec!["nis", p, "--window", "1"], "--window"),
+        (vec!["nis", p, "--window", "-3s"], "--window"),
+        (vec!["nis", p, "--lags", "0"], "--lags"),
+        (vec!["nis", "--follow", "x.ulg", "--for", "1"], "x.ulg"),
+        (vec!["nis", "no_such.csv"], "no_such.csv"),
+        (vec!["nis", "log.txt"], "log.txt"),
+    ] {
+        let (code, _, err) = autotune(&args);
+        assert_eq!(code, Some(2), "{args:?}");
+        assert_eq!(err.lines().count(), 1, "{err}");
+        assert!(err.contains(flag), "{args:?}: {err}");
+    }
+}
+
+/// Records written for `check --records` read as a field log: without truth, each run a
+/// sequence; a diverged run stops there.
+#[test]
+fn records_files_read_as_field_logs() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut csv = String::from("run,step,nu_1,S_1_1\n");
+    for run in 0..3 {
+        for step in 1..=4 {
+            let _ = writeln!(csv, "{run},{step},{},{}", 0.5 * step as f64, 0.25);
+        }
+    }
+    let p = write(dir.path(), "rec.csv", &csv);
+    let (_, v) = nis_json(&[p.to_str().unwrap()]);
+    assert_eq!(v["sources"][0]["format"], "records");
+    let z = sensor(&v, "z");
+    assert_eq!(z["updates"], 12);
+    // NIS = (0.5 k)² / 0.25 = k²: mean over k = 1..4 is 7.5.
+    close(z["nis_mean_all"].as_f64().unwrap(), 7.5, 1e-12, "records");
+    // Lag 1 pairs stay within a run: 3 per run.
+    let w1 = z["whiteness"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|w| w["lag"] == 1)
+        .unwrap();
+    assert_eq!(w1["pairs"], 9.0);
+}

@@ -627,3 +627,41 @@ fn records_files_read_as_field_logs() {
         .unwrap();
     assert_eq!(w1["pairs"], 9.0);
 }
+
+/// Every cut of a real log and bytes overwritten with noise in its data: the reader returns
+/// an error or a report, never panics (a panic fails the test).
+#[test]
+fn damaged_ulog_files_never_panic() {
+    use autotune::fieldlog::{NisSettings, ReadOptions, analyze};
+    let dir = tempfile::tempdir().unwrap();
+    let bytes = std::fs::read(px4("v1_15_events.ulg")).unwrap();
+    let p = dir.path().join("d.ulg");
+    let mut rng = SimRng::seed_from_u64(3);
+    let mut runs = 0;
+    for cut in (0..bytes.len()).step_by(523) {
+        for allow in [false, true] {
+            std::fs::write(&p, &bytes[..cut]).unwrap();
+            let options = ReadOptions {
+                allow_truncated: allow,
+                ..ReadOptions::default()
+            };
+            let _ = analyze(std::slice::from_ref(&p), &options, NisSettings::default());
+            runs += 1;
+        }
+    }
+    for _ in 0..200 {
+        let mut b = bytes.clone();
+        for _ in 0..8 {
+            let at = rng.random_range(0..b.len());
+            b[at] = rng.random();
+        }
+        std::fs::write(&p, &b).unwrap();
+        let options = ReadOptions {
+            allow_truncated: true,
+            ..ReadOptions::default()
+        };
+        let _ = analyze(std::slice::from_ref(&p), &options, NisSettings::default());
+        runs += 1;
+    }
+    assert!(runs > 300);
+}

@@ -541,8 +541,9 @@ fn attribute(sensors: &mut [SensorReport]) {
         };
         if s.outliers_verdict == Verdict::Overconfident {
             evidence.push_str(&format!(
-                ", {} outliers where {} expected",
+                ", {} outlier{} where {} expected",
                 s.outliers,
+                if s.outliers == 1 { "" } else { "s" },
                 short(s.outliers_expected)
             ));
         }

@@ -665,3 +665,47 @@ fn damaged_ulog_files_never_panic() {
     }
     assert!(runs > 300);
 }
+
+/// `--report` writes the HTML, Markdown and JSON together; `--junit` has one test case per
+/// sensor, failing exactly where the verdict fails.
+#[test]
+fn report_and_junit_files() {
+    let dir = tempfile::tempdir().unwrap();
+    let rep = dir.path().join("rep");
+    let junit = dir.path().join("nis.xml");
+    let log = px4("legacy_ekf2.ulg");
+    let (code, out, err) = autotune(&[
+        "nis",
+        log.to_str().unwrap(),
+        "--report",
+        rep.to_str().unwrap(),
+        "--junit",
+        junit.to_str().unwrap(),
+        "--quiet",
+    ]);
+    assert_eq!(code, Some(1), "{out}{err}");
+    assert!(out.is_empty());
+    for f in ["report.html", "report.md", "report.json"] {
+        assert!(rep.join(f).is_file(), "{f}");
+    }
+    let html = std::fs::read_to_string(rep.join("report.html")).unwrap();
+    assert!(html.contains("ekf0.mag[2]"));
+    let json: Value =
+        serde_json::from_str(&std::fs::read_to_string(rep.join("report.json")).unwrap()).unwrap();
+    let xml = std::fs::read_to_string(&junit).unwrap();
+    let doc = roxmltree::Document::parse(&xml).unwrap();
+    let cases: Vec<_> = doc
+        .descendants()
+        .filter(|n| n.has_tag_name("testcase"))
+        .collect();
+    let sensors = json["sensors"].as_array().unwrap();
+    assert_eq!(cases.len(), sensors.len());
+    for s in sensors {
+        let case = cases
+            .iter()
+            .find(|c| c.attribute("name") == s["name"].as_str())
+            .unwrap();
+        let failed = case.children().any(|n| n.has_tag_name("failure"));
+        assert_eq!(failed, s["verdict"] != "consistent", "{}", s["name"]);
+    }
+}

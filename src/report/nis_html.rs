@@ -202,6 +202,13 @@ fn sensor_section(o: &mut String, r: &NisReport, i: usize, s: &SensorReport) {
         count(s.outliers as u64, "outlier"),
         100.0 * s.inside_fraction
     );
+    if s.outliers > 0 {
+        let _ = write!(
+            o,
+            "; the average over every update, outliers included, is {}",
+            num(s.nis_mean_all)
+        );
+    }
     if let (Some(lo), Some(hi)) = (s.window.min, s.window.max) {
         let _ = write!(
             o,

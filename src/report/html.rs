@@ -33,14 +33,19 @@ figcaption{font-size:90%;color:#333}.verdict{font-size:120%;font-weight:bold}\
 svg{max-width:100%;height:auto}code{background:#f0f0f0;padding:0 3px}";
 
 fn head(o: &mut String, title: &str) {
+    head_styled(o, title, "");
+}
+
+/// The document's head with `extra` style rules after the common ones.
+pub(super) fn head_styled(o: &mut String, title: &str, extra: &str) {
     let _ = write!(
         o,
-        "<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\"><title>{}</title><style>{STYLE}</style></head><body>\n",
+        "<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\"><title>{}</title><style>{STYLE}{extra}</style></head><body>\n",
         escape(title)
     );
 }
 
-fn figure(o: &mut String, svg: &str, caption: &str) {
+pub(super) fn figure(o: &mut String, svg: &str, caption: &str) {
     let _ = writeln!(
         o,
         "<figure>{svg}<figcaption>{}</figcaption></figure>",

@@ -6,6 +6,7 @@ pub mod html;
 mod junit;
 pub mod nis;
 pub mod nis_html;
+mod nis_plots;
 pub mod plots;
 mod summary;
 pub mod tune;

@@ -10,7 +10,7 @@ use crate::stats::Verdict;
 /// Channels listed by name in the "not fused" line; the JSON lists all.
 const NOT_FUSED_LISTED: usize = 8;
 
-fn rho1(s: &SensorReport) -> String {
+pub(super) fn rho1(s: &SensorReport) -> String {
     s.whiteness
         .iter()
         .filter(|w| w.lag == 1)
@@ -29,7 +29,7 @@ fn rho1(s: &SensorReport) -> String {
         })
 }
 
-fn dropped(s: &SensorReport) -> String {
+pub(super) fn dropped(s: &SensorReport) -> String {
     let d = &s.dropped;
     let mut parts = Vec::new();
     if d.repeats > 0 {

@@ -11,20 +11,29 @@ use plotters::prelude::*;
 
 use crate::stats::{ComponentStat, StatisticSummary, WhitenessStat};
 
-const BAND: RGBColor = RGBColor(210, 210, 210);
-const MID: RGBColor = RGBColor(110, 110, 110);
+pub(super) const BAND: RGBColor = RGBColor(210, 210, 210);
+pub(super) const MID: RGBColor = RGBColor(110, 110, 110);
 const SIZE: (u32, u32) = (640, 380);
-const FONT: &str = "sans-serif";
+pub(super) const FONT: &str = "sans-serif";
 
 /// A drawing result: plotters' errors are boxed, whatever the backend.
-type Drawn = Result<(), Box<dyn std::error::Error>>;
+pub(super) type Drawn = Result<(), Box<dyn std::error::Error>>;
 
 /// Draw a plot into an SVG string with `draw`; a plot that cannot be drawn becomes the
 /// fallback naming it.
 fn render(title: &str, draw: impl FnOnce(&DrawingArea<SVGBackend<'_>, Shift>) -> Drawn) -> String {
+    render_sized(title, SIZE, draw)
+}
+
+/// [`render`] at `size` pixels.
+pub(super) fn render_sized(
+    title: &str,
+    size: (u32, u32),
+    draw: impl FnOnce(&DrawingArea<SVGBackend<'_>, Shift>) -> Drawn,
+) -> String {
     let mut buf = String::new();
     let result = {
-        let root = SVGBackend::with_string(&mut buf, SIZE).into_drawing_area();
+        let root = SVGBackend::with_string(&mut buf, size).into_drawing_area();
         root.fill(&WHITE)
             .map_err(Into::into)
             .and_then(|()| draw(&root))
@@ -37,7 +46,7 @@ fn render(title: &str, draw: impl FnOnce(&DrawingArea<SVGBackend<'_>, Shift>) ->
 }
 
 /// The chart every plot starts from: the title, margins and label areas (`y_area` wide).
-fn chart_builder<'a, 'b>(
+pub(super) fn chart_builder<'a, 'b>(
     root: &'a DrawingArea<SVGBackend<'b>, Shift>,
     title: &str,
     y_area: u32,
@@ -55,9 +64,18 @@ fn legend<'a, X: Ranged, Y: Ranged>(
     chart: &mut ChartContext<'a, SVGBackend<'a>, Cartesian2d<X, Y>>,
     position: SeriesLabelPosition,
 ) -> Drawn {
+    legend_sized(chart, position, 13)
+}
+
+/// [`legend`] in a `font`-pixel font.
+pub(super) fn legend_sized<'a, X: Ranged, Y: Ranged>(
+    chart: &mut ChartContext<'a, SVGBackend<'a>, Cartesian2d<X, Y>>,
+    position: SeriesLabelPosition,
+    font: u32,
+) -> Drawn {
     chart
         .configure_series_labels()
-        .label_font((FONT, 13))
+        .label_font((FONT, font))
         .background_style(WHITE.mix(0.85))
         .border_style(BLACK)
         .position(position)
@@ -249,20 +267,46 @@ fn draw_components(
 /// Innovation autocorrelation against lag, per measurement component, with the ±band in
 /// which a white sequence's sample autocorrelation falls with probability 1 − α.
 pub fn whiteness_svg(title: &str, white: &[WhitenessStat]) -> String {
-    render(title, |root| draw_whiteness(root, title, white))
+    whiteness_svg_sized(title, white, SIZE)
+}
+
+/// [`whiteness_svg`] at `size` pixels.
+pub(super) fn whiteness_svg_sized(
+    title: &str,
+    white: &[WhitenessStat],
+    size: (u32, u32),
+) -> String {
+    let compact = size.1 < SIZE.1;
+    render_sized(title, size, |root| {
+        draw_whiteness(root, title, white, compact)
+    })
+}
+
+/// The side (upper or lower right) where the legend, over the right 60% of the lags,
+/// covers less of a whiteness plot.
+fn whiteness_corner(white: &[WhitenessStat], lags: usize) -> SeriesLabelPosition {
+    let right = white.iter().filter(|w| 5 * w.lag > 2 * lags);
+    let up = right.clone().map(|w| w.rho.max(w.band)).fold(0.0, f64::max);
+    let down = right.map(|w| (-w.rho).max(w.band)).fold(0.0, f64::max);
+    if up <= down {
+        SeriesLabelPosition::UpperRight
+    } else {
+        SeriesLabelPosition::LowerRight
+    }
 }
 
 fn draw_whiteness(
     root: &DrawingArea<SVGBackend<'_>, Shift>,
     title: &str,
     white: &[WhitenessStat],
+    compact: bool,
 ) -> Drawn {
     let lags = white.iter().map(|w| w.lag).max().unwrap_or(1);
     let amp = white
         .iter()
         .map(|w| w.rho.abs().max(w.band))
         .fold(0.05_f64, f64::max)
-        * 1.2;
+        * if compact { 1.6 } else { 1.2 };
     let mut comps: Vec<&str> = Vec::new();
     for w in white {
         if !comps.contains(&w.component.as_str()) {
@@ -278,6 +322,7 @@ fn draw_whiteness(
         .x_label_formatter(&|x| format!("{x:.0}"))
         .x_desc("lag (steps)")
         .y_desc("normalized autocorrelation ρ")
+        .y_label_formatter(&|v| tick(*v, if amp > 0.5 { 1 } else { 2 }))
         .axis_desc_style((FONT, 14))
         .draw()?;
     // The band is the same for every component at a lag when all are measured together;
@@ -325,7 +370,20 @@ fn draw_whiteness(
         vec![(0.5, 0.0), (lags as f64 + 0.5, 0.0)],
         MID.stroke_width(1),
     ))?;
-    legend(&mut chart, SeriesLabelPosition::UpperRight)
+    if compact {
+        legend_sized(&mut chart, whiteness_corner(white, lags), 11)
+    } else {
+        legend(&mut chart, SeriesLabelPosition::UpperRight)
+    }
+}
+
+/// A tick label with `decimals` decimals, without the sign of a value that rounds to 0.
+fn tick(v: f64, decimals: usize) -> String {
+    let t = format!("{v:.decimals$}");
+    match t.strip_prefix('-') {
+        Some(z) if z.chars().all(|c| c == '0' || c == '.') => z.to_string(),
+        _ => t,
+    }
 }
 
 /// Marker `kind` (0 a disc, 1 a triangle, else a cross) at `at`, in data or pixel

@@ -33,6 +33,7 @@
 pub mod app;
 pub mod catalog;
 pub mod check;
+pub mod estimate;
 pub mod experiment;
 pub mod external;
 pub mod fieldlog;

@@ -1,0 +1,96 @@
+//! Q and R from recorded measurements alone: the exact likelihood of a linear filter and its
+//! maximum ([`ml`]), and the data such estimates are tried on ([`simulate`]).
+
+mod likelihood;
+pub mod ml;
+
+pub use likelihood::{LinearFilterModel, NotDefinite};
+
+use nalgebra::DVector;
+
+use crate::model::TruthModel;
+use crate::montecarlo::run_rng;
+
+/// One recorded sequence of a single sensor's measurements (a drive, a flight, a run).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Sequence {
+    /// Steps T.
+    pub steps: usize,
+    /// The measurements, T × m row-major; NaN where a component was not measured.
+    pub z: Vec<f64>,
+}
+
+/// Recorded measurements: several sequences of one sensor of dimension m.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Measurements {
+    /// Measurement dimension m.
+    pub dim: usize,
+    /// The sequences.
+    pub sequences: Vec<Sequence>,
+}
+
+impl Measurements {
+    /// Whether every component was measured at every step.
+    pub fn complete(&self) -> bool {
+        self.sequences
+            .iter()
+            .all(|s| s.z.iter().all(|v| v.is_finite()))
+    }
+
+    /// Measured scalar values in all.
+    pub fn values(&self) -> usize {
+        self.sequences
+            .iter()
+            .map(|s| s.z.iter().filter(|v| v.is_finite()).count())
+            .sum()
+    }
+}
+
+/// What [`simulate`] draws: the measurements, and the truth states beside them (T × n per
+/// sequence, row-major).
+#[derive(Debug, Clone)]
+pub struct Simulated {
+    /// The measurements.
+    pub measurements: Measurements,
+    /// The true states, one `Vec` per sequence.
+    pub states: Vec<Vec<f64>>,
+    /// State dimension n.
+    pub n: usize,
+}
+
+/// Draw `runs` sequences of `steps` steps from `truth` with the Monte Carlo engines' per-run
+/// streams (run i uses `run_rng(seed, i)`), measuring the sensor of dimension `m` (index 0).
+pub fn simulate(
+    truth: &dyn TruthModel,
+    m: usize,
+    runs: usize,
+    steps: usize,
+    seed: u64,
+) -> Simulated {
+    let n = truth.n_x();
+    let mut sequences = Vec::with_capacity(runs);
+    let mut states = Vec::with_capacity(runs);
+    let mut meas = Vec::new();
+    for i in 0..runs {
+        let mut rng = run_rng(seed, i);
+        let mut x: DVector<f64> = truth.initial_state(&mut rng);
+        let mut z = vec![f64::NAN; steps * m];
+        let mut xs = Vec::with_capacity(steps * n);
+        for k in 1..=steps {
+            x = truth.propagate(k, &x, &mut rng);
+            meas.clear();
+            truth.measure(k, &x, &mut rng, &mut meas);
+            for me in meas.iter().filter(|me| me.sensor == 0) {
+                z[(k - 1) * m..k * m].copy_from_slice(me.z.as_slice());
+            }
+            xs.extend_from_slice(x.as_slice());
+        }
+        sequences.push(Sequence { steps, z });
+        states.push(xs);
+    }
+    Simulated {
+        measurements: Measurements { dim: m, sequences },
+        states,
+        n,
+    }
+}

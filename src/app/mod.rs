@@ -19,6 +19,7 @@
 mod args;
 mod check;
 mod completions;
+mod estimate;
 mod init;
 mod nis;
 mod tune;
@@ -103,6 +104,12 @@ enum Command {
     /// ground truth: NIS per sensor against its chi-square interval, outliers, whiteness;
     /// exit 0 if consistent, 1 if not, 2 on bad input.
     Nis(nis::NisArgs),
+    /// Draw measurements (and optionally the true states) from a linear problem's truth, to
+    /// try `estimate` on data whose answer is known.
+    Simulate(estimate::SimulateArgs),
+    /// Estimate a linear problem's free Q/R parameters from recorded measurements alone
+    /// (maximum likelihood), with standard errors.
+    Estimate(estimate::EstimateArgs),
     /// Write a commented starter problem file (NAME.toml) whose filter equals its truth, so
     /// `autotune check` passes on it; replace its parameter values with your own guesses.
     Init(init::InitArgs),
@@ -179,6 +186,8 @@ where
             tune::run(&p, &p.tune, a.options)
         }
         Command::Nis(a) => nis::run(a),
+        Command::Simulate(a) => estimate::run_simulate(a),
+        Command::Estimate(a) => estimate::run_estimate(a),
         Command::Init(a) => init::run(a),
         Command::Completions(a) => completions::run(a, Cli::command(), "autotune"),
     }

@@ -1,8 +1,11 @@
 //! Q and R from recorded measurements alone: the exact likelihood of a linear filter and its
 //! maximum ([`ml`]), and the data such estimates are tried on ([`simulate`]).
 
+mod files;
 mod likelihood;
 pub mod ml;
+
+pub use files::{read_measurements, record_bytes};
 
 pub use likelihood::{LinearFilterModel, NotDefinite};
 

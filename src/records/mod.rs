@@ -19,6 +19,7 @@ pub use files::{Recorded, feed_file, feed_files, read_files, scan_files, shown_u
 pub(crate) use json::object as json_object;
 pub use json::parse_record_line;
 pub use names::{Quantity, valid_sensor};
+pub(crate) use npy::read_raw as read_numpy_arrays;
 pub use sink::{NormalizedSensor, RecordSink, StepSink, normalize_sensor};
 
 /// Largest number of steps per run records may have. The sums take memory proportional to

@@ -152,54 +152,62 @@ fn c_order(shape: &[usize], order: npyz::Order, data: Vec<f64>) -> Vec<f64> {
     out
 }
 
+/// The arrays of an `.npz` archive or of a set of `.npy` files (each named after its file
+/// stem), by name, with their shapes and their data as f64 in C order; nothing about what they
+/// mean is checked here. `paths` is not empty.
+pub(crate) fn read_raw(
+    paths: &[PathBuf],
+) -> Result<Vec<(String, Vec<usize>, Vec<f64>)>, FileError> {
+    let file = paths[0].clone();
+    let mut raw: Vec<(String, Vec<usize>, Vec<f64>)> = Vec::new();
+    let is_npz = paths.len() == 1
+        && file
+            .extension()
+            .is_some_and(|e| e.eq_ignore_ascii_case("npz"));
+    if is_npz {
+        let mut archive = npyz::npz::NpzArchive::open(&file).map_err(|e| {
+            FileError::new(&file, "", format!("not an .npz archive: {}", one_line(&e)))
+        })?;
+        let names: Vec<String> = archive.array_names().map(str::to_string).collect();
+        for name in names {
+            let npy = archive
+                .by_name(&name)
+                .map_err(|e| {
+                    FileError::new(
+                        &file,
+                        format!("array {name}"),
+                        format!("cannot read: {}", one_line(&e)),
+                    )
+                })?
+                .ok_or_else(|| FileError::new(&file, format!("array {name}"), "missing"))?;
+            let (shape, data) = read_array(&file, &name, npy)?;
+            raw.push((name, shape, data));
+        }
+    } else {
+        for p in paths {
+            let name = p
+                .file_stem()
+                .and_then(|s| s.to_str())
+                .unwrap_or_default()
+                .to_string();
+            let f = std::fs::File::open(p)
+                .map_err(|e| FileError::new(p, "", format!("cannot read: {}", one_line(&e))))?;
+            let npy = npyz::NpyFile::new(std::io::BufReader::new(f))
+                .map_err(|e| FileError::new(p, "", format!("not a .npy file: {}", one_line(&e))))?;
+            let (shape, data) = read_array(p, &name, npy)?;
+            if raw.iter().any(|(n, _, _)| *n == name) {
+                return Err(FileError::new(p, format!("array {name}"), "given twice"));
+            }
+            raw.push((name, shape, data));
+        }
+    }
+    Ok(raw)
+}
+
 impl Arrays {
     /// Read an `.npz` archive, or a set of `.npy` files.
     pub(crate) fn read(paths: &[PathBuf]) -> Result<Arrays, FileError> {
-        let file = paths[0].clone();
-        let mut raw: Vec<(String, Vec<usize>, Vec<f64>)> = Vec::new();
-        let is_npz = paths.len() == 1
-            && file
-                .extension()
-                .is_some_and(|e| e.eq_ignore_ascii_case("npz"));
-        if is_npz {
-            let mut archive = npyz::npz::NpzArchive::open(&file).map_err(|e| {
-                FileError::new(&file, "", format!("not an .npz archive: {}", one_line(&e)))
-            })?;
-            let names: Vec<String> = archive.array_names().map(str::to_string).collect();
-            for name in names {
-                let npy = archive
-                    .by_name(&name)
-                    .map_err(|e| {
-                        FileError::new(
-                            &file,
-                            format!("array {name}"),
-                            format!("cannot read: {}", one_line(&e)),
-                        )
-                    })?
-                    .ok_or_else(|| FileError::new(&file, format!("array {name}"), "missing"))?;
-                let (shape, data) = read_array(&file, &name, npy)?;
-                raw.push((name, shape, data));
-            }
-        } else {
-            for p in paths {
-                let name = p
-                    .file_stem()
-                    .and_then(|s| s.to_str())
-                    .unwrap_or_default()
-                    .to_string();
-                let f = std::fs::File::open(p)
-                    .map_err(|e| FileError::new(p, "", format!("cannot read: {}", one_line(&e))))?;
-                let npy = npyz::NpyFile::new(std::io::BufReader::new(f)).map_err(|e| {
-                    FileError::new(p, "", format!("not a .npy file: {}", one_line(&e)))
-                })?;
-                let (shape, data) = read_array(p, &name, npy)?;
-                if raw.iter().any(|(n, _, _)| *n == name) {
-                    return Err(FileError::new(p, format!("array {name}"), "given twice"));
-                }
-                raw.push((name, shape, data));
-            }
-        }
-        Self::validate(file, raw)
+        Self::validate(paths[0].clone(), read_raw(paths)?)
     }
 
     fn validate(

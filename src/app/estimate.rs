@@ -1,0 +1,241 @@
+//! `simulate` and `estimate`: measurements drawn from a problem's truth, and Q and R estimated
+//! from recorded measurements alone.
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::time::Instant;
+
+use super::args::name_value;
+use super::{AppError, print_stdout};
+use crate::estimate::{LinearFilterModel, ml, read_measurements, record_bytes, simulate};
+use crate::experiment::{Experiment, LinearExperiment};
+use crate::input::FileError;
+use crate::problem::Problem;
+use crate::report::{Outputs, check_output_file, fmt_g};
+
+/// The arguments of `simulate`.
+#[derive(Debug, Clone, clap::Args)]
+pub struct SimulateArgs {
+    /// Problem file (TOML) with a linear [truth].
+    problem: PathBuf,
+    /// Where to write the measurements: .csv, .jsonl or .npy (docs/measurements.md).
+    #[arg(long, value_name = "FILE")]
+    out: PathBuf,
+    /// Also write the true states here (same formats, columns x_1 … x_n).
+    #[arg(long, value_name = "FILE")]
+    truth: Option<PathBuf>,
+    /// Number of sequences (runs).
+    #[arg(long, default_value_t = 1)]
+    runs: usize,
+    /// Steps per sequence (default: the problem's montecarlo.steps).
+    #[arg(long)]
+    steps: Option<usize>,
+    /// Seed (default: the problem's montecarlo.seed); run i draws from the same stream as
+    /// run i of a Monte Carlo check.
+    #[arg(long)]
+    seed: Option<u64>,
+}
+
+/// The arguments of `estimate`.
+#[derive(Debug, Clone, clap::Args)]
+pub struct EstimateArgs {
+    /// Problem file (TOML) whose linear [filter] has the parameters to estimate.
+    problem: PathBuf,
+    /// The recorded measurements: .csv, .jsonl, .npy or .npz (docs/measurements.md).
+    #[arg(long, value_name = "FILE")]
+    measurements: PathBuf,
+    /// Estimation method (ml: maximum likelihood).
+    #[arg(long, default_value = "ml", value_parser = ["ml"])]
+    method: String,
+    /// Start a parameter at NAME=VALUE instead of the problem's value (repeatable).
+    #[arg(long = "set", value_name = "NAME=VALUE")]
+    set: Vec<String>,
+    /// L-BFGS iteration limit.
+    #[arg(long, default_value_t = 200)]
+    max_iterations: u64,
+    /// Print the estimate as JSON on stdout.
+    #[arg(long)]
+    json: bool,
+}
+
+fn linear<'a>(
+    p: &'a Problem,
+    path: &std::path::Path,
+    what: &str,
+) -> Result<&'a LinearExperiment, AppError> {
+    p.linear().ok_or_else(|| {
+        FileError::new(
+            path,
+            "model",
+            format!("{what} works on a linear problem ([truth] and [filter] matrices); this one is a catalog model"),
+        )
+        .into()
+    })
+}
+
+/// Run `simulate`.
+pub fn run_simulate(a: SimulateArgs) -> Result<ExitCode, AppError> {
+    let p = Problem::load(&a.problem)?;
+    let lin = linear(&p, &a.problem, "simulate")?;
+    if !(1..=100_000).contains(&a.runs) {
+        return Err(AppError::flag(
+            "--runs",
+            format!("{} is not in 1..=100000", a.runs),
+        ));
+    }
+    let steps = a.steps.unwrap_or(p.mc().steps());
+    if !(1..=10_000_000).contains(&steps) || a.runs.saturating_mul(steps) > 10_000_000 {
+        return Err(AppError::flag(
+            "--steps",
+            format!(
+                "{steps} steps × {} runs: at most 10 000 000 steps in all",
+                a.runs
+            ),
+        ));
+    }
+    let seed = a.seed.unwrap_or(p.mc().seed());
+    check_output_file(&a.out)?;
+    if let Some(t) = &a.truth {
+        check_output_file(t)?;
+    }
+    let m = lin.truth.n_z();
+    let sim = simulate(&lin.truth, m, a.runs, steps, seed);
+    let z: Vec<&[f64]> = sim
+        .measurements
+        .sequences
+        .iter()
+        .map(|s| s.z.as_slice())
+        .collect();
+    let mut outputs = Outputs::new();
+    outputs.file(&a.out, record_bytes(&a.out, "z", m, &z)?);
+    if let Some(t) = &a.truth {
+        let x: Vec<&[f64]> = sim.states.iter().map(Vec::as_slice).collect();
+        outputs.file(t, record_bytes(t, "x", sim.n, &x)?);
+    }
+    outputs.commit()?;
+    print_stdout(|o| {
+        writeln!(
+            o,
+            "wrote {} run(s) × {steps} steps of {m} measurement components to {} (seed {seed})",
+            a.runs,
+            a.out.display()
+        )
+    })?;
+    Ok(ExitCode::SUCCESS)
+}
+
+/// Run `estimate`.
+pub fn run_estimate(a: EstimateArgs) -> Result<ExitCode, AppError> {
+    let p = Problem::load(&a.problem)?;
+    let lin = linear(&p, &a.problem, "estimate")?;
+    let data = read_measurements(&a.measurements)?;
+    let m = lin.filter.H.nrows();
+    if data.dim != m {
+        return Err(FileError::new(
+            &a.measurements,
+            "z",
+            format!(
+                "{} components per step, but {} measures {m}",
+                data.dim,
+                p.name()
+            ),
+        )
+        .into());
+    }
+    let params = p.params();
+    let mut start = params.values();
+    for kv in &a.set {
+        let (i, v) = name_value(params, "--set", kv)?;
+        start[i] = v;
+    }
+    let fixed: Vec<bool> = params.params.iter().map(|d| d.fixed).collect();
+    let build = |theta: &[f64]| {
+        let kf = lin.filter_at(theta);
+        LinearFilterModel {
+            F: kf.F,
+            H: kf.H,
+            Q: kf.Q,
+            R: kf.R,
+            x0: kf.x0,
+            P0: kf.P0,
+        }
+    };
+    let t0 = Instant::now();
+    let est = ml::estimate(&build, &data, &start, &fixed, a.max_iterations)
+        .map_err(|m| AppError::Refused(format!("{}: {m}", a.measurements.display())))?;
+    let took = t0.elapsed().as_secs_f64();
+    print_stdout(|o| {
+        if a.json {
+            let json = serde_json::json!({
+                "problem": p.name(),
+                "method": "ml",
+                "params": params.names(),
+                "estimate": est,
+                "seconds": took,
+            });
+            writeln!(
+                o,
+                "{}",
+                serde_json::to_string_pretty(&json).expect("serializes")
+            )?;
+            return Ok(());
+        }
+        writeln!(
+            o,
+            "autotune estimate: {} from {} ({} sequence(s), {} values), maximum likelihood",
+            p.name(),
+            a.measurements.display(),
+            data.sequences.len(),
+            data.values()
+        )?;
+        writeln!(
+            o,
+            "{:<14} {:>12} {:>12} {:>12}  unit",
+            "parameter", "estimate", "std error", "start"
+        )?;
+        for (i, d) in params.params.iter().enumerate() {
+            let se = match (d.fixed, est.std_errors[i]) {
+                (true, _) => "fixed".to_string(),
+                (false, Some(s)) => fmt_g(s),
+                (false, None) => "not identified".to_string(),
+            };
+            writeln!(
+                o,
+                "{:<14} {:>12} {:>12} {:>12}  {}",
+                d.name,
+                fmt_g(est.theta[i]),
+                se,
+                fmt_g(start[i]),
+                d.unit
+            )?;
+        }
+        writeln!(
+            o,
+            "−log L: {} at the start, {} at the estimate; {} L-BFGS iterations, {} likelihood evaluations, {:.3} s{}",
+            fmt_g(est.start_neg_log_likelihood),
+            fmt_g(est.neg_log_likelihood),
+            est.iterations,
+            est.evaluations,
+            took,
+            if est.converged {
+                ""
+            } else {
+                " (iteration limit reached)"
+            }
+        )?;
+        if !est.not_identified.is_empty() {
+            let names: Vec<&str> = est
+                .not_identified
+                .iter()
+                .map(|&i| params.params[i].name.as_str())
+                .collect();
+            writeln!(
+                o,
+                "not identified by these data (relative standard error above 1): {}",
+                names.join(", ")
+            )?;
+        }
+        Ok(())
+    })?;
+    Ok(ExitCode::SUCCESS)
+}

@@ -1,0 +1,397 @@
+//! Measurement records on disk (`docs/measurements.md`): CSV (`run,step,z_1,…,z_m`), JSON
+//! Lines (`{"run": 0, "step": 1, "z": [..]}`) and NumPy (one array of shape (N, T, m) or
+//! (T, m), in a `.npy` file or as `z` in an `.npz` archive). A missing component is an empty
+//! cell, `NaN` or `null`; runs are sequences, each with steps 1, 2, … without gaps.
+
+use std::collections::HashSet;
+use std::fmt::Write as _;
+use std::path::Path;
+
+use npyz::WriterBuilder;
+use serde_json::Value;
+
+use super::{Measurements, Sequence};
+use crate::input::FileError;
+
+/// Largest number of steps a record may have in all.
+const MAX_VALUES: usize = 100_000_000;
+
+fn at(path: &Path, line: usize, field: &str, m: impl Into<String>) -> FileError {
+    let mut e = FileError::new(path, field, m);
+    e.line = Some(line);
+    e
+}
+
+/// Builds sequences from rows that arrive in order.
+struct Builder {
+    dim: Option<usize>,
+    sequences: Vec<Sequence>,
+    runs: Vec<usize>,
+    seen: HashSet<usize>,
+    values: usize,
+}
+
+impl Builder {
+    fn new() -> Self {
+        Builder {
+            dim: None,
+            sequences: Vec::new(),
+            runs: Vec::new(),
+            seen: HashSet::new(),
+            values: 0,
+        }
+    }
+
+    /// Add run `run`, step `step` with values `z` (NaN: missing); `Err((field, message))`.
+    fn row(&mut self, run: usize, step: usize, z: &[f64]) -> Result<(), (String, String)> {
+        let m = *self.dim.get_or_insert(z.len());
+        if z.len() != m {
+            return Err((
+                "z".into(),
+                format!("{} components, earlier rows {m}", z.len()),
+            ));
+        }
+        if let Some(j) = z.iter().position(|v| v.is_infinite()) {
+            return Err((format!("z_{}", j + 1), "not finite".into()));
+        }
+        self.values += m;
+        if self.values > MAX_VALUES {
+            return Err(("z".into(), format!("more than {MAX_VALUES} values")));
+        }
+        if self.runs.last() != Some(&run) {
+            if !self.seen.insert(run) {
+                return Err((
+                    "run".into(),
+                    format!("run {run} appears twice (a run's rows must come together)"),
+                ));
+            }
+            self.runs.push(run);
+            self.sequences.push(Sequence {
+                steps: 0,
+                z: Vec::new(),
+            });
+        }
+        let s = self.sequences.last_mut().expect("pushed above");
+        if step != s.steps + 1 {
+            return Err((
+                "step".into(),
+                format!(
+                    "run {run}: step {step} follows step {} (steps go 1, 2, … without gaps)",
+                    s.steps
+                ),
+            ));
+        }
+        s.steps += 1;
+        s.z.extend_from_slice(z);
+        Ok(())
+    }
+
+    fn finish(self, path: &Path) -> Result<Measurements, FileError> {
+        let dim = self
+            .dim
+            .filter(|_| !self.sequences.is_empty())
+            .ok_or_else(|| FileError::new(path, "", "no measurements"))?;
+        Ok(Measurements {
+            dim,
+            sequences: self.sequences,
+        })
+    }
+}
+
+fn index(text: &str, what: &str) -> Result<usize, (String, String)> {
+    text.trim().parse::<usize>().map_err(|_| {
+        (
+            what.to_string(),
+            format!(
+                "'{}' is not a whole number ≥ 0",
+                crate::records::shown_up_to(text, 24)
+            ),
+        )
+    })
+}
+
+/// Read a measurement record (by extension: `.csv`, `.jsonl`, `.npy`, `.npz`).
+pub fn read_measurements(path: &Path) -> Result<Measurements, FileError> {
+    let ext = path
+        .extension()
+        .and_then(|e| e.to_str())
+        .map(str::to_ascii_lowercase);
+    match ext.as_deref() {
+        Some("csv") => read_csv(path),
+        Some("jsonl") | Some("ndjson") => read_jsonl(path),
+        Some("npy") | Some("npz") => read_numpy(path),
+        _ => Err(FileError::new(
+            path,
+            "",
+            "not a measurement record: expected .csv, .jsonl, .npy or .npz (docs/measurements.md)",
+        )),
+    }
+}
+
+fn read_csv(path: &Path) -> Result<Measurements, FileError> {
+    let mut rdr = csv::ReaderBuilder::new()
+        .has_headers(true)
+        .trim(csv::Trim::All)
+        .from_path(path)
+        .map_err(|e| FileError::new(path, "", format!("cannot read: {e}")))?;
+    let header = rdr
+        .headers()
+        .map_err(|e| at(path, 1, "header", e.to_string()))?
+        .clone();
+    let (mut run, mut step) = (None, None);
+    let mut z: Vec<(usize, usize)> = Vec::new();
+    for (c, name) in header.iter().enumerate() {
+        match name {
+            "run" => run = Some(c),
+            "step" => step = Some(c),
+            "time" => {}
+            _ => match name
+                .strip_prefix("z_")
+                .and_then(|j| j.parse::<usize>().ok())
+            {
+                Some(j) if j >= 1 => z.push((j, c)),
+                _ => {
+                    return Err(at(
+                        path,
+                        1,
+                        "header",
+                        format!(
+                            "unknown column '{}' (expected run, step, time, z_1 … z_m)",
+                            crate::records::shown_up_to(name, 40)
+                        ),
+                    ));
+                }
+            },
+        }
+    }
+    let step = step.ok_or_else(|| at(path, 1, "header", "no 'step' column"))?;
+    z.sort_unstable();
+    if z.is_empty() || z.iter().enumerate().any(|(i, (j, _))| *j != i + 1) {
+        return Err(at(
+            path,
+            1,
+            "header",
+            "the z columns must be z_1 … z_m without gaps",
+        ));
+    }
+    let mut b = Builder::new();
+    let mut rec = csv::StringRecord::new();
+    let mut values = vec![0.0; z.len()];
+    loop {
+        let line = rdr.position().line() as usize;
+        match rdr.read_record(&mut rec) {
+            Ok(false) => break,
+            Ok(true) => {}
+            Err(e) => {
+                return Err(at(
+                    path,
+                    line,
+                    "",
+                    crate::records::shown_up_to(&e.to_string(), 120),
+                ));
+            }
+        }
+        let line = rec.position().map_or(line, |p| p.line() as usize);
+        let res = (|| {
+            let r = match run {
+                Some(c) => index(rec.get(c).unwrap_or(""), "run")?,
+                None => 0,
+            };
+            let s = index(rec.get(step).unwrap_or(""), "step")?;
+            for (k, (j, c)) in z.iter().enumerate() {
+                let t = rec.get(*c).unwrap_or("");
+                values[k] = if t.is_empty() {
+                    f64::NAN
+                } else {
+                    t.parse::<f64>().map_err(|_| {
+                        (
+                            format!("z_{j}"),
+                            format!("'{}' is not a number", crate::records::shown_up_to(t, 24)),
+                        )
+                    })?
+                };
+            }
+            b.row(r, s, &values)
+        })();
+        res.map_err(|(field, m)| at(path, line, &field, m))?;
+    }
+    b.finish(path)
+}
+
+fn read_jsonl(path: &Path) -> Result<Measurements, FileError> {
+    use std::io::BufRead;
+    let file = std::fs::File::open(path)
+        .map_err(|e| FileError::new(path, "", format!("cannot read: {e}")))?;
+    let mut b = Builder::new();
+    for (i, line) in std::io::BufReader::new(file).lines().enumerate() {
+        let n = i + 1;
+        let line = line.map_err(|e| at(path, n, "", format!("cannot read: {e}")))?;
+        if line.trim().is_empty() {
+            continue;
+        }
+        let res = (|| {
+            let obj = crate::records::json_object(&line).map_err(|m| (String::new(), m))?;
+            let int = |k: &str, default: Option<usize>| match obj.get(k) {
+                None => default.ok_or_else(|| (k.to_string(), "missing".to_string())),
+                Some(v) => v
+                    .as_u64()
+                    .and_then(|v| usize::try_from(v).ok())
+                    .ok_or_else(|| (k.to_string(), "not a whole number ≥ 0".to_string())),
+            };
+            let r = int("run", Some(0))?;
+            let s = int("step", None)?;
+            let z: Vec<f64> = obj
+                .get("z")
+                .and_then(Value::as_array)
+                .ok_or_else(|| ("z".to_string(), "missing or not a list".to_string()))?
+                .iter()
+                .map(|v| match v {
+                    Value::Null => Ok(f64::NAN),
+                    v => v
+                        .as_f64()
+                        .ok_or_else(|| ("z".to_string(), "not a number or null".to_string())),
+                })
+                .collect::<Result<_, _>>()?;
+            b.row(r, s, &z)
+        })();
+        res.map_err(|(field, m)| at(path, n, &field, m))?;
+    }
+    b.finish(path)
+}
+
+fn read_numpy(path: &Path) -> Result<Measurements, FileError> {
+    let raw = crate::records::read_numpy_arrays(&[path.to_path_buf()])?;
+    let single = raw.len() == 1;
+    let (name, shape, data) = raw
+        .into_iter()
+        .find(|(n, _, _)| single || n == "z")
+        .ok_or_else(|| {
+            FileError::new(
+                path,
+                "array z",
+                "missing (the measurements are the array named z)",
+            )
+        })?;
+    let field = format!("array {name}");
+    let (runs, steps, m) = match shape[..] {
+        [t, m] => (1, t, m),
+        [n, t, m] => (n, t, m),
+        _ => {
+            return Err(FileError::new(
+                path,
+                &field,
+                format!("shape {shape:?}: expected (N, T, m) or (T, m)"),
+            ));
+        }
+    };
+    if runs == 0 || steps == 0 || m == 0 {
+        return Err(FileError::new(
+            path,
+            &field,
+            format!("shape {shape:?} holds no measurements"),
+        ));
+    }
+    if let Some(i) = data.iter().position(|v| v.is_infinite()) {
+        return Err(FileError::new(
+            path,
+            &field,
+            format!("element {i} is not finite"),
+        ));
+    }
+    let sequences = data
+        .chunks(steps * m)
+        .map(|c| Sequence {
+            steps,
+            z: c.to_vec(),
+        })
+        .collect();
+    Ok(Measurements { dim: m, sequences })
+}
+
+/// The bytes of a record (by `path`'s extension: CSV, JSON Lines or `.npy`) holding `rows`
+/// named `prefix_1 … prefix_d` (`z` for measurements, `x` for true states): one `Vec` per
+/// sequence, T × d row-major.
+pub fn record_bytes(
+    path: &Path,
+    prefix: &str,
+    d: usize,
+    rows: &[&[f64]],
+) -> Result<Vec<u8>, FileError> {
+    let ext = path
+        .extension()
+        .and_then(|e| e.to_str())
+        .map(str::to_ascii_lowercase);
+    let num = |v: f64| {
+        if v.is_nan() {
+            String::new()
+        } else {
+            format!("{v}")
+        }
+    };
+    match ext.as_deref() {
+        Some("csv") => {
+            let mut o = String::from("run,step");
+            for j in 1..=d {
+                let _ = write!(o, ",{prefix}_{j}");
+            }
+            o.push('\n');
+            for (r, seq) in rows.iter().enumerate() {
+                for (k, row) in seq.chunks(d).enumerate() {
+                    let _ = write!(o, "{r},{}", k + 1);
+                    for v in row {
+                        let _ = write!(o, ",{}", num(*v));
+                    }
+                    o.push('\n');
+                }
+            }
+            Ok(o.into_bytes())
+        }
+        Some("jsonl") | Some("ndjson") => {
+            let mut o = String::new();
+            for (r, seq) in rows.iter().enumerate() {
+                for (k, row) in seq.chunks(d).enumerate() {
+                    let vals: Vec<String> = row
+                        .iter()
+                        .map(|v| {
+                            if v.is_nan() {
+                                "null".into()
+                            } else {
+                                format!("{v}")
+                            }
+                        })
+                        .collect();
+                    let _ = writeln!(
+                        o,
+                        "{{\"run\": {r}, \"step\": {}, \"{prefix}\": [{}]}}",
+                        k + 1,
+                        vals.join(", ")
+                    );
+                }
+            }
+            Ok(o.into_bytes())
+        }
+        Some("npy") => {
+            let steps = rows.first().map_or(0, |s| s.len() / d.max(1));
+            let shape = [rows.len() as u64, steps as u64, d as u64];
+            let mut bytes = Vec::new();
+            let mut w = npyz::WriteOptions::<f64>::new()
+                .default_dtype()
+                .shape(&shape)
+                .writer(&mut bytes)
+                .begin_nd()
+                .map_err(|e| FileError::new(path, "", format!("cannot encode: {e}")))?;
+            for seq in rows {
+                w.extend(seq.iter().copied())
+                    .map_err(|e| FileError::new(path, "", format!("cannot encode: {e}")))?;
+            }
+            w.finish()
+                .map_err(|e| FileError::new(path, "", format!("cannot encode: {e}")))?;
+            Ok(bytes)
+        }
+        _ => Err(FileError::new(
+            path,
+            "",
+            "writes .csv, .jsonl or .npy (docs/measurements.md)",
+        )),
+    }
+}

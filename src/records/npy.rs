@@ -152,6 +152,9 @@ fn c_order(shape: &[usize], order: npyz::Order, data: Vec<f64>) -> Vec<f64> {
     out
 }
 
+/// A NumPy array as read: its name, shape and data (f64, C order).
+pub(crate) type RawArray = (String, Vec<usize>, Vec<f64>);
+
 /// The arrays of an `.npz` archive or of a set of `.npy` files (each named after its file
 /// stem), by name, with their shapes and their data as f64 in C order; nothing about what they
 /// mean is checked here. `paths` is not empty.
@@ -159,7 +162,7 @@ pub(crate) fn read_raw(
     paths: &[PathBuf],
 ) -> Result<Vec<(String, Vec<usize>, Vec<f64>)>, FileError> {
     let file = paths[0].clone();
-    let mut raw: Vec<(String, Vec<usize>, Vec<f64>)> = Vec::new();
+    let mut raw: Vec<RawArray> = Vec::new();
     let is_npz = paths.len() == 1
         && file
             .extension()

@@ -160,7 +160,7 @@ pub(crate) type RawArray = (String, Vec<usize>, Vec<f64>);
 /// mean is checked here. `paths` is not empty.
 pub(crate) fn read_raw(
     paths: &[PathBuf],
-) -> Result<Vec<(String, Vec<usize>, Vec<f64>)>, FileError> {
+) -> Result<Vec<RawArray>, FileError> {
     let file = paths[0].clone();
     let mut raw: Vec<RawArray> = Vec::new();
     let is_npz = paths.len() == 1

@@ -709,3 +709,62 @@ fn report_and_junit_files() {
         assert_eq!(failed, s["verdict"] != "consistent", "{}", s["name"]);
     }
 }
+
+/// Ctrl-C ends a follow with its summary and the verdict's exit code (a second Ctrl-C, or
+/// any other command, exits 130 at once); a last line without its newline is read when the
+/// follow ends, as the batch reader reads it.
+#[test]
+fn ctrl_c_ends_a_follow_with_its_summary() {
+    use assert_cmd::cargo::CommandCargoExt;
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("live.csv");
+    // The last line has no newline.
+    std::fs::write(
+        &path,
+        "time,sensor,nu_1,S_1_1\n0.1,baro,0.3,1.0\n0.2,baro,-0.5,1.0\n0.3,baro,0.2,1.0",
+    )
+    .unwrap();
+    let child = std::process::Command::cargo_bin("autotune")
+        .unwrap()
+        .args(["nis", "--follow", path.to_str().unwrap(), "--for", "60"])
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    std::thread::sleep(std::time::Duration::from_millis(1500));
+    // SAFETY: sending a signal to our own child process.
+    unsafe {
+        libc::kill(child.id() as libc::pid_t, libc::SIGINT);
+    }
+    let out = child.wait_with_output().unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert_ne!(out.status.code(), Some(130), "{stdout}");
+    assert!(stdout.contains("verdict:"), "{stdout}");
+    assert!(stdout.contains("3 updates"), "{stdout}");
+    let (_, batch, _) = autotune(&["nis", path.to_str().unwrap()]);
+    assert!(batch.contains("3 updates"), "{batch}");
+}
+
+/// A row giving part of a triangle of S is refused, naming the missing cell; the diagonal
+/// alone means zeros off it.
+#[test]
+fn a_partly_given_triangle_of_s_is_an_error() {
+    let dir = tempfile::tempdir().unwrap();
+    let text = "time,sensor,nu_1,nu_2,nu_3,S_1_1,S_2_1,S_2_2,S_3_1,S_3_2,S_3_3\n0.1,gps,1,2,3,2,0.5,2,,0.1,2\n";
+    let p = write(dir.path(), "tri.csv", text);
+    let (code, _, err) = autotune(&["nis", p.to_str().unwrap()]);
+    assert_eq!(code, Some(2));
+    assert!(
+        err.contains("tri.csv:2: S_1_3") || err.contains("tri.csv:2: S_3_1"),
+        "{err}"
+    );
+    let text = "time,sensor,nu_1,nu_2,S_1_1,S_2_1,S_2_2\n0.1,gps,1,2,2,,2\n";
+    let p = write(dir.path(), "diag.csv", text);
+    let (_, v) = nis_json(&[p.to_str().unwrap()]);
+    close(
+        sensor(&v, "gps")["nis_mean_all"].as_f64().unwrap(),
+        2.5,
+        1e-12,
+        "diag",
+    );
+}

@@ -205,6 +205,14 @@ pub fn main_for(experiment: &dyn Experiment, tune: &TuneSettings) -> ExitCode {
     finish(run_for(experiment, tune, std::env::args_os()))
 }
 
+/// Set while `nis --follow` runs: Ctrl-C then ends the follow (and prints its summary)
+/// instead of the process.
+pub(crate) static FOLLOWING: std::sync::atomic::AtomicBool =
+    std::sync::atomic::AtomicBool::new(false);
+/// Set by Ctrl-C during a follow.
+pub(crate) static STOP_FOLLOWING: std::sync::atomic::AtomicBool =
+    std::sync::atomic::AtomicBool::new(false);
+
 /// Exit code of a run stopped by Ctrl-C (128 + SIGINT, as a shell reports it).
 const INTERRUPTED: i32 = 130;
 
@@ -222,6 +230,12 @@ fn remove_temporary_files_on_interrupt() {
             return;
         }
         let installed = ctrlc::set_handler(|| {
+            use std::sync::atomic::Ordering;
+            // A follow ends on the first Ctrl-C with its summary; a second one, or any
+            // other command, stops at once.
+            if FOLLOWING.load(Ordering::SeqCst) && !STOP_FOLLOWING.swap(true, Ordering::SeqCst) {
+                return;
+            }
             crate::report::remove_temporary_files();
             std::process::exit(INTERRUPTED);
         });

@@ -87,7 +87,8 @@ impl NisArgs {
             .map_err(flag_error("--gate"))?
             .with_lags(lags)
             .map_err(flag_error("--lags"))?
-            .with_window(Window::parse(&self.window).map_err(flag_error("--window"))?))
+            .with_window(Window::parse(&self.window).map_err(flag_error("--window"))?)
+            .map_err(flag_error("--window"))?)
     }
 
     fn options(&self) -> ReadOptions {
@@ -138,26 +139,35 @@ fn follow(
     limit: Option<Duration>,
     idle: Option<Duration>,
 ) -> Result<NisReport, AppError> {
+    use std::sync::atomic::Ordering;
     let mut f = Follower::new(path, settings, a.options())?;
+    super::FOLLOWING.store(true, Ordering::SeqCst);
+    let stopped = || super::STOP_FOLLOWING.load(Ordering::SeqCst);
     let start = Instant::now();
     let mut last_growth = Instant::now();
-    loop {
+    let result = loop {
         let tick = Instant::now();
-        if f.poll()? > 0 {
-            last_growth = Instant::now();
+        match f.poll() {
+            Ok(n) if n > 0 => last_growth = Instant::now(),
+            Ok(_) => {}
+            Err(e) => break Err(e.into()),
         }
         if !a.quiet && !a.json {
             print_stdout(|o| writeln!(o, "{}", f.status()))?;
         }
-        let done = limit.is_some_and(|l| start.elapsed() >= l)
+        let done = stopped()
+            || limit.is_some_and(|l| start.elapsed() >= l)
             || idle.is_some_and(|i| last_growth.elapsed() >= i);
         if done {
-            f.poll()?;
-            return Ok(f.report());
+            break f.finish().map(|()| f.report()).map_err(AppError::from);
         }
-        let spent = tick.elapsed();
-        std::thread::sleep(Duration::from_secs(1).saturating_sub(spent));
-    }
+        // Sleep out the second in slices, so that Ctrl-C ends the follow promptly.
+        while tick.elapsed() < Duration::from_secs(1) && !stopped() {
+            std::thread::sleep(Duration::from_millis(50));
+        }
+    };
+    super::FOLLOWING.store(false, Ordering::SeqCst);
+    result
 }
 
 fn finish(a: &NisArgs, report: &NisReport) -> Result<ExitCode, AppError> {

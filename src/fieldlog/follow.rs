@@ -16,6 +16,8 @@ use crate::stats::Verdict;
 
 /// Longest line a log may have.
 const MAX_LINE: usize = 1 << 20;
+/// Bytes read at a time.
+const CHUNK: u64 = 8 << 20;
 
 /// Follows one growing log.
 pub struct Follower {
@@ -97,14 +99,29 @@ impl Follower {
                 ),
             ));
         }
-        file.seek(SeekFrom::Start(self.offset))
-            .map_err(|e| FileError::new(&self.path, "", format!("cannot read: {e}")))?;
-        let mut fresh = Vec::new();
-        file.take(len - self.offset)
-            .read_to_end(&mut fresh)
-            .map_err(|e| FileError::new(&self.path, "", format!("cannot read: {e}")))?;
-        self.offset += fresh.len() as u64;
-        self.partial.extend_from_slice(&fresh);
+        // Read in bounded chunks, so that following a large existing log costs a chunk of
+        // memory, not the file.
+        let mut count = 0;
+        while self.offset < len {
+            file.seek(SeekFrom::Start(self.offset))
+                .map_err(|e| FileError::new(&self.path, "", format!("cannot read: {e}")))?;
+            let mut fresh = Vec::new();
+            (&mut file)
+                .take((len - self.offset).min(CHUNK))
+                .read_to_end(&mut fresh)
+                .map_err(|e| FileError::new(&self.path, "", format!("cannot read: {e}")))?;
+            if fresh.is_empty() {
+                break;
+            }
+            self.offset += fresh.len() as u64;
+            self.partial.extend_from_slice(&fresh);
+            count += self.complete_lines()?;
+        }
+        Ok(count)
+    }
+
+    /// Take the complete lines out of the buffer and read them.
+    fn complete_lines(&mut self) -> Result<usize, FileError> {
         let Some(end) = self.partial.iter().rposition(|&b| b == b'\n') else {
             if self.partial.len() > MAX_LINE {
                 return Err(at_line(
@@ -120,11 +137,31 @@ impl Follower {
         // `complete` ends with its newline: the lines are what lies between newlines.
         let mut count = 0;
         for raw in complete[..complete.len() - 1].split(|&b| b == b'\n') {
+            if raw.len() > MAX_LINE {
+                return Err(at_line(
+                    &self.path,
+                    self.line_no + 1,
+                    "",
+                    format!("a line longer than {MAX_LINE} bytes"),
+                ));
+            }
             self.line_no += 1;
             count += 1;
             self.line(raw)?;
         }
         Ok(count)
+    }
+
+    /// Read what is left: a last line without its newline counts as a line once the
+    /// follow ends.
+    pub fn finish(&mut self) -> Result<(), FileError> {
+        self.poll()?;
+        if !self.partial.is_empty() {
+            let raw = std::mem::take(&mut self.partial);
+            self.line_no += 1;
+            self.line(&raw)?;
+        }
+        Ok(())
     }
 
     fn line(&mut self, raw: &[u8]) -> Result<(), FileError> {

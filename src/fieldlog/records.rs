@@ -48,10 +48,13 @@ impl StepSink for Sink<'_> {
                 }
                 Err(why) => return Err(format!("run {}, step {}: {why}", r.run, r.step)),
             };
-            if n.dof.fract() != 0.0 {
+            if n.dof.fract() != 0.0 || n.dof > super::text::MAX_DIM as f64 {
                 return Err(format!(
-                    "run {}, step {}: nis_dof {} is not a whole number",
-                    r.run, r.step, n.dof
+                    "run {}, step {}: nis_dof {} is not a whole number in 1..={}",
+                    r.run,
+                    r.step,
+                    n.dof,
+                    super::text::MAX_DIM
                 ));
             }
             self.an.push(

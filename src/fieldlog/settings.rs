@@ -124,10 +124,23 @@ impl NisSettings {
         Ok(self)
     }
 
-    /// Set the moving window.
-    pub fn with_window(mut self, window: Window) -> Self {
+    /// Set the moving window: 2 to 10⁶ updates, or a finite number of seconds > 0.
+    pub fn with_window(mut self, window: Window) -> Result<Self, SettingError> {
+        let ok = match window {
+            Window::Updates(n) => (2..=1_000_000).contains(&n),
+            Window::Seconds(s) => s.is_finite() && s > 0.0,
+        };
+        if !ok {
+            return Err(SettingError::new(
+                "window",
+                format!(
+                    "{} is not a window (2 to 1000000 updates, or seconds > 0)",
+                    window.describe()
+                ),
+            ));
+        }
         self.window = window;
-        self
+        Ok(self)
     }
 
     /// Set the whiteness lags, 1..=100.

@@ -18,8 +18,8 @@ use super::{LogSource, ReadOptions};
 use crate::input::FileError;
 use crate::records::{SensorRecord, normalize_sensor, shown_up_to};
 
-/// Largest measurement dimension of a sensor.
-const MAX_DIM: usize = 64;
+/// Largest measurement dimension of a sensor (and degrees of freedom of a precomputed NIS).
+pub(super) const MAX_DIM: usize = 64;
 /// Skipped rows listed by line number in the notes.
 const LISTED: usize = 5;
 
@@ -211,14 +211,26 @@ impl CsvColumns {
                 record: SensorRecord::Normalized { nis, dof, u: None },
             });
         }
+        let cell_of = |i: usize, j: usize| -> Result<Option<f64>, (String, String)> {
+            match self.s.get(&(i, j)) {
+                Some(&c) => num(c, &format!("S_{i}_{j}")),
+                None => Ok(None),
+            }
+        };
+        // A diagonal S leaves every off-diagonal cell empty; any filled one means the row
+        // gives a triangle or the full matrix, so every pair must then have an entry.
+        let mut off_diagonal = false;
+        for i in 1..=m {
+            for j in 1..=m {
+                if i != j && cell_of(i, j)?.is_some() {
+                    off_diagonal = true;
+                }
+            }
+        }
         let mut s = vec![0.0; m * m];
         for i in 1..=m {
             for j in 1..=m {
-                let own = match self.s.get(&(i, j)) {
-                    Some(&c) => num(c, &format!("S_{i}_{j}"))?,
-                    None => None,
-                };
-                let v = match (own, i == j) {
+                let v = match (cell_of(i, j)?, i == j) {
                     (Some(v), _) => v,
                     (None, true) => {
                         return Err((
@@ -226,9 +238,17 @@ impl CsvColumns {
                             format!("empty for a sensor of {m} components"),
                         ));
                     }
-                    (None, false) => match self.s.get(&(j, i)) {
-                        Some(&c) => num(c, &format!("S_{j}_{i}"))?.unwrap_or(0.0),
-                        None => 0.0,
+                    (None, false) => match cell_of(j, i)? {
+                        Some(v) => v,
+                        None if !off_diagonal => 0.0,
+                        None => {
+                            return Err((
+                                format!("S_{i}_{j}"),
+                                format!(
+                                    "empty, and so is S_{j}_{i}: give all of S, one triangle, or its diagonal alone"
+                                ),
+                            ));
+                        }
                     },
                 };
                 s[(i - 1) * m + (j - 1)] = v;
@@ -399,8 +419,11 @@ impl Ingest {
             Ok(Ok(n)) => n,
             Ok(Err(why)) | Err(why) => return Err((field_of(&row.record), why)),
         };
-        if n.dof.fract() != 0.0 {
-            return Err(("dof".into(), format!("{} is not a whole number", n.dof)));
+        if n.dof.fract() != 0.0 || n.dof > MAX_DIM as f64 {
+            return Err((
+                "dof".into(),
+                format!("{} is not a whole number in 1..={MAX_DIM}", n.dof),
+            ));
         }
         if let Some(&t) = self.last_time.get(&row.sensor)
             && row.time < t

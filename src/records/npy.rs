@@ -158,9 +158,7 @@ pub(crate) type RawArray = (String, Vec<usize>, Vec<f64>);
 /// The arrays of an `.npz` archive or of a set of `.npy` files (each named after its file
 /// stem), by name, with their shapes and their data as f64 in C order; nothing about what they
 /// mean is checked here. `paths` is not empty.
-pub(crate) fn read_raw(
-    paths: &[PathBuf],
-) -> Result<Vec<RawArray>, FileError> {
+pub(crate) fn read_raw(paths: &[PathBuf]) -> Result<Vec<RawArray>, FileError> {
     let file = paths[0].clone();
     let mut raw: Vec<RawArray> = Vec::new();
     let is_npz = paths.len() == 1

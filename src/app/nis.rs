@@ -80,7 +80,7 @@ impl NisArgs {
     fn settings(&self) -> Result<NisSettings, AppError> {
         let lags = usize::try_from(self.lags)
             .map_err(|_| AppError::flag("--lags", format!("{} is not in 1..=100", self.lags)))?;
-        Ok(NisSettings::default()
+        NisSettings::default()
             .with_alpha(self.alpha)
             .map_err(flag_error("--alpha"))?
             .with_gate(self.gate)
@@ -88,7 +88,7 @@ impl NisArgs {
             .with_lags(lags)
             .map_err(flag_error("--lags"))?
             .with_window(Window::parse(&self.window).map_err(flag_error("--window"))?)
-            .map_err(flag_error("--window"))?)
+            .map_err(flag_error("--window"))
     }
 
     fn options(&self) -> ReadOptions {

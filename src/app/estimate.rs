@@ -7,7 +7,9 @@ use std::time::Instant;
 
 use super::args::name_value;
 use super::{AppError, print_stdout};
-use crate::estimate::{LinearFilterModel, ml, read_measurements, record_bytes, simulate};
+use crate::estimate::{
+    LinearFilterModel, MeasuredExperiment, ml, read_measurements, record_bytes, simulate,
+};
 use crate::experiment::{Experiment, LinearExperiment};
 use crate::input::FileError;
 use crate::problem::Problem;
@@ -71,6 +73,32 @@ fn linear<'a>(
         )
         .into()
     })
+}
+
+/// The filter of problem `p` (file `path`) over the measurement record `file`, as an
+/// experiment `check` and `tune` can judge by its innovations.
+pub fn measured_experiment(
+    p: &Problem,
+    path: &std::path::Path,
+    file: &std::path::Path,
+) -> Result<MeasuredExperiment, AppError> {
+    let lin = linear(p, path, "--measurements")?;
+    let data = read_measurements(file)?;
+    let m = lin.filter.H.nrows();
+    if data.dim != m {
+        return Err(FileError::new(
+            file,
+            "z",
+            format!(
+                "{} components per step, but {} measures {m}",
+                data.dim,
+                p.name()
+            ),
+        )
+        .into());
+    }
+    MeasuredExperiment::new(lin, data)
+        .map_err(|e| FileError::new(file, "", format!("{}: {}", e.setting, e.message)).into())
 }
 
 /// Run `simulate`.

@@ -136,6 +136,11 @@ struct ProblemCheck {
 struct ProblemTune {
     /// Problem file (TOML).
     problem: PathBuf,
+    /// Tune against recorded measurements instead of the truth model: the filter runs over
+    /// the record (CSV, JSON Lines, NumPy; docs/measurements.md) and candidates are scored by
+    /// their innovations alone (NIS, per-component NIS, whiteness). Linear problems.
+    #[arg(long, value_name = "FILE", conflicts_with_all = ["runs", "steps", "seed"])]
+    measurements: Option<PathBuf>,
     #[command(flatten)]
     options: TuneOptions,
 }
@@ -183,7 +188,13 @@ where
         },
         Command::Tune(a) => {
             let p = Problem::load(&a.problem)?;
-            tune::run(&p, &p.tune, a.options)
+            match &a.measurements {
+                None => tune::run(&p, &p.tune, a.options),
+                Some(f) => {
+                    let measured = estimate::measured_experiment(&p, &a.problem, f)?;
+                    tune::run(&measured, &p.tune.clone().with_nis_only(true), a.options)
+                }
+            }
         }
         Command::Nis(a) => nis::run(a),
         Command::Simulate(a) => estimate::run_simulate(a),

@@ -3,11 +3,13 @@
 
 mod files;
 mod likelihood;
+mod measured;
 pub mod ml;
 
 pub use files::{read_measurements, record_bytes};
 
 pub use likelihood::{LinearFilterModel, NotDefinite};
+pub use measured::MeasuredExperiment;
 
 use nalgebra::DVector;
 

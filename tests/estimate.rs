@@ -119,3 +119,135 @@ fn tune_against_recorded_measurements_recovers_the_truth() {
         assert!((v / truth - 1.0).abs() < 0.10, "{name}: {v} vs {truth}");
     }
 }
+
+fn als_model(lin: &LinearExperiment) -> autotune::estimate::als::AlsModel<'_> {
+    autotune::estimate::als::AlsModel {
+        F: &lin.filter.F,
+        H: &lin.filter.H,
+        x0: &lin.filter.x0,
+        q: &lin.filter.q,
+        r: &lin.filter.r,
+    }
+}
+
+/// ALS from all parameters = 1.0 on 20 000-step cv2d records: every per-axis Q and R
+/// parameter within 10% of the truth on each of five records (the issue asks for 20%;
+/// measured: at most 4% with two passes). A wrong autocovariance formula (a missing
+/// `− H Ā^{j−1} F K R` term, a transposed lag) puts q_accel_y off by far more.
+#[test]
+fn als_recovers_every_parameter_within_ten_percent_on_20000_steps() {
+    let (p, lin) = cv2d();
+    let truth = common::truth_values(&p);
+    let model = als_model(&lin);
+    for seed in 21..26 {
+        let sim = simulate(&lin.truth, 2, 1, 20_000, seed);
+        let start = vec![1.0; truth.len()];
+        let est = autotune::estimate::als::estimate_passes(
+            &model,
+            &sim.measurements,
+            &start,
+            &vec![false; truth.len()],
+            15,
+            2,
+        )
+        .expect("ALS runs");
+        for (i, (e, t)) in est.theta.iter().zip(&truth).enumerate() {
+            assert!(
+                (e / t - 1.0).abs() < 0.10,
+                "seed {seed}, parameter {i}: {e} vs {t}"
+            );
+        }
+    }
+}
+
+/// A target that barely manoeuvres in y (truth q_accel_y = 0.001) seen for 400 steps:
+/// unconstrained least squares makes q_accel_y negative on some records; ALS holds it at 0,
+/// so Q and R stay positive semidefinite on every record.
+#[test]
+fn als_never_returns_a_negative_variance() {
+    let text = std::fs::read_to_string(common::problem_path("cv2d"))
+        .unwrap()
+        .replace(
+            "{ kind = \"dwna\", indices = [2, 3], value = 0.1 }",
+            "{ kind = \"dwna\", indices = [2, 3], value = 0.001 }",
+        );
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("still.toml");
+    std::fs::write(&path, text).unwrap();
+    let p = Problem::load(&path).unwrap();
+    let lin = p.linear().unwrap().clone();
+    let model = als_model(&lin);
+    let start = p.params().values();
+    let mut negative = 0;
+    for seed in 1..=8 {
+        let sim = simulate(&lin.truth, 2, 1, 400, seed);
+        let est = autotune::estimate::als::estimate_passes(
+            &model,
+            &sim.measurements,
+            &start,
+            &[false; 4],
+            15,
+            2,
+        )
+        .expect("ALS runs");
+        if est.unconstrained.iter().any(|v| *v < 0.0) {
+            negative += 1;
+            assert!(!est.at_zero.is_empty(), "seed {seed}");
+        }
+        assert!(
+            est.theta.iter().all(|v| *v >= 0.0),
+            "seed {seed}: {:?}",
+            est.theta
+        );
+        let q = lin.filter.q.build(&est.theta);
+        let r = lin.filter.r.build(&est.theta);
+        for m in [q, r] {
+            let min = m.symmetric_eigenvalues().min();
+            assert!(
+                min >= -1e-12 * m.abs().max(),
+                "seed {seed}: eigenvalue {min}"
+            );
+        }
+    }
+    // Measured: 3 of these 8 records (seeds 2, 4, 6).
+    assert!(
+        negative >= 2,
+        "{negative} records with a negative unconstrained variance"
+    );
+}
+
+/// ALS refuses what it cannot use: records with gaps, too short a record, an unstable filter.
+#[test]
+fn als_refuses_gaps_short_records_and_unstable_filters() {
+    let (_, lin) = cv2d();
+    let model = als_model(&lin);
+    let start = vec![1.0; 4];
+    let mut sim = simulate(&lin.truth, 2, 1, 60, 1);
+    let e = autotune::estimate::als::estimate(&model, &sim.measurements, &start, &[false; 4], 15)
+        .unwrap_err();
+    assert!(e.contains("too short"), "{e}");
+    sim.measurements.sequences[0].z[7] = f64::NAN;
+    let e = autotune::estimate::als::estimate(&model, &sim.measurements, &start, &[false; 4], 15)
+        .unwrap_err();
+    assert!(e.contains("every component"), "{e}");
+    // A filter that does not see y (H's second row zero) and believes y still (its F has no
+    // y velocity coupling, its q_accel_y is 0): its covariance settles, but its error in y
+    // never decays (Ā has an eigenvalue 1), so its innovations are not stationary.
+    let mut blind = lin.clone();
+    blind.filter.F[(2, 3)] = 0.0;
+    blind.filter.H[(1, 2)] = 0.0;
+    let bm = als_model(&blind);
+    let sim = simulate(&lin.truth, 2, 1, 2000, 1);
+    let e = autotune::estimate::als::estimate(
+        &bm,
+        &sim.measurements,
+        &[1.0, 0.0, 1.0, 1.0],
+        &[false; 4],
+        15,
+    )
+    .unwrap_err();
+    assert!(
+        e.contains("unstable") && e.contains("spectral radius"),
+        "{e}"
+    );
+}

@@ -7,6 +7,7 @@ use std::time::Instant;
 
 use super::args::name_value;
 use super::{AppError, print_stdout};
+use crate::estimate::als::{self, AlsModel};
 use crate::estimate::{
     LinearFilterModel, MeasuredExperiment, ml, read_measurements, record_bytes, simulate,
 };
@@ -46,9 +47,17 @@ pub struct EstimateArgs {
     /// The recorded measurements: .csv, .jsonl, .npy or .npz (docs/measurements.md).
     #[arg(long, value_name = "FILE")]
     measurements: PathBuf,
-    /// Estimation method (ml: maximum likelihood).
-    #[arg(long, default_value = "ml", value_parser = ["ml"])]
+    /// Estimation method: ml (maximum likelihood over the filter's innovations) or als
+    /// (autocovariance least squares from the innovations of the filter at the start values).
+    #[arg(long, default_value = "ml", value_parser = ["ml", "als"])]
     method: String,
+    /// ALS: autocovariance lags L (0 … L − 1).
+    #[arg(long, default_value_t = 15)]
+    lags: usize,
+    /// ALS: passes, each with the gain of the filter at the previous estimate (1: the start
+    /// values' gain only).
+    #[arg(long, default_value_t = 2)]
+    passes: usize,
     /// Start a parameter at NAME=VALUE instead of the problem's value (repeatable).
     #[arg(long = "set", value_name = "NAME=VALUE")]
     set: Vec<String>,
@@ -189,6 +198,97 @@ pub fn run_estimate(a: EstimateArgs) -> Result<ExitCode, AppError> {
         }
     };
     let t0 = Instant::now();
+    if a.method == "als" {
+        if !(1..=200).contains(&a.lags) {
+            return Err(AppError::flag(
+                "--lags",
+                format!("{} is not in 1..=200", a.lags),
+            ));
+        }
+        let model = AlsModel {
+            F: &lin.filter.F,
+            H: &lin.filter.H,
+            x0: &lin.filter.x0,
+            q: &lin.filter.q,
+            r: &lin.filter.r,
+        };
+        if !(1..=20).contains(&a.passes) {
+            return Err(AppError::flag(
+                "--passes",
+                format!("{} is not in 1..=20", a.passes),
+            ));
+        }
+        let est = als::estimate_passes(&model, &data, &start, &fixed, a.lags, a.passes)
+            .map_err(|m| AppError::Refused(format!("{}: {m}", a.measurements.display())))?;
+        let took = t0.elapsed().as_secs_f64();
+        print_stdout(|o| {
+            if a.json {
+                let json = serde_json::json!({
+                    "problem": p.name(),
+                    "method": "als",
+                    "params": params.names(),
+                    "estimate": est,
+                    "seconds": took,
+                });
+                return writeln!(
+                    o,
+                    "{}",
+                    serde_json::to_string_pretty(&json).expect("serializes")
+                );
+            }
+            writeln!(
+                o,
+                "autotune estimate: {} from {} ({} sequence(s), {} innovations), autocovariance least squares, lags 0..{}",
+                p.name(),
+                a.measurements.display(),
+                data.sequences.len(),
+                est.samples,
+                est.lags - 1
+            )?;
+            writeln!(
+                o,
+                "{:<14} {:>12} {:>14} {:>12}  unit",
+                "parameter", "estimate", "unconstrained", "start"
+            )?;
+            for (i, d) in params.params.iter().enumerate() {
+                let unc = if d.fixed {
+                    "fixed".to_string()
+                } else {
+                    fmt_g(est.unconstrained[i])
+                };
+                writeln!(
+                    o,
+                    "{:<14} {:>12} {:>14} {:>12}  {}",
+                    d.name,
+                    fmt_g(est.theta[i]),
+                    unc,
+                    fmt_g(start[i]),
+                    d.unit
+                )?;
+            }
+            writeln!(
+                o,
+                "rms residual of the autocovariances {}; filter at the start: spectral radius of F(I − KH) {:.4}; {:.3} s",
+                fmt_g(est.residual),
+                est.spectral_radius,
+                took
+            )?;
+            if !est.at_zero.is_empty() {
+                let names: Vec<&str> = est
+                    .at_zero
+                    .iter()
+                    .map(|&i| params.params[i].name.as_str())
+                    .collect();
+                writeln!(
+                    o,
+                    "held at zero by the constraint (unconstrained least squares would make them negative): {}",
+                    names.join(", ")
+                )?;
+            }
+            Ok(())
+        })?;
+        return Ok(ExitCode::SUCCESS);
+    }
     let est = ml::estimate(&build, &data, &start, &fixed, a.max_iterations)
         .map_err(|m| AppError::Refused(format!("{}: {m}", a.measurements.display())))?;
     let took = t0.elapsed().as_secs_f64();

@@ -1,6 +1,7 @@
 //! Q and R from recorded measurements alone: the exact likelihood of a linear filter and its
 //! maximum ([`ml`]), and the data such estimates are tried on ([`simulate`]).
 
+pub mod als;
 mod files;
 mod likelihood;
 mod measured;

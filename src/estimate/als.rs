@@ -1,0 +1,342 @@
+//! Autocovariance least squares (Odelson, Rajamani & Rawlings, Automatica 42, 2006): the
+//! noise parameters from the autocovariances of a stable, possibly suboptimal filter's
+//! innovations, with every parameter kept ≥ 0 so that Q and R stay positive semidefinite.
+//!
+//! With the filter's steady-state gain K held fixed, the a priori error
+//! `ε_k = x_k − x̂⁻_k` obeys `ε_{k+1} = Ā ε_k + w_k − F K v_k`, `Ā = F (I − K H)`, and the
+//! innovation is `e_k = H ε_k + v_k`. In steady state, with `P = Ā P Ā' + Q + F K R K' F'`,
+//!
+//! `C_0 = H P H' + R`, `C_j = H Ā^j P H' − H Ā^{j−1} F K R` (j ≥ 1),
+//!
+//! all linear in Q and R. With `Q = Σ θ_i Q_i` and `R = Σ θ_i R_i` each parameter has its
+//! own autocovariance column (its P from one Lyapunov solve, `vec P = (I − Ā⊗Ā)⁻¹ vec(·)`,
+//! done with one LU of the n² × n² Kronecker matrix in faer), the empirical `Ĉ_0 … Ĉ_{L−1}`
+//! are the right-hand side, and the least-squares problem with θ ≥ 0 is a small convex QP
+//! solved by clarabel from its normal equations (assembled in faer). No filter runs per
+//! iteration, and a fixed gain that is far from optimal still gives the right answer as long
+//! as Ā is stable.
+
+#![allow(non_snake_case)]
+
+use clarabel::algebra::CscMatrix;
+use clarabel::solver::{DefaultSettings, DefaultSolver, IPSolver, NonnegativeConeT, SolverStatus};
+use faer::Mat;
+use faer::linalg::solvers::Solve;
+use nalgebra::{DMatrix, DVector};
+use serde::Serialize;
+
+use super::Measurements;
+use crate::params::{Coef, CovModel};
+
+/// Steps dropped at the start of each sequence before the autocovariances, so that the
+/// filter's transient from its initial estimate does not enter them.
+pub const BURN_IN: usize = 50;
+
+/// The ALS estimate.
+#[derive(Debug, Clone, Serialize)]
+pub struct AlsEstimate {
+    /// Every parameter's value (fixed ones as given).
+    pub theta: Vec<f64>,
+    /// What unconstrained least squares gives (may be negative: a variance below zero).
+    pub unconstrained: Vec<f64>,
+    /// Free parameters the constraint holds at zero.
+    pub at_zero: Vec<usize>,
+    /// Root-mean-square residual of the fitted autocovariances (measurement units squared).
+    pub residual: f64,
+    /// Lags used.
+    pub lags: usize,
+    /// Innovations the autocovariances were formed from.
+    pub samples: usize,
+    /// Spectral radius of `Ā = F (I − K H)`: the fixed-gain filter's error dynamics.
+    pub spectral_radius: f64,
+    /// Passes run (each after the first with the gain at the previous estimate).
+    pub passes: usize,
+}
+
+/// The filter ALS runs: its model and the parameterized noise.
+pub struct AlsModel<'a> {
+    /// State transition, n × n.
+    pub F: &'a DMatrix<f64>,
+    /// Measurement matrix, m × n.
+    pub H: &'a DMatrix<f64>,
+    /// Initial estimate.
+    pub x0: &'a DVector<f64>,
+    /// Process noise as a function of θ.
+    pub q: &'a CovModel,
+    /// Measurement noise as a function of θ.
+    pub r: &'a CovModel,
+}
+
+/// The steady-state Kalman gain of the filter with Q and R, by iterating the Riccati
+/// recursion from R-scaled identity.
+fn steady_gain(
+    F: &DMatrix<f64>,
+    H: &DMatrix<f64>,
+    Q: &DMatrix<f64>,
+    R: &DMatrix<f64>,
+) -> Result<DMatrix<f64>, String> {
+    let n = F.nrows();
+    let mut P = DMatrix::<f64>::identity(n, n);
+    for _ in 0..100_000 {
+        let Pp = F * &P * F.transpose() + Q;
+        let S = H * &Pp * H.transpose() + R;
+        let Si = S.try_inverse().ok_or("S is singular at the start values")?;
+        let K = &Pp * H.transpose() * Si;
+        let next = (DMatrix::identity(n, n) - &K * H) * &Pp;
+        let change = (&next - &P).abs().max();
+        P = (&next + next.transpose()) * 0.5;
+        if change <= 1e-13 * P.abs().max().max(f64::MIN_POSITIVE) {
+            return Ok(K);
+        }
+    }
+    Err("the filter's covariance does not settle at the start values".into())
+}
+
+/// [`estimate`] repeated `passes` times, each pass with the steady-state gain of the filter
+/// at the previous pass's estimate (the first at `start`): a gain far from the optimal one
+/// gives a consistent but noisy estimate, and the gain at a first estimate is near optimal,
+/// so a second pass recovers most of the efficiency (measured on seven cv2d records of
+/// 20 000 steps from all parameters = 1: the worst parameter's error went from 26% to 4%).
+pub fn estimate_passes(
+    model: &AlsModel<'_>,
+    data: &Measurements,
+    start: &[f64],
+    fixed: &[bool],
+    lags: usize,
+    passes: usize,
+) -> Result<AlsEstimate, String> {
+    let mut est = estimate(model, data, start, fixed, lags)?;
+    for _ in 1..passes {
+        // A parameter held at zero would give a degenerate gain (a filter that stops
+        // correcting what that noise drives, with Ā at the edge of stability): the pass
+        // that found it stands.
+        if !est.at_zero.is_empty() {
+            break;
+        }
+        match estimate(model, data, &est.theta, fixed, lags) {
+            Ok(next) => {
+                let done = est.passes + 1;
+                est = next;
+                est.passes = done;
+            }
+            // The earlier pass stands when the gain at its estimate cannot be used.
+            Err(_) => break,
+        }
+    }
+    Ok(est)
+}
+
+/// Estimate the parameters of `model` not `fixed` from `data` (complete records) with `lags`
+/// autocovariance lags, using the steady-state gain of the filter at `start`.
+pub fn estimate(
+    model: &AlsModel<'_>,
+    data: &Measurements,
+    start: &[f64],
+    fixed: &[bool],
+    lags: usize,
+) -> Result<AlsEstimate, String> {
+    let (F, H) = (model.F, model.H);
+    let (n, m) = (F.nrows(), H.nrows());
+    if !data.complete() {
+        return Err("ALS needs every component measured at every step (use --method ml for records with gaps)".into());
+    }
+    let K = steady_gain(F, H, &model.q.build(start), &model.r.build(start))?;
+    let Abar = F * (DMatrix::identity(n, n) - &K * H);
+    let radius = Abar
+        .complex_eigenvalues()
+        .iter()
+        .map(|c| c.norm())
+        .fold(0.0, f64::max);
+    if radius.is_nan() || radius >= 1.0 {
+        return Err(format!(
+            "the filter at the start values is unstable (spectral radius of F(I − KH) is {radius:.4}): ALS needs a stable filter"
+        ));
+    }
+    // Empirical autocovariances of the fixed-gain filter's innovations.
+    let mut sums = vec![DMatrix::<f64>::zeros(m, m); lags];
+    let mut counts = vec![0usize; lags];
+    let mut samples = 0;
+    for s in &data.sequences {
+        if s.steps <= BURN_IN {
+            continue;
+        }
+        let mut x = model.x0.clone();
+        let mut innov: Vec<DVector<f64>> = Vec::with_capacity(s.steps);
+        for zk in s.z.chunks(m) {
+            let xp = F * &x;
+            let e = DVector::from_column_slice(zk) - H * &xp;
+            x = &xp + &K * &e;
+            innov.push(e);
+        }
+        let e = &innov[BURN_IN..];
+        samples += e.len();
+        for j in 0..lags {
+            for k in j..e.len() {
+                sums[j] += &e[k] * e[k - j].transpose();
+                counts[j] += 1;
+            }
+        }
+    }
+    if counts.iter().any(|&c| c < 10 * m * m) || samples < 4 * lags {
+        return Err(format!(
+            "the record is too short for {lags} lags: {samples} innovations after dropping the first {BURN_IN} steps of each sequence"
+        ));
+    }
+    let emp: Vec<DMatrix<f64>> = sums
+        .iter()
+        .zip(&counts)
+        .map(|(s, &c)| s / c as f64)
+        .collect();
+    // One Lyapunov solve per term: vec P = (I − Ā⊗Ā)⁻¹ vec(B).
+    let nn = n * n;
+    let kron = Mat::<f64>::from_fn(nn, nn, |r, c| {
+        let (i1, i2) = (r / n, r % n);
+        let (j1, j2) = (c / n, c % n);
+        let id = if r == c { 1.0 } else { 0.0 };
+        id - Abar[(i1, j1)] * Abar[(i2, j2)]
+    });
+    let lu = kron.partial_piv_lu();
+    let lyap = |B: &DMatrix<f64>| -> DMatrix<f64> {
+        let rhs = Mat::<f64>::from_fn(nn, 1, |r, _| B[(r / n, r % n)]);
+        let sol = lu.solve(&rhs);
+        DMatrix::from_fn(n, n, |i, j| sol[(i * n + j, 0)])
+    };
+    let FK = F * &K;
+    // The autocovariances a term with covariance Qt (process) or Rt (measurement) gives.
+    let columns = |Qt: &DMatrix<f64>, Rt: &DMatrix<f64>| -> Vec<f64> {
+        let P = lyap(&(Qt + &FK * Rt * FK.transpose()));
+        let mut out = Vec::with_capacity(lags * m * m);
+        let mut Aj = DMatrix::<f64>::identity(n, n);
+        for j in 0..lags {
+            let mut C = H * &Aj * &P * H.transpose();
+            if j == 0 {
+                C += Rt;
+            } else {
+                let Ajm1 = if j == 1 {
+                    DMatrix::identity(n, n)
+                } else {
+                    Abar.pow((j - 1) as u32)
+                };
+                C -= H * Ajm1 * &FK * Rt;
+            }
+            out.extend(C.iter().copied());
+            Aj = &Abar * Aj;
+        }
+        out
+    };
+    let zq = DMatrix::<f64>::zeros(n, n);
+    let zr = DMatrix::<f64>::zeros(m, m);
+    let p = start.len();
+    let free: Vec<usize> = (0..p).filter(|&i| !fixed[i]).collect();
+    let rows = lags * m * m;
+    // The right-hand side, less what fixed coefficients and fixed parameters contribute.
+    let mut b: Vec<f64> = emp.iter().flat_map(|c| c.iter().copied()).collect();
+    let mut cols: Vec<Vec<f64>> = vec![vec![0.0; rows]; p];
+    for (model_q, is_q) in [(model.q, true), (model.r, false)] {
+        for t in &model_q.terms {
+            let col = if is_q {
+                columns(&t.basis, &zr)
+            } else {
+                columns(&zq, &t.basis)
+            };
+            match t.coef {
+                Coef::Param(i) if !fixed[i] => {
+                    for (a, c) in cols[i].iter_mut().zip(&col) {
+                        *a += c;
+                    }
+                }
+                Coef::Param(i) => b.iter_mut().zip(&col).for_each(|(y, c)| *y -= start[i] * c),
+                Coef::Fixed(v) => b.iter_mut().zip(&col).for_each(|(y, c)| *y -= v * c),
+            }
+        }
+    }
+    // Columns scaled to unit norm: the parameters' scales differ by orders of magnitude.
+    let scale: Vec<f64> = free
+        .iter()
+        .map(|&i| {
+            cols[i]
+                .iter()
+                .map(|v| v * v)
+                .sum::<f64>()
+                .sqrt()
+                .max(f64::MIN_POSITIVE)
+        })
+        .collect();
+    let A = Mat::<f64>::from_fn(rows, free.len(), |r, c| cols[free[c]][r] / scale[c]);
+    let bm = Mat::<f64>::from_fn(rows, 1, |r, _| b[r]);
+    let ata = A.transpose() * &A;
+    let atb = A.transpose() * &bm;
+    let k = free.len();
+    // Unconstrained least squares, to report what the constraint changed.
+    let unconstrained_scaled = ata.partial_piv_lu().solve(&atb);
+    // min ½ θ'(A'A)θ − (A'b)'θ  s.t. θ ≥ 0 (clarabel: −θ + s = 0, s ≥ 0).
+    let mut colptr = vec![0usize];
+    let (mut rowval, mut nzval) = (Vec::new(), Vec::new());
+    for c in 0..k {
+        for r in 0..=c {
+            rowval.push(r);
+            nzval.push(ata[(r, c)]);
+        }
+        colptr.push(rowval.len());
+    }
+    let Pm = CscMatrix::new(k, k, colptr, rowval, nzval);
+    let q: Vec<f64> = (0..k).map(|i| -atb[(i, 0)]).collect();
+    let Am = CscMatrix::new(k, k, (0..=k).collect(), (0..k).collect(), vec![-1.0; k]);
+    let cones = [NonnegativeConeT(k)];
+    let settings = DefaultSettings::<f64> {
+        verbose: false,
+        ..DefaultSettings::default()
+    };
+    let mut solver = DefaultSolver::new(&Pm, &q, &Am, &vec![0.0; k], &cones, settings)
+        .map_err(|e| format!("the least-squares problem could not be set up: {e:?}"))?;
+    solver.solve();
+    if !matches!(
+        solver.solution.status,
+        SolverStatus::Solved | SolverStatus::AlmostSolved
+    ) {
+        return Err(format!(
+            "the constrained least squares did not solve: {:?}",
+            solver.solution.status
+        ));
+    }
+    let mut theta = start.to_vec();
+    let mut unconstrained = start.to_vec();
+    let mut at_zero = Vec::new();
+    // The interior-point solution approaches an active bound to its tolerance, not exactly:
+    // in the unit-norm coordinates a value this far below the largest is the bound.
+    let largest = solver
+        .solution
+        .x
+        .iter()
+        .fold(0.0_f64, |a, v| a.max(v.abs()));
+    for (c, &i) in free.iter().enumerate() {
+        let x = solver.solution.x[c];
+        theta[i] = if x <= 1e-6 * largest {
+            at_zero.push(i);
+            0.0
+        } else {
+            x / scale[c]
+        };
+        unconstrained[i] = unconstrained_scaled[(c, 0)] / scale[c];
+    }
+    let fitted: Vec<f64> = (0..rows)
+        .map(|r| free.iter().map(|&i| theta[i] * cols[i][r]).sum::<f64>())
+        .collect();
+    let residual = (fitted
+        .iter()
+        .zip(&b)
+        .map(|(f, y)| (f - y).powi(2))
+        .sum::<f64>()
+        / rows as f64)
+        .sqrt();
+    Ok(AlsEstimate {
+        theta,
+        unconstrained,
+        at_zero,
+        residual,
+        lags,
+        samples,
+        spectral_radius: radius,
+        passes: 1,
+    })
+}

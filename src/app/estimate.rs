@@ -110,6 +110,97 @@ pub fn measured_experiment(
         .map_err(|e| FileError::new(file, "", format!("{}: {}", e.setting, e.message)).into())
 }
 
+/// The start `tune --init METHOD` searches from: the estimate of `method` ("ml" or "als")
+/// on `record`, or on a record simulated from `p`'s truth (its Monte Carlo runs × steps,
+/// with another seed than the search's so that the start does not fit the search's noise).
+/// Says on stderr where the start came from.
+pub fn initial(
+    p: &Problem,
+    path: &std::path::Path,
+    record: Option<&std::path::Path>,
+    method: &str,
+) -> Result<Vec<f64>, AppError> {
+    let lin = linear(p, path, "--init")?;
+    let m = lin.filter.H.nrows();
+    let (data, origin) = match record {
+        Some(f) => {
+            let d = read_measurements(f)?;
+            if d.dim != m {
+                return Err(FileError::new(
+                    f,
+                    "z",
+                    format!(
+                        "{} components per step, but {} measures {m}",
+                        d.dim,
+                        p.name()
+                    ),
+                )
+                .into());
+            }
+            (d, f.display().to_string())
+        }
+        None => {
+            let mc = p.mc();
+            let seed = mc.seed().wrapping_add(INIT_SEED_OFFSET);
+            let sim = simulate(&lin.truth, lin.truth.n_z(), mc.runs(), mc.steps(), seed);
+            (
+                sim.measurements,
+                format!(
+                    "{} × {} steps simulated from the truth (seed {seed})",
+                    mc.runs(),
+                    mc.steps()
+                ),
+            )
+        }
+    };
+    let params = p.params();
+    let start = params.values();
+    let fixed: Vec<bool> = params.params.iter().map(|d| d.fixed).collect();
+    let t0 = Instant::now();
+    let theta = if method == "als" {
+        let model = AlsModel {
+            F: &lin.filter.F,
+            H: &lin.filter.H,
+            x0: &lin.filter.x0,
+            q: &lin.filter.q,
+            r: &lin.filter.r,
+        };
+        als::estimate_passes(&model, &data, &start, &fixed, 15, 2)
+            .map_err(|m| AppError::Refused(format!("--init als on {origin}: {m}")))?
+            .theta
+    } else {
+        let build = |theta: &[f64]| {
+            let kf = lin.filter_at(theta);
+            LinearFilterModel {
+                F: kf.F,
+                H: kf.H,
+                Q: kf.Q,
+                R: kf.R,
+                x0: kf.x0,
+                P0: kf.P0,
+            }
+        };
+        ml::estimate(&build, &data, &start, &fixed, 200)
+            .map_err(|m| AppError::Refused(format!("--init ml on {origin}: {m}")))?
+            .theta
+    };
+    let shown: Vec<String> = params
+        .params
+        .iter()
+        .zip(&theta)
+        .map(|(d, v)| format!("{} = {}", d.name, fmt_g(*v)))
+        .collect();
+    eprintln!(
+        "start: {method} estimate from {origin} in {:.3} s: {}",
+        t0.elapsed().as_secs_f64(),
+        shown.join(", ")
+    );
+    Ok(theta)
+}
+
+/// Added to the problem's seed for the record `tune --init` simulates.
+const INIT_SEED_OFFSET: u64 = 0x5eed_1417;
+
 /// Run `simulate`.
 pub fn run_simulate(a: SimulateArgs) -> Result<ExitCode, AppError> {
     let p = Problem::load(&a.problem)?;

@@ -141,6 +141,15 @@ struct ProblemTune {
     /// their innovations alone (NIS, per-component NIS, whiteness). Linear problems.
     #[arg(long, value_name = "FILE", conflicts_with_all = ["runs", "steps", "seed"])]
     measurements: Option<PathBuf>,
+    /// Start the search from an estimate from measurements alone: ml (maximum likelihood)
+    /// or als (autocovariance least squares), on --init-record, or else on --measurements,
+    /// or else on a record simulated from the problem's truth (its runs × steps, another
+    /// seed). Linear problems.
+    #[arg(long, value_name = "METHOD", value_parser = ["ml", "als"])]
+    init: Option<String>,
+    /// The record --init estimates from.
+    #[arg(long, value_name = "FILE", requires = "init")]
+    init_record: Option<PathBuf>,
     #[command(flatten)]
     options: TuneOptions,
 }
@@ -188,11 +197,24 @@ where
         },
         Command::Tune(a) => {
             let p = Problem::load(&a.problem)?;
+            let init = match &a.init {
+                None => None,
+                Some(method) => {
+                    let record = a.init_record.as_ref().or(a.measurements.as_ref());
+                    Some(estimate::initial(
+                        &p,
+                        &a.problem,
+                        record.map(|r| r.as_path()),
+                        method,
+                    )?)
+                }
+            };
             match &a.measurements {
-                None => tune::run(&p, &p.tune, a.options),
+                None => tune::run_from(&p, &p.tune, a.options, init),
                 Some(f) => {
                     let measured = estimate::measured_experiment(&p, &a.problem, f)?;
-                    tune::run(&measured, &p.tune.clone().with_nis_only(true), a.options)
+                    let settings = p.tune.clone().with_nis_only(true);
+                    tune::run_from(&measured, &settings, a.options, init)
                 }
             }
         }

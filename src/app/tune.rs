@@ -141,10 +141,29 @@ pub fn run(
     defaults: &TuneSettings,
     a: TuneOptions,
 ) -> Result<ExitCode, AppError> {
+    run_from(experiment, defaults, a, None)
+}
+
+/// [`run`] starting from `init` (one value per parameter, e.g. an estimate from recorded
+/// measurements) instead of the parameters' configured values; `--set` and `--fix` still
+/// apply on top, and a value outside a parameter's bounds is moved to the bound.
+pub fn run_from(
+    experiment: &dyn Experiment,
+    defaults: &TuneSettings,
+    a: TuneOptions,
+    init: Option<Vec<f64>>,
+) -> Result<ExitCode, AppError> {
     let info = experiment.info();
     let params = experiment.params();
-    let settings = a.settings(defaults)?;
-    let mut start = params.values();
+    let settings = a.settings(defaults)?.with_from_estimate(init.is_some());
+    let mut start = match init {
+        Some(v) => v
+            .iter()
+            .zip(&params.params)
+            .map(|(&x, p)| x.clamp(p.lower, p.upper))
+            .collect(),
+        None => params.values(),
+    };
     // Which flag gave each value that is not the file's, for the bounds check below.
     let mut given: Vec<Option<&str>> = vec![None; start.len()];
     for i in a.mc.set_params(params, &mut start)? {

@@ -11,6 +11,8 @@ use super::simplex::nelder_mead;
 
 /// Initial simplex step of a local search, log units (a factor 2).
 const WIDE: f64 = 0.7;
+/// Initial simplex step of a local search from an estimate, log units (about 20%).
+const NEAR: f64 = 0.2;
 /// Initial simplex step of the polishing restart, log units (10%).
 const POLISH: f64 = 0.1;
 
@@ -25,13 +27,19 @@ pub(super) fn search(
     parallel: bool,
     observer: &dyn Observer,
 ) -> Option<Candidate> {
-    observer.phase("global");
     let y0 = budget.cost().start();
-    let ranked = global::scan(budget, &y0, settings.global_points(), seed, parallel);
-    let starts = global::choose_starts(&ranked, &y0, settings.local(), settings.starts());
+    // A start that is already an estimate of the answer needs no scan of the box.
+    let (starts, step) = if settings.from_estimate() {
+        (vec![y0.clone()], NEAR)
+    } else {
+        observer.phase("global");
+        let ranked = global::scan(budget, &y0, settings.global_points(), seed, parallel);
+        let starts = global::choose_starts(&ranked, &y0, settings.local(), settings.starts());
+        (starts, WIDE)
+    };
     observer.phase("local");
     let method = settings.local();
-    let outcomes = budget.map(&starts, parallel, |b, s| local_search(b, method, s));
+    let outcomes = budget.map(&starts, parallel, |b, s| local_search(b, method, s, step));
     if budget.exhausted() {
         return None;
     }
@@ -45,7 +53,7 @@ pub(super) fn search(
     // The simplex restarts once more from the best point; Levenberg–Marquardt has
     // converged where it stopped, and a restart would only repeat it.
     if method == LocalSearch::Simplex {
-        let again = local_search(budget, method, &best.point).ok()?;
+        let again = local_search(budget, method, &best.point, step).ok()?;
         return Some(if again.cost < best.cost { again } else { best });
     }
     Some(best)
@@ -59,6 +67,7 @@ pub(super) fn local_search(
     budget: &mut Budget<'_>,
     method: LocalSearch,
     y0: &[f64],
+    step: f64,
 ) -> Result<Candidate, Exhausted> {
     let first = match method {
         LocalSearch::GaussNewton => {
@@ -73,9 +82,9 @@ pub(super) fn local_search(
             if lm.cost.is_finite() {
                 return Ok(lm);
             }
-            nelder_mead(budget, &from, WIDE)?
+            nelder_mead(budget, &from, step)?
         }
-        LocalSearch::Simplex => nelder_mead(budget, y0, WIDE)?,
+        LocalSearch::Simplex => nelder_mead(budget, y0, step)?,
     };
     let polished = nelder_mead(budget, &first.point, POLISH)?;
     Ok(if polished.cost < first.cost {

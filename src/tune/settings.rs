@@ -112,6 +112,7 @@ pub struct TuneSettings {
     search_runs: Option<usize>,
     confirm_seeds: usize,
     refine_runs: Option<usize>,
+    from_estimate: bool,
 }
 
 impl Default for TuneSettings {
@@ -129,6 +130,7 @@ impl Default for TuneSettings {
             search_runs: None,
             confirm_seeds: 20,
             refine_runs: None,
+            from_estimate: false,
         }
     }
 }
@@ -221,6 +223,20 @@ impl TuneSettings {
     }
 
     /// The local search.
+    /// Whether the start is an estimate close to the answer (`tune --init`): the search then
+    /// skips the global stage and runs one local search from the start, with a first simplex
+    /// of ±20% instead of a factor 2.
+    pub fn with_from_estimate(mut self, from_estimate: bool) -> Self {
+        self.from_estimate = from_estimate;
+        self
+    }
+
+    /// Whether the start is an estimate (see [`TuneSettings::with_from_estimate`]).
+    pub fn from_estimate(&self) -> bool {
+        self.from_estimate
+    }
+
+    /// Set the local search.
     pub fn with_local(mut self, local: LocalSearch) -> Self {
         self.local = local;
         self

@@ -14,6 +14,7 @@ use crate::estimate::{
 use crate::experiment::{Experiment, LinearExperiment};
 use crate::input::FileError;
 use crate::problem::Problem;
+use crate::report::tuned::estimated_config_toml;
 use crate::report::{Outputs, check_output_file, fmt_g};
 
 /// The arguments of `simulate`.
@@ -64,9 +65,32 @@ pub struct EstimateArgs {
     /// L-BFGS iteration limit.
     #[arg(long, default_value_t = 200)]
     max_iterations: u64,
+    /// Also write the estimate as a config `autotune check PROBLEM --config FILE` reads.
+    #[arg(long, value_name = "FILE")]
+    out: Option<PathBuf>,
     /// Print the estimate as JSON on stdout.
     #[arg(long)]
     json: bool,
+}
+
+/// Write `theta` as a config to `out`, with where it came from.
+fn write_config(
+    p: &Problem,
+    out: &std::path::Path,
+    theta: &[f64],
+    method: &str,
+    record: &std::path::Path,
+    score: (&str, f64),
+) -> Result<(), AppError> {
+    let mut prov = toml::Table::new();
+    prov.insert("autotune_version".into(), env!("CARGO_PKG_VERSION").into());
+    prov.insert("method".into(), method.into());
+    prov.insert("measurements".into(), record.display().to_string().into());
+    prov.insert(score.0.into(), score.1.into());
+    let mut outputs = Outputs::new();
+    outputs.file(out, estimated_config_toml(p, theta, prov));
+    outputs.commit()?;
+    Ok(())
 }
 
 fn linear<'a>(
@@ -270,6 +294,9 @@ pub fn run_estimate(a: EstimateArgs) -> Result<ExitCode, AppError> {
         )
         .into());
     }
+    if let Some(out) = &a.out {
+        check_output_file(out)?;
+    }
     let params = p.params();
     let mut start = params.values();
     for kv in &a.set {
@@ -312,6 +339,16 @@ pub fn run_estimate(a: EstimateArgs) -> Result<ExitCode, AppError> {
         let est = als::estimate_passes(&model, &data, &start, &fixed, a.lags, a.passes)
             .map_err(|m| AppError::Refused(format!("{}: {m}", a.measurements.display())))?;
         let took = t0.elapsed().as_secs_f64();
+        if let Some(out) = &a.out {
+            write_config(
+                &p,
+                out,
+                &est.theta,
+                "als",
+                &a.measurements,
+                ("residual", est.residual),
+            )?;
+        }
         print_stdout(|o| {
             if a.json {
                 let json = serde_json::json!({
@@ -383,6 +420,16 @@ pub fn run_estimate(a: EstimateArgs) -> Result<ExitCode, AppError> {
     let est = ml::estimate(&build, &data, &start, &fixed, a.max_iterations)
         .map_err(|m| AppError::Refused(format!("{}: {m}", a.measurements.display())))?;
     let took = t0.elapsed().as_secs_f64();
+    if let Some(out) = &a.out {
+        write_config(
+            &p,
+            out,
+            &est.theta,
+            "ml",
+            &a.measurements,
+            ("neg_log_likelihood", est.neg_log_likelihood),
+        )?;
+    }
     print_stdout(|o| {
         if a.json {
             let json = serde_json::json!({

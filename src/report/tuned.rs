@@ -131,6 +131,38 @@ fn compact_floats(toml: &str) -> String {
     out
 }
 
+/// A config holding parameter values `theta` estimated from measurements (not tuned by the
+/// Monte Carlo search), with `provenance` saying how: `autotune check PROBLEM --config FILE`
+/// reads it like a tuned config.
+pub fn estimated_config_toml(
+    experiment: &dyn Experiment,
+    theta: &[f64],
+    provenance: toml::Table,
+) -> String {
+    let info = experiment.info();
+    let cov = experiment.covariances(theta);
+    let cfg = TunedConfig {
+        problem: info.name.clone(),
+        q: cov.as_ref().map(|c| rows(&c.Q)),
+        r: cov.as_ref().map(|c| rows(&c.R)),
+        params: experiment
+            .params()
+            .names()
+            .into_iter()
+            .map(str::to_string)
+            .zip(theta.iter().copied())
+            .collect(),
+        provenance: Some(provenance),
+    };
+    let body = compact_floats(&toml::to_string(&cfg).expect("a config serializes"));
+    format!(
+        "# Estimated by autotune {} from measurements, for {}.\n# Check it with: {} --config <this file>\n{body}",
+        env!("CARGO_PKG_VERSION"),
+        info.source.label(),
+        info.source.check_command()
+    )
+}
+
 /// The tuned config of a tuning run, as TOML text with a comment header.
 pub fn tuned_config_toml(experiment: &dyn Experiment, result: &TuneResult) -> String {
     let info = experiment.info();

@@ -289,3 +289,77 @@ fn tune_from_an_estimate_needs_fewer_evaluations() {
         }
     }
 }
+
+/// Bad measurement records: one line naming the file and the row or field, exit 2.
+#[test]
+fn bad_records_are_one_line_errors() {
+    let dir = tempfile::tempdir().unwrap();
+    let problem = common::problem_path("cv2d");
+    let p = problem.to_str().unwrap();
+    let cases: &[(&str, &str, &[&str], &str)] = &[
+        (
+            "cells.csv",
+            "run,step,z_1,z_2\n0,1,1.0,2.0\n0,2,1.0\n",
+            &[],
+            "cells.csv:3: 3 cells where the header has 4",
+        ),
+        (
+            "inf.csv",
+            "run,step,z_1,z_2\n0,1,1.0,inf\n",
+            &[],
+            "inf.csv:2: z_2: not finite",
+        ),
+        (
+            "word.csv",
+            "run,step,z_1,z_2\n0,1,1.0,abc\n",
+            &[],
+            "word.csv:2: z_2: 'abc' is not a number",
+        ),
+        (
+            "gap.csv",
+            "run,step,z_1,z_2\n0,1,1.0,2.0\n0,3,1.0,2.0\n",
+            &[],
+            "gap.csv:3: step",
+        ),
+        (
+            "dim.csv",
+            "run,step,z_1\n0,1,1.0\n",
+            &[],
+            "dim.csv: z: 1 components per step, but cv2d measures 2",
+        ),
+        (
+            "null.jsonl",
+            "{\"run\": 0, \"step\": 1, \"z\": [1.0, \"x\"]}\n",
+            &[],
+            "null.jsonl:1: z: not a number or null",
+        ),
+        (
+            "short.csv",
+            "run,step,z_1,z_2\n0,1,1.0,2.0\n0,2,1.5,2.5\n",
+            &["--method", "als"],
+            "short.csv: the record is too short",
+        ),
+        (
+            "gaps_als.csv",
+            "run,step,z_1,z_2\n0,1,1.0,\n0,2,1.5,2.5\n",
+            &["--method", "als"],
+            "every component measured",
+        ),
+        (
+            "empty.csv",
+            "run,step,z_1,z_2\n",
+            &[],
+            "empty.csv: no measurements",
+        ),
+    ];
+    for (name, text, extra, want) in cases {
+        let f = dir.path().join(name);
+        std::fs::write(&f, text).unwrap();
+        let mut args = vec!["estimate", p, "--measurements", f.to_str().unwrap()];
+        args.extend_from_slice(extra);
+        let (code, out, err) = common::autotune(&args);
+        assert_eq!(code, Some(2), "{name}: {out}{err}");
+        assert_eq!(err.lines().count(), 1, "{name}: {err}");
+        assert!(err.contains(want), "{name}: {err}");
+    }
+}

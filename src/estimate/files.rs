@@ -183,12 +183,15 @@ fn read_csv(path: &Path) -> Result<Measurements, FileError> {
             Ok(false) => break,
             Ok(true) => {}
             Err(e) => {
-                return Err(at(
-                    path,
-                    line,
-                    "",
-                    crate::records::shown_up_to(&e.to_string(), 120),
-                ));
+                let line = e.position().map_or(line, |p| p.line() as usize);
+                let message = match e.kind() {
+                    csv::ErrorKind::UnequalLengths {
+                        expected_len, len, ..
+                    } => format!("{len} cells where the header has {expected_len}"),
+                    csv::ErrorKind::Utf8 { .. } => "not UTF-8 text".into(),
+                    _ => crate::records::shown_up_to(&e.to_string(), 120),
+                };
+                return Err(at(path, line, "", message));
             }
         }
         let line = rec.position().map_or(line, |p| p.line() as usize);

@@ -18,6 +18,9 @@ const OUTLIERS_KEPT: usize = 1000;
 pub(super) const HIST_BINS: usize = 30;
 /// Distinct degrees of freedom of a sensor given a histogram.
 const HIST_DOFS: usize = 8;
+/// Most sensors (PX4: channels of every estimator instance) one analysis takes: each costs a
+/// few kilobytes and a block of the report, and a real log has at most a few hundred.
+pub const MAX_SENSORS: usize = 10_000;
 
 /// A sensor of a log: its name, its components, and the estimator it belongs to.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -222,7 +225,8 @@ impl NisAnalyzer {
     }
 
     /// The index of sensor `info.name`, adding it when new. `Err` when a sensor of that
-    /// name was seen with other components.
+    /// name was seen with other components, or when it would be one more than
+    /// [`MAX_SENSORS`].
     pub fn sensor(&mut self, info: SensorInfo) -> Result<usize, String> {
         if let Some(&i) = self.by_name.get(&info.name) {
             let known = &self.sensors[i].info;
@@ -237,6 +241,12 @@ impl NisAnalyzer {
             return Ok(i);
         }
         let i = self.sensors.len();
+        if i >= MAX_SENSORS {
+            return Err(format!(
+                "more than {MAX_SENSORS} sensors (a new one, '{}'): too many to judge",
+                crate::records::shown_up_to(&info.name, 40)
+            ));
+        }
         self.by_name.insert(info.name.clone(), i);
         self.sensors
             .push(SensorSums::new(info, self.settings.lags()));

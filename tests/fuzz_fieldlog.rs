@@ -121,6 +121,8 @@ fn proc_status_kb(pid: &str, key: &str) -> Option<u64> {
 /// How a run ended.
 struct Outcome {
     code: usize,
+    /// The error line of an exit 2.
+    error: String,
     seconds: f64,
     rss_mb: u64,
 }
@@ -227,6 +229,11 @@ impl Running {
         }
         Ok(Outcome {
             code: code.unwrap_or(2) as usize,
+            error: if code == Some(2) {
+                stderr.trim_end().to_string()
+            } else {
+                String::new()
+            },
             seconds,
             rss_mb,
         })
@@ -316,6 +323,8 @@ struct Tally {
     slowest: (f64, String),
     /// The run of most memory: megabytes and what it was.
     max_rss: (u64, String),
+    /// The errors seen, by shape (digits and the directory left out): count and example.
+    errors: std::collections::BTreeMap<String, (usize, String)>,
 }
 
 impl Tally {
@@ -324,6 +333,19 @@ impl Tally {
     fn ran(&mut self, o: &Outcome, args: &[OsString], files: &[PathBuf], keep: &Path) {
         self.runs += 1;
         self.exits[o.code] += 1;
+        if o.code == 2 {
+            let text = match o.error.find("tmp") {
+                Some(at) => &o.error[at..],
+                None => &o.error,
+            };
+            let shape: String = text
+                .chars()
+                .filter(|c| !c.is_ascii_digit())
+                .take(90)
+                .collect();
+            let e = self.errors.entry(shape).or_insert((0, o.error.clone()));
+            e.0 += 1;
+        }
         let what = || {
             let a: Vec<String> = args
                 .iter()
@@ -350,6 +372,12 @@ impl Tally {
     }
 
     fn summary(&self, name: &str, seed: u64, seconds: f64, elapsed: f64) {
+        // AUTOTUNE_FUZZ_VERBOSE=1: every kind of error seen, to read them over.
+        if std::env::var_os("AUTOTUNE_FUZZ_VERBOSE").is_some() {
+            for (n, example) in self.errors.values() {
+                eprintln!("{name} error ×{n}: {example}");
+            }
+        }
         eprintln!(
             "fuzz {name} (seed {seed}, {seconds:.1} s): {} inputs in {elapsed:.1} s ({:.1}/s), {} binary runs (exit 0/1/2: {}/{}/{}), {} in-process reports; slowest run {:.2} s ({}); most memory {} MB ({}); {} failures",
             self.inputs,
@@ -460,20 +488,25 @@ fn seed_log(rng: &mut Rng) -> (Vec<Sensor>, Vec<Row>) {
     } else {
         5 + rng.below(96)
     };
-    let mut t = rng.below(1000) as f64 * 0.01;
+    // Times in whole hundredths, so that every way of printing them keeps their order.
+    let mut ticks = rng.below(1000);
     let mut rows = Vec::with_capacity(rows_n);
     for _ in 0..rows_n {
         if !rng.chance(0.1) {
-            t += 0.01 * (1 + rng.below(10)) as f64;
+            ticks += 1 + rng.below(10);
         }
+        let t = ticks as f64 / 100.0;
         let sensor = rng.below(n);
         let m = sensors[sensor].dim;
-        let nu: Vec<f64> = (0..m).map(|_| (rng.unit() - 0.5) * 4.0).collect();
+        // In thousandths, so that every way of printing them gives the same number (S
+        // symmetric to the last bit).
+        let r3 = |v: f64| (v * 1000.0).round() / 1000.0;
+        let nu: Vec<f64> = (0..m).map(|_| r3((rng.unit() - 0.5) * 4.0)).collect();
         let mut s = vec![0.0; m * m];
         for i in 0..m {
-            s[i * m + i] = 0.5 + 2.0 * rng.unit();
+            s[i * m + i] = r3(0.5 + 2.0 * rng.unit());
             for j in 0..i {
-                let v = 0.1 * (rng.unit() - 0.5);
+                let v = r3(0.1 * (rng.unit() - 0.5));
                 s[i * m + j] = v;
                 s[j * m + i] = v;
             }

@@ -419,8 +419,9 @@ impl Ingest {
         {
             return Err((
                 "time".into(),
+                // `{:?}`: the shortest exact form, in exponent form when huge.
                 format!(
-                    "{} is before this sensor's previous update at {t}",
+                    "{:?} is before this sensor's previous update at {t:?}",
                     row.time
                 ),
             ));

@@ -209,7 +209,9 @@ pub(super) fn walk(
     stop: &dyn Fn() -> bool,
 ) -> Result<Ending, FileError> {
     let io = |e: std::io::Error| FileError::new(path, "", format!("cannot read: {e}"));
-    let mut r = BufReader::with_capacity(1 << 16, super::open_log(path).map_err(io)?);
+    let file = super::open_log(path).map_err(io)?;
+    let file_len = file.metadata().map_err(io)?.len();
+    let mut r = BufReader::with_capacity(1 << 16, file);
     let mut msg = vec![0u8; 16];
     if read_full(&mut r, &mut msg).map_err(io)? < 16 {
         return Err(FileError::new(
@@ -345,7 +347,14 @@ pub(super) fn walk(
                 Ending::Complete
             });
         };
-        // A message cut by the section's end is dropped, as the crate does.
+        // A message cut by the section's end is dropped, as the crate does. A section that
+        // starts past the end of the file is empty (an offset beyond 2^63 would not even
+        // seek).
+        if start >= file_len {
+            pos = start;
+            end = Some(start);
+            continue;
+        }
         r.seek(SeekFrom::Start(start)).map_err(io)?;
         pos = start;
         end = next_end;

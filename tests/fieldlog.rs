@@ -1142,3 +1142,62 @@ fn a_precomputed_nis_has_at_most_64_degrees_of_freedom() {
         "1000000 is more than 64",
     );
 }
+
+/// Found while reading the fuzzer's errors: a log written with a UTF-8 byte-order mark
+/// (Windows tools write one) was refused as JSON Lines ("expected value at line 1 column
+/// 1", batch and --follow, records too) and, as records CSV, taken for a field log ("unknown
+/// column 'run'", the mark invisible). The mark is dropped wherever a line is read.
+#[test]
+fn logs_with_a_byte_order_mark_are_read() {
+    let dir = tempfile::tempdir().unwrap();
+    let bom = "\u{feff}";
+    let cases = [
+        (
+            "bom.csv",
+            format!("{bom}time,sensor,nu_1,S_1_1\n0.1,baro,0.3,1.0\n0.2,baro,0.1,1.0\n"),
+            "csv",
+        ),
+        (
+            "bom.jsonl",
+            format!(
+                "{bom}{{\"time\": 0.1, \"sensor\": \"baro\", \"nu\": [0.3], \"S\": [1.0]}}\n{{\"time\": 0.2, \"sensor\": \"baro\", \"nu\": [0.1], \"S\": [1.0]}}\n"
+            ),
+            "jsonl",
+        ),
+        (
+            "bomrec.csv",
+            format!("{bom}run,step,nu_1,S_1_1\n0,1,0.3,1.0\n0,2,0.1,1.0\n"),
+            "records",
+        ),
+        (
+            "bomrec.jsonl",
+            format!(
+                "{bom}{{\"run\": 0, \"step\": 1, \"nu\": [0.3], \"S\": [[1.0]]}}\n{{\"run\": 0, \"step\": 2, \"nu\": [0.1], \"S\": [[1.0]]}}\n"
+            ),
+            "records",
+        ),
+    ];
+    for (name, text, format) in cases {
+        let p = write(dir.path(), name, &text);
+        let (code, v) = nis_json(&[p.to_str().unwrap()]);
+        assert_ne!(code, 2, "{name}");
+        assert_eq!(v["sources"][0]["format"], format, "{name}");
+        assert_eq!(v["overall"]["updates"], 2, "{name}");
+        if format != "records" {
+            let (code, out, err) = autotune_within(
+                &[
+                    "nis",
+                    "--follow",
+                    p.to_str().unwrap(),
+                    "--idle",
+                    "1",
+                    "--json",
+                ],
+                std::time::Duration::from_secs(10),
+            );
+            assert_ne!(code, Some(2), "{name}: {err}");
+            let v: Value = serde_json::from_str(&out).unwrap();
+            assert_eq!(v["overall"]["updates"], 2, "{name} --follow");
+        }
+    }
+}

@@ -57,7 +57,8 @@ pub(super) fn is_records(path: &Path) -> Result<bool, FileError> {
     BufReader::new(file)
         .take_line(&mut first)
         .map_err(|e| FileError::new(path, "", format!("cannot read: {e}")))?;
-    let first = first.trim();
+    // A byte-order mark is not part of the first column's name (the CSV readers drop it).
+    let first = first.trim_start_matches('\u{feff}').trim();
     if first.starts_with('{') {
         let Ok(Value::Object(o)) = serde_json::from_str::<Value>(first) else {
             return Ok(false);

@@ -1330,9 +1330,40 @@ fn records_input(rng: &mut Rng, jsonl: bool) -> (Vec<Vec<Vec<u8>>>, Vec<Vec<u8>>
     }
 }
 
+/// A log of many sensors of many components, one or two rows each, built to cost memory:
+/// CSV lines of cells.
+fn wide_input(rng: &mut Rng) -> Vec<Vec<Vec<u8>>> {
+    let m = *rng.pick(&[16usize, 64]);
+    let sensors = 200 + rng.below(2000);
+    let mut head: Vec<Vec<u8>> = vec![b"time".to_vec(), b"sensor".to_vec()];
+    head.extend((1..=m).map(|j| format!("nu_{j}").into_bytes()));
+    head.extend((1..=m).map(|j| format!("S_{j}_{j}").into_bytes()));
+    let mut lines = vec![head];
+    for k in 0..sensors {
+        for r in 0..1 + rng.below(2) {
+            let mut l = vec![
+                format!("{k}.{r}").into_bytes(),
+                format!("s{k}").into_bytes(),
+            ];
+            l.extend((0..m).map(|j| format!("0.{}", (j + r) % 10).into_bytes()));
+            l.extend((0..m).map(|_| b"1".to_vec()));
+            lines.push(l);
+        }
+    }
+    lines
+}
+
 /// A mutated field log: its bytes and whether it is JSON Lines.
 fn text_input(rng: &mut Rng) -> (Vec<u8>, bool) {
     let jsonl = rng.chance(0.5);
+    if rng.chance(0.005) {
+        let mut csv = wide_input(rng);
+        if rng.chance(0.5) {
+            mutate_csv(&mut csv, rng);
+        }
+        let lines: Vec<Vec<u8>> = csv.iter().map(|l| l.join(&b","[..])).collect();
+        return (join_lines(&lines, rng), false);
+    }
     if rng.chance(0.15) {
         // Records read as a field log.
         let (mut csv, mut json) = records_input(rng, jsonl);

@@ -134,7 +134,9 @@ pub(super) struct SensorSums {
     pub last_time: f64,
     pub comp_sum: Vec<f64>,
     pub comp_n: Vec<f64>,
-    /// Whiteness sums per lag and component, index `(lag − 1) · m + j`.
+    /// Whiteness sums per lag and component, index `(lag − 1) · m + j`; only as many lags
+    /// as have been paired (a sensor of 64 components at 100 lags needs 200 kB, which a
+    /// log of one update per sensor would otherwise allocate for every row).
     pub white_ab: Vec<f64>,
     pub white_a2: Vec<f64>,
     pub white_b2: Vec<f64>,
@@ -157,7 +159,7 @@ pub(super) struct SensorSums {
 }
 
 impl SensorSums {
-    fn new(info: SensorInfo, lags: usize) -> Self {
+    fn new(info: SensorInfo) -> Self {
         let m = info.components.len();
         SensorSums {
             info,
@@ -175,11 +177,11 @@ impl SensorSums {
             last_time: f64::NAN,
             comp_sum: vec![0.0; m],
             comp_n: vec![0.0; m],
-            white_ab: vec![0.0; lags * m],
-            white_a2: vec![0.0; lags * m],
-            white_b2: vec![0.0; lags * m],
-            white_pairs: vec![0.0; lags * m],
-            ring: VecDeque::with_capacity(lags),
+            white_ab: Vec::new(),
+            white_a2: Vec::new(),
+            white_b2: Vec::new(),
+            white_pairs: Vec::new(),
+            ring: VecDeque::new(),
             window: VecDeque::new(),
             window_nis: 0.0,
             window_dof: 0,
@@ -248,8 +250,7 @@ impl NisAnalyzer {
             ));
         }
         self.by_name.insert(info.name.clone(), i);
-        self.sensors
-            .push(SensorSums::new(info, self.settings.lags()));
+        self.sensors.push(SensorSums::new(info));
         Ok(i)
     }
 
@@ -319,6 +320,17 @@ impl NisAnalyzer {
         // Whiteness: pair this update with the last L of the same sequence.
         if let Some(u) = &u {
             let m = u.len();
+            let need = s.ring.len() * m;
+            if s.white_ab.len() < need {
+                for v in [
+                    &mut s.white_ab,
+                    &mut s.white_a2,
+                    &mut s.white_b2,
+                    &mut s.white_pairs,
+                ] {
+                    v.resize(need, 0.0);
+                }
+            }
             for (back, prev) in s.ring.iter().rev().enumerate() {
                 let Some(prev) = prev else { continue };
                 let base = back * m;

@@ -222,7 +222,7 @@ fn tests_of(s: &SensorSums, lags: usize) -> usize {
         0
     };
     let white = (0..m)
-        .filter(|&j| (0..lags).any(|l| s.white_pairs[l * m + j] >= 1.0))
+        .filter(|&j| (0..lags).any(|l| s.white_pairs.get(l * m + j).is_some_and(|&p| p >= 1.0)))
         .count();
     usize::from(s.gated > 0) + 1 + comps + white
 }
@@ -239,6 +239,9 @@ impl NisAnalyzer {
         let z = normal_two_sided_quantile(alpha);
         let mut sensors: Vec<SensorReport> = Vec::new();
         let mut not_fused = Vec::new();
+        // The components' intervals by sample count: computed once each (a chi-square
+        // quantile costs microseconds, and a log may have thousands of components).
+        let mut intervals: HashMap<u64, Interval> = HashMap::new();
         for s in &self.sensors {
             if s.updates == 0 {
                 not_fused.push(NotFused {
@@ -247,7 +250,7 @@ impl NisAnalyzer {
                 });
                 continue;
             }
-            sensors.push(self.sensor_report(s, level, z));
+            sensors.push(self.sensor_report(s, level, z, &mut intervals));
         }
         attribute(&mut sensors);
         let (mut n, mut o, mut nis, mut dof, mut mean, mut var) = (0, 0, 0.0, 0.0, 0.0, 0.0);
@@ -319,7 +322,13 @@ impl NisAnalyzer {
         }
     }
 
-    fn sensor_report(&self, s: &SensorSums, level: f64, z: f64) -> SensorReport {
+    fn sensor_report(
+        &self,
+        s: &SensorSums,
+        level: f64,
+        z: f64,
+        intervals: &mut HashMap<u64, Interval>,
+    ) -> SensorReport {
         let gate = self.settings.gate();
         let k = s.updates;
         let nis = if s.gated > 0 {
@@ -361,7 +370,9 @@ impl NisAnalyzer {
                 .filter(|&j| s.comp_n[j] > 0.0)
                 .map(|j| {
                     let n = s.comp_n[j];
-                    let interval = chi2_average_interval(level, n, n);
+                    let interval = *intervals
+                        .entry(n.to_bits())
+                        .or_insert_with(|| chi2_average_interval(level, n, n));
                     let value = s.comp_sum[j] / n;
                     ComponentStat {
                         name: s.info.components[j].clone(),
@@ -380,7 +391,7 @@ impl NisAnalyzer {
         for lag in 1..=self.settings.lags() {
             for j in 0..m {
                 let idx = (lag - 1) * m + j;
-                let pairs = s.white_pairs[idx];
+                let pairs = s.white_pairs.get(idx).copied().unwrap_or(0.0);
                 if pairs < 1.0 {
                     continue;
                 }

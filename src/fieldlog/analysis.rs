@@ -18,6 +18,9 @@ const OUTLIERS_KEPT: usize = 1000;
 pub(super) const HIST_BINS: usize = 30;
 /// Distinct degrees of freedom of a sensor given a histogram.
 const HIST_DOFS: usize = 8;
+/// Most sensors (PX4: channels of every estimator instance) one analysis takes: each costs a
+/// few kilobytes and a block of the report, and a real log has at most a few hundred.
+pub const MAX_SENSORS: usize = 10_000;
 
 /// A sensor of a log: its name, its components, and the estimator it belongs to.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -131,7 +134,9 @@ pub(super) struct SensorSums {
     pub last_time: f64,
     pub comp_sum: Vec<f64>,
     pub comp_n: Vec<f64>,
-    /// Whiteness sums per lag and component, index `(lag − 1) · m + j`.
+    /// Whiteness sums per lag and component, index `(lag − 1) · m + j`; only as many lags
+    /// as have been paired (a sensor of 64 components at 100 lags needs 200 kB, which a
+    /// log of one update per sensor would otherwise allocate for every row).
     pub white_ab: Vec<f64>,
     pub white_a2: Vec<f64>,
     pub white_b2: Vec<f64>,
@@ -154,7 +159,7 @@ pub(super) struct SensorSums {
 }
 
 impl SensorSums {
-    fn new(info: SensorInfo, lags: usize) -> Self {
+    fn new(info: SensorInfo) -> Self {
         let m = info.components.len();
         SensorSums {
             info,
@@ -172,11 +177,11 @@ impl SensorSums {
             last_time: f64::NAN,
             comp_sum: vec![0.0; m],
             comp_n: vec![0.0; m],
-            white_ab: vec![0.0; lags * m],
-            white_a2: vec![0.0; lags * m],
-            white_b2: vec![0.0; lags * m],
-            white_pairs: vec![0.0; lags * m],
-            ring: VecDeque::with_capacity(lags),
+            white_ab: Vec::new(),
+            white_a2: Vec::new(),
+            white_b2: Vec::new(),
+            white_pairs: Vec::new(),
+            ring: VecDeque::new(),
             window: VecDeque::new(),
             window_nis: 0.0,
             window_dof: 0,
@@ -222,7 +227,8 @@ impl NisAnalyzer {
     }
 
     /// The index of sensor `info.name`, adding it when new. `Err` when a sensor of that
-    /// name was seen with other components.
+    /// name was seen with other components, or when it would be one more than
+    /// [`MAX_SENSORS`].
     pub fn sensor(&mut self, info: SensorInfo) -> Result<usize, String> {
         if let Some(&i) = self.by_name.get(&info.name) {
             let known = &self.sensors[i].info;
@@ -237,9 +243,14 @@ impl NisAnalyzer {
             return Ok(i);
         }
         let i = self.sensors.len();
+        if i >= MAX_SENSORS {
+            return Err(format!(
+                "more than {MAX_SENSORS} sensors (a new one, '{}'): too many to judge",
+                crate::records::shown_up_to(&info.name, 40)
+            ));
+        }
         self.by_name.insert(info.name.clone(), i);
-        self.sensors
-            .push(SensorSums::new(info, self.settings.lags()));
+        self.sensors.push(SensorSums::new(info));
         Ok(i)
     }
 
@@ -309,6 +320,17 @@ impl NisAnalyzer {
         // Whiteness: pair this update with the last L of the same sequence.
         if let Some(u) = &u {
             let m = u.len();
+            let need = s.ring.len() * m;
+            if s.white_ab.len() < need {
+                for v in [
+                    &mut s.white_ab,
+                    &mut s.white_a2,
+                    &mut s.white_b2,
+                    &mut s.white_pairs,
+                ] {
+                    v.resize(need, 0.0);
+                }
+            }
             for (back, prev) in s.ring.iter().rev().enumerate() {
                 let Some(prev) = prev else { continue };
                 let base = back * m;

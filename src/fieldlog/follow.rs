@@ -17,7 +17,7 @@ use crate::stats::Verdict;
 /// Longest line a log may have.
 const MAX_LINE: usize = 1 << 20;
 /// Bytes read at a time.
-const CHUNK: u64 = 8 << 20;
+const CHUNK: usize = 1 << 20;
 
 /// Follows one growing log.
 pub struct Follower {
@@ -80,7 +80,7 @@ impl Follower {
     /// Read what was appended since the last poll; returns the number of complete lines
     /// read. A partial last line waits for its end.
     pub fn poll(&mut self) -> Result<usize, FileError> {
-        let mut file = match std::fs::File::open(&self.path) {
+        let mut file = match super::open_log(&self.path) {
             Ok(f) => f,
             Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(0),
             Err(e) => return Err(FileError::new(&self.path, "", format!("cannot read: {e}"))),
@@ -99,55 +99,49 @@ impl Follower {
                 ),
             ));
         }
-        // Read in bounded chunks, so that following a large existing log costs a chunk of
-        // memory, not the file.
+        file.seek(SeekFrom::Start(self.offset))
+            .map_err(|e| FileError::new(&self.path, "", format!("cannot read: {e}")))?;
+        // In chunks: a log that is already large when followed is not read into memory
+        // whole.
+        let mut remaining = len - self.offset;
+        let mut chunk = vec![0u8; remaining.min(CHUNK as u64) as usize];
         let mut count = 0;
-        while self.offset < len {
-            file.seek(SeekFrom::Start(self.offset))
-                .map_err(|e| FileError::new(&self.path, "", format!("cannot read: {e}")))?;
-            let mut fresh = Vec::new();
-            (&mut file)
-                .take((len - self.offset).min(CHUNK))
-                .read_to_end(&mut fresh)
-                .map_err(|e| FileError::new(&self.path, "", format!("cannot read: {e}")))?;
-            if fresh.is_empty() {
-                break;
-            }
-            self.offset += fresh.len() as u64;
-            self.partial.extend_from_slice(&fresh);
+        while remaining > 0 {
+            let want = remaining.min(CHUNK as u64) as usize;
+            let n = match file.read(&mut chunk[..want]) {
+                Ok(0) => break,
+                Ok(n) => n,
+                Err(e) if e.kind() == std::io::ErrorKind::Interrupted => continue,
+                Err(e) => return Err(FileError::new(&self.path, "", format!("cannot read: {e}"))),
+            };
+            self.offset += n as u64;
+            remaining -= n as u64;
+            self.partial.extend_from_slice(&chunk[..n]);
             count += self.complete_lines()?;
         }
         Ok(count)
     }
 
-    /// Take the complete lines out of the buffer and read them.
+    /// Take the complete lines out of `partial`; the number taken. A partial last line
+    /// waits for its end, up to [`MAX_LINE`] bytes.
     fn complete_lines(&mut self) -> Result<usize, FileError> {
-        let Some(end) = self.partial.iter().rposition(|&b| b == b'\n') else {
-            if self.partial.len() > MAX_LINE {
-                return Err(at_line(
-                    &self.path,
-                    self.line_no + 1,
-                    "",
-                    format!("a line longer than {MAX_LINE} bytes"),
-                ));
-            }
-            return Ok(0);
-        };
-        let complete: Vec<u8> = self.partial.drain(..=end).collect();
-        // `complete` ends with its newline: the lines are what lies between newlines.
         let mut count = 0;
-        for raw in complete[..complete.len() - 1].split(|&b| b == b'\n') {
-            if raw.len() > MAX_LINE {
-                return Err(at_line(
-                    &self.path,
-                    self.line_no + 1,
-                    "",
-                    format!("a line longer than {MAX_LINE} bytes"),
-                ));
+        if let Some(end) = self.partial.iter().rposition(|&b| b == b'\n') {
+            let complete: Vec<u8> = self.partial.drain(..=end).collect();
+            // `complete` ends with its newline: the lines are what lies between newlines.
+            for raw in complete[..complete.len() - 1].split(|&b| b == b'\n') {
+                self.line_no += 1;
+                count += 1;
+                self.line(raw)?;
             }
-            self.line_no += 1;
-            count += 1;
-            self.line(raw)?;
+        }
+        if self.partial.len() > MAX_LINE {
+            return Err(at_line(
+                &self.path,
+                self.line_no + 1,
+                "",
+                format!("a line longer than {MAX_LINE} bytes"),
+            ));
         }
         Ok(count)
     }

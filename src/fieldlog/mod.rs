@@ -22,12 +22,13 @@ mod records;
 mod report;
 mod settings;
 mod text;
+mod ulog_walk;
 
 use std::path::{Path, PathBuf};
 
 use serde::Serialize;
 
-pub use analysis::{Dropped, NisAnalyzer, SensorInfo, SeriesPoint, Update};
+pub use analysis::{Dropped, MAX_SENSORS, NisAnalyzer, SensorInfo, SeriesPoint, Update};
 pub use follow::{Follower, Status};
 pub use report::{
     Histogram, NisAverage, NisReport, NotFused, Overall, SensorPlot, SensorReport, WindowSummary,
@@ -84,7 +85,38 @@ enum Kind {
     Records,
 }
 
+/// Open a log to read: a regular file only. A FIFO without a writer would block the open
+/// for ever (a follower's `--for` could never fire), so on Unix the open does not block and
+/// anything but a regular file is refused after it.
+pub(super) fn open_log(path: &Path) -> std::io::Result<std::fs::File> {
+    let mut options = std::fs::OpenOptions::new();
+    options.read(true);
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::OpenOptionsExt;
+        options.custom_flags(libc::O_NONBLOCK);
+    }
+    let file = options.open(path)?;
+    if !file.metadata()?.is_file() {
+        return Err(std::io::Error::other(NOT_REGULAR));
+    }
+    Ok(file)
+}
+
+const NOT_REGULAR: &str = "not a regular file (a directory, FIFO or device)";
+
 fn kind_of(path: &Path) -> Result<Kind, FileError> {
+    // Every reader, the records readers too, would block on a FIFO: refuse it by its kind
+    // first (stat does not block).
+    if let Ok(m) = std::fs::metadata(path)
+        && !m.is_file()
+    {
+        return Err(FileError::new(
+            path,
+            "",
+            format!("cannot read: {NOT_REGULAR}"),
+        ));
+    }
     let ext = path
         .extension()
         .and_then(|e| e.to_str())

@@ -13,15 +13,19 @@
 //! previous row's is a repeat; anything else is an update. The logger may sample the two
 //! topics at different cycles: each innovations row is paired with the variances row of the
 //! same `timestamp_sample`, or else the nearest within 50 ms (noted as approximate).
+//!
+//! The file is read by [`super::ulog_walk`], which checks each message before the crate's
+//! parser sees it (some damaged files panic or run away inside the crate).
 
+use std::cell::Cell;
 use std::collections::{BTreeMap, HashMap};
 use std::path::Path;
 
-use px4_ulog::full_parser::Completeness;
 use px4_ulog::stream_parser::model::FlattenedFieldType;
-use px4_ulog::stream_parser::{Message, SimpleCallbackResult, read_file_with_simple_callback};
+use px4_ulog::stream_parser::{DataMessage, LogParser};
 
 use super::analysis::{Dropped, NisAnalyzer, SensorInfo, Update};
+use super::ulog_walk::{Ending, walk};
 use super::{LogSource, ReadOptions};
 use crate::input::FileError;
 
@@ -56,21 +60,14 @@ fn wanted(name: &str) -> bool {
     matches!(name, INNOVATIONS | VARIANCES | LEGACY)
 }
 
-fn read_file(path: &Path) -> Result<(Read, Completeness), FileError> {
-    let text = path.to_str().ok_or_else(|| {
-        FileError::new(
-            path,
-            "",
-            "the path is not valid UTF-8 (the ULog reader needs one)",
-        )
-    })?;
+fn read_file(path: &Path) -> Result<(Read, Ending), FileError> {
     check_magic(path)?;
     let mut out = Read::default();
-    let mut too_many = false;
-    let mut cb = |m: &Message| {
-        let Message::Data(d) = m else {
-            return SimpleCallbackResult::KeepReading;
-        };
+    let too_many = Cell::new(false);
+    let mut cb = |d: &DataMessage| {
+        if too_many.get() {
+            return;
+        }
         let f = d.flattened_format;
         let name = f.message_name();
         // Field offsets count from the start of the payload, msg_id included.
@@ -90,15 +87,15 @@ fn read_file(path: &Path) -> Result<(Read, Completeness), FileError> {
             {
                 out.land.push((t, b != 0));
             }
-            return SimpleCallbackResult::KeepReading;
+            return;
         }
         if !wanted(name) {
-            return SimpleCallbackResult::KeepReading;
+            return;
         }
         out.rows += 1;
         if out.rows > MAX_ROWS {
-            too_many = true;
-            return SimpleCallbackResult::Stop;
+            too_many.set(true);
+            return;
         }
         let topic = out
             .topics
@@ -123,7 +120,7 @@ fn read_file(path: &Path) -> Result<(Read, Completeness), FileError> {
                     .find(|x| x.flattened_field_name == "timestamp")
             });
         let Some(t) = time_field.and_then(|x| read_u64(x.offset)) else {
-            return SimpleCallbackResult::KeepReading;
+            return;
         };
         let vals: Vec<f32> = floats
             .iter()
@@ -138,25 +135,20 @@ fn read_file(path: &Path) -> Result<(Read, Completeness), FileError> {
             topic.times.push(t);
             topic.values.push(vals);
         }
-        SimpleCallbackResult::KeepReading
     };
-    let completeness = read_file_with_simple_callback(text, &mut cb).map_err(|e| {
-        let msg = e.to_string();
-        let first = msg.lines().next().unwrap_or("").trim();
-        FileError::new(
-            path,
-            "",
-            format!("not a readable ULog file (its header or definitions are damaged): {first}"),
-        )
-    })?;
-    if too_many {
+    let ending = {
+        let mut parser = LogParser::default();
+        parser.set_data_message_callback(&mut cb);
+        walk(path, &mut parser, &|| too_many.get())?
+    };
+    if too_many.get() {
         return Err(FileError::new(
             path,
             "",
             format!("more than {MAX_ROWS} rows of the estimator topics"),
         ));
     }
-    Ok((out, completeness))
+    Ok((out, ending))
 }
 
 /// The 7 bytes every ULog file starts with (then a version byte and a 64-bit timestamp).
@@ -167,8 +159,8 @@ const MAGIC: [u8; 7] = [b'U', b'L', b'o', b'g', 0x01, 0x12, 0x35];
 fn check_magic(path: &Path) -> Result<(), FileError> {
     use std::io::Read as _;
     let mut head = [0u8; 16];
-    let mut file = std::fs::File::open(path)
-        .map_err(|e| FileError::new(path, "", format!("cannot read: {e}")))?;
+    let mut file =
+        super::open_log(path).map_err(|e| FileError::new(path, "", format!("cannot read: {e}")))?;
     let mut got = 0;
     while got < head.len() {
         match file.read(&mut head[got..]) {
@@ -201,8 +193,18 @@ struct Channel {
     var: usize,
 }
 
+/// The column of each name (the first, should a name repeat).
+fn columns(names: &[String]) -> HashMap<&str, usize> {
+    let mut at = HashMap::with_capacity(names.len());
+    for (i, n) in names.iter().enumerate() {
+        at.entry(n.as_str()).or_insert(i);
+    }
+    at
+}
+
 /// Channels of the legacy topic: `<base>_innov[j]` beside `<base>_innov_var[j]`.
 fn legacy_channels(names: &[String]) -> Vec<Channel> {
+    let at = columns(names);
     let mut out = Vec::new();
     for (i, n) in names.iter().enumerate() {
         let (stem, idx) = match n.find('[') {
@@ -213,7 +215,7 @@ fn legacy_channels(names: &[String]) -> Vec<Channel> {
             continue;
         };
         let var_name = format!("{stem}_var{idx}");
-        if let Some(v) = names.iter().position(|x| *x == var_name) {
+        if let Some(&v) = at.get(var_name.as_str()) {
             out.push(Channel {
                 name: format!("{base}{idx}"),
                 innov: i,
@@ -263,28 +265,26 @@ pub(super) fn read(
     options: &ReadOptions,
     an: &mut NisAnalyzer,
 ) -> Result<LogSource, FileError> {
-    let (read, completeness) = read_file(path)?;
+    let (read, ending) = read_file(path)?;
     let mut source = LogSource::new(path, "px4-ulog");
     source.rows = read.rows;
-    match completeness {
-        Completeness::Complete => {}
-        Completeness::Truncated if options.allow_truncated => source
+    match ending {
+        Ending::Complete => {}
+        Ending::Truncated if options.allow_truncated => source
             .notes
             .push("the file is truncated: the data before the cut were judged".into()),
-        Completeness::Truncated => {
+        Ending::Truncated => {
             return Err(FileError::new(
                 path,
                 "",
                 "the file is truncated (it ends partway through a message); --allow-truncated judges the data before the cut",
             ));
         }
-        Completeness::MalformedRecord(why) if options.allow_truncated => {
-            source.notes.push(format!(
-                "a malformed message ({}) ends the readable data: what came before was judged",
-                first_line(&why)
-            ))
-        }
-        Completeness::MalformedRecord(why) => {
+        Ending::Malformed(why) if options.allow_truncated => source.notes.push(format!(
+            "a malformed message ({}) ends the readable data: what came before was judged",
+            first_line(&why)
+        )),
+        Ending::Malformed(why) => {
             return Err(FileError::new(
                 path,
                 "",
@@ -338,13 +338,14 @@ pub(super) fn read(
                 ));
                 continue;
             };
+            let var_at = columns(&vt.names);
             let channels = topic
                 .names
                 .iter()
                 .enumerate()
                 .filter(|(_, n)| *n != "timestamp" && *n != "timestamp_sample")
                 .filter_map(|(i, n)| {
-                    vt.names.iter().position(|v| v == n).map(|v| Channel {
+                    var_at.get(n.as_str()).map(|&v| Channel {
                         name: n.clone(),
                         innov: i,
                         var: v,

@@ -3,6 +3,8 @@
 //! whiteness, at a family-wise level α (Šidák over every test), and what the evidence
 //! blames.
 
+use std::collections::HashMap;
+
 use serde::Serialize;
 use statrs::function::beta::beta_reg;
 
@@ -220,7 +222,7 @@ fn tests_of(s: &SensorSums, lags: usize) -> usize {
         0
     };
     let white = (0..m)
-        .filter(|&j| (0..lags).any(|l| s.white_pairs[l * m + j] >= 1.0))
+        .filter(|&j| (0..lags).any(|l| s.white_pairs.get(l * m + j).is_some_and(|&p| p >= 1.0)))
         .count();
     usize::from(s.gated > 0) + 1 + comps + white
 }
@@ -237,6 +239,9 @@ impl NisAnalyzer {
         let z = normal_two_sided_quantile(alpha);
         let mut sensors: Vec<SensorReport> = Vec::new();
         let mut not_fused = Vec::new();
+        // The components' intervals by sample count: computed once each (a chi-square
+        // quantile costs microseconds, and a log may have thousands of components).
+        let mut intervals: HashMap<u64, Interval> = HashMap::new();
         for s in &self.sensors {
             if s.updates == 0 {
                 not_fused.push(NotFused {
@@ -245,7 +250,7 @@ impl NisAnalyzer {
                 });
                 continue;
             }
-            sensors.push(self.sensor_report(s, level, z));
+            sensors.push(self.sensor_report(s, level, z, &mut intervals));
         }
         attribute(&mut sensors);
         let (mut n, mut o, mut nis, mut dof, mut mean, mut var) = (0, 0, 0.0, 0.0, 0.0, 0.0);
@@ -317,7 +322,13 @@ impl NisAnalyzer {
         }
     }
 
-    fn sensor_report(&self, s: &SensorSums, level: f64, z: f64) -> SensorReport {
+    fn sensor_report(
+        &self,
+        s: &SensorSums,
+        level: f64,
+        z: f64,
+        intervals: &mut HashMap<u64, Interval>,
+    ) -> SensorReport {
         let gate = self.settings.gate();
         let k = s.updates;
         let nis = if s.gated > 0 {
@@ -359,7 +370,9 @@ impl NisAnalyzer {
                 .filter(|&j| s.comp_n[j] > 0.0)
                 .map(|j| {
                     let n = s.comp_n[j];
-                    let interval = chi2_average_interval(level, n, n);
+                    let interval = *intervals
+                        .entry(n.to_bits())
+                        .or_insert_with(|| chi2_average_interval(level, n, n));
                     let value = s.comp_sum[j] / n;
                     ComponentStat {
                         name: s.info.components[j].clone(),
@@ -378,7 +391,7 @@ impl NisAnalyzer {
         for lag in 1..=self.settings.lags() {
             for j in 0..m {
                 let idx = (lag - 1) * m + j;
-                let pairs = s.white_pairs[idx];
+                let pairs = s.white_pairs.get(idx).copied().unwrap_or(0.0);
                 if pairs < 1.0 {
                     continue;
                 }
@@ -480,11 +493,15 @@ impl SensorReport {
 /// same estimator: a shared overconfidence points to the Q they share, a sensor off alone to
 /// its own R.
 fn attribute(sensors: &mut [SensorReport]) {
-    let levels: Vec<(String, i32)> = sensors
-        .iter()
-        .map(|s| (s.group.clone(), s.level()))
-        .collect();
-    for (i, s) in sensors.iter_mut().enumerate() {
+    // Per estimator, how many sensors sit at each level (counted once: a scan of the others
+    // for each failing sensor is quadratic in thousands of channels).
+    let mut groups: HashMap<String, (usize, HashMap<i32, usize>)> = HashMap::new();
+    for s in sensors.iter() {
+        let g = groups.entry(s.group.clone()).or_default();
+        g.0 += 1;
+        *g.1.entry(s.level()).or_default() += 1;
+    }
+    for s in sensors.iter_mut() {
         if s.verdict.passes() || s.verdict == Verdict::Inconclusive {
             continue;
         }
@@ -493,12 +510,16 @@ fn attribute(sensors: &mut [SensorReport]) {
         if lv == 0 && g == 0 {
             continue;
         }
-        let peers: Vec<i32> = levels
-            .iter()
-            .enumerate()
-            .filter(|(j, (grp, _))| *j != i && *grp == s.group)
-            .map(|(_, (_, l))| *l)
-            .collect();
+        // The other sensors of its estimator: how many, and how many at its level and at 0.
+        let (peers, at_own, at_zero) = match groups.get(&s.group) {
+            Some((n, by_level)) => {
+                let count = |l: i32| by_level.get(&l).copied().unwrap_or(0);
+                let own = count(lv).saturating_sub(1);
+                let zero = count(0).saturating_sub(usize::from(lv == 0));
+                (n.saturating_sub(1), own, zero)
+            }
+            None => (0, 0, 0),
+        };
         let heavy_tails_only =
             s.nis.verdict == Verdict::Consistent && s.outliers_verdict == Verdict::Overconfident;
         let (suspect, action) = if heavy_tails_only && g == 0 {
@@ -506,16 +527,16 @@ fn attribute(sensors: &mut [SensorReport]) {
                 Suspect::R,
                 "the average fits but the tails do not: look for glitches the filter should reject, or increase R".to_string(),
             )
-        } else if g == 0 && lv != 0 && !peers.is_empty() {
+        } else if g == 0 && lv != 0 && peers > 0 {
             let dir = if lv > 0 { "increase" } else { "decrease" };
-            if peers.iter().all(|p| *p == lv) {
+            if at_own == peers {
                 (
                     Suspect::Q,
                     format!(
                         "{dir} Q (every sensor of this estimator is off the same way, and Q is what they share)"
                     ),
                 )
-            } else if peers.iter().all(|p| *p == 0) {
+            } else if at_zero == peers {
                 (
                     Suspect::R,
                     format!("{dir} this sensor's R (the other sensors of this estimator fit)"),

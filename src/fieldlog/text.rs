@@ -51,13 +51,14 @@ fn err_json(path: &Path, line: usize, field: &str, m: impl Into<String>) -> File
 /// Whether the CSV / JSON Lines file at `path` is in the records format (it has `run` and
 /// `step` and no `sensor`) rather than a field log.
 pub(super) fn is_records(path: &Path) -> Result<bool, FileError> {
-    let file = std::fs::File::open(path)
-        .map_err(|e| FileError::new(path, "", format!("cannot read: {e}")))?;
+    let file =
+        super::open_log(path).map_err(|e| FileError::new(path, "", format!("cannot read: {e}")))?;
     let mut first = String::new();
     BufReader::new(file)
         .take_line(&mut first)
         .map_err(|e| FileError::new(path, "", format!("cannot read: {e}")))?;
-    let first = first.trim();
+    // A byte-order mark is not part of the first column's name (the CSV readers drop it).
+    let first = first.trim_start_matches('\u{feff}').trim();
     if first.starts_with('{') {
         let Ok(Value::Object(o)) = serde_json::from_str::<Value>(first) else {
             return Ok(false);
@@ -419,10 +420,19 @@ impl Ingest {
             Ok(Ok(n)) => n,
             Ok(Err(why)) | Err(why) => return Err((field_of(&row.record), why)),
         };
-        if n.dof.fract() != 0.0 || n.dof > MAX_DIM as f64 {
+        if n.dof.fract() != 0.0 {
+            return Err(("dof".into(), format!("{} is not a whole number", n.dof)));
+        }
+        // A sensor has at most MAX_DIM components, given as ν or as a precomputed NIS; the
+        // quantiles of each distinct dof cost the analyzer up to a millisecond, so a larger
+        // bound would let a log of distinct dofs run for many minutes.
+        if n.dof > MAX_DIM as f64 {
             return Err((
                 "dof".into(),
-                format!("{} is not a whole number in 1..={MAX_DIM}", n.dof),
+                format!(
+                    "{} is more than {MAX_DIM}, the largest dimension of a sensor",
+                    n.dof
+                ),
             ));
         }
         if let Some(&t) = self.last_time.get(&row.sensor)
@@ -430,8 +440,9 @@ impl Ingest {
         {
             return Err((
                 "time".into(),
+                // `{:?}`: the shortest exact form, in exponent form when huge.
                 format!(
-                    "{} is before this sensor's previous update at {t}",
+                    "{:?} is before this sensor's previous update at {t:?}",
                     row.time
                 ),
             ));
@@ -527,7 +538,7 @@ pub(super) fn read(
         }
     };
     if jsonl {
-        let file = std::fs::File::open(path)
+        let file = super::open_log(path)
             .map_err(|e| FileError::new(path, "", format!("cannot read: {e}")))?;
         for (i, line) in BufReader::new(file).lines().enumerate() {
             let line_no = i + 1;
@@ -547,8 +558,10 @@ pub(super) fn read(
             .has_headers(true)
             .flexible(true)
             .trim(csv::Trim::All)
-            .from_path(path)
-            .map_err(|e| FileError::new(path, "", format!("cannot read: {e}")))?;
+            .from_reader(
+                super::open_log(path)
+                    .map_err(|e| FileError::new(path, "", format!("cannot read: {e}")))?,
+            );
         let header = rdr
             .headers()
             .map_err(|e| err_json(path, 1, "header", csv_text(&e)))?

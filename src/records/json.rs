@@ -137,6 +137,9 @@ impl Row for JsonRow<'_> {
 }
 
 pub(crate) fn object(line: &str) -> Result<Map<String, Value>, String> {
+    // A file written with a byte-order mark (Windows tools do) starts its first line with
+    // one: JSON has none.
+    let line = line.strip_prefix('\u{feff}').unwrap_or(line);
     let parsed = serde_json::from_str::<Value>(line).or_else(|e| {
         // Python's json module writes NaN and Infinity, which JSON has not: read them as
         // the null (NaN) they stand for, so a diverged filter reads as diverged.

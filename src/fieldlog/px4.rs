@@ -12,7 +12,9 @@
 //! variance ≤ 0 is invalid; a row whose (innovation, variance) are bit-identical to the
 //! previous row's is a repeat; anything else is an update. The logger may sample the two
 //! topics at different cycles: each innovations row is paired with the variances row of the
-//! same `timestamp_sample`, or else the nearest within 50 ms (noted as approximate).
+//! same `timestamp_sample`, or else the nearest within 50 ms (noted as approximate); such a
+//! row's variance is from another filter cycle, so for it the innovation alone decides
+//! whether it repeats.
 //!
 //! The file is read by [`super::ulog_walk`], which checks each message before the crate's
 //! parser sees it (some damaged files panic or run away inside the crate).
@@ -385,16 +387,19 @@ pub(super) fn read(
             let mut dropped = Dropped::default();
             let mut prev: Option<(u32, u32)> = None;
             for (r, p) in pairing.iter().enumerate() {
-                let Some((vr, _)) = *p else { continue };
+                let Some((vr, exact)) = *p else { continue };
                 let nu = topic.values[r][ch.innov];
                 let s = var_topic.values[vr][ch.var];
                 let bits = (nu.to_bits(), s.to_bits());
                 let last = prev.replace(bits);
+                // A variance paired by nearest time is from another filter cycle: a change
+                // in it says nothing about a fusion, so the innovation alone decides.
+                let repeat = last.is_some_and(|(n, v)| n == bits.0 && (v == bits.1 || !exact));
                 if nu == 0.0 && s == 0.0 {
                     dropped.idle += 1;
                 } else if !nu.is_finite() || !s.is_finite() || s <= 0.0 {
                     dropped.invalid += 1;
-                } else if last == Some(bits) {
+                } else if repeat {
                     dropped.repeats += 1;
                 } else if options.in_air && !in_air(&read.land, topic.times[r]) {
                     dropped.on_ground += 1;

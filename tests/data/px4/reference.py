@@ -95,8 +95,9 @@ def channels(log):
                              "unpaired": int(np.sum(kind == 2))}
             keep = idx >= 0
             times = inn.data["timestamp_sample"][keep]
-            out += [(inst, f"ekf{inst}.{f}", times, inn.data[f][keep], var.data[f][idx[keep]])
-                    for f in fields]
+            exact = kind[keep] == 0
+            out += [(inst, f"ekf{inst}.{f}", times, inn.data[f][keep], var.data[f][idx[keep]],
+                     exact) for f in fields]
         elif name == "ekf2_innovations":
             # one topic holds both; there is no timestamp_sample, so t = timestamp
             pairing[inst] = {"rows": rows, "paired_exact": rows, "paired_near": 0, "unpaired": 0}
@@ -106,13 +107,17 @@ def channels(log):
                 if m and f"{m.group(1)}_innov_var{m.group(2) or ''}" in names:
                     out.append((inst, f"ekf{inst}.{m.group(1)}{m.group(2) or ''}",
                                 inn.data["timestamp"], inn.data[f],
-                                inn.data[f"{m.group(1)}_innov_var{m.group(2) or ''}"]))
+                                inn.data[f"{m.group(1)}_innov_var{m.group(2) or ''}"],
+                                np.ones(rows, dtype=bool)))
     return pairing, out
 
 
-def classify(nu32, s32):
+def classify(nu32, s32, exact):
     """Per-row class: 'idle', 'invalid', 'repeat' or 'update'. Repeats compare
-    the float32 bit patterns with the previous paired row, whatever its class."""
+    the float32 bit patterns with the previous paired row, whatever its class:
+    innovation and variance for a row paired exactly, the innovation alone for a
+    row paired with the nearest variances row (its variance is from another
+    filter cycle, so a change in it says nothing about a fusion)."""
     nu_bits, s_bits = nu32.view(np.uint32), s32.view(np.uint32)
     nu, s = nu32.astype(np.float64), s32.astype(np.float64)
     out = []
@@ -121,7 +126,7 @@ def classify(nu32, s32):
             out.append("idle")
         elif not (np.isfinite(nu[k]) and np.isfinite(s[k])) or s[k] <= 0:
             out.append("invalid")
-        elif k > 0 and nu_bits[k] == nu_bits[k - 1] and s_bits[k] == s_bits[k - 1]:
+        elif k > 0 and nu_bits[k] == nu_bits[k - 1] and (s_bits[k] == s_bits[k - 1] or not exact[k]):
             out.append("repeat")
         else:
             out.append("update")
@@ -210,8 +215,8 @@ def in_air_filter(log):
 def analyse(log, keep_update=None):
     pairing, chans = channels(log)
     result, not_fused = {}, {}
-    for inst, name, times, nu, s in chans:
-        st = result[name] = stats(classify(nu, s), nu, s, times, keep_update)
+    for inst, name, times, nu, s, exact in chans:
+        st = result[name] = stats(classify(nu, s, exact), nu, s, times, keep_update)
         if not st["fused"]:
             not_fused[name] = {"idle": st["idle"], "invalid": st["invalid"]}
     result["_pairing"] = {f"ekf{i}": c for i, c in pairing.items()}

@@ -289,7 +289,18 @@ impl NisAnalyzer {
         let verdict = if sensors.is_empty() {
             Verdict::Inconclusive
         } else {
-            combine(&sensors.iter().map(|s| s.verdict).collect::<Vec<_>>())
+            // A sensor with too few updates for its tests to have power, and nothing
+            // failed, says nothing either way: the others decide, unless all are like it.
+            let decided: Vec<Verdict> = sensors
+                .iter()
+                .map(|s| s.verdict)
+                .filter(|v| *v != Verdict::Inconclusive)
+                .collect();
+            if decided.is_empty() {
+                Verdict::Inconclusive
+            } else {
+                combine(&decided)
+            }
         };
         let blames = |x: Suspect| {
             sensors
@@ -464,13 +475,12 @@ impl NisAnalyzer {
 }
 
 impl SensorReport {
-    /// The sign of the sensor's level: +1 when its NIS is above its interval (or its
-    /// outliers are too many with the average inside), −1 below, 0 otherwise.
+    /// The sign of the sensor's gated average: +1 above its interval, −1 below, 0 inside or
+    /// untested (the outliers are judged apart: glitches are not a scale of S).
     fn level(&self) -> i32 {
         match self.nis.verdict {
             Verdict::Overconfident => 1,
             Verdict::Underconfident => -1,
-            _ if self.outliers_verdict == Verdict::Overconfident => 1,
             _ => 0,
         }
     }
@@ -483,7 +493,18 @@ impl SensorReport {
             .filter(|w| w.verdict == Verdict::NotWhite)
             .max_by(|a, b| (a.statistic / a.threshold).total_cmp(&(b.statistic / b.threshold)))
             .map_or((0, None), |w| {
-                (if w.rho1 > 0.0 { 1 } else { -1 }, Some(w.rho1))
+                // The sign says which way the gain is off only when the lag-1 correlation
+                // itself stands out; a test failed at higher lags alone does not say.
+                let band = self
+                    .whiteness
+                    .iter()
+                    .find(|x| x.lag == 1 && x.component == w.component)
+                    .map_or(f64::INFINITY, |x| x.band);
+                if w.rho1.abs() > band {
+                    (if w.rho1 > 0.0 { 1 } else { -1 }, Some(w.rho1))
+                } else {
+                    (0, Some(w.rho1))
+                }
             })
     }
 }
@@ -507,9 +528,16 @@ fn attribute(sensors: &mut [SensorReport]) {
         }
         let lv = s.level();
         let (g, rho1) = s.gain();
-        if lv == 0 && g == 0 {
-            continue;
-        }
+        let heavy = s.outliers_verdict == Verdict::Overconfident;
+        let components_off: Vec<(String, i32)> = s
+            .component_stats
+            .iter()
+            .filter_map(|c| match c.verdict {
+                Verdict::Overconfident => Some((c.name.clone(), 1)),
+                Verdict::Underconfident => Some((c.name.clone(), -1)),
+                _ => None,
+            })
+            .collect();
         // The other sensors of its estimator: how many, and how many at its level and at 0.
         let (peers, at_own, at_zero) = match groups.get(&s.group) {
             Some((n, by_level)) => {
@@ -520,34 +548,68 @@ fn attribute(sensors: &mut [SensorReport]) {
             }
             None => (0, 0, 0),
         };
-        let heavy_tails_only =
-            s.nis.verdict == Verdict::Consistent && s.outliers_verdict == Verdict::Overconfident;
-        let (suspect, action) = if heavy_tails_only && g == 0 {
+        let (suspect, action) = if heavy && lv <= 0 && g == 0 {
+            // Glitches beyond the gate while the core is at or below its target: scaling Q
+            // or R up or down would not fix them, and lowering S would make them worse.
+            let core = if lv < 0 {
+                "the updates inside the gate say S is too large"
+            } else {
+                "the average fits"
+            };
             (
-                Suspect::R,
-                "the average fits but the tails do not: look for glitches the filter should reject, or increase R".to_string(),
+                None,
+                format!(
+                    "{core}, but the tails are heavier than S allows: find the glitches the filter should reject (a gate on its innovations, a fault detector) before changing Q or R"
+                ),
             )
+        } else if lv == 0 && g == 0 && !components_off.is_empty() {
+            let up: Vec<&str> = components_off
+                .iter()
+                .filter(|c| c.1 > 0)
+                .map(|c| c.0.as_str())
+                .collect();
+            let down: Vec<&str> = components_off
+                .iter()
+                .filter(|c| c.1 < 0)
+                .map(|c| c.0.as_str())
+                .collect();
+            let mut parts = Vec::new();
+            if !up.is_empty() {
+                parts.push(format!("increase it for {}", up.join(", ")));
+            }
+            if !down.is_empty() {
+                parts.push(format!("decrease it for {}", down.join(", ")));
+            }
+            (
+                Some(Suspect::R),
+                format!(
+                    "the components disagree while their sum fits: rescale R between them ({}), or the Q that feeds them",
+                    parts.join("; ")
+                ),
+            )
+        } else if lv == 0 && g == 0 {
+            continue;
         } else if g == 0 && lv != 0 && peers > 0 {
             let dir = if lv > 0 { "increase" } else { "decrease" };
             if at_own == peers {
                 (
-                    Suspect::Q,
+                    Some(Suspect::Q),
                     format!(
                         "{dir} Q (every sensor of this estimator is off the same way, and Q is what they share)"
                     ),
                 )
             } else if at_zero == peers {
                 (
-                    Suspect::R,
+                    Some(Suspect::R),
                     format!("{dir} this sensor's R (the other sensors of this estimator fit)"),
                 )
             } else {
                 let (sus, act) = blame(lv, 0);
-                (sus, act.to_string())
+                (Some(sus), act.to_string())
             }
         } else {
             let (sus, act) = blame(lv, g);
-            (sus, act.to_string())
+            (Some(sus), act.to_string())
         };
         let mut evidence = if s.nis.mean.is_finite() {
             format!(
@@ -573,7 +635,7 @@ fn attribute(sensors: &mut [SensorReport]) {
         }
         s.finding = Some(Finding {
             component: s.name.clone(),
-            suspect: Some(suspect),
+            suspect,
             action,
             evidence,
         });

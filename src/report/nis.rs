@@ -66,10 +66,25 @@ pub fn nis_gate_text(r: &NisReport) -> String {
 
 /// The verdict line: the verdict, how many sensors fail, and what the evidence points to.
 pub fn nis_verdict_line(r: &NisReport) -> String {
-    let failing = r.sensors.iter().filter(|s| !s.verdict.passes()).count();
+    let inconclusive = r
+        .sensors
+        .iter()
+        .filter(|s| s.verdict == Verdict::Inconclusive)
+        .count();
+    let failing = r
+        .sensors
+        .iter()
+        .filter(|s| !s.verdict.passes() && s.verdict != Verdict::Inconclusive)
+        .count();
     let mut line = format!("verdict: {}", r.verdict.describe());
     if !r.sensors.is_empty() && failing > 0 {
         let _ = write!(line, " — {failing} of {} sensors fail", r.sensors.len());
+    }
+    if inconclusive > 0 && r.verdict != Verdict::Inconclusive {
+        let _ = write!(
+            line,
+            " ({inconclusive} with too few updates to tell: not counted)"
+        );
     }
     if let Some(h) = r.headline() {
         let _ = write!(line, "; {h}");
@@ -202,6 +217,17 @@ pub fn nis_junit_xml(r: &NisReport) -> String {
         let name = escape(&s.name);
         if s.verdict.passes() {
             let _ = writeln!(cases, "    <testcase name=\"{name}\" classname=\"nis\"/>");
+            continue;
+        }
+        if s.verdict == Verdict::Inconclusive {
+            let _ = writeln!(
+                cases,
+                "    <testcase name=\"{name}\" classname=\"nis\">\n      <skipped message=\"{}\"/>\n    </testcase>",
+                escape(&format!(
+                    "inconclusive: {} updates are too few for the tests to tell a factor-2 error",
+                    s.updates
+                ))
+            );
             continue;
         }
         failures += 1;

@@ -147,10 +147,12 @@ fn follow(
     let mut last_growth = Instant::now();
     let result = loop {
         let tick = Instant::now();
-        match f.poll() {
-            Ok(n) if n > 0 => last_growth = Instant::now(),
-            Ok(_) => {}
-            Err(e) => break Err(e.into()),
+        let before = f.bytes_read();
+        if let Err(e) = f.poll() {
+            break Err(e.into());
+        }
+        if f.bytes_read() > before {
+            last_growth = Instant::now();
         }
         if !a.quiet && !a.json {
             print_stdout(|o| writeln!(o, "{}", f.status()))?;

@@ -298,9 +298,41 @@ impl NisAnalyzer {
         (lo / count as f64, hi / count as f64)
     }
 
-    /// Add an update of sensor `i`. The caller has checked it: a finite NIS ≥ 0, dof ≥ 1,
-    /// `u` of the sensor's length with finite entries.
-    pub fn push(&mut self, i: usize, up: Update) {
+    /// Add an update of sensor `i`: a finite NIS ≥ 0 at a finite time, dof in 1..=64, `u` (if
+    /// any) of the sensor's length with finite entries; `Err` says which is not.
+    pub fn push(&mut self, i: usize, up: Update) -> Result<(), String> {
+        // The readers check their rows; a Rust caller gets the same checks here, so that
+        // nothing below can index out of range or average a NaN.
+        let Some(sensor) = self.sensors.get(i) else {
+            return Err(format!("no sensor {i}"));
+        };
+        if !(1..=64).contains(&up.dof) {
+            return Err(format!(
+                "{}: dof {} is not in 1..=64",
+                sensor.info.name, up.dof
+            ));
+        }
+        if !(up.nis.is_finite() && up.nis >= 0.0 && up.time.is_finite()) {
+            return Err(format!(
+                "{}: NIS {} at time {}",
+                sensor.info.name, up.nis, up.time
+            ));
+        }
+        if let Some(u) = &up.u
+            && (u.len() != sensor.info.components.len() || u.iter().any(|x| !x.is_finite()))
+        {
+            return Err(format!(
+                "{}: {} normalized innovations for {} components",
+                sensor.info.name,
+                u.len(),
+                sensor.info.components.len()
+            ));
+        }
+        self.push_checked(i, up);
+        Ok(())
+    }
+
+    fn push_checked(&mut self, i: usize, up: Update) {
         let q = self.quantiles(up.dof);
         let lags = self.settings.lags();
         let window = self.settings.window();

@@ -210,6 +210,11 @@ impl Follower {
         }
     }
 
+    /// Bytes of the file read so far (its growth, for `--idle`).
+    pub fn bytes_read(&self) -> u64 {
+        self.offset
+    }
+
     /// The full report of what was read so far.
     pub fn report(&self) -> NisReport {
         let mut r = self.analyzer.report();

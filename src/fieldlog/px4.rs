@@ -413,7 +413,8 @@ pub(super) fn read(
                             dof: 1,
                             u: Some(vec![nu / s.sqrt()]),
                         },
-                    );
+                    )
+                    .map_err(|m| FileError::new(path, "", m))?;
                 }
             }
             an.drop_rows(i, dropped);

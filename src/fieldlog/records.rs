@@ -65,7 +65,7 @@ impl StepSink for Sink<'_> {
                     dof: n.dof as usize,
                     u: n.u,
                 },
-            );
+            )?;
         }
         Ok(())
     }

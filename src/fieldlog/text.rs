@@ -468,8 +468,8 @@ impl Ingest {
                 dof: n.dof as usize,
                 u: n.u,
             },
-        );
-        Ok(())
+        )
+        .map_err(|m| ("nu".to_string(), m))
     }
 }
 

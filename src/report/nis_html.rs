@@ -346,7 +346,8 @@ mod tests {
                         dof: if k == 0 { 2 } else { 1 },
                         u: (k == 0).then(|| u.iter().map(|x| x * scale.sqrt()).collect()),
                     },
-                );
+                )
+                .expect("a valid update");
             }
         }
         a.report()

@@ -1356,7 +1356,8 @@ fn wide_input(rng: &mut Rng) -> Vec<Vec<Vec<u8>>> {
 /// A mutated field log: its bytes and whether it is JSON Lines.
 fn text_input(rng: &mut Rng) -> (Vec<u8>, bool) {
     let jsonl = rng.chance(0.5);
-    if rng.chance(0.005) {
+    // Rare: each costs about a second.
+    if rng.chance(0.002) {
         let mut csv = wide_input(rng);
         if rng.chance(0.5) {
             mutate_csv(&mut csv, rng);

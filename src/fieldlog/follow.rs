@@ -6,8 +6,9 @@ use std::fmt;
 use std::io::{Read, Seek, SeekFrom};
 use std::path::{Path, PathBuf};
 
+use super::advice::short;
 use super::analysis::NisAnalyzer;
-use super::report::{NisReport, short};
+use super::report::NisReport;
 use super::settings::NisSettings;
 use super::text::{CsvColumns, Ingest, Skips, csv_text, json_row};
 use super::{LogSource, ReadOptions};

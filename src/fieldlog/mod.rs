@@ -15,6 +15,7 @@
 //! `estimator_innovation_variances`, or the older `ekf2_innovations`), and the records format
 //! of `docs/external.md` read without truth. The format is in `docs/fieldlog.md`.
 
+mod advice;
 mod analysis;
 mod follow;
 mod px4;

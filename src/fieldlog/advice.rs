@@ -1,0 +1,190 @@
+//! What a failing sensor's evidence blames, in words: the level of its gated average and
+//! the sign of its lag-1 autocorrelation (the table of [`crate::stats::blame`]), and where
+//! the innovations are white, the other sensors of its estimator.
+
+use std::collections::HashMap;
+
+use super::report::SensorReport;
+use crate::stats::{Finding, Suspect, Verdict, blame};
+
+impl SensorReport {
+    /// The sign of the sensor's gated average: +1 above its interval, −1 below, 0 inside or
+    /// untested (the outliers are judged apart: glitches are not a scale of S).
+    fn level(&self) -> i32 {
+        match self.nis.verdict {
+            Verdict::Overconfident => 1,
+            Verdict::Underconfident => -1,
+            _ => 0,
+        }
+    }
+
+    /// The sign of the lag-1 autocorrelation of the component whose whiteness test fails
+    /// most clearly, 0 when all are white.
+    fn gain(&self) -> (i32, Option<f64>) {
+        self.whiteness_tests
+            .iter()
+            .filter(|w| w.verdict == Verdict::NotWhite)
+            .max_by(|a, b| (a.statistic / a.threshold).total_cmp(&(b.statistic / b.threshold)))
+            .map_or((0, None), |w| {
+                // The sign says which way the gain is off only when the lag-1 correlation
+                // itself stands out; a test failed at higher lags alone does not say.
+                let band = self
+                    .whiteness
+                    .iter()
+                    .find(|x| x.lag == 1 && x.component == w.component)
+                    .map_or(f64::INFINITY, |x| x.band);
+                if w.rho1.abs() > band {
+                    (if w.rho1 > 0.0 { 1 } else { -1 }, Some(w.rho1))
+                } else {
+                    (0, Some(w.rho1))
+                }
+            })
+    }
+}
+
+/// Give each failing sensor its finding: the level and whiteness table of
+/// [`crate::stats::blame`], and where the innovations are white, the other sensors of the
+/// same estimator: a shared overconfidence points to the Q they share, a sensor off alone to
+/// its own R.
+pub(super) fn attribute(sensors: &mut [SensorReport]) {
+    // Per estimator, how many sensors sit at each level (counted once: a scan of the others
+    // for each failing sensor is quadratic in thousands of channels).
+    let mut groups: HashMap<String, (usize, HashMap<i32, usize>)> = HashMap::new();
+    for s in sensors.iter() {
+        let g = groups.entry(s.group.clone()).or_default();
+        g.0 += 1;
+        *g.1.entry(s.level()).or_default() += 1;
+    }
+    for s in sensors.iter_mut() {
+        if s.verdict.passes() || s.verdict == Verdict::Inconclusive {
+            continue;
+        }
+        let lv = s.level();
+        let (g, rho1) = s.gain();
+        let heavy = s.outliers_verdict == Verdict::Overconfident;
+        let components_off: Vec<(String, i32)> = s
+            .component_stats
+            .iter()
+            .filter_map(|c| match c.verdict {
+                Verdict::Overconfident => Some((c.name.clone(), 1)),
+                Verdict::Underconfident => Some((c.name.clone(), -1)),
+                _ => None,
+            })
+            .collect();
+        // The other sensors of its estimator: how many, and how many at its level and at 0.
+        let (peers, at_own, at_zero) = match groups.get(&s.group) {
+            Some((n, by_level)) => {
+                let count = |l: i32| by_level.get(&l).copied().unwrap_or(0);
+                let own = count(lv).saturating_sub(1);
+                let zero = count(0).saturating_sub(usize::from(lv == 0));
+                (n.saturating_sub(1), own, zero)
+            }
+            None => (0, 0, 0),
+        };
+        let (suspect, action) = if heavy && lv <= 0 && g == 0 {
+            // Glitches beyond the gate while the core is at or below its target: scaling Q
+            // or R up or down would not fix them, and lowering S would make them worse.
+            let core = if lv < 0 {
+                "the updates inside the gate say S is too large"
+            } else {
+                "the average fits"
+            };
+            (
+                None,
+                format!(
+                    "{core}, but the tails are heavier than S allows: find the glitches the filter should reject (a gate on its innovations, a fault detector) before changing Q or R"
+                ),
+            )
+        } else if lv == 0 && g == 0 && !components_off.is_empty() {
+            let up: Vec<&str> = components_off
+                .iter()
+                .filter(|c| c.1 > 0)
+                .map(|c| c.0.as_str())
+                .collect();
+            let down: Vec<&str> = components_off
+                .iter()
+                .filter(|c| c.1 < 0)
+                .map(|c| c.0.as_str())
+                .collect();
+            let mut parts = Vec::new();
+            if !up.is_empty() {
+                parts.push(format!("increase it for {}", up.join(", ")));
+            }
+            if !down.is_empty() {
+                parts.push(format!("decrease it for {}", down.join(", ")));
+            }
+            (
+                Some(Suspect::R),
+                format!(
+                    "the components disagree while their sum fits: rescale R between them ({}), or the Q that feeds them",
+                    parts.join("; ")
+                ),
+            )
+        } else if lv == 0 && g == 0 {
+            continue;
+        } else if g == 0 && lv != 0 && peers > 0 {
+            let dir = if lv > 0 { "increase" } else { "decrease" };
+            if at_own == peers {
+                (
+                    Some(Suspect::Q),
+                    format!(
+                        "{dir} Q (every sensor of this estimator is off the same way, and Q is what they share)"
+                    ),
+                )
+            } else if at_zero == peers {
+                (
+                    Some(Suspect::R),
+                    format!("{dir} this sensor's R (the other sensors of this estimator fit)"),
+                )
+            } else {
+                let (sus, act) = blame(lv, 0);
+                (Some(sus), act.to_string())
+            }
+        } else {
+            let (sus, act) = blame(lv, g);
+            (Some(sus), act.to_string())
+        };
+        let mut evidence = if s.nis.mean.is_finite() {
+            format!(
+                "NIS {} ({} expected, interval [{}, {}])",
+                short(s.nis.mean),
+                short(s.nis.target),
+                short(s.nis.interval.lower),
+                short(s.nis.interval.upper)
+            )
+        } else {
+            "no update inside the gate".to_string()
+        };
+        if s.outliers_verdict == Verdict::Overconfident {
+            evidence.push_str(&format!(
+                ", {} outlier{} where {} expected",
+                s.outliers,
+                if s.outliers == 1 { "" } else { "s" },
+                short(s.outliers_expected)
+            ));
+        }
+        if let Some(r) = rho1 {
+            evidence.push_str(&format!(", ρ₁ = {r:+.3}"));
+        }
+        s.finding = Some(Finding {
+            component: s.name.clone(),
+            suspect,
+            action,
+            evidence,
+        });
+    }
+}
+
+/// A number in 4 significant digits, for the evidence text.
+pub(super) fn short(v: f64) -> String {
+    if v == 0.0 || !v.is_finite() {
+        return format!("{v}");
+    }
+    let a = v.abs();
+    if (1e-3..1e5).contains(&a) {
+        let digits = (3 - a.log10().floor() as i32).clamp(0, 6) as usize;
+        format!("{v:.digits$}")
+    } else {
+        format!("{v:.3e}")
+    }
+}

@@ -1,5 +1,5 @@
-//! `simulate` and `estimate`: measurements drawn from a problem's truth, and Q and R estimated
-//! from recorded measurements alone.
+//! `estimate`: Q and R estimated from recorded measurements alone, and the pieces `tune`
+//! uses to run on a record (`--measurements`) or to start from an estimate (`--init`).
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -8,37 +8,12 @@ use std::time::Instant;
 use super::args::name_value;
 use super::{AppError, print_stdout};
 use crate::estimate::als::{self, AlsModel};
-use crate::estimate::{
-    LinearFilterModel, MeasuredExperiment, ml, read_measurements, record_bytes, simulate,
-};
+use crate::estimate::{LinearFilterModel, MeasuredExperiment, ml, read_measurements, simulate};
 use crate::experiment::{Experiment, LinearExperiment};
 use crate::input::FileError;
 use crate::problem::Problem;
 use crate::report::tuned::estimated_config_toml;
 use crate::report::{Outputs, check_output_file, fmt_g};
-
-/// The arguments of `simulate`.
-#[derive(Debug, Clone, clap::Args)]
-pub struct SimulateArgs {
-    /// Problem file (TOML) with a linear [truth].
-    problem: PathBuf,
-    /// Where to write the measurements: .csv, .jsonl or .npy (docs/measurements.md).
-    #[arg(long, value_name = "FILE")]
-    out: PathBuf,
-    /// Also write the true states here (same formats, columns x_1 … x_n).
-    #[arg(long, value_name = "FILE")]
-    truth: Option<PathBuf>,
-    /// Number of sequences (runs).
-    #[arg(long, default_value_t = 1)]
-    runs: usize,
-    /// Steps per sequence (default: the problem's montecarlo.steps).
-    #[arg(long)]
-    steps: Option<usize>,
-    /// Seed (default: the problem's montecarlo.seed); run i draws from the same stream as
-    /// run i of a Monte Carlo check.
-    #[arg(long)]
-    seed: Option<u64>,
-}
 
 /// The arguments of `estimate`.
 #[derive(Debug, Clone, clap::Args)]
@@ -93,7 +68,7 @@ fn write_config(
     Ok(())
 }
 
-fn linear<'a>(
+pub(super) fn linear<'a>(
     p: &'a Problem,
     path: &std::path::Path,
     what: &str,
@@ -224,57 +199,6 @@ pub fn initial(
 
 /// Added to the problem's seed for the record `tune --init` simulates.
 const INIT_SEED_OFFSET: u64 = 0x5eed_1417;
-
-/// Run `simulate`.
-pub fn run_simulate(a: SimulateArgs) -> Result<ExitCode, AppError> {
-    let p = Problem::load(&a.problem)?;
-    let lin = linear(&p, &a.problem, "simulate")?;
-    if !(1..=100_000).contains(&a.runs) {
-        return Err(AppError::flag(
-            "--runs",
-            format!("{} is not in 1..=100000", a.runs),
-        ));
-    }
-    let steps = a.steps.unwrap_or(p.mc().steps());
-    if !(1..=10_000_000).contains(&steps) || a.runs.saturating_mul(steps) > 10_000_000 {
-        return Err(AppError::flag(
-            "--steps",
-            format!(
-                "{steps} steps × {} runs: at most 10 000 000 steps in all",
-                a.runs
-            ),
-        ));
-    }
-    let seed = a.seed.unwrap_or(p.mc().seed());
-    check_output_file(&a.out)?;
-    if let Some(t) = &a.truth {
-        check_output_file(t)?;
-    }
-    let m = lin.truth.n_z();
-    let sim = simulate(&lin.truth, m, a.runs, steps, seed);
-    let z: Vec<&[f64]> = sim
-        .measurements
-        .sequences
-        .iter()
-        .map(|s| s.z.as_slice())
-        .collect();
-    let mut outputs = Outputs::new();
-    outputs.file(&a.out, record_bytes(&a.out, "z", m, &z)?);
-    if let Some(t) = &a.truth {
-        let x: Vec<&[f64]> = sim.states.iter().map(Vec::as_slice).collect();
-        outputs.file(t, record_bytes(t, "x", sim.n, &x)?);
-    }
-    outputs.commit()?;
-    print_stdout(|o| {
-        writeln!(
-            o,
-            "wrote {} run(s) × {steps} steps of {m} measurement components to {} (seed {seed})",
-            a.runs,
-            a.out.display()
-        )
-    })?;
-    Ok(ExitCode::SUCCESS)
-}
 
 /// Run `estimate`.
 pub fn run_estimate(a: EstimateArgs) -> Result<ExitCode, AppError> {

@@ -22,6 +22,7 @@ mod completions;
 mod estimate;
 mod init;
 mod nis;
+mod simulate;
 mod tune;
 
 pub use check::CheckOptions;
@@ -106,7 +107,7 @@ enum Command {
     Nis(nis::NisArgs),
     /// Draw measurements (and optionally the true states) from a linear problem's truth, to
     /// try `estimate` on data whose answer is known.
-    Simulate(estimate::SimulateArgs),
+    Simulate(simulate::SimulateArgs),
     /// Estimate a linear problem's free Q/R parameters from recorded measurements alone
     /// (maximum likelihood), with standard errors.
     Estimate(estimate::EstimateArgs),
@@ -219,7 +220,7 @@ where
             }
         }
         Command::Nis(a) => nis::run(a),
-        Command::Simulate(a) => estimate::run_simulate(a),
+        Command::Simulate(a) => simulate::run_simulate(a),
         Command::Estimate(a) => estimate::run_estimate(a),
         Command::Init(a) => init::run(a),
         Command::Completions(a) => completions::run(a, Cli::command(), "autotune"),

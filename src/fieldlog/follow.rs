@@ -8,9 +8,10 @@ use std::path::{Path, PathBuf};
 
 use super::advice::short;
 use super::analysis::NisAnalyzer;
+use super::ingest::{Ingest, Skips};
 use super::report::NisReport;
 use super::settings::NisSettings;
-use super::text::{CsvColumns, Ingest, Skips, csv_text, json_row};
+use super::text::{CsvColumns, csv_text, json_row};
 use super::{LogSource, ReadOptions};
 use crate::input::FileError;
 use crate::stats::Verdict;

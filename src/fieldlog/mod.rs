@@ -18,6 +18,7 @@
 mod advice;
 mod analysis;
 mod follow;
+mod ingest;
 mod px4;
 mod records;
 mod report;

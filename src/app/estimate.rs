@@ -7,7 +7,7 @@ use std::time::Instant;
 
 use super::args::name_value;
 use super::{AppError, print_stdout};
-use crate::estimate::als::{self, AlsModel};
+use crate::estimate::als::{self, AlsModel, FullMatrix};
 use crate::estimate::{LinearFilterModel, MeasuredExperiment, ml, read_measurements, simulate};
 use crate::experiment::{Experiment, LinearExperiment};
 use crate::input::FileError;
@@ -34,6 +34,11 @@ pub struct EstimateArgs {
     /// values' gain only).
     #[arg(long, default_value_t = 2)]
     passes: usize,
+    /// ALS: estimate Q (the covariance of the problem's process noise inputs), R, or both
+    /// (qr) as full matrices constrained positive semidefinite, instead of the problem's
+    /// parameters (a build with the `sdp` feature).
+    #[arg(long, value_name = "q|r|qr", value_parser = ["q", "r", "qr"])]
+    full: Option<String>,
     /// Start a parameter at NAME=VALUE instead of the problem's value (repeatable).
     #[arg(long = "set", value_name = "NAME=VALUE")]
     set: Vec<String>,
@@ -239,7 +244,6 @@ pub fn run_estimate(a: EstimateArgs) -> Result<ExitCode, AppError> {
             P0: kf.P0,
         }
     };
-    let t0 = Instant::now();
     if a.method == "als" {
         if !(1..=200).contains(&a.lags) {
             return Err(AppError::flag(
@@ -260,6 +264,28 @@ pub fn run_estimate(a: EstimateArgs) -> Result<ExitCode, AppError> {
                 format!("{} is not in 1..=20", a.passes),
             ));
         }
+        if let Some(full) = &a.full {
+            if a.out.is_some() {
+                return Err(AppError::flag(
+                    "--out",
+                    "a full Q or R is not one of the problem's parameters, so there is no config to write; --json gives the matrices",
+                ));
+            }
+            let full = FullMatrix::parse(full).expect("clap allows q, r and qr only");
+            return super::estimate_full::run(
+                &p,
+                &a.measurements,
+                &data,
+                &model,
+                &start,
+                &fixed,
+                full,
+                a.lags,
+                a.passes,
+                a.json,
+            );
+        }
+        let t0 = Instant::now();
         let est = als::estimate_passes(&model, &data, &start, &fixed, a.lags, a.passes)
             .map_err(|m| AppError::Refused(format!("{}: {m}", a.measurements.display())))?;
         let took = t0.elapsed().as_secs_f64();
@@ -341,6 +367,13 @@ pub fn run_estimate(a: EstimateArgs) -> Result<ExitCode, AppError> {
         })?;
         return Ok(ExitCode::SUCCESS);
     }
+    if a.full.is_some() {
+        return Err(AppError::flag(
+            "--full",
+            "a full Q or R is estimated by --method als only",
+        ));
+    }
+    let t0 = Instant::now();
     let est = ml::estimate(&build, &data, &start, &fixed, a.max_iterations)
         .map_err(|m| AppError::Refused(format!("{}: {m}", a.measurements.display())))?;
     let took = t0.elapsed().as_secs_f64();

@@ -20,6 +20,7 @@ mod args;
 mod check;
 mod completions;
 mod estimate;
+mod estimate_full;
 mod init;
 mod nis;
 mod simulate;

@@ -19,7 +19,9 @@
 #![allow(non_snake_case)]
 
 use clarabel::algebra::CscMatrix;
-use clarabel::solver::{DefaultSettings, DefaultSolver, IPSolver, NonnegativeConeT, SolverStatus};
+use clarabel::solver::{
+    DefaultSettings, DefaultSolver, IPSolver, NonnegativeConeT, SolverStatus, SupportedConeT,
+};
 use faer::Mat;
 use faer::linalg::solvers::Solve;
 use nalgebra::{DMatrix, DVector};
@@ -51,6 +53,40 @@ pub struct AlsEstimate {
     pub spectral_radius: f64,
     /// Passes run (each after the first with the gain at the previous estimate).
     pub passes: usize,
+}
+
+/// Which covariance ALS estimates as a full symmetric matrix constrained positive
+/// semidefinite (the `sdp` feature), instead of the problem's nonnegative parameters.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum FullMatrix {
+    /// The covariance of the process noise inputs.
+    Q,
+    /// The measurement noise covariance.
+    R,
+    /// Both.
+    Both,
+}
+
+impl FullMatrix {
+    /// "q", "r" or "qr", as the command line spells them.
+    pub fn parse(s: &str) -> Option<Self> {
+        match s {
+            "q" | "Q" => Some(Self::Q),
+            "r" | "R" => Some(Self::R),
+            "qr" | "QR" | "both" => Some(Self::Both),
+            _ => None,
+        }
+    }
+
+    /// The matrix in words.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Q => "Q",
+            Self::R => "R",
+            Self::Both => "Q and R",
+        }
+    }
 }
 
 /// The filter ALS runs: its model and the parameterized noise.
@@ -126,150 +162,146 @@ pub fn estimate_passes(
     Ok(est)
 }
 
-/// Estimate the parameters of `model` not `fixed` from `data` (complete records) with `lags`
-/// autocovariance lags, using the steady-state gain of the filter at `start`.
-pub fn estimate(
-    model: &AlsModel<'_>,
-    data: &Measurements,
-    start: &[f64],
-    fixed: &[bool],
-    lags: usize,
-) -> Result<AlsEstimate, String> {
-    let (F, H) = (model.F, model.H);
-    let (n, m) = (F.nrows(), H.nrows());
-    if !data.complete() {
-        return Err("ALS needs every component measured at every step (use --method ml for records with gaps)".into());
-    }
-    let K = steady_gain(F, H, &model.q.build(start), &model.r.build(start))?;
-    let Abar = F * (DMatrix::identity(n, n) - &K * H);
-    let radius = Abar
-        .complex_eigenvalues()
-        .iter()
-        .map(|c| c.norm())
-        .fold(0.0, f64::max);
-    if radius.is_nan() || radius >= 1.0 {
-        return Err(format!(
-            "the filter at the start values is unstable (spectral radius of F(I − KH) is {radius:.4}): ALS needs a stable filter"
-        ));
-    }
-    // Empirical autocovariances of the fixed-gain filter's innovations.
-    let mut sums = vec![DMatrix::<f64>::zeros(m, m); lags];
-    let mut counts = vec![0usize; lags];
-    let mut samples = 0;
-    for s in &data.sequences {
-        if s.steps <= BURN_IN {
-            continue;
+/// The fixed-gain filter's innovation autocovariances, and the autocovariances any noise
+/// term gives through the same filter: the two sides of every ALS problem.
+pub(crate) struct Autocovariances {
+    H: DMatrix<f64>,
+    Abar: DMatrix<f64>,
+    FK: DMatrix<f64>,
+    lu: faer::linalg::solvers::PartialPivLu<f64>,
+    /// Lags used (0 … lags − 1).
+    pub lags: usize,
+    /// The empirical autocovariances `Ĉ_0 … Ĉ_{L−1}`, each m × m column-major, stacked.
+    pub empirical: Vec<f64>,
+    /// Innovations they were formed from.
+    pub samples: usize,
+    /// Spectral radius of `Ā`.
+    pub spectral_radius: f64,
+}
+
+impl Autocovariances {
+    /// Run the filter of `model` with the steady-state gain for `Q`, `R` over `data`.
+    pub(crate) fn new(
+        model: &AlsModel<'_>,
+        data: &Measurements,
+        Q: &DMatrix<f64>,
+        R: &DMatrix<f64>,
+        lags: usize,
+    ) -> Result<Self, String> {
+        let (F, H) = (model.F, model.H);
+        let (n, m) = (F.nrows(), H.nrows());
+        if !data.complete() {
+            return Err("ALS needs every component measured at every step (use --method ml for records with gaps)".into());
         }
-        let mut x = model.x0.clone();
-        let mut innov: Vec<DVector<f64>> = Vec::with_capacity(s.steps);
-        for zk in s.z.chunks(m) {
-            let xp = F * &x;
-            let e = DVector::from_column_slice(zk) - H * &xp;
-            x = &xp + &K * &e;
-            innov.push(e);
+        let K = steady_gain(F, H, Q, R)?;
+        let Abar = F * (DMatrix::identity(n, n) - &K * H);
+        let radius = Abar
+            .complex_eigenvalues()
+            .iter()
+            .map(|c| c.norm())
+            .fold(0.0, f64::max);
+        if radius.is_nan() || radius >= 1.0 {
+            return Err(format!(
+                "the filter at the start values is unstable (spectral radius of F(I − KH) is {radius:.4}): ALS needs a stable filter"
+            ));
         }
-        let e = &innov[BURN_IN..];
-        samples += e.len();
-        for j in 0..lags {
-            for k in j..e.len() {
-                sums[j] += &e[k] * e[k - j].transpose();
-                counts[j] += 1;
+        let mut sums = vec![DMatrix::<f64>::zeros(m, m); lags];
+        let mut counts = vec![0usize; lags];
+        let mut samples = 0;
+        for s in &data.sequences {
+            if s.steps <= BURN_IN {
+                continue;
+            }
+            let mut x = model.x0.clone();
+            let mut innov: Vec<DVector<f64>> = Vec::with_capacity(s.steps);
+            for zk in s.z.chunks(m) {
+                let xp = F * &x;
+                let e = DVector::from_column_slice(zk) - H * &xp;
+                x = &xp + &K * &e;
+                innov.push(e);
+            }
+            let e = &innov[BURN_IN..];
+            samples += e.len();
+            for j in 0..lags {
+                for k in j..e.len() {
+                    sums[j] += &e[k] * e[k - j].transpose();
+                    counts[j] += 1;
+                }
             }
         }
+        if counts.iter().any(|&c| c < 10 * m * m) || samples < 4 * lags {
+            return Err(format!(
+                "the record is too short for {lags} lags: {samples} innovations after dropping the first {BURN_IN} steps of each sequence"
+            ));
+        }
+        let empirical = sums
+            .iter()
+            .zip(&counts)
+            .flat_map(|(s, &c)| (s / c as f64).iter().copied().collect::<Vec<_>>())
+            .collect();
+        // One Lyapunov solve per term: vec P = (I − Ā⊗Ā)⁻¹ vec(B), from one LU.
+        let nn = n * n;
+        let kron = Mat::<f64>::from_fn(nn, nn, |r, c| {
+            let (i1, i2) = (r / n, r % n);
+            let (j1, j2) = (c / n, c % n);
+            let id = if r == c { 1.0 } else { 0.0 };
+            id - Abar[(i1, j1)] * Abar[(i2, j2)]
+        });
+        Ok(Autocovariances {
+            H: H.clone(),
+            FK: F * &K,
+            Abar,
+            lu: kron.partial_piv_lu(),
+            lags,
+            empirical,
+            samples,
+            spectral_radius: radius,
+        })
     }
-    if counts.iter().any(|&c| c < 10 * m * m) || samples < 4 * lags {
-        return Err(format!(
-            "the record is too short for {lags} lags: {samples} innovations after dropping the first {BURN_IN} steps of each sequence"
-        ));
-    }
-    let emp: Vec<DMatrix<f64>> = sums
-        .iter()
-        .zip(&counts)
-        .map(|(s, &c)| s / c as f64)
-        .collect();
-    // One Lyapunov solve per term: vec P = (I − Ā⊗Ā)⁻¹ vec(B).
-    let nn = n * n;
-    let kron = Mat::<f64>::from_fn(nn, nn, |r, c| {
-        let (i1, i2) = (r / n, r % n);
-        let (j1, j2) = (c / n, c % n);
-        let id = if r == c { 1.0 } else { 0.0 };
-        id - Abar[(i1, j1)] * Abar[(i2, j2)]
-    });
-    let lu = kron.partial_piv_lu();
-    let lyap = |B: &DMatrix<f64>| -> DMatrix<f64> {
-        let rhs = Mat::<f64>::from_fn(nn, 1, |r, _| B[(r / n, r % n)]);
-        let sol = lu.solve(&rhs);
-        DMatrix::from_fn(n, n, |i, j| sol[(i * n + j, 0)])
-    };
-    let FK = F * &K;
-    // The autocovariances a term with covariance Qt (process) or Rt (measurement) gives.
-    let columns = |Qt: &DMatrix<f64>, Rt: &DMatrix<f64>| -> Vec<f64> {
-        let P = lyap(&(Qt + &FK * Rt * FK.transpose()));
-        let mut out = Vec::with_capacity(lags * m * m);
+
+    /// The autocovariances (stacked like [`Self::empirical`]) that a process noise term of
+    /// covariance `Qt` (n × n) and a measurement noise term `Rt` (m × m) give.
+    pub(crate) fn column(&self, Qt: &DMatrix<f64>, Rt: &DMatrix<f64>) -> Vec<f64> {
+        let (n, H, Abar, FK) = (self.Abar.nrows(), &self.H, &self.Abar, &self.FK);
+        let B = Qt + FK * Rt * FK.transpose();
+        let rhs = Mat::<f64>::from_fn(n * n, 1, |r, _| B[(r / n, r % n)]);
+        let sol = self.lu.solve(&rhs);
+        let P = DMatrix::from_fn(n, n, |i, j| sol[(i * n + j, 0)]);
+        let m = H.nrows();
+        let mut out = Vec::with_capacity(self.lags * m * m);
+        // Ā^j and Ā^{j−1}, advanced together.
         let mut Aj = DMatrix::<f64>::identity(n, n);
-        for j in 0..lags {
+        let mut Ajm1 = DMatrix::<f64>::identity(n, n);
+        for j in 0..self.lags {
             let mut C = H * &Aj * &P * H.transpose();
             if j == 0 {
                 C += Rt;
             } else {
-                let Ajm1 = if j == 1 {
-                    DMatrix::identity(n, n)
-                } else {
-                    Abar.pow((j - 1) as u32)
-                };
-                C -= H * Ajm1 * &FK * Rt;
+                C -= H * &Ajm1 * FK * Rt;
+                Ajm1 = Abar * Ajm1;
             }
             out.extend(C.iter().copied());
-            Aj = &Abar * Aj;
+            Aj = Abar * Aj;
         }
         out
-    };
-    let zq = DMatrix::<f64>::zeros(n, n);
-    let zr = DMatrix::<f64>::zeros(m, m);
-    let p = start.len();
-    let free: Vec<usize> = (0..p).filter(|&i| !fixed[i]).collect();
-    let rows = lags * m * m;
-    // The right-hand side, less what fixed coefficients and fixed parameters contribute.
-    let mut b: Vec<f64> = emp.iter().flat_map(|c| c.iter().copied()).collect();
-    let mut cols: Vec<Vec<f64>> = vec![vec![0.0; rows]; p];
-    for (model_q, is_q) in [(model.q, true), (model.r, false)] {
-        for t in &model_q.terms {
-            let col = if is_q {
-                columns(&t.basis, &zr)
-            } else {
-                columns(&zq, &t.basis)
-            };
-            match t.coef {
-                Coef::Param(i) if !fixed[i] => {
-                    for (a, c) in cols[i].iter_mut().zip(&col) {
-                        *a += c;
-                    }
-                }
-                Coef::Param(i) => b.iter_mut().zip(&col).for_each(|(y, c)| *y -= start[i] * c),
-                Coef::Fixed(v) => b.iter_mut().zip(&col).for_each(|(y, c)| *y -= v * c),
-            }
-        }
     }
-    // Columns scaled to unit norm: the parameters' scales differ by orders of magnitude.
-    let scale: Vec<f64> = free
-        .iter()
-        .map(|&i| {
-            cols[i]
-                .iter()
-                .map(|v| v * v)
-                .sum::<f64>()
-                .sqrt()
-                .max(f64::MIN_POSITIVE)
-        })
-        .collect();
-    let A = Mat::<f64>::from_fn(rows, free.len(), |r, c| cols[free[c]][r] / scale[c]);
+}
+
+/// The least-squares fit of `cols` (k columns of `rows` values) to `b` with the unknowns in
+/// `cones` (clarabel's, in the columns' order): the constrained solution and the
+/// unconstrained one. The normal equations are formed in faer; clarabel solves
+/// min ½ x'(A'A)x − (A'b)'x subject to −x + s = 0, s in the cones.
+pub(crate) fn constrained_ls(
+    cols: &[Vec<f64>],
+    b: &[f64],
+    cones: &[SupportedConeT<f64>],
+) -> Result<(Vec<f64>, Vec<f64>), String> {
+    let (rows, k) = (b.len(), cols.len());
+    let A = Mat::<f64>::from_fn(rows, k, |r, c| cols[c][r]);
     let bm = Mat::<f64>::from_fn(rows, 1, |r, _| b[r]);
     let ata = A.transpose() * &A;
     let atb = A.transpose() * &bm;
-    let k = free.len();
-    // Unconstrained least squares, to report what the constraint changed.
-    let unconstrained_scaled = ata.partial_piv_lu().solve(&atb);
-    // min ½ θ'(A'A)θ − (A'b)'θ  s.t. θ ≥ 0 (clarabel: −θ + s = 0, s ≥ 0).
+    let unconstrained = ata.partial_piv_lu().solve(&atb);
     let mut colptr = vec![0usize];
     let (mut rowval, mut nzval) = (Vec::new(), Vec::new());
     for c in 0..k {
@@ -282,12 +314,11 @@ pub fn estimate(
     let Pm = CscMatrix::new(k, k, colptr, rowval, nzval);
     let q: Vec<f64> = (0..k).map(|i| -atb[(i, 0)]).collect();
     let Am = CscMatrix::new(k, k, (0..=k).collect(), (0..k).collect(), vec![-1.0; k]);
-    let cones = [NonnegativeConeT(k)];
     let settings = DefaultSettings::<f64> {
         verbose: false,
         ..DefaultSettings::default()
     };
-    let mut solver = DefaultSolver::new(&Pm, &q, &Am, &vec![0.0; k], &cones, settings)
+    let mut solver = DefaultSolver::new(&Pm, &q, &Am, &vec![0.0; k], cones, settings)
         .map_err(|e| format!("the least-squares problem could not be set up: {e:?}"))?;
     solver.solve();
     if !matches!(
@@ -299,44 +330,104 @@ pub fn estimate(
             solver.solution.status
         ));
     }
+    let unc = (0..k).map(|i| unconstrained[(i, 0)]).collect();
+    Ok((solver.solution.x.clone(), unc))
+}
+
+/// Root-mean-square difference between `fitted` and `b`.
+pub(crate) fn rms(fitted: &[f64], b: &[f64]) -> f64 {
+    let ss: f64 = fitted.iter().zip(b).map(|(f, y)| (f - y).powi(2)).sum();
+    (ss / b.len().max(1) as f64).sqrt()
+}
+
+/// Estimate the parameters of `model` not `fixed` from `data` (complete records) with `lags`
+/// autocovariance lags, using the steady-state gain of the filter at `start`.
+pub fn estimate(
+    model: &AlsModel<'_>,
+    data: &Measurements,
+    start: &[f64],
+    fixed: &[bool],
+    lags: usize,
+) -> Result<AlsEstimate, String> {
+    let (n, m) = (model.F.nrows(), model.H.nrows());
+    let ac = Autocovariances::new(
+        model,
+        data,
+        &model.q.build(start),
+        &model.r.build(start),
+        lags,
+    )?;
+    let zq = DMatrix::<f64>::zeros(n, n);
+    let zr = DMatrix::<f64>::zeros(m, m);
+    let p = start.len();
+    let free: Vec<usize> = (0..p).filter(|&i| !fixed[i]).collect();
+    let rows = ac.empirical.len();
+    // The right-hand side, less what fixed coefficients and fixed parameters contribute.
+    let mut b = ac.empirical.clone();
+    let mut cols: Vec<Vec<f64>> = vec![vec![0.0; rows]; p];
+    for (model_q, is_q) in [(model.q, true), (model.r, false)] {
+        for t in &model_q.terms {
+            let col = if is_q {
+                ac.column(&t.basis, &zr)
+            } else {
+                ac.column(&zq, &t.basis)
+            };
+            match t.coef {
+                Coef::Param(i) if !fixed[i] => {
+                    for (a, c) in cols[i].iter_mut().zip(&col) {
+                        *a += c;
+                    }
+                }
+                Coef::Param(i) => b.iter_mut().zip(&col).for_each(|(y, c)| *y -= start[i] * c),
+                Coef::Fixed(v) => b.iter_mut().zip(&col).for_each(|(y, c)| *y -= v * c),
+            }
+        }
+    }
+    // Columns scaled to unit norm: the parameters' scales differ by orders of magnitude
+    // (a positive scaling keeps the nonnegative cone).
+    let scale: Vec<f64> = free
+        .iter()
+        .map(|&i| {
+            cols[i]
+                .iter()
+                .map(|v| v * v)
+                .sum::<f64>()
+                .sqrt()
+                .max(f64::MIN_POSITIVE)
+        })
+        .collect();
+    let scaled: Vec<Vec<f64>> = free
+        .iter()
+        .zip(&scale)
+        .map(|(&i, s)| cols[i].iter().map(|v| v / s).collect())
+        .collect();
+    let (x, unc) = constrained_ls(&scaled, &b, &[NonnegativeConeT(free.len())])?;
     let mut theta = start.to_vec();
     let mut unconstrained = start.to_vec();
     let mut at_zero = Vec::new();
     // The interior-point solution approaches an active bound to its tolerance, not exactly:
     // in the unit-norm coordinates a value this far below the largest is the bound.
-    let largest = solver
-        .solution
-        .x
-        .iter()
-        .fold(0.0_f64, |a, v| a.max(v.abs()));
+    let largest = x.iter().fold(0.0_f64, |a, v| a.max(v.abs()));
     for (c, &i) in free.iter().enumerate() {
-        let x = solver.solution.x[c];
-        theta[i] = if x <= 1e-6 * largest {
+        theta[i] = if x[c] <= 1e-6 * largest {
             at_zero.push(i);
             0.0
         } else {
-            x / scale[c]
+            x[c] / scale[c]
         };
-        unconstrained[i] = unconstrained_scaled[(c, 0)] / scale[c];
+        unconstrained[i] = unc[c] / scale[c];
     }
     let fitted: Vec<f64> = (0..rows)
         .map(|r| free.iter().map(|&i| theta[i] * cols[i][r]).sum::<f64>())
         .collect();
-    let residual = (fitted
-        .iter()
-        .zip(&b)
-        .map(|(f, y)| (f - y).powi(2))
-        .sum::<f64>()
-        / rows as f64)
-        .sqrt();
     Ok(AlsEstimate {
         theta,
         unconstrained,
         at_zero,
-        residual,
+        residual: rms(&fitted, &b),
         lags,
-        samples,
-        spectral_radius: radius,
+        samples: ac.samples,
+        spectral_radius: ac.spectral_radius,
         passes: 1,
     })
 }

@@ -1,7 +1,11 @@
 //! Q and R from recorded measurements alone: the exact likelihood of a linear filter and its
-//! maximum ([`ml`]), and the data such estimates are tried on ([`simulate`]).
+//! maximum ([`ml`]), autocovariance least squares ([`als`]; with a full Q or R,
+//! `als_full`, under the `sdp` feature), and the data such estimates are tried on
+//! ([`simulate`]).
 
 pub mod als;
+#[cfg(feature = "sdp")]
+pub mod als_full;
 mod files;
 mod likelihood;
 mod measured;

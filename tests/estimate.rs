@@ -104,10 +104,19 @@ fn tune_against_recorded_measurements_recovers_the_truth() {
         rec.to_str().unwrap(),
         "--out",
         out.to_str().unwrap(),
-        "--quiet",
     ]);
     assert_eq!(code, Some(0), "{stdout}{err}");
+    // One record is one draw: confirmed once on it, not on "fresh seeds" that would all
+    // give the same numbers.
+    assert!(
+        stdout.contains("the recorded measurements pass the gate")
+            && !stdout.contains("fresh seeds pass"),
+        "{stdout}"
+    );
     let tuned: toml::Table = std::fs::read_to_string(&out).unwrap().parse().unwrap();
+    let c = &tuned["provenance"]["confirmation"];
+    assert_eq!(c["recorded"].as_bool(), Some(true));
+    assert_eq!(c["seeds"].as_integer(), Some(1));
     let (prob, _) = cv2d();
     for (name, truth) in prob
         .params()
@@ -362,4 +371,39 @@ fn bad_records_are_one_line_errors() {
         assert_eq!(err.lines().count(), 1, "{name}: {err}");
         assert!(err.contains(want), "{name}: {err}");
     }
+}
+
+/// Without the `sdp` feature, `--full` says what the build lacks and how to get it.
+#[cfg(not(feature = "sdp"))]
+#[test]
+fn full_matrices_need_the_sdp_feature() {
+    let dir = tempfile::tempdir().unwrap();
+    let rec = dir.path().join("rec.csv");
+    let problem = common::problem_path("cv2d");
+    let problem = problem.to_str().unwrap();
+    let (code, _, err) = common::autotune(&[
+        "simulate",
+        problem,
+        "--out",
+        rec.to_str().unwrap(),
+        "--steps",
+        "500",
+    ]);
+    assert_eq!(code, Some(0), "{err}");
+    let (code, _, err) = common::autotune(&[
+        "estimate",
+        problem,
+        "--measurements",
+        rec.to_str().unwrap(),
+        "--method",
+        "als",
+        "--full",
+        "qr",
+    ]);
+    assert_eq!(code, Some(2), "{err}");
+    assert!(
+        err.contains("--full") && err.contains("--features sdp"),
+        "{err}"
+    );
+    assert_eq!(err.trim().lines().count(), 1, "{err}");
 }

@@ -270,14 +270,15 @@ pub fn run_from(
         if a.json {
             writeln!(stdout, "{json}")?;
         } else if !a.quiet {
+            let scoring = if result.confirmation.recorded {
+                "each scored on the recorded measurements".to_string()
+            } else {
+                format!("{} scoring", format!("{:?}", result.scoring).to_lowercase())
+            };
             writeln!(
                 stdout,
-                "autotune tune {}: {} evaluations ({} scoring) in {:.2} s, {} diverged",
-                info.name,
-                result.evaluations,
-                format!("{:?}", result.scoring).to_lowercase(),
-                result.seconds,
-                result.diverged_evaluations
+                "autotune tune {}: {} evaluations ({scoring}) in {:.2} s, {} diverged",
+                info.name, result.evaluations, result.seconds, result.diverged_evaluations
             )?;
             if result.status == TuneStatus::BudgetExhausted {
                 writeln!(
@@ -294,6 +295,12 @@ pub fn run_from(
                     r.advice,
                     fmt_g(r.initial),
                     fmt_g(r.tuned)
+                )?;
+            }
+            if result.confirmation.recorded {
+                writeln!(
+                    stdout,
+                    "  (how precisely one record determines each value: `autotune estimate --method ml` gives standard errors)"
                 )?;
             }
             if let Some(lines) = crate::report::advice::family_finding(&result) {
@@ -316,15 +323,24 @@ pub fn run_from(
             };
             let mut parts: Vec<String> = result.after.nees.iter().map(line).collect();
             parts.push(line(&result.after.nis));
-            writeln!(
-                stdout,
-                "  confirmation ({} runs × {} steps, seeds from {}): {}; first seed: {}",
-                result.runs,
-                result.steps,
-                result.confirm_seed,
-                result.confirmation.text(),
-                parts.join("; ")
-            )?;
+            if result.confirmation.recorded {
+                writeln!(
+                    stdout,
+                    "  confirmation: {}: {}",
+                    result.confirmation.text(),
+                    parts.join("; ")
+                )?;
+            } else {
+                writeln!(
+                    stdout,
+                    "  confirmation ({} runs × {} steps, seeds from {}): {}; first seed: {}",
+                    result.runs,
+                    result.steps,
+                    result.confirm_seed,
+                    result.confirmation.text(),
+                    parts.join("; ")
+                )?;
+            }
             writeln!(stdout, "  wrote {}", out.display())?;
             if let Some(dir) = &a.report {
                 writeln!(

@@ -118,6 +118,10 @@ impl Experiment for MeasuredExperiment {
         Ok(acc)
     }
 
+    fn seed_free(&self) -> bool {
+        true
+    }
+
     fn supports(&self, engine: Engine) -> bool {
         engine != Engine::Linear
     }

@@ -225,4 +225,11 @@ pub trait Experiment: Sync {
     fn truth_values(&self) -> Option<Vec<f64>> {
         None
     }
+
+    /// Whether the sums are the same for every seed: a filter run over one recorded data
+    /// set rather than a simulation. The tuner then confirms on that record once instead of
+    /// on fresh seeds, and reports no seed-to-seed resolution (it would be zero).
+    fn seed_free(&self) -> bool {
+        false
+    }
 }

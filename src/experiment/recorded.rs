@@ -91,4 +91,8 @@ impl Experiment for RecordedExperiment {
         }
         Ok(r.sums.clone())
     }
+
+    fn seed_free(&self) -> bool {
+        true
+    }
 }

@@ -149,6 +149,10 @@ impl Experiment for Problem {
     fn truth_values(&self) -> Option<Vec<f64>> {
         self.experiment().truth_values()
     }
+
+    fn seed_free(&self) -> bool {
+        self.experiment().seed_free()
+    }
 }
 
 /// SHA-256 of bytes as lowercase hex.

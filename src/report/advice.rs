@@ -180,11 +180,13 @@ pub fn recommendations(
         } else {
             format!("{}: {what}{action}", p.name)
         };
-        let advice = if res.is_none() && !result.fixed[i] && !unsearched {
-            format!("{advice} (resolution not assessed: the search stopped on its budget)")
-        } else {
-            advice
-        };
+        // On one record the reports say once why there is no resolution.
+        let advice =
+            if res.is_none() && !result.fixed[i] && !unsearched && !result.confirmation.recorded {
+                format!("{advice} (resolution not assessed: the search stopped on its budget)")
+            } else {
+                advice
+            };
         rows.push(Recommendation {
             param: p.name.clone(),
             unit: p.unit.clone(),
@@ -232,10 +234,14 @@ pub fn family_finding(result: &TuneResult) -> Option<Vec<String>> {
     }
     let a = &result.after;
     let c = &result.confirmation;
-    let mut lines = vec![format!(
-        "no value of the free parameters makes this filter consistent: at the best fit {} of {} fresh seeds pass the gate (a consistent filter passes at least {})",
-        c.passed, c.seeds, c.band_low
-    )];
+    let mut lines = vec![if c.recorded {
+        "no value of the free parameters makes this filter consistent with the recorded measurements: at the best fit they fail the gate".to_string()
+    } else {
+        format!(
+            "no value of the free parameters makes this filter consistent: at the best fit {} of {} fresh seeds pass the gate (a consistent filter passes at least {})",
+            c.passed, c.seeds, c.band_low
+        )
+    }];
     let stats: Vec<String> = a
         .nees
         .iter()

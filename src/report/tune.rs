@@ -175,11 +175,18 @@ pub fn tune_markdown(
         "- refinement: {} evaluations of the gate's deviates (their sensitivity to the parameters and the steps on more runs)",
         r.refine_evaluations
     );
-    let _ = writeln!(
-        o,
-        "- resolution: a parameter is \"determined within ±x%\" when the estimate the gate's N runs would give lies within that factor of it with about 95% confidence (two standard deviations of a sandwich covariance over the {} confirmation seeds: Monte Carlo noise only)",
-        r.confirmation.seeds
-    );
+    if r.confirmation.recorded {
+        let _ = writeln!(
+            o,
+            "- resolution: not assessed, since one record gives one draw of the statistics (`autotune estimate --method ml` gives standard errors from the likelihood)"
+        );
+    } else {
+        let _ = writeln!(
+            o,
+            "- resolution: a parameter is \"determined within ±x%\" when the estimate the gate's N runs would give lies within that factor of it with about 95% confidence (two standard deviations of a sandwich covariance over the {} confirmation seeds: Monte Carlo noise only)",
+            r.confirmation.seeds
+        );
+    }
     o
 }
 

@@ -55,6 +55,8 @@ struct Confirmation {
     seeds: usize,
     passed: usize,
     band_low: usize,
+    /// Confirmed on the recorded measurements the search scored on (no fresh seeds).
+    recorded: bool,
     verdict: String,
     anees: Option<f64>,
     anees_interval: Option<[f64; 2]>,
@@ -186,6 +188,7 @@ pub fn tuned_config_toml(experiment: &dyn Experiment, result: &TuneResult) -> St
             seeds: result.confirmation.seeds,
             passed: result.confirmation.passed,
             band_low: result.confirmation.band_low,
+            recorded: result.confirmation.recorded,
             verdict: a.verdict.label().to_string(),
             anees: a.nees.as_ref().map(|s| s.time_average),
             anees_interval: a

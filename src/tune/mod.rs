@@ -198,11 +198,18 @@ pub fn tune(
         .confirm_seed()
         .unwrap_or_else(|| default_confirm_seed(mc.seed()));
     let before = gate.report(start, mc.runs(), confirm_seed);
-    let (confirmation, after, deviates) =
-        refine::confirm(&gate, &tuned, confirm_seed, settings.confirm_seeds());
+    let recorded = model.seed_free();
+    let (confirmation, after, deviates) = refine::confirm(
+        &gate,
+        &tuned,
+        confirm_seed,
+        settings.confirm_seeds(),
+        recorded,
+    );
 
-    // The resolution means something only at a converged optimum.
-    let resolution = if !searched && cost.dim() > 0 {
+    // The resolution means something only at a converged optimum, and the seed-to-seed
+    // spread it rests on does not exist for one record.
+    let resolution = if recorded || (!searched && cost.dim() > 0) {
         None
     } else if point.is_empty() || !best.cost.is_finite() {
         Some(vec![Resolution::FIXED; params.len()])

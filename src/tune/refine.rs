@@ -184,6 +184,9 @@ pub struct Confirmation {
     /// The fewest passes a consistent filter gives with probability at least 99%: the
     /// lower end of the binomial band of K seeds at a pass rate of 1 − α.
     pub band_low: usize,
+    /// The experiment is one recorded data set ([`crate::experiment::Experiment::seed_free`]):
+    /// the gate ran once on it, and it must pass.
+    pub recorded: bool,
 }
 
 impl Confirmation {
@@ -194,6 +197,12 @@ impl Confirmation {
 
     /// "19 of 20 fresh seeds pass (a consistent filter passes ≥ 16 with 99% probability)".
     pub fn text(&self) -> String {
+        if self.recorded {
+            let how = if self.passed == 1 { "pass" } else { "fail" };
+            return format!(
+                "the recorded measurements {how} the gate (one record, so no fresh seeds to confirm on)"
+            );
+        }
         format!(
             "{} of {} fresh seeds pass the gate (a consistent filter passes at least {} with 99% probability)",
             self.passed, self.seeds, self.band_low
@@ -214,13 +223,16 @@ pub fn band_low(seeds: usize, alpha: f64) -> usize {
 }
 
 /// The confirmation: the gate at `theta` on `seeds` fresh seeds from `first` at the
-/// problem's N. Returns the count, the first seed's report, and each seed's deviates.
+/// problem's N, or once when the experiment is `recorded` data. Returns the count, the
+/// first seed's report, and each seed's deviates.
 pub(super) fn confirm(
     gate: &Gate<'_>,
     theta: &[f64],
     first: u64,
     seeds: usize,
+    recorded: bool,
 ) -> (Confirmation, ConsistencyReport, Vec<DVector<f64>>) {
+    let seeds = if recorded { 1 } else { seeds };
     let n = gate.mc.runs();
     let mut passed = 0;
     let mut deviates = Vec::with_capacity(seeds);
@@ -240,7 +252,12 @@ pub(super) fn confirm(
         first_seed: first,
         seeds,
         passed,
-        band_low: band_low(seeds, gate.mc.alpha()),
+        band_low: if recorded {
+            1
+        } else {
+            band_low(seeds, gate.mc.alpha())
+        },
+        recorded,
     };
     let report = first_report.unwrap_or_else(|| gate.report(theta, n, first));
     (confirmation, report, deviates)

@@ -297,8 +297,17 @@ pub(crate) fn constrained_ls(
     cones: &[SupportedConeT<f64>],
 ) -> Result<(Vec<f64>, Vec<f64>), String> {
     let (rows, k) = (b.len(), cols.len());
+    // The right-hand side at unit norm, and the solution scaled back: autocovariances of
+    // 1e-5 rad² would put the whole objective below the solver's absolute tolerances (a
+    // positive scale keeps every cone what it is).
+    let b_norm = b.iter().map(|v| v * v).sum::<f64>().sqrt();
+    let b_scale = if b_norm > 0.0 && b_norm.is_finite() {
+        b_norm
+    } else {
+        1.0
+    };
     let A = Mat::<f64>::from_fn(rows, k, |r, c| cols[c][r]);
-    let bm = Mat::<f64>::from_fn(rows, 1, |r, _| b[r]);
+    let bm = Mat::<f64>::from_fn(rows, 1, |r, _| b[r] / b_scale);
     let ata = A.transpose() * &A;
     let atb = A.transpose() * &bm;
     let unconstrained = ata.partial_piv_lu().solve(&atb);
@@ -314,8 +323,13 @@ pub(crate) fn constrained_ls(
     let Pm = CscMatrix::new(k, k, colptr, rowval, nzval);
     let q: Vec<f64> = (0..k).map(|i| -atb[(i, 0)]).collect();
     let Am = CscMatrix::new(k, k, (0..=k).collect(), (0..k).collect(), vec![-1.0; k]);
+    // Tighter than clarabel's 1e-8 defaults: a weakly determined parameter (a flat valley
+    // of the objective) otherwise moves by 1e-5 of itself within the tolerance.
     let settings = DefaultSettings::<f64> {
         verbose: false,
+        tol_gap_abs: 1e-11,
+        tol_gap_rel: 1e-11,
+        tol_feas: 1e-11,
         ..DefaultSettings::default()
     };
     let mut solver = DefaultSolver::new(&Pm, &q, &Am, &vec![0.0; k], cones, settings)
@@ -330,8 +344,9 @@ pub(crate) fn constrained_ls(
             solver.solution.status
         ));
     }
-    let unc = (0..k).map(|i| unconstrained[(i, 0)]).collect();
-    Ok((solver.solution.x.clone(), unc))
+    let unc = (0..k).map(|i| unconstrained[(i, 0)] * b_scale).collect();
+    let x = solver.solution.x.iter().map(|v| v * b_scale).collect();
+    Ok((x, unc))
 }
 
 /// Root-mean-square difference between `fitted` and `b`.

@@ -308,9 +308,11 @@ fn als_refuses_gaps_short_records_and_unstable_filters() {
 }
 
 /// `tune --init ml` (and `als`) start from the estimate on a record simulated from the
-/// truth: the search skips its global stage and needs fewer evaluations than from the file's
-/// start (measured on cv2d: 572 and 565 against 1 391) to reach the same tuned config (to
-/// 1e-4 relative: both land on the exact-scoring optimum).
+/// truth: the search skips its global stage and needs fewer than half the evaluations from
+/// the file's start to reach the same tuned config (to 1e-4 relative). Measured on cv2d:
+/// exact scoring 572 (ml) and 565 (als) against 1 391; Monte Carlo scoring 198 (ml) against
+/// 637, the two tuned configs within 4e-5 of each other (common random numbers: the same
+/// optimum of the same noisy objective).
 #[test]
 fn tune_from_an_estimate_needs_fewer_evaluations() {
     let dir = tempfile::tempdir().unwrap();
@@ -326,13 +328,21 @@ fn tune_from_an_estimate_needs_fewer_evaluations() {
         v.get("result").cloned().unwrap_or(v)
     };
     let default = run(&[]);
-    for method in ["ml", "als"] {
-        let init = run(&["--init", method]);
+    let mc_default = run(&["--scoring", "monte_carlo"]);
+    for (method, default, scoring) in [
+        ("ml", &default, "exact"),
+        ("als", &default, "exact"),
+        ("ml", &mc_default, "monte_carlo"),
+    ] {
+        let init = run(&["--init", method, "--scoring", scoring]);
         let (e0, e1) = (
             default["evaluations"].as_u64().unwrap(),
             init["evaluations"].as_u64().unwrap(),
         );
-        assert!(e1 * 2 < e0, "{method}: {e1} evaluations against {e0}");
+        assert!(
+            e1 * 2 < e0,
+            "{method}, {scoring}: {e1} evaluations against {e0}"
+        );
         for (a, b) in default["tuned"]
             .as_array()
             .unwrap()
@@ -340,7 +350,10 @@ fn tune_from_an_estimate_needs_fewer_evaluations() {
             .zip(init["tuned"].as_array().unwrap())
         {
             let (a, b) = (a.as_f64().unwrap(), b.as_f64().unwrap());
-            assert!((a / b - 1.0).abs() < 1e-4, "{method}: {a} vs {b}");
+            assert!(
+                (a / b - 1.0).abs() < 1e-4,
+                "{method}, {scoring}: {a} vs {b}"
+            );
         }
     }
 }

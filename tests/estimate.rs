@@ -466,3 +466,31 @@ fn full_matrices_need_the_sdp_feature() {
     );
     assert_eq!(err.trim().lines().count(), 1, "{err}");
 }
+
+/// Every parameter fixed: ALS has nothing to estimate and says so (exit 2), where the
+/// solver would otherwise be handed an empty problem.
+#[test]
+fn als_with_every_parameter_fixed_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let text = std::fs::read_to_string(common::problem_path("cv2d"))
+        .unwrap()
+        .replace("unit = \"m²\"", "unit = \"m²\"\nfixed = true")
+        .replace("unit = \"(m/s²)²\"", "unit = \"(m/s²)²\"\nfixed = true");
+    let problem = dir.path().join("fixed.toml");
+    std::fs::write(&problem, text).unwrap();
+    let rec = dir.path().join("rec.csv");
+    let p = problem.to_str().unwrap();
+    let (code, _, err) = common::autotune(&["simulate", p, "--out", rec.to_str().unwrap()]);
+    assert_eq!(code, Some(0), "{err}");
+    let (code, _, err) = common::autotune(&[
+        "estimate",
+        p,
+        "--measurements",
+        rec.to_str().unwrap(),
+        "--method",
+        "als",
+    ]);
+    assert_eq!(code, Some(2), "{err}");
+    assert!(err.contains("every parameter is fixed"), "{err}");
+    assert_eq!(err.trim().lines().count(), 1, "{err}");
+}

@@ -151,6 +151,30 @@ pub(super) fn run(
         };
         let eig = |v: Option<f64>| v.map_or("-".to_string(), fmt_g);
         if matches!(full, FullMatrix::Q | FullMatrix::Both) {
+            // What each input is: its column of G, in the state's components.
+            let states = exp.state_names();
+            for (j, name) in inputs.iter().enumerate() {
+                let parts: Vec<String> = (0..est.G.nrows())
+                    .filter(|&i| est.G[(i, j)].abs() > 0.0)
+                    .map(|i| {
+                        let s = states
+                            .get(i)
+                            .map_or_else(|| format!("x{}", i + 1), String::clone);
+                        format!("{} {s}", fmt_g(est.G[(i, j)]))
+                    })
+                    .collect();
+                writeln!(o, "input {name}: drives {}", parts.join(", "))?;
+            }
+            let fixed_q = model.q.terms.iter().any(|t| match t.coef {
+                Coef::Param(i) => params.params[i].fixed,
+                Coef::Fixed(_) => true,
+            });
+            if fixed_q {
+                writeln!(
+                    o,
+                    "(the full W takes the place of every Q term, the fixed ones included)"
+                )?;
+            }
             matrix(
                 o,
                 "W, the covariance of the process noise inputs (Q = G W G'; units of each input's parameter):",
@@ -180,8 +204,13 @@ pub(super) fn run(
             FullMatrix::Both => None,
         };
         if let Some(cov) = structured {
+            let mut shown = Vec::new();
             for t in &cov.terms {
                 if let Coef::Param(i) = t.coef {
+                    if shown.contains(&i) {
+                        continue;
+                    }
+                    shown.push(i);
                     let d = &params.params[i];
                     writeln!(
                         o,
@@ -196,8 +225,9 @@ pub(super) fn run(
         }
         writeln!(
             o,
-            "rms residual of the autocovariances {}; {} pass(es), last filter's spectral radius of F(I − KH) {:.4}; {:.3} s",
+            "rms residual of the autocovariances {} (the unconstrained solution made semidefinite: {}); {} pass(es), last filter's spectral radius of F(I − KH) {:.4}; {:.3} s",
             fmt_g(est.residual),
+            fmt_g(est.projected_residual),
             est.passes,
             est.spectral_radius,
             took

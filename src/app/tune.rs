@@ -58,7 +58,8 @@ pub struct TuneOptions {
     /// Seed of the first confirmation run.
     #[arg(long, allow_negative_numbers = true)]
     confirm_seed: Option<u64>,
-    /// Number of fresh seeds the tuned filter is confirmed on (default 20).
+    /// Number of fresh seeds the tuned filter is confirmed on (default 20; with
+    /// --measurements the record is one draw, confirmed once).
     #[arg(long, allow_negative_numbers = true)]
     confirm_seeds: Option<usize>,
     /// Print the full report as JSON on stdout instead of the summary.

@@ -30,9 +30,23 @@ use serde::Serialize;
 use super::Measurements;
 use crate::params::{Coef, CovModel};
 
-/// Steps dropped at the start of each sequence before the autocovariances, so that the
-/// filter's transient from its initial estimate does not enter them.
+/// The fewest steps dropped at the start of each sequence before the autocovariances, so
+/// that the filter's transient from its initial estimate does not enter them; a slowly
+/// settling filter (spectral radius ρ of Ā near 1) drops until ρ^k < 1e-6.
 pub const BURN_IN: usize = 50;
+
+/// Steps dropped for a fixed-gain filter whose error dynamics have spectral radius `rho`.
+fn burn_in(rho: f64) -> usize {
+    if rho <= 0.0 {
+        return BURN_IN;
+    }
+    let settle = (1e-6_f64.ln() / rho.ln()).ceil();
+    if settle.is_finite() {
+        BURN_IN.max(settle as usize)
+    } else {
+        BURN_IN
+    }
+}
 
 /// The ALS estimate.
 #[derive(Debug, Clone, Serialize)]
@@ -65,6 +79,7 @@ pub enum FullMatrix {
     /// The measurement noise covariance.
     R,
     /// Both.
+    #[serde(rename = "qr")]
     Both,
 }
 
@@ -104,7 +119,7 @@ pub struct AlsModel<'a> {
 }
 
 /// The steady-state Kalman gain of the filter with Q and R, by iterating the Riccati
-/// recursion from R-scaled identity.
+/// recursion from the identity.
 fn steady_gain(
     F: &DMatrix<f64>,
     H: &DMatrix<f64>,
@@ -205,11 +220,12 @@ impl Autocovariances {
                 "the filter at the start values is unstable (spectral radius of F(I − KH) is {radius:.4}): ALS needs a stable filter"
             ));
         }
+        let burn = burn_in(radius);
         let mut sums = vec![DMatrix::<f64>::zeros(m, m); lags];
         let mut counts = vec![0usize; lags];
         let mut samples = 0;
         for s in &data.sequences {
-            if s.steps <= BURN_IN {
+            if s.steps <= burn {
                 continue;
             }
             let mut x = model.x0.clone();
@@ -220,7 +236,7 @@ impl Autocovariances {
                 x = &xp + &K * &e;
                 innov.push(e);
             }
-            let e = &innov[BURN_IN..];
+            let e = &innov[burn..];
             samples += e.len();
             for j in 0..lags {
                 for k in j..e.len() {
@@ -231,7 +247,7 @@ impl Autocovariances {
         }
         if counts.iter().any(|&c| c < 10 * m * m) || samples < 4 * lags {
             return Err(format!(
-                "the record is too short for {lags} lags: {samples} innovations after dropping the first {BURN_IN} steps of each sequence"
+                "the record is too short for {lags} lags: {samples} innovations after dropping the first {burn} steps of each sequence (the filter's transient)"
             ));
         }
         let empirical = sums
@@ -297,6 +313,9 @@ pub(crate) fn constrained_ls(
     cones: &[SupportedConeT<f64>],
 ) -> Result<(Vec<f64>, Vec<f64>), String> {
     let (rows, k) = (b.len(), cols.len());
+    if k == 0 {
+        return Err("there is nothing to estimate: every parameter is fixed".into());
+    }
     // The right-hand side at unit norm, and the solution scaled back: autocovariances of
     // 1e-5 rad² would put the whole objective below the solver's absolute tolerances (a
     // positive scale keeps every cone what it is).
@@ -347,6 +366,25 @@ pub(crate) fn constrained_ls(
     let unc = (0..k).map(|i| unconstrained[(i, 0)] * b_scale).collect();
     let x = solver.solution.x.iter().map(|v| v * b_scale).collect();
     Ok((x, unc))
+}
+
+/// Refuse unknowns the autocovariances do not determine (`what` names them in the message):
+/// a rank-deficient fit has no unique answer, whatever the solver returns.
+pub(crate) fn identified(cols: &[Vec<f64>], what: &str) -> Result<(), String> {
+    let (rows, k) = (cols.first().map_or(0, Vec::len), cols.len());
+    if k == 0 || rows == 0 {
+        return Err("there is nothing to estimate: every parameter is fixed".into());
+    }
+    let A = DMatrix::from_fn(rows, k, |r, c| cols[c][r]);
+    let sv = A.singular_values();
+    let top = sv.max();
+    let rank = sv.iter().filter(|&&s| s > 1e-8 * top).count();
+    if rank < k || !top.is_finite() {
+        return Err(format!(
+            "{what} not identified by these autocovariances: {k} unknowns in all, only {rank} independent (fewer free parameters or noise inputs, more lags)"
+        ));
+    }
+    Ok(())
 }
 
 /// Root-mean-square difference between `fitted` and `b`.
@@ -416,6 +454,7 @@ pub fn estimate(
         .zip(&scale)
         .map(|(&i, s)| cols[i].iter().map(|v| v / s).collect())
         .collect();
+    identified(&scaled, "the parameters are")?;
     let (x, unc) = constrained_ls(&scaled, &b, &[NonnegativeConeT(free.len())])?;
     let mut theta = start.to_vec();
     let mut unconstrained = start.to_vec();

@@ -20,7 +20,7 @@ use nalgebra::DMatrix;
 use serde::Serialize;
 
 use super::Measurements;
-use super::als::{AlsModel, Autocovariances, FullMatrix, constrained_ls, rms};
+use super::als::{AlsModel, Autocovariances, FullMatrix, constrained_ls, identified, rms};
 use crate::params::{Coef, CovModel};
 
 /// Eigenvalues this far below the largest count as zero (rank of a basis, the boundary of
@@ -47,14 +47,22 @@ pub struct FullEstimate {
     /// The measurement noise covariance R, m × m.
     #[serde(serialize_with = "rows")]
     pub R: DMatrix<f64>,
-    /// Every parameter: the structured matrix's estimated, the rest as started.
+    /// Every parameter: the structured matrix's estimated, the rest as started (a full Q
+    /// takes the place of every Q term, fixed ones included).
     pub theta: Vec<f64>,
-    /// Smallest eigenvalue of the estimated W (Q full) and R (R full): never below zero.
+    /// Free parameters of the structured matrix the constraint holds at zero.
+    pub at_zero: Vec<usize>,
+    /// Smallest eigenvalue of W (Q full) and R (R full) as the solver returned them: at
+    /// least −1e-6 of the largest (an estimate beyond that is refused); the reported
+    /// matrices have such round-off-sized negative eigenvalues set to zero.
     pub min_eigenvalue: [Option<f64>; 2],
     /// The same for the unconstrained least-squares solution (negative: indefinite).
     pub unconstrained_min_eigenvalue: [Option<f64>; 2],
     /// Root-mean-square residual of the fitted autocovariances (measurement units squared).
     pub residual: f64,
+    /// The same for the unconstrained solution with its negative eigenvalues (and negative
+    /// parameters) set to zero: a feasible point, so never below `residual`.
+    pub projected_residual: f64,
     /// Lags used.
     pub lags: usize,
     /// Innovations the autocovariances were formed from.
@@ -81,7 +89,14 @@ pub fn noise_inputs(q: &CovModel) -> (DMatrix<f64>, Vec<usize>) {
         let top = eig.eigenvalues.iter().fold(0.0_f64, |a, &v| a.max(v));
         for (j, &l) in eig.eigenvalues.iter().enumerate() {
             if l > REL_ZERO * top {
-                cols.push(eig.eigenvectors.column(j) * l.sqrt());
+                // An eigenvector's sign is arbitrary; the largest entry positive makes each
+                // input, and the sign of W's off-diagonal entries, mean the same every time.
+                let v = eig.eigenvectors.column(j);
+                let lead = v
+                    .iter()
+                    .fold(0.0_f64, |a, &x| if x.abs() > a.abs() { x } else { a });
+                let sign = if lead < 0.0 { -1.0 } else { 1.0 };
+                cols.push(v * (sign * l.sqrt()));
                 terms.push(ti);
             }
         }
@@ -121,20 +136,87 @@ fn min_eig(M: &DMatrix<f64>) -> f64 {
     sym.symmetric_eigenvalues().min()
 }
 
-/// `M` with eigenvalues below zero (the solver's tolerance, relative to the largest) set
-/// to zero, so that the constraint holds to round-off rather than to the solver's
-/// tolerance; and its smallest eigenvalue.
-fn clamp_psd(M: &DMatrix<f64>) -> (DMatrix<f64>, f64) {
+/// The nearest positive semidefinite matrix to `M` (Frobenius): its negative eigenvalues
+/// (and those within round-off of zero) set to zero.
+fn clamp_psd(M: &DMatrix<f64>) -> DMatrix<f64> {
     let eig = ((M + M.transpose()) * 0.5).symmetric_eigen();
     let top = eig.eigenvalues.iter().fold(0.0_f64, |a, &v| a.max(v));
     let vals = eig
         .eigenvalues
         .map(|v| if v <= REL_ZERO * top { 0.0 } else { v });
     let out = &eig.eigenvectors * DMatrix::from_diagonal(&vals) * eig.eigenvectors.transpose();
-    ((&out + out.transpose()) * 0.5, vals.min())
+    (&out + out.transpose()) * 0.5
 }
 
-/// One pass: the gain of the filter with `Q`, `R`.
+/// A block of unknowns: its columns (already scaled), its cone, and how to undo the
+/// scaling (a PSD block's diagonal congruence, or a nonnegative block's per-column scales).
+struct Block {
+    cols: Vec<Vec<f64>>,
+    cone: SupportedConeT<f64>,
+    scale: Vec<f64>,
+}
+
+fn norm(c: &[f64]) -> f64 {
+    c.iter().map(|v| v * v).sum::<f64>().sqrt()
+}
+
+/// The PSD block of a d × d matrix whose basis matrix `B` gives `column(B)`, scaled by the
+/// diagonal congruence `M = D M̃ D` that brings the diagonal entries' columns to unit norm
+/// (a congruence keeps the cone; one scale for the whole block would leave the entries of
+/// two inputs 10⁴ apart in size 10⁸ apart in the normal equations).
+fn psd_block(d: usize, column: impl Fn(&DMatrix<f64>) -> Vec<f64>) -> Block {
+    let raw: Vec<Vec<f64>> = svec_basis(d).iter().map(column).collect();
+    // Coordinate of entry (i, j), i ≤ j, in the upper triangle by columns.
+    let at = |i: usize, j: usize| j * (j + 1) / 2 + i;
+    let diag: Vec<f64> = (0..d)
+        .map(|i| {
+            let nn = norm(&raw[at(i, i)]);
+            if nn > 0.0 && nn.is_finite() {
+                1.0 / nn.sqrt()
+            } else {
+                1.0
+            }
+        })
+        .collect();
+    let mut cols = Vec::with_capacity(raw.len());
+    for j in 0..d {
+        for i in 0..=j {
+            let f = diag[i] * diag[j];
+            cols.push(raw[at(i, j)].iter().map(|v| v * f).collect());
+        }
+    }
+    Block {
+        cols,
+        cone: PSDTriangleConeT(d),
+        scale: diag,
+    }
+}
+
+/// The matrix `D M̃ D` of a PSD block's solution `x` (triangle coordinates of M̃).
+fn psd_unscale(x: &[f64], d: &[f64]) -> DMatrix<f64> {
+    let n = d.len();
+    let m = from_svec(x, n);
+    DMatrix::from_fn(n, n, |i, j| d[i] * m[(i, j)] * d[j])
+}
+
+/// Relative to the largest eigenvalue, how far below zero the solver's answer may be
+/// (its tolerance) before it counts as a failure rather than round-off.
+const INDEFINITE: f64 = 1e-6;
+
+/// `M` with its round-off-sized negative eigenvalues set to zero, and its smallest
+/// eigenvalue before that; an error when `M` is indefinite beyond round-off.
+fn settle_psd(M: &DMatrix<f64>, what: &str) -> Result<(DMatrix<f64>, f64), String> {
+    let e = ((M + M.transpose()) * 0.5).symmetric_eigenvalues();
+    let (low, top) = (e.min(), e.max());
+    if low.is_nan() || low < -INDEFINITE * top.abs() {
+        return Err(format!(
+            "the semidefinite solver returned an indefinite {what} (smallest eigenvalue {low:e})"
+        ));
+    }
+    Ok((clamp_psd(M), low))
+}
+
+/// One pass: the gain of the filter with `gain_at`'s Q and R.
 fn pass(
     model: &AlsModel<'_>,
     data: &Measurements,
@@ -151,21 +233,19 @@ fn pass(
     let (zq, zr) = (DMatrix::zeros(n, n), DMatrix::zeros(m, m));
     let full_q = matches!(full, FullMatrix::Q | FullMatrix::Both);
     let full_r = matches!(full, FullMatrix::R | FullMatrix::Both);
+    if full_q && k == 0 {
+        return Err("the problem's Q has no noise inputs to estimate a covariance of".into());
+    }
     let mut b = ac.empirical.clone();
-    // Blocks of unknowns: (columns, cone, how the block's x maps back).
-    let mut blocks: Vec<(Vec<Vec<f64>>, SupportedConeT<f64>)> = Vec::new();
+    let mut blocks: Vec<Block> = Vec::new();
     if full_q {
-        let cols = svec_basis(k)
-            .iter()
-            .map(|B| ac.column(&(&G * B * G.transpose()), &zr))
-            .collect();
-        blocks.push((cols, PSDTriangleConeT(k)));
+        blocks.push(psd_block(k, |B| ac.column(&(&G * B * G.transpose()), &zr)));
     }
     if full_r {
-        let cols = svec_basis(m).iter().map(|B| ac.column(&zq, B)).collect();
-        blocks.push((cols, PSDTriangleConeT(m)));
+        blocks.push(psd_block(m, |B| ac.column(&zq, B)));
     }
-    // The structured matrix: its free parameters ≥ 0, fixed ones moved to the right.
+    // The structured matrix: its free parameters ≥ 0, fixed ones moved to the right, each
+    // column at unit norm (a positive diagonal scaling keeps the nonnegative cone).
     let structured: Option<(&CovModel, bool)> = match full {
         FullMatrix::Q => Some((model.r, false)),
         FullMatrix::R => Some((model.q, true)),
@@ -191,70 +271,88 @@ fn pass(
         }
         if !cols.is_empty() {
             free = cols.iter().map(|(i, _)| *i).collect();
-            let n_free = free.len();
-            blocks.push((
-                cols.into_iter().map(|(_, c)| c).collect(),
-                NonnegativeConeT(n_free),
-            ));
+            let scale: Vec<f64> = cols
+                .iter()
+                .map(|(_, c)| norm(c).max(f64::MIN_POSITIVE))
+                .collect();
+            blocks.push(Block {
+                cols: cols
+                    .iter()
+                    .zip(&scale)
+                    .map(|((_, c), s)| c.iter().map(|v| v / s).collect())
+                    .collect(),
+                cone: NonnegativeConeT(free.len()),
+                scale,
+            });
         }
     }
-    // One positive scale per block (the mean column norm) keeps each cone what it is and
-    // brings the blocks' columns to one size.
-    let mut all_cols = Vec::new();
-    let mut cones = Vec::new();
-    let mut scales = Vec::new();
-    for (cols, cone) in blocks {
-        let norm = cols
-            .iter()
-            .map(|c| c.iter().map(|v| v * v).sum::<f64>().sqrt())
-            .sum::<f64>()
-            / cols.len() as f64;
-        let s = norm.max(f64::MIN_POSITIVE);
-        for c in &cols {
-            all_cols.push(c.iter().map(|v| v / s).collect::<Vec<f64>>());
-            scales.push(s);
-        }
-        cones.push(cone);
-    }
-    identified(&all_cols, full)?;
+    let all_cols: Vec<Vec<f64>> = blocks.iter().flat_map(|b| b.cols.clone()).collect();
+    let cones: Vec<SupportedConeT<f64>> = blocks.iter().map(|b| b.cone.clone()).collect();
+    identified(&all_cols, &format!("a full {} is", full.name()))?;
     let (x, unc) = constrained_ls(&all_cols, &b, &cones)?;
-    let x: Vec<f64> = x.iter().zip(&scales).map(|(v, s)| v / s).collect();
-    let unc: Vec<f64> = unc.iter().zip(&scales).map(|(v, s)| v / s).collect();
     let mut at = 0;
     let mut min_eigenvalue = [None, None];
     let mut unconstrained_min_eigenvalue = [None, None];
     let mut W = DMatrix::zeros(k, k);
-    let mut theta = start.to_vec();
+    let mut R = DMatrix::zeros(m, m);
+    // The unconstrained solution made semidefinite (negative eigenvalues and parameters set
+    // to zero): a feasible point the constrained fit must match or beat.
+    let (mut W_proj, mut R_proj) = (DMatrix::zeros(k, k), DMatrix::zeros(m, m));
+    let mut blocks = blocks.iter();
     if full_q {
+        let blk = blocks.next().expect("the Q block was pushed first");
         let d = k * (k + 1) / 2;
-        let (w, low) = clamp_psd(&from_svec(&x[at..at + d], k));
+        let (w, low) = settle_psd(&psd_unscale(&x[at..at + d], &blk.scale), "W")?;
         W = w;
         min_eigenvalue[0] = Some(low);
-        unconstrained_min_eigenvalue[0] = Some(min_eig(&from_svec(&unc[at..at + d], k)));
+        let wu = psd_unscale(&unc[at..at + d], &blk.scale);
+        unconstrained_min_eigenvalue[0] = Some(min_eig(&wu));
+        W_proj = clamp_psd(&wu);
         at += d;
     }
-    let mut R = DMatrix::zeros(m, m);
     if full_r {
+        let blk = blocks.next().expect("the R block follows Q's");
         let d = m * (m + 1) / 2;
-        let (r, low) = clamp_psd(&from_svec(&x[at..at + d], m));
+        let (r, low) = settle_psd(&psd_unscale(&x[at..at + d], &blk.scale), "R")?;
         R = r;
         min_eigenvalue[1] = Some(low);
-        unconstrained_min_eigenvalue[1] = Some(min_eig(&from_svec(&unc[at..at + d], m)));
+        let ru = psd_unscale(&unc[at..at + d], &blk.scale);
+        unconstrained_min_eigenvalue[1] = Some(min_eig(&ru));
+        R_proj = clamp_psd(&ru);
         at += d;
     }
-    let top = x[at..].iter().fold(0.0_f64, |a, v| a.max(v.abs()));
-    for (c, &i) in free.iter().enumerate() {
-        let v = x[at + c];
-        theta[i] = if v <= 1e-6 * top { 0.0 } else { v };
+    let mut theta = start.to_vec();
+    let mut theta_proj = start.to_vec();
+    let mut at_zero = Vec::new();
+    if let Some(blk) = blocks.next() {
+        // In the unit-norm coordinates a value this far below the largest is the bound.
+        let top = x[at..].iter().fold(0.0_f64, |a, v| a.max(v.abs()));
+        for (c, &i) in free.iter().enumerate() {
+            let v = x[at + c];
+            theta[i] = if v <= 1e-6 * top {
+                at_zero.push(i);
+                0.0
+            } else {
+                v / blk.scale[c]
+            };
+            theta_proj[i] = (unc[at + c] / blk.scale[c]).max(0.0);
+        }
     }
-    let Q = if full_q {
-        &G * &W * G.transpose()
-    } else {
-        model.q.build(&theta)
+    let build = |W: &DMatrix<f64>, R: &DMatrix<f64>, theta: &[f64]| {
+        let Q = if full_q {
+            &G * W * G.transpose()
+        } else {
+            model.q.build(theta)
+        };
+        let R = if full_r {
+            R.clone()
+        } else {
+            model.r.build(theta)
+        };
+        (Q, R)
     };
-    if !full_r {
-        R = model.r.build(&theta);
-    }
+    let (Q, R) = build(&W, &R, &theta);
+    let (Qp, Rp) = build(&W_proj, &R_proj, &theta_proj);
     if !full_q {
         // W of the structured Q, for the same report: each input's coefficient.
         for (j, &ti) in input_terms.iter().enumerate() {
@@ -264,45 +362,24 @@ fn pass(
             };
         }
     }
-    let fitted = fit(&ac, &Q, &R);
     Ok(FullEstimate {
         full,
         input_terms,
         G,
+        residual: rms(&ac.column(&Q, &R), &ac.empirical),
+        projected_residual: rms(&ac.column(&Qp, &Rp), &ac.empirical),
         W,
         Q,
         R,
         theta,
+        at_zero,
         min_eigenvalue,
         unconstrained_min_eigenvalue,
-        residual: rms(&fitted, &ac.empirical),
         lags,
         samples: ac.samples,
         spectral_radius: ac.spectral_radius,
         passes: 1,
     })
-}
-
-/// The autocovariances the estimated Q and R give through the pass's filter.
-fn fit(ac: &Autocovariances, Q: &DMatrix<f64>, R: &DMatrix<f64>) -> Vec<f64> {
-    ac.column(Q, R)
-}
-
-/// Refuse a problem whose unknowns the autocovariances do not determine: a full W has
-/// k(k+1)/2 unknowns, and a filter that measures few of the states cannot see them all.
-fn identified(cols: &[Vec<f64>], full: FullMatrix) -> Result<(), String> {
-    let (rows, k) = (cols.first().map_or(0, Vec::len), cols.len());
-    let A = DMatrix::from_fn(rows, k, |r, c| cols[c][r]);
-    let sv = A.singular_values();
-    let top = sv.max();
-    let rank = sv.iter().filter(|&&s| s > 1e-8 * top).count();
-    if rank < k {
-        return Err(format!(
-            "a full {} is not identified by these autocovariances: {k} unknowns in all, only {rank} independent (fewer noise inputs, more lags, or the structured estimate)",
-            full.name()
-        ));
-    }
-    Ok(())
 }
 
 /// ALS with `full` (Q, R or both) a full PSD matrix, `passes` times: the first with the
@@ -325,7 +402,7 @@ pub fn estimate_full(
             let e = M.symmetric_eigenvalues();
             e.min() <= 1e-6 * e.max()
         };
-        let on_edge = est.theta.iter().zip(fixed).any(|(v, f)| !f && *v == 0.0)
+        let on_edge = !est.at_zero.is_empty()
             || (est.min_eigenvalue[0].is_some() && boundary(&est.W))
             || (est.min_eigenvalue[1].is_some() && boundary(&est.R));
         if on_edge {

@@ -216,10 +216,9 @@ impl Recommendation {
         ) {
             (true, ..) => "fixed".to_string(),
             (false, true, ..) => "at a search bound".to_string(),
-            (false, false, None, _) => "not assessed".to_string(),
             (false, false, Some(false), _) => "not identifiable".to_string(),
             (false, false, Some(true), Some(f)) => format!("±{:.1}%", 100.0 * (f - 1.0)),
-            _ => "–".to_string(),
+            (false, false, _, _) => "not assessed".to_string(),
         }
     }
 }
@@ -235,7 +234,10 @@ pub fn family_finding(result: &TuneResult) -> Option<Vec<String>> {
     let a = &result.after;
     let c = &result.confirmation;
     let mut lines = vec![if c.recorded {
-        "no value of the free parameters makes this filter consistent with the recorded measurements: at the best fit they fail the gate".to_string()
+        format!(
+            "no value of the free parameters makes this filter consistent with the recorded measurements: at the best fit they fail the gate (which a consistent filter does on a fraction α = {} of records, so look at what stays off below)",
+            result.alpha
+        )
     } else {
         format!(
             "no value of the free parameters makes this filter consistent: at the best fit {} of {} fresh seeds pass the gate (a consistent filter passes at least {})",

@@ -199,15 +199,22 @@ pub fn tune_html(experiment: &dyn Experiment, res: &TuneResult, recs: &[Recommen
     let mut o = String::new();
     head(&mut o, &format!("autotune tune: {}", info.name));
     let _ = writeln!(o, "<h1>autotune tune: {}</h1>", escape(&info.name));
+    let confirmed = if res.confirmation.recorded {
+        format!(
+            "Confirmation on the recorded measurements the search scored on, α = {}",
+            res.alpha
+        )
+    } else {
+        format!(
+            "Confirmation on fresh seeds (from seed {}), N = {} runs × T = {} steps, α = {}",
+            res.confirm_seed, res.runs, res.steps, res.alpha
+        )
+    };
     let _ = writeln!(
         o,
-        "<p>{} — <code>{}</code>. Confirmation on fresh seeds (from seed {}), N = {} runs × T = {} steps, α = {}.</p>",
+        "<p>{} — <code>{}</code>. {confirmed}.</p>",
         escape(&info.description),
-        escape(&info.source.label()),
-        res.confirm_seed,
-        res.runs,
-        res.steps,
-        res.alpha
+        escape(&info.source.label())
     );
     let _ = writeln!(
         o,

@@ -124,11 +124,19 @@ pub fn tune_markdown(
             ev.join(", ")
         );
     }
-    let _ = writeln!(
-        o,
-        "\n## Consistency before and after\n\nMonte Carlo on fresh seeds never used in the search (seeds from {}, N = {} runs × T = {} steps, α = {}).\n",
-        r.confirm_seed, r.runs, r.steps, r.alpha
-    );
+    if r.confirmation.recorded {
+        let _ = writeln!(
+            o,
+            "\n## Consistency before and after\n\nThe filter over the recorded measurements the search scored on (α = {}).\n",
+            r.alpha
+        );
+    } else {
+        let _ = writeln!(
+            o,
+            "\n## Consistency before and after\n\nMonte Carlo on fresh seeds never used in the search (seeds from {}, N = {} runs × T = {} steps, α = {}).\n",
+            r.confirm_seed, r.runs, r.steps, r.alpha
+        );
+    }
     let _ = writeln!(o, "Confirmation: {}.\n", r.confirmation.text());
     stats_table(&mut o, &r.before, &r.after);
     let _ = writeln!(

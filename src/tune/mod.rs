@@ -208,8 +208,10 @@ pub fn tune(
     );
 
     // The resolution means something only at a converged optimum, and the seed-to-seed
-    // spread it rests on does not exist for one record.
-    let resolution = if recorded || (!searched && cost.dim() > 0) {
+    // spread it rests on does not exist for one record (only the bounds are checked).
+    let resolution = if recorded && !point.is_empty() && best.cost.is_finite() {
+        Some(refine::bounds_only(&cost, &point, fixed))
+    } else if recorded || (!searched && cost.dim() > 0) {
         None
     } else if point.is_empty() || !best.cost.is_finite() {
         Some(vec![Resolution::FIXED; params.len()])

@@ -269,6 +269,28 @@ pub fn seed_at(first: u64, k: usize) -> u64 {
     first.wrapping_add(k as u64) & (u64::MAX >> 1)
 }
 
+/// Per-parameter search-bound flags without a resolution factor: for one recorded data set,
+/// where there is no seed-to-seed spread to measure precision by, but a value on its bound
+/// still says the data may want it beyond.
+pub(super) fn bounds_only(cost: &Cost<'_>, y: &[f64], fixed: &[bool]) -> Vec<Resolution> {
+    let mut k = 0;
+    fixed
+        .iter()
+        .map(|&fx| {
+            if fx {
+                return Resolution::FIXED;
+            }
+            let at_bound = cost.near_bound(k, y);
+            k += 1;
+            Resolution {
+                factor: None,
+                identifiable: !at_bound,
+                at_bound,
+            }
+        })
+        .collect()
+}
+
 /// Per-parameter resolution from the sandwich covariance (module documentation) of the
 /// free parameters at `y`: `d_n` the sensitivity scaled to the gate's N, `deviates` the
 /// confirmation seeds' deviates; `fixed` flags every parameter in problem order.

@@ -494,3 +494,75 @@ fn als_with_every_parameter_fixed_is_refused() {
     assert!(err.contains("every parameter is fixed"), "{err}");
     assert_eq!(err.trim().lines().count(), 1, "{err}");
 }
+
+/// `check PROBLEM --measurements FILE`: the filter judged on a record by its innovations.
+/// On ten 5 000-step cv2d records the truth's values pass and the file's start fails; the
+/// HTML report plots one record as blocks of 50 steps, each against its own χ²(100)/50
+/// interval, and over the 1 000 blocks about 5% fall outside (binomial: 50 expected, the
+/// test allows 30–72, three standard deviations; measured 57). An interval of the per-step
+/// χ²(2) would put far fewer outside, one of χ²(2)/2 scaled wrongly far more.
+#[test]
+fn check_on_a_record_judges_by_innovations_and_plots_blocks() {
+    let dir = tempfile::tempdir().unwrap();
+    let problem = common::problem_path("cv2d");
+    let p = problem.to_str().unwrap();
+    let truth = common::problem_path("cv2d")
+        .parent()
+        .unwrap()
+        .parent()
+        .unwrap()
+        .join("tuned/cv2d.toml");
+    let rec = dir.path().join("rec.csv");
+    let report = dir.path().join("report");
+    let (mut passed, mut outside) = (0, 0);
+    for seed in 1..=10 {
+        let (code, _, err) = common::autotune(&[
+            "simulate",
+            p,
+            "--out",
+            rec.to_str().unwrap(),
+            "--steps",
+            "5000",
+            "--seed",
+            &seed.to_string(),
+        ]);
+        assert_eq!(code, Some(0), "{err}");
+        let (code, _, err) = common::autotune(&[
+            "check",
+            p,
+            "--measurements",
+            rec.to_str().unwrap(),
+            "--config",
+            truth.to_str().unwrap(),
+            "--report",
+            report.to_str().unwrap(),
+            "--quiet",
+        ]);
+        assert!(matches!(code, Some(0 | 1)), "{err}");
+        passed += usize::from(code == Some(0));
+        let html = std::fs::read_to_string(report.join("report.html")).unwrap();
+        assert!(html.contains("blocks of 50 steps"), "seed {seed}");
+        let n: usize = html
+            .split("outside the interval (")
+            .nth(1)
+            .and_then(|s| s.split(')').next())
+            .and_then(|s| s.parse().ok())
+            .expect("the plot's legend counts the blocks outside");
+        outside += n;
+        let (code, _, err) = common::autotune(&[
+            "check",
+            p,
+            "--measurements",
+            rec.to_str().unwrap(),
+            "--quiet",
+        ]);
+        assert_eq!(code, Some(1), "seed {seed}: the start should fail: {err}");
+    }
+    // A consistent filter passes each record with probability ≥ 0.95: at least 8 of 10
+    // with probability 0.99.
+    assert!(passed >= 8, "{passed} of 10 records pass at the truth");
+    assert!(
+        (30..=72).contains(&outside),
+        "{outside} of 1000 blocks outside"
+    );
+}

@@ -47,6 +47,14 @@ pub struct CheckOptions {
     quiet: bool,
 }
 
+impl CheckOptions {
+    /// The same options judging by NIS alone (an experiment without truth).
+    pub(super) fn nis_only(mut self) -> Self {
+        self.nis_only = true;
+        self
+    }
+}
+
 /// Run `check` on `experiment`.
 pub fn run(experiment: &dyn Experiment, a: CheckOptions) -> Result<ExitCode, AppError> {
     let info = experiment.info();

@@ -109,8 +109,8 @@ enum Command {
     /// Draw measurements (and optionally the true states) from a linear problem's truth, to
     /// try `estimate` on data whose answer is known.
     Simulate(simulate::SimulateArgs),
-    /// Estimate a linear problem's free Q/R parameters from recorded measurements alone
-    /// (maximum likelihood), with standard errors.
+    /// Estimate a linear problem's free Q/R parameters from recorded measurements alone:
+    /// maximum likelihood with standard errors, or autocovariance least squares.
     Estimate(estimate::EstimateArgs),
     /// Write a commented starter problem file (NAME.toml) whose filter equals its truth, so
     /// `autotune check` passes on it; replace its parameter values with your own guesses.
@@ -130,6 +130,11 @@ struct ProblemCheck {
     /// one experiment (format: docs/external.md).
     #[arg(long, num_args = 1.., value_name = "FILE", conflicts_with_all = ["problem", "config", "runs", "steps", "seed", "set", "engine"])]
     records: Vec<PathBuf>,
+    /// Judge the problem's filter on recorded measurements instead of its truth model: the
+    /// filter runs over the record (CSV, JSON Lines, NumPy; docs/measurements.md) and is
+    /// judged by its innovations alone. Linear problems.
+    #[arg(long, value_name = "FILE", requires = "problem", conflicts_with_all = ["runs", "steps", "seed", "engine"])]
+    measurements: Option<PathBuf>,
     #[command(flatten)]
     options: CheckOptions,
 }
@@ -193,9 +198,14 @@ where
         Err(e) => return usage_error(e, "autotune"),
     };
     match cli.command {
-        Command::Check(a) => match a.problem {
-            Some(p) => check::run(&Problem::load(&p)?, a.options),
-            None => check::run(&RecordedExperiment::read(&a.records)?, a.options),
+        Command::Check(a) => match (a.problem, &a.measurements) {
+            (Some(p), Some(f)) => {
+                let problem = Problem::load(&p)?;
+                let measured = estimate::measured_experiment(&problem, &p, f)?;
+                check::run(&measured, a.options.nis_only())
+            }
+            (Some(p), None) => check::run(&Problem::load(&p)?, a.options),
+            (None, _) => check::run(&RecordedExperiment::read(&a.records)?, a.options),
         },
         Command::Tune(a) => {
             let p = Problem::load(&a.problem)?;

@@ -7,7 +7,7 @@ use super::plots::{components_svg, objective_svg, statistic_svg, whiteness_svg};
 use super::summary::StatCells;
 use super::{fmt_fixed, fmt_g};
 use crate::experiment::Experiment;
-use crate::stats::{ConsistencyReport, StatisticSummary};
+use crate::stats::{ConsistencyReport, StatisticSummary, chi2_average_interval};
 use crate::tune::TuneResult;
 
 /// Escape text for HTML and XML.
@@ -85,6 +85,55 @@ fn stats_table(o: &mut String, reports: &[(&str, &ConsistencyReport)]) {
     }
 }
 
+/// Steps per plotted point: 1 while the per-step averages over the runs are readable, and
+/// blocks of steps when few runs cover many steps (one record of 5 000 steps is 5 000
+/// single χ² draws, a black band on a plot 500 pixels wide).
+fn block_len(runs: usize, steps: usize) -> usize {
+    if runs >= 20 || steps <= 400 {
+        1
+    } else {
+        steps.div_ceil(100)
+    }
+}
+
+/// `s` averaged over consecutive blocks of `block` steps, each block at its middle step
+/// with its own (1 − α) interval: the average of the block's χ² variables (their degrees
+/// of freedom add up over the block's steps and `runs` runs).
+fn block_averages(s: &StatisticSummary, runs: usize, alpha: f64, block: usize) -> StatisticSummary {
+    let steps = s.per_step.len();
+    let mut out = s.clone();
+    for v in [
+        &mut out.per_step,
+        &mut out.per_step_lower,
+        &mut out.per_step_upper,
+        &mut out.per_step_target,
+    ] {
+        v.iter_mut().for_each(|x| *x = None);
+    }
+    for start in (0..steps).step_by(block.max(1)) {
+        let end = (start + block).min(steps);
+        let (mut sum, mut dof, mut count) = (0.0, 0.0, 0usize);
+        for k in start..end {
+            if let (Some(v), Some(t)) = (s.per_step[k], s.per_step_target[k]) {
+                sum += v;
+                dof += t;
+                count += 1;
+            }
+        }
+        if count == 0 {
+            continue;
+        }
+        let n = (count * runs.max(1)) as f64;
+        let iv = chi2_average_interval(alpha, dof * runs.max(1) as f64, n);
+        let mid = (start + end - 1) / 2;
+        out.per_step[mid] = Some(sum / count as f64);
+        out.per_step_lower[mid] = Some(iv.lower);
+        out.per_step_upper[mid] = Some(iv.upper);
+        out.per_step_target[mid] = Some(dof / count as f64);
+    }
+    out
+}
+
 /// Plots of one consistency report, side by side with another's where given.
 fn plots(o: &mut String, reports: &[(&str, &ConsistencyReport)]) {
     let stats: Vec<(&str, Vec<(&str, &StatisticSummary)>)> = vec![
@@ -102,15 +151,29 @@ fn plots(o: &mut String, reports: &[(&str, &ConsistencyReport)]) {
             continue;
         }
         let _ = writeln!(o, "<h2>{name} over time</h2><div class=\"row\">");
+        let (runs, alpha) = (reports[0].1.runs, reports[0].1.alpha);
         for (label, s) in series {
-            figure(
-                o,
-                &statistic_svg(&format!("{name}_k, {label} filter"), s),
-                &format!(
-                    "{label}: {name}_k averaged over {} runs at each step; grey band: per-step (1-α) chi-square interval; dashed: DOF target; crosses: steps outside the band.",
-                    reports[0].1.runs
-                ),
-            );
+            let block = block_len(runs, s.per_step.len());
+            if block == 1 {
+                figure(
+                    o,
+                    &statistic_svg(&format!("{name}_k, {label} filter"), s),
+                    &format!(
+                        "{label}: {name}_k averaged over {runs} runs at each step; grey band: per-step (1-α) chi-square interval; dashed: DOF target; crosses: steps outside the band."
+                    ),
+                );
+            } else {
+                figure(
+                    o,
+                    &statistic_svg(
+                        &format!("{name}, {label} filter, blocks of {block} steps"),
+                        &block_averages(s, runs, alpha, block),
+                    ),
+                    &format!(
+                        "{label}: {name} averaged over {runs} run(s) and blocks of {block} steps, at each block's middle step; grey band: each block's (1-α) chi-square interval; dashed: DOF target; crosses: blocks outside their band."
+                    ),
+                );
+            }
         }
         o.push_str("</div>\n");
     }

@@ -55,7 +55,9 @@ struct Confirmation {
     seeds: usize,
     passed: usize,
     band_low: usize,
-    /// Confirmed on the recorded measurements the search scored on (no fresh seeds).
+    /// Confirmed on the recorded measurements the search scored on (no fresh seeds);
+    /// written only then.
+    #[serde(skip_serializing_if = "std::ops::Not::not")]
     recorded: bool,
     verdict: String,
     anees: Option<f64>,

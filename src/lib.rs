@@ -30,6 +30,12 @@
 
 #![warn(missing_docs)]
 
+// The BLAS and LAPACK that clarabel's semidefinite cone calls (the `sdp` feature): the
+// system's shared OpenBLAS (Debian: libopenblas-dev).
+#[cfg(feature = "sdp")]
+#[link(name = "openblas")]
+unsafe extern "C" {}
+
 pub mod app;
 pub mod catalog;
 pub mod check;

@@ -179,6 +179,7 @@ fn full_estimates_stay_semidefinite_where_least_squares_does_not() {
             );
         }
     }
+    eprintln!("unconstrained W or R indefinite on {indefinite} of 20 records");
     assert!(indefinite >= 5, "{indefinite} of 20 indefinite");
 }
 

@@ -120,7 +120,7 @@ fn full_q_and_r_recover_correlated_noise() {
 }
 
 /// Nearly singular W and R (correlations 0.995) seen for 400 steps: unconstrained least
-/// squares returns an indefinite W or R on many records (measured: 8 of 20 for each). The
+/// squares returns an indefinite W or R on many records (measured: 14 of 20). The
 /// solver's own answer (before any clean-up) is semidefinite to its tolerance, and it fits
 /// the autocovariances at least as well as the unconstrained solution made semidefinite (a
 /// feasible point): a wrong cone or triangle mapping fails one or the other.

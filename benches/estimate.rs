@@ -11,17 +11,7 @@ fn estimate(c: &mut Criterion) {
     let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("problems/cv2d.toml");
     let p = Problem::load(&path).expect("the shipped problem loads");
     let lin = p.linear().expect("cv2d is linear");
-    let build = |theta: &[f64]| {
-        let kf = lin.filter_at(theta);
-        LinearFilterModel {
-            F: kf.F,
-            H: kf.H,
-            Q: kf.Q,
-            R: kf.R,
-            x0: kf.x0,
-            P0: kf.P0,
-        }
-    };
+    let build = |theta: &[f64]| LinearFilterModel::of(lin, theta);
     let start = [1.0; 4];
     let fixed = [false; 4];
     let mut g = c.benchmark_group("estimate_cv2d");
@@ -33,13 +23,7 @@ fn estimate(c: &mut Criterion) {
         });
     }
     let data = simulate(&lin.truth, 2, 1, 20_000, 7).measurements;
-    let model = AlsModel {
-        F: &lin.filter.F,
-        H: &lin.filter.H,
-        x0: &lin.filter.x0,
-        q: &lin.filter.q,
-        r: &lin.filter.r,
-    };
+    let model = AlsModel::of(lin);
     g.bench_function("als_20000_steps", |b| {
         b.iter(|| als::estimate_passes(&model, &data, &start, &fixed, 15, 2).expect("solves"))
     });

@@ -13,17 +13,7 @@ fn cv2d() -> (Problem, LinearExperiment) {
 }
 
 fn builder(lin: &LinearExperiment) -> impl Fn(&[f64]) -> LinearFilterModel + '_ {
-    move |theta: &[f64]| {
-        let kf = lin.filter_at(theta);
-        LinearFilterModel {
-            F: kf.F,
-            H: kf.H,
-            Q: kf.Q,
-            R: kf.R,
-            x0: kf.x0,
-            P0: kf.P0,
-        }
-    }
+    move |theta: &[f64]| LinearFilterModel::of(lin, theta)
 }
 
 /// 5 000 steps: every parameter within 3 of its own standard errors of the truth, and the
@@ -203,13 +193,7 @@ fn tune_against_recorded_measurements_recovers_the_truth() {
 }
 
 fn als_model(lin: &LinearExperiment) -> autotune::estimate::als::AlsModel<'_> {
-    autotune::estimate::als::AlsModel {
-        F: &lin.filter.F,
-        H: &lin.filter.H,
-        x0: &lin.filter.x0,
-        q: &lin.filter.q,
-        r: &lin.filter.r,
-    }
+    autotune::estimate::als::AlsModel::of(lin)
 }
 
 /// ALS from all parameters = 1.0 on 20 000-step cv2d records: every per-axis Q and R

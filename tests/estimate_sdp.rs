@@ -49,14 +49,7 @@ fn correlated(w: [[f64; 2]; 2], r: [[f64; 2]; 2]) -> (tempfile::TempDir, Problem
 }
 
 fn model(p: &Problem) -> AlsModel<'_> {
-    let lin = p.linear().unwrap();
-    AlsModel {
-        F: &lin.filter.F,
-        H: &lin.filter.H,
-        x0: &lin.filter.x0,
-        q: &lin.filter.q,
-        r: &lin.filter.r,
-    }
+    AlsModel::of(p.linear().unwrap())
 }
 
 /// Correlated accelerations (ρ = 0.67) and position errors (ρ = 0.6), 20 000 steps, from

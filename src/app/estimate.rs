@@ -162,28 +162,12 @@ pub fn initial(
     let fixed: Vec<bool> = params.params.iter().map(|d| d.fixed).collect();
     let t0 = Instant::now();
     let theta = if method == "als" {
-        let model = AlsModel {
-            F: &lin.filter.F,
-            H: &lin.filter.H,
-            x0: &lin.filter.x0,
-            q: &lin.filter.q,
-            r: &lin.filter.r,
-        };
+        let model = AlsModel::of(lin);
         als::estimate_passes(&model, &data, &start, &fixed, 15, 2)
             .map_err(|m| AppError::Refused(format!("--init als on {origin}: {m}")))?
             .theta
     } else {
-        let build = |theta: &[f64]| {
-            let kf = lin.filter_at(theta);
-            LinearFilterModel {
-                F: kf.F,
-                H: kf.H,
-                Q: kf.Q,
-                R: kf.R,
-                x0: kf.x0,
-                P0: kf.P0,
-            }
-        };
+        let build = |theta: &[f64]| LinearFilterModel::of(lin, theta);
         ml::estimate(&build, &data, &start, &fixed, 200)
             .map_err(|m| AppError::Refused(format!("--init ml on {origin}: {m}")))?
             .theta
@@ -233,17 +217,7 @@ pub fn run_estimate(a: EstimateArgs) -> Result<ExitCode, AppError> {
         start[i] = v;
     }
     let fixed: Vec<bool> = params.params.iter().map(|d| d.fixed).collect();
-    let build = |theta: &[f64]| {
-        let kf = lin.filter_at(theta);
-        LinearFilterModel {
-            F: kf.F,
-            H: kf.H,
-            Q: kf.Q,
-            R: kf.R,
-            x0: kf.x0,
-            P0: kf.P0,
-        }
-    };
+    let build = |theta: &[f64]| LinearFilterModel::of(lin, theta);
     if a.method == "als" {
         if !(1..=200).contains(&a.lags) {
             return Err(AppError::flag(
@@ -251,13 +225,7 @@ pub fn run_estimate(a: EstimateArgs) -> Result<ExitCode, AppError> {
                 format!("{} is not in 1..=200", a.lags),
             ));
         }
-        let model = AlsModel {
-            F: &lin.filter.F,
-            H: &lin.filter.H,
-            x0: &lin.filter.x0,
-            q: &lin.filter.q,
-            r: &lin.filter.r,
-        };
+        let model = AlsModel::of(lin);
         if !(1..=20).contains(&a.passes) {
             return Err(AppError::flag(
                 "--passes",

@@ -118,6 +118,19 @@ pub struct AlsModel<'a> {
     pub r: &'a CovModel,
 }
 
+impl<'a> AlsModel<'a> {
+    /// The filter of the linear problem `lin`, with its parameterized Q and R.
+    pub fn of(lin: &'a crate::experiment::LinearExperiment) -> Self {
+        AlsModel {
+            F: &lin.filter.F,
+            H: &lin.filter.H,
+            x0: &lin.filter.x0,
+            q: &lin.filter.q,
+            r: &lin.filter.r,
+        }
+    }
+}
+
 /// The steady-state Kalman gain of the filter with Q and R, by iterating the Riccati
 /// recursion from the identity.
 fn steady_gain(

@@ -32,6 +32,21 @@ pub struct LinearFilterModel {
     pub P0: DMatrix<f64>,
 }
 
+impl LinearFilterModel {
+    /// The filter of the linear problem `lin` at parameter values `theta`.
+    pub fn of(lin: &crate::experiment::LinearExperiment, theta: &[f64]) -> Self {
+        let kf = lin.filter_at(theta);
+        LinearFilterModel {
+            F: kf.F,
+            H: kf.H,
+            Q: kf.Q,
+            R: kf.R,
+            x0: kf.x0,
+            P0: kf.P0,
+        }
+    }
+}
+
 /// One step of the covariance recursion: the gain, `S⁻¹` and `log det S`.
 struct Step {
     K: DMatrix<f64>,

@@ -77,6 +77,8 @@ pub fn remove_temporary_files() {
 struct Temporary {
     path: PathBuf,
     file: Option<std::fs::File>,
+    /// Renamed into place: its path is no longer ours to remove.
+    renamed: bool,
 }
 
 impl Temporary {
@@ -93,6 +95,7 @@ impl Temporary {
             Ok(file) => Ok(Temporary {
                 path,
                 file: Some(file),
+                renamed: false,
             }),
             Err(e) => {
                 made.files.retain(|p| p != &path);
@@ -110,8 +113,10 @@ impl Temporary {
 
 impl Drop for Temporary {
     fn drop(&mut self) {
-        let _ = std::fs::remove_file(&self.path);
-        made().files.retain(|p| p != &self.path);
+        if !self.renamed {
+            let _ = std::fs::remove_file(&self.path);
+            made().files.retain(|p| p != &self.path);
+        }
     }
 }
 
@@ -246,7 +251,9 @@ impl Outputs {
     /// rename them into place and remove the stale files. On an error nothing is replaced
     /// and the directories this commit created are removed again (a rename failing after
     /// the first one succeeded, which needs the file system to fail between two renames in
-    /// directories just written to, is the one case that leaves part of the set).
+    /// directories just written to, is the one case that leaves part of the set). A handled
+    /// signal (see [`remove_temporary_files`]) never splits the set: the renames hold the
+    /// lock its handler needs.
     pub fn commit(self) -> Result<(), WriteError> {
         for (path, _) in &self.files {
             check_target(path)?;
@@ -272,9 +279,20 @@ impl Outputs {
             written.push((tmp, path));
         }
         hold_for_tests();
-        for (tmp, path) in &written {
+        // The renames run under the registry's lock. An interrupt handler takes that lock
+        // before it removes the temporary files and exits, so it finds the set either
+        // before the first rename (and removes every temporary file: nothing replaced) or
+        // after the last (everything replaced), never a mix of this run's files and an
+        // earlier run's. Declared after `written`, the guard is released before any
+        // `Temporary` is dropped (their drop takes the lock too).
+        let mut registry = made();
+        for (tmp, path) in written.iter_mut() {
+            let path: &Path = path;
             std::fs::rename(&tmp.path, path).map_err(|e| WriteError::new(path, e))?;
+            tmp.renamed = true;
+            registry.files.retain(|p| p != &tmp.path);
         }
+        drop(registry);
         for path in &self.stale {
             match std::fs::remove_file(path) {
                 Err(e) if e.kind() != std::io::ErrorKind::NotFound => {

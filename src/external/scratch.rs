@@ -124,13 +124,14 @@ impl ScratchDir {
     /// mode 0700, registered for [`stop_workers_and_remove_scratch`].
     pub(super) fn create(label: &str) -> std::io::Result<ScratchDir> {
         let mut live = live();
-        // tempfile's Builder makes the directory with mkdir (never reusing a name) under a
-        // random suffix, mode 0700 on Unix.
-        let dir = tempfile::Builder::new()
-            .prefix(&format!("autotune-{label}-"))
-            .rand_bytes(12)
-            .tempdir()?
-            .keep();
+        // tempfile's Builder makes the directory with mkdir (never reusing a name, never
+        // following a link) under a random suffix; private from its creation on.
+        let prefix = format!("autotune-{label}-");
+        let mut builder = tempfile::Builder::new();
+        builder.prefix(&prefix).rand_bytes(12);
+        #[cfg(unix)]
+        builder.permissions(std::os::unix::fs::PermissionsExt::from_mode(0o700));
+        let dir = builder.tempdir()?.keep();
         // Canonical, so that containment holds where TMPDIR itself is reached by a link.
         let path = match dir.canonicalize() {
             Ok(p) => p,

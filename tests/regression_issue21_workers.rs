@@ -130,6 +130,11 @@ fn issue21_a_file_answer_outside_the_scratch_dir_is_refused_and_nothing_deleted(
     std::fs::write(&victim, "precious\n").unwrap();
     let p = problem(dir.path(), "escape", 1, 10, 10.0);
     let (code, stdout, stderr) = run(check(&p, &tmp, &dir.path().join("log")));
+    assert_eq!(
+        std::fs::read_to_string(&victim).ok().as_deref(),
+        Some("precious\n"),
+        "autotune deleted or changed a file it did not create"
+    );
     assert_eq!(code, Some(2), "{stdout}\n{stderr}");
     assert_eq!(stderr.lines().count(), 1, "{stderr}");
     assert!(
@@ -137,11 +142,6 @@ fn issue21_a_file_answer_outside_the_scratch_dir_is_refused_and_nothing_deleted(
         "{stderr}"
     );
     assert!(stderr.contains("victim.jsonl"), "{stderr}");
-    assert_eq!(
-        std::fs::read_to_string(&victim).unwrap(),
-        "precious\n",
-        "autotune deleted or changed a file it did not create"
-    );
     assert_eq!(scratch_left(&tmp), Vec::<String>::new());
 }
 

@@ -180,8 +180,9 @@ enum ModelCommand {
 }
 
 /// The `autotune` binary: parse the process's arguments, run, print any error on one line.
-/// Ctrl-C (SIGINT), SIGTERM and SIGHUP remove the temporary files of a write in progress and
-/// exit 130.
+/// Ctrl-C (SIGINT), SIGTERM and SIGHUP stop any external workers, remove their scratch
+/// directories and the temporary files of a write in progress, and exit 128 + the signal's
+/// number (130, 143, 129).
 pub fn main() -> ExitCode {
     remove_temporary_files_on_interrupt();
     finish(run(std::env::args_os()))
@@ -243,8 +244,9 @@ where
 /// settings). Prints any error on one line; returns the exit code (0 consistent, 1 not,
 /// 2 bad input).
 ///
-/// Like `autotune`, it handles Ctrl-C, SIGTERM and SIGHUP (removing temporary files, exit
-/// 130) unless the program installed a handler of its own with the `ctrlc` crate first.
+/// Like `autotune`, it handles Ctrl-C, SIGTERM and SIGHUP (stopping workers, removing
+/// scratch directories and temporary files, exit 128 + the signal's number), each unless
+/// the program installed a handler of its own for it first.
 pub fn main_for(experiment: &dyn Experiment, tune: &TuneSettings) -> ExitCode {
     remove_temporary_files_on_interrupt();
     finish(run_for(experiment, tune, std::env::args_os()))
@@ -258,52 +260,55 @@ pub(crate) static FOLLOWING: std::sync::atomic::AtomicBool =
 pub(crate) static STOP_FOLLOWING: std::sync::atomic::AtomicBool =
     std::sync::atomic::AtomicBool::new(false);
 
-/// Exit code of a run stopped by Ctrl-C (128 + SIGINT, as a shell reports it).
-const INTERRUPTED: i32 = 130;
-
-/// On SIGINT, SIGTERM or SIGHUP: remove the temporary files of any write in progress, so no
-/// `.NAME.tmp.PID` file outlives the process, and exit [`INTERRUPTED`]. Installed once per
-/// process; a handler the program set before is left alone, and so is a signal the process
-/// was started with ignored (`nohup`'s SIGHUP, a script's background job's SIGINT): the
-/// user asked for it to be survived.
+/// On SIGINT, SIGTERM or SIGHUP: stop the external workers (their whole process groups,
+/// with a grace period) and remove their scratch directories, remove the temporary files of
+/// any write in progress, so no `.NAME.tmp.PID` file outlives the process, and exit with
+/// the signal's conventional code, 128 + its number (130 for Ctrl-C, 143 for SIGTERM, 129
+/// for SIGHUP). Installed once per process, for each signal that has its default
+/// disposition: a handler the program set before is left alone, and so is a signal the
+/// process was started with ignored (`nohup`'s SIGHUP, a script's background job's
+/// SIGINT): the user asked for it to be survived.
 fn remove_temporary_files_on_interrupt() {
     static ONCE: std::sync::Once = std::sync::Once::new();
     ONCE.call_once(|| {
-        let signals = [libc::SIGINT, libc::SIGTERM, libc::SIGHUP];
-        let ignored: Vec<libc::c_int> = signals.into_iter().filter(|&s| is_ignored(s)).collect();
-        if ignored.len() == signals.len() {
+        let signals: Vec<libc::c_int> = [libc::SIGINT, libc::SIGTERM, libc::SIGHUP]
+            .into_iter()
+            .filter(|&s| has_default_disposition(s))
+            .collect();
+        if signals.is_empty() {
             return;
         }
-        let installed = ctrlc::set_handler(|| {
+        // signal-hook's iterator hands the signal's number to an ordinary thread, where the
+        // cleanup may take locks, wait and exit.
+        let Ok(mut caught) = signal_hook::iterator::Signals::new(&signals) else {
+            return;
+        };
+        std::thread::spawn(move || {
             use std::sync::atomic::Ordering;
-            // A follow ends on the first Ctrl-C with its summary; a second one, or any
-            // other command, stops at once.
-            if FOLLOWING.load(Ordering::SeqCst) && !STOP_FOLLOWING.swap(true, Ordering::SeqCst) {
-                return;
-            }
-            crate::report::remove_temporary_files();
-            std::process::exit(INTERRUPTED);
-        });
-        if installed.is_ok() {
-            for s in ignored {
-                // SAFETY: setting a signal's disposition to SIG_IGN installs no handler
-                // code; it only restores what the process inherited.
-                unsafe {
-                    libc::signal(s, libc::SIG_IGN);
+            for signal in caught.forever() {
+                // A follow ends on the first signal with its summary; a second one, or any
+                // other command, stops at once.
+                if FOLLOWING.load(Ordering::SeqCst) && !STOP_FOLLOWING.swap(true, Ordering::SeqCst)
+                {
+                    continue;
                 }
+                crate::external::stop_workers_and_remove_scratch();
+                crate::report::remove_temporary_files();
+                std::process::exit(128 + signal);
             }
-        }
+        });
     });
 }
 
-/// Whether `signal` is ignored (SIG_IGN) in this process.
-fn is_ignored(signal: libc::c_int) -> bool {
+/// Whether `signal` has its default disposition (SIG_DFL) in this process: neither ignored
+/// nor handled by a handler someone installed before.
+fn has_default_disposition(signal: libc::c_int) -> bool {
     // SAFETY: a null new action only reads the current one into `old`, which is a plain
     // C struct for which all-zero bytes are a valid value.
     unsafe {
         let mut old: libc::sigaction = std::mem::zeroed();
         libc::sigaction(signal, std::ptr::null(), &mut old) == 0
-            && old.sa_sigaction == libc::SIG_IGN
+            && old.sa_sigaction == libc::SIG_DFL
     }
 }
 

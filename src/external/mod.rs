@@ -7,11 +7,22 @@
 //! [`crate::montecarlo::CHUNK`] runs, whatever the number of workers, and the chunk sums
 //! are merged in chunk order; a worker that honours the seed contract (run i's noise from
 //! (seed, i) alone) therefore gives bit-identical statistics on any number of workers. The
-//! contract is checked once, on the first evaluation, by asking for the first chunk's two
-//! halves again from other workers.
+//! contract is checked once, on the first evaluation: the first chunk's runs must not all
+//! be the same run, and asked for again (as two halves, the second first, from another
+//! worker or a fresh one) each run must come back bit for bit.
+//!
+//! Scratch directories and worker process groups are owned by one module (`scratch`):
+//! made private and fresh, a worker's file answers contained in them, and everything
+//! removed and stopped on every exit path, an interrupt included
+//! ([`stop_workers_and_remove_scratch`]).
 
+mod scratch;
 mod worker;
 
+pub use scratch::stop_workers_and_remove_scratch;
+
+use std::collections::BTreeMap;
+use std::hash::{DefaultHasher, Hash, Hasher};
 use std::path::PathBuf;
 use std::sync::Mutex;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
@@ -20,7 +31,7 @@ use std::time::Duration;
 use crate::experiment::{Definition, Experiment, ExperimentError, RunOptions};
 use crate::montecarlo::{CHUNK, McConfig};
 use crate::params::Target;
-use crate::records::{Layout, RecordSink};
+use crate::records::{Layout, RecordSink, SensorRecord, StateRecord, StepRecord, StepSink};
 use crate::stats::Accumulator;
 use worker::{Request, Worker};
 
@@ -112,11 +123,14 @@ impl ExternalExperiment {
 
     /// A one-line error about `worker`'s request `req`.
     fn error(&self, w: &Worker, req: &Request<'_>, what: &str) -> ExperimentError {
+        let which = if w.index < self.command.workers {
+            format!("worker {} of {}", w.index + 1, self.command.workers)
+        } else {
+            "a fresh worker started for the seed-contract check".to_string()
+        };
         ExperimentError(format!(
-            "worker `{}` (worker {} of {}), request {} (seed {}, runs {}..{}, {} steps): {what}; {}",
+            "worker `{}` ({which}), request {} (seed {}, runs {}..{}, {} steps): {what}; {}",
             self.command.display(),
-            w.index + 1,
-            self.command.workers,
             req.id,
             req.seed,
             req.runs.start,
@@ -149,13 +163,15 @@ impl ExternalExperiment {
         RecordSink::new(&self.layout, mc.steps(), mc.lags()).expecting(runs)
     }
 
-    /// Ask worker `w` for `runs` and sum them.
+    /// Ask worker `w` for `runs` and sum them; with `prints`, also fingerprint each run's
+    /// records into it.
     fn ask(
         &self,
         w: &mut Worker,
         theta: &str,
         mc: &McConfig,
         runs: std::ops::Range<usize>,
+        prints: Option<&mut Fingerprints>,
     ) -> Result<Accumulator, ExperimentError> {
         let req = Request {
             id: self.next_id.fetch_add(1, Ordering::Relaxed),
@@ -165,7 +181,17 @@ impl ExternalExperiment {
             steps: mc.steps(),
         };
         let mut sink = self.sink(mc, runs);
-        w.request(&req, &self.layout, &mut sink, self.command.timeout)
+        let asked = match prints {
+            Some(prints) => {
+                let mut tee = Fingerprinting {
+                    sink: &mut sink,
+                    prints,
+                };
+                w.request(&req, &self.layout, &mut tee, self.command.timeout)
+            }
+            None => w.request(&req, &self.layout, &mut sink, self.command.timeout),
+        };
+        asked
             .and_then(|()| sink.finish())
             .map_err(|m| self.error(w, &req, &m))
     }
@@ -197,7 +223,12 @@ impl ExternalExperiment {
         let n_workers = pool.len();
         let mut total =
             Accumulator::new(mc.steps(), self.layout.n_x(), self.layout.n_z(), mc.lags());
-        let mut first = None;
+        // The first chunk's runs, fingerprinted for the seed-contract check.
+        let checking = self.command.check_seed_contract
+            && !self.contract_checked.load(Ordering::Relaxed)
+            && runs > 0;
+        let first_prints: Mutex<Option<Fingerprints>> =
+            Mutex::new(checking.then(Fingerprints::new));
         // Waves of a few chunks per worker, merged in chunk order as they complete: memory
         // holds one wave's sums whatever N.
         let wave = 4 * n_workers;
@@ -210,14 +241,27 @@ impl ExternalExperiment {
                 // Chunk c always goes to worker c mod W: a worker that caches its truth per
                 // run (it does not depend on θ) then finds it at every evaluation.
                 for (k, w) in pool.iter_mut().enumerate() {
-                    let (slots, failure, theta_json, wave_chunks) =
-                        (&slots, &failure, &theta_json, wave_chunks.clone());
+                    let (slots, failure, theta_json, wave_chunks, first_prints) = (
+                        &slots,
+                        &failure,
+                        &theta_json,
+                        wave_chunks.clone(),
+                        &first_prints,
+                    );
                     scope.spawn(move || {
                         for c in wave_chunks.filter(|c| c % n_workers == k) {
                             if failure.lock().unwrap_or_else(|p| p.into_inner()).is_some() {
                                 return;
                             }
-                            match self.ask(w, theta_json, mc, range(c)) {
+                            let asked = if c == 0 {
+                                // Only chunk 0's worker takes this lock.
+                                let mut prints =
+                                    first_prints.lock().unwrap_or_else(|p| p.into_inner());
+                                self.ask(w, theta_json, mc, range(c), prints.as_mut())
+                            } else {
+                                self.ask(w, theta_json, mc, range(c), None)
+                            };
+                            match asked {
                                 Ok(acc) => {
                                     *slots[c - wave_start]
                                         .lock()
@@ -242,66 +286,149 @@ impl ExternalExperiment {
                 let part = s.into_inner().unwrap_or_else(|p| p.into_inner());
                 let part = part.expect("every chunk of the wave answered");
                 total.merge(&part);
-                first.get_or_insert(part);
             }
             if let Some(report) = options.progress {
                 report(total.runs);
             }
         }
         if !self.contract_checked.swap(true, Ordering::Relaxed)
-            && self.command.check_seed_contract
-            && let Some(first) = first
+            && let Some(first) = first_prints.into_inner().unwrap_or_else(|p| p.into_inner())
         {
             self.check_contract(&mut pool, &theta_json, mc, &first)?;
         }
         Ok(total)
     }
 
-    /// Ask for the first chunk's two halves separately, from other workers than the first
-    /// chunk's where there are, and compare their sums with the chunk's own.
+    /// The seed contract on the first chunk, whose runs' fingerprints are `whole`: the
+    /// runs must differ from each other (not all seeded alike), and each run must come back
+    /// bit for bit when asked for again, in two halves, the second half first, from
+    /// another worker than the first chunk's (a fresh process where there is only one):
+    /// noise drawn from a generator shared across runs or requests, or a cache that is not
+    /// a function of (seed, i), then shows.
     fn check_contract(
         &self,
         pool: &mut [Worker],
         theta: &str,
         mc: &McConfig,
-        whole: &Accumulator,
+        whole: &Fingerprints,
     ) -> Result<(), ExperimentError> {
         let first = 0..CHUNK.min(mc.runs());
         if first.len() < 2 {
             return Ok(());
         }
-        let mid = first.len() / 2;
-        let n = pool.len();
-        let mut sink = self.sink(mc, first.clone());
-        let halves = [first.start..mid, mid..first.end];
-        for (h, half) in halves.iter().enumerate() {
-            let w = &mut pool[(h + 1) % n];
-            let id = self.next_id.fetch_add(1, Ordering::Relaxed);
-            let req = Request {
-                id,
-                theta,
-                seed: mc.seed(),
-                runs: half.clone(),
-                steps: mc.steps(),
-            };
-            w.request(&req, &self.layout, &mut sink, self.command.timeout)
-                .map_err(|m| self.error(w, &req, &m))?;
-        }
-        let split = sink.finish().map_err(ExperimentError)?;
-        if split != *whole {
-            return Err(ExperimentError(format!(
-                "worker `{}` breaks the seed contract: runs {}..{} asked for as {}..{} and {}..{} gave other records than asked for at once (run i's random numbers must depend on the seed and i alone; see docs/external.md)",
-                self.command.display(),
+        let breaks = |what: String| {
+            ExperimentError(format!(
+                "worker `{}` breaks the seed contract: {what} (run i's random numbers must depend on the seed and i alone; see docs/external.md)",
+                self.command.display()
+            ))
+        };
+        let mut prints = whole.0.values();
+        if let Some(one) = prints.next()
+            && whole.0.len() == first.len()
+            && prints.all(|p| p == one)
+        {
+            return Err(breaks(format!(
+                "the {} runs {}..{} all gave the same records, as if every run were seeded alike (e.g. with (seed, 0) instead of (seed, i))",
+                first.len(),
                 first.start,
-                first.end,
-                halves[0].start,
-                halves[0].end,
-                halves[1].start,
-                halves[1].end
+                first.end
             )));
+        }
+        let mid = first.len() / 2;
+        let halves = [mid..first.end, first.start..mid];
+        let mut fresh = None;
+        let (w, from) = if pool.len() > 1 {
+            (&mut pool[1], "worker 2")
+        } else {
+            let w = Worker::start(&self.command.command, &self.command.dir, pool.len()).map_err(
+                |m| {
+                    ExperimentError(format!(
+                        "worker `{}` (in {}), a fresh worker for the seed-contract check: {m}",
+                        self.command.display(),
+                        self.command.dir.display()
+                    ))
+                },
+            )?;
+            (fresh.insert(w), "a fresh worker")
+        };
+        for half in halves {
+            let mut again = Fingerprints::new();
+            self.ask(w, theta, mc, half.clone(), Some(&mut again))?;
+            if let Some(run) = half.clone().find(|i| again.0.get(i) != whole.0.get(i)) {
+                return Err(breaks(format!(
+                    "run {run} asked for again (runs {}..{}, from {from}) gave other records than the first time (runs {}..{} from worker 1)",
+                    half.start, half.end, first.start, first.end
+                )));
+            }
         }
         Ok(())
     }
+}
+
+/// Fingerprints of runs' records, by run: equal records give equal fingerprints.
+#[derive(Debug, Default)]
+struct Fingerprints(BTreeMap<usize, u64>);
+
+impl Fingerprints {
+    fn new() -> Self {
+        Self::default()
+    }
+}
+
+/// A sink that fingerprints each record (all but its run number) on its way to `sink`.
+struct Fingerprinting<'a> {
+    sink: &'a mut RecordSink,
+    prints: &'a mut Fingerprints,
+}
+
+impl StepSink for Fingerprinting<'_> {
+    fn push(&mut self, r: StepRecord) -> Result<(), String> {
+        let mut h = DefaultHasher::new();
+        self.prints.0.get(&r.run).hash(&mut h);
+        hash_record(&r, &mut h);
+        self.prints.0.insert(r.run, h.finish());
+        self.sink.push(r)
+    }
+}
+
+/// Feed a record's step and numbers (by their bits) into `h`.
+fn hash_record(r: &StepRecord, h: &mut impl Hasher) {
+    let floats = |h: &mut dyn Hasher, v: &[f64]| {
+        h.write_usize(v.len());
+        for x in v {
+            h.write_u64(x.to_bits());
+        }
+    };
+    h.write_usize(r.step);
+    match &r.state {
+        None => h.write_u8(0),
+        Some(StateRecord::Raw { e, p }) => {
+            h.write_u8(1);
+            floats(h, e);
+            floats(h, p);
+        }
+        Some(StateRecord::Normalized { nees, dof, e2p }) => {
+            h.write_u8(2);
+            floats(h, &[*nees, *dof]);
+            floats(h, e2p.as_deref().unwrap_or(&[]));
+        }
+    }
+    for (k, s) in &r.sensors {
+        h.write_usize(*k);
+        match s {
+            SensorRecord::Raw { nu, s } => {
+                h.write_u8(1);
+                floats(h, nu);
+                floats(h, s);
+            }
+            SensorRecord::Normalized { nis, dof, u } => {
+                h.write_u8(2);
+                floats(h, &[*nis, *dof]);
+                floats(h, u.as_deref().unwrap_or(&[]));
+            }
+        }
+    }
+    r.diverged.hash(h);
 }
 
 /// Stop every worker of `pool`, together.

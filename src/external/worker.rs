@@ -4,21 +4,26 @@
 
 use std::collections::VecDeque;
 use std::io::{BufRead, BufReader, Read, Write};
-use std::path::{Path, PathBuf};
-use std::process::{Child, ChildStdin, Command, Stdio};
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::path::Path;
+use std::process::{Child, ChildStdin, Command, ExitStatus, Stdio};
 use std::sync::mpsc::{Receiver, RecvTimeoutError, channel};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use serde_json::Value;
 
-use crate::records::{Layout, RecordSink, feed_file, parse_record_line};
+use super::scratch::{self, ScratchDir};
+use crate::records::{Layout, StepSink, feed_file, parse_record_line};
 
 /// Lines of a worker's stderr kept for error messages.
 const STDERR_LINES: usize = 3;
 /// Longest protocol line quoted in an error.
 const QUOTE: usize = 120;
+/// How often a wait for an answer looks whether the worker is still running: a worker that
+/// exited while a process it started still holds its stdout open is noticed this soon.
+const POLL: Duration = Duration::from_millis(100);
+/// How long lines a worker printed before it exited may take to arrive, once it has.
+const AFTER_EXIT: Duration = Duration::from_millis(200);
 
 /// What a request asks for.
 pub(super) struct Request<'a> {
@@ -39,7 +44,7 @@ pub(super) struct Worker {
     lines: Receiver<std::io::Result<String>>,
     stderr: Arc<Mutex<VecDeque<String>>>,
     /// Scratch directory for records files.
-    dir: PathBuf,
+    scratch: ScratchDir,
     /// When its stdin was closed.
     closed: Option<Instant>,
 }
@@ -94,34 +99,36 @@ fn quote(line: &str) -> String {
     format!("'{}'", crate::records::shown_up_to(line, QUOTE))
 }
 
+/// How a worker ended, as a clause ("exited with status 3").
+fn ended(s: ExitStatus) -> String {
+    match s.code() {
+        Some(c) => format!("exited with status {c}"),
+        None => format!("was killed ({s})"),
+    }
+}
+
 impl Worker {
     /// Start `command` in `cwd` as worker `index`.
     pub(super) fn start(command: &[String], cwd: &Path, index: usize) -> Result<Worker, String> {
-        static STARTED: AtomicU64 = AtomicU64::new(0);
-        let dir = std::env::temp_dir().join(format!(
-            "autotune-{}-w{index}-{}",
-            std::process::id(),
-            STARTED.fetch_add(1, Ordering::Relaxed)
-        ));
-        std::fs::create_dir_all(&dir)
-            .map_err(|e| format!("cannot create the scratch directory {}: {e}", dir.display()))?;
+        let scratch = ScratchDir::create(&format!("w{index}")).map_err(|e| {
+            format!(
+                "cannot create a scratch directory in {}: {e}",
+                std::env::temp_dir().display()
+            )
+        })?;
         let mut cmd = Command::new(&command[0]);
         // Its own process group, so that a kill reaches what it started too (a shell
         // wrapper's interpreter, a MATLAB's helpers), not just the process autotune started.
         #[cfg(unix)]
         std::os::unix::process::CommandExt::process_group(&mut cmd, 0);
-        let mut child = cmd
-            .args(&command[1..])
+        cmd.args(&command[1..])
             .current_dir(cwd)
             .env("AUTOTUNE_WORKER", "1")
             .stdin(Stdio::piped())
             .stdout(Stdio::piped())
-            .stderr(Stdio::piped())
-            .spawn()
-            .map_err(|e| {
-                let _ = std::fs::remove_dir_all(&dir);
-                format!("cannot start it: {e}")
-            })?;
+            .stderr(Stdio::piped());
+        let mut child =
+            scratch::spawn_registered(&mut cmd).map_err(|e| format!("cannot start it: {e}"))?;
         let stdout = child.stdout.take().expect("piped");
         let stderr = child.stderr.take().expect("piped");
         let (tx, lines) = channel();
@@ -171,7 +178,7 @@ impl Worker {
             child,
             lines,
             stderr: tail,
-            dir,
+            scratch,
             closed: None,
         })
     }
@@ -194,12 +201,7 @@ impl Worker {
         let deadline = Instant::now() + Duration::from_millis(500);
         loop {
             match self.child.try_wait() {
-                Ok(Some(s)) => {
-                    return Some(match s.code() {
-                        Some(c) => format!("exited with status {c}"),
-                        None => format!("was killed ({s})"),
-                    });
-                }
+                Ok(Some(s)) => return Some(ended(s)),
                 Ok(None) if Instant::now() < deadline => {
                     std::thread::sleep(Duration::from_millis(10))
                 }
@@ -214,7 +216,7 @@ impl Worker {
         &mut self,
         req: &Request<'_>,
         layout: &Layout,
-        sink: &mut RecordSink,
+        sink: &mut dyn StepSink,
         timeout: Duration,
     ) -> Result<(), String> {
         let line = format!(
@@ -225,7 +227,8 @@ impl Worker {
             req.runs.start,
             req.runs.end,
             req.steps,
-            serde_json::to_string(&self.dir.to_string_lossy()).expect("a string serializes")
+            serde_json::to_string(&self.scratch.path().to_string_lossy())
+                .expect("a string serializes")
         );
         let sent = match self.stdin.as_mut() {
             Some(stdin) => stdin
@@ -240,17 +243,33 @@ impl Worker {
             return Err(format!("{how} before it was asked"));
         }
         let deadline = Instant::now() + timeout;
+        // Set once the worker has exited: how, and when.
+        let mut exited: Option<(String, Instant)> = None;
         loop {
-            let left = deadline.saturating_duration_since(Instant::now());
-            let line = match self.lines.recv_timeout(left) {
+            let now = Instant::now();
+            let wait = match &exited {
+                Some((_, at)) => (*at + AFTER_EXIT).saturating_duration_since(now),
+                None => deadline.saturating_duration_since(now).min(POLL),
+            };
+            let line = match self.lines.recv_timeout(wait) {
                 Ok(Ok(line)) => line,
                 Ok(Err(e)) => return Err(format!("its stdout failed: {e}")),
                 Err(RecvTimeoutError::Timeout) => {
-                    self.kill();
-                    return Err(format!(
-                        "no answer within the timeout of {} s (killed)",
-                        timeout.as_secs_f64()
-                    ));
+                    if let Some((how, _)) = exited {
+                        // Its stdout is still open: a process it started holds it.
+                        return Err(format!("{how} before answering"));
+                    }
+                    if Instant::now() >= deadline {
+                        self.kill();
+                        return Err(format!(
+                            "no answer within the timeout of {} s (killed)",
+                            timeout.as_secs_f64()
+                        ));
+                    }
+                    if let Ok(Some(s)) = self.child.try_wait() {
+                        exited = Some((ended(s), Instant::now()));
+                    }
+                    continue;
                 }
                 Err(RecvTimeoutError::Disconnected) => {
                     let how = self
@@ -297,17 +316,16 @@ impl Worker {
                 let Some(file) = file.as_str() else {
                     return Err(format!("answered {}: 'file' is not a path", quote(trimmed)));
                 };
-                let path = PathBuf::from(file);
-                let path = if path.is_relative() {
-                    self.dir.join(path)
-                } else {
-                    path
-                };
-                let read = feed_file(&path, layout, req.steps, req.runs.start, sink)
+                // Resolved and contained before anything is read or deleted: a worker's
+                // answer must not make autotune touch a file it did not ask for.
+                let found = self.scratch.contain(file).map_err(|why| {
+                    format!("named the records file {}, which {why}", quote(file))
+                })?;
+                let read = feed_file(&found.path, layout, req.steps, req.runs.start, sink)
                     .map_err(|e| format!("its records file {e}"));
                 // The scratch directory is autotune's: its files go once read.
-                if path.starts_with(&self.dir) {
-                    let _ = std::fs::remove_file(&path);
+                if found.removable {
+                    let _ = std::fs::remove_file(&found.path);
                 }
                 return read;
             }
@@ -328,6 +346,13 @@ impl Worker {
     }
 
     fn kill(&mut self) {
+        self.kill_group();
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+
+    /// SIGKILL to what is left of the worker's process group.
+    fn kill_group(&self) {
         #[cfg(unix)]
         if let Ok(pid) = libc::pid_t::try_from(self.child.id()) {
             // SAFETY: killpg only sends a signal; the group is the worker's own (it was
@@ -336,8 +361,6 @@ impl Worker {
                 libc::killpg(pid, libc::SIGKILL);
             }
         }
-        let _ = self.child.kill();
-        let _ = self.child.wait();
     }
 }
 
@@ -358,6 +381,10 @@ impl Drop for Worker {
                 }
             }
         }
-        let _ = std::fs::remove_dir_all(&self.dir);
+        // A worker gone while a process it started lives on (one holding its stdout, a
+        // daemon): its group goes with it.
+        self.kill_group();
+        scratch::unregister_group(self.child.id());
+        // The scratch directory is removed as the field drops.
     }
 }

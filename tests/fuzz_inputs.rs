@@ -51,6 +51,10 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
+#[path = "common/fuzzing.rs"]
+mod fuzzing;
+use fuzzing::{Rng, proc_status_kb, settings};
+
 /// How long a run on a records or measurements file may take: the fuzzed inputs are a few
 /// kilobytes, the hand-made ones are refused or read in seconds.
 const PROCESS_LIMIT: Duration = Duration::from_secs(30);
@@ -72,61 +76,6 @@ const SAVED_FAILURES: usize = 40;
 
 // ---------------------------------------------------------------------------------------
 // Shared: the random numbers, the settings, running the binary, the tally.
-
-/// splitmix64: small, fast, and the same on every platform.
-struct Rng(u64);
-
-impl Rng {
-    fn next(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^ (z >> 31)
-    }
-    fn below(&mut self, n: usize) -> usize {
-        (self.next() % n.max(1) as u64) as usize
-    }
-    fn unit(&mut self) -> f64 {
-        (self.next() >> 11) as f64 / (1u64 << 53) as f64
-    }
-    fn chance(&mut self, p: f64) -> bool {
-        self.unit() <= p
-    }
-    fn pick<'a, T>(&mut self, v: &'a [T]) -> &'a T {
-        &v[self.below(v.len())]
-    }
-    /// A standard normal draw (Box–Muller).
-    fn normal(&mut self) -> f64 {
-        let u = self.unit().max(1e-300);
-        let v = self.unit();
-        (-2.0 * u.ln()).sqrt() * (2.0 * std::f64::consts::PI * v).cos()
-    }
-}
-
-/// The run's budget (`AUTOTUNE_FUZZ_SECONDS`, default 8), seed (`AUTOTUNE_FUZZ_SEED`,
-/// default 1) and an emptied directory for failing inputs.
-fn settings() -> (f64, u64, PathBuf) {
-    let seconds: f64 = std::env::var("AUTOTUNE_FUZZ_SECONDS")
-        .ok()
-        .and_then(|s| s.parse().ok())
-        .unwrap_or(8.0);
-    let seed: u64 = std::env::var("AUTOTUNE_FUZZ_SEED")
-        .ok()
-        .and_then(|s| s.parse().ok())
-        .unwrap_or(1);
-    let failures_dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join("fuzz-failures-inputs");
-    let _ = std::fs::remove_dir_all(&failures_dir);
-    std::fs::create_dir_all(&failures_dir).unwrap();
-    (seconds, seed, failures_dir)
-}
-
-/// A `kB` line of `/proc/<pid>/status` (`VmHWM`).
-fn proc_status_kb(pid: libc::pid_t, key: &str) -> Option<u64> {
-    let text = std::fs::read_to_string(format!("/proc/{pid}/status")).ok()?;
-    let line = text.lines().find(|l| l.starts_with(key))?;
-    line.split_whitespace().nth(1)?.parse().ok()
-}
 
 /// One binary run to make.
 struct Case {
@@ -813,19 +762,18 @@ fn zip(entries: &[ZipEntry]) -> Vec<u8> {
 }
 
 /// A compressed bomb's entry: an array of `<f8` of `shape`, all zeros, 1/160 of its size.
-/// Kept once made: its CRC costs a pass over hundreds of megabytes.
+/// Kept once made (by shape: the `.npy` header does not hold the name), since its CRC costs
+/// a pass over hundreds of megabytes.
 fn bomb_entry(name: &str, shape: &[usize]) -> ZipEntry {
-    type Made = BTreeMap<(String, Vec<usize>), (u32, u64, Vec<u8>)>;
+    type Made = BTreeMap<Vec<usize>, (u32, u64, Vec<u8>)>;
     static MADE: std::sync::Mutex<Made> = std::sync::Mutex::new(BTreeMap::new());
     let mut made = MADE.lock().unwrap();
-    let (crc, size, data) = made
-        .entry((name.to_string(), shape.to_vec()))
-        .or_insert_with(|| {
-            let header = Npy::new(name, shape, Vec::new()).header();
-            let n: usize = shape.iter().product::<usize>() * 8;
-            let e = ZipEntry::bomb(&format!("{name}.npy"), &header, n);
-            (e.crc, e.size, e.data)
-        });
+    let (crc, size, data) = made.entry(shape.to_vec()).or_insert_with(|| {
+        let header = Npy::new(name, shape, Vec::new()).header();
+        let n: usize = shape.iter().product::<usize>() * 8;
+        let e = ZipEntry::bomb("", &header, n);
+        (e.crc, e.size, e.data)
+    });
     ZipEntry {
         name: format!("{name}.npy"),
         method: 8,
@@ -2025,7 +1973,7 @@ fn hand_made(dir: &Path, failures_dir: &Path, tally: &mut Tally) {
 
 #[test]
 fn fuzz_records_measurements_and_workers_with_hostile_inputs() {
-    let (seconds, seed, failures_dir) = settings();
+    let (seconds, seed, failures_dir) = settings("fuzz-failures-inputs");
     let dir = tempfile::tempdir().unwrap();
     let mut all = Tally::default();
     let start = Instant::now();

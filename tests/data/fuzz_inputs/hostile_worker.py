@@ -242,7 +242,12 @@ def hostile(req, recs, a, b):
         target = os.path.join(d, "..", "victim.csv")
         send({"id": rid, "file": target})
     elif MODE == "absolute":
-        send({"id": rid, "file": rng.choice([victim, "/etc/passwd", "/", d, "/dev/zero", "/dev/null"])})
+        # Only paths the test owns: an autotune that deleted what it is named would delete
+        # them, not a system file. A symlink planted beside the victim leads to /dev/zero.
+        zero = os.path.join(os.path.dirname(victim), "zero.csv")
+        if not os.path.lexists(zero):
+            os.symlink("/dev/zero", zero)
+        send({"id": rid, "file": rng.choice([victim, os.path.dirname(victim), d, zero])})
     elif MODE == "symlink_zero":
         link = os.path.join(d, "%d.%s" % (rid, EXT or rng.choice(["csv", "jsonl", "npz", "npy"])))
         os.symlink("/dev/zero", link)

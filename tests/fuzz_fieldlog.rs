@@ -63,7 +63,7 @@ const ADDRESS_SPACE: u64 = 4 << 30;
 const RSS_LIMIT_MB: u64 = 400;
 
 // ---------------------------------------------------------------------------------------
-// Shared: the random numbers, the settings, running the binary.
+// Shared: running the binary (the random numbers and the settings: common/fuzzing.rs).
 
 /// A binary run under way.
 struct Running {

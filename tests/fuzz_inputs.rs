@@ -75,7 +75,8 @@ const RSS_LIMIT_MB: u64 = 500;
 const SAVED_FAILURES: usize = 40;
 
 // ---------------------------------------------------------------------------------------
-// Shared: the random numbers, the settings, running the binary, the tally.
+// Shared: running the binary, the tally (the random numbers and the settings:
+// common/fuzzing.rs).
 
 /// One binary run to make.
 struct Case {
@@ -1768,8 +1769,8 @@ fn huge_declared_measurements_npz() -> Vec<u8> {
     zip(&[ZipEntry::stored("z.npy", z.bytes())])
 }
 
-/// The hand-made cases: (kind, files to create, how, the command's arguments around the
-/// file, the run's bound).
+/// Run the hand-made hostile inputs (the same every time) into `tally`: special files,
+/// huge lines and archives, wide headers, and every behaviour of the hostile worker once.
 fn hand_made(dir: &Path, failures_dir: &Path, tally: &mut Tally) {
     let big_dir = fresh(&Path::new(env!("CARGO_TARGET_TMPDIR")).join("fuzz-inputs-big"));
     let cv1d = problem_path("cv1d");

@@ -25,31 +25,13 @@ use std::time::{Duration, Instant};
 use autotune::problem::Problem;
 use autotune::report::tuned::TunedConfig;
 
+#[path = "common/fuzzing.rs"]
+mod fuzzing;
+use fuzzing::{Rng, settings};
+
 /// How long a binary run may take: with two runs of ten steps every shipped problem checks
 /// in milliseconds, so a run this long is a hang the input caused.
 const PROCESS_LIMIT: Duration = Duration::from_secs(30);
-
-/// splitmix64: small, fast, and the same on every platform.
-struct Rng(u64);
-
-impl Rng {
-    fn next(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^ (z >> 31)
-    }
-    fn below(&mut self, n: usize) -> usize {
-        (self.next() % n.max(1) as u64) as usize
-    }
-    fn chance(&mut self, p: f64) -> bool {
-        (self.next() >> 11) as f64 / (1u64 << 53) as f64 <= p
-    }
-    fn pick<'a, T>(&mut self, v: &'a [T]) -> &'a T {
-        &v[self.below(v.len())]
-    }
-}
 
 /// Numbers that have broken parsers and allocators before.
 const NUMBERS: &[&str] = &[
@@ -434,23 +416,6 @@ fn load_in_process(
 enum Kind {
     Problem,
     Tuned,
-}
-
-/// The run's budget (`AUTOTUNE_FUZZ_SECONDS`, default 8), seed (`AUTOTUNE_FUZZ_SEED`,
-/// default 1) and an emptied directory `name` for failing inputs.
-fn settings(name: &str) -> (f64, u64, PathBuf) {
-    let seconds: f64 = std::env::var("AUTOTUNE_FUZZ_SECONDS")
-        .ok()
-        .and_then(|s| s.parse().ok())
-        .unwrap_or(8.0);
-    let seed: u64 = std::env::var("AUTOTUNE_FUZZ_SEED")
-        .ok()
-        .and_then(|s| s.parse().ok())
-        .unwrap_or(1);
-    let failures_dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join(name);
-    let _ = std::fs::remove_dir_all(&failures_dir);
-    std::fs::create_dir_all(&failures_dir).unwrap();
-    (seconds, seed, failures_dir)
 }
 
 #[test]

@@ -47,6 +47,10 @@ use std::time::{Duration, Instant};
 
 use autotune::fieldlog::{NisSettings, ReadOptions, Window, analyze};
 
+#[path = "common/fuzzing.rs"]
+mod fuzzing;
+use fuzzing::{Rng, proc_status_kb, settings};
+
 /// How long a batch run may take: the inputs are at most a few megabytes, read in well
 /// under a second; a run this long is a hang the input caused.
 const PROCESS_LIMIT: Duration = Duration::from_secs(30);
@@ -59,49 +63,7 @@ const ADDRESS_SPACE: u64 = 4 << 30;
 const RSS_LIMIT_MB: u64 = 400;
 
 // ---------------------------------------------------------------------------------------
-// Shared: the random numbers, the settings, running the binary.
-
-/// splitmix64: small, fast, and the same on every platform.
-struct Rng(u64);
-
-impl Rng {
-    fn next(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^ (z >> 31)
-    }
-    fn below(&mut self, n: usize) -> usize {
-        (self.next() % n.max(1) as u64) as usize
-    }
-    fn unit(&mut self) -> f64 {
-        (self.next() >> 11) as f64 / (1u64 << 53) as f64
-    }
-    fn chance(&mut self, p: f64) -> bool {
-        self.unit() <= p
-    }
-    fn pick<'a, T>(&mut self, v: &'a [T]) -> &'a T {
-        &v[self.below(v.len())]
-    }
-}
-
-/// The run's budget (`AUTOTUNE_FUZZ_SECONDS`, default 8), seed (`AUTOTUNE_FUZZ_SEED`,
-/// default 1) and an emptied directory `name` for failing inputs.
-fn settings(name: &str) -> (f64, u64, PathBuf) {
-    let seconds: f64 = std::env::var("AUTOTUNE_FUZZ_SECONDS")
-        .ok()
-        .and_then(|s| s.parse().ok())
-        .unwrap_or(8.0);
-    let seed: u64 = std::env::var("AUTOTUNE_FUZZ_SEED")
-        .ok()
-        .and_then(|s| s.parse().ok())
-        .unwrap_or(1);
-    let failures_dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join(name);
-    let _ = std::fs::remove_dir_all(&failures_dir);
-    std::fs::create_dir_all(&failures_dir).unwrap();
-    (seconds, seed, failures_dir)
-}
+// Shared: running the binary (the random numbers and the settings: common/fuzzing.rs).
 
 /// A binary run under way.
 struct Running {
@@ -109,13 +71,6 @@ struct Running {
     out: JoinHandle<Vec<u8>>,
     err: JoinHandle<Vec<u8>>,
     start: Instant,
-}
-
-/// A `kB` line of `/proc/<pid>/status` (`VmRSS`, `VmHWM`).
-fn proc_status_kb(pid: &str, key: &str) -> Option<u64> {
-    let text = std::fs::read_to_string(format!("/proc/{pid}/status")).ok()?;
-    let line = text.lines().find(|l| l.starts_with(key))?;
-    line.split_whitespace().nth(1)?.parse().ok()
 }
 
 /// How a run ended.
@@ -177,7 +132,7 @@ impl Running {
         // the 2 ms between looks).
         let mut hwm_kb = 0;
         loop {
-            if let Some(kb) = proc_status_kb(&pid.to_string(), "VmHWM:") {
+            if let Some(kb) = proc_status_kb(pid, "VmHWM:") {
                 hwm_kb = hwm_kb.max(kb);
             }
             // SAFETY: pid is our child, not yet reaped; status is valid.

@@ -128,7 +128,12 @@ pub fn parse_toml<T: serde::de::DeserializeOwned>(text: &str, path: &Path) -> Re
         message: format!("malformed TOML: {}", one_line(e.message())),
     })?;
     serde_path_to_error::deserialize(de).map_err(|e| {
-        let field = e.path().to_string();
+        // A table read in file order (`toml::Spanned` entries) puts the wrapper's private
+        // key into the path; the user's field is the path without it.
+        let field = e
+            .path()
+            .to_string()
+            .replace(".$__serde_spanned_private_value", "");
         let inner = e.into_inner();
         FileError {
             file: path.to_path_buf(),

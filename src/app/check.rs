@@ -110,7 +110,10 @@ pub fn run(experiment: &dyn Experiment, a: CheckOptions) -> Result<ExitCode, App
         engine: a.engine,
         progress: Some(&on_runs),
     };
-    let report = check_with(experiment, &theta, &mc, options, !a.nis_only);
+    // Records or a worker without states (no ground truth) are judged by their innovations
+    // alone, as documented, rather than found inconclusive for want of a NEES.
+    let no_states = experiment.state_names().is_empty();
+    let report = check_with(experiment, &theta, &mc, options, !a.nis_only && !no_states);
     let report = match report {
         Ok(r) => r,
         Err(e) => {
@@ -166,7 +169,13 @@ pub fn run(experiment: &dyn Experiment, a: CheckOptions) -> Result<ExitCode, App
             writeln!(stdout)?;
         } else if !a.quiet {
             let text = summary_text(&info.name, &params, &report);
-            for line in text.lines() {
+            for (i, line) in text.lines().enumerate() {
+                if i == 1 && no_states && !a.nis_only {
+                    writeln!(
+                        stdout,
+                        "  no states (no ground truth): judged by the innovations alone, NEES absent"
+                    )?;
+                }
                 if line.starts_with("verdict:") {
                     writeln!(stdout, "{}", paint_verdict(line, report.verdict.passes()))?;
                 } else {

@@ -79,10 +79,16 @@ pub(super) fn linear<'a>(
     what: &str,
 ) -> Result<&'a LinearExperiment, AppError> {
     p.linear().ok_or_else(|| {
+        // Name what the problem is, so the user knows which section is the obstacle.
+        let (field, kind) = if p.catalog().is_some() {
+            ("model", "a catalog model ([model])")
+        } else {
+            ("external", "an external worker ([external])")
+        };
         FileError::new(
             path,
-            "model",
-            format!("{what} works on a linear problem ([truth] and [filter] matrices); this one is a catalog model"),
+            field,
+            format!("{what} works on a linear problem ([truth] and [filter] matrices); this one is {kind}"),
         )
         .into()
     })

@@ -30,6 +30,9 @@ pub enum Model {
 /// What every template writes where the problem name goes.
 const NAME_PLACEHOLDER: &str = "{{name}}";
 
+/// The `[external]` starter: a worker's problem file (no truth of its own to check).
+const EXTERNAL_TEMPLATE: &str = include_str!("templates/external.toml");
+
 impl Model {
     /// The template, with [`NAME_PLACEHOLDER`] for the name.
     fn template(self) -> &'static str {
@@ -55,6 +58,10 @@ pub struct InitArgs {
     /// Which system the starter models.
     #[arg(long, default_value = "cv2d", value_parser = OneOf::<Model>::new())]
     model: Model,
+    /// Write a starter for a filter in another program, run as a worker ([external],
+    /// docs/external.md), instead of a built-in model.
+    #[arg(long, conflicts_with = "model")]
+    external: bool,
     /// File to write (default: NAME.toml in the current directory).
     #[arg(long, value_name = "FILE")]
     out: Option<PathBuf>,
@@ -90,6 +97,27 @@ pub fn run(a: InitArgs) -> Result<ExitCode, AppError> {
             "{} already exists (use --force to overwrite it)",
             path.display()
         )));
+    }
+    if a.external {
+        write_file(
+            &path,
+            EXTERNAL_TEMPLATE
+                .replace(NAME_PLACEHOLDER, &a.name)
+                .as_bytes(),
+        )?;
+        let mut stdout = std::io::stdout().lock();
+        writeln!(
+            stdout,
+            "wrote {} (external worker starter; docs/external.md describes the protocol)",
+            path.display()
+        )?;
+        writeln!(
+            stdout,
+            "next: point [external] command at your worker, name its sensors, states and \
+             parameters, then run `autotune check` and `autotune tune` on it"
+        )?;
+        stdout.flush()?;
+        return Ok(ExitCode::SUCCESS);
     }
     write_file(&path, a.model.starter(&a.name).as_bytes())?;
     let model = a
@@ -145,6 +173,9 @@ mod tests {
                 .unwrap_or_else(|e| panic!("{m:?}: {e}"));
             assert_eq!(p.name(), "some-name_1");
         }
+        let text = EXTERNAL_TEMPLATE.replace(NAME_PLACEHOLDER, "ext");
+        let p = Problem::from_toml(&text, Path::new("starter.toml")).expect("external starter");
+        assert_eq!(p.name(), "ext");
     }
 
     #[test]

@@ -70,9 +70,10 @@ pub struct TuneOptions {
     quiet: bool,
 }
 
-/// Progress on stderr, only on a terminal.
+/// Progress on stderr, only on a terminal; the search's notes on stderr unless quiet.
 struct Progress {
     bar: Option<ProgressBar>,
+    quiet: bool,
 }
 
 impl Observer for Progress {
@@ -86,6 +87,14 @@ impl Observer for Progress {
     fn phase(&self, name: &str) {
         if let Some(b) = &self.bar {
             b.set_prefix(name.to_string());
+        }
+    }
+
+    fn note(&self, line: &str) {
+        match &self.bar {
+            Some(b) => b.println(format!("note: {line}")),
+            None if !self.quiet => eprintln!("note: {line}"),
+            None => {}
         }
     }
 }
@@ -223,7 +232,10 @@ pub fn run_from(
         );
         b
     });
-    let progress = Progress { bar };
+    let progress = Progress {
+        bar,
+        quiet: a.quiet,
+    };
     let result = tune(experiment, &start, &fixed, &mc, &settings, &progress)
         .map_err(|e| tune_error(e, experiment, a.scoring.is_some()))?;
     if let Some(b) = &progress.bar {

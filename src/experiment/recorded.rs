@@ -19,28 +19,15 @@ pub struct RecordedExperiment {
 }
 
 impl RecordedExperiment {
-    /// Read the records in `files` (see [`read_files`], with the engines' default lags); the experiment is named after the
-    /// first file's stem, its components `x1 … xn` and `<sensor>_<j>`.
+    /// Read the records in `files` (see [`read_files`], with the engines' default lags); the experiment is named by
+    /// [`crate::records::experiment_name`] (the first file's stem, or for per-quantity
+    /// arrays `e.npy`, `P.npy` their directory's name), its components `x1 … xn` and `<sensor>_<j>`.
     pub fn read(files: &[PathBuf]) -> Result<RecordedExperiment, FileError> {
         let recorded = read_files(files, &|steps| DEFAULT_LAGS.min(steps.saturating_sub(1)))?;
         let mc = McConfig::new(recorded.runs, recorded.steps)
             .and_then(|mc| mc.with_lags(recorded.sums.lags))
             .map_err(|e| FileError::new(&files[0], "", e.to_string()))?;
-        let name = files[0]
-            .file_stem()
-            .and_then(|s| s.to_str())
-            .map(|s| {
-                s.chars()
-                    .map(|c| {
-                        if c.is_ascii_alphanumeric() || c == '-' {
-                            c
-                        } else {
-                            '_'
-                        }
-                    })
-                    .collect()
-            })
-            .unwrap_or_else(|| "records".to_string());
+        let name = crate::records::experiment_name(files);
         Ok(RecordedExperiment {
             definition: Definition {
                 info: Info {

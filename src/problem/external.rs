@@ -150,17 +150,9 @@ impl Validator<'_> {
                 (Some(s), _) => Target::process(&s),
                 (None, Some(m)) => Target::measurement(&m),
                 (None, None) => {
-                    let known: Vec<&str> = state_names
-                        .iter()
-                        .chain(&measurement_names)
-                        .map(String::as_str)
-                        .collect();
                     return self.err(
                         field,
-                        format!(
-                            "give state components (process noise) or measurement components (measurement noise), all of one kind, from: {}",
-                            known.join(", ")
-                        ),
+                        unknown_component(comps, &state_names, &measurement_names, &e.sensors),
                     );
                 }
             });
@@ -169,6 +161,9 @@ impl Validator<'_> {
             Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
             _ => std::path::PathBuf::from("."),
         };
+        if let Some(hint) = bare_command_hint(&e.command[0], &dir) {
+            return self.err("external.command", hint);
+        }
         let command = WorkerCommand {
             command: e.command.clone(),
             dir,
@@ -185,4 +180,81 @@ impl Validator<'_> {
         };
         Ok(ExternalExperiment::new(definition, layout, command, truth).with_targets(targets))
     }
+}
+
+/// Why the components `comps` of a `drives` entry are not all states or all measurements:
+/// the first that is neither, and, when it names a sensor the file does not declare, the
+/// sensors that are declared (a sensor named differently here and in `[external.sensors]`
+/// is the usual cause).
+fn unknown_component(
+    comps: &[String],
+    states: &[String],
+    measurements: &[String],
+    sensors: &indexmap::IndexMap<String, Vec<String>>,
+) -> String {
+    let declared: Vec<String> = sensors
+        .iter()
+        .map(|(s, c)| format!("{s} = [{}]", c.join(", ")))
+        .collect();
+    let known = || {
+        let all: Vec<&str> = states
+            .iter()
+            .chain(measurements)
+            .map(String::as_str)
+            .collect();
+        all.join(", ")
+    };
+    let unknown = comps
+        .iter()
+        .find(|c| !states.contains(c) && !measurements.contains(c));
+    match unknown {
+        Some(c) => {
+            let sensor = c.rsplit_once('_').map(|(s, _)| s);
+            match sensor {
+                Some(s) if !sensors.contains_key(s) && !states.contains(c) => format!(
+                    "'{c}' is neither a state nor a measurement component: no sensor '{s}' in [external] sensors, which declares {} (a measurement component is <sensor>_<component>)",
+                    if declared.is_empty() {
+                        "none".to_string()
+                    } else {
+                        declared.join(", ")
+                    }
+                ),
+                _ => format!(
+                    "'{c}' is neither a state nor a measurement component; known: {}",
+                    known()
+                ),
+            }
+        }
+        None => format!(
+            "give state components (process noise) or measurement components (measurement noise), all of one kind, from: {}",
+            known()
+        ),
+    }
+}
+
+/// For a command given as a bare name (no `/`) that is not found on `PATH` but names a file
+/// in the problem's directory `dir`: the one-line hint to write `./name` (a bare name is
+/// looked up on `PATH` only, as a shell does, never in the problem's directory).
+fn bare_command_hint(program: &str, dir: &std::path::Path) -> Option<String> {
+    if program.contains('/') || program.contains(std::path::MAIN_SEPARATOR) {
+        return None;
+    }
+    let path = std::env::var_os("PATH").unwrap_or_default();
+    let on_path = std::env::split_paths(&path).any(|d| {
+        let candidate = if d.as_os_str().is_empty() {
+            std::path::PathBuf::from(program)
+        } else {
+            d.join(program)
+        };
+        candidate.is_file()
+    });
+    if on_path {
+        return None;
+    }
+    // A name found nowhere is left to the start of the worker, which says so.
+    dir.join(program).is_file().then(|| {
+        format!(
+            "'{program}' is looked up on PATH, where it is not; write \"./{program}\" for the program in the problem's directory"
+        )
+    })
 }

@@ -166,6 +166,14 @@ pub fn sha256_hex(bytes: &[u8]) -> String {
 impl Validator<'_> {
     fn problem(&self, s: ProblemSpec, sha256: String) -> VResult<Problem> {
         let dt = match s.dt {
+            // A worker keeps its own time step: autotune never sends dt, so a value here
+            // would be a setting that silently does nothing.
+            Some(_) if s.external.is_some() => {
+                return self.err(
+                    "dt",
+                    "an [external] problem's time step is its worker's own (autotune neither uses nor sends it): leave dt out",
+                );
+            }
             Some(dt) => self.finite("dt", dt)?,
             None if s.external.is_some() => 1.0,
             None => return self.err("dt", "missing: the sample period between steps, s"),

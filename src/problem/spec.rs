@@ -36,11 +36,29 @@ pub struct ProblemSpec {
     /// (docs/external.md), instead of `[truth]`/`[filter]` or `[model]`.
     pub external: Option<ExternalSpec>,
     /// Named parameters, in file order.
-    #[serde(default)]
+    #[serde(default, deserialize_with = "in_file_order")]
     pub params: IndexMap<String, ParamSpec>,
     /// Tuner settings (all optional).
     #[serde(default)]
     pub tune: TuneSpec,
+}
+
+/// A TOML table in the order its keys appear in the file. The `toml` reader hands a table's
+/// keys over sorted (its map is a `BTreeMap` without the `preserve_order` feature, which
+/// would also reorder every table autotune writes), so each entry's position in the text
+/// restores the file's order.
+fn in_file_order<'de, D, T>(d: D) -> Result<IndexMap<String, T>, D::Error>
+where
+    D: serde::Deserializer<'de>,
+    T: Deserialize<'de>,
+{
+    let table = IndexMap::<String, toml::Spanned<T>>::deserialize(d)?;
+    let mut entries: Vec<(String, toml::Spanned<T>)> = table.into_iter().collect();
+    entries.sort_by_key(|(_, v)| v.span().start);
+    Ok(entries
+        .into_iter()
+        .map(|(k, v)| (k, v.into_inner()))
+        .collect())
 }
 
 /// `[tune]`: defaults for `autotune tune`, each overridable on the command line.
@@ -79,7 +97,8 @@ pub struct TuneSpec {
 pub struct ExternalSpec {
     /// The program and its arguments, run in the problem file's directory.
     pub command: Vec<String>,
-    /// Sensor name → its component names, in order.
+    /// Sensor name → its component names, in order (the sensors in file order).
+    #[serde(deserialize_with = "in_file_order")]
     pub sensors: IndexMap<String, Vec<String>>,
     /// Workers in parallel (default: the number of cores).
     pub workers: Option<i64>,

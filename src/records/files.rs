@@ -292,13 +292,16 @@ pub(super) fn step_record(
     Ok(r)
 }
 
+/// A records file with state quantities for an experiment without them, and the hint.
+pub(super) const NO_GROUND_TRUTH: &str = "state quantities, but the experiment has no ground truth (an [external] problem declares its states, and so its ground truth, in state_names)";
+
 /// Check that a file's own layout fits the experiment's: the same state dimension and
 /// per-component data, and only sensors the experiment has, of their dimensions.
 pub(super) fn fits(own: &Layout, expected: &Layout) -> Result<(), String> {
     match (own.state, expected.state) {
         (None, None) => {}
         (Some(_), None) => {
-            return Err("state quantities, but the experiment has no ground truth".into());
+            return Err(NO_GROUND_TRUTH.into());
         }
         (None, Some(_)) => return Err("no state quantities (e and P, or nees)".into()),
         (Some(a), Some(b)) => {

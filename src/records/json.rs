@@ -177,10 +177,7 @@ pub fn parse_record_line(line: &str, layout: &Layout) -> Result<StepRecord, Stri
             ));
         }
         if q.sensor().is_none() && layout.state.is_none() {
-            return Err(format!(
-                "{}: state quantities, but the experiment has no ground truth",
-                q.name()
-            ));
+            return Err(format!("{}: {}", q.name(), super::files::NO_GROUND_TRUTH));
         }
     }
     step_record(layout, &Keys::new(layout), run, step, &mut JsonRow(&obj))

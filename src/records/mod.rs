@@ -18,7 +18,7 @@ mod sink;
 pub use files::{Recorded, feed_file, feed_files, read_files, scan_files, shown_up_to};
 pub(crate) use json::object as json_object;
 pub use json::parse_record_line;
-pub use names::{Quantity, valid_sensor};
+pub use names::{Quantity, experiment_name, valid_sensor};
 pub(crate) use npy::read_raw as read_numpy_arrays;
 pub use sink::{NormalizedSensor, RecordSink, StepSink, normalize_sensor};
 

@@ -1,6 +1,39 @@
 //! The names of recorded quantities (`e`, `P`, `nu_radar`, `nis_dof_radar`, …) and of the
 //! CSV columns that flatten them (`P_1_2`, `nu_radar_1`).
 
+/// The name of the experiment recorded in `files`, for reports and output paths: the
+/// first file's stem, or, when that stem names a quantity (the per-quantity arrays
+/// `e.npy`, `P.npy`, … of one experiment), the name of the directory holding the files
+/// (`records` if it has none). Every character but an ASCII letter, digit or `-` becomes
+/// `_`.
+pub fn experiment_name(files: &[std::path::PathBuf]) -> String {
+    let stem = |p: &std::path::Path| p.file_stem().and_then(|s| s.to_str()).map(str::to_owned);
+    let name = files.first().and_then(|first| match stem(first) {
+        Some(s) if Quantity::parse(&s).is_none() => Some(s),
+        _ => {
+            let dir = match first.parent() {
+                Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
+                _ => std::path::PathBuf::from("."),
+            };
+            let dir = std::fs::canonicalize(&dir).unwrap_or(dir);
+            dir.file_name().and_then(|s| s.to_str()).map(str::to_owned)
+        }
+    });
+    match name {
+        Some(n) if !n.is_empty() => n
+            .chars()
+            .map(|c| {
+                if c.is_ascii_alphanumeric() || c == '-' {
+                    c
+                } else {
+                    '_'
+                }
+            })
+            .collect(),
+        _ => "records".to_string(),
+    }
+}
+
 /// A recorded quantity, with its sensor where it has one (empty: the unnamed sensor).
 #[derive(Debug, Clone, PartialEq, Eq, Hash)]
 pub enum Quantity {

@@ -261,12 +261,18 @@ pub(crate) fn stopped_runs(verdict: Verdict) -> &'static str {
 }
 
 /// For a statistic whose gate interval rests on the spread of the per-run sums (a filter that
-/// supplies no error map), the sentence that says so.
+/// supplies no error map), the sentence that says so and what it costs: the interval's
+/// half-width against the textbook one's, each relative to the target (for 128 runs × 400
+/// steps of a 2-state filter, about ±4.4% instead of ±1.2%).
 pub fn run_spread_note(s: &StatisticSummary) -> Option<String> {
+    let half = |i: &crate::stats::Interval| 50.0 * (i.upper - i.lower) / s.target;
     s.run_spread_runs.map(|n| {
         format!(
-            "the filter supplies no error map, so the A{} interval comes from the spread of the {n} per-run sums (Student t), widened to contain the textbook interval",
-            s.name
+            "the filter supplies no error map, so the A{} interval comes from the spread of the {n} per-run sums (Student t), widened to contain the textbook interval: ±{:.1}% around {} instead of ±{:.1}% (it catches only larger errors; more runs narrow it)",
+            s.name,
+            half(&s.interval),
+            fmt_g(s.target),
+            half(&s.naive_interval),
         )
     })
 }

@@ -41,7 +41,7 @@ mod tests;
 pub use objective::{Objective, Terms, Weights};
 pub use refine::{Confirmation, band_low, seed_at};
 pub use result::{Observer, Resolution, Silent, TuneResult, TuneStatus};
-pub use settings::{LocalSearch, Scoring, TuneSettings};
+pub use settings::{LocalSearch, Plan, Scoring, TuneSettings};
 
 use std::time::{Duration, Instant};
 
@@ -132,12 +132,23 @@ pub fn tune(
         mc.with_runs(settings.search_runs().unwrap_or(4 * mc.runs()))?
     }
     .with_gate(GateMode::Mean);
-    let objective = Objective::new(settings.weights(), settings.nis_only(), mc.alpha());
+    // Without states (no ground truth) only the innovations can be scored.
+    let nis_only = settings.nis_only() || model.state_names().is_empty();
+    let objective = Objective::new(settings.weights(), nis_only, mc.alpha());
     let mut cost = Cost::new(model, search_mc, exact, objective, start, fixed);
+    // The start's evaluation, timed: what one evaluation of the search costs (an external
+    // worker's start-up included, so an overestimate on the first call).
+    let t_start = Instant::now();
     let acc0 = cost.accumulate(start);
+    let seconds_per_eval = t_start.elapsed().as_secs_f64();
     cost.objective.prepare(&acc0);
     let cost = cost;
     let objective_initial = cost.objective.evaluate(&acc0);
+    let plan = settings.plan(cost.dim(), cost.targets.is_some(), exact, seconds_per_eval);
+    for note in &plan.notes {
+        observer.note(note);
+    }
+    let settings = &settings.clone().with_local(plan.local);
 
     // Exact scoring is sequential inside, so candidates run in parallel; Monte Carlo
     // scoring is parallel inside, so candidates run one after another.
@@ -161,7 +172,7 @@ pub fn tune(
     };
     // The gate's own deviates at the optimum: how they move with each parameter (for the
     // refinement and the resolution), on the search's runs from its seed.
-    let use_nees = !settings.nis_only();
+    let use_nees = !nis_only;
     if let Some(e) = cost.failure() {
         return Err(e.into());
     }
@@ -224,14 +235,16 @@ pub fn tune(
     if let Some(e) = cost.failure() {
         return Err(e.into());
     }
+    // A search that ran out of budget did not converge, whatever the confirmation says:
+    // its values are the best found so far, never reported as the tuned answer.
     let status = if cost.dim() > 0 && budget.evaluations() == 0 {
         TuneStatus::BudgetExhausted
     } else if !best.cost.is_finite() {
         TuneStatus::Diverged
-    } else if confirmation.holds() {
-        TuneStatus::Consistent
     } else if budget.exhausted() {
         TuneStatus::BudgetExhausted
+    } else if confirmation.holds() {
+        TuneStatus::Consistent
     } else {
         TuneStatus::Inconsistent
     };
@@ -247,6 +260,7 @@ pub fn tune(
         } else {
             Scoring::MonteCarlo
         },
+        local: plan.local,
         evaluations: budget.evaluations(),
         diverged_evaluations: budget.diverged(),
         history: budget.history(),

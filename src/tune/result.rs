@@ -4,7 +4,7 @@
 use serde::Serialize;
 
 use super::objective::Terms;
-use super::settings::Scoring;
+use super::settings::{LocalSearch, Scoring};
 use crate::stats::ConsistencyReport;
 
 /// How a tuning run ended.
@@ -52,6 +52,9 @@ pub trait Observer: Sync {
     fn evaluation(&self, _evals: usize, _best: f64) {}
     /// Called when a phase starts ("global", "local", "confirm").
     fn phase(&self, _name: &str) {}
+    /// Called before the search with one line the user should read: a local search chosen
+    /// from the measured cost of an evaluation, or a budget that cannot be enough.
+    fn note(&self, _line: &str) {}
 }
 
 /// An observer that does nothing.
@@ -76,6 +79,9 @@ pub struct TuneResult {
     pub objective_final: Terms,
     /// How candidates were scored.
     pub scoring: Scoring,
+    /// The local search that ran: the one set, or the one chosen from the measured cost of
+    /// an evaluation ([`super::TuneSettings::plan`]).
+    pub local: LocalSearch,
     /// Evaluations spent by the search.
     pub evaluations: usize,
     /// Candidates whose filter diverged.

@@ -108,6 +108,7 @@ pub struct TuneSettings {
     global_points: usize,
     scoring: Scoring,
     local: LocalSearch,
+    local_set: bool,
     confirm_seed: Option<u64>,
     search_runs: Option<usize>,
     confirm_seeds: usize,
@@ -126,6 +127,7 @@ impl Default for TuneSettings {
             global_points: 16,
             scoring: Scoring::Auto,
             local: LocalSearch::Simplex,
+            local_set: false,
             confirm_seed: None,
             search_runs: None,
             confirm_seeds: 20,
@@ -236,12 +238,123 @@ impl TuneSettings {
         self.from_estimate
     }
 
-    /// Set the local search.
+    /// Set the local search. Unset, the tuner chooses it from the experiment's measured
+    /// cost (see [`TuneSettings::plan`]).
     pub fn with_local(mut self, local: LocalSearch) -> Self {
         self.local = local;
+        self.local_set = true;
         self
     }
 
+    /// Whether the local search was set (by a problem file, a flag or
+    /// [`TuneSettings::with_local`]) rather than left to the tuner.
+    pub fn local_is_set(&self) -> bool {
+        self.local_set
+    }
+
+    /// Evaluations the search is expected to spend with local search `local` on `dim` free
+    /// parameters: the global stage's 1 + points · d, then per local search about 50 d for
+    /// the simplex (Nelder–Mead and its polish, measured on 2- to 4-parameter problems:
+    /// 386 evaluations for 4 searches in 2-D) and 12 (d + 1) for Gauss–Newton (two
+    /// Levenberg–Marquardt solves of a few iterations of d + 1 evaluations each). The
+    /// simplex runs one more search from the winner. A projection, not a bound.
+    pub fn projected_evaluations(&self, local: LocalSearch, dim: usize) -> usize {
+        let global = if self.from_estimate {
+            0
+        } else {
+            1 + self.global_points.saturating_mul(dim)
+        };
+        let starts = if self.from_estimate { 1 } else { self.starts };
+        let local_evals = match local {
+            LocalSearch::Simplex => (starts + 1).saturating_mul(50 * dim),
+            LocalSearch::GaussNewton => starts.saturating_mul(12 * (dim + 1)),
+        };
+        global.saturating_add(local_evals)
+    }
+
+    /// The search's plan for an experiment whose evaluation takes `seconds_per_eval` s, with
+    /// `dim` free parameters, `targets` when every one of them declares the components it
+    /// drives (so Gauss–Newton can solve the moment equations), and `exact` scoring.
+    ///
+    /// An unset local search stays the simplex unless its projected evaluations would take
+    /// more than half the wall-time budget and Gauss–Newton is available (Monte Carlo
+    /// scoring and every free parameter with targets): then Gauss–Newton, which needs a
+    /// tenth of the evaluations. Whatever the method, a plan whose projected time exceeds
+    /// the budget says so, with the budget to set. The choice rests on a measured time, so
+    /// a machine twice as fast may choose differently near the threshold: set `local` to
+    /// pin it.
+    pub fn plan(&self, dim: usize, targets: bool, exact: bool, seconds_per_eval: f64) -> Plan {
+        let seconds = |n: usize| n as f64 * seconds_per_eval;
+        let simplex = self.projected_evaluations(LocalSearch::Simplex, dim);
+        let switch = !self.local_set
+            && self.local == LocalSearch::Simplex
+            && !exact
+            && targets
+            && dim > 0
+            && seconds(simplex) > 0.5 * self.max_seconds;
+        let local = if switch {
+            LocalSearch::GaussNewton
+        } else {
+            self.local
+        };
+        let projected = self.projected_evaluations(local, dim);
+        let mut notes = Vec::new();
+        if switch {
+            notes.push(format!(
+                "each evaluation takes {}: Gauss–Newton (every parameter names what it drives) instead of the simplex's ~{simplex} evaluations (~{}); set `local` to choose",
+                fmt_seconds(seconds_per_eval),
+                fmt_seconds(seconds(simplex)),
+            ));
+        }
+        let evals = projected.min(self.max_evals);
+        if dim > 0 && !exact && seconds(evals) > self.max_seconds {
+            // Twice the projection, rounded up to a minute: projections are rough.
+            let want = (2.0 * seconds(projected) / 60.0).ceil() * 60.0;
+            notes.push(format!(
+                "each evaluation takes {}: the search needs ~{projected} evaluations (~{}), more than max_seconds = {}; set --max-seconds {want} (or [tune] max_seconds){}",
+                fmt_seconds(seconds_per_eval),
+                fmt_seconds(seconds(projected)),
+                self.max_seconds,
+                if local == LocalSearch::Simplex && targets {
+                    ", or --local gauss_newton"
+                } else {
+                    ""
+                },
+            ));
+        }
+        Plan {
+            local,
+            projected,
+            notes,
+        }
+    }
+}
+
+/// A search plan: the local search chosen and what it is expected to cost
+/// ([`TuneSettings::plan`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Plan {
+    /// The local search to run.
+    pub local: LocalSearch,
+    /// Evaluations the search is expected to take.
+    pub projected: usize,
+    /// One line for each thing the user should know before the search: a method chosen
+    /// for them, a budget that cannot be enough.
+    pub notes: Vec<String>,
+}
+
+/// A duration for a one-line note: `0.31 s`, `95 s`, `12 min`.
+fn fmt_seconds(s: f64) -> String {
+    if s < 10.0 {
+        format!("{s:.2} s")
+    } else if s < 600.0 {
+        format!("{s:.0} s")
+    } else {
+        format!("{:.0} min", s / 60.0)
+    }
+}
+
+impl TuneSettings {
     /// Seed of the confirmation runs (`None`: derived from the search seed, never equal).
     pub fn with_confirm_seed(mut self, seed: Option<u64>) -> Self {
         self.confirm_seed = seed;

@@ -20,7 +20,7 @@ pub(crate) use json::object as json_object;
 pub use json::parse_record_line;
 pub use names::{Quantity, valid_sensor};
 pub(crate) use npy::read_raw as read_numpy_arrays;
-pub use sink::{NormalizedSensor, RecordSink, StepSink, normalize_sensor};
+pub use sink::{NormalizedSensor, RecordSink, StepSink, normalize_sensor, shown_number};
 
 /// Largest number of steps per run records may have. The sums take memory proportional to
 /// T, allocated before the first record is read, so T is checked first; this is the

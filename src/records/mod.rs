@@ -28,6 +28,10 @@ pub use sink::{NormalizedSensor, RecordSink, StepSink, normalize_sensor, shown_n
 /// `montecarlo` (tests/records.rs checks the two agree).
 pub const MAX_STEPS: usize = 1_000_000;
 
+/// Most components a state or a sensor of records may have (e, P's side, nu, u, …): the
+/// sums and the report grow with them (docs/external.md, Limits).
+pub const MAX_COMPONENTS: usize = 4096;
+
 /// The state quantities of a record: the ground-truth side.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct StateLayout {

@@ -148,7 +148,7 @@ fn mkfifo(path: &Path) {
 #[test]
 fn issue21_a_fifo_named_as_records_or_measurements_is_refused_not_waited_on() {
     let dir = tempfile::tempdir().unwrap();
-    for name in ["r.csv", "r.jsonl", "r.npz", "r.npy"] {
+    for name in ["r.csv", "r.jsonl", "r.npz", "r.npy", "r.toml"] {
         mkfifo(&dir.path().join(name));
     }
     let mut cases = readers("r.csv");
@@ -159,6 +159,14 @@ fn issue21_a_fifo_named_as_records_or_measurements_is_refused_not_waited_on() {
         problem(),
         "--measurements".into(),
         "r.npy".into(),
+    ]);
+    // A problem file, and a tuned config, are read through the same door.
+    cases.push(vec!["check".into(), "r.toml".into()]);
+    cases.push(vec![
+        "check".into(),
+        problem(),
+        "--config".into(),
+        "r.toml".into(),
     ]);
     for c in &cases {
         let file = c.iter().find(|a| a.starts_with("r.")).unwrap();
@@ -392,15 +400,19 @@ fn issue21_an_npy_header_longer_than_its_file_is_refused() {
     );
 }
 
-/// A records CSV whose header has `run`, `step` and `e_1 … e_n`, and one row.
+/// A records CSV whose header has `run`, `step`, `e_1 … e_n` and the full `P_i_j` (n + n²
+/// columns: a full covariance of 300 states is 90 000), and no rows.
 fn wide_csv(dir: &Path, n: usize) -> std::path::PathBuf {
     let path = dir.join(format!("h{n}.csv"));
     let mut text = String::from("run,step");
-    for j in 1..=n {
-        text.push_str(&format!(",e_{j}"));
+    for i in 1..=n {
+        text.push_str(&format!(",e_{i}"));
     }
-    text.push_str("\n0,1");
-    text.push_str(&",0".repeat(n));
+    for i in 1..=n {
+        for j in 1..=n {
+            text.push_str(&format!(",P_{i}_{j}"));
+        }
+    }
     text.push('\n');
     std::fs::write(&path, text).unwrap();
     path
@@ -409,17 +421,18 @@ fn wide_csv(dir: &Path, n: usize) -> std::path::PathBuf {
 /// Seconds to scan `path`'s header, in this process.
 fn header_seconds(path: &Path) -> f64 {
     let t = Instant::now();
-    // `e` without `P` is refused once the header is parsed: the parse is timed.
+    // A header without rows is refused once it is parsed: the parse is timed.
     let e = autotune::records::scan_files(&[path.to_path_buf()]).unwrap_err();
-    assert!(e.to_string().contains("e without P"), "{e}");
+    assert!(e.to_string().contains("no rows"), "{e}");
     t.elapsed().as_secs_f64()
 }
 
 #[test]
 fn issue21_csv_header_parsing_is_linear_in_the_columns() {
     let dir = tempfile::tempdir().unwrap();
-    let small = wide_csv(dir.path(), 10_000);
-    let large = wide_csv(dir.path(), 100_000);
+    // 10 100 and 100 172 columns.
+    let small = wide_csv(dir.path(), 100);
+    let large = wide_csv(dir.path(), 316);
     // Interleaved, the best of five each: other tests running alongside slow single runs.
     let (mut s, mut l) = (f64::INFINITY, f64::INFINITY);
     for _ in 0..5 {
@@ -524,4 +537,30 @@ fn issue21_ordinary_records_still_read() {
     std::fs::write(dir.path().join("ok.csv"), text).unwrap();
     let o = run(dir.path(), &["check", "--records", "ok.csv"]);
     assert!(matches!(o.code, Some(0) | Some(1)), "{o:?}");
+}
+
+#[test]
+fn issue21_a_line_within_the_cap_cannot_declare_millions_of_components() {
+    // Just under the line cap, four million one-digit components: the sums and the report
+    // took 4.3 GB and 48 s before the components were capped.
+    let dir = tempfile::tempdir().unwrap();
+    let mut text = br#"{"run": 0, "step": 1, "nis": 1, "nis_dof": 1, "u": ["#.to_vec();
+    while text.len() < (8 << 20) - 1024 {
+        text.extend_from_slice(b"0,");
+    }
+    text.extend_from_slice(b"0]}\n");
+    std::fs::write(dir.path().join("wide.jsonl"), text).unwrap();
+    let o = refused(
+        dir.path(),
+        &["check", "--records", "wide.jsonl"],
+        &[
+            "wide.jsonl",
+            "u has shape",
+            "above the limit of 4096 components",
+        ],
+    );
+    eprintln!(
+        "peak resident memory on a line of 4 million components: {} KiB",
+        o.peak_kb
+    );
 }

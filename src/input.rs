@@ -107,13 +107,6 @@ pub fn at_most(setting: &str, n: usize, max: usize) -> Result<usize, SettingErro
     Ok(n)
 }
 
-/// Read a file as UTF-8 text; the error names the file.
-pub fn read_text(path: &Path) -> Result<String, FileError> {
-    let bytes =
-        std::fs::read(path).map_err(|e| FileError::new(path, "", format!("cannot read: {e}")))?;
-    String::from_utf8(bytes).map_err(|_| FileError::new(path, "", "not UTF-8 text"))
-}
-
 /// Deserialize TOML into `T`, turning syntax and schema errors into a [`FileError`] with the
 /// field path and line.
 pub fn parse_toml<T: serde::de::DeserializeOwned>(text: &str, path: &Path) -> Result<T, FileError> {

@@ -56,6 +56,7 @@ pub mod report;
 pub mod statespace;
 pub mod stats;
 pub mod tune;
+pub mod userfile;
 
 /// The random number generator of one Monte Carlo run (xoshiro256++: fast, seedable, and
 /// with independent streams per seed).

@@ -107,7 +107,8 @@ fn seconds(flag: &str, v: Option<f64>) -> Result<Option<Duration>, AppError> {
         } else {
             Err(AppError::flag(
                 flag,
-                format!("{s} is not a number of seconds > 0"),
+                // `{:?}`: 1e300 as written, not its 301 digits.
+                format!("{s:?} is not a number of seconds in (0, 1e9)"),
             ))
         }
     })

@@ -13,8 +13,10 @@ use serde_json::Value;
 use super::{Measurements, Sequence};
 use crate::input::FileError;
 
-/// Largest number of steps a record may have in all.
-const MAX_VALUES: usize = 100_000_000;
+/// Most values (measurement components, all runs and steps together) a record may have:
+/// the record is held in memory, 8 bytes a value, and a CSV of empty cells costs one byte
+/// of file a value, so the cap bounds memory (docs/measurements.md, Limits).
+pub const MAX_VALUES: usize = 20_000_000;
 
 fn at(path: &Path, line: usize, field: &str, m: impl Into<String>) -> FileError {
     let mut e = FileError::new(path, field, m);
@@ -98,6 +100,18 @@ impl Builder {
     }
 }
 
+/// A CSV reader's error on one line.
+fn csv_message(e: &csv::Error) -> String {
+    match e.kind() {
+        csv::ErrorKind::UnequalLengths {
+            expected_len, len, ..
+        } => format!("{len} cells where the header has {expected_len}"),
+        csv::ErrorKind::Utf8 { .. } => "not UTF-8 text".into(),
+        csv::ErrorKind::Io(io) => format!("cannot read: {io}"),
+        _ => crate::records::shown_up_to(&e.to_string(), 120),
+    }
+}
+
 fn index(text: &str, what: &str) -> Result<usize, (String, String)> {
     text.trim().parse::<usize>().map_err(|_| {
         (
@@ -129,15 +143,17 @@ pub fn read_measurements(path: &Path) -> Result<Measurements, FileError> {
 }
 
 fn read_csv(path: &Path) -> Result<Measurements, FileError> {
-    let mut rdr = csv::ReaderBuilder::new()
-        .has_headers(true)
-        .trim(csv::Trim::All)
-        .from_path(path)
-        .map_err(|e| FileError::new(path, "", format!("cannot read: {e}")))?;
+    let mut rdr = crate::userfile::csv_reader(
+        path,
+        csv::ReaderBuilder::new()
+            .has_headers(true)
+            .trim(csv::Trim::All),
+    )?;
     let header = rdr
         .headers()
-        .map_err(|e| at(path, 1, "header", e.to_string()))?
+        .map_err(|e| at(path, 1, "header", csv_message(&e)))?
         .clone();
+    crate::userfile::check_columns(path, header.len())?;
     let (mut run, mut step) = (None, None);
     let mut z: Vec<(usize, usize)> = Vec::new();
     for (c, name) in header.iter().enumerate() {
@@ -184,14 +200,7 @@ fn read_csv(path: &Path) -> Result<Measurements, FileError> {
             Ok(true) => {}
             Err(e) => {
                 let line = e.position().map_or(line, |p| p.line() as usize);
-                let message = match e.kind() {
-                    csv::ErrorKind::UnequalLengths {
-                        expected_len, len, ..
-                    } => format!("{len} cells where the header has {expected_len}"),
-                    csv::ErrorKind::Utf8 { .. } => "not UTF-8 text".into(),
-                    _ => crate::records::shown_up_to(&e.to_string(), 120),
-                };
-                return Err(at(path, line, "", message));
+                return Err(at(path, line, "", csv_message(&e)));
             }
         }
         let line = rec.position().map_or(line, |p| p.line() as usize);
@@ -223,10 +232,8 @@ fn read_csv(path: &Path) -> Result<Measurements, FileError> {
 
 fn read_jsonl(path: &Path) -> Result<Measurements, FileError> {
     use std::io::BufRead;
-    let file = std::fs::File::open(path)
-        .map_err(|e| FileError::new(path, "", format!("cannot read: {e}")))?;
     let mut b = Builder::new();
-    for (i, line) in std::io::BufReader::new(file).lines().enumerate() {
+    for (i, line) in crate::userfile::text_lines(path)?.lines().enumerate() {
         let n = i + 1;
         let line = line.map_err(|e| at(path, n, "", format!("cannot read: {e}")))?;
         if line.trim().is_empty() {
@@ -294,6 +301,13 @@ fn read_numpy(path: &Path) -> Result<Measurements, FileError> {
             format!("shape {shape:?} holds no measurements"),
         ));
     }
+    if data.len() > MAX_VALUES {
+        return Err(FileError::new(
+            path,
+            &field,
+            format!("shape {shape:?}: more than {MAX_VALUES} values"),
+        ));
+    }
     if let Some(i) = data.iter().position(|v| v.is_infinite()) {
         return Err(FileError::new(
             path,
@@ -301,13 +315,17 @@ fn read_numpy(path: &Path) -> Result<Measurements, FileError> {
             format!("element {i} is not finite"),
         ));
     }
-    let sequences = data
-        .chunks(steps * m)
-        .map(|c| Sequence {
-            steps,
-            z: c.to_vec(),
-        })
-        .collect();
+    // One run keeps the numbers read; several are cut from them.
+    let sequences = if runs == 1 {
+        vec![Sequence { steps, z: data }]
+    } else {
+        data.chunks(steps * m)
+            .map(|c| Sequence {
+                steps,
+                z: c.to_vec(),
+            })
+            .collect()
+    };
     Ok(Measurements { dim: m, sequences })
 }
 

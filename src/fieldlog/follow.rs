@@ -82,7 +82,7 @@ impl Follower {
     /// Read what was appended since the last poll; returns the number of complete lines
     /// read. A partial last line waits for its end.
     pub fn poll(&mut self) -> Result<usize, FileError> {
-        let mut file = match super::open_log(&self.path) {
+        let mut file = match crate::userfile::open_io(&self.path) {
             Ok(f) => f,
             Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(0),
             Err(e) => return Err(FileError::new(&self.path, "", format!("cannot read: {e}"))),

@@ -87,37 +87,14 @@ enum Kind {
     Records,
 }
 
-/// Open a log to read: a regular file only. A FIFO without a writer would block the open
-/// for ever (a follower's `--for` could never fire), so on Unix the open does not block and
-/// anything but a regular file is refused after it.
-pub(super) fn open_log(path: &Path) -> std::io::Result<std::fs::File> {
-    let mut options = std::fs::OpenOptions::new();
-    options.read(true);
-    #[cfg(unix)]
-    {
-        use std::os::unix::fs::OpenOptionsExt;
-        options.custom_flags(libc::O_NONBLOCK);
-    }
-    let file = options.open(path)?;
-    if !file.metadata()?.is_file() {
-        return Err(std::io::Error::other(NOT_REGULAR));
-    }
-    Ok(file)
-}
-
-const NOT_REGULAR: &str = "not a regular file (a directory, FIFO or device)";
-
 fn kind_of(path: &Path) -> Result<Kind, FileError> {
-    // Every reader, the records readers too, would block on a FIFO: refuse it by its kind
-    // first (stat does not block).
-    if let Ok(m) = std::fs::metadata(path)
-        && !m.is_file()
-    {
-        return Err(FileError::new(
-            path,
-            "",
-            format!("cannot read: {NOT_REGULAR}"),
-        ));
+    // Every reader goes through `userfile`, which refuses a FIFO or a device; refusing it
+    // here too gives that error before the format sniff. A missing file is left to the
+    // reader's error.
+    match crate::userfile::open_io(path) {
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
+        Err(e) => return Err(crate::userfile::cannot_read(path, &e)),
+        Ok(_) => {}
     }
     let ext = path
         .extension()

@@ -161,8 +161,8 @@ const MAGIC: [u8; 7] = [b'U', b'L', b'o', b'g', 0x01, 0x12, 0x35];
 fn check_magic(path: &Path) -> Result<(), FileError> {
     use std::io::Read as _;
     let mut head = [0u8; 16];
-    let mut file =
-        super::open_log(path).map_err(|e| FileError::new(path, "", format!("cannot read: {e}")))?;
+    let mut file = crate::userfile::open_io(path)
+        .map_err(|e| FileError::new(path, "", format!("cannot read: {e}")))?;
     let mut got = 0;
     while got < head.len() {
         match file.read(&mut head[got..]) {

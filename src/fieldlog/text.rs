@@ -50,8 +50,8 @@ fn err_json(path: &Path, line: usize, field: &str, m: impl Into<String>) -> File
 /// Whether the CSV / JSON Lines file at `path` is in the records format (it has `run` and
 /// `step` and no `sensor`) rather than a field log.
 pub(super) fn is_records(path: &Path) -> Result<bool, FileError> {
-    let file =
-        super::open_log(path).map_err(|e| FileError::new(path, "", format!("cannot read: {e}")))?;
+    let file = crate::userfile::open_io(path)
+        .map_err(|e| FileError::new(path, "", format!("cannot read: {e}")))?;
     let mut first = String::new();
     BufReader::new(file)
         .take_line(&mut first)
@@ -424,9 +424,7 @@ pub(super) fn read(
         }
     };
     if jsonl {
-        let file = super::open_log(path)
-            .map_err(|e| FileError::new(path, "", format!("cannot read: {e}")))?;
-        for (i, line) in BufReader::new(file).lines().enumerate() {
+        for (i, line) in crate::userfile::text_lines(path)?.lines().enumerate() {
             let line_no = i + 1;
             let line =
                 line.map_err(|e| err_json(path, line_no, "", format!("cannot read: {e}")))?;
@@ -440,18 +438,18 @@ pub(super) fn read(
             handle(res, &mut skips)?;
         }
     } else {
-        let mut rdr = csv::ReaderBuilder::new()
-            .has_headers(true)
-            .flexible(true)
-            .trim(csv::Trim::All)
-            .from_reader(
-                super::open_log(path)
-                    .map_err(|e| FileError::new(path, "", format!("cannot read: {e}")))?,
-            );
+        let mut rdr = crate::userfile::csv_reader(
+            path,
+            csv::ReaderBuilder::new()
+                .has_headers(true)
+                .flexible(true)
+                .trim(csv::Trim::All),
+        )?;
         let header = rdr
             .headers()
             .map_err(|e| err_json(path, 1, "header", csv_text(&e)))?
             .clone();
+        crate::userfile::check_columns(path, header.len())?;
         let cols = CsvColumns::new(&header).map_err(|m| err_json(path, 1, "header", m))?;
         let mut rec = csv::StringRecord::new();
         loop {

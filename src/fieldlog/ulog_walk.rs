@@ -209,7 +209,7 @@ pub(super) fn walk(
     stop: &dyn Fn() -> bool,
 ) -> Result<Ending, FileError> {
     let io = |e: std::io::Error| FileError::new(path, "", format!("cannot read: {e}"));
-    let file = super::open_log(path).map_err(io)?;
+    let file = crate::userfile::open_io(path).map_err(io)?;
     let file_len = file.metadata().map_err(io)?.len();
     let mut r = BufReader::with_capacity(1 << 16, file);
     let mut msg = vec![0u8; 16];

@@ -93,7 +93,8 @@ impl Validator<'_> {
             Some(t) => {
                 return self.err(
                     "external.timeout",
-                    format!("{t}: must be a number of seconds in (0, {MAX_TIMEOUT}]"),
+                    // `{:?}`: 1e300 as written, not its 301 digits.
+                    format!("{t:?}: must be a number of seconds in (0, {MAX_TIMEOUT}]"),
                 );
             }
         };

@@ -18,11 +18,12 @@ use crate::experiment::{
     LinearExperiment, RunOptions, Source,
 };
 use crate::external::ExternalExperiment;
-use crate::input::{FileError, SettingError, parse_toml, read_text};
+use crate::input::{FileError, SettingError, parse_toml};
 use crate::montecarlo::{Engine, McConfig};
 use crate::params::{ParamDef, ParamSpace, Target};
 use crate::stats::Accumulator;
 use crate::tune::{LocalSearch, Scoring, TuneSettings};
+use crate::userfile::read_text;
 pub use spec::ProblemSpec;
 use validate::{VResult, Validator};
 

@@ -9,6 +9,7 @@ use super::files::{Found, Keys, Row, fits, infer_layout, shown, step_record};
 use super::names::{Quantity, parse_column};
 use super::{Layout, MAX_STEPS, StepSink};
 use crate::input::FileError;
+use crate::userfile::{self, LineCapped};
 
 /// Where each quantity's numbers sit in a row.
 struct Columns {
@@ -21,12 +22,17 @@ struct Columns {
     found: Found,
 }
 
-fn open(path: &Path) -> Result<csv::Reader<std::fs::File>, FileError> {
-    csv::ReaderBuilder::new()
-        .has_headers(true)
-        .trim(csv::Trim::All)
-        .from_path(path)
-        .map_err(|e| FileError::new(path, "", format!("cannot read: {}", csv_message(&e))))
+/// The file's reader: through `userfile`, so a FIFO or a device is refused and a row is
+/// at most `userfile::MAX_LINE` bytes.
+type Reader = csv::Reader<LineCapped<std::fs::File>>;
+
+fn open(path: &Path) -> Result<Reader, FileError> {
+    userfile::csv_reader(
+        path,
+        csv::ReaderBuilder::new()
+            .has_headers(true)
+            .trim(csv::Trim::All),
+    )
 }
 
 fn csv_message(e: &csv::Error) -> String {
@@ -51,16 +57,25 @@ fn line_error(
     e
 }
 
-fn columns(path: &Path, rdr: &mut csv::Reader<std::fs::File>) -> Result<Columns, FileError> {
+/// A quantity's column: its entry's indices (a matrix's (a, b), a vector's (j, 0)) and
+/// where it is in the row.
+type Cell = ([usize; 2], usize);
+
+fn columns(path: &Path, rdr: &mut Reader) -> Result<Columns, FileError> {
     let header = rdr
         .headers()
         .map_err(|e| line_error(path, Some(1), "header", csv_message(&e)))?
         .clone();
+    userfile::check_columns(path, header.len())?;
     let mut run = None;
     let mut step = None;
-    // Per quantity: (indices, column).
-    let mut cells: HashMap<Quantity, Vec<(Vec<usize>, usize)>> = HashMap::new();
-    let mut order: Vec<Quantity> = Vec::new();
+    // Per quantity, in the order of its first column: its (indices, column) pairs. A
+    // matrix entry's indices are (a, b), a vector's (j, 0), a scalar's (0, 0).
+    let mut ids: HashMap<Quantity, usize> = HashMap::new();
+    let mut lists: Vec<(Quantity, Vec<Cell>)> = Vec::new();
+    // Every (quantity, indices) seen: a duplicate is found by hashing, not by a scan of the
+    // quantity's columns (which made a header of n columns cost n²).
+    let mut seen: HashSet<(usize, [usize; 2])> = HashSet::new();
     for (c, name) in header.iter().enumerate() {
         // MATLAB's writetable may start the file with a byte-order mark.
         let name = name.trim_start_matches('\u{feff}');
@@ -85,14 +100,18 @@ fn columns(path: &Path, rdr: &mut csv::Reader<std::fs::File>) -> Result<Columns,
             Quantity::Run => run = Some(c),
             Quantity::Step => step = Some(c),
             q => {
-                let list = cells.entry(q.clone()).or_default();
-                if list.iter().any(|(i, _)| *i == idx) {
+                let id = *ids.entry(q).or_insert_with_key(|q| {
+                    lists.push((q.clone(), Vec::new()));
+                    lists.len() - 1
+                });
+                let at = [
+                    idx.first().copied().unwrap_or(0),
+                    idx.get(1).copied().unwrap_or(0),
+                ];
+                if !seen.insert((id, at)) {
                     return Err(line_error(path, Some(1), name, "column appears twice"));
                 }
-                if list.is_empty() {
-                    order.push(q);
-                }
-                list.push((idx, c));
+                lists[id].1.push((at, c));
             }
         }
     }
@@ -100,8 +119,7 @@ fn columns(path: &Path, rdr: &mut csv::Reader<std::fs::File>) -> Result<Columns,
     let step = step.ok_or_else(|| line_error(path, Some(1), "header", "no 'step' column"))?;
     let mut quantities = HashMap::new();
     let mut found = Found::new();
-    for q in order {
-        let list = &cells[&q];
+    for (q, list) in lists {
         let label = q.name();
         let (dims, slots) = match q.rank() {
             0 => (vec![], vec![Some(list[0].1)]),
@@ -120,7 +138,7 @@ fn columns(path: &Path, rdr: &mut csv::Reader<std::fs::File>) -> Result<Columns,
                 }
                 let mut slots = vec![None; n];
                 for (i, c) in list {
-                    slots[i[0]] = Some(*c);
+                    slots[i[0]] = Some(c);
                 }
                 (vec![n], slots)
             }
@@ -153,7 +171,7 @@ fn columns(path: &Path, rdr: &mut csv::Reader<std::fs::File>) -> Result<Columns,
                 }
                 let mut slots = vec![None; n * n];
                 for (i, c) in list {
-                    slots[i[0] * n + i[1]] = Some(*c);
+                    slots[i[0] * n + i[1]] = Some(c);
                 }
                 (vec![n, n], slots)
             }
@@ -180,11 +198,7 @@ fn index_cell(cell: &str) -> Option<usize> {
 
 /// Read the next row into `rec`; `false` at the end. A row that cannot be read is an
 /// error naming its line.
-fn next_row(
-    path: &Path,
-    rdr: &mut csv::Reader<std::fs::File>,
-    rec: &mut csv::StringRecord,
-) -> Result<bool, FileError> {
+fn next_row(path: &Path, rdr: &mut Reader, rec: &mut csv::StringRecord) -> Result<bool, FileError> {
     rdr.read_record(rec).map_err(|e| {
         let line = e.position().map(|p| p.line());
         line_error(path, line, "", csv_message(&e))

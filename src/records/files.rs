@@ -6,8 +6,8 @@ use std::path::{Path, PathBuf};
 
 use super::names::Quantity;
 use super::{
-    Layout, MAX_STEPS, RecordSink, SensorLayout, SensorRecord, StateLayout, StateRecord,
-    StepRecord, StepSink,
+    Layout, MAX_COMPONENTS, MAX_STEPS, RecordSink, SensorLayout, SensorRecord, StateLayout,
+    StateRecord, StepRecord, StepSink,
 };
 use crate::input::FileError;
 use crate::stats::Accumulator;
@@ -23,6 +23,17 @@ pub(super) fn infer_layout(found: &Found) -> Result<Layout, String> {
     // and lets a NumPy file claim any number of runs without holding a byte of them.
     if let Some((q, d)) = found.iter().find(|(_, d)| d.contains(&0)) {
         return Err(format!("{} has shape {d:?}: no entries", q.name()));
+    }
+    // The sums, the per-component verdicts and the report grow with the components: a
+    // list of millions (one JSON line can hold four million) took gigabytes and minutes.
+    if let Some((q, d)) = found
+        .iter()
+        .find(|(_, d)| d.iter().any(|&n| n > MAX_COMPONENTS))
+    {
+        return Err(format!(
+            "{} has shape {d:?}: above the limit of {MAX_COMPONENTS} components",
+            q.name()
+        ));
     }
     let dims = |q: &Quantity| found.iter().find(|(f, _)| f == q).map(|(_, d)| d.clone());
     let has = |q: &Quantity| dims(q).is_some();

@@ -2,7 +2,7 @@
 //! `{"run": 0, "step": 1, "e": [..], "P": [[..], ..], "nu_radar": [..], "S_radar": [[..]]}`.
 //! The same lines are what a worker may answer inline.
 
-use std::io::{BufRead, BufReader};
+use std::io::BufRead;
 use std::path::Path;
 
 use serde_json::{Map, Value};
@@ -185,11 +185,9 @@ pub fn parse_record_line(line: &str, layout: &Layout) -> Result<StepRecord, Stri
 
 /// The layout and the number of steps of a JSON Lines records file.
 pub(super) fn scan(path: &Path) -> Result<(Layout, usize), FileError> {
-    let file = std::fs::File::open(path)
-        .map_err(|e| FileError::new(path, "", format!("cannot read: {e}")))?;
     let mut all = Found::new();
     let mut steps = 0;
-    for (i, line) in BufReader::new(file).lines().enumerate() {
+    for (i, line) in crate::userfile::text_lines(path)?.lines().enumerate() {
         let at = |m: String| {
             let mut e = FileError::new(path, "", m);
             e.line = Some(i + 1);
@@ -224,9 +222,7 @@ pub(super) fn scan(path: &Path) -> Result<(Layout, usize), FileError> {
 
 /// Stream a JSON Lines records file into `sink`, which expects `layout`.
 pub(super) fn feed(path: &Path, layout: &Layout, sink: &mut dyn StepSink) -> Result<(), FileError> {
-    let file = std::fs::File::open(path)
-        .map_err(|e| FileError::new(path, "", format!("cannot read: {e}")))?;
-    for (i, line) in BufReader::new(file).lines().enumerate() {
+    for (i, line) in crate::userfile::text_lines(path)?.lines().enumerate() {
         let at = |m: String| {
             let mut e = FileError::new(path, "", m);
             e.line = Some(i + 1);

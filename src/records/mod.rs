@@ -20,13 +20,17 @@ pub(crate) use json::object as json_object;
 pub use json::parse_record_line;
 pub use names::{Quantity, experiment_name, valid_sensor};
 pub(crate) use npy::read_raw as read_numpy_arrays;
-pub use sink::{NormalizedSensor, RecordSink, StepSink, normalize_sensor};
+pub use sink::{NormalizedSensor, RecordSink, StepSink, normalize_sensor, shown_number};
 
 /// Largest number of steps per run records may have. The sums take memory proportional to
 /// T, allocated before the first record is read, so T is checked first; this is the
 /// engines' `montecarlo::MAX_STEPS`, repeated here because `records` sits below
 /// `montecarlo` (tests/records.rs checks the two agree).
 pub const MAX_STEPS: usize = 1_000_000;
+
+/// Most components a state or a sensor of records may have (e, P's side, nu, u, …): the
+/// sums and the report grow with them (docs/external.md, Limits).
+pub const MAX_COMPONENTS: usize = 4096;
 
 /// The state quantities of a record: the ground-truth side.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

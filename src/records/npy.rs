@@ -8,11 +8,10 @@ use super::files::{Found, Keys, Row, fits, infer_layout, step_record};
 use super::names::Quantity;
 use super::{Layout, MAX_STEPS, StepSink};
 use crate::input::FileError;
+use crate::userfile;
 
 /// Largest array the reader accepts, in elements: 2³¹ doubles are 16 GiB.
 const MAX_ELEMENTS: u64 = 1 << 31;
-/// Most bytes reserved from an array's header before its data is read.
-const PREALLOCATE: usize = 1 << 24;
 
 /// One array, as doubles in C order.
 struct Array {
@@ -39,10 +38,56 @@ pub(crate) struct Arrays {
     diverged: Vec<usize>,
 }
 
+/// Longest `.npy` header accepted, in bytes (NumPy's own reader stops at 10 000): the
+/// header's length is a claim, read before anything else.
+const MAX_HEADER: u64 = 1 << 20;
+
+/// The bytes an array's data may take in memory (as float64) while a set of arrays is read:
+/// `userfile::npz_budget` of the files' size on disk, spent array by array.
+struct Budget {
+    left: u64,
+    total: u64,
+}
+
+/// A stream whose first bytes were read to check them, put back in front.
+type Rejoined<R> = std::io::Chain<std::io::Cursor<Vec<u8>>, R>;
+
+/// Check the pre-header of a `.npy` stream (magic, version, header length) against the
+/// `available` bytes before the NumPy reader reserves memory for the header, and hand the
+/// stream on whole.
+fn checked_npy<R: Read>(mut r: R, available: u64) -> Result<npyz::NpyFile<Rejoined<R>>, String> {
+    let mut head = Vec::with_capacity(12);
+    (&mut r)
+        .take(12)
+        .read_to_end(&mut head)
+        .map_err(|e| format!("cannot read: {}", one_line(&e)))?;
+    if head.len() >= 10 && head.starts_with(b"\x93NUMPY") {
+        let len = match head[6] {
+            1 => u64::from(u16::from_le_bytes([head[8], head[9]])),
+            _ if head.len() == 12 => {
+                u64::from(u32::from_le_bytes([head[8], head[9], head[10], head[11]]))
+            }
+            _ => 0,
+        };
+        if len > MAX_HEADER.min(available) {
+            return Err(format!(
+                "not a .npy file: a header of {len} bytes (the limit is {}, the data has {available} bytes)",
+                userfile::size_text(MAX_HEADER)
+            ));
+        }
+    }
+    npyz::NpyFile::new(std::io::Cursor::new(head).chain(r))
+        .map_err(|e| format!("not a .npy file: {}", one_line(&e)))
+}
+
+/// Read one array, whose data lies in the `available` bytes of its file or archive entry,
+/// spending its size as float64 from `budget`.
 fn read_array<R: Read>(
     file: &Path,
     name: &str,
     npy: npyz::NpyFile<R>,
+    available: u64,
+    budget: &mut Budget,
 ) -> Result<(Vec<usize>, Vec<f64>), FileError> {
     let err = |m: String| FileError::new(file, format!("array {name}"), m);
     // npyz's own `len()` wraps on absurd shapes ((2³², 2³²) has "0" elements): count
@@ -57,29 +102,64 @@ fn read_array<R: Read>(
                 "shape {:?}: above the limit of {MAX_ELEMENTS} elements",
                 npy.shape()
             ))
-        })? as usize;
+        })?;
     let shape: Vec<usize> = npy.shape().iter().map(|&d| d as usize).collect();
     let order = npy.order();
     let dtype = npy.dtype().descr();
-    // The common case, little-endian float64, in one read: element by element, the zip
-    // reader's checksum and the buffering cost more than the numbers.
+    let itemsize = npy.dtype().num_bytes().unwrap_or(usize::MAX) as u64;
+    // The header's shape is a claim: the data must be there, and fit the budget, before
+    // memory is reserved for it.
+    if !userfile::npy_fits(len, itemsize, available) {
+        return Err(err(format!(
+            "truncated: shape {shape:?} of {itemsize}-byte numbers needs more than the {available} bytes there are"
+        )));
+    }
+    // A Fortran-order array is reordered into a copy: it takes its size twice.
+    let copies = if order == npyz::Order::C || shape.len() < 2 {
+        1
+    } else {
+        2
+    };
+    let cost = len * 8 * copies;
+    if cost > budget.left {
+        return Err(err(format!(
+            "{} as float64: the arrays expand beyond the limit of {} for this file (docs/external.md, Limits)",
+            userfile::size_text(len * 8),
+            userfile::size_text(budget.total)
+        )));
+    }
+    budget.left -= cost;
+    let len = len as usize;
+    // The common case, little-endian float64, read in blocks straight into the numbers:
+    // element by element, the zip reader's checksum and the buffering cost more than them.
     if dtype == "'<f8'" || (dtype == "'=f8'" && cfg!(target_endian = "little")) {
-        // The header's size is a claim: memory grows with the bytes actually there.
-        let mut bytes = Vec::with_capacity((len * 8).min(PREALLOCATE));
-        npy.into_inner()
-            .take(len as u64 * 8)
-            .read_to_end(&mut bytes)
-            .map_err(|e| err(format!("cannot read: {}", one_line(&e))))?;
-        if bytes.len() < len * 8 {
+        let mut data = Vec::with_capacity(len);
+        let mut reader = npy.into_inner().take(len as u64 * 8);
+        let mut block = vec![0u8; 1 << 16];
+        let mut filled = 0;
+        loop {
+            let n = match reader.read(&mut block[filled..]) {
+                Ok(0) => break,
+                Ok(n) => n,
+                Err(e) if e.kind() == std::io::ErrorKind::Interrupted => continue,
+                Err(e) => return Err(err(format!("cannot read: {}", one_line(&e)))),
+            };
+            filled += n;
+            let whole = filled / 8 * 8;
+            data.extend(
+                block[..whole]
+                    .chunks_exact(8)
+                    .map(|c| f64::from_le_bytes(c.try_into().expect("8 bytes"))),
+            );
+            block.copy_within(whole..filled, 0);
+            filled -= whole;
+        }
+        if data.len() < len {
             return Err(err(format!(
                 "truncated: {} bytes of data for {len} float64 numbers",
-                bytes.len()
+                data.len() * 8 + filled
             )));
         }
-        let data = bytes[..len * 8]
-            .chunks_exact(8)
-            .map(|c| f64::from_le_bytes(c.try_into().expect("8 bytes")))
-            .collect();
         return Ok((shape.clone(), c_order(&shape, order, data)));
     }
     macro_rules! try_types {
@@ -88,7 +168,7 @@ fn read_array<R: Read>(
             $(
                 let npy = match npy.try_data::<$t>() {
                     Ok(reader) => {
-                        let mut out = Vec::with_capacity(len.min(PREALLOCATE / 8));
+                        let mut out = Vec::with_capacity(len);
                         for v in reader {
                             out.push(v.map_err(|e| err(format!("cannot read: {}", one_line(&e))))? as f64);
                         }
@@ -166,36 +246,44 @@ pub(crate) fn read_raw(paths: &[PathBuf]) -> Result<Vec<RawArray>, FileError> {
             .extension()
             .is_some_and(|e| e.eq_ignore_ascii_case("npz"));
     if is_npz {
-        let mut archive = npyz::npz::NpzArchive::open(&file).map_err(|e| {
+        let f = userfile::open(&file)?;
+        let archive_len = userfile::length(&file, &f)?;
+        let total = userfile::npz_budget(archive_len);
+        let mut budget = Budget { left: total, total };
+        let mut archive = npyz::npz::NpzArchive::new(std::io::BufReader::new(f)).map_err(|e| {
             FileError::new(&file, "", format!("not an .npz archive: {}", one_line(&e)))
         })?;
         let names: Vec<String> = archive.array_names().map(str::to_string).collect();
         for name in names {
-            let npy = archive
-                .by_name(&name)
-                .map_err(|e| {
-                    FileError::new(
-                        &file,
-                        format!("array {name}"),
-                        format!("cannot read: {}", one_line(&e)),
-                    )
-                })?
-                .ok_or_else(|| FileError::new(&file, format!("array {name}"), "missing"))?;
-            let (shape, data) = read_array(&file, &name, npy)?;
+            let at = |m: String| FileError::new(&file, format!("array {name}"), m);
+            let entry = archive
+                .zip_archive()
+                .by_name(&npyz::npz::file_name_from_array_name(&name))
+                .map_err(|e| at(format!("cannot read: {}", one_line(&e))))?;
+            // The entry's size is the zip's claim; reading stops at the data really there.
+            let available = entry.size();
+            let npy = checked_npy(entry, available).map_err(at)?;
+            let (shape, data) = read_array(&file, &name, npy, available, &mut budget)?;
             raw.push((name, shape, data));
         }
     } else {
+        let mut opened = Vec::new();
         for p in paths {
+            let f = userfile::open(p)?;
+            let len = userfile::length(p, &f)?;
+            opened.push((p, f, len));
+        }
+        let total = userfile::npz_budget(opened.iter().map(|(_, _, l)| *l).sum());
+        let mut budget = Budget { left: total, total };
+        for (p, f, len) in opened {
             let name = p
                 .file_stem()
                 .and_then(|s| s.to_str())
                 .unwrap_or_default()
                 .to_string();
-            let f = std::fs::File::open(p)
-                .map_err(|e| FileError::new(p, "", format!("cannot read: {}", one_line(&e))))?;
-            let npy = npyz::NpyFile::new(std::io::BufReader::new(f))
-                .map_err(|e| FileError::new(p, "", format!("not a .npy file: {}", one_line(&e))))?;
-            let (shape, data) = read_array(p, &name, npy)?;
+            let npy = checked_npy(std::io::BufReader::new(f), len)
+                .map_err(|m| FileError::new(p, "", m))?;
+            let (shape, data) = read_array(p, &name, npy, len, &mut budget)?;
             if raw.iter().any(|(n, _, _)| *n == name) {
                 return Err(FileError::new(p, format!("array {name}"), "given twice"));
             }

@@ -17,6 +17,16 @@ use crate::stats::{Accumulator, RunRecorder, StopCause};
 /// this) and never returned at 10¹⁹, which a mistyped `nees_dof` reached.
 const MAX_DOF: f64 = 1e6;
 
+/// `x` as an error message shows it: as written for everyday sizes, in exponent form when
+/// huge or tiny (`1e300`, not its 301 digits).
+pub fn shown_number(x: f64) -> String {
+    if x == 0.0 || !x.is_finite() || (1e-6..1e16).contains(&x.abs()) {
+        format!("{x}")
+    } else {
+        format!("{x:e}")
+    }
+}
+
 /// One sensor's measurement normalized: its NIS, degrees of freedom and, where the record
 /// gives them, the per-component normalized innovations `ν_j/√S_jj`.
 #[derive(Debug, Clone, PartialEq)]
@@ -67,8 +77,13 @@ pub fn normalize_sensor(
             }))
         }
         SensorRecord::Normalized { nis, dof, u } => {
-            if !(*dof >= 1.0 && *dof <= MAX_DOF) {
-                return Err(format!("nis_dof is {dof}, not in [1, {MAX_DOF}]"));
+            // Degrees of freedom count components: a fraction is a mistake in the file, as
+            // `autotune nis` says of the same column.
+            if !(*dof >= 1.0 && *dof <= MAX_DOF && dof.fract() == 0.0) {
+                return Err(format!(
+                    "nis_dof is {}, not a whole number in [1, {MAX_DOF}]",
+                    shown_number(*dof)
+                ));
             }
             if components != u.is_some() {
                 return Err("u given at some steps and not at others".into());
@@ -329,8 +344,11 @@ impl RecordSink {
                             .then(|| (0..n).map(|j| e[j] * e[j] / pm[(j, j)]).collect());
                     }
                     StateRecord::Normalized { nees, dof, e2p } => {
-                        if !(*dof >= 1.0 && *dof <= MAX_DOF) {
-                            return Err(at(&format!("nees_dof is {dof}, not in [1, {MAX_DOF}]")));
+                        if !(*dof >= 1.0 && *dof <= MAX_DOF && dof.fract() == 0.0) {
+                            return Err(at(&format!(
+                                "nees_dof is {}, not a whole number in [1, {MAX_DOF}]",
+                                shown_number(*dof)
+                            )));
                         }
                         if layout.components != e2p.is_some() {
                             return Err(at("e2p given at some steps and not at others"));

@@ -7,9 +7,10 @@ use indexmap::IndexMap;
 use serde::{Deserialize, Serialize};
 
 use crate::experiment::Experiment;
-use crate::input::{FileError, parse_toml, read_text};
+use crate::input::{FileError, parse_toml};
 use crate::params::ParamSpace;
 use crate::tune::TuneResult;
+use crate::userfile::read_text;
 
 /// A tuned config as stored on disk.
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]

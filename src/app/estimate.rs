@@ -8,7 +8,9 @@ use std::time::Instant;
 use super::args::name_value;
 use super::{AppError, print_stdout};
 use crate::estimate::als::{self, AlsModel, FullMatrix};
-use crate::estimate::{LinearFilterModel, MeasuredExperiment, ml, read_measurements, simulate};
+use crate::estimate::{
+    LinearFilterModel, MeasuredExperiment, Measurements, ml, read_measurements, simulate,
+};
 use crate::experiment::{Experiment, LinearExperiment};
 use crate::input::FileError;
 use crate::problem::Problem;
@@ -94,6 +96,30 @@ pub(super) fn linear<'a>(
     })
 }
 
+/// Refuse a record no estimate can come from: no measured value at all, or a single step
+/// (one innovation says nothing about how Q and R split), which would otherwise leave the
+/// start values standing as if they were estimates.
+fn estimable(file: &std::path::Path, data: &Measurements) -> Result<(), AppError> {
+    if data.values() == 0 {
+        return Err(FileError::new(
+            file,
+            "z",
+            "no measured values (every component is empty): nothing to estimate from",
+        )
+        .into());
+    }
+    let steps: usize = data.sequences.iter().map(|s| s.steps).sum();
+    if steps < 2 {
+        return Err(FileError::new(
+            file,
+            "z",
+            "a single step: Q and R need at least two steps of measurements",
+        )
+        .into());
+    }
+    Ok(())
+}
+
 /// The filter of problem `p` (file `path`) over the measurement record `file`, as an
 /// experiment `check` and `tune` can judge by its innovations.
 pub fn measured_experiment(
@@ -147,6 +173,7 @@ pub fn initial(
                 )
                 .into());
             }
+            estimable(f, &d)?;
             (d, f.display().to_string())
         }
         None => {
@@ -213,6 +240,7 @@ pub fn run_estimate(a: EstimateArgs) -> Result<ExitCode, AppError> {
         )
         .into());
     }
+    estimable(&a.measurements, &data)?;
     if let Some(out) = &a.out {
         check_output_file(out)?;
     }
@@ -394,6 +422,7 @@ pub fn run_estimate(a: EstimateArgs) -> Result<ExitCode, AppError> {
             let se = match (d.fixed, est.std_errors[i]) {
                 (true, _) => "fixed".to_string(),
                 (false, Some(s)) => fmt_g(s),
+                (false, None) if est.at_bound.contains(&i) => "at bound (0)".to_string(),
                 (false, None) => "not identified".to_string(),
             };
             writeln!(
@@ -408,18 +437,68 @@ pub fn run_estimate(a: EstimateArgs) -> Result<ExitCode, AppError> {
         }
         writeln!(
             o,
-            "−log L: {} at the start, {} at the estimate; {} L-BFGS iterations, {} likelihood evaluations, {:.3} s{}",
+            "−log L: {} at the start, {} at the estimate; {} L-BFGS iterations ({} restart(s)), {} Newton step(s), {} likelihood evaluations, {:.3} s",
             fmt_g(est.start_neg_log_likelihood),
             fmt_g(est.neg_log_likelihood),
             est.iterations,
+            est.restarts,
+            est.newton_steps,
             est.evaluations,
             took,
-            if est.converged {
-                ""
-            } else {
-                " (iteration limit reached)"
-            }
         )?;
+        let gradient: Vec<String> = est.gradient.iter().map(|g| fmt_g(*g)).collect();
+        if est.converged {
+            writeln!(
+                o,
+                "converged: the quadratic model at the estimate predicts {} nats still to gain (below {}); gradient in log θ [{}]",
+                fmt_g(est.predicted_improvement),
+                fmt_g(ml::PREDICTED_TOL),
+                gradient.join(", ")
+            )?;
+        } else {
+            let names = |ix: &[usize]| -> String {
+                ix.iter()
+                    .map(|&i| params.params[i].name.as_str())
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            };
+            let why = if !est.stuck.is_empty() {
+                format!(
+                    "{} stayed near zero although the likelihood pulls them up",
+                    names(&est.stuck)
+                )
+            } else if est.predicted_improvement.is_finite() {
+                format!(
+                    "the quadratic model at the estimate predicts {} nats still to gain",
+                    fmt_g(est.predicted_improvement)
+                )
+            } else {
+                "the information at the estimate is not positive definite (not a maximum)"
+                    .to_string()
+            };
+            writeln!(
+                o,
+                "not converged: {why}; gradient in log θ [{}]{}",
+                gradient.join(", "),
+                if est.iterations >= a.max_iterations {
+                    " (iteration limit reached: raise --max-iterations)"
+                } else {
+                    ""
+                }
+            )?;
+        }
+        if !est.at_bound.is_empty() {
+            let names: Vec<&str> = est
+                .at_bound
+                .iter()
+                .map(|&i| params.params[i].name.as_str())
+                .collect();
+            writeln!(
+                o,
+                "at the bound (0): {} (setting it to zero changes −log L by less than 0.001 nats); the other standard errors leave it out",
+                names.join(", ")
+            )?;
+        }
         if !est.not_identified.is_empty() {
             let names: Vec<&str> = est
                 .not_identified
@@ -428,7 +507,7 @@ pub fn run_estimate(a: EstimateArgs) -> Result<ExitCode, AppError> {
                 .collect();
             writeln!(
                 o,
-                "not identified by these data (relative standard error above 1): {}",
+                "not identified by these data (relative standard error above 1, or no curvature): {}",
                 names.join(", ")
             )?;
         }

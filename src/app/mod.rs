@@ -151,8 +151,9 @@ struct ProblemTune {
     /// Start the search from an estimate from measurements alone: ml (maximum likelihood)
     /// or als (autocovariance least squares), on --init-record, or else on --measurements,
     /// or else on a record simulated from the problem's truth (its runs × steps, another
-    /// seed). Linear problems.
-    #[arg(long, value_name = "METHOD", value_parser = ["ml", "als"])]
+    /// seed); or from the problem's values (problem). Linear problems. Default: ml with
+    /// --measurements, the problem's values without.
+    #[arg(long, value_name = "METHOD", value_parser = ["ml", "als", "problem"])]
     init: Option<String>,
     /// The record --init estimates from.
     #[arg(long, value_name = "FILE", requires = "init")]
@@ -210,9 +211,22 @@ where
         },
         Command::Tune(a) => {
             let p = Problem::load(&a.problem)?;
-            let init = match &a.init {
-                None => None,
-                Some(method) => {
+            let init = match (&a.init, &a.measurements) {
+                (Some(m), _) if m == "problem" => None,
+                // One record is one draw: the search starts where the evidence is, the
+                // maximum of the likelihood on it, unless --init says otherwise.
+                (None, Some(f)) => {
+                    match estimate::initial(&p, &a.problem, Some(f.as_path()), "ml") {
+                        Ok(theta) => Some(theta),
+                        Err(AppError::Refused(why)) => {
+                            eprintln!("start: the problem's values ({why})");
+                            None
+                        }
+                        Err(e) => return Err(e),
+                    }
+                }
+                (None, None) => None,
+                (Some(method), _) => {
                     let record = a.init_record.as_ref().or(a.measurements.as_ref());
                     Some(estimate::initial(
                         &p,

@@ -1,7 +1,7 @@
 //! `simulate`: measurements (and the true states) drawn from a linear problem's truth, to
 //! try `estimate` and `tune --measurements` on data whose answer is known.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
 use super::estimate::linear;
@@ -34,6 +34,27 @@ pub struct SimulateArgs {
     seed: Option<u64>,
 }
 
+/// Whether two output paths name the same file, however spelt (`x.csv`, `./x.csv`,
+/// `d/../x.csv`, a symlinked directory): the canonical path where the file exists, else its
+/// directory's canonical path and its name.
+fn same_place(a: &Path, b: &Path) -> bool {
+    fn resolve(p: &Path) -> PathBuf {
+        if let Ok(c) = std::fs::canonicalize(p) {
+            return c;
+        }
+        let parent = match p.parent() {
+            Some(d) if !d.as_os_str().is_empty() => d,
+            _ => Path::new("."),
+        };
+        let dir = std::fs::canonicalize(parent).unwrap_or_else(|_| parent.to_path_buf());
+        match p.file_name() {
+            Some(n) => dir.join(n),
+            None => dir,
+        }
+    }
+    a == b || resolve(a) == resolve(b)
+}
+
 /// Run `simulate`.
 pub fn run_simulate(a: SimulateArgs) -> Result<ExitCode, AppError> {
     let p = Problem::load(&a.problem)?;
@@ -58,6 +79,15 @@ pub fn run_simulate(a: SimulateArgs) -> Result<ExitCode, AppError> {
     check_output_file(&a.out)?;
     if let Some(t) = &a.truth {
         check_output_file(t)?;
+        if same_place(&a.out, t) {
+            return Err(AppError::flag(
+                "--truth",
+                format!(
+                    "{} is the file --out names: the states would overwrite the measurements",
+                    t.display()
+                ),
+            ));
+        }
     }
     let m = lin.truth.n_z();
     let sim = simulate(&lin.truth, m, a.runs, steps, seed);

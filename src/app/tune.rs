@@ -336,6 +336,15 @@ pub fn run_from(
             };
             let mut parts: Vec<String> = result.after.nees.iter().map(line).collect();
             parts.push(line(&result.after.nis));
+            // The averages above can each be consistent while the gate fails on another
+            // of its tests (per component, whiteness): say which, so that "fail the gate"
+            // and "consistent" never stand on one line unexplained.
+            if !result.after.verdict.passes() {
+                parts.push(format!(
+                    "the gate fails: {}",
+                    result.after.verdict.describe()
+                ));
+            }
             if result.confirmation.recorded {
                 writeln!(
                     stdout,

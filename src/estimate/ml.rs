@@ -15,7 +15,7 @@
 use argmin::core::{CostFunction, Executor, Gradient, State};
 use argmin::solver::linesearch::MoreThuenteLineSearch;
 use argmin::solver::quasinewton::LBFGS;
-use nalgebra::DMatrix;
+use nalgebra::{DMatrix, DVector};
 use serde::Serialize;
 
 use super::{LinearFilterModel, Measurements};
@@ -34,18 +34,36 @@ pub struct MlEstimate {
     /// those not identified.
     pub std_errors: Vec<Option<f64>>,
     /// Free parameters the data cannot pin down (relative standard error above 1, or no
-    /// curvature).
+    /// curvature), apart from those at their bound.
     pub not_identified: Vec<usize>,
+    /// Free parameters at their bound, zero: setting one to 0 changes `−log L` by less than
+    /// a thousandth of a nat. The others' standard errors come from the information with
+    /// these left out.
+    pub at_bound: Vec<usize>,
     /// `−log L` at the estimate.
     pub neg_log_likelihood: f64,
     /// `−log L` at the start.
     pub start_neg_log_likelihood: f64,
-    /// L-BFGS iterations.
+    /// L-BFGS iterations, over every restart.
     pub iterations: u64,
+    /// L-BFGS restarts after the first stop.
+    pub restarts: u32,
+    /// Newton steps after the restarts.
+    pub newton_steps: u32,
     /// Likelihood evaluations (the gradients' and the Hessian's included).
     pub evaluations: usize,
-    /// Whether the search stopped on its tolerance rather than its iteration limit.
+    /// Whether the estimate is checked to be the maximum: the quadratic model at it predicts
+    /// less than [`PREDICTED_TOL`] nats still to gain, over the parameters not at their
+    /// bound, with a positive definite information.
     pub converged: bool,
+    /// Gradient of `−log L` in log θ at the estimate, one per free parameter (nats).
+    pub gradient: Vec<f64>,
+    /// `½ g' H⁻¹ g`: what the quadratic model still predicts to gain (nats; infinite, null
+    /// in JSON, when the information is not positive definite).
+    pub predicted_improvement: f64,
+    /// Free parameters left near zero although the likelihood pulls them up (the search
+    /// did not get them out): the estimate is then not converged.
+    pub stuck: Vec<usize>,
 }
 
 /// What L-BFGS sees: `−log L` over the free parameters' logs.
@@ -118,6 +136,13 @@ impl Gradient for &Objective<'_> {
 /// Maximize the likelihood of `data` over the parameters not `fixed`, from `start` (all
 /// positive). `build(θ)` is the filter at θ. `Err` when the start itself has no likelihood
 /// (a covariance is not positive definite there) or the search fails.
+///
+/// L-BFGS stops on its own tolerances, which say nothing about the likelihood's maximum (a
+/// line search that gives up, or a stall in a flat valley, stops it as well). So a stop is
+/// followed by a restart from the point reached, with fresh memory, until a restart no
+/// longer moves; then Newton steps on the differenced Hessian, until the improvement the
+/// quadratic model still predicts, `½ g' H⁻¹ g`, is below [`PREDICTED_TOL`] nats. Only that
+/// makes `converged` true. `max_iterations` bounds the L-BFGS iterations of all restarts.
 pub fn estimate(
     build: &dyn Fn(&[f64]) -> LinearFilterModel,
     data: &Measurements,
@@ -141,63 +166,317 @@ pub fn estimate(
             "the likelihood is not defined at the start values (S is not positive definite)".into(),
         );
     }
-    let (phi, iterations, converged) = if free.is_empty() {
-        (phi0, 0, true)
-    } else {
-        let line = MoreThuenteLineSearch::new();
-        let solver = LBFGS::new(line, 7)
-            .with_tolerance_grad(1e-9)
-            .map_err(|e| e.to_string())?
-            .with_tolerance_cost(1e-12)
-            .map_err(|e| e.to_string())?;
-        let res = Executor::new(&obj, solver)
-            .configure(|s| s.param(phi0.clone()).max_iters(max_iterations))
-            .run()
-            .map_err(|e| format!("the likelihood search failed: {e}"))?;
-        let st = res.state();
-        let best = st.get_best_param().cloned().unwrap_or(phi0);
-        let iters = st.get_iter();
-        (best, iters, iters < max_iterations)
-    };
-    let nll = obj.value(&phi) * obj.scale;
-    let theta = obj.theta_at(&phi);
-    // The observed information in φ, from differences of the gradient.
-    let p = free.len();
-    let mut hess = DMatrix::<f64>::zeros(p, p);
-    let mut at = phi.clone();
-    for j in 0..p {
-        at[j] = phi[j] + HESS_STEP;
-        let up = obj.gradient_at(&at);
-        at[j] = phi[j] - HESS_STEP;
-        let down = obj.gradient_at(&at);
-        at[j] = phi[j];
-        for i in 0..p {
-            hess[(i, j)] = obj.scale * (up[i] - down[i]) / (2.0 * HESS_STEP);
+    let mut phi = phi0;
+    let mut nll = start_nll;
+    let mut iterations = 0;
+    let mut restarts = 0;
+    let mut newton = 0;
+    let mut escapes = 0;
+    let check = loop {
+        let round_start = nll;
+        if !free.is_empty() {
+            let mut first = true;
+            loop {
+                let (next, its) = lbfgs(&obj, phi.clone(), max_iterations - iterations)?;
+                iterations += its;
+                let next_nll = obj.value(&next) * obj.scale;
+                let moved = nll - next_nll;
+                if next_nll < nll {
+                    phi = next;
+                    nll = next_nll;
+                }
+                // The first run always gets a restart: its stop is what is in question.
+                if (!first && moved < RESTART_TOL)
+                    || iterations >= max_iterations
+                    || restarts >= MAX_RESTARTS
+                {
+                    break;
+                }
+                first = false;
+                restarts += 1;
+            }
         }
-    }
-    let hess = (&hess + hess.transpose()) * 0.5;
+        // Newton steps until the quadratic model predicts nothing left to gain.
+        let mut check = Check::at(&obj, &phi);
+        let mut steps = 0;
+        while check.predicted >= PREDICTED_TOL && steps < MAX_NEWTON {
+            let Some(step) = check.newton_step() else {
+                break;
+            };
+            let mut t = 1.0;
+            let mut moved = false;
+            for _ in 0..30 {
+                let trial: Vec<f64> = phi.iter().zip(&step).map(|(p, s)| p + t * s).collect();
+                let v = obj.value(&trial) * obj.scale;
+                if v < nll {
+                    phi = trial;
+                    nll = v;
+                    moved = true;
+                    break;
+                }
+                t *= 0.5;
+            }
+            steps += 1;
+            newton += 1;
+            if !moved {
+                break;
+            }
+            check = Check::at(&obj, &phi);
+        }
+        // A parameter walked so close to zero that its log no longer feels the pull back
+        // up: in φ its gradient is θ times the pull, and the quadratic model there predicts
+        // nothing. Put it back where the likelihood along θ is best, and search again.
+        if check.converged() || escapes >= MAX_ESCAPES || iterations >= max_iterations {
+            break check;
+        }
+        escapes += 1;
+        let mut improved = nll < round_start - RESTART_TOL;
+        for &k in &check.stuck {
+            let mut best = (nll, phi[k]);
+            for j in 0..40 {
+                let mut trial = phi.clone();
+                trial[k] = start[free[k]].ln() - j as f64 * std::f64::consts::LN_2;
+                let v = obj.value(&trial) * obj.scale;
+                if v < best.0 {
+                    best = (v, trial[k]);
+                }
+            }
+            if best.0 < nll {
+                nll = best.0;
+                phi[k] = best.1;
+                improved = true;
+            }
+        }
+        if !improved {
+            break check;
+        }
+    };
+    let theta = obj.theta_at(&phi);
     let mut std_errors = vec![None; start.len()];
     let mut not_identified = Vec::new();
-    let cov = hess.clone().cholesky().map(|c| c.inverse());
+    let at_bound: Vec<usize> = check.at_bound.iter().map(|&k| free[k]).collect();
+    let rel = check.relative_errors();
     for (k, &i) in free.iter().enumerate() {
-        let rel = cov
-            .as_ref()
-            .map(|c| c[(k, k)])
-            .filter(|v| v.is_finite() && *v > 0.0)
-            .map(f64::sqrt);
-        match rel {
+        if check.at_bound.contains(&k) {
+            continue;
+        }
+        match rel[k] {
             Some(r) if r <= 1.0 => std_errors[i] = Some(theta[i] * r),
             _ => not_identified.push(i),
         }
     }
+    let gradient: Vec<f64> = check.gradient.clone();
     Ok(MlEstimate {
         theta,
         std_errors,
         not_identified,
+        at_bound,
         neg_log_likelihood: nll,
         start_neg_log_likelihood: start_nll,
         iterations,
+        restarts,
+        newton_steps: newton,
         evaluations: obj.evaluations.get(),
-        converged,
+        converged: check.converged(),
+        stuck: check.stuck.iter().map(|&k| free[k]).collect(),
+        gradient,
+        predicted_improvement: check.predicted,
     })
+}
+
+/// A restart that gains less than this (nats) no longer moves: `−log L` of a record of
+/// 10⁵ values is computed to some 1e-11 nats, so this is well above its noise.
+const RESTART_TOL: f64 = 1e-9;
+/// Restarts of L-BFGS after its first stop.
+const MAX_RESTARTS: u32 = 20;
+/// Newton steps after the restarts (each round).
+const MAX_NEWTON: u32 = 20;
+/// Rounds of restarts and Newton steps after the first that did not converge (a parameter
+/// stuck near zero is put back first).
+const MAX_ESCAPES: u32 = 5;
+/// The estimate has converged when the quadratic model of `−log L` predicts less than this
+/// (nats) still to gain: a millionth of a nat is far below anything a likelihood-ratio
+/// test or a standard error can tell.
+pub const PREDICTED_TOL: f64 = 1e-6;
+/// A parameter whose removal (θ_i = 0) changes `−log L` by less than this (nats) is at its
+/// bound: the data cannot tell it from zero, and its log would walk to −∞.
+const AT_BOUND_TOL: f64 = 1e-3;
+
+/// One L-BFGS run from `phi0` with fresh memory: the best point and the iterations taken.
+fn lbfgs(obj: &Objective<'_>, phi0: Vec<f64>, max_iters: u64) -> Result<(Vec<f64>, u64), String> {
+    let line = MoreThuenteLineSearch::new();
+    let solver = LBFGS::new(line, 7)
+        .with_tolerance_grad(1e-9)
+        .map_err(|e| e.to_string())?
+        .with_tolerance_cost(1e-12)
+        .map_err(|e| e.to_string())?;
+    let res = Executor::new(obj, solver)
+        .configure(|s| s.param(phi0.clone()).max_iters(max_iters))
+        .run()
+        .map_err(|e| format!("the likelihood search failed: {e}"))?;
+    let st = res.state();
+    let best = st.get_best_param().cloned().unwrap_or(phi0);
+    Ok((best, st.get_iter()))
+}
+
+/// The convergence check at one point: the gradient and the observed information of
+/// `−log L` (nats) in φ over the free parameters not at their bound.
+struct Check {
+    /// Gradient of `−log L` in φ, every free parameter (nats per e-fold).
+    gradient: Vec<f64>,
+    /// Indices (into the free parameters) at their bound.
+    at_bound: Vec<usize>,
+    /// Indices (into the free parameters) near zero whose likelihood pulls them up.
+    stuck: Vec<usize>,
+    /// Indices (into the free parameters) not at their bound.
+    active: Vec<usize>,
+    /// Observed information over `active`.
+    hess: DMatrix<f64>,
+    /// `½ g' H⁻¹ g` over `active` (nats); infinite where H is not positive definite.
+    predicted: f64,
+}
+
+impl Check {
+    fn at(obj: &Objective<'_>, phi: &[f64]) -> Check {
+        let p = phi.len();
+        let base = obj.value(phi);
+        let gradient: Vec<f64> = obj.gradient_at(phi).iter().map(|g| g * obj.scale).collect();
+        // A parameter is at its bound when setting it to zero costs (almost) nothing and
+        // the likelihood does not pull it up.
+        // The pull is the derivative in θ at zero (in φ it vanishes with θ), differenced
+        // over a millionth of the parameter's start value.
+        let mut at_bound = Vec::new();
+        let mut stuck = Vec::new();
+        let nll_at = |k: usize, v: f64| {
+            let mut t = obj.theta_at(phi);
+            t[obj.free[k]] = v;
+            obj.evaluations.set(obj.evaluations.get() + 1);
+            (obj.build)(&t).neg_log_likelihood(obj.data).ok()
+        };
+        for (k, &g) in gradient.iter().enumerate() {
+            if g < -AT_BOUND_TOL {
+                continue;
+            }
+            let Some(zero) = nll_at(k, 0.0) else {
+                continue;
+            };
+            // Better at zero is no bound either: the point is not the maximum yet.
+            if (zero - base * obj.scale).abs() >= AT_BOUND_TOL {
+                continue;
+            }
+            let eps = 1e-6 * obj.theta[obj.free[k]];
+            match nll_at(k, eps) {
+                Some(v) if v < zero - 1e-11 * (1.0 + zero.abs()) => stuck.push(k),
+                _ => at_bound.push(k),
+            }
+        }
+        let active: Vec<usize> = (0..p).filter(|k| !at_bound.contains(k)).collect();
+        let q = active.len();
+        let mut hess = DMatrix::<f64>::zeros(q, q);
+        let mut at = phi.to_vec();
+        for (c, &j) in active.iter().enumerate() {
+            at[j] = phi[j] + HESS_STEP;
+            let up = obj.gradient_at(&at);
+            at[j] = phi[j] - HESS_STEP;
+            let down = obj.gradient_at(&at);
+            at[j] = phi[j];
+            for (r, &i) in active.iter().enumerate() {
+                hess[(r, c)] = obj.scale * (up[i] - down[i]) / (2.0 * HESS_STEP);
+            }
+        }
+        let hess = (&hess + hess.transpose()) * 0.5;
+        let g = DVector::from_iterator(q, active.iter().map(|&k| gradient[k]));
+        let predicted = match hess.clone().cholesky() {
+            Some(c) => 0.5 * g.dot(&c.solve(&g)),
+            None if q == 0 => 0.0,
+            None => f64::INFINITY,
+        };
+        Check {
+            gradient,
+            at_bound,
+            stuck,
+            active,
+            hess,
+            predicted,
+        }
+    }
+
+    fn converged(&self) -> bool {
+        self.predicted.is_finite() && self.predicted < PREDICTED_TOL && self.stuck.is_empty()
+    }
+
+    /// The Newton step over every free parameter (zero for those at their bound); where H
+    /// is not positive definite, a steepest-descent step of unit length in φ.
+    fn newton_step(&self) -> Option<Vec<f64>> {
+        let q = self.active.len();
+        if q == 0 {
+            return None;
+        }
+        let g = DVector::from_iterator(q, self.active.iter().map(|&k| self.gradient[k]));
+        // Where H is not positive definite (a saddle, or a ridge), the step along each
+        // eigenvector is scaled by |λ| instead (floored), so that it goes downhill and away
+        // from the saddle rather than towards it.
+        let d = match self.hess.clone().cholesky() {
+            Some(c) => -c.solve(&g),
+            None => {
+                let eig = self.hess.clone().symmetric_eigen();
+                let top = eig.eigenvalues.amax();
+                if !(top > 0.0 && top.is_finite()) {
+                    return None;
+                }
+                let mut d = DVector::<f64>::zeros(q);
+                for (i, l) in eig.eigenvalues.iter().enumerate() {
+                    let v = eig.eigenvectors.column(i);
+                    d -= v * (v.dot(&g) / l.abs().max(1e-6 * top));
+                }
+                d
+            }
+        };
+        let mut step = vec![0.0; self.gradient.len()];
+        for (r, &k) in self.active.iter().enumerate() {
+            step[k] = d[r];
+        }
+        step.iter().all(|v| v.is_finite()).then_some(step)
+    }
+
+    /// `√[H⁻¹]_kk` (the relative standard error of θ_k) for each free parameter; `None` at
+    /// the bound, and for a parameter along a direction the information does not curve
+    /// (those are dropped, and the others' errors come from what is left).
+    fn relative_errors(&self) -> Vec<Option<f64>> {
+        let mut out = vec![None; self.gradient.len()];
+        let mut keep: Vec<usize> = (0..self.active.len()).collect();
+        loop {
+            if keep.is_empty() {
+                return out;
+            }
+            let h = self.hess.select_rows(&keep).select_columns(&keep);
+            if let Some(c) = h.clone().cholesky() {
+                let cov = c.inverse();
+                for (r, &a) in keep.iter().enumerate() {
+                    let v = cov[(r, r)];
+                    if v.is_finite() && v > 0.0 {
+                        out[self.active[a]] = Some(v.sqrt());
+                    }
+                }
+                return out;
+            }
+            // Drop the parameter that weighs most in the flattest direction.
+            let eig = h.symmetric_eigen();
+            let (imin, _) =
+                eig.eigenvalues
+                    .iter()
+                    .enumerate()
+                    .fold(
+                        (0, f64::INFINITY),
+                        |b, (i, &v)| if v < b.1 { (i, v) } else { b },
+                    );
+            let v = eig.eigenvectors.column(imin);
+            let (worst, _) =
+                v.iter().enumerate().fold(
+                    (0, -1.0),
+                    |b, (i, &x)| if x.abs() > b.1 { (i, x.abs()) } else { b },
+                );
+            keep.remove(worst);
+        }
+    }
 }

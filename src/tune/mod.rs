@@ -197,12 +197,12 @@ pub fn tune(
         point = refined;
         refine_evaluations += evals;
     }
-    let tuned = if point.is_empty() {
+    let mut tuned = if point.is_empty() {
         start.to_vec()
     } else {
         cost.theta(&point)
     };
-    let objective_final = cost.objective.evaluate(&cost.accumulate(&tuned));
+    let mut objective_final = cost.objective.evaluate(&cost.accumulate(&tuned));
 
     observer.phase("confirm");
     let confirm_seed = settings
@@ -210,17 +210,34 @@ pub fn tune(
         .unwrap_or_else(|| default_confirm_seed(mc.seed()));
     let before = gate.report(start, mc.runs(), confirm_seed);
     let recorded = model.seed_free();
-    let (confirmation, after, deviates) = refine::confirm(
+    let (mut confirmation, mut after, mut deviates) = refine::confirm(
         &gate,
         &tuned,
         confirm_seed,
         settings.confirm_seeds(),
         recorded,
     );
+    let mut kept_start = false;
+    // On one record the objective is exact and the gate is one deterministic test, so a
+    // search that ends worse than where it started, or fails the gate where its start
+    // passes, has not found the best fit: keep the start (often an estimate from the same
+    // record), rather than conclude that no value fits.
+    if recorded
+        && tuned != start
+        && (objective_final.total > objective_initial.total
+            || (!confirmation.holds() && before.verdict.passes()))
+    {
+        tuned = start.to_vec();
+        objective_final = objective_initial;
+        kept_start = true;
+        (confirmation, after, deviates) = refine::confirm(&gate, &tuned, confirm_seed, 1, recorded);
+    }
 
     // The resolution means something only at a converged optimum, and the seed-to-seed
     // spread it rests on does not exist for one record (only the bounds are checked).
-    let resolution = if recorded && !point.is_empty() && best.cost.is_finite() {
+    let resolution = if kept_start {
+        None
+    } else if recorded && !point.is_empty() && best.cost.is_finite() {
         Some(refine::bounds_only(&cost, &point, fixed))
     } else if recorded || (!searched && cost.dim() > 0) {
         None

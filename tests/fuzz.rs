@@ -27,7 +27,7 @@ use autotune::report::tuned::TunedConfig;
 
 #[path = "common/fuzzing.rs"]
 mod fuzzing;
-use fuzzing::{Rng, settings};
+use fuzzing::{Npy, Rng, mutate_bytes, number_spans, settings};
 
 /// How long a binary run may take: with two runs of ten steps every shipped problem checks
 /// in milliseconds, so a run this long is a hang the input caused.
@@ -204,29 +204,6 @@ fn extreme_number(rng: &mut Rng) -> toml::Value {
         .ok()
         .and_then(|t| t.get("x").cloned())
         .unwrap_or_else(|| toml::Value::String(s.into()))
-}
-
-/// Byte ranges of the numbers in `text`.
-fn number_spans(text: &str) -> Vec<(usize, usize)> {
-    let b = text.as_bytes();
-    let mut spans = Vec::new();
-    let mut i = 0;
-    while i < b.len() {
-        let starts = b[i].is_ascii_digit()
-            && (i == 0 || !(b[i - 1].is_ascii_alphanumeric() || b[i - 1] == b'_'));
-        if starts {
-            let s = if i > 0 && b[i - 1] == b'-' { i - 1 } else { i };
-            let mut e = i;
-            while e < b.len() && (b[e].is_ascii_alphanumeric() || b"._+-".contains(&b[e])) {
-                e += 1;
-            }
-            spans.push((s, e));
-            i = e;
-        } else {
-            i += 1;
-        }
-    }
-    spans
 }
 
 /// Mutate the text itself: a number replaced by an extreme one, bytes flipped, deleted,
@@ -811,96 +788,6 @@ fn records_jsonl(s: &SeedRecords, rng: &mut Rng) -> String {
     out
 }
 
-/// One `.npy` file, before it is written: its header's fields as text (so that they can be
-/// made absurd) and its numbers.
-#[derive(Clone)]
-struct Npy {
-    name: String,
-    descr: String,
-    fortran: bool,
-    shape: Vec<String>,
-    /// The shape the numbers have (C order); the data is written in Fortran order when
-    /// `fortran` is set and `shape` is still this.
-    true_shape: Vec<usize>,
-    values: Vec<f64>,
-}
-
-impl Npy {
-    fn new(name: &str, shape: &[usize], values: Vec<f64>) -> Npy {
-        Npy {
-            name: name.into(),
-            descr: "<f8".into(),
-            fortran: false,
-            shape: shape.iter().map(|d| d.to_string()).collect(),
-            true_shape: shape.to_vec(),
-            values,
-        }
-    }
-
-    /// The file's bytes: format 1.0, the header dict padded with spaces to 64 bytes.
-    fn bytes(&self) -> Vec<u8> {
-        let shape = match self.shape.len() {
-            1 => format!("({},)", self.shape[0]),
-            _ => format!("({})", self.shape.join(", ")),
-        };
-        let mut header = format!(
-            "{{'descr': '{}', 'fortran_order': {}, 'shape': {shape}, }}",
-            self.descr,
-            if self.fortran { "True" } else { "False" }
-        );
-        while (10 + header.len() + 1) % 64 != 0 {
-            header.push(' ');
-        }
-        header.push('\n');
-        let mut out = b"\x93NUMPY\x01\x00".to_vec();
-        out.extend((header.len() as u16).to_le_bytes());
-        out.extend(header.as_bytes());
-        let same: bool = self
-            .shape
-            .iter()
-            .map(|d| d.parse::<usize>().ok())
-            .eq(self.true_shape.iter().map(|&d| Some(d)));
-        let whole = self.values.len() == self.true_shape.iter().product::<usize>();
-        let values = if self.fortran && same && whole {
-            fortran(&self.true_shape, &self.values)
-        } else {
-            self.values.clone()
-        };
-        for v in values {
-            match self.descr.as_str() {
-                "<f4" => out.extend((v as f32).to_le_bytes()),
-                ">f8" => out.extend(v.to_be_bytes()),
-                "<i8" => out.extend((v as i64).to_le_bytes()),
-                "<i4" => out.extend((v as i32).to_le_bytes()),
-                "|u1" => out.push(v as u8),
-                _ => out.extend(v.to_le_bytes()),
-            }
-        }
-        out
-    }
-}
-
-/// `values` (C order, of `shape`) in Fortran order.
-fn fortran(shape: &[usize], values: &[f64]) -> Vec<f64> {
-    let mut out = vec![0.0; values.len()];
-    for (c, &v) in values.iter().enumerate() {
-        // The multi-index of C offset c, then its Fortran offset.
-        let mut rest = c;
-        let mut idx = vec![0; shape.len()];
-        for a in (0..shape.len()).rev() {
-            idx[a] = rest % shape[a];
-            rest /= shape[a];
-        }
-        let (mut off, mut stride) = (0, 1);
-        for (i, d) in idx.iter().zip(shape) {
-            off += i * stride;
-            stride *= d;
-        }
-        out[off] = v;
-    }
-    out
-}
-
 fn records_npy(s: &SeedRecords, rng: &mut Rng) -> Vec<Npy> {
     let m = s.m;
     // Runs × steps, NaN after a divergence and where not measured.
@@ -1204,33 +1091,6 @@ fn mutate_records_text(text: &str, csv: bool, rng: &mut Rng) -> Vec<u8> {
         out.push('\n');
     }
     out.into_bytes()
-}
-
-/// Byte-level damage to a binary file: a byte changed, bytes deleted or inserted, the
-/// file cut short.
-fn mutate_bytes(b: &mut Vec<u8>, rng: &mut Rng) {
-    if b.is_empty() {
-        b.push(0);
-        return;
-    }
-    match rng.below(4) {
-        0 => {
-            let i = rng.below(b.len());
-            b[i] = rng.next() as u8;
-        }
-        1 => {
-            let i = rng.below(b.len());
-            let n = 1 + rng.below(16);
-            b.drain(i..(i + n).min(b.len()));
-        }
-        2 => {
-            let i = rng.below(b.len());
-            let n = 1 + rng.below(16);
-            let junk: Vec<u8> = (0..n).map(|_| rng.next() as u8).collect();
-            b.splice(i..i, junk);
-        }
-        _ => b.truncate(rng.below(b.len())),
-    }
 }
 
 /// The format of a records fuzz input.

@@ -37,8 +37,6 @@
 //! ```
 
 use std::ffi::OsString;
-use std::io::Read as _;
-use std::os::unix::process::CommandExt as _;
 use std::panic::AssertUnwindSafe;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
@@ -49,7 +47,7 @@ use autotune::fieldlog::{NisSettings, ReadOptions, Window, analyze};
 
 #[path = "common/fuzzing.rs"]
 mod fuzzing;
-use fuzzing::{Rng, proc_status_kb, settings};
+use fuzzing::{Rng, proc_status_kb, settings, spawn_limited};
 
 /// How long a batch run may take: the inputs are at most a few megabytes, read in well
 /// under a second; a run this long is a hang the input caused.
@@ -91,27 +89,7 @@ fn spawn(dir: &Path, args: &[OsString]) -> Running {
         .stdin(Stdio::null())
         .stdout(Stdio::piped())
         .stderr(Stdio::piped());
-    // SAFETY: setrlimit is async-signal-safe; nothing else runs between fork and exec.
-    unsafe {
-        cmd.pre_exec(|| {
-            let lim = libc::rlimit {
-                rlim_cur: ADDRESS_SPACE as libc::rlim_t,
-                rlim_max: ADDRESS_SPACE as libc::rlim_t,
-            };
-            libc::setrlimit(libc::RLIMIT_AS, &lim);
-            Ok(())
-        });
-    }
-    let mut child = cmd.spawn().unwrap();
-    let drain = |mut r: Box<dyn std::io::Read + Send>| {
-        std::thread::spawn(move || {
-            let mut v = Vec::new();
-            let _ = r.read_to_end(&mut v);
-            v
-        })
-    };
-    let out = drain(Box::new(child.stdout.take().unwrap()));
-    let err = drain(Box::new(child.stderr.take().unwrap()));
+    let (child, out, err) = spawn_limited(&mut cmd, ADDRESS_SPACE);
     Running {
         child,
         out,

@@ -45,15 +45,14 @@
 
 use std::collections::BTreeMap;
 use std::ffi::{OsStr, OsString};
-use std::io::{Read as _, Write as _};
-use std::os::unix::process::CommandExt as _;
+use std::io::Write as _;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 #[path = "common/fuzzing.rs"]
 mod fuzzing;
-use fuzzing::{Rng, proc_status_kb, settings};
+use fuzzing::{Npy, Rng, mutate_bytes, number_spans, proc_status_kb, settings, spawn_limited};
 
 /// How long a run on a records or measurements file may take: the fuzzed inputs are a few
 /// kilobytes, the hand-made ones are refused or read in seconds.
@@ -133,27 +132,7 @@ fn run(case: &Case, env: &[(&str, &OsStr)]) -> Result<Outcome, Failed> {
     for (k, v) in env {
         cmd.env(k, v);
     }
-    // SAFETY: setrlimit is async-signal-safe; nothing else runs between fork and exec.
-    unsafe {
-        cmd.pre_exec(|| {
-            let lim = libc::rlimit {
-                rlim_cur: ADDRESS_SPACE as libc::rlim_t,
-                rlim_max: ADDRESS_SPACE as libc::rlim_t,
-            };
-            libc::setrlimit(libc::RLIMIT_AS, &lim);
-            Ok(())
-        });
-    }
-    let mut child = cmd.spawn().unwrap();
-    let drain = |mut r: Box<dyn std::io::Read + Send>| {
-        std::thread::spawn(move || {
-            let mut v = Vec::new();
-            let _ = r.read_to_end(&mut v);
-            v
-        })
-    };
-    let out = drain(Box::new(child.stdout.take().unwrap()));
-    let err = drain(Box::new(child.stderr.take().unwrap()));
+    let (mut child, out, err) = spawn_limited(&mut cmd, ADDRESS_SPACE);
     let start = Instant::now();
     let pid = child.id() as libc::pid_t;
     let mut status = 0;
@@ -406,64 +385,6 @@ fn problem_path(name: &str) -> PathBuf {
 
 // ---------------------------------------------------------------------------------------
 // Writing NumPy files and zip archives byte by byte, so that they can be made absurd.
-
-/// One `.npy` file before it is written: its header's fields as text and its numbers.
-#[derive(Clone)]
-struct Npy {
-    name: String,
-    descr: String,
-    fortran: bool,
-    shape: Vec<String>,
-    values: Vec<f64>,
-}
-
-impl Npy {
-    fn new(name: &str, shape: &[usize], values: Vec<f64>) -> Npy {
-        Npy {
-            name: name.into(),
-            descr: "<f8".into(),
-            fortran: false,
-            shape: shape.iter().map(|d| d.to_string()).collect(),
-            values,
-        }
-    }
-
-    /// The header (format 1.0, padded with spaces to 64 bytes).
-    fn header(&self) -> Vec<u8> {
-        let shape = match self.shape.len() {
-            1 => format!("({},)", self.shape[0]),
-            _ => format!("({})", self.shape.join(", ")),
-        };
-        let mut header = format!(
-            "{{'descr': '{}', 'fortran_order': {}, 'shape': {shape}, }}",
-            self.descr,
-            if self.fortran { "True" } else { "False" }
-        );
-        while (10 + header.len() + 1) % 64 != 0 {
-            header.push(' ');
-        }
-        header.push('\n');
-        let mut out = b"\x93NUMPY\x01\x00".to_vec();
-        out.extend((header.len() as u16).to_le_bytes());
-        out.extend(header.as_bytes());
-        out
-    }
-
-    fn bytes(&self) -> Vec<u8> {
-        let mut out = self.header();
-        for &v in &self.values {
-            match self.descr.as_str() {
-                "<f4" => out.extend((v as f32).to_le_bytes()),
-                ">f8" => out.extend(v.to_be_bytes()),
-                "<i8" => out.extend((v as i64).to_le_bytes()),
-                "<i4" => out.extend((v as i32).to_le_bytes()),
-                "|u1" => out.push(v as u8),
-                _ => out.extend(v.to_le_bytes()),
-            }
-        }
-        out
-    }
-}
 
 /// Shape entries a mutation may put in.
 const DIMS: &[&str] = &[
@@ -848,32 +769,6 @@ fn npz_bytes(arrays: &[Npy], hostile: bool, rng: &mut Rng) -> Vec<u8> {
     zip(&entries)
 }
 
-/// Byte-level damage: a byte changed, bytes deleted or inserted, the file cut short.
-fn mutate_bytes(b: &mut Vec<u8>, rng: &mut Rng) {
-    if b.is_empty() {
-        b.push(0);
-        return;
-    }
-    match rng.below(4) {
-        0 => {
-            let i = rng.below(b.len());
-            b[i] = rng.next() as u8;
-        }
-        1 => {
-            let i = rng.below(b.len());
-            let n = 1 + rng.below(16);
-            b.drain(i..(i + n).min(b.len()));
-        }
-        2 => {
-            let i = rng.below(b.len());
-            let n = 1 + rng.below(16);
-            let junk: Vec<u8> = (0..n).map(|_| rng.next() as u8).collect();
-            b.splice(i..i, junk);
-        }
-        _ => b.truncate(rng.below(b.len())),
-    }
-}
-
 // ---------------------------------------------------------------------------------------
 // Text records: CSV and JSON Lines mutations.
 
@@ -923,29 +818,6 @@ const JSON_VALUES: &[&str] = &[
     "1e308",
     "1e-320",
 ];
-
-/// Byte ranges of the numbers in `text`.
-fn number_spans(text: &str) -> Vec<(usize, usize)> {
-    let b = text.as_bytes();
-    let mut spans = Vec::new();
-    let mut i = 0;
-    while i < b.len() {
-        let starts = b[i].is_ascii_digit()
-            && (i == 0 || !(b[i - 1].is_ascii_alphanumeric() || b[i - 1] == b'_'));
-        if starts {
-            let s = if i > 0 && b[i - 1] == b'-' { i - 1 } else { i };
-            let mut e = i;
-            while e < b.len() && (b[e].is_ascii_alphanumeric() || b"._+-".contains(&b[e])) {
-                e += 1;
-            }
-            spans.push((s, e));
-            i = e;
-        } else {
-            i += 1;
-        }
-    }
-    spans
-}
 
 /// Byte ranges of the `"…"` strings in `text`.
 fn string_spans(text: &str) -> Vec<(usize, usize)> {

@@ -65,3 +65,186 @@ pub fn proc_status_kb(pid: impl std::fmt::Display, key: &str) -> Option<u64> {
     let line = text.lines().find(|l| l.starts_with(key))?;
     line.split_whitespace().nth(1)?.parse().ok()
 }
+
+/// One `.npy` file, before it is written: its header's fields as text (so that they can be
+/// made absurd) and its numbers.
+#[derive(Clone)]
+pub struct Npy {
+    pub name: String,
+    pub descr: String,
+    pub fortran: bool,
+    pub shape: Vec<String>,
+    /// The shape the numbers have (C order); the data is written in Fortran order when
+    /// `fortran` is set and `shape` is still this.
+    pub true_shape: Vec<usize>,
+    pub values: Vec<f64>,
+}
+
+impl Npy {
+    pub fn new(name: &str, shape: &[usize], values: Vec<f64>) -> Npy {
+        Npy {
+            name: name.into(),
+            descr: "<f8".into(),
+            fortran: false,
+            shape: shape.iter().map(|d| d.to_string()).collect(),
+            true_shape: shape.to_vec(),
+            values,
+        }
+    }
+
+    /// The header: format 1.0, the header dict padded with spaces to 64 bytes.
+    pub fn header(&self) -> Vec<u8> {
+        let shape = match self.shape.len() {
+            1 => format!("({},)", self.shape[0]),
+            _ => format!("({})", self.shape.join(", ")),
+        };
+        let mut header = format!(
+            "{{'descr': '{}', 'fortran_order': {}, 'shape': {shape}, }}",
+            self.descr,
+            if self.fortran { "True" } else { "False" }
+        );
+        while (10 + header.len() + 1) % 64 != 0 {
+            header.push(' ');
+        }
+        header.push('\n');
+        let mut out = b"\x93NUMPY\x01\x00".to_vec();
+        out.extend((header.len() as u16).to_le_bytes());
+        out.extend(header.as_bytes());
+        out
+    }
+
+    /// The file's bytes: the header, then the numbers in the header's `descr` (in Fortran
+    /// order when `fortran` is set and the shape is still the numbers' own).
+    pub fn bytes(&self) -> Vec<u8> {
+        let mut out = self.header();
+        let same: bool = self
+            .shape
+            .iter()
+            .map(|d| d.parse::<usize>().ok())
+            .eq(self.true_shape.iter().map(|&d| Some(d)));
+        let whole = self.values.len() == self.true_shape.iter().product::<usize>();
+        let values = if self.fortran && same && whole {
+            fortran(&self.true_shape, &self.values)
+        } else {
+            self.values.clone()
+        };
+        for v in values {
+            match self.descr.as_str() {
+                "<f4" => out.extend((v as f32).to_le_bytes()),
+                ">f8" => out.extend(v.to_be_bytes()),
+                "<i8" => out.extend((v as i64).to_le_bytes()),
+                "<i4" => out.extend((v as i32).to_le_bytes()),
+                "|u1" => out.push(v as u8),
+                _ => out.extend(v.to_le_bytes()),
+            }
+        }
+        out
+    }
+}
+
+/// `values` (C order, of `shape`) in Fortran order.
+pub fn fortran(shape: &[usize], values: &[f64]) -> Vec<f64> {
+    let mut out = vec![0.0; values.len()];
+    for (c, &v) in values.iter().enumerate() {
+        // The multi-index of C offset c, then its Fortran offset.
+        let mut rest = c;
+        let mut idx = vec![0; shape.len()];
+        for a in (0..shape.len()).rev() {
+            idx[a] = rest % shape[a];
+            rest /= shape[a];
+        }
+        let (mut off, mut stride) = (0, 1);
+        for (i, d) in idx.iter().zip(shape) {
+            off += i * stride;
+            stride *= d;
+        }
+        out[off] = v;
+    }
+    out
+}
+
+/// Byte-level damage to a binary file: a byte changed, bytes deleted or inserted, the
+/// file cut short.
+pub fn mutate_bytes(b: &mut Vec<u8>, rng: &mut Rng) {
+    if b.is_empty() {
+        b.push(0);
+        return;
+    }
+    match rng.below(4) {
+        0 => {
+            let i = rng.below(b.len());
+            b[i] = rng.next() as u8;
+        }
+        1 => {
+            let i = rng.below(b.len());
+            let n = 1 + rng.below(16);
+            b.drain(i..(i + n).min(b.len()));
+        }
+        2 => {
+            let i = rng.below(b.len());
+            let n = 1 + rng.below(16);
+            let junk: Vec<u8> = (0..n).map(|_| rng.next() as u8).collect();
+            b.splice(i..i, junk);
+        }
+        _ => b.truncate(rng.below(b.len())),
+    }
+}
+
+/// Start `cmd` with its address space limited to `address_space` bytes (beyond, an
+/// allocation fails and the process aborts, instead of the machine swapping), its stdout
+/// and stderr drained by threads: the child and the two drains.
+pub fn spawn_limited(
+    cmd: &mut std::process::Command,
+    address_space: u64,
+) -> (
+    std::process::Child,
+    std::thread::JoinHandle<Vec<u8>>,
+    std::thread::JoinHandle<Vec<u8>>,
+) {
+    use std::os::unix::process::CommandExt as _;
+    // SAFETY: setrlimit is async-signal-safe; nothing else runs between fork and exec.
+    unsafe {
+        cmd.pre_exec(move || {
+            let lim = libc::rlimit {
+                rlim_cur: address_space as libc::rlim_t,
+                rlim_max: address_space as libc::rlim_t,
+            };
+            libc::setrlimit(libc::RLIMIT_AS, &lim);
+            Ok(())
+        });
+    }
+    let mut child = cmd.spawn().unwrap();
+    let drain = |mut r: Box<dyn std::io::Read + Send>| {
+        std::thread::spawn(move || {
+            let mut v = Vec::new();
+            let _ = r.read_to_end(&mut v);
+            v
+        })
+    };
+    let out = drain(Box::new(child.stdout.take().unwrap()));
+    let err = drain(Box::new(child.stderr.take().unwrap()));
+    (child, out, err)
+}
+
+/// Byte ranges of the numbers in `text`.
+pub fn number_spans(text: &str) -> Vec<(usize, usize)> {
+    let b = text.as_bytes();
+    let mut spans = Vec::new();
+    let mut i = 0;
+    while i < b.len() {
+        let starts = b[i].is_ascii_digit()
+            && (i == 0 || !(b[i - 1].is_ascii_alphanumeric() || b[i - 1] == b'_'));
+        if starts {
+            let s = if i > 0 && b[i - 1] == b'-' { i - 1 } else { i };
+            let mut e = i;
+            while e < b.len() && (b[e].is_ascii_alphanumeric() || b"._+-".contains(&b[e])) {
+                e += 1;
+            }
+            spans.push((s, e));
+            i = e;
+        } else {
+            i += 1;
+        }
+    }
+    spans
+}

@@ -382,3 +382,38 @@ fn issue21_one_worker_whose_state_advances_between_requests_breaks_the_contract(
     breaks_contract("advancing", 1, &["asked for again"]);
     breaks_contract("advancing", 2, &["asked for again", "worker 2"]);
 }
+
+/// Item 4: where `[external]` is introduced (the README's "Your simulator in the loop",
+/// docs/external.md's opening, the `init --external` starter) a reader learns that
+/// `check`/`tune` on such a file run the program it names, before any example of it.
+#[test]
+fn issue21_the_docs_say_a_problem_file_with_external_is_code() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let read = |p: &str| std::fs::read_to_string(root.join(p)).unwrap();
+    let readme = read("README.md");
+    let intro = readme
+        .find("**Your simulator in the loop.**")
+        .expect("the README introduces [external] workers");
+    let first_example = intro
+        + readme[intro..]
+            .find("```toml")
+            .expect("an example problem file follows");
+    let paragraph = &readme[intro..first_example];
+    assert!(
+        paragraph.contains("is therefore code") && paragraph.contains("files you trust"),
+        "README, before the first [external] example: {paragraph}"
+    );
+    let doc = read("docs/external.md");
+    let warning = doc
+        .find("**A problem file with `[external]` is code.**")
+        .expect("docs/external.md warns");
+    assert!(
+        warning < doc.find("## 1.").unwrap() && doc[warning..].contains("files you trust"),
+        "docs/external.md warns before its first section"
+    );
+    let starter = read("src/app/templates/external.toml");
+    assert!(
+        starter.contains("RUN THE COMMAND") && starter.contains("is code"),
+        "the `init --external` starter warns"
+    );
+}

@@ -94,7 +94,7 @@ fn junit_names_each_failed_statistic() {
     let xml = std::fs::read_to_string(&path).unwrap();
     assert!(xml.starts_with("<?xml"));
     assert!(
-        xml.contains("<testsuite name=\"autotune check dcmotor\" tests=\"3\" failures=\"2\""),
+        xml.contains("<testsuite name=\"autotune check dcmotor\" tests=\"4\" failures=\"2\""),
         "{xml}"
     );
     // The dcmotor guess is overconfident in NEES and underconfident in NIS.
@@ -103,7 +103,9 @@ fn junit_names_each_failed_statistic() {
     assert!(xml.contains("overconfident"));
     assert!(xml.contains("message=\"ANIS = "));
     assert!(xml.contains("underconfident"));
-    assert_eq!(xml.matches("<testcase").count(), 3);
+    // ANEES, ANIS, the zero-mean tests (full gate), positive definiteness.
+    assert!(xml.contains("<testcase name=\"errors zero-mean\""));
+    assert_eq!(xml.matches("<testcase").count(), 4);
     assert_eq!(xml.matches("</testsuite>").count(), 1);
 
     // A passing run has no failure elements.

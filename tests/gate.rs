@@ -48,17 +48,18 @@ fn full_gate_false_alarm_rate_is_inside_the_binomial_band_on_the_linear_problems
 
 #[test]
 fn the_gate_counts_its_tests_and_corrects_for_them() {
-    // cv2d: ANEES, ANIS, 4 state components, 2 measurement components, 2 whiteness tests.
+    // cv2d: ANEES, ANIS, 4 state components and 2 measurement components (each a second
+    // moment and a zero mean, issue 22), 2 whiteness tests.
     let p = load("cv2d");
     let truth = truth_values(&p);
     let r = check(&p, &truth, p.mc(), true).unwrap();
     assert_eq!(r.gate, GateMode::Full);
-    assert_eq!(r.tests, 10);
-    assert!((r.statistic_alpha - gate_alpha(0.05, 10)).abs() < 1e-15);
+    assert_eq!(r.tests, 16);
+    assert!((r.statistic_alpha - gate_alpha(0.05, 16)).abs() < 1e-15);
     assert_eq!(r.whiteness_tests.len(), 2);
-    // NIS-only: ANIS, 2 measurement components, 2 whiteness tests.
+    // NIS-only: ANIS, 2 measurement components (twice), 2 whiteness tests.
     let r = check(&p, &truth, p.mc(), false).unwrap();
-    assert_eq!(r.tests, 5);
+    assert_eq!(r.tests, 7);
     // The textbook gate: the two time averages.
     let r = check(&p, &truth, &p.mc().with_gate(GateMode::Mean), true).unwrap();
     assert_eq!(r.tests, 2);

@@ -136,7 +136,7 @@ fn vectors(acc: &Accumulator) -> Vec<Vec<f64>> {
 }
 
 /// The vector sums of `acc`, for filling and for checking.
-fn fields(acc: &mut Accumulator) -> [&mut Vec<f64>; 20] {
+fn fields(acc: &mut Accumulator) -> [&mut Vec<f64>; 26] {
     [
         &mut acc.nees_sum,
         &mut acc.nees_sq,
@@ -150,6 +150,12 @@ fn fields(acc: &mut Accumulator) -> [&mut Vec<f64>; 20] {
         &mut acc.state_comp_samples,
         &mut acc.state_comp_run_sum,
         &mut acc.state_comp_run_sq,
+        &mut acc.state_comp_null_var,
+        &mut acc.state_mean_total,
+        &mut acc.state_mean_samples,
+        &mut acc.state_mean_run_sq,
+        &mut acc.state_mean_null_var,
+        &mut acc.meas_mean_total,
         &mut acc.meas_comp_total,
         &mut acc.meas_comp_samples,
         &mut acc.meas_comp_run_sum,

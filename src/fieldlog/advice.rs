@@ -59,6 +59,29 @@ pub(super) fn attribute(sensors: &mut [SensorReport]) {
         if s.verdict.passes() || s.verdict == Verdict::Inconclusive {
             continue;
         }
+        // A bias comes first: no Q or R models it, and it raises the NIS level too.
+        if let Some(t) = s
+            .mean_tests
+            .iter()
+            .filter(|t| t.verdict == Verdict::Biased)
+            .max_by(|a, b| (a.z.abs() / a.threshold).total_cmp(&(b.z.abs() / b.threshold)))
+        {
+            s.finding = Some(Finding {
+                component: s.name.clone(),
+                suspect: Some(Suspect::Bias),
+                action: format!(
+                    "innovations average {:+.2}σ: a sensor offset or unmodelled constant input on {}",
+                    t.mean, t.component
+                ),
+                evidence: format!(
+                    "mean ν/√S = {:+.2} (z = {:.1}, effective samples {})",
+                    t.mean,
+                    t.z,
+                    short(t.n_eff)
+                ),
+            });
+            continue;
+        }
         let lv = s.level();
         let (g, rho1) = s.gain();
         let heavy = s.outliers_verdict == Verdict::Overconfident;

@@ -133,6 +133,9 @@ pub(super) struct SensorSums {
     pub first_time: Option<f64>,
     pub last_time: f64,
     pub comp_sum: Vec<f64>,
+    /// Σ ν_j/√S_jj per component over the updates inside the outlier gate (the zero-mean
+    /// test's numerator; `comp_n` counts them).
+    pub comp_mean_sum: Vec<f64>,
     pub comp_n: Vec<f64>,
     /// Whiteness sums per lag and component, index `(lag − 1) · m + j`; only as many lags
     /// as have been paired (a sensor of 64 components at 100 lags needs 200 kB, which a
@@ -176,6 +179,7 @@ impl SensorSums {
             first_time: None,
             last_time: f64::NAN,
             comp_sum: vec![0.0; m],
+            comp_mean_sum: vec![0.0; m],
             comp_n: vec![0.0; m],
             white_ab: Vec::new(),
             white_a2: Vec::new(),
@@ -375,6 +379,7 @@ impl NisAnalyzer {
             }
             for (j, x) in u.iter().enumerate() {
                 s.comp_sum[j] += x * x;
+                s.comp_mean_sum[j] += x;
                 s.comp_n[j] += 1.0;
             }
         }

@@ -74,6 +74,81 @@ pub struct SensorPlot {
     pub histogram: Option<Histogram>,
 }
 
+/// The zero-mean test of one component's normalized innovations `u = ν_j/√S_jj` over a
+/// log: a filter that models its sensor's bias has innovations of mean 0.
+///
+/// The updates of one log are one run, correlated in time when the filter is not optimal,
+/// so the mean's variance is `(1/n)(1 + 2 Σ_{l=1}^{L} (1 − l/n) ρ_l)` and the test uses the
+/// effective sample size `n_eff = n / (1 + 2 Σ_l (1 − l/n) ρ_l)` (Bartlett's formula; the
+/// lags and `ρ_l` are the whiteness statistics'), clamped to `[1, n]`:
+/// `z = ū √n_eff / s`, with `s²` the variance of u about its mean floored at 1 (never
+/// narrower than a consistent filter's, so an S that is too small is left to the
+/// second-moment tests), two-sided against Student's t with `n_eff − 1` degrees of freedom.
+#[derive(Debug, Clone, Serialize)]
+pub struct MeanTest {
+    /// Component name.
+    pub component: String,
+    /// Updates inside the outlier gate behind the mean.
+    pub samples: f64,
+    /// `ū`, in standard deviations of the filter's S.
+    pub mean: f64,
+    /// The effective sample size after the autocorrelation correction.
+    pub n_eff: f64,
+    /// The test statistic.
+    pub z: f64,
+    /// Its two-sided threshold at the test level.
+    pub threshold: f64,
+    /// [`Verdict::Biased`] beyond the threshold, else consistent.
+    pub verdict: Verdict,
+}
+
+/// The zero-mean test of component `j` of sensor `s` at `level` (see [`MeanTest`]).
+fn mean_test(s: &SensorSums, j: usize, lags: usize, level: f64) -> Option<MeanTest> {
+    let n = s.comp_n[j];
+    if n < 2.0 {
+        return None;
+    }
+    let m = s.info.components.len();
+    let mean = s.comp_mean_sum[j] / n;
+    let mut factor = 1.0;
+    for l in 1..=lags {
+        let idx = (l - 1) * m + j;
+        let pairs = s.white_pairs.get(idx).copied().unwrap_or(0.0);
+        if pairs < 1.0 {
+            continue;
+        }
+        let den = (s.white_a2[idx] * s.white_b2[idx]).sqrt();
+        let rho = if den > 0.0 {
+            s.white_ab[idx] / den
+        } else {
+            0.0
+        };
+        factor += 2.0 * (1.0 - l as f64 / n).max(0.0) * rho;
+    }
+    let n_eff = if factor > 0.0 { n / factor } else { n }.clamp(1.0, n);
+    let sd = (s.comp_sum[j] / n - mean * mean).max(1.0).sqrt();
+    let z = mean * n_eff.sqrt() / sd;
+    let threshold = statrs::distribution::StudentsT::new(0.0, 1.0, (n_eff - 1.0).max(1.0))
+        .map(|d| {
+            use statrs::distribution::ContinuousCDF;
+            d.inverse_cdf(1.0 - level / 2.0)
+        })
+        .unwrap_or(f64::INFINITY);
+    Some(MeanTest {
+        component: s.info.components[j].clone(),
+        samples: n,
+        mean,
+        n_eff,
+        z,
+        threshold,
+        verdict: if z.abs() > threshold {
+            Verdict::Biased
+        } else {
+            Verdict::Consistent
+        },
+    })
+}
+
 /// Everything `autotune nis` says about one sensor.
 #[derive(Debug, Clone, Serialize)]
 pub struct SensorReport {
@@ -114,6 +189,8 @@ pub struct SensorReport {
     pub whiteness: Vec<WhitenessStat>,
     /// The portmanteau test of each component over the lags, at the test level.
     pub whiteness_tests: Vec<WhitenessTest>,
+    /// The zero-mean test of each component (a log with components), at the test level.
+    pub mean_tests: Vec<MeanTest>,
     /// The sensor's verdict (all its tests).
     pub verdict: Verdict,
     /// What the evidence blames, when the sensor fails.
@@ -224,7 +301,8 @@ fn tests_of(s: &SensorSums, lags: usize) -> usize {
     let white = (0..m)
         .filter(|&j| (0..lags).any(|l| s.white_pairs.get(l * m + j).is_some_and(|&p| p >= 1.0)))
         .count();
-    usize::from(s.gated > 0) + 1 + comps + white
+    let means = s.comp_n.iter().filter(|n| **n >= 2.0).count();
+    usize::from(s.gated > 0) + 1 + comps + white + means
 }
 
 impl NisAnalyzer {
@@ -308,13 +386,15 @@ impl NisAnalyzer {
                 .any(|s| s.finding.as_ref().is_some_and(|f| f.suspect == Some(x)))
         };
         let suspect = match (
+            blames(Suspect::Bias),
             blames(Suspect::Q),
             blames(Suspect::R),
             blames(Suspect::QAndR),
         ) {
-            (false, false, false) => None,
-            (true, false, false) => Some(Suspect::Q),
-            (false, true, false) => Some(Suspect::R),
+            (true, ..) => Some(Suspect::Bias),
+            (false, false, false, false) => None,
+            (false, true, false, false) => Some(Suspect::Q),
+            (false, false, true, false) => Some(Suspect::R),
             _ => Some(Suspect::QAndR),
         };
         NisReport {
@@ -385,7 +465,11 @@ impl NisAnalyzer {
                         .entry(n.to_bits())
                         .or_insert_with(|| chi2_average_interval(level, n, n));
                     let value = s.comp_sum[j] / n;
+                    let mt = mean_test(s, j, self.settings.lags(), level);
                     ComponentStat {
+                        mean: s.comp_mean_sum[j] / n,
+                        mean_z: mt.as_ref().map_or(f64::NAN, |t| t.z),
+                        mean_verdict: mt.as_ref().map_or(Verdict::Inconclusive, |t| t.verdict),
                         name: s.info.components[j].clone(),
                         kind: "measurement",
                         value,
@@ -421,9 +505,13 @@ impl NisAnalyzer {
             }
         }
         let whiteness_tests = whiteness_tests(&whiteness, &s.info.components, level);
+        let mean_tests: Vec<MeanTest> = (0..m)
+            .filter_map(|j| mean_test(s, j, self.settings.lags(), level))
+            .collect();
         let mut all: Vec<Verdict> = vec![nis.verdict, outliers_verdict];
         all.extend(component_stats.iter().map(|c| c.verdict));
         all.extend(whiteness_tests.iter().map(|w| w.verdict));
+        all.extend(mean_tests.iter().map(|t| t.verdict));
         let histogram = s
             .hist
             .iter()
@@ -463,6 +551,7 @@ impl NisAnalyzer {
             component_stats,
             whiteness,
             whiteness_tests,
+            mean_tests,
             verdict: combine(&all),
             finding: None,
             plot: SensorPlot {

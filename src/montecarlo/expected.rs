@@ -20,7 +20,7 @@ use crate::filter::{Filter, FilterError, KalmanFilter};
 use crate::linalg::cholesky;
 use crate::model::LinearGaussianModel;
 use crate::stats::Accumulator;
-use crate::stats::NeesNullVariance;
+use crate::stats::{ComponentNullVariance, GateMode, NeesNullVariance};
 
 /// Whether [`expected_accumulator`] applies: the filter uses the truth's F and H.
 pub fn models_match(truth: &LinearGaussianModel, filter: &KalmanFilter) -> bool {
@@ -55,6 +55,11 @@ pub fn expected_accumulator(
     let mut mu: DVector<f64> = &truth.x0 - &f.x0;
     let mut sigma = truth.P0.clone();
     let mut null_var = NeesNullVariance::new(n);
+    // The component variances (second and first moment) cost n times the NEES one; only
+    // the full gate reads them, as on the Monte Carlo paths.
+    let mut comp_var = (mc.gate() == GateMode::Full).then(|| ComponentNullVariance::new(n));
+    // Σ_k E[e_j]/√P_jj: every run's expected first-moment sum.
+    let mut mean_x = vec![0.0; n];
     // window[l − 1] = E[e_{k−1} ν_{k−l}'] (n × m), most recent first.
     let mut window: Vec<DMatrix<f64>> = Vec::with_capacity(lags);
     // History of diag(S) for the lagged normalizations, most recent first.
@@ -81,8 +86,14 @@ pub fn expected_accumulator(
                 return Ok(stop_all(acc, mc, k, fault));
             }
             v.add(&mut acc, i, runs, n, m, &mut comp_x, &mut comp_z, lags, k);
+            for (s, y) in mean_x.iter_mut().zip(&v.mean_x) {
+                *s += y;
+            }
             if let Some((a, p, c)) = &last_null {
                 null_var.step(a, p, c);
+                if let Some(cv) = &mut comp_var {
+                    cv.step(a, p);
+                }
             }
             continue;
         }
@@ -94,6 +105,9 @@ pub fn expected_accumulator(
         })?;
         let A = &cu.IKH * F;
         null_var.step(&A, &cu.P, &chol_p);
+        if let Some(cv) = &mut comp_var {
+            cv.step(&A, &cu.P);
+        }
         last_null = Some((A.clone(), cu.P.clone(), chol_p.clone()));
 
         // Error moments before and after the update.
@@ -125,6 +139,8 @@ pub fn expected_accumulator(
             nis_sq,
             comp_x: (0..n).map(|j| e_m2[(j, j)] / cu.P[(j, j)]).collect(),
             comp_z: comp_z_now.clone(),
+            mean_x: (0..n).map(|j| mu_new[j] / cu.P[(j, j)].sqrt()).collect(),
+            mean_z: (0..m).map(|j| nu_mean[j] / s_diag[j].sqrt()).collect(),
             white: cross
                 .iter()
                 .zip(&s_diag_hist)
@@ -136,6 +152,9 @@ pub fn expected_accumulator(
             return Ok(stop_all(acc, mc, k, fault));
         }
         values.add(&mut acc, i, runs, n, m, &mut comp_x, &mut comp_z, lags, k);
+        for (s, y) in mean_x.iter_mut().zip(&values.mean_x) {
+            *s += y;
+        }
 
         // Advance the cross-moment window: E[e_k ν_k'] and older ones through A_k.
         let d = &cu.IKH * &m2_p * &Ht - K * &truth.R;
@@ -179,9 +198,21 @@ pub fn expected_accumulator(
         acc.meas_comp_run_sq[j] = runs * (c / t).powi(2);
         acc.meas_comp_runs[j] = mc.runs();
     }
+    for (j, c) in mean_x.iter().enumerate() {
+        acc.state_mean_run_sq[j] = runs * c * c;
+    }
     acc.runs = mc.runs();
     acc.nees_null_var = runs * null_var.variance();
     acc.null_var_runs = mc.runs();
+    if let Some(cv) = &comp_var {
+        for (s, v) in acc.state_comp_null_var.iter_mut().zip(cv.variances()) {
+            *s = runs * v;
+        }
+        for (s, v) in acc.state_mean_null_var.iter_mut().zip(cv.mean_variances()) {
+            *s = runs * v;
+        }
+        acc.comp_null_var_runs = mc.runs();
+    }
     Ok(acc)
 }
 
@@ -257,6 +288,10 @@ struct StepValues {
     nis_sq: f64,
     comp_x: Vec<f64>,
     comp_z: Vec<f64>,
+    /// `E[e_j]/√P_jj`.
+    mean_x: Vec<f64>,
+    /// `E[ν_j]/√S_jj`.
+    mean_z: Vec<f64>,
     /// `white[l − 1][j]` = E[u_k,j u_{k−l},j].
     white: Vec<Vec<f64>>,
     /// `lagged_b2[l − 1][j]` = E[u_{k−l},j²].
@@ -272,12 +307,22 @@ impl StepValues {
         let all = |a: &[f64], b: &[f64]| {
             a.len() == b.len() && a.iter().zip(b).all(|(x, y)| close(*x, *y))
         };
+        // A mean in standard deviations decays geometrically towards 0 and never settles
+        // relative to itself; 1e-12 σ is settled enough.
+        let near = |a: &[f64], b: &[f64]| {
+            a.len() == b.len()
+                && a.iter()
+                    .zip(b)
+                    .all(|(x, y)| (x - y).abs() <= STEADY_RTOL * x.abs().max(y.abs()).max(1.0))
+        };
         close(self.nees, o.nees)
             && close(self.nees_sq, o.nees_sq)
             && close(self.nis, o.nis)
             && close(self.nis_sq, o.nis_sq)
             && all(&self.comp_x, &o.comp_x)
             && all(&self.comp_z, &o.comp_z)
+            && near(&self.mean_x, &o.mean_x)
+            && near(&self.mean_z, &o.mean_z)
             && self.white.len() == o.white.len()
             && self.white.iter().zip(&o.white).all(|(a, b)| all(a, b))
             && self.lagged_b2.len() == o.lagged_b2.len()
@@ -313,11 +358,14 @@ impl StepValues {
             *c += v;
             acc.state_comp_total[j] += runs * v;
             acc.state_comp_samples[j] += runs;
+            acc.state_mean_total[j] += runs * self.mean_x[j];
+            acc.state_mean_samples[j] += runs;
         }
         for (j, (c, v)) in comp_z.iter_mut().zip(&self.comp_z).enumerate() {
             *c += v;
             acc.meas_comp_total[j] += runs * v;
             acc.meas_comp_samples[j] += runs;
+            acc.meas_mean_total[j] += runs * self.mean_z[j];
         }
         for lag in 1..=lags.min(k - 1).min(self.white.len()) {
             for j in 0..m {

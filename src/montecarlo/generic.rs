@@ -233,7 +233,7 @@ where
         scratch.end_step(acc, k);
         acc.add_nees(i, nees, n_x as f64);
         run_nees += nees;
-        scratch.state_step(acc, (0..n_x).map(|j| e[j] * e[j] / est.P[(j, j)]));
+        scratch.state_step(acc, (0..n_x).map(|j| e[j] / est.P[(j, j)].sqrt()));
         if sample_null_var && !map_missing {
             match &est.error_map {
                 Some(a) if a.shape() == (n_x, n_x) => {
@@ -254,6 +254,9 @@ where
         acc.null_var_runs += 1;
         if let Some(cv) = &comp_var {
             for (s, v) in acc.state_comp_null_var.iter_mut().zip(cv.variances()) {
+                *s += v;
+            }
+            for (s, v) in acc.state_mean_null_var.iter_mut().zip(cv.mean_variances()) {
                 *s += v;
             }
             acc.comp_null_var_runs += 1;

@@ -37,6 +37,11 @@ struct Schedule {
     /// The predicted variance of each state component's per-run sum (empty when the gate
     /// does not test components).
     comp_null_var: Vec<f64>,
+    /// The predicted variance of each state component's per-run sum of `e_j/√P_jj` (empty
+    /// when the gate does not test components).
+    mean_null_var: Vec<f64>,
+    /// 1 / √P_jj.
+    p_inv_sqrt_diag: Vec<DVector<f64>>,
 }
 
 /// Relative change below which a covariance entry or increment counts as unchanged.
@@ -73,6 +78,8 @@ impl Schedule {
             s_inv_sqrt_diag: Vec::with_capacity(steps),
             null_var: 0.0,
             comp_null_var: Vec::new(),
+            mean_null_var: Vec::new(),
+            p_inv_sqrt_diag: Vec::with_capacity(steps),
         };
         let mut P = f.P0.clone();
         let mut nv = NeesNullVariance::new(n);
@@ -126,6 +133,8 @@ impl Schedule {
                 s.Wt.push(inverse_cholesky_factor(&chol).transpose());
                 s.Vt.push(inverse_cholesky_factor(&cu.chol).transpose());
                 s.p_inv_diag.push(cu.P.diagonal().map(|v| 1.0 / v));
+                s.p_inv_sqrt_diag
+                    .push(cu.P.diagonal().map(|v| 1.0 / v.sqrt()));
                 s.s_inv_sqrt_diag
                     .push(cu.S.diagonal().map(|v| 1.0 / v.sqrt()));
                 s.Kt.push(cu.K.transpose());
@@ -135,6 +144,7 @@ impl Schedule {
         s.null_var = nv.variance();
         if let Some(cv) = &cv {
             s.comp_null_var = cv.variances().to_vec();
+            s.mean_null_var = cv.mean_variances().to_vec();
         }
         Ok(s)
     }
@@ -354,6 +364,8 @@ fn chunk(job: &Job<'_>, range: Range<usize>, acc: &mut Accumulator) {
     let mut run_nees = vec![0.0; b];
     // Per-run sums of e_j²/P_jj and u_j², and the last `lags` normalized innovations.
     let mut run_x = DMatrix::<f64>::zeros(b, n);
+    // Per-run sums of e_j/√P_jj.
+    let mut run_mx = DMatrix::<f64>::zeros(b, n);
     let mut run_z = DMatrix::<f64>::zeros(b, m);
     let mut u = DMatrix::<f64>::zeros(b, m);
     let mut ring: Vec<DMatrix<f64>> = (0..lags).map(|_| DMatrix::zeros(b, m)).collect();
@@ -460,13 +472,23 @@ fn chunk(job: &Job<'_>, range: Range<usize>, acc: &mut Accumulator) {
         acc.nis_dof[i] += (m * live) as f64;
         acc.nis_count[i] += live as f64;
 
+        let pis = &sched.p_inv_sqrt_diag[si];
         for j in 0..n {
             let ej = col(&e, j);
             acc.state_comp_total[j] += dot(ej, ej) * pinv[j];
             acc.state_comp_samples[j] += live as f64;
+            acc.state_mean_samples[j] += live as f64;
             for (r, v) in col_mut(&mut run_x, j).iter_mut().zip(ej) {
                 *r += v * v * pinv[j];
             }
+            // Stopped runs' rows are zero, so they add nothing.
+            let mut sum = 0.0;
+            for (r, v) in col_mut(&mut run_mx, j).iter_mut().zip(ej) {
+                let y = v * pis[j];
+                *r += y;
+                sum += y;
+            }
+            acc.state_mean_total[j] += sum;
         }
         let srt = &sched.s_inv_sqrt_diag[si];
         let slot = if lags > 0 { k % lags } else { 0 };
@@ -476,6 +498,7 @@ fn chunk(job: &Job<'_>, range: Range<usize>, acc: &mut Accumulator) {
             }
             let uj = col(&u, j);
             let total = dot(uj, uj);
+            acc.meas_mean_total[j] += uj.iter().sum::<f64>();
             for (r, v) in col_mut(&mut run_z, j).iter_mut().zip(uj) {
                 *r += v * v;
             }
@@ -504,6 +527,11 @@ fn chunk(job: &Job<'_>, range: Range<usize>, acc: &mut Accumulator) {
             acc.add_run_component(true, j, v / t);
         }
     }
+    for (j, col) in run_mx.column_iter().enumerate() {
+        for (v, _) in col.iter().zip(&dead).filter(|(_, d)| !**d) {
+            acc.state_mean_run_sq[j] += v * v;
+        }
+    }
     for (j, col) in run_z.column_iter().enumerate() {
         for (v, _) in col.iter().zip(&dead).filter(|(_, d)| !**d) {
             acc.add_run_component(false, j, v / t);
@@ -523,6 +551,9 @@ fn chunk(job: &Job<'_>, range: Range<usize>, acc: &mut Accumulator) {
     acc.null_var_runs += live;
     if !sched.comp_null_var.is_empty() {
         for (s, v) in acc.state_comp_null_var.iter_mut().zip(&sched.comp_null_var) {
+            *s += v * live as f64;
+        }
+        for (s, v) in acc.state_mean_null_var.iter_mut().zip(&sched.mean_null_var) {
             *s += v * live as f64;
         }
         acc.comp_null_var_runs += live;

@@ -133,6 +133,8 @@ struct Current {
 struct Normalized {
     nees: Option<(f64, f64)>,
     e2p: Option<Vec<f64>>,
+    /// `e_j/√P_jj`, when the records give e and P (`e2p` is then unused).
+    ep: Option<Vec<f64>>,
     nis: Option<(f64, f64)>,
     /// `(component, ν_j/√S_jj)`.
     u: Vec<(usize, f64)>,
@@ -304,6 +306,7 @@ impl RecordSink {
         let mut out = Normalized {
             nees: None,
             e2p: None,
+            ep: None,
             nis: None,
             u: Vec::new(),
         };
@@ -339,9 +342,9 @@ impl RecordSink {
                             return Ok(Err(format!("the NEES overflowed at step {k}")));
                         }
                         out.nees = Some((nees, n as f64));
-                        out.e2p = layout
+                        out.ep = layout
                             .components
-                            .then(|| (0..n).map(|j| e[j] * e[j] / pm[(j, j)]).collect());
+                            .then(|| (0..n).map(|j| e[j] / pm[(j, j)].sqrt()).collect());
                     }
                     StateRecord::Normalized { nees, dof, e2p } => {
                         if !(*dof >= 1.0 && *dof <= MAX_DOF && dof.fract() == 0.0) {
@@ -423,8 +426,11 @@ impl RecordSink {
                 c.nees_total += nees;
             }
         }
-        if let Some(e2p) = n.e2p {
-            self.recorder.state_step(&mut self.acc, e2p.into_iter());
+        if let Some(ep) = n.ep {
+            self.recorder.state_step(&mut self.acc, ep.into_iter());
+        } else if let Some(e2p) = n.e2p {
+            self.recorder
+                .state_step_squares(&mut self.acc, e2p.into_iter());
         }
     }
 }

@@ -30,7 +30,7 @@ const STYLE: &str = "body{font-family:sans-serif;max-width:1400px;margin:1em aut
 table{border-collapse:collapse;margin:.5em 0}td,th{border:1px solid #999;padding:3px 8px;text-align:left}\
 th{background:#e6e6e6}.row{display:flex;flex-wrap:wrap;gap:12px}.row figure{margin:0;max-width:640px}\
 figcaption{font-size:90%;color:#333}.verdict{font-size:120%;font-weight:bold}\
-svg{max-width:100%;height:auto}code{background:#f0f0f0;padding:0 3px}";
+svg{max-width:100%;height:auto}code{background:#f0f0f0;padding:0 3px}td.num{text-align:right;font-variant-numeric:tabular-nums}tr.off td.v{color:#a00;font-weight:bold}tr.biased td.m{color:#a00;font-weight:bold}";
 
 fn head(o: &mut String, title: &str) {
     head_styled(o, title, "");
@@ -83,6 +83,47 @@ fn stats_table(o: &mut String, reports: &[(&str, &ConsistencyReport)]) {
             }
         }
     }
+}
+
+/// Every component's second-moment and zero-mean tests, one row each.
+fn components_table(o: &mut String, r: &ConsistencyReport) {
+    let comps: Vec<_> = r
+        .state_components
+        .iter()
+        .chain(&r.measurement_components)
+        .collect();
+    if comps.is_empty() {
+        return;
+    }
+    o.push_str("<h2>Components</h2><table><tr><th>kind</th><th>component</th><th>e²/P or ν²/S</th><th>interval</th><th>verdict</th><th>mean e/√P or ν/√S</th><th>z</th><th>zero mean</th></tr>\n");
+    for c in comps {
+        let (value, interval) = super::summary::component_cells(c);
+        let mut class = Vec::new();
+        if matches!(
+            c.verdict,
+            crate::stats::Verdict::Overconfident | crate::stats::Verdict::Underconfident
+        ) {
+            class.push("off");
+        }
+        if c.mean_verdict == crate::stats::Verdict::Biased {
+            class.push("biased");
+        }
+        let (mean, z) = super::summary::mean_cells(c);
+        let _ = writeln!(
+            o,
+            "<tr class=\"{}\"><td>{}</td><td><code>{}</code></td><td class=\"num v\">{value}</td><td>{interval}</td><td class=\"v\">{}</td><td class=\"num m\">{mean}</td><td class=\"num m\">{z}</td><td class=\"m\">{}</td></tr>",
+            class.join(" "),
+            c.kind,
+            escape(&c.name),
+            c.verdict.label(),
+            if c.mean_z.is_finite() {
+                c.mean_verdict.label()
+            } else {
+                "–"
+            }
+        );
+    }
+    o.push_str("</table>\n");
 }
 
 /// Steps per plotted point: 1 while the per-step averages over the runs are readable, and
@@ -246,6 +287,7 @@ pub fn check_html(
         o.push_str("</table>\n");
     }
     stats_table(&mut o, &[("configured", r)]);
+    components_table(&mut o, r);
     plots(&mut o, &[("configured", r)]);
     let _ = writeln!(
         o,

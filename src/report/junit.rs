@@ -5,7 +5,7 @@ use std::fmt::Write;
 use super::fmt_fixed;
 use super::html::escape;
 use super::summary::has_data;
-use crate::stats::{ConsistencyReport, StatisticSummary};
+use crate::stats::{ConsistencyReport, GateMode, StatisticSummary, Verdict};
 
 fn case(name: &str, class: &str, failure: Option<(String, String)>) -> String {
     match failure {
@@ -67,6 +67,30 @@ fn stat_case(s: &StatisticSummary, class: &str) -> String {
     case(&name, class, failure)
 }
 
+/// One case for the zero-mean tests of every component (the full gate's), failing with
+/// the components whose errors do not average zero.
+fn mean_case(report: &ConsistencyReport, class: &str) -> String {
+    let biased: Vec<String> = report
+        .state_components
+        .iter()
+        .chain(&report.measurement_components)
+        .filter(|c| c.mean_verdict == Verdict::Biased)
+        .map(|c| {
+            format!(
+                "{} {} mean {:+.3}σ (z = {:.2})",
+                c.kind, c.name, c.mean, c.mean_z
+            )
+        })
+        .collect();
+    let failure = (!biased.is_empty()).then(|| {
+        (
+            format!("not zero-mean: {}", biased.join("; ")),
+            format!("{}: {}", Verdict::Biased.describe(), biased.join("; ")),
+        )
+    });
+    case("errors zero-mean", class, failure)
+}
+
 /// A JUnit XML report with one test case per gate statistic (and one for divergence),
 /// named so a failing case says which statistic failed.
 pub fn junit_xml(problem: &str, report: &ConsistencyReport) -> String {
@@ -76,6 +100,9 @@ pub fn junit_xml(problem: &str, report: &ConsistencyReport) -> String {
         cases += &stat_case(n, &class);
     }
     cases += &stat_case(&report.nis, &class);
+    if report.gate == GateMode::Full {
+        cases += &mean_case(report, &class);
+    }
     let div = (report.diverged_runs > 0).then(|| {
         let first = report
             .divergences

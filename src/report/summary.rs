@@ -63,6 +63,25 @@ pub(crate) fn component_cells(c: &ComponentStat) -> (String, String) {
     }
 }
 
+/// A component's zero-mean cells: its mean (signed, 2 decimals, "!" when the test failed)
+/// and its z, or dashes without a test.
+pub(crate) fn mean_cells(c: &ComponentStat) -> (String, String) {
+    if !c.mean.is_finite() {
+        return ("–".into(), "–".into());
+    }
+    let mark = if c.mean_verdict == Verdict::Biased {
+        " !"
+    } else {
+        ""
+    };
+    let z = if c.mean_z.is_finite() {
+        format!("{:+.1}", c.mean_z)
+    } else {
+        "–".into()
+    };
+    (format!("{:+.2}{mark}", c.mean), z)
+}
+
 /// Whether any step had data for `s`.
 pub(crate) fn has_data(s: &StatisticSummary) -> bool {
     s.steps_with_data > 0
@@ -166,6 +185,38 @@ pub fn summary_text(problem: &str, params: &[(String, f64)], r: &ConsistencyRepo
             out,
             "  components off their target 1{gated}: {}",
             off.join("; ")
+        );
+    }
+    let comps: Vec<&ComponentStat> = r
+        .state_components
+        .iter()
+        .chain(&r.measurement_components)
+        .filter(|c| c.mean_z.is_finite())
+        .collect();
+    let mean_text = |c: &ComponentStat| {
+        let kind = if c.kind == "state" { "state" } else { "meas" };
+        let (mean, z) = mean_cells(c);
+        format!("{kind} {} {mean} (z {z})", c.name)
+    };
+    let biased: Vec<String> = comps
+        .iter()
+        .filter(|c| c.mean_verdict == Verdict::Biased)
+        .map(|c| mean_text(c))
+        .collect();
+    if !biased.is_empty() {
+        let _ = writeln!(
+            out,
+            "  components not zero-mean{gated} (mean in σ): {}",
+            biased.join("; ")
+        );
+    } else if !comps.is_empty() {
+        let mut by_z = comps.clone();
+        by_z.sort_by(|a, b| b.mean_z.abs().total_cmp(&a.mean_z.abs()));
+        let top: Vec<String> = by_z.iter().take(3).map(|c| mean_text(c)).collect();
+        let _ = writeln!(
+            out,
+            "  component means (target 0, all zero-mean by test; largest |z| first): {}",
+            top.join("; ")
         );
     }
     let white: Vec<String> = r

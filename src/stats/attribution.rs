@@ -20,6 +20,15 @@
 //! - With ground truth, the state components: errors that fit P while the innovations do not
 //!   fit S put the blame on R; errors off while the innovations fit put it on Q (in states
 //!   the sensors do not see directly) or on the initial covariance.
+//! - Before all of this, the first moment: errors that do not average zero are a bias no
+//!   Q or R can model (a sensor offset, an unmodelled constant input). A bias raises the
+//!   second moments too (`E[u²] = 1 + b²`), so a biased component's level says nothing about
+//!   Q or R: its finding is the bias, and it comes first.
+//!
+//! R scales both: a too-small R makes S too small *and* (through a too-high gain the filter
+//! trusts) P too small, so with R to blame, state components off in the same direction are
+//! explained by R; only a state component off the other way (or off while no innovation
+//! component is) leaves room for Q being off as well.
 
 use serde::Serialize;
 
@@ -35,6 +44,8 @@ pub enum Suspect {
     R,
     /// Both together (the gain fits, the scale does not), or their ratio.
     QAndR,
+    /// Neither: a constant bias (errors or innovations that do not average zero).
+    Bias,
 }
 
 impl Suspect {
@@ -44,6 +55,7 @@ impl Suspect {
             Suspect::Q => "Q (process noise)",
             Suspect::R => "R (measurement noise)",
             Suspect::QAndR => "Q and R together",
+            Suspect::Bias => "a constant bias (a sensor offset or an unmodelled input)",
         }
     }
 }
@@ -69,8 +81,8 @@ pub struct Diagnosis {
     pub findings: Vec<Finding>,
     /// What they point to overall; `None` when nothing is off.
     pub suspect: Option<Suspect>,
-    /// Some state components are off while the innovations carry the blame: the other
-    /// noise model may be off as well.
+    /// Some state components are off in a way the innovations' blame does not explain
+    /// (see the module documentation): the other noise model may be off as well.
     pub states_off_too: bool,
 }
 
@@ -95,6 +107,27 @@ fn level(c: &ComponentStat) -> i32 {
         Verdict::Underconfident => -1,
         _ => 0,
     }
+}
+
+/// The bias finding of a component whose zero-mean test failed.
+fn bias_finding(c: &ComponentStat) -> Option<Finding> {
+    if c.mean_verdict != Verdict::Biased {
+        return None;
+    }
+    let (what, on) = if c.kind == "state" {
+        ("e/√P", "acting on")
+    } else {
+        ("ν/√S", "on")
+    };
+    Some(Finding {
+        component: c.name.clone(),
+        suspect: Some(Suspect::Bias),
+        action: format!(
+            "errors average {:+.2}σ: a sensor offset or unmodelled constant input {on} {}",
+            c.mean, c.name
+        ),
+        evidence: format!("mean {what} = {:+.2} (z = {:.1})", c.mean, c.mean_z),
+    })
 }
 
 /// The sign of a failed whiteness test's lag-1 autocorrelation, 0 when white.
@@ -136,10 +169,22 @@ pub fn blame(lv: i32, g: i32) -> (Suspect, &'static str) {
 /// Read `report`'s components and whiteness for which of Q and R is off (see the module
 /// documentation for the reasoning).
 pub fn diagnose(report: &ConsistencyReport) -> Diagnosis {
-    let states_fit = report.state_components.iter().all(|c| level(c) == 0);
+    let biased = |c: &ComponentStat| c.mean_verdict == Verdict::Biased;
+    let states_fit = report
+        .state_components
+        .iter()
+        .all(|c| level(c) == 0 || biased(c));
     let has_truth = !report.state_components.is_empty();
-    let mut findings = Vec::new();
-    for c in &report.measurement_components {
+    let mut findings: Vec<Finding> = report
+        .measurement_components
+        .iter()
+        .chain(&report.state_components)
+        .filter_map(bias_finding)
+        .collect();
+    let bias_findings = findings.len();
+    // The direction in which the innovations blame R (+1: R too small), if they do.
+    let mut r_direction = 0;
+    for c in report.measurement_components.iter().filter(|c| !biased(c)) {
         let w = report
             .whiteness_tests
             .iter()
@@ -156,6 +201,13 @@ pub fn diagnose(report: &ConsistencyReport) -> Diagnosis {
         } else {
             blame(lv, g)
         };
+        if suspect == Suspect::R {
+            r_direction = if action.starts_with("increase") {
+                1
+            } else {
+                -1
+            };
+        }
         findings.push(Finding {
             component: c.name.clone(),
             suspect: Some(suspect),
@@ -163,11 +215,17 @@ pub fn diagnose(report: &ConsistencyReport) -> Diagnosis {
             evidence,
         });
     }
-    let innovations_fit = findings.is_empty();
-    for c in &report.state_components {
+    let innovations_fit = findings.len() == bias_findings;
+    // State components off while the innovations blame something else, and whether one of
+    // them is not explained by the innovations' blame of R.
+    let mut unexplained_state = false;
+    for c in report.state_components.iter().filter(|c| !biased(c)) {
         let lv = level(c);
         if lv == 0 {
             continue;
+        }
+        if !innovations_fit && lv != r_direction {
+            unexplained_state = true;
         }
         let (suspect, action) = match (innovations_fit, lv > 0) {
             (true, true) => (
@@ -190,16 +248,21 @@ pub fn diagnose(report: &ConsistencyReport) -> Diagnosis {
     }
     let blames = |s: Suspect| findings.iter().any(|f| f.suspect == Some(s));
     let suspect = match (
+        blames(Suspect::Bias),
         blames(Suspect::Q),
         blames(Suspect::R),
         blames(Suspect::QAndR),
     ) {
-        (false, false, false) => None,
-        (true, false, false) => Some(Suspect::Q),
-        (false, true, false) => Some(Suspect::R),
+        (true, ..) => Some(Suspect::Bias),
+        (false, false, false, false) => None,
+        (false, true, false, false) => Some(Suspect::Q),
+        (false, false, true, false) => Some(Suspect::R),
         _ => Some(Suspect::QAndR),
     };
-    let states_off_too = findings.iter().any(|f| f.suspect.is_none());
+    // A state component off the way R's blame explains (a too-small R makes P too small as
+    // well) leaves no room for Q; one off the other way, or off while the innovations
+    // blame Q or both, does.
+    let states_off_too = unexplained_state;
     Diagnosis {
         findings,
         suspect,

@@ -12,6 +12,15 @@
 //!   sample variance over some tens of runs is usually far too small, and a t test on them
 //!   rejects several times more often than its level (measured on ins_gnss: 14–16 of 100 seeds
 //!   at the truth for a family-wise 0.05).
+//! - Zero mean of component j: consistency (Bar-Shalom, Li, Kirubarajan 2001, §5.4) is
+//!   zero-mean errors *and* the stated covariance, and a constant bias the filter does not
+//!   model (a sensor offset, an unmodelled input) shows in the first moment before anything
+//!   else. The sum `T_j` of `e_j/√P_jj` (or `ν_j/√S_jj`) over all runs and steps has mean 0
+//!   and, under consistency, the variance the filter predicts: the sample count for the
+//!   white innovations, the error-map recursion of [`super::ComponentNullVariance`] for the
+//!   correlated state errors (or the run-to-run spread of the per-run sums without a map,
+//!   then judged against Student's t with N − 1 degrees of freedom). The test is two-sided
+//!   normal on `z = T_j/√Var(T_j)`.
 //! - Whiteness of component j: an optimal filter's innovations are uncorrelated in time, so
 //!   with `u = ν_j/√S_jj` the pooled lag-l autocorrelation `ρ_l` is about N(0, 1/pairs_l),
 //!   independently across lags; the portmanteau `Q_j = Σ_l pairs_l ρ_l²` (Box and Pierce
@@ -19,7 +28,11 @@
 
 use serde::Serialize;
 
-use super::{Accumulator, Interval, SumVariance, Verdict, chi2_inv, gate_interval};
+use statrs::distribution::{ContinuousCDF, StudentsT};
+
+use super::{
+    Accumulator, Interval, SumVariance, Verdict, chi2_inv, gate_interval, normal_two_sided_quantile,
+};
 
 /// Normalized error statistic of one state or measurement component: the average of
 /// `e_j²/P_jj` (state) or `ν_j²/S_jj` (measurement), target 1.
@@ -37,6 +50,60 @@ pub struct ComponentStat {
     pub samples: f64,
     /// Where the value falls.
     pub verdict: Verdict,
+    /// Average of `e_j/√P_jj` (state) or `ν_j/√S_jj` (measurement) over the samples: 0 for
+    /// a consistent filter, in standard deviations (NaN when the data give no sign).
+    pub mean: f64,
+    /// The zero-mean test's statistic: the sum over all runs and steps divided by the
+    /// square root of its null variance (NaN when there is no test).
+    pub mean_z: f64,
+    /// The zero-mean test's verdict: [`Verdict::Biased`] when `|mean_z|` exceeds the test's
+    /// threshold, [`Verdict::Inconclusive`] without a test.
+    pub mean_verdict: Verdict,
+}
+
+/// The first-moment data of one component: the sum over runs and steps, the samples behind
+/// it, and what its null variance rests on.
+pub(super) struct MeanSums {
+    pub total: f64,
+    pub samples: f64,
+    pub variance: SumVariance,
+    /// The average of the squares (the component's `value`).
+    pub second_moment: f64,
+}
+
+/// The zero-mean test of a component at `level`: `(mean, z, verdict)`.
+pub(super) fn mean_test(m: &MeanSums, level: f64) -> (f64, f64, Verdict) {
+    if m.samples <= 0.0 {
+        return (f64::NAN, f64::NAN, Verdict::Inconclusive);
+    }
+    let mean = m.total / m.samples;
+    let (var, threshold) = match m.variance {
+        // A covariance that is off (caught by the second-moment test) scales the spread of
+        // the sum with it; widening by the observed variance about the mean, never
+        // narrowing, keeps a filter with too small an R from being called biased, and costs
+        // nothing under consistency or against a bias (the mean is taken out).
+        SumVariance::Predicted(v) => (
+            v * (m.second_moment - mean * mean).max(1.0),
+            normal_two_sided_quantile(level),
+        ),
+        SumVariance::RunSpread { var, runs } => {
+            let t = StudentsT::new(0.0, 1.0, runs.saturating_sub(1).max(1) as f64)
+                .map(|d| d.inverse_cdf(1.0 - level / 2.0))
+                .unwrap_or(f64::INFINITY);
+            (var, t)
+        }
+        SumVariance::Unavailable => (f64::NAN, f64::NAN),
+    };
+    if !(var > 0.0) || !var.is_finite() || !m.total.is_finite() {
+        return (mean, f64::NAN, Verdict::Inconclusive);
+    }
+    let z = m.total / var.sqrt();
+    let verdict = if z.abs() > threshold {
+        Verdict::Biased
+    } else {
+        Verdict::Consistent
+    };
+    (mean, z, verdict)
 }
 
 /// Normalized autocorrelation of one measurement component's innovations at one lag.
@@ -74,13 +141,15 @@ pub struct WhitenessTest {
 
 /// Per-component averages, each with a two-sided interval at level `alpha` around 1: the
 /// gate interval ([`gate_interval`]) of the component's sum over all runs and steps, whose
-/// mean is its number of samples and whose variance is `variance(j)`.
+/// mean is its number of samples and whose variance is `variance(j)`; and the zero-mean
+/// test of `means(j)` at the same level.
 pub(super) fn components(
     kind: &'static str,
     names: &[String],
     total: &[f64],
     samples: &[f64],
     variance: impl Fn(usize) -> SumVariance,
+    means: impl Fn(usize) -> MeanSums,
     alpha: f64,
 ) -> Vec<ComponentStat> {
     names
@@ -97,7 +166,11 @@ pub(super) fn components(
                 };
                 (f64::NAN, nan)
             };
+            let (mean, mean_z, mean_verdict) = mean_test(&means(j), alpha);
             ComponentStat {
+                mean,
+                mean_z,
+                mean_verdict,
                 name: name.clone(),
                 kind,
                 value,

@@ -152,6 +152,9 @@ pub enum Verdict {
     /// The innovations are correlated in time (an optimal filter's are white): the model
     /// misses dynamics, or its gain does not fit the noise.
     NotWhite,
+    /// The errors (or innovations) do not average zero: a bias the filter does not model
+    /// (a sensor offset or an unmodelled constant input).
+    Biased,
     /// Passed, but with too few degrees of freedom for the test to mean anything.
     Inconclusive,
     /// The filter broke down in some runs (a covariance stopped being positive definite,
@@ -181,6 +184,7 @@ impl Verdict {
             Verdict::Underconfident => "underconfident (errors smaller than the filter believes)",
             Verdict::Mixed => "inconsistent (some statistics too high, some too low)",
             Verdict::NotWhite => "inconsistent (innovations correlated in time)",
+            Verdict::Biased => "errors not zero-mean: a bias the filter does not model",
             Verdict::Inconclusive => "inconclusive (too little data for the test to have power)",
             Verdict::Diverged => {
                 "diverged (the filter broke down in some runs: its covariance stopped being positive definite, or its error left it)"
@@ -202,6 +206,7 @@ impl Verdict {
             Verdict::Underconfident => "underconfident",
             Verdict::Mixed => "mixed",
             Verdict::NotWhite => "not white",
+            Verdict::Biased => "biased",
             Verdict::Inconclusive => "inconclusive",
             Verdict::Diverged => "diverged",
             Verdict::IllConditioned => "ill-conditioned",
@@ -242,6 +247,11 @@ pub fn combine(verdicts: &[Verdict]) -> Verdict {
         if verdicts.contains(&stop) {
             return stop;
         }
+    }
+    // A bias inflates the second moments too (E[y²] = 1 + mean²), so it is the finding
+    // that explains the others.
+    if verdicts.contains(&Verdict::Biased) {
+        return Verdict::Biased;
     }
     let over = verdicts.contains(&Verdict::Overconfident);
     let under = verdicts.contains(&Verdict::Underconfident);
@@ -335,5 +345,18 @@ mod tests {
             combine(&[Verdict::Consistent, Verdict::Consistent]),
             Verdict::Consistent
         );
+        assert_eq!(
+            combine(&[Verdict::NotWhite, Verdict::Biased, Verdict::Consistent]),
+            Verdict::Biased
+        );
+        assert_eq!(
+            combine(&[Verdict::Overconfident, Verdict::Biased]),
+            Verdict::Biased
+        );
+        assert_eq!(
+            combine(&[Verdict::Diverged, Verdict::Biased]),
+            Verdict::Diverged
+        );
+        assert!(!Verdict::Biased.passes());
     }
 }

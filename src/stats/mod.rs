@@ -29,7 +29,7 @@ pub use attribution::{Diagnosis, Finding, Suspect, blame, diagnose};
 pub use diagnostics::{
     ComponentStat, WhitenessStat, WhitenessTest, gate_deviates, whiteness_tests,
 };
-use diagnostics::{components, whiteness};
+use diagnostics::{MeanSums, components, whiteness};
 
 pub use interval::{
     GateMode, Interval, SumVariance, Verdict, chi2_average_interval, chi2_inv, combine, gate_alpha,
@@ -99,7 +99,8 @@ pub struct ConsistencyReport {
     /// Which tests the gate applies.
     pub gate: GateMode,
     /// How many tests the gate applies (the time averages, and in the full gate every
-    /// component and every measurement component's whiteness).
+    /// component's second moment and zero mean, and every measurement component's
+    /// whiteness).
     pub tests: usize,
     /// Level of each gate test, `1 − (1 − α)^{1/tests}` (Šidák), so that a consistent filter
     /// fails the whole gate with probability at most α; per-step intervals use α.
@@ -157,7 +158,8 @@ impl ConsistencyReport {
     /// the components.
     ///
     /// The gate applies k tests (the time-averaged ANIS, ANEES with the truth; in the full
-    /// gate also each component with samples and each measurement component's whiteness),
+    /// gate also each component with samples, twice: its second moment and its zero mean,
+    /// and each measurement component's whiteness),
     /// each at the Šidák level `1 − (1 − α)^{1/k}`: exactly α family-wise if the tests were
     /// independent, less since they are positively dependent (a filter off in one component
     /// is off in the time averages too).
@@ -174,14 +176,15 @@ impl ConsistencyReport {
             .iter()
             .filter(|n| white.iter().any(|w| &w.component == *n))
             .count();
+        // Each component with samples brings two tests: its second moment and its mean.
         let tests = if full {
             1 + usize::from(use_nees)
                 + if use_nees {
-                    has(&acc.state_comp_samples)
+                    has(&acc.state_comp_samples) + has(&acc.state_mean_samples)
                 } else {
                     0
                 }
-                + has(&acc.meas_comp_samples)
+                + 2 * has(&acc.meas_comp_samples)
                 + white_components
         } else {
             1 + usize::from(use_nees)
@@ -215,6 +218,12 @@ impl ConsistencyReport {
             &acc.state_comp_total,
             &acc.state_comp_samples,
             |j| acc.state_component_variance(j),
+            |j| MeanSums {
+                total: acc.state_mean_total[j],
+                samples: acc.state_mean_samples[j],
+                variance: acc.state_mean_variance(j),
+                second_moment: acc.state_comp_total[j] / acc.state_comp_samples[j],
+            },
             diagnostic_level,
         );
         // White under consistency: each ν_j²/S_jj is an independent χ²(1).
@@ -224,6 +233,13 @@ impl ConsistencyReport {
             &acc.meas_comp_total,
             &acc.meas_comp_samples,
             |j| SumVariance::Predicted(2.0 * acc.meas_comp_samples[j]),
+            // White under consistency: each ν_j/√S_jj is an independent N(0, 1).
+            |j| MeanSums {
+                total: acc.meas_mean_total[j],
+                samples: acc.meas_comp_samples[j],
+                variance: SumVariance::Predicted(acc.meas_comp_samples[j]),
+                second_moment: acc.meas_comp_total[j] / acc.meas_comp_samples[j],
+            },
             diagnostic_level,
         );
         let whiteness_tests = whiteness_tests(&white, measurement_names, diagnostic_level);
@@ -244,6 +260,15 @@ impl ConsistencyReport {
                     .chain(&measurement_components)
                     .filter(|c| c.samples > 0.0)
                     .map(|c| c.verdict),
+            );
+            // A mean test without a statistic (no sign in the records, no variance) is no
+            // test; it does not make the gate inconclusive.
+            verdicts.extend(
+                state_components
+                    .iter()
+                    .chain(&measurement_components)
+                    .filter(|c| c.mean_z.is_finite())
+                    .map(|c| c.mean_verdict),
             );
             verdicts.extend(whiteness_tests.iter().map(|w| w.verdict));
         }

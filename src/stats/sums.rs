@@ -99,6 +99,24 @@ pub struct Accumulator {
     /// Runs whose predicted component variances are in `state_comp_null_var` (computed for
     /// the full gate only, on the same runs as the NEES-sum variance).
     pub comp_null_var_runs: usize,
+    /// Σ_{i,k} e_j/√P_jj per state component (n_x): the first moment, 0 in expectation
+    /// for a consistent filter. Linear in the data, so a difference of two evaluations with
+    /// common random numbers is smooth in a sensor offset.
+    pub state_mean_total: Vec<f64>,
+    /// Samples behind `state_mean_total`: as `state_comp_samples`, except for records that
+    /// give only `e_j²/P_jj` (no sign), which leave it 0 and get no zero-mean test.
+    pub state_mean_samples: Vec<f64>,
+    /// Σ over finished runs i of the square of the run's own sum `Σ_k e_j/√P_jj` (n_x): the
+    /// run-to-run spread, the null variance of `state_mean_total` for a filter that supplies
+    /// no error map.
+    pub state_mean_run_sq: Vec<f64>,
+    /// Σ over the runs counted in `comp_null_var_runs` of the variance of the per-run sum
+    /// `Σ_k e_jk/√P_jj,k` that a consistent filter predicts (n_x; see
+    /// [`super::ComponentNullVariance::mean_variances`]).
+    pub state_mean_null_var: Vec<f64>,
+    /// Σ_{i,k} ν_j/√S_jj per measurement component (n_z). Innovations of a consistent filter
+    /// are white, so its null variance is exactly its sample count, `meas_comp_samples`.
+    pub meas_mean_total: Vec<f64>,
     /// Σ_{i,k} ν_j²/S_jj per measurement component.
     pub meas_comp_total: Vec<f64>,
     /// Samples behind `meas_comp_total`.
@@ -155,6 +173,11 @@ impl Accumulator {
             state_comp_run_sq: z(n_x),
             state_comp_null_var: z(n_x),
             comp_null_var_runs: 0,
+            state_mean_total: z(n_x),
+            state_mean_samples: z(n_x),
+            state_mean_run_sq: z(n_x),
+            state_mean_null_var: z(n_x),
+            meas_mean_total: z(n_z),
             meas_comp_total: z(n_z),
             meas_comp_samples: z(n_z),
             meas_comp_run_sum: z(n_z),
@@ -273,6 +296,29 @@ impl Accumulator {
         }
     }
 
+    /// What the variance of state component j's first-moment sum `state_mean_total[j]`
+    /// rests on, by the same policy as [`Self::state_component_variance`]: the filters' own
+    /// prediction where every sampled filter supplied its error map, else `N s²` with `s²`
+    /// the sample variance of the per-run sums about their mean (about the mean, so that a
+    /// bias does not inflate its own yardstick).
+    pub fn state_mean_variance(&self, j: usize) -> SumVariance {
+        let finished = self.runs.saturating_sub(self.diverged_runs);
+        if self.error_map_missing == 0 && self.comp_null_var_runs > 0 {
+            let scale = finished as f64 / self.comp_null_var_runs as f64;
+            return SumVariance::Predicted(self.state_mean_null_var[j] * scale);
+        }
+        if finished < 2 {
+            return SumVariance::Unavailable;
+        }
+        let n = finished as f64;
+        let mean = self.state_mean_total[j] / n;
+        let s2 = ((self.state_mean_run_sq[j] - n * mean * mean) / (n - 1.0)).max(0.0);
+        SumVariance::RunSpread {
+            var: n * s2,
+            runs: finished,
+        }
+    }
+
     /// Add another accumulator's sums to this one.
     pub fn merge(&mut self, o: &Accumulator) {
         fn add(a: &mut [f64], b: &[f64]) {
@@ -301,6 +347,11 @@ impl Accumulator {
         add(&mut self.state_comp_run_sq, &o.state_comp_run_sq);
         add(&mut self.state_comp_null_var, &o.state_comp_null_var);
         self.comp_null_var_runs += o.comp_null_var_runs;
+        add(&mut self.state_mean_total, &o.state_mean_total);
+        add(&mut self.state_mean_samples, &o.state_mean_samples);
+        add(&mut self.state_mean_run_sq, &o.state_mean_run_sq);
+        add(&mut self.state_mean_null_var, &o.state_mean_null_var);
+        add(&mut self.meas_mean_total, &o.meas_mean_total);
         add(&mut self.meas_comp_total, &o.meas_comp_total);
         add(&mut self.meas_comp_samples, &o.meas_comp_samples);
         add(&mut self.meas_comp_run_sum, &o.meas_comp_run_sum);

@@ -41,6 +41,7 @@ pub mod catalog;
 pub mod check;
 pub mod estimate;
 pub mod experiment;
+pub mod explain;
 pub mod external;
 pub mod fieldlog;
 pub mod filter;

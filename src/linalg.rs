@@ -195,6 +195,68 @@ pub fn expm(m: &DMatrix<f64>) -> DMatrix<f64> {
     m.clone().exp()
 }
 
+/// Principal matrix logarithm `log M` of a square matrix with no eigenvalue on the closed
+/// negative real axis, by inverse scaling and squaring: square roots (Denman–Beavers) until
+/// `M^(1/2^k)` is within 0.25 of the identity, where the series of `log(I + Y)` converges
+/// fast, then `2^k` times that series. `None` when a square root does not converge (a
+/// singular matrix, or an eigenvalue on the negative real axis: no real logarithm).
+pub fn logm(m: &DMatrix<f64>) -> Option<DMatrix<f64>> {
+    let n = m.nrows();
+    let id = DMatrix::<f64>::identity(n, n);
+    let mut x = m.clone();
+    let mut k = 0;
+    while (&x - &id).norm() > 0.25 {
+        if k == 40 {
+            return None;
+        }
+        x = sqrtm(&x)?;
+        k += 1;
+    }
+    let y = &x - &id;
+    let mut power = y.clone();
+    let mut sum = y.clone();
+    for j in 2..=80 {
+        power = &power * &y;
+        let sign = if j % 2 == 0 { -1.0 } else { 1.0 };
+        sum += &power * (sign / j as f64);
+        if power.norm() < 1e-17 {
+            break;
+        }
+    }
+    let log = sum * 2f64.powi(k);
+    log.iter().all(|v| v.is_finite()).then_some(log)
+}
+
+/// Principal square root by the Denman–Beavers iteration; `None` when it does not converge.
+fn sqrtm(a: &DMatrix<f64>) -> Option<DMatrix<f64>> {
+    let n = a.nrows();
+    let mut y = a.clone();
+    let mut z = DMatrix::<f64>::identity(n, n);
+    for _ in 0..100 {
+        let yi = y.clone().try_inverse()?;
+        let zi = z.clone().try_inverse()?;
+        let y_next = (&y + zi) * 0.5;
+        let z_next = (&z + yi) * 0.5;
+        let change = (&y_next - &y).norm();
+        y = y_next;
+        z = z_next;
+        if !y.iter().all(|v| v.is_finite()) {
+            return None;
+        }
+        if change <= 1e-14 * y.norm() {
+            return Some(y);
+        }
+    }
+    None
+}
+
+/// `M^s` for a real exponent `s`, as `e^{s log M}` ([`logm`]); `None` without a real
+/// logarithm. A transition matrix over one step `dt` raised to `s` is the transition over
+/// `s · dt` for a time-invariant system.
+pub fn real_power(m: &DMatrix<f64>, s: f64) -> Option<DMatrix<f64>> {
+    logm(m).map(|l| expm(&(l * s)))
+}
+
 /// Van Loan's method: the discrete covariance `∫₀^dt e^{Aτ} Qc e^{A'τ} dτ` of white noise
 /// with spectral density `Qc` driving `ẋ = A x`, over one sample period `dt` (s).
 pub fn van_loan(a: &DMatrix<f64>, qc: &DMatrix<f64>, dt: f64) -> DMatrix<f64> {
@@ -220,6 +282,26 @@ pub fn wrap_angle(a: f64) -> f64 {
 
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn logm_inverts_expm_and_powers_a_constant_velocity_transition() {
+        // A constant-velocity F over 1 s: its log is the nilpotent [[0, 1], [0, 0]], and
+        // F^0.5 is the transition over 0.5 s.
+        let f = nalgebra::DMatrix::from_row_slice(2, 2, &[1.0, 1.0, 0.0, 1.0]);
+        let l = super::logm(&f).unwrap();
+        let want = nalgebra::DMatrix::from_row_slice(2, 2, &[0.0, 1.0, 0.0, 0.0]);
+        assert!((&l - &want).norm() < 1e-12, "{l}");
+        let half = super::real_power(&f, 0.5).unwrap();
+        let want = nalgebra::DMatrix::from_row_slice(2, 2, &[1.0, 0.5, 0.0, 1.0]);
+        assert!((&half - &want).norm() < 1e-12, "{half}");
+        // A damped rotation (complex eigenvalues): log(e^A) = A for A of small norm.
+        let a = nalgebra::DMatrix::from_row_slice(3, 3, &[-0.1, 0.8, 0.0, -0.8, -0.2, 0.3, 0.1, 0.0, -0.5]);
+        let back = super::logm(&super::expm(&a)).unwrap();
+        assert!((&back - &a).norm() < 1e-10, "{back}");
+        // No real logarithm: a reflection has eigenvalue −1.
+        let r = nalgebra::DMatrix::from_row_slice(2, 2, &[-1.0, 0.0, 0.0, 1.0]);
+        assert!(super::logm(&r).is_none());
+    }
+
     use super::*;
     use approx::assert_relative_eq;
 

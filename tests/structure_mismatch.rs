@@ -47,8 +47,16 @@ fn failures_at_best_point(file: &str) -> (usize, Vec<f64>) {
     // The tuner itself finds no consistent value (its own confirmation on 20 seeds).
     assert_eq!(r.status, TuneStatus::Inconsistent, "{file}: {:?}", r.tuned);
     // And says so plainly (issue 11, item 3): no consistent value, what stays off, and a
-    // richer model, not a confident number or "increase Q".
-    let finding = autotune::report::advice::family_finding(&r)
+    // richer model, not a confident number or "increase Q"; the richer model is the first
+    // explanation, after the expressible changes were tried and failed (issue 22).
+    let explanations =
+        autotune::explain::explain(&p, &r, p.mc(), &TuneSettings::default()).unwrap();
+    assert_eq!(
+        explanations.first().map(|e| e.cause),
+        Some(autotune::explain::Cause::MissingState),
+        "{file}: {explanations:#?}"
+    );
+    let finding = autotune::report::advice::family_finding(&r, &explanations)
         .expect("an inconsistent family is reported")
         .join("\n");
     assert!(
@@ -56,7 +64,7 @@ fn failures_at_best_point(file: &str) -> (usize, Vec<f64>) {
         "{finding}"
     );
     assert!(finding.contains("components that stay off"), "{finding}");
-    assert!(finding.contains("richer motion model"), "{finding}");
+    assert!(finding.contains("add the state the truth has"), "{finding}");
     let recs = autotune::report::advice::recommendations(&p, &r, &r.before);
     for rec in &recs {
         assert!(!rec.advice.contains("not identifiable"), "{}", rec.advice);

@@ -13,7 +13,7 @@ use crate::input::FileError;
 use crate::report::advice::recommendations;
 use crate::report::html::tune_html;
 use crate::report::tune::{TuneReport, tune_markdown};
-use crate::report::tuned::tuned_config_toml;
+use crate::report::tuned::{rejected_config_toml, tuned_config_toml};
 use crate::report::{Outputs, check_output_file, check_report_dir, fmt_fixed, fmt_g};
 use crate::stats::{StatisticSummary, Verdict};
 use crate::tune::{LocalSearch, Observer, Scoring, TuneError, TuneSettings, TuneStatus, tune};
@@ -238,6 +238,14 @@ pub fn run_from(
     };
     let result = tune(experiment, &start, &fixed, &mc, &settings, &progress)
         .map_err(|e| tune_error(e, experiment, a.scoring.is_some()))?;
+    // A misfit is explained before anything is written: its trials are searches too.
+    let explanations = if crate::explain::needed(&result) {
+        progress.phase("explain");
+        crate::explain::explain(experiment, &result, &mc, &settings)
+            .map_err(|e| tune_error(e, experiment, a.scoring.is_some()))?
+    } else {
+        Vec::new()
+    };
     if let Some(b) = &progress.bar {
         b.finish_and_clear();
     }
@@ -255,7 +263,14 @@ pub fn run_from(
         None => rejected_path,
     };
     let recs = recommendations(experiment, &result, &result.before);
-    outputs.file(&out, tuned_config_toml(experiment, &result));
+    outputs.file(
+        &out,
+        if consistent {
+            tuned_config_toml(experiment, &result)
+        } else {
+            rejected_config_toml(experiment, &result, &explanations)
+        },
+    );
     let report = TuneReport {
         problem: &info.name,
         file: info.source.label(),
@@ -263,13 +278,14 @@ pub fn run_from(
         version: env!("CARGO_PKG_VERSION"),
         result: &result,
         recommendations: &recs,
+        explanations: &explanations,
     };
     let json = serde_json::to_string_pretty(&report).expect("the report serializes");
     if let Some(dir) = &a.report {
         outputs.report_dir(
             dir,
-            &tune_html(experiment, &result, &recs),
-            &tune_markdown(experiment, &result, &recs),
+            &tune_html(experiment, &result, &recs, &explanations),
+            &tune_markdown(experiment, &result, &recs, &explanations),
             &json,
         );
     }
@@ -316,7 +332,7 @@ pub fn run_from(
                     "  (how precisely one record determines each value: `autotune estimate --method ml` gives standard errors)"
                 )?;
             }
-            if let Some(lines) = crate::report::advice::family_finding(&result) {
+            if let Some(lines) = crate::report::advice::family_finding(&result, &explanations) {
                 for l in lines {
                     writeln!(stdout, "  {l}")?;
                 }

@@ -122,6 +122,10 @@ impl Experiment for LinearExperiment {
         })
     }
 
+    fn alter(&self, change: &super::Alteration) -> Option<Box<dyn Experiment>> {
+        self.altered(change)
+    }
+
     fn covariances(&self, theta: &[f64]) -> Option<Covariances> {
         Some(Covariances {
             Q: self.filter.q.build(theta),

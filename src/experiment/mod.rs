@@ -12,11 +12,13 @@
 //! [`crate::check`], [`crate::tune`], [`crate::report`] and [`crate::app`] take
 //! `&dyn Experiment` and nothing more concrete.
 
+mod altered;
 mod catalog;
 mod custom;
 mod linear;
 mod recorded;
 
+pub use altered::{DT_SCALE, TimeScaled};
 pub use catalog::CatalogExperiment;
 pub use custom::{Custom, CustomBuilder};
 pub use linear::{FilterModel, LinearExperiment};
@@ -134,6 +136,17 @@ pub struct Covariances {
 #[error("{0}")]
 pub struct ExperimentError(pub String);
 
+/// A change to a filter that an explanation of a misfit tries ([`Experiment::alter`]).
+#[derive(Debug, Clone, PartialEq)]
+pub enum Alteration {
+    /// The filter's time step becomes one more parameter, [`DT_SCALE`], appended to θ: the
+    /// filter predicts over `s` times the step its transition was built for.
+    TimeScale,
+    /// The filter takes a constant offset off each measurement component before using it
+    /// (measurement units, all sensors' components in sensor order).
+    MeasurementOffset(Vec<f64>),
+}
+
 /// How one Monte Carlo evaluation runs: the engine path and a progress callback.
 #[derive(Clone, Copy, Default)]
 pub struct RunOptions<'a> {
@@ -223,6 +236,13 @@ pub trait Experiment: Sync {
 
     /// The parameter values equal to the truth's noise, where the experiment knows them.
     fn truth_values(&self) -> Option<Vec<f64>> {
+        None
+    }
+
+    /// This experiment with its filter changed as `change` says, for a trial of a misfit
+    /// explanation; `None` when the filter cannot express the change (the default: only
+    /// linear problems, whose model autotune holds as matrices, can).
+    fn alter(&self, _change: &Alteration) -> Option<Box<dyn Experiment>> {
         None
     }
 

@@ -154,6 +154,10 @@ impl Experiment for Problem {
     fn seed_free(&self) -> bool {
         self.experiment().seed_free()
     }
+
+    fn alter(&self, change: &crate::experiment::Alteration) -> Option<Box<dyn Experiment>> {
+        self.experiment().alter(change)
+    }
 }
 
 /// SHA-256 of bytes as lowercase hex.

@@ -3,6 +3,7 @@
 use serde::Serialize;
 
 use crate::experiment::Experiment;
+use crate::explain::Explanation;
 use crate::params::{NoiseKind, Target};
 use crate::stats::ConsistencyReport;
 use crate::stats::Verdict;
@@ -223,14 +224,31 @@ impl Recommendation {
     }
 }
 
-/// When no value of the free parameters makes the filter consistent (the search converged
-/// and the tuned filter still fails the gate on fresh seeds more often than a consistent
-/// one): the best achievable statistics, what stays off and in which direction, and what
-/// kind of change would help, in lines of text. `None` otherwise.
-pub fn family_finding(result: &TuneResult) -> Option<Vec<String>> {
-    if result.status != TuneStatus::Inconsistent {
+/// What a tuning run that needed explaining ([`crate::explain::needed`]) says about it, in
+/// lines of text: when no value of the free parameters makes the filter consistent (the
+/// search converged and the tuned filter still fails the gate on fresh seeds more often
+/// than a consistent one), the best achievable statistics and what stays off; then the
+/// ranked explanations with their evidence and trials. `None` when there is nothing to
+/// explain.
+pub fn family_finding(result: &TuneResult, explanations: &[Explanation]) -> Option<Vec<String>> {
+    let mut lines = if result.status == TuneStatus::Inconsistent {
+        best_achievable(result)
+    } else if explanations.is_empty() {
         return None;
+    } else {
+        vec!["the search needed more room than its bounds gave".to_string()]
+    };
+    if !explanations.is_empty() {
+        lines.push("why, most likely first (a cause whose trial reached consistency comes first):".to_string());
+        for (k, e) in explanations.iter().enumerate() {
+            lines.push(format!("{}. {}", k + 1, e.line()));
+        }
     }
+    Some(lines)
+}
+
+/// The best achievable statistics of a family that does not fit, and what stays off.
+fn best_achievable(result: &TuneResult) -> Vec<String> {
     let a = &result.after;
     let c = &result.confirmation;
     let mut lines = vec![if c.recorded {
@@ -240,7 +258,7 @@ pub fn family_finding(result: &TuneResult) -> Option<Vec<String>> {
         )
     } else {
         format!(
-            "no value of the free parameters makes this filter consistent: at the best fit {} of {} fresh seeds pass the gate (a consistent filter passes at least {})",
+            "no value of the free parameters makes this filter consistent: at the best fit {} of {} fresh seeds pass the gate (a consistent filter passes at least {}); the values below are a best fit of a model that does not fit, not a tuning to apply",
             c.passed, c.seeds, c.band_low
         )
     }];
@@ -291,41 +309,5 @@ pub fn family_finding(result: &TuneResult) -> Option<Vec<String>> {
             lagging.join("; ")
         ));
     }
-    let positive = a
-        .whiteness_tests
-        .iter()
-        .any(|w| w.verdict == Verdict::NotWhite && w.rho1 > 0.0);
-    let negative = a
-        .whiteness_tests
-        .iter()
-        .any(|w| w.verdict == Verdict::NotWhite && w.rho1 < 0.0);
-    let states_off = a
-        .state_components
-        .iter()
-        .any(|c| matches!(c.verdict, Verdict::Overconfident | Verdict::Underconfident));
-    let meas_off = a
-        .measurement_components
-        .iter()
-        .any(|c| matches!(c.verdict, Verdict::Overconfident | Verdict::Underconfident));
-    let richer = "a richer motion model would help (e.g. an acceleration state for a manoeuvring target, or a Gauss–Markov state for a slowly varying disturbance)";
-    let help = if positive {
-        format!(
-            "the filter lags the truth at every setting of these parameters: its model misses dynamics the truth has; {richer}"
-        )
-    } else if states_off {
-        // The truth's errors do not have the shape any Q of this family gives P: some state
-        // components stay too large while others stay too small. Most often the motion
-        // model lacks a state the truth has.
-        format!(
-            "the state errors keep a shape no Q of this family gives (some components too large, others too small, whatever the parameters): {richer}, or free more entries of Q"
-        )
-    } else if negative {
-        "the filter over-corrects at every setting of these parameters: check the measurement model (correlated or coloured measurement noise, a wrong H)".to_string()
-    } else if meas_off {
-        "the innovations do not fit while the states do: a sensor bias or a wrong measurement model; add a bias state or fix the measurement model".to_string()
-    } else {
-        "the shape of the noise model does not fit (which states Q drives, their correlations): free more entries of Q or R, or add states".to_string()
-    };
-    lines.push(format!("what would help: {help}"));
-    Some(lines)
+    lines
 }

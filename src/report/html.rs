@@ -299,7 +299,12 @@ pub fn check_html(
 
 /// The HTML report of `autotune tune`: recommendations, before/after statistics and plots
 /// side by side, and the objective's progress.
-pub fn tune_html(experiment: &dyn Experiment, res: &TuneResult, recs: &[Recommendation]) -> String {
+pub fn tune_html(
+    experiment: &dyn Experiment,
+    res: &TuneResult,
+    recs: &[Recommendation],
+    explanations: &[crate::explain::Explanation],
+) -> String {
     let info = experiment.info();
     let mut o = String::new();
     head(&mut o, &format!("autotune tune: {}", info.name));
@@ -329,8 +334,12 @@ pub fn tune_html(experiment: &dyn Experiment, res: &TuneResult, recs: &[Recommen
         escape(res.after.verdict.describe()),
         escape(&res.confirmation.text())
     );
-    if let Some(lines) = super::advice::family_finding(res) {
-        o.push_str("<h2>No consistent value in this family</h2><ul>");
+    if let Some(lines) = super::advice::family_finding(res, explanations) {
+        let _ = write!(
+            o,
+            "<h2>{}</h2><ul>",
+            super::tune::misfit_heading(res)
+        );
         for l in lines {
             let _ = write!(o, "<li>{}</li>", escape(&l));
         }

@@ -9,7 +9,8 @@ use super::summary::{StatCells, component_cells};
 use super::{fmt_fixed, fmt_g};
 use crate::experiment::{Experiment, Source};
 use crate::stats::{ConsistencyReport, StatisticSummary};
-use crate::tune::TuneResult;
+use crate::explain::Explanation;
+use crate::tune::{TuneResult, TuneStatus};
 
 /// Everything a tuning report says, for machines.
 #[derive(Debug, Clone, Serialize)]
@@ -26,6 +27,8 @@ pub struct TuneReport<'a> {
     pub result: &'a TuneResult,
     /// Per-parameter recommendations.
     pub recommendations: &'a [Recommendation],
+    /// Why no value fit (or a bound had to be widened), most likely first; empty otherwise.
+    pub explanations: &'a [Explanation],
 }
 
 fn stat_line(out: &mut String, label: &str, s: Option<&StatisticSummary>) {
@@ -62,6 +65,7 @@ pub fn tune_markdown(
     experiment: &dyn Experiment,
     r: &TuneResult,
     recs: &[Recommendation],
+    explanations: &[Explanation],
 ) -> String {
     let info = experiment.info();
     let mut o = String::new();
@@ -89,8 +93,8 @@ pub fn tune_markdown(
         r.after.verdict.label(),
         r.status
     );
-    if let Some(lines) = super::advice::family_finding(r) {
-        let _ = writeln!(o, "## No consistent value in this family\n");
+    if let Some(lines) = super::advice::family_finding(r, explanations) {
+        let _ = writeln!(o, "## {}\n", misfit_heading(r));
         for l in lines {
             let _ = writeln!(o, "- {l}");
         }
@@ -206,5 +210,14 @@ pub(crate) fn after_heading(r: &TuneResult) -> &'static str {
         "After (first fresh seed)"
     } else {
         "After"
+    }
+}
+
+/// The heading of the misfit section: no value fits, or a bound had to be widened.
+pub(super) fn misfit_heading(r: &TuneResult) -> &'static str {
+    if r.status == TuneStatus::Inconsistent {
+        "No consistent value in this family, and why"
+    } else {
+        "A search bound was in the way"
     }
 }

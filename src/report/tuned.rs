@@ -168,6 +168,33 @@ pub fn estimated_config_toml(
     )
 }
 
+/// A tuned config whose run did not confirm: the same file as [`tuned_config_toml`] behind
+/// a comment block that says why it is rejected and gives the ranked explanations (TOML
+/// comments, so `check --config` still reads it to reproduce the finding).
+pub fn rejected_config_toml(
+    experiment: &dyn Experiment,
+    result: &TuneResult,
+    explanations: &[crate::explain::Explanation],
+) -> String {
+    let mut head = String::from(
+        "# REJECTED: this tuning did not make the filter consistent; do not apply these values.\n",
+    );
+    let lines = super::advice::family_finding(result, explanations).unwrap_or_else(|| {
+        vec![format!(
+            "the search ended {} (confirmation: {})",
+            format!("{:?}", result.status).to_lowercase(),
+            result.confirmation.text()
+        )]
+    });
+    for l in lines {
+        head.push_str("# ");
+        head.push_str(&l.replace('\n', " "));
+        head.push('\n');
+    }
+    head.push('\n');
+    head + &tuned_config_toml(experiment, result)
+}
+
 /// The tuned config of a tuning run, as TOML text with a comment header.
 pub fn tuned_config_toml(experiment: &dyn Experiment, result: &TuneResult) -> String {
     let info = experiment.info();

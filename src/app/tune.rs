@@ -262,7 +262,8 @@ pub fn run_from(
         }
         None => rejected_path,
     };
-    let recs = recommendations(experiment, &result, &result.before);
+    let mut recs = recommendations(experiment, &result, &result.before);
+    crate::report::advice::amend_for_explanation(&mut recs, &explanations);
     outputs.file(
         &out,
         if consistent {

@@ -162,7 +162,7 @@ impl Explanation {
             (None, None) => String::new(),
         };
         format!(
-            "{} ({}): {}; {}; {}",
+            "{} ({}): {}; {}; so: {}",
             self.cause.words(),
             self.subject,
             self.evidence,
@@ -380,15 +380,8 @@ impl Trials<'_> {
                     .zip(&d)
                     .map(|(n, v)| (format!("offset_{n}"), *v))
                     .collect();
-                let words: Vec<String> = extra
-                    .iter()
-                    .map(|(n, v)| format!("{} {:+.3}", &n["offset_".len()..], v))
-                    .collect();
                 Ok(Some(trial(
-                    format!(
-                        "taking a constant offset off each sensor reading (fitted: {})",
-                        words.join(", ")
-                    ),
+                    "taking a fitted constant offset off each sensor reading".to_string(),
                     e.as_ref(),
                     &t,
                     &extra,

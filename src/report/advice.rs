@@ -206,6 +206,36 @@ pub fn recommendations(
     rows
 }
 
+/// Amend the rows of a misfit run whose first explanation's trial reached consistency: the
+/// best fit of the unchanged filter moved parameters to make up for the real cause, so each
+/// row also says where the trial (the cause fixed) put the parameter.
+pub fn amend_for_explanation(recs: &mut [Recommendation], explanations: &[Explanation]) {
+    let Some((e, t)) = explanations
+        .first()
+        .and_then(|e| e.trial.as_ref().filter(|t| t.consistent()).map(|t| (e, t)))
+    else {
+        return;
+    };
+    for r in recs.iter_mut() {
+        let Some((_, v)) = t.values.iter().find(|(n, _)| *n == r.param) else {
+            continue;
+        };
+        let f = v / r.initial;
+        let moved = if f > NEGLIGIBLE || f < 1.0 / NEGLIGIBLE {
+            format!("×{} from the start", fmt_factor(f))
+        } else {
+            "about right as it was".to_string()
+        };
+        r.advice = format!(
+            "{}; with {} addressed ({}), it is {} ({moved})",
+            r.advice,
+            e.cause.words(),
+            t.change,
+            crate::report::fmt_g(*v)
+        );
+    }
+}
+
 impl Recommendation {
     /// How precisely the value is determined, in a few words for tables.
     pub fn resolution_text(&self) -> String {

@@ -4,12 +4,12 @@
 
 use nalgebra::{DMatrix, DVector};
 
-use super::{Covariances, Definition, Experiment, ExperimentError, RunOptions};
+use super::{Block, Covariances, Definition, Experiment, ExperimentError, RunOptions};
 use crate::filter::{Estimate, Filter, KalmanFilter, PredictResult, UpdateResult};
 use crate::measurement::Measurement;
 use crate::model::LinearGaussianModel;
 use crate::montecarlo::{self, Engine, McConfig, expected_accumulator, models_match};
-use crate::params::{CovModel, NoiseKind, Target};
+use crate::params::{Coef, CovModel, NoiseKind, Target};
 use crate::stats::Accumulator;
 
 /// The filter's model with Q and R as functions of the parameters.
@@ -126,11 +126,128 @@ impl Experiment for LinearExperiment {
         self.altered(change)
     }
 
+    fn blocks(&self) -> Option<Vec<Block>> {
+        let blocks = self.decoupled_blocks();
+        (blocks.len() > 1).then_some(blocks)
+    }
+
     fn covariances(&self, theta: &[f64]) -> Option<Covariances> {
         Some(Covariances {
             Q: self.filter.q.build(theta),
             R: self.filter.r.build(theta),
         })
+    }
+}
+
+impl LinearExperiment {
+    /// The blocks that no matrix couples, found conservatively: any nonzero entry that
+    /// links two components (of the filter's F, P0, H, every Q and R term's basis whether
+    /// its coefficient is a parameter or fixed, the truth's F, Q, P0, H, R, and the map from
+    /// the truth's states to the filter's) puts them in one block, and a parameter joins
+    /// every component its terms touch. A zero that is zero only at some parameter values
+    /// never splits a block, because bases are tested, not built matrices.
+    fn decoupled_blocks(&self) -> Vec<Block> {
+        let n = self.filter.F.nrows();
+        let nt = self.truth.F.nrows();
+        let m = self.filter.H.nrows();
+        let p = self.definition.params.params.len();
+        let (fs, ts, ms, ps) = (0, n, n + nt, n + nt + m);
+        let mut sets = DisjointSets::new(ps + p);
+        let pairs = [
+            (&self.filter.F, fs, fs),
+            (&self.filter.P0, fs, fs),
+            (&self.filter.H, ms, fs),
+            (&self.truth.F, ts, ts),
+            (&self.truth.Q, ts, ts),
+            (&self.truth.P0, ts, ts),
+            (&self.truth.H, ms, ts),
+            (&self.truth.R, ms, ms),
+        ];
+        for (a, row, col) in pairs {
+            sets.link(a, row, col);
+        }
+        match &self.filter.map {
+            Some(map) => sets.link(map, fs, ts),
+            None => sets.link(&DMatrix::identity(n, nt), fs, ts),
+        }
+        for (cov, base) in [(&self.filter.q, fs), (&self.filter.r, ms)] {
+            for t in &cov.terms {
+                sets.link(&t.basis, base, base);
+                if let Coef::Param(k) = t.coef {
+                    for i in 0..t.basis.nrows() {
+                        if (0..t.basis.ncols()).any(|j| t.basis[(i, j)] != 0.0) {
+                            sets.union(ps + k, base + i);
+                        }
+                    }
+                }
+            }
+        }
+        // Blocks in the order of their first filter state or measurement; a component of
+        // truth states alone (a state the filter neither maps nor observes) is no block.
+        let mut roots: Vec<usize> = Vec::new();
+        let mut blocks: Vec<Block> = Vec::new();
+        let nodes = (0..n).map(|j| fs + j).chain((0..m).map(|i| ms + i));
+        for node in nodes {
+            let r = sets.find(node);
+            let b = roots.iter().position(|&x| x == r).unwrap_or_else(|| {
+                roots.push(r);
+                blocks.push(Block {
+                    params: Vec::new(),
+                    states: Vec::new(),
+                    measurements: Vec::new(),
+                });
+                roots.len() - 1
+            });
+            if node < ts {
+                blocks[b].states.push(node - fs);
+            } else {
+                blocks[b].measurements.push(node - ms);
+            }
+        }
+        for k in 0..p {
+            let r = sets.find(ps + k);
+            if let Some(b) = roots.iter().position(|&x| x == r) {
+                blocks[b].params.push(k);
+            }
+        }
+        blocks
+    }
+}
+
+/// Union–find over component nodes, with path halving.
+struct DisjointSets(Vec<usize>);
+
+impl DisjointSets {
+    fn new(n: usize) -> Self {
+        DisjointSets((0..n).collect())
+    }
+
+    fn find(&mut self, mut a: usize) -> usize {
+        while self.0[a] != a {
+            self.0[a] = self.0[self.0[a]];
+            a = self.0[a];
+        }
+        a
+    }
+
+    /// Links node `row + i` with node `col + j` for every nonzero entry (i, j) of `a`.
+    fn link(&mut self, a: &DMatrix<f64>, row: usize, col: usize) {
+        for i in 0..a.nrows() {
+            for j in 0..a.ncols() {
+                if a[(i, j)] != 0.0 {
+                    self.union(row + i, col + j);
+                }
+            }
+        }
+    }
+
+    fn union(&mut self, a: usize, b: usize) {
+        let (ra, rb) = (self.find(a), self.find(b));
+        // The smaller root wins, so the roots do not depend on the order of the unions.
+        if ra != rb {
+            let (lo, hi) = (ra.min(rb), ra.max(rb));
+            self.0[hi] = lo;
+        }
     }
 }
 

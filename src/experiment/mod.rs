@@ -129,6 +129,21 @@ pub struct Covariances {
     pub R: DMatrix<f64>,
 }
 
+/// A set of parameters, filter state components and measurement components that no matrix
+/// of the truth or the filter couples to the rest: the filter's errors and innovations in
+/// these components, and so their statistics, depend on these parameters alone. The tuner
+/// searches each block's free parameters on the block's own statistics, so that a misfit in
+/// one block is never compensated by moving another's parameters.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Block {
+    /// Parameter indices ([`Experiment::params`] order), ascending.
+    pub params: Vec<usize>,
+    /// Filter state component indices ([`Experiment::state_names`] order), ascending.
+    pub states: Vec<usize>,
+    /// Measurement component indices ([`Experiment::measurement_names`] order), ascending.
+    pub measurements: Vec<usize>,
+}
+
 /// An experiment that could not produce its sums at all: its worker failed, its records
 /// were malformed. This is bad input or a broken setup (exit code 2), not a verdict on the
 /// filter: a filter that diverged gives sums with its runs marked diverged instead.
@@ -231,6 +246,12 @@ pub trait Experiment: Sync {
 
     /// The filter's Q and R at `theta`, where they are single matrices (linear filters).
     fn covariances(&self, _theta: &[f64]) -> Option<Covariances> {
+        None
+    }
+
+    /// The experiment's decoupled blocks, where its structure is known and there are at
+    /// least two; `None` when it is one block or unknown (the default).
+    fn blocks(&self) -> Option<Vec<Block>> {
         None
     }
 

@@ -175,7 +175,7 @@ impl Explanation {
 /// Whether a tuning run needs explaining: it found no consistent filter, or it had to widen
 /// a search bound to find one.
 pub fn needed(result: &TuneResult) -> bool {
-    result.status == TuneStatus::Inconsistent || false /*SHIM*/
+    result.status == TuneStatus::Inconsistent || !result.widened.is_empty()
 }
 
 /// The explanations of `result` (a run of [`tune`] on `experiment` under `mc` and
@@ -414,20 +414,13 @@ fn trial(change: String, e: &dyn Experiment, t: &TuneResult, extra: &[(String, f
 /// The bounds the tuner widened: the widening was the trial.
 fn bounds(experiment: &dyn Experiment, result: &TuneResult) -> Vec<Explanation> {
     let params = &experiment.params().params;
-    let _ = (params, result);
-    Vec::<Explanation>::new() /*SHIM*/
-}
-#[allow(dead_code)]
-fn bounds_shim(experiment: &dyn Experiment, result: &TuneResult) -> Vec<Explanation> {
-    let params = &experiment.params().params;
-    let widened: Vec<(usize, (f64, f64), (f64, f64))> = Vec::new();
-    widened
+    result
+        .widened
         .iter()
         .map(|w| {
-            let w = Wd { param: w.0, from: w.1, to: w.2 };
             let p = &params[w.param];
             let side = if w.to.0 < w.from.0 { "lower" } else { "upper" };
-            let still = false;
+            let still = result.at_bound.get(w.param).copied().unwrap_or(false);
             let t = Trial {
                 change: format!(
                     "widening its {side} bound once, to [{}, {}],",
@@ -688,5 +681,3 @@ fn first_moments(acc: &Accumulator, use_states: bool) -> Vec<f64> {
     r.extend(norm(&acc.meas_mean_total, &acc.meas_comp_samples));
     r
 }
-
-struct Wd { param: usize, from: (f64, f64), to: (f64, f64) }

@@ -151,6 +151,10 @@ impl Experiment for Problem {
         self.experiment().truth_values()
     }
 
+    fn blocks(&self) -> Option<Vec<crate::experiment::Block>> {
+        self.experiment().blocks()
+    }
+
     fn seed_free(&self) -> bool {
         self.experiment().seed_free()
     }

@@ -34,7 +34,7 @@ pub struct Recommendation {
     pub identifiable: Option<bool>,
     /// Factor within which the tuned value is determined, if known.
     pub resolution: Option<f64>,
-    /// The tuned value sits on a search bound (false when not assessed).
+    /// The tuned value sits on a search bound (assessed at any status).
     pub at_bound: bool,
     /// The components the parameter acts on, with their normalized errors in the starting
     /// filter (target 1): `(name, value)`.
@@ -69,6 +69,15 @@ pub(crate) fn fmt_evidence(v: f64) -> String {
     } else {
         super::fmt_fixed(v, 2)
     }
+}
+
+/// Search bounds as `[lower, upper]`.
+fn fmt_bounds((lower, upper): (f64, f64)) -> String {
+    format!(
+        "[{}, {}]",
+        crate::report::fmt_g(lower),
+        crate::report::fmt_g(upper)
+    )
 }
 
 /// A change factor: whole numbers from 10 on, scientific notation from 10⁶ on (a search
@@ -150,6 +159,10 @@ pub fn recommendations(
             format!("about right (×{})", fmt_factor(factor))
         };
         let unsearched = result.status == TuneStatus::BudgetExhausted && tuned == initial;
+        // Flagged from the run's own flags, at any status: a run that stopped on its
+        // budget has no resolution, but its value can still sit on a bound.
+        let at_bound = result.at_bound.get(i).copied().unwrap_or(false);
+        let widening = result.widened.iter().find(|w| w.param == i);
         let advice = if result.fixed[i] {
             format!(
                 "{}: held fixed at {}",
@@ -161,12 +174,31 @@ pub fn recommendations(
                 "{}: not searched (the budget ran out before the search moved it); {what}raise the budget",
                 p.name
             )
-        } else if res.is_some_and(|r| r.at_bound) {
+        } else if let (true, Some(w)) = (at_bound, widening) {
+            format!(
+                "{}: {what}still at its search bound after it was widened once from {} to {}; the data want it further still, which a noise level rarely explains: suspect the model",
+                p.name,
+                fmt_bounds(w.from),
+                fmt_bounds(w.to)
+            )
+        } else if at_bound {
             format!(
                 "{}: stopped at its search bound [{}, {}]; the data may want it beyond, widen the bounds",
                 p.name,
                 crate::report::fmt_g(p.lower),
                 crate::report::fmt_g(p.upper)
+            )
+        } else if let Some(w) = widening {
+            let tail = if result.status == TuneStatus::Inconsistent {
+                ", but no value of the free parameters makes the filter consistent (see below)"
+            } else {
+                ""
+            };
+            format!(
+                "{}: stopped at its search bound {}, widened once to {} and searched again (put the new bounds in the problem file): {what}{action}{tail}",
+                p.name,
+                fmt_bounds(w.from),
+                fmt_bounds(w.to)
             )
         } else if res.is_some_and(|r| !r.identifiable) {
             format!(
@@ -198,7 +230,7 @@ pub fn recommendations(
             fixed: result.fixed[i],
             identifiable: res.map(|r| r.identifiable),
             resolution: res.and_then(|r| r.factor),
-            at_bound: res.is_some_and(|r| r.at_bound),
+            at_bound,
             evidence,
             advice,
         });

@@ -26,6 +26,13 @@ pub struct TunedConfig {
     pub r: Option<Vec<Vec<f64>>>,
     /// Parameter values by name: what `check --config` applies.
     pub params: IndexMap<String, f64>,
+    /// Search bounds the tuning run widened, by parameter name: `[lower, upper]` in the
+    /// parameter's units. Written only when a bound was widened, because the tuned value
+    /// may then lie outside the problem file's bounds: these are the bounds it needs (copy
+    /// them into the problem file to tune from it again). When given, each must name a
+    /// parameter, satisfy 0 < lower < upper, and hold that parameter's value.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub bounds: Option<IndexMap<String, [f64; 2]>>,
     /// How the values were obtained (not read back).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub provenance: Option<toml::Table>,
@@ -157,6 +164,7 @@ pub fn estimated_config_toml(
             .map(str::to_string)
             .zip(theta.iter().copied())
             .collect(),
+        bounds: None,
         provenance: Some(provenance),
     };
     let body = compact_floats(&toml::to_string(&cfg).expect("a config serializes"));
@@ -241,6 +249,13 @@ pub fn tuned_config_toml(experiment: &dyn Experiment, result: &TuneResult) -> St
             .cloned()
             .zip(result.tuned.iter().copied())
             .collect(),
+        bounds: (!result.widened.is_empty()).then(|| {
+            result
+                .widened
+                .iter()
+                .map(|w| (result.names[w.param].clone(), [w.to.0, w.to.1]))
+                .collect()
+        }),
         provenance: Some(toml::Table::try_from(&prov).expect("provenance is a plain table")),
     };
     let body = compact_floats(&toml::to_string(&cfg).expect("a tuned config serializes"));
@@ -317,6 +332,33 @@ impl TunedConfig {
         for p in &space.params {
             if !self.params.contains_key(&p.name) {
                 return Err(err(format!("params.{}", p.name), "missing".into()));
+            }
+        }
+        for (name, &[lower, upper]) in self.bounds.iter().flatten() {
+            let field = format!("bounds.{name}");
+            let Some(i) = space.index(name) else {
+                return Err(err(
+                    field,
+                    format!(
+                        "the problem has no parameter '{name}' (it has: {})",
+                        space.names().join(", ")
+                    ),
+                ));
+            };
+            if !(lower.is_finite() && upper.is_finite() && 0.0 < lower && lower < upper) {
+                return Err(err(
+                    field,
+                    format!("[{lower}, {upper}] must satisfy 0 < lower < upper"),
+                ));
+            }
+            if !(lower..=upper).contains(&values[i]) {
+                return Err(err(
+                    field,
+                    format!(
+                        "[{lower}, {upper}] does not hold params.{name} = {}",
+                        values[i]
+                    ),
+                ));
             }
         }
         Ok(values)

@@ -102,6 +102,25 @@ impl<'a> Cost<'a> {
             .clone()
     }
 
+    /// The Monte Carlo settings candidates are scored on.
+    pub(super) fn mc(&self) -> &McConfig {
+        &self.mc
+    }
+
+    /// The free parameters' indices (problem order): coordinate k of a log-point is
+    /// parameter `free()[k]`.
+    pub(super) fn free(&self) -> &[usize] {
+        &self.free
+    }
+
+    /// Moves parameter `param`'s box edges to `lo` and `hi` (log units), if it is free.
+    pub(super) fn set_bounds(&mut self, param: usize, lo: f64, hi: f64) {
+        if let Some(k) = self.free.iter().position(|&i| i == param) {
+            self.lo[k] = lo;
+            self.hi[k] = hi;
+        }
+    }
+
     /// Number of free parameters.
     pub(super) fn dim(&self) -> usize {
         self.free.len()

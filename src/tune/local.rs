@@ -10,7 +10,7 @@ use super::settings::{LocalSearch, TuneSettings};
 use super::simplex::nelder_mead;
 
 /// Initial simplex step of a local search, log units (a factor 2).
-const WIDE: f64 = 0.7;
+pub(super) const WIDE: f64 = 0.7;
 /// Initial simplex step of a local search from an estimate, log units (about 20%).
 const NEAR: f64 = 0.2;
 /// Initial simplex step of the polishing restart, log units (10%).

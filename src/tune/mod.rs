@@ -18,6 +18,10 @@
 //!   ([`LocalSearch`]): Nelder–Mead (argmin), each restarted once to polish, or
 //!   Levenberg–Marquardt on J's residuals, first on each parameter's own components (the
 //!   moment equations) and then on the whole objective.
+//! - `separable`: where the experiment names decoupled blocks, each block's free
+//!   parameters searched on that block's own statistics (a correct axis is never moved to
+//!   compensate a wrong one); and a parameter that ends on a search bound after a converged
+//!   search gets that bound widened once (log space) and one more local search.
 //! - `resolution`: how precisely the data pin each parameter down, from J's curvature at
 //!   the optimum against J's noise level on the confirmation runs.
 //!
@@ -33,6 +37,7 @@ mod local;
 pub mod objective;
 mod refine;
 mod result;
+mod separable;
 mod settings;
 mod simplex;
 #[cfg(test)]
@@ -40,7 +45,7 @@ mod tests;
 
 pub use objective::{Objective, Terms, Weights};
 pub use refine::{Confirmation, band_low, seed_at};
-pub use result::{Observer, Resolution, Silent, TuneResult, TuneStatus};
+pub use result::{Observer, Resolution, Silent, TuneResult, TuneStatus, Widening};
 pub use settings::{LocalSearch, Plan, Scoring, TuneSettings};
 
 use std::time::{Duration, Instant};
@@ -48,6 +53,7 @@ use std::time::{Duration, Instant};
 use self::budget::Budget;
 use self::cost::{Candidate, Cost};
 use self::refine::Gate;
+use self::separable::Searched;
 use crate::experiment::{Experiment, ExperimentError};
 use crate::input::SettingError;
 use crate::montecarlo::McConfig;
@@ -142,7 +148,6 @@ pub fn tune(
     let acc0 = cost.accumulate(start);
     let seconds_per_eval = t_start.elapsed().as_secs_f64();
     cost.objective.prepare(&acc0);
-    let cost = cost;
     let objective_initial = cost.objective.evaluate(&acc0);
     let plan = settings.plan(cost.dim(), cost.targets.is_some(), exact, seconds_per_eval);
     for note in &plan.notes {
@@ -153,23 +158,67 @@ pub fn tune(
     // Exact scoring is sequential inside, so candidates run in parallel; Monte Carlo
     // scoring is parallel inside, so candidates run one after another.
     let deadline = t0 + Duration::from_secs_f64(settings.max_seconds());
-    let mut budget = Budget::new(&cost, settings.max_evals(), deadline, observer);
-    let found = if cost.dim() > 0 {
-        local::search(&mut budget, settings, mc.seed(), exact, observer)
+    let parts = if cost.dim() > 0 {
+        separable::parts(model, fixed, &cost.objective)
     } else {
         None
     };
-    let best = match found {
+    let mut searched = match &parts {
+        Some(parts) => separable::search(
+            model,
+            &cost,
+            parts,
+            start,
+            &acc0,
+            settings,
+            mc.seed(),
+            deadline,
+            observer,
+        ),
+        None => {
+            let mut budget = Budget::new(&cost, settings.max_evals(), deadline, observer);
+            let found = if cost.dim() > 0 {
+                local::search(&mut budget, settings, mc.seed(), exact, observer)
+            } else {
+                None
+            };
+            Searched::pooled(&budget, found)
+        }
+    };
+    let mut best = match searched.found.clone() {
         Some(c) => c,
         None if cost.dim() == 0 => Candidate {
             point: Vec::new(),
             cost: objective_initial.total,
         },
-        None => budget.best().unwrap_or(Candidate {
+        None => searched.best.clone().unwrap_or(Candidate {
             point: Vec::new(),
             cost: f64::INFINITY,
         }),
     };
+    // A converged search that ends on a bound has not shown that no value fits: the data
+    // may want the parameter beyond it. Widen once and search again before any status.
+    let mut widened = Vec::new();
+    if searched.found.is_some() && best.cost.is_finite() && cost.failure().is_none() {
+        let (w, y) = separable::widen_once(
+            model,
+            &mut cost,
+            parts.as_deref(),
+            &best.point,
+            settings,
+            deadline,
+            observer,
+            &mut searched,
+        );
+        if !w.is_empty() {
+            best = Candidate {
+                cost: cost.score(&y).value,
+                point: y,
+            };
+        }
+        widened = w;
+    }
+    let cost = cost;
     // The gate's own deviates at the optimum: how they move with each parameter (for the
     // refinement and the resolution), on the search's runs from its seed.
     let use_nees = !nis_only;
@@ -177,18 +226,48 @@ pub fn tune(
         return Err(e.into());
     }
     let gate = Gate::new(model, &cost, *mc, use_nees);
-    let searched = budget.evaluations() > 0 && !budget.exhausted();
+    let converged = searched.evaluations > 0 && !searched.exhausted;
     let sens_runs = search_mc.runs();
     let mut point = best.point.clone();
     let mut refine_evaluations = 0;
-    let sens = if searched && !point.is_empty() && best.cost.is_finite() {
+    // Under blocks the refinement, too, runs block by block on each block's own deviates:
+    // the pooled deviates would move a correct block to compensate a wrong one.
+    if let (false, Some(parts), true) = (exact, &parts, converged && best.cost.is_finite()) {
+        observer.phase("refine");
+        let runs = settings
+            .refine_runs()
+            .unwrap_or_else(|| sens_runs.saturating_mul(4));
+        let theta = cost.theta(&point);
+        for part in parts {
+            let cb = part.cost(model, &cost, search_mc, &theta);
+            let gb = Gate::new(model, &cb, *mc, !nis_only)
+                .for_block(&part.block.states, &part.block.measurements);
+            let yb = cb.start();
+            refine_evaluations += yb.len() + 1;
+            let Some((_, d)) = refine::sensitivity(&gb, &cb, &yb, sens_runs, mc.seed()) else {
+                continue;
+            };
+            if d.nrows() == 0 {
+                continue;
+            }
+            let d_refine = d * (runs as f64 / sens_runs as f64).sqrt();
+            let (refined, evals) = refine::refine(&gb, &cb, &yb, &d_refine, runs, mc.seed());
+            refine_evaluations += evals;
+            for (k, &i) in cb.free().iter().enumerate() {
+                if let Some(f) = cost.free().iter().position(|&x| x == i) {
+                    point[f] = refined[k];
+                }
+            }
+        }
+    }
+    let sens = if converged && !point.is_empty() && best.cost.is_finite() {
         observer.phase("refine");
         refine_evaluations += point.len() + 1;
         refine::sensitivity(&gate, &cost, &point, sens_runs, mc.seed())
     } else {
         None
     };
-    if let (false, Some((_, d))) = (exact, &sens) {
+    if let (false, None, Some((_, d))) = (exact, &parts, &sens) {
         let runs = settings
             .refine_runs()
             .unwrap_or_else(|| sens_runs.saturating_mul(4));
@@ -239,7 +318,7 @@ pub fn tune(
         None
     } else if recorded && !point.is_empty() && best.cost.is_finite() {
         Some(refine::bounds_only(&cost, &point, fixed))
-    } else if recorded || (!searched && cost.dim() > 0) {
+    } else if recorded || (!converged && cost.dim() > 0) {
         None
     } else if point.is_empty() || !best.cost.is_finite() {
         Some(vec![Resolution::FIXED; params.len()])
@@ -254,14 +333,21 @@ pub fn tune(
     }
     // A search that ran out of budget did not converge, whatever the confirmation says:
     // its values are the best found so far, never reported as the tuned answer.
-    let status = if cost.dim() > 0 && budget.evaluations() == 0 {
+    let at_bound = bound_flags(&cost, &tuned, fixed);
+    // A parameter still on a bound after its widening was stopped by the box, as a budget
+    // stops a search: "no value of the free parameters fits" would claim what the search
+    // never tried, so the run reports the best point found so far instead.
+    let boxed_in = widened.iter().any(|w| at_bound[w.param]);
+    let status = if cost.dim() > 0 && searched.evaluations == 0 {
         TuneStatus::BudgetExhausted
     } else if !best.cost.is_finite() {
         TuneStatus::Diverged
-    } else if budget.exhausted() {
+    } else if searched.exhausted {
         TuneStatus::BudgetExhausted
     } else if confirmation.holds() {
         TuneStatus::Consistent
+    } else if boxed_in {
+        TuneStatus::BudgetExhausted
     } else {
         TuneStatus::Inconsistent
     };
@@ -278,10 +364,13 @@ pub fn tune(
             Scoring::MonteCarlo
         },
         local: plan.local,
-        evaluations: budget.evaluations(),
-        diverged_evaluations: budget.diverged(),
-        history: budget.history(),
+        evaluations: searched.evaluations,
+        diverged_evaluations: searched.diverged,
+        history: searched.history,
         resolution,
+        at_bound,
+        widened,
+        separable: parts.is_some(),
         refine_evaluations,
         search_seed: mc.seed(),
         confirm_seed,
@@ -294,4 +383,15 @@ pub fn tune(
         status,
         seconds: t0.elapsed().as_secs_f64(),
     })
+}
+
+/// Per parameter (problem order), whether `theta`'s value lies within 0.05 log units (5%)
+/// of a bound of `cost`'s box; false for fixed parameters.
+fn bound_flags(cost: &Cost<'_>, theta: &[f64], fixed: &[bool]) -> Vec<bool> {
+    let y: Vec<f64> = cost.free().iter().map(|&i| theta[i].ln()).collect();
+    let mut flags = vec![false; fixed.len()];
+    for (k, &i) in cost.free().iter().enumerate() {
+        flags[i] = y[k].is_finite() && cost.near_bound(k, &y);
+    }
+    flags
 }

@@ -20,6 +20,20 @@
 //! and grows with the distance. Mean-only objectives (Chen et al. 2018) have whole curves of
 //! zeros; the per-component and whiteness terms are what pin down per-axis parameters. A
 //! filter that diverges scores +∞.
+//!
+//! **Restricted to a block** ([`Objective::restricted`], for the separable search over an
+//! experiment's decoupled blocks): only the block's state and measurement components count,
+//! in the components and whiteness terms as above. The pooled terms have no per-block sums,
+//! so they get stand-ins:
+//! - `mean`: the block's pooled component ratio at 1, `[ln(Σ_j∈B total_j / Σ_j∈B n_j)]²`,
+//!   once for its states and once for its measurements: the block's own ANEES/ANIS per
+//!   degree of freedom, up to the cross terms of P⁻¹ and S⁻¹ that a decoupled block has
+//!   none of between blocks (and that only within a block the diagonal ratios ignore);
+//! - `interval`, `per_step` and `shape`: none. Their intervals rest on the variance of a
+//!   pooled NEES/NIS sum, and the sums carry neither per-component per-step averages nor
+//!   per-component NEES variances. Nothing is lost for the answer: the search only has to
+//!   find the block's best point, and the full gate (every term, pooled) still judges the
+//!   assembled filter in the refinement and the confirmation.
 
 use serde::{Deserialize, Serialize};
 
@@ -166,6 +180,8 @@ pub struct Objective {
     alpha: f64,
     cache: Vec<((u64, u64), Interval)>,
     nis_gate: Option<((u64, u64, u64), Interval)>,
+    /// The block's state and measurement components, when restricted to one.
+    block: Option<(Vec<usize>, Vec<usize>)>,
 }
 
 impl Objective {
@@ -177,7 +193,16 @@ impl Objective {
             alpha,
             cache: Vec::new(),
             nis_gate: None,
+            block: None,
         }
+    }
+
+    /// This objective restricted to one decoupled block: its state components `states`
+    /// and measurement components `measurements` (indices into the sums' component
+    /// vectors), with the stand-ins for the pooled terms described in the module doc.
+    pub fn restricted(mut self, states: &[usize], measurements: &[usize]) -> Self {
+        self.block = Some((states.to_vec(), measurements.to_vec()));
+        self
     }
 
     /// The time-averaged gate interval; the NIS one (variance 2·dof) is the same for every
@@ -259,6 +284,60 @@ impl Objective {
         };
         let w = self.weights;
         let mut t = Terms::default();
+        if let Some((states, meas)) = &self.block {
+            let pooled = |total: &[f64], samples: &[f64], idx: &[usize]| -> Vec<f64> {
+                let (a, b) = idx.iter().fold((0.0, 0.0), |(a, b), &j| {
+                    (
+                        a + total.get(j).copied().unwrap_or(0.0),
+                        b + samples.get(j).copied().unwrap_or(0.0),
+                    )
+                });
+                if b > 0.0 {
+                    vec![(a / b).ln()]
+                } else {
+                    Vec::new()
+                }
+            };
+            let pick = |total: &[f64], samples: &[f64], idx: &[usize]| -> Vec<f64> {
+                idx.iter()
+                    .filter(|&&j| samples.get(j).is_some_and(|&n| n > 0.0))
+                    .map(|&j| (total[j] / samples[j]).ln())
+                    .collect()
+            };
+            add(
+                &mut t.terms.mean,
+                w.mean,
+                &pooled(&acc.meas_comp_total, &acc.meas_comp_samples, meas),
+            );
+            add(
+                &mut t.terms.components,
+                w.components,
+                &pick(&acc.meas_comp_total, &acc.meas_comp_samples, meas),
+            );
+            if !self.nis_only {
+                add(
+                    &mut t.terms.mean,
+                    w.mean,
+                    &pooled(&acc.state_comp_total, &acc.state_comp_samples, states),
+                );
+                add(
+                    &mut t.terms.components,
+                    w.components,
+                    &pick(&acc.state_comp_total, &acc.state_comp_samples, states),
+                );
+            }
+            let n_z = acc.meas_comp_total.len().max(1);
+            let rho: Vec<f64> = (0..acc.white_ab.len())
+                .filter(|o| meas.contains(&(o % n_z)))
+                .filter_map(|o| {
+                    let den = (acc.white_a2[o] * acc.white_b2[o]).sqrt();
+                    (acc.white_pairs[o] > 0.0 && den > 0.0).then(|| acc.white_ab[o] / den)
+                })
+                .collect();
+            add(&mut t.terms.whiteness, w.whiteness, &rho);
+            t.total = t.terms.mean + t.terms.components + t.terms.whiteness;
+            return if t.total.is_finite() { t } else { inf };
+        }
         let nis_var = SumVariance::Predicted(2.0 * acc.nis_dof.iter().sum::<f64>());
         let mut stats = vec![(&acc.nis_sum, &acc.nis_dof, &acc.nis_count, nis_var)];
         if !self.nis_only {

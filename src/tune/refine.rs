@@ -51,6 +51,8 @@ pub(super) struct Gate<'a> {
     /// The problem's Monte Carlo settings (N, gate, α).
     mc: McConfig,
     use_nees: bool,
+    /// Only one decoupled block's deviates: its state and measurement components.
+    block: Option<(Vec<usize>, Vec<usize>)>,
 }
 
 impl<'a> Gate<'a> {
@@ -65,7 +67,18 @@ impl<'a> Gate<'a> {
             cost,
             mc,
             use_nees,
+            block: None,
         }
+    }
+
+    /// This gate's deviates restricted to one decoupled block (its state components
+    /// `states` and measurement components `measurements`): the block's per-component
+    /// tests and its measurements' whiteness, so that refining the block's parameters
+    /// answers to the block's own evidence and never to another block's misfit through the
+    /// pooled time averages.
+    pub(super) fn for_block(mut self, states: &[usize], measurements: &[usize]) -> Self {
+        self.block = Some((states.to_vec(), measurements.to_vec()));
+        self
     }
 
     /// The gate's report at `theta` on `runs` runs from `seed`.
@@ -83,10 +96,52 @@ impl<'a> Gate<'a> {
     /// The gate's deviates at `theta`, `None` if the filter diverged.
     fn deviates(&self, theta: &[f64], runs: usize, seed: u64) -> Option<DVector<f64>> {
         let r = self.report(theta, runs, seed);
+        let z = match &self.block {
+            None => gate_deviates(&r),
+            Some((states, meas)) => block_deviates(&r, states, meas),
+        };
         (r.diverged_runs == 0)
-            .then(|| DVector::from_vec(gate_deviates(&r)))
+            .then(|| DVector::from_vec(z))
             .filter(|z| z.iter().all(|v| v.is_finite()))
     }
+}
+
+/// One block's deviates in `report`, scaled as [`gate_deviates`] scales its own: each
+/// component's ratio as a multiple of its interval's half-width (at the gate's statistic
+/// quantile), and each of the block's measurements' autocorrelations times √pairs.
+fn block_deviates(report: &ConsistencyReport, states: &[usize], meas: &[usize]) -> Vec<f64> {
+    let z = crate::stats::normal_two_sided_quantile(report.statistic_alpha);
+    let mut out = Vec::new();
+    let picked = states
+        .iter()
+        .filter_map(|&j| report.state_components.get(j))
+        .chain(
+            meas.iter()
+                .filter_map(|&j| report.measurement_components.get(j)),
+        );
+    for c in picked {
+        let half = if c.value >= 1.0 {
+            c.interval.upper - 1.0
+        } else {
+            1.0 - c.interval.lower
+        };
+        if c.samples > 0.0 && c.interval.lower.is_finite() && half > 0.0 && c.value.is_finite() {
+            out.push(z * (c.value - 1.0) / half);
+        }
+    }
+    let names: Vec<&str> = meas
+        .iter()
+        .filter_map(|&j| report.measurement_components.get(j))
+        .map(|c| c.name.as_str())
+        .collect();
+    out.extend(
+        report
+            .whiteness
+            .iter()
+            .filter(|w| names.contains(&w.component.as_str()))
+            .map(|w| w.pairs.sqrt() * w.rho),
+    );
+    out
 }
 
 /// The sensitivity `D = ∂z/∂y` at `y` on `runs` runs from `seed`, with the deviates there;

@@ -45,6 +45,18 @@ impl Resolution {
     };
 }
 
+/// A search bound that the tuner widened once because a free parameter ended on it
+/// (see [`super::tune`]).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct Widening {
+    /// The parameter's index (problem order).
+    pub param: usize,
+    /// Its bounds before, (lower, upper), in the parameter's units.
+    pub from: (f64, f64),
+    /// Its bounds after, (lower, upper), in the parameter's units.
+    pub to: (f64, f64),
+}
+
 /// Observes a tuning run (progress bars, logs). All methods default to doing nothing.
 pub trait Observer: Sync {
     /// Called after each evaluation with the count so far and the best objective value.
@@ -94,6 +106,17 @@ pub struct TuneResult {
     /// curvature says something only at a converged optimum, and measuring it would spend
     /// evaluations the budget no longer has).
     pub resolution: Option<Vec<Resolution>>,
+    /// Per parameter, whether its tuned value lies within 5% (0.05 in log units) of a
+    /// bound of the box it was last searched in (the widened one, if it was widened);
+    /// assessed whatever the status, a run that stopped on its budget included. Fixed
+    /// parameters: false.
+    pub at_bound: Vec<bool>,
+    /// The bounds widened once (log space) because a free parameter ended on them after a
+    /// converged search, each followed by one more local search; empty when none was.
+    pub widened: Vec<Widening>,
+    /// Whether the search ran block by block over the experiment's decoupled blocks
+    /// ([`crate::experiment::Experiment::blocks`]) rather than on the pooled objective.
+    pub separable: bool,
     /// Evaluations of the refinement (the gate's sensitivity and the refinement's steps),
     /// beside the search's budget.
     pub refine_evaluations: usize,

@@ -36,9 +36,14 @@ fn explained(file: &str, seed: u64) -> (Problem, TuneResult, Vec<Explanation>) {
 /// Over 20 seeds, how often the first explanation is `cause` with a trial that reached
 /// consistency (`tried`), or with no trial (`!tried`); and the first failing seed's story.
 fn first_is(file: &str, cause: Cause, tried: bool) -> (usize, String) {
+    first_of(file, cause, tried, 20)
+}
+
+/// [`first_is`] over `seeds` seeds.
+fn first_of(file: &str, cause: Cause, tried: bool, seeds: u64) -> (usize, String) {
     let mut hits = 0;
     let mut story = String::new();
-    for seed in 0..20 {
+    for seed in 0..seeds {
         let (_, r, e) = explained(file, 1000 + seed);
         // A run needs explaining when it found no consistent value, or needed a bound widened.
         let ok = r.status != TuneStatus::Consistent || !r.widened.is_empty();
@@ -64,7 +69,7 @@ fn first_is(file: &str, cause: Cause, tried: bool) -> (usize, String) {
             );
         }
     }
-    eprintln!("{file}: first explanation {cause:?} on {hits} of 20 seeds");
+    eprintln!("{file}: first explanation {cause:?} on {hits} of {seeds} seeds");
     (hits, story)
 }
 
@@ -112,6 +117,26 @@ fn issue22_a_wrong_fixed_r_is_named_first_and_freeing_it_fits_near_the_truth() {
 #[test]
 fn issue22_a_missing_acceleration_state_is_named_first_after_the_time_step_trial_fails() {
     let (hits, story) = first_is("missing_accel.toml", Cause::MissingState, false);
+    assert!(hits >= 18, "{hits} of 20\n{story}");
+}
+
+#[test]
+fn issue22_decoupled_axes_with_one_wrong_name_the_wrong_axis_and_a_missing_state() {
+    // The x sensor's offset is drawn afresh in every run (σ = 2 m): zero-mean over runs, so
+    // no constant offset fits, and the filter lacks a bias state on x alone. The y and z
+    // axes are right, so the explanation must be about x only. Its cause cannot be tried
+    // (no trial count to meet), and each seed costs three searches of six parameters, so 10
+    // seeds: a ranking that were right with probability 0.9 would still pass 9 of 10 with
+    // probability 0.74; measured 20 of 20 on seeds 1000–1019.
+    let (hits, story) = first_of("decoupled_axes.toml", Cause::MissingState, false, 10);
+    assert!(hits >= 9, "{hits} of 10\n{story}");
+    let (_, _, e) = explained("decoupled_axes.toml", 1000);
+    assert!(e[0].subject.ends_with("around x, vx"), "{}", e[0].subject);
+}
+
+#[test]
+fn issue22_a_parameter_at_its_bound_is_named_first_and_widening_fits() {
+    let (hits, story) = first_is("at_bound.toml", Cause::SearchBounds, true);
     assert!(hits >= 18, "{hits} of 20\n{story}");
 }
 

@@ -244,8 +244,10 @@ pub fn recommendations(
 pub fn amend_for_explanation(recs: &mut [Recommendation], explanations: &[Explanation]) {
     let Some((e, t)) = explanations
         .first()
+        .filter(|e| e.cause != crate::explain::Cause::SearchBounds)
         .and_then(|e| e.trial.as_ref().filter(|t| t.consistent()).map(|t| (e, t)))
     else {
+        // A widened bound is already in the tuned values.
         return;
     };
     for r in recs.iter_mut() {

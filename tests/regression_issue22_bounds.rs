@@ -137,3 +137,33 @@ fn issue22_the_widened_tuned_config_loads_and_passes_check() {
         String::from_utf8_lossy(&out.stderr)
     );
 }
+
+/// A bound still hit after its widening: the search never tried beyond it, so the run may
+/// not claim that no value fits (Inconsistent); it reports the best point so far, and the
+/// advice says the bound was widened and hit again.
+#[test]
+fn issue22_a_bound_still_hit_after_widening_is_said_and_claims_no_misfit() {
+    let text = std::fs::read_to_string(path()).unwrap();
+    let text = text.replace(
+        "value = 1.0\nupper = 2.0\n",
+        "value = 0.0005\nupper = 0.001\n",
+    );
+    assert!(text.contains("upper = 0.001"));
+    let p = Problem::from_toml(&text, &PathBuf::from("far.toml")).unwrap();
+    let r_pos = p.params().index("r_pos").unwrap();
+    let r = run(&p, 1, &TuneSettings::default());
+    // q_accel runs to its own upper bound as well, standing in for the missing variance.
+    assert!(
+        r.widened.iter().any(|w| w.param == r_pos),
+        "{:?}",
+        r.widened
+    );
+    assert!(r.at_bound[r_pos], "{:?}", r.tuned);
+    assert_ne!(r.status, TuneStatus::Inconsistent);
+    assert_ne!(r.status, TuneStatus::Consistent);
+    let a = advice_for(&p, &r, "r_pos");
+    assert!(
+        a.contains("still at its search bound after it was widened once from [5.000e-8, 0.001000] to [5.000e-8, 1.000]"),
+        "{a}"
+    );
+}

@@ -146,3 +146,22 @@ fn issue22_a_wrong_fixed_q_leaves_the_other_axis_within_its_resolution() {
     eprintln!("{held} of 20 seeds in {:.1} s", t0.elapsed().as_secs_f64());
     assert!(held >= 18, "{held} of 20 seeds kept y within resolution");
 }
+
+#[test]
+fn issue22_the_block_search_does_not_depend_on_the_thread_count() {
+    // Exact scoring runs a block's candidates in parallel; the blocks run in order and each
+    // books its evaluations in point order, so one thread and several give the same bits.
+    let p = misfit("fixed_q_two_axes");
+    let on = |threads: usize| {
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap()
+            .install(|| run(&p, 3))
+    };
+    let (one, many) = (on(1), on(3));
+    assert!(one.separable);
+    assert_eq!(one.tuned, many.tuned);
+    assert_eq!(one.history, many.history);
+    assert_eq!(one.evaluations, many.evaluations);
+}

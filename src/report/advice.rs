@@ -176,7 +176,7 @@ pub fn recommendations(
             )
         } else if let (true, Some(w)) = (at_bound, widening) {
             format!(
-                "{}: {what}still at its search bound after it was widened once from {} to {}; the data want it further still, which a noise level rarely explains: suspect the model",
+                "{}: {what}still at its search bound after it was widened once from {} to {}; the data want it further still, a thousand times past the file's bound: check the model and the parameter's units",
                 p.name,
                 fmt_bounds(w.from),
                 fmt_bounds(w.to)

@@ -427,3 +427,41 @@ impl Objective {
         t
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Sums of 2 states and 2 measurements in which component 0 of each is off (ratio 4)
+    /// and component 1 at its target, with lag-1 whiteness off only on measurement 0.
+    fn sums() -> Accumulator {
+        let mut acc = Accumulator::new(3, 2, 2, 1);
+        acc.state_comp_total = vec![40.0, 10.0];
+        acc.state_comp_samples = vec![10.0, 10.0];
+        acc.meas_comp_total = vec![40.0, 10.0];
+        acc.meas_comp_samples = vec![10.0, 10.0];
+        acc.white_ab = vec![5.0, 0.0];
+        acc.white_a2 = vec![10.0, 10.0];
+        acc.white_b2 = vec![10.0, 10.0];
+        acc.white_pairs = vec![10.0, 10.0];
+        acc
+    }
+
+    #[test]
+    fn a_restricted_objective_scores_only_its_blocks_components() {
+        let o = Objective::new(Weights::default(), false, 0.05);
+        let right = o.clone().restricted(&[1], &[1]).evaluate(&sums());
+        assert_eq!(right.total, 0.0, "{right:?}");
+        let wrong = o.restricted(&[0], &[0]).evaluate(&sums());
+        // mean: (ln 4)² for the states and for the measurements; components the same;
+        // whiteness: ρ = 0.5.
+        let l = 4f64.ln().powi(2);
+        assert!((wrong.terms.mean - 2.0 * l).abs() < 1e-12, "{wrong:?}");
+        assert!(
+            (wrong.terms.components - 2.0 * l).abs() < 1e-12,
+            "{wrong:?}"
+        );
+        assert!((wrong.terms.whiteness - 0.25).abs() < 1e-12, "{wrong:?}");
+        assert_eq!(wrong.terms.interval + wrong.terms.per_step, 0.0);
+    }
+}

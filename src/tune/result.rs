@@ -17,7 +17,9 @@ pub enum TuneStatus {
     /// The search finished but the tuned filter fails the gate on fresh seeds more often
     /// than a consistent filter: no value of the free parameters makes it consistent.
     Inconsistent,
-    /// The budget ran out before the search converged (the best point so far is reported).
+    /// The search did not converge (the best point so far is reported): the budget ran
+    /// out, or a parameter ended on a bound that had already been widened once (the box,
+    /// not the data, stopped it) and the tuned filter fails the confirmation.
     BudgetExhausted,
     /// No candidate gave a filter that stayed positive definite.
     Diverged,

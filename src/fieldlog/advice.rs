@@ -59,11 +59,14 @@ pub(super) fn attribute(sensors: &mut [SensorReport]) {
         if s.verdict.passes() || s.verdict == Verdict::Inconclusive {
             continue;
         }
-        // A bias comes first: no Q or R models it, and it raises the NIS level too.
+        // A bias comes first where it explains the NIS level (it adds Σ_j b_j² to it): no
+        // Q or R models it. A small mean beside a NIS far off is a symptom instead.
+        let bias_sq: f64 = s.mean_tests.iter().map(|t| t.mean * t.mean).sum();
+        let explained = s.level() == 0 || s.nis.interval.contains(s.nis.mean - bias_sq);
         if let Some(t) = s
             .mean_tests
             .iter()
-            .filter(|t| t.verdict == Verdict::Biased)
+            .filter(|t| t.verdict == Verdict::Biased && explained)
             .max_by(|a, b| (a.z.abs() / a.threshold).total_cmp(&(b.z.abs() / b.threshold)))
         {
             s.finding = Some(Finding {

@@ -33,7 +33,8 @@ use serde::Serialize;
 pub use analysis::{Dropped, MAX_SENSORS, NisAnalyzer, SensorInfo, SeriesPoint, Update};
 pub use follow::{Follower, Status};
 pub use report::{
-    Histogram, NisAverage, NisReport, NotFused, Overall, SensorPlot, SensorReport, WindowSummary,
+    Histogram, MeanTest, NisAverage, NisReport, NotFused, Overall, SensorPlot, SensorReport,
+    WindowSummary,
 };
 pub use settings::{NisSettings, Window};
 

@@ -80,7 +80,8 @@ pub struct SensorPlot {
 /// The updates of one log are one run, correlated in time when the filter is not optimal,
 /// so the mean's variance is `(1/n)(1 + 2 Σ_{l=1}^{L} (1 − l/n) ρ_l)` and the test uses the
 /// effective sample size `n_eff = n / (1 + 2 Σ_l (1 − l/n) ρ_l)` (Bartlett's formula; the
-/// lags and `ρ_l` are the whiteness statistics'), clamped to `[1, n]`:
+/// lags and lagged sums are the whiteness statistics', `ρ_l` centred on the mean), clamped
+/// to `[1, n]`:
 /// `z = ū √n_eff / s`, with `s²` the variance of u about its mean floored at 1 (never
 /// narrower than a consistent filter's, so an S that is too small is left to the
 /// second-moment tests), two-sided against Student's t with `n_eff − 1` degrees of freedom.
@@ -117,9 +118,12 @@ fn mean_test(s: &SensorSums, j: usize, lags: usize, level: f64) -> Option<MeanTe
         if pairs < 1.0 {
             continue;
         }
-        let den = (s.white_a2[idx] * s.white_b2[idx]).sqrt();
+        // Centred on the mean: a bias would otherwise add b²/(1 + b²) to every lag's ρ
+        // and shrink n_eff, hiding itself.
+        let c = |x: f64| x / pairs - mean * mean;
+        let den = (c(s.white_a2[idx]) * c(s.white_b2[idx])).sqrt();
         let rho = if den > 0.0 {
-            s.white_ab[idx] / den
+            c(s.white_ab[idx]) / den
         } else {
             0.0
         };

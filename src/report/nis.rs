@@ -29,6 +29,22 @@ pub(super) fn rho1(s: &SensorReport) -> String {
         })
 }
 
+/// The mean of the component whose zero-mean test stands out most (in σ, "✗" when it
+/// fails), or a dash without a test.
+pub(super) fn mean_cell(s: &SensorReport) -> String {
+    s.mean_tests
+        .iter()
+        .max_by(|a, b| (a.z.abs() / a.threshold).total_cmp(&(b.z.abs() / b.threshold)))
+        .map_or("–".into(), |t| {
+            let flag = if t.verdict == Verdict::Biased {
+                " ✗"
+            } else {
+                ""
+            };
+            format!("{:+.2}{flag}", t.mean)
+        })
+}
+
 pub(super) fn dropped(s: &SensorReport) -> String {
     let d = &s.dropped;
     let mut parts = Vec::new();
@@ -122,8 +138,17 @@ pub fn nis_summary_text(r: &NisReport) -> String {
         .max(6);
     let _ = writeln!(
         o,
-        "{:<width$}  {:>7}  {:>10}  {:>10}  {:<22}  {:>6}  {:>8}  {:>9}  {:>8}  verdict   dropped",
-        "sensor", "updates", "NIS avg", "expected", "interval", inside, "outliers", "ρ₁", "windows"
+        "{:<width$}  {:>7}  {:>10}  {:>10}  {:<22}  {:>6}  {:>8}  {:>9}  {:>9}  {:>8}  verdict   dropped",
+        "sensor",
+        "updates",
+        "NIS avg",
+        "expected",
+        "interval",
+        inside,
+        "outliers",
+        "ρ₁",
+        "mean ν/√S",
+        "windows"
     );
     for s in &r.sensors {
         let interval = format!(
@@ -141,7 +166,7 @@ pub fn nis_summary_text(r: &NisReport) -> String {
         };
         let _ = writeln!(
             o,
-            "{:<width$}  {:>7}  {:>10}  {:>10}  {:<22}  {:>5.1}%  {:>8}  {:>9}  {:>8}  {:<8}  {}",
+            "{:<width$}  {:>7}  {:>10}  {:>10}  {:<22}  {:>5.1}%  {:>8}  {:>9}  {:>9}  {:>8}  {:<8}  {}",
             s.name,
             s.updates,
             fmt_g(s.nis.mean),
@@ -154,6 +179,7 @@ pub fn nis_summary_text(r: &NisReport) -> String {
                 s.outliers.to_string()
             },
             rho1(s),
+            mean_cell(s),
             windows,
             s.verdict.label(),
             dropped(s)
@@ -231,8 +257,14 @@ pub fn nis_junit_xml(r: &NisReport) -> String {
             continue;
         }
         failures += 1;
+        let bias = s
+            .mean_tests
+            .iter()
+            .filter(|t| t.verdict == Verdict::Biased)
+            .map(|t| format!(", {} mean {:+.3}σ (z = {:.2})", t.component, t.mean, t.z))
+            .collect::<String>();
         let message = format!(
-            "{}: NIS {} (expected {}, interval [{}, {}]), {} outliers, {}",
+            "{}: NIS {} (expected {}, interval [{}, {}]), {} outliers, {}{bias}",
             s.verdict.label(),
             fmt_g(s.nis.mean),
             fmt_g(s.nis.target),

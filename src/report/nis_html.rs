@@ -163,21 +163,46 @@ fn advice(o: &mut String, r: &NisReport) {
 }
 
 fn component_table(o: &mut String, s: &SensorReport) {
-    if s.component_stats.is_empty() {
+    if s.component_stats.is_empty() && s.mean_tests.is_empty() {
         return;
     }
-    o.push_str("<table><tr><th>component</th><th>mean ν²/S (target 1)</th><th>interval</th><th>updates</th><th>verdict</th></tr>");
-    for c in &s.component_stats {
-        let _ = write!(
-            o,
-            "<tr><td><code>{}</code></td><td class=\"num\">{}</td><td>[{}, {}]</td><td class=\"num\">{}</td>{}</tr>",
-            escape(&c.name),
-            num(c.value),
-            num(c.interval.lower),
-            num(c.interval.upper),
-            c.samples,
-            verdict_cell(c.verdict)
-        );
+    o.push_str("<table><tr><th>component</th><th>mean ν²/S (target 1)</th><th>interval</th><th>updates</th><th>verdict</th><th>mean ν/√S (target 0)</th><th>z</th><th>effective samples</th><th>zero mean</th></tr>");
+    for name in &s.components {
+        let c = s.component_stats.iter().find(|c| &c.name == name);
+        let t = s.mean_tests.iter().find(|t| &t.component == name);
+        if c.is_none() && t.is_none() {
+            continue;
+        }
+        let _ = write!(o, "<tr><td><code>{}</code></td>", escape(name));
+        match c {
+            Some(c) => {
+                let _ = write!(
+                    o,
+                    "<td class=\"num\">{}</td><td>[{}, {}]</td><td class=\"num\">{}</td>{}",
+                    num(c.value),
+                    num(c.interval.lower),
+                    num(c.interval.upper),
+                    c.samples,
+                    verdict_cell(c.verdict)
+                );
+            }
+            // A one-component sensor: its second moment is the sensor's NIS above.
+            None => o.push_str("<td colspan=\"4\">see the NIS average</td>"),
+        }
+        match t {
+            Some(t) => {
+                let _ = write!(
+                    o,
+                    "<td class=\"num\">{:+.3}</td><td class=\"num\">{:+.2}</td><td class=\"num\">{}</td>{}",
+                    t.mean,
+                    t.z,
+                    num(t.n_eff),
+                    verdict_cell(t.verdict)
+                );
+            }
+            None => o.push_str("<td colspan=\"4\">–</td>"),
+        }
+        o.push_str("</tr>");
     }
     o.push_str("</table>\n");
 }

@@ -109,9 +109,10 @@ fn level(c: &ComponentStat) -> i32 {
     }
 }
 
-/// The bias finding of a component whose zero-mean test failed.
+/// The bias finding of a component whose zero-mean test failed and explains it
+/// ([`ComponentStat::bias_explains`]).
 fn bias_finding(c: &ComponentStat) -> Option<Finding> {
-    if c.mean_verdict != Verdict::Biased {
+    if !c.bias_explains() {
         return None;
     }
     let (what, on) = if c.kind == "state" {
@@ -169,7 +170,7 @@ pub fn blame(lv: i32, g: i32) -> (Suspect, &'static str) {
 /// Read `report`'s components and whiteness for which of Q and R is off (see the module
 /// documentation for the reasoning).
 pub fn diagnose(report: &ConsistencyReport) -> Diagnosis {
-    let biased = |c: &ComponentStat| c.mean_verdict == Verdict::Biased;
+    let biased = |c: &ComponentStat| c.bias_explains();
     let states_fit = report
         .state_components
         .iter()
@@ -244,6 +245,26 @@ pub fn diagnose(report: &ConsistencyReport) -> Diagnosis {
             suspect,
             action: action.to_string(),
             evidence: format!("e²/P = {:.3}", c.value),
+        });
+    }
+    // A mean off zero that does not explain its component's second moment: context, not
+    // the cause (a lag under too small a Q biases a nonlinear filter's errors).
+    for c in report
+        .measurement_components
+        .iter()
+        .chain(&report.state_components)
+        .filter(|c| c.mean_verdict == Verdict::Biased && !c.bias_explains())
+    {
+        let what = if c.kind == "state" {
+            "e/√P"
+        } else {
+            "ν/√S"
+        };
+        findings.push(Finding {
+            component: c.name.clone(),
+            suspect: None,
+            action: "its mean is off zero too, less than its spread is off: a symptom of the above (a lag), or an offset behind it".to_string(),
+            evidence: format!("mean {what} = {:+.2} (z = {:.1})", c.mean, c.mean_z),
         });
     }
     let blames = |s: Suspect| findings.iter().any(|f| f.suspect == Some(s));

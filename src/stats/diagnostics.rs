@@ -106,6 +106,21 @@ pub(super) fn mean_test(m: &MeanSums, level: f64) -> (f64, f64, Verdict) {
     (mean, z, verdict)
 }
 
+impl ComponentStat {
+    /// Whether a failed zero-mean test explains this component: its second moment, less the
+    /// square of its mean, falls inside the second-moment interval (a bias b adds b² to
+    /// `E[y²] = 1`), or the second moment passed anyway. A mean far smaller than the
+    /// second moment's excess (a filter lagging under too small a Q) is a symptom instead.
+    pub fn bias_explains(&self) -> bool {
+        self.mean_verdict == Verdict::Biased
+            && self.mean_z.is_finite()
+            && (!matches!(
+                self.verdict,
+                Verdict::Overconfident | Verdict::Underconfident
+            ) || self.interval.contains(self.value - self.mean * self.mean))
+    }
+}
+
 /// Normalized autocorrelation of one measurement component's innovations at one lag.
 #[derive(Debug, Clone, Serialize)]
 pub struct WhitenessStat {

@@ -248,11 +248,6 @@ pub fn combine(verdicts: &[Verdict]) -> Verdict {
             return stop;
         }
     }
-    // A bias inflates the second moments too (E[y²] = 1 + mean²), so it is the finding
-    // that explains the others.
-    if verdicts.contains(&Verdict::Biased) {
-        return Verdict::Biased;
-    }
     let over = verdicts.contains(&Verdict::Overconfident);
     let under = verdicts.contains(&Verdict::Underconfident);
     match (over, under) {
@@ -260,6 +255,11 @@ pub fn combine(verdicts: &[Verdict]) -> Verdict {
         (true, false) => Verdict::Overconfident,
         (false, true) => Verdict::Underconfident,
         _ if verdicts.contains(&Verdict::Mixed) => Verdict::Mixed,
+        // A covariance that is off can bias a nonlinear filter's errors as a symptom (a
+        // lag), so a second-moment failure outranks a failed mean here; the gate itself
+        // reports a bias first when the bias explains every other failure
+        // ([`super::ConsistencyReport::from_accumulator`]).
+        _ if verdicts.contains(&Verdict::Biased) => Verdict::Biased,
         _ if verdicts.contains(&Verdict::NotWhite) => Verdict::NotWhite,
         _ if verdicts.contains(&Verdict::Inconclusive) => Verdict::Inconclusive,
         _ => Verdict::Consistent,
@@ -351,7 +351,7 @@ mod tests {
         );
         assert_eq!(
             combine(&[Verdict::Overconfident, Verdict::Biased]),
-            Verdict::Biased
+            Verdict::Overconfident
         );
         assert_eq!(
             combine(&[Verdict::Diverged, Verdict::Biased]),

@@ -272,7 +272,29 @@ impl ConsistencyReport {
             );
             verdicts.extend(whiteness_tests.iter().map(|w| w.verdict));
         }
-        let verdict = acc.stop_verdict().unwrap_or_else(|| combine(&verdicts));
+        // A bias raises the second moments (E[y²] = 1 + b²), the time averages and the
+        // lagged products of the whiteness test with it: when it explains every component
+        // that fails, it is the verdict.
+        let bias_explains_all = full && {
+            let comps = || {
+                state_components
+                    .iter()
+                    .chain(&measurement_components)
+                    .filter(|c| c.samples > 0.0)
+            };
+            comps().any(|c| c.bias_explains())
+                && comps().all(|c| {
+                    c.bias_explains()
+                        || !matches!(c.verdict, Verdict::Overconfident | Verdict::Underconfident)
+                })
+        };
+        let verdict = acc.stop_verdict().unwrap_or_else(|| {
+            if bias_explains_all {
+                Verdict::Biased
+            } else {
+                combine(&verdicts)
+            }
+        });
         let mut report = ConsistencyReport {
             runs: acc.runs,
             steps: acc.steps,

@@ -293,7 +293,9 @@ pub fn summary_text(problem: &str, params: &[(String, f64)], r: &ConsistencyRepo
 /// The gate in one line: which tests, how many, and the level of each.
 pub fn gate_text(r: &ConsistencyReport) -> String {
     let what = match r.gate {
-        GateMode::Full => "full (time averages, every component, innovation whiteness)",
+        GateMode::Full => {
+            "full (time averages, every component's spread and zero mean, innovation whiteness)"
+        }
         GateMode::Mean => "mean (time-averaged ANEES/ANIS only)",
     };
     format!(

@@ -292,7 +292,7 @@ fn issue22_field_log_zero_mean_test_corrects_for_autocorrelation() {
     let (mut corrected, mut uncorrected) = (0u64, 0u64);
     let mut level = 0.0;
     for seed in 0..logs {
-        let r = ar1_log(224_000 + seed, n, 0.8, 0.0, settings.clone()).report();
+        let r = ar1_log(224_000 + seed, n, 0.8, 0.0, settings).report();
         level = r.test_alpha;
         let t = &r.sensors[0].mean_tests[0];
         // n / 9 = 222 with the true ρ_l; the estimated sum over 20 lags is noisy.
@@ -318,7 +318,7 @@ fn issue22_field_log_zero_mean_test_corrects_for_autocorrelation() {
     let settings = NisSettings::default().with_lags(20).unwrap();
     let mut caught = 0;
     for seed in 0..20 {
-        let r = ar1_log(225_000 + seed, n, 0.8, 0.3, settings.clone()).report();
+        let r = ar1_log(225_000 + seed, n, 0.8, 0.3, settings).report();
         let s = &r.sensors[0];
         if s.mean_tests[0].verdict == Verdict::Biased && !s.verdict.passes() {
             caught += 1;
@@ -365,5 +365,79 @@ fn issue22_check_json_has_component_means() {
         assert!(c["mean"].as_f64().unwrap().abs() < 0.2, "{c}");
         assert!(c["mean_z"].as_f64().is_some(), "{c}");
         assert_eq!(c["mean_verdict"], "consistent", "{c}");
+    }
+}
+
+/// The first-moment sums agree across the engines: the exact path's expectations with a
+/// large Monte Carlo run (a mis-tuned filter whose x0 is off the truth's mean, so the errors
+/// and innovations have a mean that decays), and the generic engine with the linear fast
+/// path on the same draws (to rounding), including the predicted null variance per run.
+#[test]
+fn issue22_first_moment_sums_agree_across_engines() {
+    use autotune::check::accumulate;
+    use autotune::montecarlo::{Engine, expected_accumulator};
+    for name in ["cv1d", "cv2d"] {
+        let mut p = load(name);
+        let theta = scaled(&p, &scaled(&p, &truth_values(&p), "q_", 3.0), "r_", 0.5);
+        let l = p.linear_mut().unwrap();
+        l.filter.x0 = &l.filter.x0 + l.filter.P0.diagonal().map(|v| 2.0 * v.sqrt());
+        let mc = p
+            .mc()
+            .with_runs(4_000)
+            .unwrap()
+            .with_steps(40)
+            .unwrap()
+            .with_lags(3)
+            .unwrap();
+        let kf = p.linear().unwrap().filter_at(&theta);
+        let exp = expected_accumulator(&p.linear().unwrap().truth, &kf, &mc).unwrap();
+        let sim = accumulate(&p, &theta, &mc, Engine::Linear).unwrap();
+        let generic = accumulate(&p, &theta, &mc, Engine::Generic).unwrap();
+        let nn = mc.runs() as f64;
+        for j in 0..exp.state_mean_total.len() {
+            // The mean of N per-run sums: 5 standard errors from their own spread.
+            let (s, e) = (sim.state_mean_total[j] / nn, exp.state_mean_total[j] / nn);
+            let var = sim.state_mean_run_sq[j] / nn - s * s;
+            let se = (var / nn).sqrt();
+            assert!(
+                (s - e).abs() < 5.0 * se,
+                "{name} state {j}: MC {s} vs exact {e} (se {se})"
+            );
+            assert!(
+                e.abs() > 2.0 * se,
+                "{name} state {j}: the mean {e} is too small to test"
+            );
+            assert_eq!(sim.state_mean_samples[j], exp.state_mean_samples[j]);
+            let g = generic.state_mean_total[j] / nn;
+            assert!(
+                (g - s).abs() <= 1e-9 * (1.0 + s.abs()),
+                "{name} state {j}: generic {g} vs linear {s}"
+            );
+            let per_run = |a: &autotune::stats::Accumulator| {
+                a.state_mean_null_var[j] / a.comp_null_var_runs as f64
+            };
+            for (what, v) in [("exact", per_run(&exp)), ("generic", per_run(&generic))] {
+                let r = v / per_run(&sim);
+                assert!(
+                    (r - 1.0).abs() < 1e-6,
+                    "{name} state {j}: {what} null variance ratio {r}"
+                );
+            }
+        }
+        for j in 0..exp.meas_mean_total.len() {
+            // White innovations of a mis-tuned filter are not white, so bound by the
+            // per-sample spread times the steps (a loose, conservative standard error).
+            let (s, e) = (sim.meas_mean_total[j] / nn, exp.meas_mean_total[j] / nn);
+            let se = (sim.meas_comp_total[j] / nn * mc.steps() as f64 / nn).sqrt();
+            assert!(
+                (s - e).abs() < 5.0 * se,
+                "{name} meas {j}: MC {s} vs exact {e} (se {se})"
+            );
+            let g = generic.meas_mean_total[j] / nn;
+            assert!(
+                (g - s).abs() <= 1e-9 * (1.0 + s.abs()),
+                "{name} meas {j}: generic {g} vs linear {s}"
+            );
+        }
     }
 }

@@ -73,13 +73,14 @@ pub(super) fn attribute(sensors: &mut [SensorReport]) {
                 component: s.name.clone(),
                 suspect: Some(Suspect::Bias),
                 action: format!(
-                    "innovations average {:+.2}σ: a sensor offset or unmodelled constant input on {}",
-                    t.mean, t.component
+                    "innovations average {}σ: a sensor offset or unmodelled constant input on {}",
+                    signed(t.mean),
+                    t.component
                 ),
                 evidence: format!(
-                    "mean ν/√S = {:+.2} (z = {:.1}, effective samples {})",
-                    t.mean,
-                    t.z,
+                    "mean ν/√S = {} (z = {}, effective samples {})",
+                    signed(t.mean),
+                    signed(t.z),
                     short(t.n_eff)
                 ),
             });
@@ -198,6 +199,15 @@ pub(super) fn attribute(sensors: &mut [SensorReport]) {
             action,
             evidence,
         });
+    }
+}
+
+/// `v` in 4 significant digits with its sign.
+fn signed(v: f64) -> String {
+    if v >= 0.0 {
+        format!("+{}", short(v))
+    } else {
+        short(v)
     }
 }
 

@@ -77,8 +77,11 @@ fn mean_case(report: &ConsistencyReport, class: &str) -> String {
         .filter(|c| c.mean_verdict == Verdict::Biased)
         .map(|c| {
             format!(
-                "{} {} mean {:+.3}σ (z = {:.2})",
-                c.kind, c.name, c.mean, c.mean_z
+                "{} {} mean {}σ (z = {})",
+                c.kind,
+                c.name,
+                super::summary::fmt_signed(c.mean, 3),
+                super::summary::fmt_signed(c.mean_z, 2)
             )
         })
         .collect();

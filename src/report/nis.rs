@@ -41,7 +41,7 @@ pub(super) fn mean_cell(s: &SensorReport) -> String {
             } else {
                 ""
             };
-            format!("{:+.2}{flag}", t.mean)
+            format!("{}{flag}", super::summary::fmt_signed(t.mean, 2))
         })
 }
 
@@ -261,7 +261,14 @@ pub fn nis_junit_xml(r: &NisReport) -> String {
             .mean_tests
             .iter()
             .filter(|t| t.verdict == Verdict::Biased)
-            .map(|t| format!(", {} mean {:+.3}σ (z = {:.2})", t.component, t.mean, t.z))
+            .map(|t| {
+                format!(
+                    ", {} mean {}σ (z = {})",
+                    t.component,
+                    super::summary::fmt_signed(t.mean, 3),
+                    super::summary::fmt_signed(t.z, 2)
+                )
+            })
             .collect::<String>();
         let message = format!(
             "{}: NIS {} (expected {}, interval [{}, {}]), {} outliers, {}{bias}",

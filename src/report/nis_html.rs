@@ -7,7 +7,7 @@ mod captions;
 use std::fmt::Write;
 
 use super::html::{escape, figure, head_styled};
-use super::nis::{dropped, nis_gate_text, nis_verdict_line, rho1};
+use super::nis::{dropped, mean_cell, nis_gate_text, nis_verdict_line, rho1};
 use super::nis_plots::{NIS_SIZE, nis_histogram_svg, nis_series_svg, series_scale};
 use super::plots::whiteness_svg_sized;
 use super::{fmt_g, summary::compact_numbers};
@@ -58,7 +58,7 @@ fn sources(o: &mut String, r: &NisReport) {
 fn summary_table(o: &mut String, r: &NisReport) {
     let _ = writeln!(
         o,
-        "<table><tr><th>sensor</th><th>updates</th><th>dropped rows</th><th>NIS average</th><th>expected</th><th>interval</th><th>in per-update {:.0}% interval</th><th>outliers (expected)</th><th>ρ₁</th><th>windows outside</th><th>verdict</th></tr>",
+        "<table><tr><th>sensor</th><th>updates</th><th>dropped rows</th><th>NIS average</th><th>expected</th><th>interval</th><th>in per-update {:.0}% interval</th><th>outliers (expected)</th><th>ρ₁</th><th>mean ν/√S</th><th>windows outside</th><th>verdict</th></tr>",
         100.0 * (1.0 - r.alpha)
     );
     for (i, s) in r.sensors.iter().enumerate() {
@@ -83,7 +83,7 @@ fn summary_table(o: &mut String, r: &NisReport) {
         };
         let _ = writeln!(
             o,
-            "<tr><td><a href=\"#sensor-{i}\">{}</a></td><td class=\"num\">{}</td><td>{}</td><td class=\"num\">{}</td><td class=\"num\">{}</td><td>{}</td><td class=\"num\">{:.1}%</td><td class=\"num\">{}</td><td class=\"num\">{}</td><td class=\"num\">{}</td>{}</tr>",
+            "<tr><td><a href=\"#sensor-{i}\">{}</a></td><td class=\"num\">{}</td><td>{}</td><td class=\"num\">{}</td><td class=\"num\">{}</td><td>{}</td><td class=\"num\">{:.1}%</td><td class=\"num\">{}</td><td class=\"num\">{}</td><td class=\"num\">{}</td><td class=\"num\">{}</td>{}</tr>",
             escape(&s.name),
             s.updates,
             escape(&dropped(s)),
@@ -93,6 +93,7 @@ fn summary_table(o: &mut String, r: &NisReport) {
             100.0 * s.inside_fraction,
             escape(&outliers),
             escape(&rho1(s)),
+            escape(&mean_cell(s)),
             escape(&windows),
             verdict_cell(s.verdict)
         );
@@ -193,9 +194,9 @@ fn component_table(o: &mut String, s: &SensorReport) {
             Some(t) => {
                 let _ = write!(
                     o,
-                    "<td class=\"num\">{:+.3}</td><td class=\"num\">{:+.2}</td><td class=\"num\">{}</td>{}",
-                    t.mean,
-                    t.z,
+                    "<td class=\"num\">{}</td><td class=\"num\">{}</td><td class=\"num\">{}</td>{}",
+                    super::summary::fmt_signed(t.mean, 3),
+                    super::summary::fmt_signed(t.z, 2),
                     num(t.n_eff),
                     verdict_cell(t.verdict)
                 );

@@ -75,11 +75,11 @@ pub(crate) fn mean_cells(c: &ComponentStat) -> (String, String) {
         ""
     };
     let z = if c.mean_z.is_finite() {
-        format!("{:+.1}", c.mean_z)
+        fmt_signed(c.mean_z, 1)
     } else {
         "–".into()
     };
-    (format!("{:+.2}{mark}", c.mean), z)
+    (format!("{}{mark}", fmt_signed(c.mean, 2)), z)
 }
 
 /// Whether any step had data for `s`.
@@ -293,7 +293,9 @@ pub fn summary_text(problem: &str, params: &[(String, f64)], r: &ConsistencyRepo
 /// The gate in one line: which tests, how many, and the level of each.
 pub fn gate_text(r: &ConsistencyReport) -> String {
     let what = match r.gate {
-        GateMode::Full => "full (time averages, every component, innovation whiteness)",
+        GateMode::Full => {
+            "full (time averages, every component's spread and zero mean, innovation whiteness)"
+        }
         GateMode::Mean => "mean (time-averaged ANEES/ANIS only)",
     };
     format!(
@@ -373,6 +375,18 @@ pub(crate) fn compact_numbers(text: &str) -> String {
 
 /// Magnitude from which [`fmt_fixed`] switches to scientific notation.
 const FIXED_LIMIT: f64 = 1e6;
+
+/// A signed number with `decimals` decimals ("+0.02"), in scientific notation from the same
+/// size as [`fmt_fixed`]; a value that rounds to zero shows as "+0.00", never "-0.00".
+pub fn fmt_signed(v: f64, decimals: usize) -> String {
+    if v.abs() >= FIXED_LIMIT && v.is_finite() {
+        format!("{v:+.3e}")
+    } else if v.abs() < 0.5 * 10f64.powi(-(decimals as i32)) {
+        format!("{:+.decimals$}", 0.0)
+    } else {
+        format!("{v:+.decimals$}")
+    }
+}
 
 /// A number with `decimals` decimals, as `{:.decimals$}` prints it, but in scientific
 /// notation with four significant digits from a magnitude of 10⁶ on, so that a number such

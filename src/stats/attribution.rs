@@ -109,6 +109,16 @@ fn level(c: &ComponentStat) -> i32 {
     }
 }
 
+/// `v` with its sign and two decimals, in scientific notation when huge (the mean of an
+/// overflowing filter's errors).
+fn signed(v: f64) -> String {
+    if v.abs() >= 1e6 && v.is_finite() {
+        format!("{v:+.3e}")
+    } else {
+        format!("{v:+.2}")
+    }
+}
+
 /// The bias finding of a component whose zero-mean test failed and explains it
 /// ([`ComponentStat::bias_explains`]).
 fn bias_finding(c: &ComponentStat) -> Option<Finding> {
@@ -124,10 +134,15 @@ fn bias_finding(c: &ComponentStat) -> Option<Finding> {
         component: c.name.clone(),
         suspect: Some(Suspect::Bias),
         action: format!(
-            "errors average {:+.2}σ: a sensor offset or unmodelled constant input {on} {}",
-            c.mean, c.name
+            "errors average {}σ: a sensor offset or unmodelled constant input {on} {}",
+            signed(c.mean),
+            c.name
         ),
-        evidence: format!("mean {what} = {:+.2} (z = {:.1})", c.mean, c.mean_z),
+        evidence: format!(
+            "mean {what} = {} (z = {})",
+            signed(c.mean),
+            signed(c.mean_z)
+        ),
     })
 }
 
@@ -264,7 +279,7 @@ pub fn diagnose(report: &ConsistencyReport) -> Diagnosis {
             component: c.name.clone(),
             suspect: None,
             action: "its mean is off zero too, less than its spread is off: a symptom of the above (a lag), or an offset behind it".to_string(),
-            evidence: format!("mean {what} = {:+.2} (z = {:.1})", c.mean, c.mean_z),
+            evidence: format!("mean {what} = {} (z = {})", signed(c.mean), signed(c.mean_z)),
         });
     }
     let blames = |s: Suspect| findings.iter().any(|f| f.suspect == Some(s));

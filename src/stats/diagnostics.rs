@@ -94,7 +94,7 @@ pub(super) fn mean_test(m: &MeanSums, level: f64) -> (f64, f64, Verdict) {
         }
         SumVariance::Unavailable => (f64::NAN, f64::NAN),
     };
-    if !(var > 0.0) || !var.is_finite() || !m.total.is_finite() {
+    if var.is_nan() || var <= 0.0 || !var.is_finite() || !m.total.is_finite() {
         return (mean, f64::NAN, Verdict::Inconclusive);
     }
     let z = m.total / var.sqrt();

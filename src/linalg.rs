@@ -294,7 +294,11 @@ mod tests {
         let want = nalgebra::DMatrix::from_row_slice(2, 2, &[1.0, 0.5, 0.0, 1.0]);
         assert!((&half - &want).norm() < 1e-12, "{half}");
         // A damped rotation (complex eigenvalues): log(e^A) = A for A of small norm.
-        let a = nalgebra::DMatrix::from_row_slice(3, 3, &[-0.1, 0.8, 0.0, -0.8, -0.2, 0.3, 0.1, 0.0, -0.5]);
+        let a = nalgebra::DMatrix::from_row_slice(
+            3,
+            3,
+            &[-0.1, 0.8, 0.0, -0.8, -0.2, 0.3, 0.1, 0.0, -0.5],
+        );
         let back = super::logm(&super::expm(&a)).unwrap();
         assert!((&back - &a).norm() < 1e-10, "{back}");
         // No real logarithm: a reflection has eigenvalue −1.

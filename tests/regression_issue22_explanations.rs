@@ -157,9 +157,14 @@ fn issue22_a_misfit_writes_a_rejected_config_that_starts_with_its_explanations()
     let text = std::fs::read_to_string(dir.path().join("tuned/fixed_r.rejected.toml")).unwrap();
     assert!(text.starts_with("# REJECTED"), "{text}");
     // The first explanation, with its trial's result, comes before any value.
-    let first = text.find("1. a fixed parameter that is wrong (r_pos)").expect(&text);
+    let first = text
+        .find("1. a fixed parameter that is wrong (r_pos)")
+        .expect(&text);
     assert!(first < text.find("[params]").unwrap(), "{text}");
-    assert!(stdout.contains("1. a fixed parameter that is wrong (r_pos)"), "{stdout}");
+    assert!(
+        stdout.contains("1. a fixed parameter that is wrong (r_pos)"),
+        "{stdout}"
+    );
     // Still a config `check --config` reads, to reproduce the finding.
     let check = std::process::Command::cargo_bin("autotune")
         .unwrap()

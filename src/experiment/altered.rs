@@ -41,9 +41,9 @@ impl LinearExperiment {
                     definition,
                 }))
             }
-            Alteration::MeasurementOffset(d) => {
-                (d.len() == self.truth.n_z()).then(|| self.offset(d)).flatten()
-            }
+            Alteration::MeasurementOffset(d) => (d.len() == self.truth.n_z())
+                .then(|| self.offset(d))
+                .flatten(),
         }
     }
 

@@ -303,7 +303,10 @@ pub fn family_finding(result: &TuneResult, explanations: &[Explanation]) -> Opti
         vec!["the search needed more room than its bounds gave".to_string()]
     };
     if !explanations.is_empty() {
-        lines.push("why, most likely first (a cause whose trial reached consistency comes first):".to_string());
+        lines.push(
+            "why, most likely first (a cause whose trial reached consistency comes first):"
+                .to_string(),
+        );
         for (k, e) in explanations.iter().enumerate() {
             lines.push(format!("{}. {}", k + 1, e.line()));
         }

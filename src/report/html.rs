@@ -335,11 +335,7 @@ pub fn tune_html(
         escape(&res.confirmation.text())
     );
     if let Some(lines) = super::advice::family_finding(res, explanations) {
-        let _ = write!(
-            o,
-            "<h2>{}</h2><ul>",
-            super::tune::misfit_heading(res)
-        );
+        let _ = write!(o, "<h2>{}</h2><ul>", super::tune::misfit_heading(res));
         for l in lines {
             let _ = write!(o, "<li>{}</li>", escape(&l));
         }

@@ -8,8 +8,8 @@ use super::advice::{Recommendation, fmt_evidence};
 use super::summary::{StatCells, component_cells};
 use super::{fmt_fixed, fmt_g};
 use crate::experiment::{Experiment, Source};
-use crate::stats::{ConsistencyReport, StatisticSummary};
 use crate::explain::Explanation;
+use crate::stats::{ConsistencyReport, StatisticSummary};
 use crate::tune::{TuneResult, TuneStatus};
 
 /// Everything a tuning report says, for machines.

@@ -255,7 +255,7 @@ pub fn amend_for_explanation(recs: &mut [Recommendation], explanations: &[Explan
             continue;
         };
         let f = v / r.initial;
-        let moved = if f > NEGLIGIBLE || f < 1.0 / NEGLIGIBLE {
+        let moved = if !(1.0 / NEGLIGIBLE..=NEGLIGIBLE).contains(&f) {
             format!("×{} from the start", fmt_factor(f))
         } else {
             "about right as it was".to_string()

@@ -177,3 +177,57 @@ fn issue22_a_misfit_writes_a_rejected_config_that_starts_with_its_explanations()
         .unwrap();
     assert_eq!(check.status.code(), Some(1), "{check:?}");
 }
+
+/// A problem seen through the seam without [`Experiment::alter`]: what a catalog model, a
+/// Rust model or a worker looks like to the explanations.
+struct Unalterable<'a>(&'a Problem);
+
+impl Experiment for Unalterable<'_> {
+    fn definition(&self) -> &autotune::experiment::Definition {
+        self.0.definition()
+    }
+
+    fn monte_carlo_with(
+        &self,
+        theta: &[f64],
+        mc: &autotune::montecarlo::McConfig,
+        options: autotune::experiment::RunOptions<'_>,
+    ) -> Result<autotune::stats::Accumulator, autotune::experiment::ExperimentError> {
+        self.0.monte_carlo_with(theta, mc, options)
+    }
+
+    fn target(&self, i: usize) -> Option<autotune::params::Target> {
+        self.0.target(i)
+    }
+}
+
+#[test]
+fn issue22_where_the_filter_cannot_be_changed_the_explanations_say_what_to_change_untried() {
+    let p = Problem::load(&misfit("half_dt.toml")).unwrap();
+    let e = Unalterable(&p);
+    let mc = *p.mc();
+    let start = p.params().values();
+    let r = tune(&e, &start, &[false, false], &mc, &p.tune, &Silent).unwrap();
+    assert_eq!(r.status, TuneStatus::Inconsistent);
+    let ex = explain(&e, &r, &mc, &p.tune).unwrap();
+    assert!(ex.iter().all(|x| x.trial.is_none()), "{ex:#?}");
+    let step = ex
+        .iter()
+        .find(|x| x.cause == Cause::TimeStep)
+        .expect("time step");
+    assert!(
+        step.untried
+            .as_deref()
+            .unwrap()
+            .contains("not one autotune can change"),
+        "{step:#?}"
+    );
+    assert!(step.remedy.contains("time step"), "{step:#?}");
+    let lines = autotune::report::advice::family_finding(&r, &ex)
+        .unwrap()
+        .join("\n");
+    assert!(
+        lines.contains("the data do not decide between them"),
+        "{lines}"
+    );
+}

@@ -303,10 +303,12 @@ pub fn family_finding(result: &TuneResult, explanations: &[Explanation]) -> Opti
         vec!["the search needed more room than its bounds gave".to_string()]
     };
     if !explanations.is_empty() {
-        lines.push(
+        let header = if explanations.iter().any(|e| e.trial.is_some()) {
             "why, most likely first (a cause whose trial reached consistency comes first):"
-                .to_string(),
-        );
+        } else {
+            "what could be wrong (none of these could be tried on this filter, so the order follows the evidence alone and the data do not decide between them):"
+        };
+        lines.push(header.to_string());
         for (k, e) in explanations.iter().enumerate() {
             lines.push(format!("{}. {}", k + 1, e.line()));
         }

@@ -55,7 +55,9 @@ fn the_gate_counts_its_tests_and_corrects_for_them() {
     let r = check(&p, &truth, p.mc(), true).unwrap();
     assert_eq!(r.gate, GateMode::Full);
     assert_eq!(r.tests, 16);
-    assert!((r.statistic_alpha - gate_alpha(0.05, 16)).abs() < 1e-15);
+    // The 6 zero-mean tests share one Šidák slot (Bonferroni within it).
+    assert!((r.statistic_alpha - gate_alpha(0.05, 11)).abs() < 1e-15);
+    assert!((r.mean_alpha - gate_alpha(0.05, 11) / 6.0).abs() < 1e-15);
     assert_eq!(r.whiteness_tests.len(), 2);
     // NIS-only: ANIS, 2 measurement components (twice), 2 whiteness tests.
     let r = check(&p, &truth, p.mc(), false).unwrap();

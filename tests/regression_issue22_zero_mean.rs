@@ -110,14 +110,16 @@ fn scaled_kind(p: &Problem, theta: &[f64], kind: NoiseKind, factor: f64) -> Vec<
         .collect()
 }
 
-/// With the zero-mean tests in the family (each test's level lower), the gate still
-/// rejects Q or R off by 10% either way: on all 10 seeds of every case where it did before
+/// With the zero-mean tests in the family, the gate still rejects Q or R off by 10% either
+/// way as often as it did without them: on all 10 seeds of every case where it did before
 /// (a power of 0.95 would pass 10 of 10 only 60% of the time).
 ///
 /// Three cases had less than full power at the shipped N and T before issue 22 (measured
 /// on these seeds with the mean tests left out of the family: ctrv Q × 1.1 rejected on 9
-/// of 10, ins_gnss R × 0.9 on 9, R × 1.1 on 6), and keep about it with them (8, 8, 6):
-/// their bounds below are one seed under those counts.
+/// of 10, ins_gnss R × 0.9 on 9, R × 1.1 on 6). The zero-mean tests share one Šidák slot
+/// among them, so the second-moment tests keep nearly their old level and these counts are
+/// unchanged (9, 9, 6; with an equal Šidák share per mean test they fell to 8, 8, 6): the
+/// bounds are those counts.
 #[test]
 fn issue22_power_at_ten_percent_q_or_r_stays_full_with_the_zero_mean_tests() {
     for name in SHIPPED {
@@ -127,9 +129,9 @@ fn issue22_power_at_ten_percent_q_or_r_stays_full_with_the_zero_mean_tests() {
             for factor in [0.9, 1.1] {
                 let theta = scaled_kind(&p, &truth, kind, factor);
                 let need = match (name, kind, factor > 1.0) {
-                    ("ctrv", NoiseKind::Process, true) => 8,
-                    ("ins_gnss", NoiseKind::Measurement, false) => 8,
-                    ("ins_gnss", NoiseKind::Measurement, true) => 5,
+                    ("ctrv", NoiseKind::Process, true) => 9,
+                    ("ins_gnss", NoiseKind::Measurement, false) => 9,
+                    ("ins_gnss", NoiseKind::Measurement, true) => 6,
                     _ => 10,
                 };
                 let rejected = (0..10)
@@ -138,6 +140,7 @@ fn issue22_power_at_ten_percent_q_or_r_stays_full_with_the_zero_mean_tests() {
                         !check(&p, &theta, &mc, true).unwrap().verdict.passes()
                     })
                     .count();
+                eprintln!("{name}: {kind:?} × {factor} rejected on {rejected} of 10");
                 assert!(
                     rejected >= need,
                     "{name}: {kind:?} × {factor} rejected on only {rejected} of 10 seeds (need {need})"

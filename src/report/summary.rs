@@ -298,10 +298,18 @@ pub fn gate_text(r: &ConsistencyReport) -> String {
         }
         GateMode::Mean => "mean (time-averaged ANEES/ANIS only)",
     };
-    format!(
-        "{what}; {} tests, each at level {:.4} so that a consistent filter fails with probability at most α = {} (Šidák)",
-        r.tests, r.statistic_alpha, r.alpha
-    )
+    if r.gate == GateMode::Full && r.mean_alpha < r.statistic_alpha {
+        let means = (r.statistic_alpha / r.mean_alpha).round() as usize;
+        format!(
+            "{what}; {} tests, each at level {:.4} but the {means} zero-mean tests, which share one such level ({:.5} each), so that a consistent filter fails with probability at most α = {} (Šidák)",
+            r.tests, r.statistic_alpha, r.mean_alpha, r.alpha
+        )
+    } else {
+        format!(
+            "{what}; {} tests, each at level {:.4} so that a consistent filter fails with probability at most α = {} (Šidák)",
+            r.tests, r.statistic_alpha, r.alpha
+        )
+    }
 }
 
 /// What stopped runs early, in words, by the verdict it set.

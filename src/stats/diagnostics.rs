@@ -166,6 +166,7 @@ pub(super) fn components(
     variance: impl Fn(usize) -> SumVariance,
     means: impl Fn(usize) -> MeanSums,
     alpha: f64,
+    mean_alpha: f64,
 ) -> Vec<ComponentStat> {
     names
         .iter()
@@ -181,7 +182,7 @@ pub(super) fn components(
                 };
                 (f64::NAN, nan)
             };
-            let (mean, mean_z, mean_verdict) = mean_test(&means(j), alpha);
+            let (mean, mean_z, mean_verdict) = mean_test(&means(j), mean_alpha);
             ComponentStat {
                 mean,
                 mean_z,

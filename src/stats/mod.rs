@@ -102,9 +102,16 @@ pub struct ConsistencyReport {
     /// component's second moment and zero mean, and every measurement component's
     /// whiteness).
     pub tests: usize,
-    /// Level of each gate test, `1 − (1 − α)^{1/tests}` (Šidák), so that a consistent filter
-    /// fails the whole gate with probability at most α; per-step intervals use α.
+    /// Level of each gate test but the zero-mean ones, `1 − (1 − α)^{1/k}` (Šidák) with k the
+    /// tests when the zero-mean tests count as one, so that a consistent filter fails the
+    /// whole gate with probability at most α; per-step intervals use α.
     pub statistic_alpha: f64,
+    /// Level of each zero-mean test: together they take one Šidák share, split evenly
+    /// (Bonferroni) among them. A bias moves the mean by many standard errors, so the mean
+    /// tests keep their power at a smaller level, and the second-moment tests keep nearly
+    /// the level they had without them (their power at a ±10% Q or R error is what a gate
+    /// is bought for).
+    pub mean_alpha: f64,
     /// NEES statistics (`None` when ground truth is not used).
     pub nees: Option<StatisticSummary>,
     /// NIS statistics.
@@ -189,9 +196,24 @@ impl ConsistencyReport {
         } else {
             1 + usize::from(use_nees)
         };
-        let level = gate_alpha(alpha, tests);
+        let mean_tests = if full {
+            has(&acc.meas_comp_samples)
+                + if use_nees {
+                    has(&acc.state_mean_samples)
+                } else {
+                    0
+                }
+        } else {
+            0
+        };
+        let level = gate_alpha(alpha, tests - mean_tests + usize::from(mean_tests > 0));
         // In the mean gate the components and whiteness are diagnostics, judged at α.
         let diagnostic_level = if full { level } else { alpha };
+        let mean_level = if mean_tests > 0 {
+            level / mean_tests as f64
+        } else {
+            diagnostic_level
+        };
         let mut cache = IntervalCache::new(alpha);
         let nees = summarize(
             "NEES",
@@ -225,6 +247,7 @@ impl ConsistencyReport {
                 second_moment: acc.state_comp_total[j] / acc.state_comp_samples[j],
             },
             diagnostic_level,
+            mean_level,
         );
         // White under consistency: each ν_j²/S_jj is an independent χ²(1).
         let measurement_components = components(
@@ -241,6 +264,7 @@ impl ConsistencyReport {
                 second_moment: acc.meas_comp_total[j] / acc.meas_comp_samples[j],
             },
             diagnostic_level,
+            mean_level,
         );
         let whiteness_tests = whiteness_tests(&white, measurement_names, diagnostic_level);
         let state_components = if use_nees {
@@ -302,6 +326,7 @@ impl ConsistencyReport {
             gate: gate.mode,
             tests,
             statistic_alpha: level,
+            mean_alpha: mean_level,
             nees: use_nees.then_some(nees),
             nis,
             state_components,

@@ -157,7 +157,7 @@ pub struct WhitenessTest {
 /// Per-component averages, each with a two-sided interval at level `alpha` around 1: the
 /// gate interval ([`gate_interval`]) of the component's sum over all runs and steps, whose
 /// mean is its number of samples and whose variance is `variance(j)`; and the zero-mean
-/// test of `means(j)` at the same level.
+/// test of `means(j)` at level `mean_alpha`.
 pub(super) fn components(
     kind: &'static str,
     names: &[String],
@@ -165,8 +165,7 @@ pub(super) fn components(
     samples: &[f64],
     variance: impl Fn(usize) -> SumVariance,
     means: impl Fn(usize) -> MeanSums,
-    alpha: f64,
-    mean_alpha: f64,
+    (alpha, mean_alpha): (f64, f64),
 ) -> Vec<ComponentStat> {
     names
         .iter()

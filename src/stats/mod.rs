@@ -246,8 +246,7 @@ impl ConsistencyReport {
                 variance: acc.state_mean_variance(j),
                 second_moment: acc.state_comp_total[j] / acc.state_comp_samples[j],
             },
-            diagnostic_level,
-            mean_level,
+            (diagnostic_level, mean_level),
         );
         // White under consistency: each ν_j²/S_jj is an independent χ²(1).
         let measurement_components = components(
@@ -263,8 +262,7 @@ impl ConsistencyReport {
                 variance: SumVariance::Predicted(acc.meas_comp_samples[j]),
                 second_moment: acc.meas_comp_total[j] / acc.meas_comp_samples[j],
             },
-            diagnostic_level,
-            mean_level,
+            (diagnostic_level, mean_level),
         );
         let whiteness_tests = whiteness_tests(&white, measurement_names, diagnostic_level);
         let state_components = if use_nees {

@@ -91,15 +91,15 @@ pub(super) fn bias(result: &TuneResult) -> Option<Candidate> {
         v.sort_by(|a, b| b.mean_z.abs().total_cmp(&a.mean_z.abs()));
         v
     };
-    let (mut biased, when) = (pick(&result.after), "at the best fit");
-    if biased.is_empty() {
-        biased = pick(&result.before);
-        if biased.is_empty() {
-            return None;
-        }
-        return Some(bias_candidate(biased, "at the start"));
-    }
-    Some(bias_candidate(std::mem::take(&mut biased), when))
+    // The best fit's evidence first; a bias the search hid is still a bias at the start.
+    [
+        (&result.after, "at the best fit"),
+        (&result.before, "at the start"),
+    ]
+    .into_iter()
+    .map(|(r, when)| (pick(r), when))
+    .find(|(biased, _)| !biased.is_empty())
+    .map(|(biased, when)| bias_candidate(biased, when))
 }
 
 fn bias_candidate(biased: Vec<ComponentStat>, when: &str) -> Candidate {

@@ -304,26 +304,21 @@ impl Objective {
                     .map(|&j| (total[j] / samples[j]).ln())
                     .collect()
             };
-            add(
-                &mut t.terms.mean,
-                w.mean,
-                &pooled(&acc.meas_comp_total, &acc.meas_comp_samples, meas),
-            );
-            add(
-                &mut t.terms.components,
-                w.components,
-                &pick(&acc.meas_comp_total, &acc.meas_comp_samples, meas),
-            );
-            if !self.nis_only {
-                add(
-                    &mut t.terms.mean,
-                    w.mean,
-                    &pooled(&acc.state_comp_total, &acc.state_comp_samples, states),
-                );
+            let kinds = [
+                (&acc.meas_comp_total, &acc.meas_comp_samples, meas, true),
+                (
+                    &acc.state_comp_total,
+                    &acc.state_comp_samples,
+                    states,
+                    !self.nis_only,
+                ),
+            ];
+            for (total, samples, idx, _) in kinds.into_iter().filter(|k| k.3) {
+                add(&mut t.terms.mean, w.mean, &pooled(total, samples, idx));
                 add(
                     &mut t.terms.components,
                     w.components,
-                    &pick(&acc.state_comp_total, &acc.state_comp_samples, states),
+                    &pick(total, samples, idx),
                 );
             }
             let n_z = acc.meas_comp_total.len().max(1);

@@ -268,6 +268,7 @@ fn ar1_log(seed: u64, n: usize, rho: f64, mean: f64, settings: NisSettings) -> N
                 nis: u * u,
                 dof: 1,
                 u: Some(vec![u]),
+                sd: None,
             },
         )
         .unwrap();

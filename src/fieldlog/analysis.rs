@@ -45,6 +45,9 @@ pub struct Update {
     pub dof: usize,
     /// `ν_j/√S_jj` per component, when the log gives ν and S.
     pub u: Option<Vec<f64>>,
+    /// `√S_jj` per component, in the measurement's units, when the log gives S: with `u` it
+    /// gives the innovation itself for the plots.
+    pub sd: Option<Vec<f64>>,
 }
 
 /// What the reader dropped before the statistics, per sensor (PX4 logs say it; other
@@ -114,6 +117,9 @@ pub struct SeriesPoint {
     pub lower: Option<f64>,
     /// Upper end.
     pub upper: Option<f64>,
+    /// The first component's innovation ν and its `√S`, in the measurement's units, when
+    /// the log gives them.
+    pub innovation: Option<(f64, f64)>,
 }
 
 /// The running sums of one sensor.
@@ -352,6 +358,10 @@ impl NisAnalyzer {
         }
         add_to_histogram(s, up.dof, up.nis, q.hist_top);
         let outlier = up.nis > q.gate;
+        let innovation = match (&up.u, &up.sd) {
+            (Some(u), Some(sd)) if !u.is_empty() && !sd.is_empty() => Some((u[0] * sd[0], sd[0])),
+            _ => None,
+        };
         let u = if outlier { None } else { up.u };
         // Whiteness: pair this update with the last L of the same sequence.
         if let Some(u) = &u {
@@ -450,6 +460,7 @@ impl NisAnalyzer {
                 window: point_window.map(|w| w.0),
                 lower: point_window.map(|w| w.1),
                 upper: point_window.map(|w| w.2),
+                innovation,
             });
             if s.series.len() >= SERIES_CAP {
                 let kept: Vec<SeriesPoint> = s.series.iter().step_by(2).copied().collect();

@@ -76,6 +76,7 @@ impl Ingest {
                 nis: n.nis,
                 dof: n.dof as usize,
                 u: n.u,
+                sd: None,
             },
         )
         .map_err(|m| ("nu".to_string(), m))

@@ -32,6 +32,7 @@ use serde::Serialize;
 
 pub use analysis::{Dropped, MAX_SENSORS, NisAnalyzer, SensorInfo, SeriesPoint, Update};
 pub use follow::{Follower, Status};
+pub use px4::{EventKind, NotJudged, ParamAdvice, Px4Channel, Px4Event, Px4Info, Px4Instance};
 pub use report::{
     Histogram, MeanTest, NisAverage, NisReport, NotFused, Overall, SensorPlot, SensorReport,
     WindowSummary,
@@ -65,6 +66,8 @@ pub struct LogSource {
     pub skipped_rows: usize,
     /// What the reader noted, one line each (pairing of PX4 topics, skipped lines, …).
     pub notes: Vec<String>,
+    /// What a PX4 log says about its estimators (PX4 logs only).
+    pub px4: Option<Px4Info>,
 }
 
 impl LogSource {
@@ -75,6 +78,7 @@ impl LogSource {
             rows: 0,
             skipped_rows: 0,
             notes: Vec::new(),
+            px4: None,
         }
     }
 }

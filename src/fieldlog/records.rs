@@ -64,6 +64,7 @@ impl StepSink for Sink<'_> {
                     nis: n.nis,
                     dof: n.dof as usize,
                     u: n.u,
+                    sd: None,
                 },
             )?;
         }

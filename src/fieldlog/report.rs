@@ -199,6 +199,11 @@ pub struct SensorReport {
     pub verdict: Verdict,
     /// What the evidence blames, when the sensor fails.
     pub finding: Option<Finding>,
+    /// What a PX4 EKF says about the channel beside its innovations (PX4 logs only).
+    pub px4: Option<super::Px4Channel>,
+    /// The estimator parameters the finding points to, with the log's and suggested values
+    /// (PX4 logs with a finding on R or Q).
+    pub parameters: Vec<super::ParamAdvice>,
     /// Data for the plots.
     #[serde(skip)]
     pub plot: SensorPlot,
@@ -257,6 +262,9 @@ pub struct NisReport {
     pub verdict: Verdict,
     /// What the failing sensors' evidence points to overall.
     pub suspect: Option<Suspect>,
+    /// What the data themselves put in doubt (time stamps that do not increase, ...), one
+    /// line each.
+    pub warnings: Vec<String>,
 }
 
 impl NisReport {
@@ -414,6 +422,7 @@ impl NisAnalyzer {
             overall,
             verdict,
             suspect,
+            warnings: Vec::new(),
         }
     }
 
@@ -558,6 +567,8 @@ impl NisAnalyzer {
             mean_tests,
             verdict: combine(&all),
             finding: None,
+            px4: None,
+            parameters: Vec::new(),
             plot: SensorPlot {
                 series: s.series.clone(),
                 outliers: s.outlier_points.clone(),

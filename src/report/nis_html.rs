@@ -371,6 +371,7 @@ mod tests {
                         nis,
                         dof: if k == 0 { 2 } else { 1 },
                         u: (k == 0).then(|| u.iter().map(|x| x * scale.sqrt()).collect()),
+                        sd: None,
                     },
                 )
                 .expect("a valid update");

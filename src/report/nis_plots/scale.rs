@@ -139,6 +139,7 @@ mod tests {
 
     fn point(t: f64, nis: f64) -> SeriesPoint {
         SeriesPoint {
+            innovation: None,
             t,
             nis,
             window: Some(nis),

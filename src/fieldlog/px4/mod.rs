@@ -19,6 +19,12 @@
 //! The file is read by [`super::ulog_walk`], which checks each message before the crate's
 //! parser sees it (some damaged files panic or run away inside the crate).
 
+mod ekf2;
+mod info;
+
+pub use ekf2::ParamAdvice;
+pub use info::{EventKind, NotJudged, Px4Channel, Px4Event, Px4Info, Px4Instance};
+
 use std::cell::Cell;
 use std::collections::{BTreeMap, HashMap};
 use std::path::Path;
@@ -412,6 +418,7 @@ pub(super) fn read(
                             nis: nu * nu / s,
                             dof: 1,
                             u: Some(vec![nu / s.sqrt()]),
+                            sd: Some(vec![s.sqrt()]),
                         },
                     )
                     .map_err(|m| FileError::new(path, "", m))?;

@@ -164,5 +164,6 @@ pub fn analyze(
     let sources = read_logs(paths, options, &mut analyzer)?;
     let mut report = analyzer.report();
     report.sources = sources;
+    px4::annotate(&mut report);
     Ok(report)
 }

@@ -125,6 +125,12 @@ pub fn nis_summary_text(r: &NisReport) -> String {
         for n in &src.notes {
             let _ = writeln!(o, "    {n}");
         }
+        if let Some(p) = &src.px4 {
+            px4_estimator_text(&mut o, p);
+        }
+    }
+    for w in &r.warnings {
+        let _ = writeln!(o, "warning: {w}");
     }
     let _ = writeln!(o, "{}", nis_gate_text(r));
     let _ = writeln!(o);
@@ -217,6 +223,7 @@ pub fn nis_summary_text(r: &NisReport) -> String {
             ov.outliers
         );
     }
+    px4_channels_text(&mut o, r);
     let findings: Vec<_> = r
         .sensors
         .iter()
@@ -233,6 +240,111 @@ pub fn nis_summary_text(r: &NisReport) -> String {
     }
     let _ = writeln!(o, "\n{}", nis_verdict_line(r));
     o
+}
+
+/// What a PX4 log says about its estimators: publisher, release, instances, the channels not
+/// judged and why, and the events of the flight.
+fn px4_estimator_text(o: &mut String, p: &crate::fieldlog::Px4Info) {
+    let _ = writeln!(
+        o,
+        "    estimator: {} ({}){}; times are seconds after the log's start",
+        p.publisher,
+        p.publisher_evidence,
+        p.version
+            .as_ref()
+            .map_or(String::new(), |v| format!(", PX4 {v}"))
+    );
+    for i in &p.instances {
+        let primary = i
+            .primary_s
+            .map_or(String::new(), |s| format!(", primary for {s:.1} s"));
+        let _ = writeln!(
+            o,
+            "    ekf{}: {} logged at {:.1} Hz{primary}",
+            i.index, i.topics, i.logged_hz
+        );
+    }
+    for n in &p.not_judged {
+        let _ = writeln!(
+            o,
+            "    not judged: {} ({} updates): {}",
+            n.name, n.updates, n.reason
+        );
+    }
+    if !p.events.is_empty() {
+        let shown: Vec<String> = p
+            .events
+            .iter()
+            .take(12)
+            .map(|e| format!("{:.1} s {}", e.time, e.what))
+            .collect();
+        let more = p.events.len().saturating_sub(12);
+        let _ = writeln!(
+            o,
+            "    events: {}{}",
+            shown.join(", "),
+            if more > 0 {
+                format!(" and {more} more")
+            } else {
+                String::new()
+            }
+        );
+    }
+}
+
+/// The EKF's own view of each judged channel beside the NIS: its test ratio, the gate that
+/// implies, its rejections, and how often the channel was logged against its source.
+fn px4_channels_text(o: &mut String, r: &NisReport) {
+    let rows: Vec<_> = r
+        .sensors
+        .iter()
+        .filter_map(|s| s.px4.as_ref().map(|p| (s, p)))
+        .collect();
+    if rows.is_empty() {
+        return;
+    }
+    let width = rows
+        .iter()
+        .map(|(s, _)| s.name.chars().count())
+        .max()
+        .unwrap_or(6)
+        .max(6);
+    let _ = writeln!(
+        o,
+        "\n{:<width$}  {:<24}  {:>10}  {:>6}  {:>8}  {:>9}  {:>9}  not judged",
+        "EKF2's view", "source", "test ratio", "gate", "rejected", "updates/s", "source/s"
+    );
+    for (s, p) in rows {
+        let opt = |v: Option<f64>| v.map_or("–".to_string(), fmt_g);
+        let mut skipped = Vec::new();
+        if p.fake > 0 {
+            skipped.push(format!("{} fake-position", p.fake));
+        }
+        if p.inactive > 0 {
+            skipped.push(format!("{} source off", p.inactive));
+        }
+        let _ = writeln!(
+            o,
+            "{:<width$}  {:<24}  {:>10}  {:>6}  {:>8}  {:>9}  {:>9}  {}{}",
+            s.name,
+            p.source,
+            opt(p.test_ratio_mean),
+            p.gate.map_or("–".to_string(), |g| format!("{g:.1}")),
+            p.rejected.map_or("–".to_string(), |n| n.to_string()),
+            format!("{:.1}", p.update_hz),
+            p.source_hz.map_or("–".to_string(), |h| format!("{h:.1}")),
+            if skipped.is_empty() {
+                "–".to_string()
+            } else {
+                skipped.join(", ")
+            },
+            if p.sampled {
+                "  (samples of fusions)"
+            } else {
+                ""
+            }
+        );
+    }
 }
 
 /// JUnit XML: one test case per sensor, named after it.

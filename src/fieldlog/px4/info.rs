@@ -97,6 +97,8 @@ pub struct Px4Channel {
     pub active_s: Option<f64>,
     /// Updates dropped because the source was not active at their time.
     pub inactive: usize,
+    /// Updates dropped as fake-position fusion (no horizontal aiding at their time).
+    pub fake: usize,
     /// The EKF's own test ratio `ν²/(gate² S)`, averaged over the judged updates.
     pub test_ratio_mean: Option<f64>,
     /// The innovation gate the test ratios imply, `√(ν²/(S · ratio))` (median), in σ.

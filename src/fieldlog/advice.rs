@@ -142,9 +142,14 @@ pub(super) fn attribute(sensors: &mut [SensorReport], z: f64) {
                 component: s.name.clone(),
                 suspect: Some(Suspect::Bias),
                 action: format!(
-                    "the mean innovation carries {:.0} % of E[ν²/S] on {}: a sensor offset or an unmodelled constant input, not a scale of Q or R",
+                    "the mean innovation carries {:.0} % of E[ν²/S]{}: a sensor offset or an unmodelled constant input, not a scale of Q or R",
                     100.0 * t.mean_share,
-                    t.component
+                    // A scalar channel's component is the channel itself.
+                    if t.component == s.name {
+                        String::new()
+                    } else {
+                        format!(" on {}", t.component)
+                    }
                 ),
                 evidence,
             });
@@ -166,7 +171,7 @@ pub(super) fn attribute(sensors: &mut [SensorReport], z: f64) {
                 component: s.name.clone(),
                 suspect: None,
                 action: format!(
-                    "{r}: the innovations are strongly correlated (the model misses dynamics, or its gain does not fit), so their level says nothing about Q or R yet"
+                    "{r}: the innovations are strongly correlated, so their level says nothing about Q or R yet"
                 ),
                 evidence,
             });

@@ -269,9 +269,12 @@ pub fn nis_junit_xml(r: &NisReport) -> String {
             let _ = writeln!(
                 cases,
                 "    <testcase name=\"{name}\" classname=\"nis\">\n      <skipped message=\"{}\"/>\n    </testcase>",
-                escape(&format!(
-                    "inconclusive: {} updates are too few for the tests to tell a factor-2 error",
-                    s.updates
+                escape(&s.inconclusive_reason.as_ref().map_or_else(
+                    || format!(
+                        "inconclusive: {} updates are too few for the tests to tell a factor-2 error",
+                        s.updates
+                    ),
+                    |r| format!("inconclusive: {r}")
                 ))
             );
             continue;

@@ -405,4 +405,57 @@ fn issue23_a_window_in_seconds_never_reaches_across_time_going_back_or_standing_
         "the last window reaches back over the jump: {upper}"
     );
     assert_eq!(r.sensors[1].window.windows, 0);
+    // The jump back and the clock standing still are warned about.
+    assert_eq!(
+        r.warnings,
+        [
+            "baro: 1 of 160 updates do not come after the one before (equal or earlier time): the time axis and time windows are unreliable",
+            "hagl: all 160 updates have time 0: the time axis and time windows are meaningless",
+        ]
+    );
+}
+
+/// Three sensors of one estimator whose white innovations are all √2 too large (NIS ≈ 2):
+/// every sensor off the same way, and nothing in the correlations to say whether Q or every
+/// R is too small. The advice says the data cannot tell (Q and R together), where it used to
+/// blame Q. The pooled lag-1 correlation of white innovations leaves its 95% band on about
+/// 1 seed in 20; at least 17 of 20 seeds must say "cannot tell" (Bin(20, 0.05) ≥ 4 has
+/// probability 0.016), and none may name R alone.
+#[test]
+fn issue23_every_sensor_off_with_white_innovations_cannot_tell_q_from_r() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut cannot_tell = 0;
+    for seed in 0..20u64 {
+        let mut text = String::from(HEADER);
+        for (i, name) in ["gps", "baro", "mag"].iter().enumerate() {
+            text.push_str(&ar1_channel(
+                name,
+                2000,
+                0.0,
+                0.0,
+                2f64.sqrt(),
+                23_800 + 10 * seed + i as u64,
+            ));
+        }
+        let p = write(dir.path(), &format!("scale{seed}.csv"), &text);
+        let (code, v) = nis_json(&[p.to_str().unwrap()]);
+        assert_eq!(code, 1);
+        let action = sensor(&v, "gps")["finding"]["action"]
+            .as_str()
+            .unwrap()
+            .to_string();
+        if v["suspect"] == "q_and_r" {
+            assert!(
+                action.contains("the data cannot tell which"),
+                "seed {seed}: {action}"
+            );
+            cannot_tell += 1;
+        }
+        assert_ne!(v["suspect"], "r", "seed {seed}: {action}");
+    }
+    eprintln!("cannot tell Q from R on {cannot_tell} of 20 seeds");
+    assert!(
+        cannot_tell >= 17,
+        "cannot tell on {cannot_tell} of 20 seeds"
+    );
 }

@@ -4,6 +4,7 @@
 
 use std::collections::HashMap;
 
+use super::report::MeanTest;
 use super::report::SensorReport;
 use crate::stats::{Finding, Suspect, Verdict, blame};
 
@@ -18,27 +19,56 @@ impl SensorReport {
         }
     }
 
-    /// The sign of the lag-1 autocorrelation of the component whose whiteness test fails
-    /// most clearly, 0 when all are white.
+    /// The sign of the centred lag-1 autocorrelation of the component whose centred
+    /// whiteness test fails most clearly, 0 when all are white (centred, so that a bias is
+    /// not read as a gain that is too low).
     fn gain(&self) -> (i32, Option<f64>) {
-        self.whiteness_tests
+        self.centred_whiteness
             .iter()
-            .filter(|w| w.verdict == Verdict::NotWhite)
+            .filter(|w| w.not_white)
             .max_by(|a, b| (a.statistic / a.threshold).total_cmp(&(b.statistic / b.threshold)))
             .map_or((0, None), |w| {
                 // The sign says which way the gain is off only when the lag-1 correlation
                 // itself stands out; a test failed at higher lags alone does not say.
-                let band = self
-                    .whiteness
-                    .iter()
-                    .find(|x| x.lag == 1 && x.component == w.component)
-                    .map_or(f64::INFINITY, |x| x.band);
-                if w.rho1.abs() > band {
+                if w.rho1.abs() > w.band {
                     (if w.rho1 > 0.0 { 1 } else { -1 }, Some(w.rho1))
                 } else {
                     (0, Some(w.rho1))
                 }
             })
+    }
+
+    /// The component whose mean carries the largest share of `E[ν²/S]`, when that share is
+    /// at least [`BIAS_SHARE`].
+    fn bias_share(&self) -> Option<&MeanTest> {
+        self.mean_tests
+            .iter()
+            .filter(|t| t.mean_share >= BIAS_SHARE)
+            .max_by(|a, b| a.mean_share.total_cmp(&b.mean_share))
+    }
+}
+
+/// The share of `E[ν²/S]` carried by the mean from which a bias is named whether or not
+/// the zero-mean test can be significant: no scale of Q or R makes innovations mostly an
+/// offset, and a white sequence of n updates reaches it by chance with probability about
+/// `P(χ²(1) ≥ n/2)`, nothing from a dozen updates on.
+const BIAS_SHARE: f64 = 0.5;
+
+/// The lag-1 autocorrelation pooled over every component of an estimator's sensors,
+/// weighted by their pairs, and its band at α (`z/√pairs`).
+#[derive(Debug, Clone, Copy, Default)]
+struct Pooled {
+    weighted: f64,
+    pairs: f64,
+}
+
+impl Pooled {
+    fn rho(&self) -> f64 {
+        if self.pairs > 0.0 {
+            self.weighted / self.pairs
+        } else {
+            0.0
+        }
     }
 }
 
@@ -46,14 +76,26 @@ impl SensorReport {
 /// [`crate::stats::blame`], and where the innovations are white, the other sensors of the
 /// same estimator: a shared overconfidence points to the Q they share, a sensor off alone to
 /// its own R.
-pub(super) fn attribute(sensors: &mut [SensorReport]) {
-    // Per estimator, how many sensors sit at each level (counted once: a scan of the others
-    // for each failing sensor is quadratic in thousands of channels).
-    let mut groups: HashMap<String, (usize, HashMap<i32, usize>)> = HashMap::new();
+///
+/// When every sensor of an estimator is off the same way and no sensor's own whiteness
+/// says which way its gain is off, the lag-1 autocorrelation pooled over the estimator's
+/// sensors (centred, weighted by pairs) decides: a gain too high makes innovations
+/// alternate (ρ₁ < 0: with the NIS too high, every R is too small), a gain too low makes
+/// them persist (ρ₁ > 0: Q is too small); within its band `z/√pairs` the data cannot tell
+/// Q from R. `z` is `z_{1−α/2}`.
+pub(super) fn attribute(sensors: &mut [SensorReport], z: f64) {
+    // Per estimator, how many sensors sit at each level, and the pooled lag-1 correlation
+    // (counted once: a scan of the others for each failing sensor is quadratic in
+    // thousands of channels).
+    let mut groups: HashMap<String, (usize, HashMap<i32, usize>, Pooled)> = HashMap::new();
     for s in sensors.iter() {
         let g = groups.entry(s.group.clone()).or_default();
         g.0 += 1;
         *g.1.entry(s.level()).or_default() += 1;
+        for c in &s.centred_whiteness {
+            g.2.weighted += c.pairs * c.rho1;
+            g.2.pairs += c.pairs;
+        }
     }
     for s in sensors.iter_mut() {
         if s.verdict.passes() || s.verdict == Verdict::Inconclusive {
@@ -86,6 +128,55 @@ pub(super) fn attribute(sensors: &mut [SensorReport]) {
             });
             continue;
         }
+        if let Some(t) = s.bias_share() {
+            let mut evidence = format!(
+                "mean ν/√S = {} (z = {}, effective samples {})",
+                signed(t.mean),
+                signed(t.z),
+                short(t.n_eff)
+            );
+            if let Some(r) = &s.inconclusive_reason {
+                evidence.push_str(&format!("; the NIS level: {r}"));
+            }
+            s.finding = Some(Finding {
+                component: s.name.clone(),
+                suspect: Some(Suspect::Bias),
+                action: format!(
+                    "the mean innovation carries {:.0} % of E[ν²/S]{}: a sensor offset or an unmodelled constant input, not a scale of Q or R",
+                    100.0 * t.mean_share,
+                    // A scalar channel's component is the channel itself.
+                    if t.component == s.name {
+                        String::new()
+                    } else {
+                        format!(" on {}", t.component)
+                    }
+                ),
+                evidence,
+            });
+            continue;
+        }
+        if let Some(r) = &s.inconclusive_reason {
+            let (_, rho1) = s.gain();
+            let mut evidence = format!(
+                "NIS {} ({} expected, interval [{}, {}] widened for the correlation)",
+                short(s.nis.mean),
+                short(s.nis.target),
+                short(s.nis.interval.lower),
+                short(s.nis.interval.upper)
+            );
+            if let Some(r1) = rho1 {
+                evidence.push_str(&format!(", centred ρ₁ = {r1:+.3}"));
+            }
+            s.finding = Some(Finding {
+                component: s.name.clone(),
+                suspect: None,
+                action: format!(
+                    "{r}: the innovations are strongly correlated, so their level says nothing about Q or R yet"
+                ),
+                evidence,
+            });
+            continue;
+        }
         let lv = s.level();
         let (g, rho1) = s.gain();
         let heavy = s.outliers_verdict == Verdict::Overconfident;
@@ -99,14 +190,14 @@ pub(super) fn attribute(sensors: &mut [SensorReport]) {
             })
             .collect();
         // The other sensors of its estimator: how many, and how many at its level and at 0.
-        let (peers, at_own, at_zero) = match groups.get(&s.group) {
-            Some((n, by_level)) => {
+        let (peers, at_own, at_zero, pooled) = match groups.get(&s.group) {
+            Some((n, by_level, pooled)) => {
                 let count = |l: i32| by_level.get(&l).copied().unwrap_or(0);
                 let own = count(lv).saturating_sub(1);
                 let zero = count(0).saturating_sub(usize::from(lv == 0));
-                (n.saturating_sub(1), own, zero)
+                (n.saturating_sub(1), own, zero, *pooled)
             }
-            None => (0, 0, 0),
+            None => (0, 0, 0, Pooled::default()),
         };
         let (suspect, action) = if heavy && lv <= 0 && g == 0 {
             // Glitches beyond the gate while the core is at or below its target: scaling Q
@@ -152,12 +243,35 @@ pub(super) fn attribute(sensors: &mut [SensorReport]) {
         } else if g == 0 && lv != 0 && peers > 0 {
             let dir = if lv > 0 { "increase" } else { "decrease" };
             if at_own == peers {
-                (
-                    Some(Suspect::Q),
-                    format!(
-                        "{dir} Q (every sensor of this estimator is off the same way, and Q is what they share)"
-                    ),
-                )
+                // Every R off the same way looks like Q in the NIS level: the sign of the
+                // pooled lag-1 correlation tells them apart (see `blame`'s table).
+                let (rho, band) = (pooled.rho(), z / pooled.pairs.max(1.0).sqrt());
+                let words = format!(
+                    "every sensor of this estimator is off the same way; ρ₁ pooled over them = {rho:+.3}, band ±{}",
+                    short(band)
+                );
+                if rho.abs() > band {
+                    let (sus, _) = blame(lv, if rho > 0.0 { 1 } else { -1 });
+                    let why = if rho > 0.0 {
+                        "the innovations persist: the gain is too low"
+                    } else {
+                        "the innovations alternate: the gain is too high"
+                    };
+                    match sus {
+                        Suspect::R => (
+                            Some(Suspect::R),
+                            format!("{dir} every sensor's R ({words}: {why})"),
+                        ),
+                        _ => (Some(Suspect::Q), format!("{dir} Q ({words}: {why})")),
+                    }
+                } else {
+                    (
+                        Some(Suspect::QAndR),
+                        format!(
+                            "{dir} Q or every sensor's R: the data cannot tell which ({words}, not significant)"
+                        ),
+                    )
+                }
             } else if at_zero == peers {
                 (
                     Some(Suspect::R),

@@ -138,6 +138,16 @@ pub(super) struct SensorSums {
     pub inside: usize,
     pub first_time: Option<f64>,
     pub last_time: f64,
+    /// The previous update's time in the current sequence (None after a break).
+    prev_time: Option<f64>,
+    /// Updates whose time is not after the previous update's of the same sequence.
+    pub non_increasing: usize,
+    /// Smallest and largest time seen.
+    pub time_min: f64,
+    pub time_max: f64,
+    /// Where the moving window in seconds started filling; reset when time goes back, so a
+    /// window never spans a jump backwards.
+    window_start: Option<f64>,
     pub comp_sum: Vec<f64>,
     /// Σ ν_j/√S_jj per component over the updates inside the outlier gate (the zero-mean
     /// test's numerator; `comp_n` counts them).
@@ -184,6 +194,11 @@ impl SensorSums {
             inside: 0,
             first_time: None,
             last_time: f64::NAN,
+            prev_time: None,
+            non_increasing: 0,
+            time_min: f64::INFINITY,
+            time_max: f64::NEG_INFINITY,
+            window_start: None,
             comp_sum: vec![0.0; m],
             comp_mean_sum: vec![0.0; m],
             comp_n: vec![0.0; m],
@@ -282,6 +297,7 @@ impl NisAnalyzer {
     /// moving window do not reach across it.
     pub fn break_sequences(&mut self) {
         for s in &mut self.sensors {
+            s.prev_time = None;
             s.ring.clear();
             s.window.clear();
             s.window_nis = 0.0;
@@ -353,6 +369,15 @@ impl NisAnalyzer {
             s.first_time = Some(up.time);
         }
         s.last_time = up.time;
+        if s.prev_time.is_some_and(|t| up.time <= t) {
+            s.non_increasing += 1;
+        }
+        s.prev_time = Some(up.time);
+        if s.window_start.is_none() {
+            s.window_start = Some(up.time);
+        }
+        s.time_min = s.time_min.min(up.time);
+        s.time_max = s.time_max.max(up.time);
         if up.nis >= q.lower && up.nis <= q.upper {
             s.inside += 1;
         }
@@ -411,25 +436,37 @@ impl NisAnalyzer {
         s.dof_sum += up.dof as f64;
         s.mean_sum += q.mean;
         s.var_sum += q.var;
-        // The moving window over gated updates.
+        // The moving window over gated updates. A window in seconds cannot reach across a
+        // jump back in time: it starts afresh there.
+        if matches!(window, Window::Seconds(_)) && s.window.back().is_some_and(|b| up.time < b.0) {
+            s.window.clear();
+            s.window_nis = 0.0;
+            s.window_dof = 0;
+            s.window_start = Some(up.time);
+        }
         s.window.push_back((up.time, up.nis, up.dof));
         s.window_nis += up.nis;
         s.window_dof += up.dof;
-        let full = match window {
-            Window::Updates(n) => {
-                while s.window.len() > n {
-                    evict(s);
+        let full =
+            match window {
+                Window::Updates(n) => {
+                    while s.window.len() > n {
+                        evict(s);
+                    }
+                    s.window.len() == n
                 }
-                s.window.len() == n
-            }
-            Window::Seconds(w) => {
-                while s.window.front().is_some_and(|f| up.time - f.0 > w) {
-                    evict(s);
+                Window::Seconds(w) => {
+                    // A window whose updates all share one time spans no seconds: keeping them
+                    // all would grow without bound on a log whose clock stands still.
+                    while s.window.front().is_some_and(|f| {
+                        up.time - f.0 > w || (f.0 >= up.time && s.window.len() > 1)
+                    }) {
+                        evict(s);
+                    }
+                    // A time window counts once the sensor's data span it.
+                    s.window_start.is_some_and(|t0| up.time - t0 >= w)
                 }
-                // A time window counts once the sensor's data span it.
-                s.first_time.is_some_and(|t0| up.time - t0 >= w)
-            }
-        };
+            };
         let point_window = if full && !s.window.is_empty() {
             let (count, dof, sum) = (s.window.len(), s.window_dof, s.window_nis);
             let avg = sum.max(0.0) / count as f64;

@@ -34,8 +34,8 @@ pub use analysis::{Dropped, MAX_SENSORS, NisAnalyzer, SensorInfo, SeriesPoint, U
 pub use follow::{Follower, Status};
 pub use px4::{EventKind, NotJudged, ParamAdvice, Px4Channel, Px4Event, Px4Info, Px4Instance};
 pub use report::{
-    Histogram, MeanTest, NisAverage, NisReport, NotFused, Overall, SensorPlot, SensorReport,
-    WindowSummary,
+    CentredWhiteness, Histogram, MeanTest, NisAverage, NisReport, NotFused, Overall, SensorPlot,
+    SensorReport, WindowSummary,
 };
 pub use settings::{NisSettings, Window};
 

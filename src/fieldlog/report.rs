@@ -93,6 +93,9 @@ pub struct MeanTest {
     pub samples: f64,
     /// `ū`, in standard deviations of the filter's S.
     pub mean: f64,
+    /// The share of `E[u²]` the mean carries, `ū² / mean(u²)`: near 1 when the innovations
+    /// are mostly an offset (large even where the test cannot be significant).
+    pub mean_share: f64,
     /// The effective sample size after the autocorrelation correction.
     pub n_eff: f64,
     /// The test statistic.
@@ -103,34 +106,45 @@ pub struct MeanTest {
     pub verdict: Verdict,
 }
 
+/// The autocorrelation of component `j` of sensor `s` at lag `l`, centred on the
+/// component's mean over the gated updates, and its pairs; `None` without pairs. Centred,
+/// a bias does not read as correlation: raw, it adds `b²/(1 + b²)` to every lag's ρ.
+fn centred_rho(s: &SensorSums, l: usize, j: usize) -> Option<(f64, f64)> {
+    let m = s.info.components.len();
+    let n = s.comp_n[j];
+    let idx = (l - 1) * m + j;
+    let pairs = s.white_pairs.get(idx).copied().unwrap_or(0.0);
+    if pairs < 1.0 || n < 1.0 {
+        return None;
+    }
+    let mean = s.comp_mean_sum[j] / n;
+    let c = |x: f64| x / pairs - mean * mean;
+    let den = (c(s.white_a2[idx]) * c(s.white_b2[idx])).sqrt();
+    let rho = if den > 0.0 {
+        c(s.white_ab[idx]) / den
+    } else {
+        0.0
+    };
+    Some((rho, pairs))
+}
+
 /// The zero-mean test of component `j` of sensor `s` at `level` (see [`MeanTest`]).
 fn mean_test(s: &SensorSums, j: usize, lags: usize, level: f64) -> Option<MeanTest> {
     let n = s.comp_n[j];
     if n < 2.0 {
         return None;
     }
-    let m = s.info.components.len();
     let mean = s.comp_mean_sum[j] / n;
     let mut factor = 1.0;
     for l in 1..=lags {
-        let idx = (l - 1) * m + j;
-        let pairs = s.white_pairs.get(idx).copied().unwrap_or(0.0);
-        if pairs < 1.0 {
+        let Some((rho, _)) = centred_rho(s, l, j) else {
             continue;
-        }
-        // Centred on the mean: a bias would otherwise add b²/(1 + b²) to every lag's ρ
-        // and shrink n_eff, hiding itself.
-        let c = |x: f64| x / pairs - mean * mean;
-        let den = (c(s.white_a2[idx]) * c(s.white_b2[idx])).sqrt();
-        let rho = if den > 0.0 {
-            c(s.white_ab[idx]) / den
-        } else {
-            0.0
         };
         factor += 2.0 * (1.0 - l as f64 / n).max(0.0) * rho;
     }
     let n_eff = if factor > 0.0 { n / factor } else { n }.clamp(1.0, n);
-    let sd = (s.comp_sum[j] / n - mean * mean).max(1.0).sqrt();
+    let second = s.comp_sum[j] / n;
+    let sd = (second - mean * mean).max(1.0).sqrt();
     let z = mean * n_eff.sqrt() / sd;
     let threshold = statrs::distribution::StudentsT::new(0.0, 1.0, (n_eff - 1.0).max(1.0))
         .map(|d| {
@@ -142,6 +156,11 @@ fn mean_test(s: &SensorSums, j: usize, lags: usize, level: f64) -> Option<MeanTe
         component: s.info.components[j].clone(),
         samples: n,
         mean,
+        mean_share: if second > 0.0 {
+            (mean * mean / second).min(1.0)
+        } else {
+            0.0
+        },
         n_eff,
         z,
         threshold,
@@ -151,6 +170,75 @@ fn mean_test(s: &SensorSums, j: usize, lags: usize, level: f64) -> Option<MeanTe
             Verdict::Consistent
         },
     })
+}
+
+/// The whiteness of one component's innovations centred on their mean: what the decisions
+/// read (the gain's sign in the advice, the effective sample size), while the reported
+/// [`WhitenessStat`]s stay raw, as a white filter's are defined.
+#[derive(Debug, Clone, Serialize)]
+pub struct CentredWhiteness {
+    /// Component name.
+    pub component: String,
+    /// Centred lag-1 autocorrelation.
+    pub rho1: f64,
+    /// Its band at α for a white sequence, `z_{1−α/2}/√pairs`.
+    pub band: f64,
+    /// Lag-1 pairs.
+    pub pairs: f64,
+    /// The centred portmanteau `Σ_l pairs_l ρ_l²` over the lags with pairs.
+    pub statistic: f64,
+    /// Its threshold at the test level.
+    pub threshold: f64,
+    /// Whether the portmanteau rejects whiteness at the test level.
+    pub not_white: bool,
+    /// The variance factor of the average of `u²` over the log,
+    /// `1 + 2 Σ_l (1 − l/n) ρ_l²` (for Gaussian u the lag-l correlation of u² is ρ_l²);
+    /// 1 where the portmanteau does not reject, so a white log's intervals stay exact.
+    pub square_factor: f64,
+}
+
+/// The centred whiteness of component `j` of `s` over `lags` at `level`, with `z` the
+/// band's quantile; `None` without lag-1 pairs.
+fn centred_whiteness(
+    s: &SensorSums,
+    j: usize,
+    lags: usize,
+    level: f64,
+    z: f64,
+) -> Option<CentredWhiteness> {
+    let (rho1, pairs) = centred_rho(s, 1, j)?;
+    let n = s.comp_n[j];
+    let (mut statistic, mut dof, mut factor) = (0.0, 0usize, 1.0);
+    for l in 1..=lags {
+        let Some((rho, p)) = centred_rho(s, l, j) else {
+            continue;
+        };
+        statistic += p * rho * rho;
+        dof += 1;
+        factor += 2.0 * (1.0 - l as f64 / n).max(0.0) * rho * rho;
+    }
+    let threshold = crate::stats::chi2_inv(1.0 - level, dof as f64);
+    let not_white = statistic > threshold;
+    Some(CentredWhiteness {
+        component: s.info.components[j].clone(),
+        rho1,
+        band: z / pairs.sqrt(),
+        pairs,
+        statistic,
+        threshold,
+        not_white,
+        square_factor: if not_white { factor } else { 1.0 },
+    })
+}
+
+/// `n_eff` in words: a whole number below 10, else two significant digits.
+fn about(n: f64) -> String {
+    if n < 10.0 {
+        format!("{:.0}", n.max(1.0))
+    } else {
+        let mag = 10f64.powi(n.log10().floor() as i32 - 1);
+        format!("{:.0}", (n / mag).round() * mag)
+    }
 }
 
 /// Everything `autotune nis` says about one sensor.
@@ -195,6 +283,16 @@ pub struct SensorReport {
     pub whiteness_tests: Vec<WhitenessTest>,
     /// The zero-mean test of each component (a log with components), at the test level.
     pub mean_tests: Vec<MeanTest>,
+    /// Each component's whiteness centred on its mean: what the advice and the effective
+    /// sample size read.
+    pub centred_whiteness: Vec<CentredWhiteness>,
+    /// Effective number of independent updates behind the gated NIS average: the gated
+    /// updates divided by the mean of the components' [`CentredWhiteness::square_factor`]
+    /// (the gated count itself when every component is white).
+    pub n_eff: f64,
+    /// Why the NIS average's test could not judge the sensor, when it could not (too few
+    /// independent samples: strongly correlated innovations).
+    pub inconclusive_reason: Option<String>,
     /// The sensor's verdict (all its tests).
     pub verdict: Verdict,
     /// What the evidence blames, when the sensor fails.
@@ -288,6 +386,33 @@ fn gated_interval(level: f64, mean: f64, var: f64, count: f64) -> Interval {
     }
 }
 
+/// What a sensor's time stamps put in doubt, in one line: all one time (zero or not), or
+/// updates that do not come after the one before.
+fn time_warning(s: &SensorSums) -> Option<String> {
+    let n = s.updates;
+    if n < 2 {
+        return None;
+    }
+    let name = &s.info.name;
+    if s.time_min == s.time_max {
+        let t = s.time_min;
+        return Some(format!(
+            "{name}: all {n} updates have time {}: the time axis and time windows are meaningless",
+            if t == 0.0 {
+                "0".to_string()
+            } else {
+                super::advice::short(t)
+            }
+        ));
+    }
+    (s.non_increasing > 0).then(|| {
+        format!(
+            "{name}: {} of {n} updates do not come after the one before (equal or earlier time): the time axis and time windows are unreliable",
+            s.non_increasing
+        )
+    })
+}
+
 /// `P(X ≥ k)` for `X ~ Binomial(n, p)`.
 fn binomial_tail(k: usize, n: usize, p: f64) -> f64 {
     if k == 0 {
@@ -342,7 +467,7 @@ impl NisAnalyzer {
             }
             sensors.push(self.sensor_report(s, level, z, &mut intervals));
         }
-        super::advice::attribute(&mut sensors);
+        super::advice::attribute(&mut sensors, z);
         let (mut n, mut o, mut nis, mut dof, mut mean, mut var) = (0, 0, 0.0, 0.0, 0.0, 0.0);
         for s in &self.sensors {
             n += s.updates;
@@ -422,7 +547,7 @@ impl NisAnalyzer {
             overall,
             verdict,
             suspect,
-            warnings: Vec::new(),
+            warnings: self.sensors.iter().filter_map(time_warning).collect(),
         }
     }
 
@@ -434,13 +559,51 @@ impl NisAnalyzer {
         intervals: &mut HashMap<u64, Interval>,
     ) -> SensorReport {
         let gate = self.settings.gate();
+        let lags = self.settings.lags();
         let k = s.updates;
+        let m = s.info.components.len();
+        let centred: Vec<CentredWhiteness> = (0..m)
+            .filter_map(|j| centred_whiteness(s, j, lags, level, z))
+            .collect();
+        // Strongly correlated innovations carry fewer independent samples than updates: the
+        // NIS average's variance grows by the components' mean factor (independent
+        // components add their sums' variances).
+        let factor = {
+            let f: Vec<f64> = (0..m)
+                .filter(|&j| s.comp_n[j] > 0.0)
+                .map(|j| {
+                    centred
+                        .iter()
+                        .find(|c| c.component == s.info.components[j])
+                        .map_or(1.0, |c| c.square_factor)
+                })
+                .collect();
+            if f.is_empty() {
+                1.0
+            } else {
+                f.iter().sum::<f64>() / f.len() as f64
+            }
+        };
+        let n_eff = s.gated as f64 / factor;
+        let mut inconclusive_reason = None;
         let nis = if s.gated > 0 {
             let count = s.gated as f64;
-            let interval = gated_interval(level, s.mean_sum, s.var_sum, count);
+            let interval = gated_interval(level, s.mean_sum, s.var_sum * factor, count);
             let mean = s.nis_sum / count;
             let mut verdict = interval.classify(mean);
-            if verdict == Verdict::Consistent && !has_power(level, s.dof_sum) {
+            let powered = has_power(level, s.dof_sum / factor);
+            if factor > 1.0 && !powered {
+                let worst = centred
+                    .iter()
+                    .max_by(|a, b| a.square_factor.total_cmp(&b.square_factor));
+                inconclusive_reason = Some(format!(
+                    "not enough independent samples to judge: about {} of {}{}",
+                    about(n_eff),
+                    s.gated,
+                    worst.map_or(String::new(), |w| format!(" (ρ₁ = {:+.2})", w.rho1))
+                ));
+                verdict = Verdict::Inconclusive;
+            } else if verdict == Verdict::Consistent && !powered {
                 verdict = Verdict::Inconclusive;
             }
             NisAverage {
@@ -468,16 +631,29 @@ impl NisAnalyzer {
         } else {
             Verdict::Consistent
         };
-        let m = s.info.components.len();
         let component_stats: Vec<ComponentStat> = if m > 1 {
             (0..m)
                 .filter(|&j| s.comp_n[j] > 0.0)
                 .map(|j| {
                     let n = s.comp_n[j];
-                    let interval = *intervals
-                        .entry(n.to_bits())
-                        .or_insert_with(|| chi2_average_interval(level, n, n));
+                    let f = centred
+                        .iter()
+                        .find(|c| c.component == s.info.components[j])
+                        .map_or(1.0, |c| c.square_factor);
+                    // The average of n u² with variance factor f is χ²(n/f)/(n/f).
+                    let interval = if f > 1.0 {
+                        chi2_average_interval(level, n / f, n / f)
+                    } else {
+                        *intervals
+                            .entry(n.to_bits())
+                            .or_insert_with(|| chi2_average_interval(level, n, n))
+                    };
                     let value = s.comp_sum[j] / n;
+                    let verdict = if f > 1.0 && !has_power(level, n / f) {
+                        Verdict::Inconclusive
+                    } else {
+                        interval.classify(value)
+                    };
                     let mt = mean_test(s, j, self.settings.lags(), level);
                     ComponentStat {
                         mean: s.comp_mean_sum[j] / n,
@@ -488,7 +664,7 @@ impl NisAnalyzer {
                         value,
                         interval,
                         samples: n,
-                        verdict: interval.classify(value),
+                        verdict,
                     }
                 })
                 .collect()
@@ -565,6 +741,9 @@ impl NisAnalyzer {
             whiteness,
             whiteness_tests,
             mean_tests,
+            centred_whiteness: centred,
+            n_eff,
+            inconclusive_reason,
             verdict: combine(&all),
             finding: None,
             px4: None,

@@ -9,6 +9,8 @@ use crate::stats::Verdict;
 
 /// Channels listed by name in the "not fused" line; the JSON lists all.
 const NOT_FUSED_LISTED: usize = 8;
+/// Warnings printed above the table; the JSON has all.
+const WARNINGS_LISTED: usize = 12;
 
 pub(super) fn rho1(s: &SensorReport) -> String {
     s.whiteness
@@ -70,7 +72,7 @@ pub(super) fn dropped(s: &SensorReport) -> String {
 /// The gate's settings in one line.
 pub fn nis_gate_text(r: &NisReport) -> String {
     format!(
-        "gate: α = {} family-wise over {} tests (each at {}); outliers: NIS beyond its {} tail, counted apart; window {}; whiteness lags 1..{}",
+        "gate: α = {} family-wise over {} tests (each at {}); outliers: NIS beyond its {} tail, counted apart (NIS gated: the average without them; NIS all: over every update); window {}; whiteness lags 1..{}",
         r.alpha,
         r.tests,
         fmt_g(r.test_alpha),
@@ -133,6 +135,17 @@ pub fn nis_summary_text(r: &NisReport) -> String {
         let _ = writeln!(o, "warning: {w}");
     }
     let _ = writeln!(o, "{}", nis_gate_text(r));
+    let listed = r.warnings.len().min(WARNINGS_LISTED);
+    for w in &r.warnings[..listed] {
+        let _ = writeln!(o, "warning: {w}");
+    }
+    if r.warnings.len() > listed {
+        let _ = writeln!(
+            o,
+            "warning: {} more in the JSON report",
+            r.warnings.len() - listed
+        );
+    }
     let _ = writeln!(o);
     let inside = format!("in {:.0}%", 100.0 * (1.0 - r.alpha));
     let width = r
@@ -144,10 +157,11 @@ pub fn nis_summary_text(r: &NisReport) -> String {
         .max(6);
     let _ = writeln!(
         o,
-        "{:<width$}  {:>7}  {:>10}  {:>10}  {:<22}  {:>6}  {:>8}  {:>9}  {:>9}  {:>8}  verdict   dropped",
+        "{:<width$}  {:>7}  {:>10}  {:>10}  {:>10}  {:<22}  {:>6}  {:>8}  {:>9}  {:>9}  {:>8}  verdict   dropped",
         "sensor",
         "updates",
-        "NIS avg",
+        "NIS gated",
+        "NIS all",
         "expected",
         "interval",
         inside,
@@ -172,10 +186,11 @@ pub fn nis_summary_text(r: &NisReport) -> String {
         };
         let _ = writeln!(
             o,
-            "{:<width$}  {:>7}  {:>10}  {:>10}  {:<22}  {:>5.1}%  {:>8}  {:>9}  {:>9}  {:>8}  {:<8}  {}",
+            "{:<width$}  {:>7}  {:>10}  {:>10}  {:>10}  {:<22}  {:>5.1}%  {:>8}  {:>9}  {:>9}  {:>8}  {:<8}  {}",
             s.name,
             s.updates,
             fmt_g(s.nis.mean),
+            fmt_g(s.nis_mean_all),
             fmt_g(s.nis.target),
             interval,
             100.0 * s.inside_fraction,
@@ -190,6 +205,11 @@ pub fn nis_summary_text(r: &NisReport) -> String {
             s.verdict.label(),
             dropped(s)
         );
+    }
+    for s in &r.sensors {
+        if let Some(reason) = &s.inconclusive_reason {
+            let _ = writeln!(o, "{}: NIS level not judged: {reason}", s.name);
+        }
     }
     if !r.not_fused.is_empty() {
         let names: Vec<&str> = r
@@ -361,9 +381,12 @@ pub fn nis_junit_xml(r: &NisReport) -> String {
             let _ = writeln!(
                 cases,
                 "    <testcase name=\"{name}\" classname=\"nis\">\n      <skipped message=\"{}\"/>\n    </testcase>",
-                escape(&format!(
-                    "inconclusive: {} updates are too few for the tests to tell a factor-2 error",
-                    s.updates
+                escape(&s.inconclusive_reason.as_ref().map_or_else(
+                    || format!(
+                        "inconclusive: {} updates are too few for the tests to tell a factor-2 error",
+                        s.updates
+                    ),
+                    |r| format!("inconclusive: {r}")
                 ))
             );
             continue;

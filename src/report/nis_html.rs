@@ -11,9 +11,8 @@ use std::fmt::Write;
 use super::html::{escape, figure, head_styled};
 use super::nis::{dropped, mean_cell, nis_gate_text, nis_verdict_line, rho1};
 use super::nis_plots::{
-    NIS_SIZE, TimeAxis, innovation_svg, nis_histogram_svg, nis_series_svg, series_scale,
+    TimeAxis, innovation_svg, nis_histogram_svg, nis_series_svg, nis_whiteness_svg, series_scale,
 };
-use super::plots::whiteness_svg_sized;
 use super::{fmt_g, summary::compact_numbers};
 use crate::fieldlog::{NisReport, SensorReport};
 use crate::stats::Verdict;
@@ -344,7 +343,7 @@ fn sensor_section(o: &mut String, r: &NisReport, axis: &TimeAxis, i: usize, s: &
     } else {
         figure(
             o,
-            &whiteness_svg_sized("innovation autocorrelation", &s.whiteness, NIS_SIZE),
+            &nis_whiteness_svg("innovation autocorrelation", &s.whiteness),
             &whiteness_caption(r, s),
         );
     }

@@ -1,6 +1,5 @@
 //! The plots of `autotune nis`: a sensor's NIS over time, its innovation in its ±√S band,
-//! and its histogram against the χ² density (the autocorrelation is
-//! [`super::plots::whiteness_svg_sized`]).
+//! its histogram against the χ² density and its innovations' autocorrelation.
 //!
 //! Same conventions as [`super::plots`]: black and greys, told apart by fill, dash and
 //! marker; a plot that cannot be drawn becomes a note, never a lost report. The time plots
@@ -22,6 +21,7 @@ mod innovation;
 mod legend;
 mod markers;
 mod scale;
+mod whiteness;
 
 use legend::{LegendItem, Swatch, draw_legend, strip_height};
 use markers::draw_events;
@@ -30,6 +30,7 @@ use scale::finite_positive;
 pub(super) use innovation::{InnovationSummary, innovation_svg};
 pub(super) use markers::TimeAxis;
 pub(super) use scale::{SeriesScale, series_scale};
+pub(super) use whiteness::nis_whiteness_svg;
 
 /// Size of each per-sensor plot: three fit side by side in the report's width.
 pub(super) const NIS_SIZE: (u32, u32) = (440, 300);

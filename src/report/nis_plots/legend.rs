@@ -18,8 +18,12 @@ pub(in crate::report) enum Swatch {
     Line(RGBColor, u32),
     /// A horizontal dashed line (dash, gap, width).
     Dashed(RGBColor, u32, u32, u32),
-    /// A filled triangle, for outliers.
+    /// A filled triangle, for outliers and a series' markers.
     Triangle(RGBColor),
+    /// A large disc, for a series' markers.
+    Disc(RGBColor),
+    /// A cross, for a series' markers.
+    Cross(RGBColor),
     /// A short vertical line (dash, gap — equal dash and gap 0 for solid — and width), for
     /// the time markers.
     Vertical(RGBColor, u32, u32, u32),
@@ -121,6 +125,8 @@ fn draw_swatch(area: &DrawingArea<SVGBackend<'_>, Shift>, s: Swatch, x: i32, y: 
             c.stroke_width(w),
         ))?,
         Swatch::Triangle(c) => area.draw(&TriangleMarker::new((x + 8, y), 5, c.filled()))?,
+        Swatch::Disc(c) => area.draw(&Circle::new((x + 8, y), 4, c.filled()))?,
+        Swatch::Cross(c) => area.draw(&Cross::new((x + 8, y), 4, c.stroke_width(2)))?,
         Swatch::Vertical(c, dash, gap, w) => {
             let line = vec![(x + 8, y - 6), (x + 8, y + 6)];
             if gap == 0 {

@@ -82,7 +82,7 @@ fn innovation_unit(s: &SensorReport) -> &str {
         .iter()
         .map(|p| p.unit.as_str())
         .find(|u| !u.is_empty())
-        .unwrap_or("log units")
+        .unwrap_or("units of the log")
 }
 
 fn verdict_cell(v: Verdict) -> String {

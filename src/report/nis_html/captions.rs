@@ -169,6 +169,13 @@ pub(super) fn innovation_caption(
             fmt_g(v.reach)
         );
     }
+    if v.band_clipped > 0 {
+        let _ = write!(
+            c,
+            " The band of {} (S large while the filter converges, or a gap) is wider than the axis and cut at its edge.",
+            count(v.band_clipped as u64, "update")
+        );
+    }
     c.push_str(&events_sentence(axis));
     c
 }

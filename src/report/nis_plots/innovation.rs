@@ -19,6 +19,9 @@ const BAND2: RGBColor = RGBColor(235, 235, 235);
 /// Quantile of |ν| the y axis reaches at least (besides 2√S): a few far points do not
 /// squash the rest; they are drawn at the edge and counted.
 const REACH_QUANTILE: f64 = 0.99;
+/// Quantile of 2√S the y axis reaches at least, with the margin below.
+const BAND_QUANTILE: f64 = 0.9;
+const BAND_MARGIN: f64 = 1.25;
 
 /// What the innovation plot shows, for its caption.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -31,6 +34,8 @@ pub(in crate::report) struct InnovationSummary {
     pub inside_2: usize,
     /// Beyond the y axis' reach, drawn at its edge.
     pub clipped: usize,
+    /// Updates whose ±2√S band is wider than the y axis (cut at its edge).
+    pub band_clipped: usize,
     /// The y axis' half-range, in the measurement's units.
     pub reach: f64,
 }
@@ -55,14 +60,17 @@ fn samples(plot: &SensorPlot) -> Vec<(f64, f64, f64)> {
 
 fn layers(s: &[(f64, f64, f64)], axis: &TimeAxis) -> (Layers, InnovationSummary) {
     let t = time_range(s.iter().map(|p| p.0), axis);
-    let mut abs: Vec<f64> = s.iter().map(|p| p.1.abs()).collect();
-    abs.sort_by(f64::total_cmp);
-    let q = abs
-        .get(((abs.len() as f64 * REACH_QUANTILE) as usize).min(abs.len().saturating_sub(1)))
-        .copied()
-        .unwrap_or(0.0);
-    let sd_max = s.iter().map(|p| p.2).fold(0.0_f64, f64::max);
-    let reach = match (2.0 * sd_max).max(q) * 1.08 {
+    let quantile = |mut v: Vec<f64>, q: f64| {
+        v.sort_by(f64::total_cmp);
+        v.get(((v.len() as f64 * q) as usize).min(v.len().saturating_sub(1)))
+            .copied()
+            .unwrap_or(0.0)
+    };
+    let q = quantile(s.iter().map(|p| p.1.abs()).collect(), REACH_QUANTILE);
+    // The band's usual width, not its widest: S starts large while the filter converges,
+    // and those first updates must not flatten the rest (their band is clipped at the edge).
+    let band = quantile(s.iter().map(|p| 2.0 * p.2).collect(), BAND_QUANTILE);
+    let reach = match (BAND_MARGIN * band).max(q) * 1.08 {
         r if r.is_finite() && r > 0.0 => r,
         _ => 1.0,
     };
@@ -96,6 +104,7 @@ fn layers(s: &[(f64, f64, f64)], axis: &TimeAxis) -> (Layers, InnovationSummary)
         inside_1: s.iter().filter(|p| p.1.abs() <= p.2).count(),
         inside_2: s.iter().filter(|p| p.1.abs() <= 2.0 * p.2).count(),
         clipped: s.iter().filter(|p| p.1.abs() > reach).count(),
+        band_clipped: s.iter().filter(|p| 2.0 * p.2 > reach).count(),
         reach,
     };
     let layers = Layers {
@@ -227,6 +236,24 @@ mod tests {
             ..SensorPlot::default()
         };
         assert!(innovation_svg("ν", &none, &TimeAxis::plain(), "m").is_none());
+    }
+
+    #[test]
+    fn a_converging_start_does_not_flatten_the_plot() {
+        // √S = 10 over the first 2% of updates, then 0.1.
+        let series: Vec<SeriesPoint> = (0..500)
+            .map(|i| point(i as f64, 0.05, if i < 10 { 10.0 } else { 0.1 }))
+            .collect();
+        let plot = SensorPlot {
+            series,
+            ..SensorPlot::default()
+        };
+        let (_, s) = innovation_svg("ν", &plot, &TimeAxis::plain(), "m").expect("a plot");
+        assert!(
+            (s.reach - 1.25 * 0.2 * 1.08).abs() < 1e-9,
+            "reach {}",
+            s.reach
+        );
     }
 
     #[test]

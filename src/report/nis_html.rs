@@ -1,19 +1,25 @@
-//! The HTML report of `autotune nis`: the verdict, the summary table and the advice, then per
-//! sensor its NIS over time, its histogram against the χ² density and its innovations'
-//! autocorrelation. Self-contained: inline SVG, no scripts, no network.
+//! The HTML report of `autotune nis`: the verdict and the reader's warnings, the summary
+//! table and the advice, the PX4 estimator section for a PX4 log, then per sensor its NIS
+//! over time, its innovation in the ±√S band, its histogram against the χ² density and its
+//! innovations' autocorrelation. Self-contained: inline SVG, no scripts, no network.
 
 mod captions;
+mod px4;
 
 use std::fmt::Write;
 
 use super::html::{escape, figure, head_styled};
 use super::nis::{dropped, mean_cell, nis_gate_text, nis_verdict_line, rho1};
-use super::nis_plots::{NIS_SIZE, nis_histogram_svg, nis_series_svg, series_scale};
-use super::plots::whiteness_svg_sized;
+use super::nis_plots::{
+    TimeAxis, innovation_svg, nis_histogram_svg, nis_series_svg, nis_whiteness_svg, series_scale,
+};
 use super::{fmt_g, summary::compact_numbers};
 use crate::fieldlog::{NisReport, SensorReport};
 use crate::stats::Verdict;
-use captions::{count, histogram_caption, interval, num, series_caption, short, whiteness_caption};
+use captions::{
+    count, histogram_caption, innovation_caption, interval, num, series_caption, short,
+    whiteness_caption,
+};
 
 /// Channels not fused listed inline; more are folded away.
 const NOT_FUSED_INLINE: usize = 8;
@@ -21,7 +27,63 @@ const NOT_FUSED_INLINE: usize = 8;
 /// Style of this report beyond the common one: a rule between sensors, the plots' width.
 const NIS_STYLE: &str = "section{border-top:1px solid #bbb;margin-top:1.2em}\
 section h3{margin:.5em 0 .2em}.row figure{max-width:440px}td.num{text-align:right}\
-.fail{font-weight:bold}td{white-space:nowrap}";
+.fail{font-weight:bold}td{white-space:nowrap}\
+.warnings{border-left:4px solid #555;padding-left:.6em}td.note{white-space:normal;min-width:14em}";
+
+/// The time axis of the report's plots: the log's own origin and its events for a PX4
+/// log, plain seconds otherwise.
+fn time_axis(r: &NisReport) -> TimeAxis {
+    let mut px4 = px4::infos(r).peekable();
+    if px4.peek().is_none() {
+        return TimeAxis::plain();
+    }
+    let mut events: Vec<_> = px4.flat_map(|(_, p)| p.events.iter().cloned()).collect();
+    events.sort_by(|a, b| a.time.total_cmp(&b.time));
+    TimeAxis::px4(events)
+}
+
+fn warnings(o: &mut String, r: &NisReport) {
+    if r.warnings.is_empty() {
+        return;
+    }
+    o.push_str("<div class=\"warnings\"><p><b>Warnings</b></p><ul>");
+    for w in &r.warnings {
+        let _ = write!(o, "<li>{}</li>", escape(w));
+    }
+    o.push_str("</ul></div>\n");
+}
+
+/// What a PX4 EKF said about the sensor and the parameters to change, under its heading.
+fn px4_lines(o: &mut String, r: &NisReport, s: &SensorReport) {
+    if let Some(c) = &s.px4 {
+        let mut parts: Vec<String> = Vec::new();
+        if !c.source.is_empty() {
+            parts.push(format!("aiding source: {}", c.source));
+        }
+        parts.extend(px4::ekf_line(c));
+        parts.extend(px4::fusion_note(px4::info_for(r), &s.name, c));
+        if !parts.is_empty() {
+            let _ = writeln!(o, "<p>EKF2: {}.</p>", escape(&parts.join("; ")));
+        }
+    }
+    if !s.parameters.is_empty() {
+        let lines: Vec<String> = s
+            .parameters
+            .iter()
+            .map(|p| format!("<code>{}</code>", escape(&p.text)))
+            .collect();
+        let _ = writeln!(o, "<p>EKF2 parameters: {}.</p>", lines.join("; "));
+    }
+}
+
+/// The unit of a sensor's innovations: its noise parameter's, when the advice names one.
+fn innovation_unit(s: &SensorReport) -> &str {
+    s.parameters
+        .iter()
+        .map(|p| p.unit.as_str())
+        .find(|u| !u.is_empty())
+        .unwrap_or("units of the log")
+}
 
 fn verdict_cell(v: Verdict) -> String {
     let class = if v.passes() { "" } else { " class=\"fail\"" };
@@ -208,7 +270,7 @@ fn component_table(o: &mut String, s: &SensorReport) {
     o.push_str("</table>\n");
 }
 
-fn sensor_section(o: &mut String, r: &NisReport, i: usize, s: &SensorReport) {
+fn sensor_section(o: &mut String, r: &NisReport, axis: &TimeAxis, i: usize, s: &SensorReport) {
     let _ = writeln!(
         o,
         "<section id=\"sensor-{i}\"><h3>{} — {}</h3>",
@@ -254,14 +316,20 @@ fn sensor_section(o: &mut String, r: &NisReport, i: usize, s: &SensorReport) {
             escape(&compact_numbers(&f.evidence))
         );
     }
+    px4_lines(o, r, s);
     component_table(o, s);
     o.push_str("<div class=\"row\">");
+    let axis = axis.for_sensor(&s.name);
     let scale = series_scale(&s.plot, s.nis.target);
     figure(
         o,
-        &nis_series_svg("NIS over time", &s.plot, s.nis.target, &scale),
-        &series_caption(r, s, &scale),
+        &nis_series_svg("NIS over time", &s.plot, s.nis.target, &scale, &axis),
+        &series_caption(r, s, &scale, &axis),
     );
+    let unit = innovation_unit(s);
+    if let Some((svg, summary)) = innovation_svg("innovation and ±√S", &s.plot, &axis, unit) {
+        figure(o, &svg, &innovation_caption(s, &summary, unit, &axis));
+    }
     match &s.plot.histogram {
         Some(h) => figure(
             o,
@@ -275,7 +343,7 @@ fn sensor_section(o: &mut String, r: &NisReport, i: usize, s: &SensorReport) {
     } else {
         figure(
             o,
-            &whiteness_svg_sized("innovation autocorrelation", &s.whiteness, NIS_SIZE),
+            &nis_whiteness_svg("innovation autocorrelation", &s.whiteness),
             &whiteness_caption(r, s),
         );
     }
@@ -308,6 +376,7 @@ pub fn nis_html(report: &NisReport) -> String {
         "<p class=\"verdict\">{}</p>",
         escape(&capitalized(&nis_verdict_line(r)))
     );
+    warnings(&mut o, r);
     let _ = writeln!(o, "<p>{}.</p>", escape(&capitalized(&nis_gate_text(r))));
     sources(&mut o, r);
     o.push_str("<h2>Sensors</h2>\n");
@@ -319,8 +388,10 @@ pub fn nis_html(report: &NisReport) -> String {
     not_fused(&mut o, r);
     overall(&mut o, r);
     advice(&mut o, r);
+    px4::section(&mut o, r);
+    let axis = time_axis(r);
     for (i, s) in r.sensors.iter().enumerate() {
-        sensor_section(&mut o, r, i, s);
+        sensor_section(&mut o, r, &axis, i, s);
     }
     let _ = writeln!(
         o,

@@ -1,8 +1,10 @@
-//! The plots of `autotune nis`: a sensor's NIS over time and its histogram against the χ²
-//! density (the autocorrelation is [`super::plots::whiteness_svg_sized`]).
+//! The plots of `autotune nis`: a sensor's NIS over time, its innovation in its ±√S band,
+//! its histogram against the χ² density and its innovations' autocorrelation.
 //!
 //! Same conventions as [`super::plots`]: black and greys, told apart by fill, dash and
-//! marker; a plot that cannot be drawn becomes a note, never a lost report.
+//! marker; a plot that cannot be drawn becomes a note, never a lost report. The time plots
+//! share one x axis ([`TimeAxis`]: the log's own time origin and its events as vertical
+//! lines), and every legend sits in a strip under its plot, never over the data.
 
 use std::collections::HashSet;
 
@@ -12,13 +14,23 @@ use plotters::coord::types::RangedCoordf64;
 use plotters::prelude::*;
 use statrs::distribution::{ChiSquared, Continuous};
 
-use super::plots::{BAND, Drawn, FONT, MID, chart_builder, legend_sized, render_sized};
+use super::plots::{BAND, Drawn, FONT, MID, chart_builder, render_sized};
 use crate::fieldlog::{Histogram, SensorPlot};
 
+mod innovation;
+mod legend;
+mod markers;
 mod scale;
+mod whiteness;
 
+use legend::{LegendItem, Swatch, draw_legend, strip_height};
+use markers::draw_events;
 use scale::finite_positive;
+
+pub(super) use innovation::{InnovationSummary, innovation_svg};
+pub(super) use markers::TimeAxis;
 pub(super) use scale::{SeriesScale, series_scale};
+pub(super) use whiteness::nis_whiteness_svg;
 
 /// Size of each per-sensor plot: three fit side by side in the report's width.
 pub(super) const NIS_SIZE: (u32, u32) = (440, 300);
@@ -27,8 +39,6 @@ const POINT: RGBColor = RGBColor(140, 140, 140);
 /// Grid on which the per-update points are thinned: one point per cell is drawn, and a
 /// cell is about two pixels of the plot area, a dot's width.
 const CELLS: (f64, f64) = (NIS_SIZE.0 as f64 * 0.42, NIS_SIZE.1 as f64 * 0.37);
-/// The share of the plot's width and height the legend covers.
-const LEGEND: (f64, f64) = (0.45, 0.45);
 
 /// The points and lines of a NIS-over-time plot, in display values.
 struct SeriesLayers {
@@ -38,27 +48,33 @@ struct SeriesLayers {
     bands: Vec<Vec<(f64, f64)>>,
     outliers: Vec<(f64, f64)>,
     target: Option<f64>,
-    /// Where the legend hides the least.
-    corner: SeriesLabelPosition,
+}
+
+/// The time range of a plot: its points' times widened to the axis' events.
+fn time_range(times: impl Iterator<Item = f64>, axis: &TimeAxis) -> (f64, f64) {
+    let (t0, t1) = times
+        .filter(|t| t.is_finite())
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), t| {
+            (a.min(t), b.max(t))
+        });
+    if t0.is_finite() {
+        axis.span((t0, t1))
+    } else if axis.events.is_empty() {
+        (0.0, 1.0)
+    } else {
+        axis.span((axis.events[0].time, axis.events[0].time))
+    }
 }
 
 impl SeriesLayers {
-    fn new(plot: &SensorPlot, target: f64, scale: &SeriesScale) -> Self {
+    fn new(plot: &SensorPlot, target: f64, scale: &SeriesScale, axis: &TimeAxis) -> Self {
         let y = |v: f64| scale.display(v);
         let times = plot
             .series
             .iter()
             .map(|p| p.t)
-            .chain(plot.outliers.iter().map(|o| o.0))
-            .filter(|t| t.is_finite());
-        let (t0, t1) = times.fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), t| {
-            (a.min(t), b.max(t))
-        });
-        let t = match (t0.is_finite(), t1 > t0) {
-            (true, true) => (t0, t1),
-            (true, false) => (t0 - 0.5, t0 + 0.5),
-            _ => (0.0, 1.0),
-        };
+            .chain(plot.outliers.iter().map(|o| o.0));
+        let t = time_range(times, axis);
         let (ylo, yhi) = if scale.log {
             (scale.floor.ln(), scale.top.ln())
         } else {
@@ -114,72 +130,34 @@ impl SeriesLayers {
             .filter(|o| o.0.is_finite() && o.1.is_finite())
             .map(|o| (o.0, y(o.1)))
             .collect();
-        let mut layers = SeriesLayers {
+        SeriesLayers {
             t,
             points,
             averages,
             bands,
             outliers,
             target: finite_positive(target).map(y),
-            corner: SeriesLabelPosition::UpperRight,
-        };
-        let at = |(tv, v): (f64, f64)| {
-            let yv = if scale.log { v.ln() } else { v };
-            ((tv - t.0) / (t.1 - t.0), (yv - ylo) / (yhi - ylo))
-        };
-        layers.corner = layers.emptiest_corner(at);
-        layers
+        }
     }
 
-    /// The corner whose legend-sized box covers the least: the points and the target line
-    /// count once, the average and band edges three times, outliers most.
-    fn emptiest_corner(&self, at: impl Fn((f64, f64)) -> (f64, f64)) -> SeriesLabelPosition {
-        let mut weighted: Vec<((f64, f64), f64)> = Vec::new();
-        weighted.extend(self.points.iter().map(|&p| (at(p), 1.0)));
-        for line in self.averages.iter().chain(&self.bands) {
-            weighted.extend(line.iter().map(|&p| (at(p), 3.0)));
+    /// The legend of the layers drawn, then of the axis' events.
+    fn legend(&self, axis: &TimeAxis) -> Vec<LegendItem> {
+        let mut items = Vec::new();
+        if !self.bands.is_empty() {
+            items.push(LegendItem::new("window interval", Swatch::Fill(BAND)));
         }
-        weighted.extend(self.outliers.iter().map(|&p| (at(p), 5.0)));
-        if let Some(target) = self.target {
-            weighted.extend((0..=40).map(|i| {
-                let tv = self.t.0 + (self.t.1 - self.t.0) * f64::from(i) / 40.0;
-                (at((tv, target)), 1.0)
-            }));
+        items.push(LegendItem::new("NIS of an update", Swatch::Dot(POINT)));
+        if !self.averages.is_empty() {
+            items.push(LegendItem::new("window average", Swatch::Line(BLACK, 2)));
         }
-        let corners = [
-            (SeriesLabelPosition::UpperRight, true, true),
-            (SeriesLabelPosition::UpperLeft, false, true),
-            (SeriesLabelPosition::LowerRight, true, false),
-            (SeriesLabelPosition::LowerLeft, false, false),
-        ];
-        let cover = |right: bool, upper: bool| {
-            weighted
-                .iter()
-                .filter(|((x, y), _)| {
-                    (if right {
-                        *x > 1.0 - LEGEND.0
-                    } else {
-                        *x < LEGEND.0
-                    }) && (if upper {
-                        *y > 1.0 - LEGEND.1
-                    } else {
-                        *y < LEGEND.1
-                    })
-                })
-                .map(|p| p.1)
-                .sum::<f64>()
-        };
-        corners
-            .into_iter()
-            .map(|(c, right, upper)| (c, cover(right, upper)))
-            .fold(
-                None,
-                |best: Option<(SeriesLabelPosition, f64)>, (c, w)| match best {
-                    Some((_, bw)) if bw <= w => best,
-                    _ => Some((c, w)),
-                },
-            )
-            .map_or(SeriesLabelPosition::UpperRight, |b| b.0)
+        if self.target.is_some() {
+            items.push(LegendItem::new("expected", Swatch::Dashed(MID, 6, 4, 2)));
+        }
+        if !self.outliers.is_empty() {
+            items.push(LegendItem::new("outlier", Swatch::Triangle(BLACK)));
+        }
+        items.extend(axis.legend());
+        items
     }
 }
 
@@ -200,18 +178,38 @@ fn thin(line: Vec<(f64, f64)>, pixel: impl Fn(&(f64, f64)) -> (i64, i64)) -> Vec
     kept
 }
 
+/// Draws a plot of `NIS_SIZE` with `items` as its legend in a strip under it.
+fn render_with_legend(
+    title: &str,
+    items: &[LegendItem],
+    draw: impl FnOnce(&DrawingArea<SVGBackend<'_>, Shift>) -> Drawn,
+) -> String {
+    let strip = strip_height(items, NIS_SIZE.0);
+    render_sized(title, (NIS_SIZE.0, NIS_SIZE.1 + strip), |root| {
+        let (plot, legend) = root.split_vertically(NIS_SIZE.1);
+        draw(&plot)?;
+        draw_legend(&legend, items)
+    })
+}
+
+/// The x-axis tick labels of a time span: whole seconds once it spans ten.
+fn time_decimals((t0, t1): (f64, f64)) -> usize {
+    if t1 - t0 >= 10.0 { 0 } else { 1 }
+}
+
 /// A sensor's NIS over time: each update as a small grey point, the moving-window average
-/// (black line) in its interval (grey band), the target (dashed) and the outliers
-/// (triangles), on the axis `scale` gives.
+/// (black line) in its interval (grey band), the target (dashed), the outliers (triangles)
+/// and the axis' events (vertical lines), on the y axis `scale` gives; the legend under it.
 pub(super) fn nis_series_svg(
     title: &str,
     plot: &SensorPlot,
     target: f64,
     scale: &SeriesScale,
+    axis: &TimeAxis,
 ) -> String {
-    let layers = SeriesLayers::new(plot, target, scale);
-    render_sized(title, NIS_SIZE, |root| {
-        draw_nis_series(root, title, &layers, scale)
+    let layers = SeriesLayers::new(plot, target, scale, axis);
+    render_with_legend(title, &layers.legend(axis), |root| {
+        draw_nis_series(root, title, &layers, scale, axis)
     })
 }
 
@@ -220,9 +218,10 @@ fn draw_nis_series(
     title: &str,
     layers: &SeriesLayers,
     scale: &SeriesScale,
+    axis: &TimeAxis,
 ) -> Drawn {
     let (t0, t1) = layers.t;
-    let decimals = if t1 - t0 >= 10.0 { 0 } else { 1 };
+    let decimals = time_decimals(layers.t);
     let x_fmt = move |x: &f64| format!("{x:.decimals$}");
     let mut builder = chart_builder(root, title, 55);
     if scale.log {
@@ -230,85 +229,69 @@ fn draw_nis_series(
         chart
             .configure_mesh()
             .disable_mesh()
-            .x_desc("time (s)")
+            .x_desc(axis.label.as_str())
             .x_label_formatter(&x_fmt)
             .y_desc("NIS (log scale)")
             .y_label_formatter(&|v| format!("{v:.0e}"))
             .axis_desc_style((FONT, 13))
             .draw()?;
-        draw_nis_layers(&mut chart, layers)
+        draw_nis_layers(&mut chart, layers, axis, (scale.floor, scale.top))
     } else {
         let mut chart = builder.build_cartesian_2d(t0..t1, 0.0..scale.top)?;
         chart
             .configure_mesh()
             .disable_mesh()
-            .x_desc("time (s)")
+            .x_desc(axis.label.as_str())
             .x_label_formatter(&x_fmt)
             .y_desc("NIS")
             .axis_desc_style((FONT, 13))
             .draw()?;
-        draw_nis_layers(&mut chart, layers)
+        draw_nis_layers(&mut chart, layers, axis, (0.0, scale.top))
     }
 }
 
+/// The layers over the axis' events (from `y.0` to `y.1`), drawn over the band so that the
+/// band does not hide them and under the points so that they hide no update.
 fn draw_nis_layers<'a, Y: Ranged<ValueType = f64>>(
     chart: &mut ChartContext<'a, SVGBackend<'a>, Cartesian2d<RangedCoordf64, Y>>,
     layers: &SeriesLayers,
+    axis: &TimeAxis,
+    y: (f64, f64),
 ) -> Drawn {
-    if !layers.bands.is_empty() {
-        chart
-            .draw_series(
-                layers
-                    .bands
-                    .iter()
-                    .map(|b| Polygon::new(b.clone(), BAND.filled())),
-            )?
-            .label("window interval")
-            .legend(|(x, y)| Rectangle::new([(x, y - 5), (x + 16, y + 5)], BAND.filled()));
-    }
-    chart
-        .draw_series(
-            layers
-                .points
-                .iter()
-                .map(|&p| Circle::new(p, 1, POINT.filled())),
-        )?
-        .label("NIS of an update")
-        .legend(|(x, y)| Circle::new((x + 8, y), 2, POINT.filled()));
-    if !layers.averages.is_empty() {
-        chart
-            .draw_series(
-                layers
-                    .averages
-                    .iter()
-                    .map(|a| PathElement::new(a.clone(), BLACK.stroke_width(2))),
-            )?
-            .label("window average")
-            .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], BLACK.stroke_width(2)));
-    }
+    chart.draw_series(
+        layers
+            .bands
+            .iter()
+            .map(|b| Polygon::new(b.clone(), BAND.filled())),
+    )?;
+    draw_events(chart, axis, y)?;
+    chart.draw_series(
+        layers
+            .points
+            .iter()
+            .map(|&p| Circle::new(p, 1, POINT.filled())),
+    )?;
+    chart.draw_series(
+        layers
+            .averages
+            .iter()
+            .map(|a| PathElement::new(a.clone(), BLACK.stroke_width(2))),
+    )?;
     if let Some(target) = layers.target {
-        chart
-            .draw_series(DashedLineSeries::new(
-                vec![(layers.t.0, target), (layers.t.1, target)],
-                6,
-                4,
-                MID.stroke_width(2),
-            ))?
-            .label("expected")
-            .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], MID.stroke_width(2)));
+        chart.draw_series(DashedLineSeries::new(
+            vec![(layers.t.0, target), (layers.t.1, target)],
+            6,
+            4,
+            MID.stroke_width(2),
+        ))?;
     }
-    if !layers.outliers.is_empty() {
-        chart
-            .draw_series(
-                layers
-                    .outliers
-                    .iter()
-                    .map(|&p| TriangleMarker::new(p, 5, BLACK.filled())),
-            )?
-            .label("outlier")
-            .legend(|(x, y)| TriangleMarker::new((x + 8, y), 5, BLACK.filled()));
-    }
-    legend_sized(chart, layers.corner.clone(), 11)
+    chart.draw_series(
+        layers
+            .outliers
+            .iter()
+            .map(|&p| TriangleMarker::new(p, 5, BLACK.filled())),
+    )?;
+    Ok(())
 }
 
 /// Samples of the χ² density drawn across the histogram.
@@ -316,7 +299,14 @@ const CURVE_POINTS: usize = 300;
 
 /// The histogram of a sensor's NIS as a density (bars) against the `χ²(m)` density (line).
 pub(super) fn nis_histogram_svg(title: &str, h: &Histogram) -> String {
-    render_sized(title, NIS_SIZE, |root| draw_histogram(root, title, h))
+    let items = [
+        LegendItem::new(
+            format!("updates ({})", h.counts.iter().sum::<u64>() + h.above),
+            Swatch::Fill(BAND),
+        ),
+        LegendItem::new(format!("χ²({}) density", h.dof), Swatch::Line(BLACK, 2)),
+    ];
+    render_with_legend(title, &items, |root| draw_histogram(root, title, h))
 }
 
 fn draw_histogram(root: &DrawingArea<SVGBackend<'_>, Shift>, title: &str, h: &Histogram) -> Drawn {
@@ -350,7 +340,7 @@ fn draw_histogram(root: &DrawingArea<SVGBackend<'_>, Shift>, title: &str, h: &Hi
         .filter(|p| p.0 >= width / 2.0)
         .map(|p| p.1)
         .fold(0.0_f64, f64::max);
-    let ymax = density.iter().copied().fold(curve_top, f64::max).max(1e-9) * 1.15;
+    let ymax = density.iter().copied().fold(curve_top, f64::max).max(1e-9) * 1.05;
     let mut chart = chart_builder(root, title, 55).build_cartesian_2d(0.0..h.top, 0.0..ymax)?;
     chart
         .configure_mesh()
@@ -363,15 +353,12 @@ fn draw_histogram(root: &DrawingArea<SVGBackend<'_>, Shift>, title: &str, h: &Hi
         let x = i as f64 * width;
         [(x, 0.0), (x + width, d)]
     };
-    chart
-        .draw_series(
-            density
-                .iter()
-                .enumerate()
-                .map(|(i, &d)| Rectangle::new(bar(i, d), BAND.filled())),
-        )?
-        .label(format!("updates ({total:.0})"))
-        .legend(|(x, y)| Rectangle::new([(x, y - 5), (x + 16, y + 5)], BAND.filled()));
+    chart.draw_series(
+        density
+            .iter()
+            .enumerate()
+            .map(|(i, &d)| Rectangle::new(bar(i, d), BAND.filled())),
+    )?;
     chart.draw_series(
         density
             .iter()
@@ -379,12 +366,9 @@ fn draw_histogram(root: &DrawingArea<SVGBackend<'_>, Shift>, title: &str, h: &Hi
             .filter(|(_, d)| **d > 0.0)
             .map(|(i, &d)| Rectangle::new(bar(i, d), MID.stroke_width(1))),
     )?;
-    chart
-        .draw_series(LineSeries::new(
-            curve.into_iter().skip_while(|p| p.1 > ymax),
-            BLACK.stroke_width(2),
-        ))?
-        .label(format!("χ²({}) density", h.dof))
-        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], BLACK.stroke_width(2)));
-    legend_sized(&mut chart, SeriesLabelPosition::UpperRight, 11)
+    chart.draw_series(LineSeries::new(
+        curve.into_iter().skip_while(|p| p.1 > ymax),
+        BLACK.stroke_width(2),
+    ))?;
+    Ok(())
 }

@@ -4,7 +4,8 @@
 use std::fmt::Write;
 
 use super::super::fmt_g;
-use super::super::nis_plots::SeriesScale;
+use super::super::nis_plots::{InnovationSummary, SeriesScale, TimeAxis};
+use crate::fieldlog::EventKind;
 use crate::fieldlog::{NisReport, SensorReport};
 use crate::stats::Verdict;
 
@@ -46,8 +47,42 @@ pub(super) fn interval(s: &SensorReport) -> String {
     }
 }
 
+/// What the vertical lines of a time plot mark, as a sentence (empty without events).
+fn events_sentence(axis: &TimeAxis) -> String {
+    let kinds = [
+        (EventKind::Takeoff, "takeoff (solid)"),
+        (EventKind::Landing, "landing (dashed)"),
+        (
+            EventKind::Aiding,
+            "an aiding source starting or stopping (dotted)",
+        ),
+        (
+            EventKind::Primary,
+            "a switch of the primary instance (long dashes)",
+        ),
+    ];
+    let present: Vec<&str> = kinds
+        .iter()
+        .filter(|(k, _)| axis.events.iter().any(|e| e.kind == *k))
+        .map(|(_, w)| *w)
+        .collect();
+    if present.is_empty() {
+        String::new()
+    } else {
+        format!(
+            " Vertical lines mark {}; the PX4 section lists them.",
+            present.join(", ")
+        )
+    }
+}
+
 /// The caption of the NIS-over-time plot.
-pub(super) fn series_caption(r: &NisReport, s: &SensorReport, scale: &SeriesScale) -> String {
+pub(super) fn series_caption(
+    r: &NisReport,
+    s: &SensorReport,
+    scale: &SeriesScale,
+    axis: &TimeAxis,
+) -> String {
     let mut c = format!(
         "NIS of each update (grey dots{}), its average over a moving window of {} (black line) in the window's {:.0}% interval (grey band), the expected value {} (dashed), outliers beyond the gate (triangles: {}, about {} expected). Consistent: the black line wanders around the dashed one inside the band, and triangles are rare.",
         if s.plot.series.len() < s.updates.saturating_sub(s.outliers) {
@@ -98,6 +133,50 @@ pub(super) fn series_caption(r: &NisReport, s: &SensorReport, scale: &SeriesScal
     if s.window.windows == 0 {
         c.push_str(" The window never filled: no average or band is drawn.");
     }
+    c.push_str(&events_sentence(axis));
+    c
+}
+
+/// The caption of the innovation plot.
+pub(super) fn innovation_caption(
+    s: &SensorReport,
+    v: &InnovationSummary,
+    unit: &str,
+    axis: &TimeAxis,
+) -> String {
+    let share = |k: usize| {
+        if v.points > 0 {
+            format!("{:.0}%", 100.0 * k as f64 / v.points as f64)
+        } else {
+            "–".into()
+        }
+    };
+    let mut c = format!(
+        "Innovation ν of {} ({unit}, black dots, {} updates within the outlier gate) in its own ±√S band (grey) and ±2√S (light grey). Here {} of the points lie inside ±√S and {} inside ±2√S; a consistent filter has about 68% and 95%, centred on zero. A cloud off zero is a bias, points spilling out of the bands an S too small, points hugging zero an S too large.",
+        s.components.first().map_or_else(
+            || "the first component".to_string(),
+            |n| format!("component {n}")
+        ),
+        v.points,
+        share(v.inside_1),
+        share(v.inside_2)
+    );
+    if v.clipped > 0 {
+        let _ = write!(
+            c,
+            " {} beyond ±{} drawn at the edge.",
+            count(v.clipped as u64, "value"),
+            fmt_g(v.reach)
+        );
+    }
+    if v.band_clipped > 0 {
+        let _ = write!(
+            c,
+            " The band of {} (S large while the filter converges, or a gap) is wider than the axis and cut at its edge.",
+            count(v.band_clipped as u64, "update")
+        );
+    }
+    c.push_str(&events_sentence(axis));
     c
 }
 

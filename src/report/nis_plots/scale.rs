@@ -3,13 +3,15 @@
 
 use crate::fieldlog::SensorPlot;
 
-/// Decades the values may span before the NIS axis turns logarithmic.
-const LOG_DECADES: f64 = 3.0;
+/// Decades the values may span before the NIS axis turns logarithmic. A consistent χ²(1)
+/// channel spans about 1.6 (median 0.45 to the outlier gate's 19.5 at 1e-5), so two keep
+/// it linear while a channel whose NIS collapses or explodes by 100× gets a log axis.
+const LOG_DECADES: f64 = 2.0;
 /// How far below the bulk (the median NIS, the lowest window average, the target) a
 /// logarithmic axis reaches; lower values are drawn at its floor.
 const LOG_REACH: f64 = 1e-3;
-/// Room left above the data for the legend, as a share of the axis.
-const HEADROOM: f64 = 0.25;
+/// Room left above the data, as a share of the axis (the legend is under the plot).
+const HEADROOM: f64 = 0.08;
 /// How far above the largest gated value a linear axis reaches for outliers; higher ones
 /// are drawn at the top edge.
 const OUTLIER_REACH: f64 = 1.5;
@@ -17,7 +19,7 @@ const OUTLIER_REACH: f64 = 1.5;
 /// How a sensor's NIS-over-time plot shows its values.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub(in crate::report) struct SeriesScale {
-    /// A logarithmic y axis (the gated values span more than three decades).
+    /// A logarithmic y axis (the gated values span more than two decades).
     pub log: bool,
     /// Bottom of the axis: 0, or on a logarithmic axis the floor lower values are drawn at.
     pub floor: f64,
@@ -51,7 +53,7 @@ pub(super) fn finite_positive(v: f64) -> Option<f64> {
 }
 
 /// The y axis for a sensor's values and its `target` (NaN when unknown): linear unless the
-/// gated values span more than three decades. A linear axis keeps the gated values in view
+/// gated values span more than two decades. A linear axis keeps the gated values in view
 /// and draws far outliers at its top edge; a logarithmic one shows them all and draws
 /// values far below the bulk at its floor.
 pub(in crate::report) fn series_scale(plot: &SensorPlot, target: f64) -> SeriesScale {
@@ -168,6 +170,23 @@ mod tests {
         p.outliers.push((3.0, 1e4));
         let s = series_scale(&p, 1.0);
         assert!(!s.log && s.above == 1 && s.top < 10.0 && s.display(1e4) == s.top);
+        // Issue 23: 2.5 decades between the bulk and the top already call for a log axis;
+        // a consistent χ²(1) channel's 1.6 (median 0.45, largest 18) does not.
+        let spread = |hi: f64, median: f64| SensorPlot {
+            series: (0..101)
+                .map(|i| SeriesPoint {
+                    window: None,
+                    lower: None,
+                    upper: None,
+                    ..point(i as f64, if i % 50 == 0 { hi } else { median })
+                })
+                .collect(),
+            ..SensorPlot::default()
+        };
+        let s = series_scale(&spread(18.0, 0.45), 1.0);
+        assert!(!s.log && (s.decades - (18.0_f64 / 0.45).log10()).abs() < 1e-9);
+        let s = series_scale(&spread(1.0, 10f64.powf(-2.5)), 1.0);
+        assert!(s.log && (s.decades - 2.5).abs() < 1e-9);
         let empty = series_scale(&SensorPlot::default(), f64::NAN);
         assert!(!empty.log && empty.top > 0.0);
     }

@@ -714,7 +714,8 @@ fn issue23_fixtures_read_the_same_with_pyulog() {
 #[ignore]
 fn issue23_write_fixtures_for_inspection() {
     let dir = std::env::var("AUTOTUNE_FIXTURE_DIR").expect("set AUTOTUNE_FIXTURE_DIR");
-    for (bytes, truth) in all_fixtures(1) {
+    let seed = std::env::var("AUTOTUNE_FIXTURE_SEED").map_or(1, |s| s.parse().unwrap());
+    for (bytes, truth) in all_fixtures(seed) {
         let p = Path::new(&dir).join(truth.name);
         std::fs::write(p.with_extension("ulg"), bytes).unwrap();
         std::fs::write(p.with_extension("truth.txt"), format!("{truth:#?}\n")).unwrap();

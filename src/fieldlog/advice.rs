@@ -88,6 +88,9 @@ pub(super) fn attribute(sensors: &mut [SensorReport], z: f64) {
     // (counted once: a scan of the others for each failing sensor is quadratic in
     // thousands of channels).
     let mut groups: HashMap<String, (usize, HashMap<i32, usize>, Pooled)> = HashMap::new();
+    // The axes of one sensor (`ekf1.gnss_pos[0]`, `ekf1.gnss_pos[1]`) share its R: off
+    // together while the other sensors fit, they blame that sensor, not the estimator.
+    let mut families: Families = HashMap::new();
     for s in sensors.iter() {
         let g = groups.entry(s.group.clone()).or_default();
         g.0 += 1;
@@ -96,7 +99,16 @@ pub(super) fn attribute(sensors: &mut [SensorReport], z: f64) {
             g.2.weighted += c.pairs * c.rho1;
             g.2.pairs += c.pairs;
         }
+        let f = families
+            .entry((s.group.clone(), family(&s.name)))
+            .or_default();
+        f.0 += 1;
+        *f.1.entry(s.level()).or_default() += 1;
     }
+    let devs: Vec<(String, String, i32, f64)> = sensors
+        .iter()
+        .map(|s| (s.group.clone(), family(&s.name), s.level(), deviation(s)))
+        .collect();
     for s in sensors.iter_mut() {
         if s.verdict.passes() || s.verdict == Verdict::Inconclusive {
             continue;
@@ -109,6 +121,16 @@ pub(super) fn attribute(sensors: &mut [SensorReport], z: f64) {
             .mean_tests
             .iter()
             .filter(|t| t.verdict == Verdict::Biased && explained)
+            // Persistent innovations (a gain too low: Q too small) wander, and over one log
+            // their mean need not be 0 though nothing is constant; a mean that is a small
+            // share of E[u²] beside them is that wander, not an offset.
+            .filter(|t| {
+                let persistent = s
+                    .centred_whiteness
+                    .iter()
+                    .any(|c| c.component == t.component && c.rho1 > c.band);
+                !(persistent && t.mean_share < WANDER_SHARE)
+            })
             .max_by(|a, b| (a.z.abs() / a.threshold).total_cmp(&(b.z.abs() / b.threshold)))
         {
             s.finding = Some(Finding {
@@ -272,7 +294,7 @@ pub(super) fn attribute(sensors: &mut [SensorReport], z: f64) {
                         ),
                     )
                 }
-            } else if at_zero == peers {
+            } else if off_alone(s, lv, peers, at_zero, &families, &devs) {
                 (
                     Some(Suspect::R),
                     format!("{dir} this sensor's R (the other sensors of this estimator fit)"),
@@ -314,6 +336,55 @@ pub(super) fn attribute(sensors: &mut [SensorReport], z: f64) {
             evidence,
         });
     }
+}
+
+/// Below this share of E[u²], a significant mean of persistent innovations is read as their
+/// wander rather than an offset.
+const WANDER_SHARE: f64 = 0.25;
+
+/// Per (estimator, sensor family): how many sensors, and how many at each level.
+type Families = HashMap<(String, String), (usize, HashMap<i32, usize>)>;
+
+/// Whether sensor `s` (at level `lv`, with `peers` others in its estimator of which
+/// `at_zero` fit) is off alone: no other sensor (its own axes aside) off the same way by
+/// more than a third of its log-ratio, and most of them fit. A Q they share would move them
+/// too, so its own R is blamed; one other sensor failing slightly (1 in 20 do at α) does
+/// not make it shared.
+fn off_alone(
+    s: &SensorReport,
+    lv: i32,
+    peers: usize,
+    at_zero: usize,
+    families: &Families,
+    devs: &[(String, String, i32, f64)],
+) -> bool {
+    let fam = family(&s.name);
+    let axes = families
+        .get(&(s.group.clone(), fam.clone()))
+        .map_or(0, |(n, _)| n.saturating_sub(1));
+    let others = peers.saturating_sub(axes);
+    let dev = deviation(s);
+    let alike = devs
+        .iter()
+        .filter(|(g, f, l, d)| *g == s.group && *f != fam && *l == lv && *d > dev / 3.0)
+        .count();
+    others > 0 && alike == 0 && at_zero * 2 >= others && at_zero > 0
+}
+
+/// How far a sensor's gated NIS average is from its target, `|ln(mean / target)|` (0 when
+/// either is not a positive number).
+fn deviation(s: &SensorReport) -> f64 {
+    let r = s.nis.mean / s.nis.target;
+    if r.is_finite() && r > 0.0 {
+        r.ln().abs()
+    } else {
+        0.0
+    }
+}
+
+/// A sensor's family: its name without the axis index (`ekf1.gnss_pos[0]` → `ekf1.gnss_pos`).
+fn family(name: &str) -> String {
+    name.split('[').next().unwrap_or(name).to_string()
 }
 
 /// `v` in 4 significant digits with its sign.

@@ -128,6 +128,25 @@ fn centred_rho(s: &SensorSums, l: usize, j: usize) -> Option<(f64, f64)> {
     Some((rho, pairs))
 }
 
+/// The part of `2 Σ_l (1 − l/n) r_l` past the last lag `l_max` measured, for a correlation
+/// `r_last` there that goes on decaying like an AR(1) of lag-1 correlation `rho1`: 0 unless
+/// both are positive. At ρ₁ = 0.98 the first ten lags hold only a fifth of the sum, and a
+/// truncated sum would count five times the independent samples there are.
+fn ar1_tail(l_max: usize, r_last: f64, rho1: f64, n: f64) -> f64 {
+    if !(rho1 > 0.0 && rho1 < 1.0 && r_last > 0.0) {
+        return 0.0;
+    }
+    let (mut tail, mut r) = (0.0, r_last);
+    for l in l_max + 1..(n as usize) {
+        r *= rho1;
+        if r < 1e-4 {
+            break;
+        }
+        tail += 2.0 * (1.0 - l as f64 / n) * r;
+    }
+    tail
+}
+
 /// The zero-mean test of component `j` of sensor `s` at `level` (see [`MeanTest`]).
 fn mean_test(s: &SensorSums, j: usize, lags: usize, level: f64) -> Option<MeanTest> {
     let n = s.comp_n[j];
@@ -136,11 +155,16 @@ fn mean_test(s: &SensorSums, j: usize, lags: usize, level: f64) -> Option<MeanTe
     }
     let mean = s.comp_mean_sum[j] / n;
     let mut factor = 1.0;
+    let mut last = None;
     for l in 1..=lags {
         let Some((rho, _)) = centred_rho(s, l, j) else {
             continue;
         };
         factor += 2.0 * (1.0 - l as f64 / n).max(0.0) * rho;
+        last = Some((l, rho));
+    }
+    if let (Some((l_max, r_last)), Some((rho1, _))) = (last, centred_rho(s, 1, j)) {
+        factor += ar1_tail(l_max, r_last, rho1, n);
     }
     let n_eff = if factor > 0.0 { n / factor } else { n }.clamp(1.0, n);
     let second = s.comp_sum[j] / n;
@@ -192,7 +216,9 @@ pub struct CentredWhiteness {
     /// Whether the portmanteau rejects whiteness at the test level.
     pub not_white: bool,
     /// The variance factor of the average of `u²` over the log,
-    /// `1 + 2 Σ_l (1 − l/n) ρ_l²` (for Gaussian u the lag-l correlation of u² is ρ_l²);
+    /// `1 + 2 Σ_l (1 − l/n) ρ²_l` with `ρ²_l` the lag-l correlation of u² (for Gaussian u
+    /// of mean b and variance σ², `(2σ²ρ_l² + 4b²ρ_l)/(2σ² + 4b²)`), continued past the last
+    /// lag as an AR(1) with the lag-1 ρ;
     /// 1 where the portmanteau does not reject, so a white log's intervals stay exact.
     pub square_factor: f64,
 }
@@ -208,14 +234,28 @@ fn centred_whiteness(
 ) -> Option<CentredWhiteness> {
     let (rho1, pairs) = centred_rho(s, 1, j)?;
     let n = s.comp_n[j];
+    // For Gaussian u of mean b and variance σ², the lag-l correlation of u² is
+    // (2σ²ρ_l² + 4b²ρ_l) / (2σ² + 4b²): ρ_l² without a bias, but ρ_l itself when the bias
+    // dominates (then the NIS average moves with the slow wander of u, not its square).
+    let b = s.comp_mean_sum[j] / n;
+    let var = (s.comp_sum[j] / n - b * b).max(f64::MIN_POSITIVE);
+    let square_rho =
+        |rho: f64| (2.0 * var * rho * rho + 4.0 * b * b * rho) / (2.0 * var + 4.0 * b * b);
     let (mut statistic, mut dof, mut factor) = (0.0, 0usize, 1.0);
+    let mut last = None;
     for l in 1..=lags {
         let Some((rho, p)) = centred_rho(s, l, j) else {
             continue;
         };
         statistic += p * rho * rho;
         dof += 1;
-        factor += 2.0 * (1.0 - l as f64 / n).max(0.0) * rho * rho;
+        factor += 2.0 * (1.0 - l as f64 / n).max(0.0) * square_rho(rho);
+        last = Some((l, square_rho(rho)));
+    }
+    // Past the last lag, a correlation that decays like the lag-1 one's (an AR(1) tail):
+    // at ρ₁ = 0.98 the lags up to 10 hold only a fifth of the sum.
+    if let Some((l_max, r_last)) = last {
+        factor += ar1_tail(l_max, r_last, rho1, n);
     }
     let threshold = crate::stats::chi2_inv(1.0 - level, dof as f64);
     let not_white = statistic > threshold;

@@ -76,11 +76,13 @@ fn px4_lines(o: &mut String, r: &NisReport, s: &SensorReport) {
     }
 }
 
-/// The unit of a sensor's innovations: its noise parameter's, when the advice names one.
+/// The unit of a sensor's innovations: its noise parameter's (PX4), when known.
 fn innovation_unit(s: &SensorReport) -> &str {
-    s.parameters
-        .iter()
-        .map(|p| p.unit.as_str())
+    s.px4
+        .as_ref()
+        .and_then(|p| p.unit.as_deref())
+        .into_iter()
+        .chain(s.parameters.iter().map(|p| p.unit.as_str()))
         .find(|u| !u.is_empty())
         .unwrap_or("units of the log")
 }

@@ -74,15 +74,15 @@ fn advise(s: &SensorReport, info: &Px4Info) -> Vec<ParamAdvice> {
                 .iter()
                 .map(|(p, unit)| {
                     let value = info.params.get(*p).copied();
-                    let now = value.map_or("not in the log".to_string(), |v| format!("{} {unit}", sig3(v)));
+                    let now = value.map_or("not in the log".to_string(), |v| {
+                        format!("{} {unit}", sig3(v))
+                    });
                     ParamAdvice {
                         param: p.to_string(),
                         unit: unit.to_string(),
                         value,
                         suggested: None,
-                        text: format!(
-                            "{dir} {p} (now {now}); the NIS says which way, not how far: change it in steps and judge the next log"
-                        ),
+                        text: format!("{dir} {p} (now {now})"),
                     }
                 })
                 .collect()
@@ -120,6 +120,14 @@ pub(in crate::fieldlog) fn annotate(report: &mut NisReport) {
         if let (Some(f), false) = (&mut s.finding, params.is_empty()) {
             let words: Vec<&str> = params.iter().map(|p| p.text.as_str()).collect();
             f.action = format!("{}: {}", f.action, words.join("; "));
+            if params
+                .iter()
+                .all(|p| p.suggested.is_none() && p.value.is_some())
+                && f.suspect == Some(Suspect::Q)
+            {
+                // The NIS gives the direction of Q, not its size (that needs the states).
+                f.action.push_str(", in steps, judging each next log");
+            }
         }
         s.parameters = params;
     }

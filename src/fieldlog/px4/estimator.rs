@@ -104,6 +104,18 @@ impl Flags {
         (i > 0).then(|| self.rows[i - 1].1)
     }
 
+    /// Seconds a channel of `source` was active from the first status row to `end` (µs).
+    pub fn active_seconds(&self, source: &Source, end: u64) -> f64 {
+        let mut total = 0.0;
+        for (k, &(t, f)) in self.rows.iter().enumerate() {
+            let next = self.rows.get(k + 1).map_or(end, |r| r.0).min(end);
+            if next > t && judged_under(source, Some(f), self.has_fake) == Status::Active {
+                total += (next - t) as f64 * 1e-6;
+            }
+        }
+        total
+    }
+
     /// When each flag of `mask` turns on or off: (time µs, flag name, on).
     pub fn changes(&self, mask: u64) -> Vec<(u64, &'static str, bool)> {
         let mut out = Vec::new();
@@ -337,7 +349,7 @@ pub(super) fn publisher(read: &Read, legacy: bool) -> Result<(String, String), S
         return Ok(("EKF2".into(), format!("the log has {EKF2_TIMESTAMPS}")));
     }
     match group {
-        Some((p, v)) if v == 2.0 => Ok(("EKF2".into(), format!("{p} = 2"))),
+        Some((p, 2.0)) => Ok(("EKF2".into(), format!("{p} = 2"))),
         Some((p, v)) => {
             let who = match v as i64 {
                 0 => "INAV",

@@ -118,4 +118,6 @@ pub struct Px4Channel {
     pub mean_r: Option<f64>,
     /// The EKF2 parameter setting this channel's measurement noise, when known.
     pub noise_param: Option<String>,
+    /// The measurement's unit (that parameter's), e.g. `m`.
+    pub unit: Option<String>,
 }

@@ -53,7 +53,9 @@ use read::{AID_SRC, INNOVATIONS, LAND, LEGACY, Read, SELECTOR, TEST_RATIOS, Topi
 /// Largest gap between an innovations row and the variances row it is paired with, µs.
 const PAIR_WITHIN_US: u64 = 50_000;
 /// Updates with one bit-identical variance beyond which the "variance" is a constant R,
-/// not an innovation variance (EKF2's S moves with P on every fusion).
+/// not an innovation variance, in a log whose publisher is not confirmed. (EKF2's S moves
+/// with P, but not always in float32: a real v1.15 log's gravity[2] variance is exactly 1
+/// on every row, so a log known to be EKF2's is not held to this.)
 const CONSTANT_VARIANCE_UPDATES: usize = 20;
 
 /// Whether the vehicle is in the air at `t` (µs): the latest land-detector row at or
@@ -174,6 +176,8 @@ struct Ctx<'a> {
     land: Vec<(u64, bool)>,
     origin: u64,
     rates: BTreeMap<&'static str, f64>,
+    /// No parameter or topic confirms that EKF2 published the innovations.
+    publisher_assumed: bool,
 }
 
 impl Ctx<'_> {
@@ -302,7 +306,7 @@ fn judge_channel(
         });
         return Ok(());
     }
-    if n >= CONSTANT_VARIANCE_UPDATES && sorted.same_variance == n {
+    if ctx.publisher_assumed && n >= CONSTANT_VARIANCE_UPDATES && sorted.same_variance == n {
         info.not_judged.push(NotJudged {
             name: full,
             reason: format!(
@@ -344,7 +348,13 @@ fn judge_channel(
     let sampled =
         source_hz.is_some_and(|s| logged_hz > 0.0 && logged_hz < 0.9 * s) && repeats * 20 <= n;
     let heading_source = None;
-    let noise_param = ekf2::noise_param(base, heading_source).map(|(p, _)| p.to_string());
+    let param = ekf2::noise_param(base, heading_source);
+    // EKF2 logs one test ratio for a horizontal pair, in its first element: a channel whose
+    // ratios are all exactly 0 has none of its own.
+    if sorted.ratios.iter().all(|r| *r == 0.0) {
+        sorted.ratios.clear();
+        sorted.gates.clear();
+    }
     let ratios = &sorted.ratios;
     info.channels.push(Px4Channel {
         name: full,
@@ -366,7 +376,8 @@ fn judge_channel(
         },
         mean_r: (!sorted.obs_vars.is_empty())
             .then(|| sorted.obs_vars.iter().sum::<f64>() / sorted.obs_vars.len() as f64),
-        noise_param,
+        noise_param: param.map(|(p, _)| p.to_string()),
+        unit: param.map(|(_, u)| u.to_string()),
     });
     Ok(())
 }
@@ -391,37 +402,37 @@ fn read_innovations(
     legacy: bool,
 ) -> Result<usize, FileError> {
     let read = ctx.read;
-    let (channels, pairing, var_topic): (Vec<Channel>, Vec<Option<(usize, bool)>>, &Topic) =
-        if legacy {
-            let pairing = (0..topic.times.len()).map(|r| Some((r, true))).collect();
-            (legacy_channels(&topic.names), pairing, topic)
-        } else {
-            let Some(vt) = read.topics.get(&(VARIANCES.to_string(), inst)) else {
-                source_out.notes.push(format!(
-                    "ekf{inst}: {INNOVATIONS} without {VARIANCES}: skipped"
-                ));
-                return Ok(0);
-            };
-            let var_at = columns(&vt.names);
-            let channels = topic
-                .names
-                .iter()
-                .enumerate()
-                .filter_map(|(i, n)| {
-                    var_at.get(n.as_str()).map(|&v| {
-                        let (base, idx) = split_index(n);
-                        Channel {
-                            name: n.clone(),
-                            innov: i,
-                            var: v,
-                            base,
-                            idx,
-                        }
-                    })
-                })
-                .collect();
-            (channels, pair(&topic.times, &vt.times), vt)
+    type Pairing = Vec<Option<(usize, bool)>>;
+    let (channels, pairing, var_topic): (Vec<Channel>, Pairing, &Topic) = if legacy {
+        let pairing = (0..topic.times.len()).map(|r| Some((r, true))).collect();
+        (legacy_channels(&topic.names), pairing, topic)
+    } else {
+        let Some(vt) = read.topics.get(&(VARIANCES.to_string(), inst)) else {
+            source_out.notes.push(format!(
+                "ekf{inst}: {INNOVATIONS} without {VARIANCES}: skipped"
+            ));
+            return Ok(0);
         };
+        let var_at = columns(&vt.names);
+        let channels = topic
+            .names
+            .iter()
+            .enumerate()
+            .filter_map(|(i, n)| {
+                var_at.get(n.as_str()).map(|&v| {
+                    let (base, idx) = split_index(n);
+                    Channel {
+                        name: n.clone(),
+                        innov: i,
+                        var: v,
+                        base,
+                        idx,
+                    }
+                })
+            })
+            .collect();
+        (channels, pair(&topic.times, &vt.times), vt)
+    };
     let ratio_topic = read.topics.get(&(TEST_RATIOS.to_string(), inst));
     let ratio_rows = ratio_topic.map(|t| pair(&topic.times, &t.times));
     let ratio_cols = ratio_topic.map(|t| columns(&t.names));
@@ -489,9 +500,15 @@ fn read_innovations(
             })
             .collect();
         let sorted = sort_rows(ctx, &rows, &source, flags.as_ref());
+        let judged = info.channels.len();
         judge_channel(
             ctx, path, an, info, inst, &ch.name, &ch.base, &source, logged_hz, sorted,
         )?;
+        if let (Some(c), Some(f), Some(&end)) =
+            (info.channels.get_mut(judged), &flags, topic.times.iter().max())
+        {
+            c.active_s = Some(f.active_seconds(&source, end));
+        }
     }
     Ok(pairing.len())
 }
@@ -780,6 +797,7 @@ pub(super) fn read(
         land,
         origin: read.header_us,
         rates: estimator::source_rates(&read),
+        publisher_assumed: evidence.starts_with("assumed"),
     };
     let mut info = Px4Info {
         version: read.release.map(estimator::version),
@@ -795,6 +813,7 @@ pub(super) fn read(
         ..Px4Info::default()
     };
     let mut numbers: Vec<u8> = instances.iter().map(|x| x.0).collect();
+    numbers.sort_unstable();
     numbers.dedup();
     for &inst in &numbers {
         let has = |k: &str| instances.iter().any(|x| x.0 == inst && x.1 == k);

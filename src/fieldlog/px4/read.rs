@@ -73,6 +73,8 @@ impl Topic {
 #[derive(Debug, Default)]
 pub(super) struct Read {
     pub topics: BTreeMap<(String, u8), Topic>,
+    /// Rows kept of every topic read.
+    pub kept: usize,
     /// (rows, first, last timestamp µs) of the sensors' own topics, by name.
     pub sources: BTreeMap<String, (usize, u64, u64)>,
     pub rows: usize,
@@ -196,8 +198,12 @@ pub(super) fn read_file(path: &Path) -> Result<(Read, Ending), FileError> {
             return;
         }
         let Some(keep) = keeps(name) else { return };
-        out.rows += 1;
-        if out.rows > MAX_ROWS {
+        // `rows` counts the innovation rows (what the summary reports); the cap every kept row.
+        if matches!(name, INNOVATIONS | VARIANCES | LEGACY) || name.starts_with(AID_SRC) {
+            out.rows += 1;
+        }
+        out.kept += 1;
+        if out.kept > MAX_ROWS {
             too_many.set(true);
             return;
         }

@@ -504,9 +504,11 @@ fn read_innovations(
         judge_channel(
             ctx, path, an, info, inst, &ch.name, &ch.base, &source, logged_hz, sorted,
         )?;
-        if let (Some(c), Some(f), Some(&end)) =
-            (info.channels.get_mut(judged), &flags, topic.times.iter().max())
-        {
+        if let (Some(c), Some(f), Some(&end)) = (
+            info.channels.get_mut(judged),
+            &flags,
+            topic.times.iter().max(),
+        ) {
             c.active_s = Some(f.active_seconds(&source, end));
         }
     }

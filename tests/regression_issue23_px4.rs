@@ -164,6 +164,7 @@ fn issue23_every_r_too_small_blames_r_and_q_too_small_blames_q() {
         }
         q_right += usize::from(ok);
     }
+    eprintln!("R blamed on {r_right} of 20, Q on {q_right} of 20");
     assert!(r_right >= 19, "R blamed on {r_right} of 20");
     assert!(q_right >= 19, "Q blamed on {q_right} of 20");
 }
@@ -206,6 +207,8 @@ fn issue23_the_suggested_ekf2_noise_recovers_the_true_baro_noise() {
         got.push(s / sigma);
     }
     let mean = got.iter().sum::<f64>() / got.len() as f64;
+    let worst = got.iter().map(|r| (r - 1.0).abs()).fold(0.0, f64::max);
+    eprintln!("suggested/true σ: mean {mean:.4}, worst {worst:.4}");
     assert!((mean - 1.0).abs() < 0.02, "mean ratio {mean}");
 }
 
@@ -350,5 +353,45 @@ fn issue23_the_real_v1_15_log_judges_gps_only_after_it_starts() {
         v.finding
             .as_ref()
             .is_none_or(|f| !f.action.starts_with("decrease R"))
+    );
+}
+
+#[test]
+fn issue23_channels_fused_only_on_the_ground_are_not_called_not_fused() {
+    use autotune::fieldlog::{Dropped, NisAnalyzer, SensorInfo};
+    let mut an = NisAnalyzer::new(NisSettings::default());
+    for (name, dropped) in [
+        (
+            "ekf0.rng_vpos",
+            Dropped {
+                on_ground: 40,
+                ..Dropped::default()
+            },
+        ),
+        (
+            "ekf0.ev_vpos",
+            Dropped {
+                idle: 40,
+                ..Dropped::default()
+            },
+        ),
+    ] {
+        let i = an
+            .sensor(SensorInfo {
+                name: name.into(),
+                components: vec![name.into()],
+                group: "ekf0".into(),
+            })
+            .unwrap();
+        an.drop_rows(i, dropped);
+    }
+    let text = autotune::report::nis::nis_summary_text(&an.report());
+    assert!(
+        text.contains("not fused (no update): ekf0.ev_vpos\n"),
+        "{text}"
+    );
+    assert!(
+        text.contains("fused only on the ground (set aside by --in-air): ekf0.rng_vpos\n"),
+        "{text}"
     );
 }

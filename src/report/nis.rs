@@ -211,17 +211,25 @@ pub fn nis_summary_text(r: &NisReport) -> String {
             let _ = writeln!(o, "{}: NIS level not judged: {reason}", s.name);
         }
     }
-    if !r.not_fused.is_empty() {
-        let names: Vec<&str> = r
-            .not_fused
+    // Channels fused only on the ground have updates: `--in-air` set them aside.
+    let (ground, idle): (Vec<_>, Vec<_>) =
+        r.not_fused.iter().partition(|n| n.dropped.on_ground > 0);
+    for (list, words) in [
+        (idle, "not fused (no update)"),
+        (ground, "fused only on the ground (set aside by --in-air)"),
+    ] {
+        if list.is_empty() {
+            continue;
+        }
+        let names: Vec<&str> = list
             .iter()
             .take(NOT_FUSED_LISTED)
             .map(|n| n.name.as_str())
             .collect();
-        let more = r.not_fused.len().saturating_sub(NOT_FUSED_LISTED);
+        let more = list.len().saturating_sub(NOT_FUSED_LISTED);
         let _ = writeln!(
             o,
-            "not fused (no update): {}{}",
+            "{words}: {}{}",
             names.join(", "),
             if more > 0 {
                 format!(" and {more} more")

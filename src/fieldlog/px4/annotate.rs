@@ -87,6 +87,31 @@ fn advise(s: &SensorReport, info: &Px4Info) -> Vec<ParamAdvice> {
                 })
                 .collect()
         }
+        Some(Suspect::QAndR) => {
+            // Q and R together: every parameter that sets this S, by name and value, with
+            // no size (the NIS cannot split the change between them).
+            let dir = if ratio > 1.0 { "increase" } else { "decrease" };
+            let own = ch
+                .noise_param
+                .as_deref()
+                .map(|p| (p, ch.unit.as_deref().unwrap_or("")));
+            own.into_iter()
+                .chain(PROCESS_NOISE.iter().copied())
+                .map(|(p, unit)| {
+                    let value = info.params.get(p).copied();
+                    let now = value.map_or("not in the log".to_string(), |v| {
+                        format!("{} {unit}", sig3(v))
+                    });
+                    ParamAdvice {
+                        param: p.to_string(),
+                        unit: unit.to_string(),
+                        value,
+                        suggested: None,
+                        text: format!("{dir} {p} (now {now})"),
+                    }
+                })
+                .collect()
+        }
         _ => Vec::new(),
     }
 }
@@ -123,7 +148,7 @@ pub(in crate::fieldlog) fn annotate(report: &mut NisReport) {
             if params
                 .iter()
                 .all(|p| p.suggested.is_none() && p.value.is_some())
-                && f.suspect == Some(Suspect::Q)
+                && matches!(f.suspect, Some(Suspect::Q | Suspect::QAndR))
             {
                 // The NIS gives the direction of Q, not its size (that needs the states).
                 f.action.push_str(", in steps, judging each next log");

@@ -25,6 +25,21 @@ fn caveat(param: &str) -> &'static str {
     }
 }
 
+/// Advice on parameter `p` (in `unit`) with the log's value and a direction, no size.
+fn direction_only(info: &Px4Info, p: &str, unit: &str, dir: &str) -> ParamAdvice {
+    let value = info.params.get(p).copied();
+    let now = value.map_or("not in the log".to_string(), |v| {
+        format!("{} {unit}", sig3(v))
+    });
+    ParamAdvice {
+        param: p.to_string(),
+        unit: unit.to_string(),
+        value,
+        suggested: None,
+        text: format!("{dir} {p} (now {now})"),
+    }
+}
+
 /// The parameter advice for sensor `s` of a log with `info`.
 fn advise(s: &SensorReport, info: &Px4Info) -> Vec<ParamAdvice> {
     let Some(finding) = &s.finding else {
@@ -72,19 +87,7 @@ fn advise(s: &SensorReport, info: &Px4Info) -> Vec<ParamAdvice> {
             let dir = if ratio > 1.0 { "increase" } else { "decrease" };
             PROCESS_NOISE
                 .iter()
-                .map(|(p, unit)| {
-                    let value = info.params.get(*p).copied();
-                    let now = value.map_or("not in the log".to_string(), |v| {
-                        format!("{} {unit}", sig3(v))
-                    });
-                    ParamAdvice {
-                        param: p.to_string(),
-                        unit: unit.to_string(),
-                        value,
-                        suggested: None,
-                        text: format!("{dir} {p} (now {now})"),
-                    }
-                })
+                .map(|(p, unit)| direction_only(info, p, unit, dir))
                 .collect()
         }
         Some(Suspect::QAndR) => {
@@ -97,19 +100,7 @@ fn advise(s: &SensorReport, info: &Px4Info) -> Vec<ParamAdvice> {
                 .map(|p| (p, ch.unit.as_deref().unwrap_or("")));
             own.into_iter()
                 .chain(PROCESS_NOISE.iter().copied())
-                .map(|(p, unit)| {
-                    let value = info.params.get(p).copied();
-                    let now = value.map_or("not in the log".to_string(), |v| {
-                        format!("{} {unit}", sig3(v))
-                    });
-                    ParamAdvice {
-                        param: p.to_string(),
-                        unit: unit.to_string(),
-                        value,
-                        suggested: None,
-                        text: format!("{dir} {p} (now {now})"),
-                    }
-                })
+                .map(|(p, unit)| direction_only(info, p, unit, dir))
                 .collect()
         }
         _ => Vec::new(),

@@ -1,0 +1,145 @@
+//! The v1.14+ aid-source topics (`estimator_aid_src_*`): one topic per aiding source and
+//! instance, each row a fusion attempt with EKF2's own `fused` and `innovation_rejected`.
+
+use std::path::Path;
+
+use super::read::AID_SRC;
+use super::{Ctx, NotJudged, Px4Info, Row, estimator, judge_channel, sort_rows};
+use crate::fieldlog::LogSource;
+use crate::fieldlog::analysis::NisAnalyzer;
+use crate::input::FileError;
+
+/// The channels of one instance's `estimator_aid_src_*` topics.
+pub(super) fn read_aid_sources(
+    ctx: &Ctx,
+    path: &Path,
+    an: &mut NisAnalyzer,
+    source_out: &mut LogSource,
+    info: &mut Px4Info,
+    inst: u8,
+) -> Result<usize, FileError> {
+    let mut rows_read = 0;
+    let mut topics = Vec::new();
+    for ((name, i), topic) in &ctx.read.topics {
+        let Some(src) = name.strip_prefix(AID_SRC) else {
+            continue;
+        };
+        if *i != inst {
+            continue;
+        }
+        topics.push(src.to_string());
+        rows_read += topic.times.len();
+        let fake = src.starts_with("fake_");
+        // 1-d topics have `innovation`; 2-d and 3-d ones `innovation[j]`.
+        let axes: Vec<Option<usize>> = if topic.column("innovation").is_some() {
+            vec![None]
+        } else {
+            (0..3)
+                .map(Some)
+                .filter(|j| {
+                    topic
+                        .column(&format!("innovation[{}]", j.unwrap_or(0)))
+                        .is_some()
+                })
+                .collect()
+        };
+        for axis in axes {
+            let field = |f: &str| match axis {
+                None => topic.column(f),
+                Some(j) => topic
+                    .column(&format!("{f}[{j}]"))
+                    .or_else(|| topic.column(f)),
+            };
+            let (Some(ci), Some(cv)) = (field("innovation"), field("innovation_variance")) else {
+                continue;
+            };
+            let (ct, co, cf, cr) = (
+                field("test_ratio"),
+                field("observation_variance"),
+                field("fused"),
+                field("innovation_rejected"),
+            );
+            let name = match axis {
+                None => src.to_string(),
+                Some(j) => format!("{src}[{j}]"),
+            };
+            if fake {
+                let fused = topic
+                    .values
+                    .iter()
+                    .filter(|v| cf.is_some_and(|c| v[c] != 0.0))
+                    .count();
+                info.not_judged.push(NotJudged {
+                    name: format!("ekf{inst}.{name}"),
+                    reason: "fake fusion (no aiding source): these innovations are the filter's own, not a sensor's".into(),
+                    updates: fused,
+                });
+                continue;
+            }
+            let rows: Vec<Row> = (0..topic.times.len())
+                .map(|r| {
+                    let v = &topic.values[r];
+                    Row {
+                        time: topic.times[r],
+                        nu: v[ci],
+                        s: v[cv],
+                        exact: true,
+                        test_ratio: ct.map(|c| v[c]),
+                        fused: Some((
+                            cf.is_none_or(|c| v[c] != 0.0),
+                            cr.is_some_and(|c| v[c] != 0.0),
+                        )),
+                        obs_var: co.map(|c| v[c]),
+                    }
+                })
+                .collect();
+            let source = estimator::Source::Always(aid_words(src));
+            let sorted = sort_rows(ctx, &rows, &source, None);
+            let base = src.to_string();
+            judge_channel(
+                ctx,
+                path,
+                an,
+                info,
+                inst,
+                &name,
+                &base,
+                &source,
+                topic.rate_hz(),
+                sorted,
+            )?;
+        }
+    }
+    source_out.notes.push(format!(
+        "ekf{inst}: {rows_read} rows of {} aid-source topics ({}); a row is an update when EKF2 fused or rejected it",
+        topics.len(),
+        topics.join(", ")
+    ));
+    Ok(rows_read)
+}
+
+fn aid_words(src: &str) -> &'static str {
+    match src {
+        "baro_hgt" => "baro height",
+        "gnss_pos" => "GNSS position",
+        "gnss_vel" => "GNSS velocity",
+        "gnss_hgt" => "GNSS height",
+        "gnss_yaw" => "GNSS yaw",
+        "mag" => "3-axis magnetometer",
+        "mag_heading" => "magnetic heading",
+        "rng_hgt" => "range-finder height",
+        "ev_pos" => "vision position",
+        "ev_vel" => "vision velocity",
+        "ev_hgt" => "vision height",
+        "ev_yaw" => "vision yaw",
+        "airspeed" => "airspeed",
+        "sideslip" => "synthetic sideslip",
+        "optical_flow" => "optical flow",
+        "terrain_range_finder" => "terrain range finder",
+        "gravity" => "gravity vector",
+        "drag" => "multirotor drag",
+        "aux_vel" => "auxiliary velocity",
+        "aux_global_position" => "auxiliary global position",
+        _ => "aiding source",
+    }
+}

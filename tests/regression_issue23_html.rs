@@ -130,6 +130,16 @@ fn fixture() -> NisReport {
         suggested: Some(2.4),
         text: "EKF2_BARO_NOISE = 3.5 m → about 2.4 m".into(),
     });
+    // A process-noise line that two channels both give.
+    for i in [0, 1] {
+        r.sensors[i].parameters.push(ParamAdvice {
+            param: "EKF2_ACC_NOISE".into(),
+            unit: "m/s²".into(),
+            value: Some(0.35),
+            suggested: None,
+            text: "decrease EKF2_ACC_NOISE (now 0.350 m/s²)".into(),
+        });
+    }
     r
 }
 
@@ -334,7 +344,16 @@ fn issue23_the_px4_section_says_publisher_primary_ekf_tests_and_parameters() {
         "<td class=\"num\">0.03100</td><td class=\"num\">5.000</td><td class=\"num\">3</td>"
     ));
     assert!(px4.contains("samples of fusions: logged at 5 Hz, source at 18.8 Hz"));
-    assert!(px4.contains("<code>EKF2_BARO_NOISE = 3.5 m → about 2.4 m</code>"));
+    assert!(px4.contains("<code>EKF2_BARO_NOISE = 3.5 m → about 2.4 m</code> (ekf0.baro_vpos)"));
+    // Advice that several channels give is listed once, with the channels behind it.
+    assert_eq!(
+        px4.matches("decrease EKF2_ACC_NOISE").count(),
+        1,
+        "one line per distinct parameter advice"
+    );
+    assert!(px4.contains(
+        "<code>decrease EKF2_ACC_NOISE (now 0.350 m/s²)</code> (ekf0.baro_vpos, ekf0.heading)"
+    ));
     assert!(px4.contains("20 s: takeoff"));
     // The same per channel, under its heading.
     let baro = section(&h, 0);

@@ -30,7 +30,7 @@ const STYLE: &str = "body{font-family:sans-serif;max-width:1400px;margin:1em aut
 table{border-collapse:collapse;margin:.5em 0}td,th{border:1px solid #999;padding:3px 8px;text-align:left}\
 th{background:#e6e6e6}.row{display:flex;flex-wrap:wrap;gap:12px}.row figure{margin:0;max-width:640px}\
 figcaption{font-size:90%;color:#333}.verdict{font-size:120%;font-weight:bold}\
-svg{max-width:100%;height:auto}code{background:#f0f0f0;padding:0 3px}td.num{text-align:right;font-variant-numeric:tabular-nums}tr.off td.v{color:#a00;font-weight:bold}tr.biased td.m{color:#a00;font-weight:bold}";
+svg{max-width:100%;height:auto}code{background:#f0f0f0;padding:0 3px}td.num{text-align:right;font-variant-numeric:tabular-nums}tr.off td.v{color:#a00;font-weight:bold}tr.biased td.m{color:#a00;font-weight:bold}.wide{overflow-x:auto}.wide table{font-size:90%}";
 
 fn head(o: &mut String, title: &str) {
     head_styled(o, title, "");

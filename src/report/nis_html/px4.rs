@@ -218,22 +218,33 @@ pub(super) fn section(o: &mut String, r: &NisReport) {
             .collect();
         if !judged.is_empty() {
             o.push_str("<h3>Channels judged, beside the EKF's own tests</h3>");
-            o.push_str("<table><tr><th>channel</th><th>aiding source</th><th>updates</th><th>NIS average</th><th>expected</th><th>EKF mean test ratio</th><th>gate (σ)</th><th>EKF rejected</th><th>updates/s</th><th>source logged (Hz)</th><th>source active (s)</th><th>noise parameter</th><th>note</th></tr>\n");
+            o.push_str("<div class=\"wide\"><table><tr><th>channel</th><th>aiding source</th><th>updates</th><th>NIS average</th><th>expected</th><th>EKF mean test ratio</th><th>gate (σ)</th><th>EKF rejected</th><th>updates/s</th><th>source logged (Hz)</th><th>source active (s)</th><th>noise parameter</th><th>note</th></tr>\n");
             for (s, c) in judged {
                 channel_row(o, first, s, c);
             }
-            o.push_str("</table>\n");
+            o.push_str("</table></div>\n");
         }
     }
-    let advice: Vec<&str> = r
-        .sensors
-        .iter()
-        .flat_map(|s| s.parameters.iter().map(|p| p.text.as_str()))
-        .collect();
+    // A process-noise line ("decrease EKF2_ACC_NOISE") comes from every channel that blames
+    // Q: one line per distinct advice, with the channels behind it.
+    let mut advice: Vec<(&str, Vec<&str>)> = Vec::new();
+    for s in &r.sensors {
+        for p in &s.parameters {
+            match advice.iter_mut().find(|(t, _)| *t == p.text) {
+                Some((_, from)) => from.push(&s.name),
+                None => advice.push((&p.text, vec![&s.name])),
+            }
+        }
+    }
     if !advice.is_empty() {
         o.push_str("<h3>EKF2 parameters</h3><p>In EKF2's own terms (EKF2 inflates some variances internally: a GNSS receiver's reported accuracy, the range finder's distance scaling, baro ground effect; treat the values as a starting point).</p><ul>");
-        for a in advice {
-            let _ = write!(o, "<li><code>{}</code></li>", escape(a));
+        for (a, from) in advice {
+            let _ = write!(
+                o,
+                "<li><code>{}</code> ({})</li>",
+                escape(a),
+                escape(&from.join(", "))
+            );
         }
         o.push_str("</ul>\n");
     }

@@ -5,6 +5,7 @@
 
 use autotune::estimate::als::{self, AlsModel};
 use autotune::estimate::{LinearFilterModel, Measurements, ml, simulate};
+use autotune::experiment::Experiment as _;
 use autotune::problem::Problem;
 use criterion::{Criterion, criterion_group, criterion_main};
 

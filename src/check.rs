@@ -1,13 +1,32 @@
-//! The consistency check: run an experiment's Monte Carlo at given parameter values and
-//! summarize it against the chi-square intervals.
+//! Judging a filter at θ: an experiment's Monte Carlo sums put through the gate. `autotune
+//! check`, the tuner's refinement and confirmation, and the explanations all judge through
+//! [`judge`], so a filter passes the same tests wherever it is judged.
 
 use crate::experiment::{Experiment, ExperimentError, RunOptions};
 use crate::montecarlo::McConfig;
-use crate::stats::ConsistencyReport;
+use crate::stats::{Accumulator, ConsistencyReport};
 
-/// Check `experiment`'s filter at parameter values `theta` under `mc`: the full consistency
-/// report. `use_nees = false` judges by NIS alone (no trusted ground truth). Fails only when
-/// the experiment cannot run (see [`Experiment::monte_carlo_with`]).
+/// The gate applied to `sums`, the Monte Carlo sums of `experiment`'s filter under `mc`:
+/// the full consistency report (time averages, components, whiteness, zero-mean tests and
+/// the verdict at `mc`'s α). `use_nees = false` judges by NIS alone (no trusted ground
+/// truth).
+pub fn judge(
+    experiment: &dyn Experiment,
+    sums: &Accumulator,
+    mc: &McConfig,
+    use_nees: bool,
+) -> ConsistencyReport {
+    ConsistencyReport::from_accumulator(
+        sums,
+        &mc.gate_spec(use_nees),
+        experiment.state_names(),
+        experiment.measurement_names(),
+    )
+}
+
+/// Check `experiment`'s filter at parameter values `theta` under `mc`: its Monte Carlo run
+/// and [`judge`]d. Fails only when the experiment cannot run (see
+/// [`Experiment::monte_carlo_with`]).
 pub fn check(
     experiment: &dyn Experiment,
     theta: &[f64],
@@ -25,14 +44,23 @@ pub fn check_with(
     options: RunOptions<'_>,
     use_nees: bool,
 ) -> Result<ConsistencyReport, ExperimentError> {
-    let acc = experiment.monte_carlo_with(theta, mc, options)?;
-    Ok(ConsistencyReport::from_accumulator(
-        &acc,
-        &mc.gate_spec(use_nees),
-        experiment.state_names(),
-        experiment.measurement_names(),
-    ))
+    let sums = experiment.monte_carlo_with(theta, mc, options)?;
+    Ok(judge(experiment, &sums, mc, use_nees))
 }
+
+/// Told how a check's Monte Carlo goes: the command line draws a progress bar.
+pub trait CheckProgress: Sync {
+    /// The run is about to start: `runs` × `steps`, on the linear fast path or not (which
+    /// steps about 100 times faster).
+    fn start(&self, _runs: usize, _steps: usize, _fast_path: bool) {}
+    /// `done` runs have finished.
+    fn runs_done(&self, _done: usize) {}
+    /// The run is over (finished or failed).
+    fn finish(&self) {}
+}
+
+/// No progress reports.
+impl CheckProgress for () {}
 
 /// The Monte Carlo sums of `experiment`'s filter at `theta` on the `engine` path.
 pub fn accumulate(
@@ -40,7 +68,7 @@ pub fn accumulate(
     theta: &[f64],
     mc: &McConfig,
     engine: crate::montecarlo::Engine,
-) -> Result<crate::stats::Accumulator, ExperimentError> {
+) -> Result<Accumulator, ExperimentError> {
     experiment.monte_carlo_with(
         theta,
         mc,

@@ -50,6 +50,7 @@ pub mod linalg;
 pub mod measurement;
 pub mod model;
 pub mod montecarlo;
+pub mod output;
 pub mod params;
 pub mod problem;
 pub mod records;

@@ -5,7 +5,7 @@
 mod common;
 
 use autotune::experiment::Experiment;
-use autotune::report::advice::recommendations;
+use autotune::report::check::advice::recommendations;
 use autotune::tune::{Silent, TuneSettings, TuneStatus, tune};
 use common::load;
 

@@ -80,14 +80,25 @@ fn check_fails_overconfident_with_q_scaled_by_a_hundredth() {
 fn catalog_problems_load_with_model_names_and_parameters_in_model_order() {
     for name in CATALOG {
         let p = common::load(name);
-        let catalog = p.catalog().expect("a catalog problem");
+        assert_eq!(p.kind(), autotune::problem::ProblemKind::Catalog);
         assert!(p.linear().is_none());
-        assert_eq!(p.state_names(), catalog.model.state_names());
-        assert_eq!(p.measurement_names(), catalog.model.measurement_names());
-        let entry = &catalog.entry;
+        // The model the file's [model] table builds through its catalog entry, apart from
+        // the problem loader.
+        let text = std::fs::read_to_string(common::problem_path(name)).unwrap();
+        let file: toml::Table = text.parse().unwrap();
+        let mut table = file["model"].as_table().unwrap().clone();
+        let model_name = table.remove("name").unwrap();
+        let entry = autotune::catalog::find(model_name.as_str().unwrap()).unwrap();
+        let ctx = autotune::catalog::ModelContext {
+            dt: file["dt"].as_float().unwrap(),
+            steps: p.mc().steps(),
+        };
+        let model = (entry.build)(&table, &ctx).unwrap();
+        assert_eq!(p.state_names(), model.state_names());
+        assert_eq!(p.measurement_names(), model.measurement_names());
         let names: Vec<&str> = entry.params.iter().map(|i| i.name).collect();
         assert_eq!(p.params().names(), names, "{name}");
-        assert_eq!(catalog.model.truth_values().len(), names.len());
+        assert_eq!(model.truth_values().len(), names.len());
         for (i, info) in entry.params.iter().enumerate() {
             let target = p.target(i).expect("catalog parameters have targets");
             assert_eq!(target.kind, info.noise);

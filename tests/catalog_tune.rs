@@ -22,6 +22,7 @@
 mod common;
 
 use autotune::experiment::Experiment;
+use autotune::montecarlo::McConfig;
 use autotune::problem::Problem;
 use autotune::stats::Verdict;
 use autotune::tune::{Silent, TuneResult, TuneSettings, tune};
@@ -29,7 +30,7 @@ use common::{load, truth_values};
 
 /// Tune `p` with every free parameter started at `factor` × its truth value (fixed ones at
 /// the truth).
-fn tune_from(p: &Problem, factor: f64, settings: &TuneSettings) -> TuneResult {
+fn tune_from(p: &Problem, factor: f64, settings: &TuneSettings, mc: &McConfig) -> TuneResult {
     let truth = truth_values(p);
     let fixed: Vec<bool> = p.params().params.iter().map(|q| q.fixed).collect();
     let start: Vec<f64> = truth
@@ -37,7 +38,7 @@ fn tune_from(p: &Problem, factor: f64, settings: &TuneSettings) -> TuneResult {
         .zip(&fixed)
         .map(|(&v, &f)| if f { v } else { v * factor })
         .collect();
-    let r = tune(p, &start, &fixed, p.mc(), settings, &Silent).unwrap();
+    let r = tune(p, &start, &fixed, mc, settings, &Silent).unwrap();
     eprintln!(
         "{} from x{factor}: {:?}, {} evals in {:.1} s, tuned {:?}, truth {:?}",
         p.name(),
@@ -62,15 +63,14 @@ fn quick() -> TuneSettings {
 /// must pass and free parameter i must land within `tol[i]` (relative) of the truth, in the
 /// order of the free parameters.
 fn assert_recovers(name: &str, settings: &TuneSettings, factor: f64, seed: u64, tol: &[f64]) {
-    let mut p = load(name);
+    let p = load(name);
     let truth = truth_values(&p);
     let settings = settings
         .clone()
         .with_search_runs(settings.search_runs().unwrap_or(p.mc().runs()))
         .unwrap();
     let mc = p.mc().with_seed(seed);
-    p.catalog_mut().expect("a catalog problem").definition.mc = mc;
-    let r = tune_from(&p, factor, &settings);
+    let r = tune_from(&p, factor, &settings, &mc);
     assert_eq!(
         r.after.verdict,
         Verdict::Consistent,

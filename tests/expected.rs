@@ -13,18 +13,18 @@ fn expected_sums_match_large_monte_carlo() {
     // A mis-tuned filter (Q ×3, R ×0.5) so that nothing is trivially at its target, and a
     // filter x0 off the truth's mean so the error has a mean too.
     for name in ["cv1d", "cv2d", "dcmotor"] {
-        let mut p = load(name);
+        let p = load(name);
         let theta = scaled(&p, &scaled(&p, &truth_values(&p), "q_", 3.0), "r_", 0.5);
-        let l = p.linear_mut().unwrap();
+        let mut l = p.linear().unwrap().clone();
         l.filter.x0 = &l.filter.x0 + l.filter.P0.diagonal().map(|v| 0.5 * v.sqrt());
         let mut mc = *p.mc();
         mc = mc.with_runs(20_000).unwrap();
         mc = mc.with_steps(40).unwrap();
         mc = mc.with_lags(3).unwrap();
-        let kf = p.linear().unwrap().filter_at(&theta);
-        assert!(models_match(&p.linear().unwrap().truth, &kf));
-        let exp = expected_accumulator(&p.linear().unwrap().truth, &kf, &mc).unwrap();
-        let sim = accumulate(&p, &theta, &mc, Engine::Linear).unwrap();
+        let kf = l.filter_at(&theta);
+        assert!(models_match(&l.truth, &kf));
+        let exp = expected_accumulator(&l.truth, &kf, &mc).unwrap();
+        let sim = accumulate(&l, &theta, &mc, Engine::Linear).unwrap();
         let nn = mc.runs() as f64;
         // Each per-step mean over N runs has standard deviation sqrt(Var/N), with Var from the
         // exact second moment; 5 standard deviations keeps the chance of a false failure over

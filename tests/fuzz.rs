@@ -23,7 +23,7 @@ use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 use autotune::problem::Problem;
-use autotune::report::tuned::TunedConfig;
+use autotune::report::tune::tuned::TunedConfig;
 
 #[path = "common/fuzzing.rs"]
 mod fuzzing;

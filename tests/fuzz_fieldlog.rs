@@ -188,7 +188,7 @@ fn analyze_in_process(
             let _ = autotune::report::nis::nis_summary_text(&r);
             let _ = autotune::report::nis::nis_markdown(&r);
             let _ = autotune::report::nis::nis_junit_xml(&r);
-            let _ = autotune::report::nis_html::nis_html(&r);
+            let _ = autotune::report::nis::html::nis_html(&r);
         }
         Ok::<_, autotune::input::FileError>(())
     }));

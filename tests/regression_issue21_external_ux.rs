@@ -440,7 +440,8 @@ fn issue21_init_writes_an_external_starter() {
     assert!(text.contains("state_names"), "{text}");
     let p = Problem::load(&path).unwrap();
     assert_eq!(p.name(), "myworker");
-    assert!(p.linear().is_none() && p.catalog().is_none());
+    assert_eq!(p.kind(), autotune::problem::ProblemKind::External);
+    assert!(p.linear().is_none());
 }
 
 // ---------------------------------------------------------------- item 16 (part)

@@ -10,7 +10,7 @@ use std::path::PathBuf;
 use assert_cmd::Command;
 use autotune::experiment::Experiment;
 use autotune::problem::Problem;
-use autotune::report::advice::recommendations;
+use autotune::report::check::advice::recommendations;
 use autotune::tune::{Silent, TuneResult, TuneSettings, TuneStatus, tune};
 
 fn path() -> PathBuf {

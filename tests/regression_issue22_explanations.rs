@@ -223,7 +223,7 @@ fn issue22_where_the_filter_cannot_be_changed_the_explanations_say_what_to_chang
         "{step:#?}"
     );
     assert!(step.remedy.contains("time step"), "{step:#?}");
-    let lines = autotune::report::advice::family_finding(&r, &ex)
+    let lines = autotune::report::check::advice::family_finding(&r, &ex)
         .unwrap()
         .join("\n");
     assert!(

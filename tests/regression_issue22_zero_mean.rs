@@ -381,9 +381,9 @@ fn issue22_first_moment_sums_agree_across_engines() {
     use autotune::check::accumulate;
     use autotune::montecarlo::{Engine, expected_accumulator};
     for name in ["cv1d", "cv2d"] {
-        let mut p = load(name);
+        let p = load(name);
         let theta = scaled(&p, &scaled(&p, &truth_values(&p), "q_", 3.0), "r_", 0.5);
-        let l = p.linear_mut().unwrap();
+        let mut l = p.linear().unwrap().clone();
         l.filter.x0 = &l.filter.x0 + l.filter.P0.diagonal().map(|v| 2.0 * v.sqrt());
         let mc = p
             .mc()
@@ -393,10 +393,10 @@ fn issue22_first_moment_sums_agree_across_engines() {
             .unwrap()
             .with_lags(3)
             .unwrap();
-        let kf = p.linear().unwrap().filter_at(&theta);
-        let exp = expected_accumulator(&p.linear().unwrap().truth, &kf, &mc).unwrap();
-        let sim = accumulate(&p, &theta, &mc, Engine::Linear).unwrap();
-        let generic = accumulate(&p, &theta, &mc, Engine::Generic).unwrap();
+        let kf = l.filter_at(&theta);
+        let exp = expected_accumulator(&l.truth, &kf, &mc).unwrap();
+        let sim = accumulate(&l, &theta, &mc, Engine::Linear).unwrap();
+        let generic = accumulate(&l, &theta, &mc, Engine::Generic).unwrap();
         let nn = mc.runs() as f64;
         for j in 0..exp.state_mean_total.len() {
             // The mean of N per-run sums: 5 standard errors from their own spread.

@@ -11,7 +11,7 @@ use autotune::fieldlog::{
     EventKind, LogSource, NisAnalyzer, NisReport, NisSettings, NotJudged, ParamAdvice, Px4Channel,
     Px4Event, Px4Info, Px4Instance, SensorInfo, Update,
 };
-use autotune::report::nis_html::nis_html;
+use autotune::report::nis::html::nis_html;
 
 /// Height of the chart part of every per-sensor plot (`NIS_SIZE.1`): the legend strip
 /// starts below it.

@@ -11,7 +11,7 @@ use common::{load, truth_values};
 use statrs::distribution::{Binomial, DiscreteCDF};
 
 /// Tune `p` from its shipped start (R parameters fixed at the truth if `fix_r`).
-fn run(p: &Problem, seed: u64, fix_r: bool, settings: &TuneSettings) -> TuneResult {
+fn run(p: &dyn Experiment, seed: u64, fix_r: bool, settings: &TuneSettings) -> TuneResult {
     let truth = truth_values(p);
     let mut start = p.params().values();
     let fixed: Vec<bool> = p
@@ -30,7 +30,7 @@ fn run(p: &Problem, seed: u64, fix_r: bool, settings: &TuneSettings) -> TuneResu
     let r = tune(p, &start, &fixed, &mc, settings, &Silent).unwrap();
     eprintln!(
         "{} seed {seed}: {:?}, {} evals in {:.2} s, J {:.3e} -> {:.3e}, tuned {:?}",
-        p.name(),
+        p.info().name,
         r.status,
         r.evaluations,
         r.seconds,
@@ -47,14 +47,14 @@ fn run(p: &Problem, seed: u64, fix_r: bool, settings: &TuneSettings) -> TuneResu
 /// 10% would miss it a thousandfold.
 const EXACT_TOL: f64 = 1e-4;
 
-fn assert_within(p: &Problem, r: &TuneResult, tol: f64) {
+fn assert_within(p: &dyn Experiment, r: &TuneResult, tol: f64) {
     let truth = truth_values(p);
     for (i, q) in p.params().params.iter().enumerate() {
         let ratio = r.tuned[i] / truth[i];
         assert!(
             (ratio - 1.0).abs() <= tol,
             "{}: {} tuned {} truth {} (ratio {ratio:.4})",
-            p.name(),
+            p.info().name,
             q.name,
             r.tuned[i],
             truth[i]
@@ -213,16 +213,13 @@ fn monte_carlo_scoring_recovers_too() {
 fn diverging_candidates_are_counted_not_fatal() {
     // Bounds that allow Q = 1e-12 and R = 1e-12 on cv2d: the global stage samples
     // candidates whose S is numerically singular; they score +∞ and the search goes on.
-    let mut p = load("cv2d");
-    for q in &mut p.linear_mut().unwrap().definition.params.params {
+    let mut p = load("cv2d").linear().unwrap().clone();
+    for q in &mut p.definition.params.params {
         q.lower = 1e-300;
     }
     // A filter with no process noise and no measurement noise cannot stay positive definite.
-    let kf = p
-        .linear()
-        .unwrap()
-        .filter_at(&[1e-300, 1e-300, 1e-300, 1e-300]);
-    let acc = autotune::montecarlo::expected_accumulator(&p.linear().unwrap().truth, &kf, p.mc());
+    let kf = p.filter_at(&[1e-300, 1e-300, 1e-300, 1e-300]);
+    let acc = autotune::montecarlo::expected_accumulator(&p.truth, &kf, p.mc());
     assert!(acc.is_err(), "the extreme candidate must diverge");
     let r = run(&p, 5, false, &TuneSettings::default());
     assert!(
@@ -266,7 +263,7 @@ fn flat_directions_are_reported_not_given_a_confident_number() {
     // The sum is still right.
     let sum = r.tuned[idx("q_accel")] + r.tuned[idx("q_twin")];
     assert!((sum / 0.5 - 1.0).abs() < EXACT_TOL, "sum {sum}");
-    let recs = autotune::report::advice::recommendations(&p, &r, &r.before);
+    let recs = autotune::report::check::advice::recommendations(&p, &r, &r.before);
     assert!(
         recs[idx("q_twin")].advice.contains("not identifiable"),
         "{}",

@@ -5,7 +5,7 @@ mod common;
 
 use autotune::check::check;
 use autotune::experiment::Experiment;
-use autotune::report::tuned::TunedConfig;
+use autotune::report::tune::tuned::TunedConfig;
 use common::{load, problem_path};
 
 /// Passes of `autotune check PROBLEM --config tuned/NAME.toml --seed S` for S = 3001…3100

@@ -12,11 +12,10 @@ use crate::check::check_with;
 use crate::experiment::{Experiment, RunOptions, Source};
 use crate::input::FileError;
 use crate::montecarlo::Engine;
-use crate::report::html::{check_html, check_markdown};
-use crate::report::{
-    CheckOutput, Outputs, check_output_file, check_report_dir, junit_xml, summary_text,
-    tuned::TunedConfig,
-};
+use crate::output::{Outputs, check_output_file, check_report_dir};
+use crate::report::check::html::{check_html, check_markdown};
+use crate::report::tune::tuned::TunedConfig;
+use crate::report::{CheckOutput, junit_xml, summary_text};
 use crate::stats::{ConsistencyReport, Verdict};
 
 /// The options of `check`.

@@ -13,9 +13,10 @@ use crate::estimate::{
 };
 use crate::experiment::{Experiment, LinearExperiment};
 use crate::input::FileError;
-use crate::problem::Problem;
-use crate::report::tuned::estimated_config_toml;
-use crate::report::{Outputs, check_output_file, fmt_g};
+use crate::output::{Outputs, check_output_file};
+use crate::problem::{Problem, ProblemKind};
+use crate::report::fmt_g;
+use crate::report::tune::tuned::estimated_config_toml;
 
 /// The arguments of `estimate`.
 #[derive(Debug, Clone, clap::Args)]
@@ -80,17 +81,17 @@ pub(super) fn linear<'a>(
     path: &std::path::Path,
     what: &str,
 ) -> Result<&'a LinearExperiment, AppError> {
-    p.linear().ok_or_else(|| {
+    p.experiment().linear().ok_or_else(|| {
         // Name what the problem is, so the user knows which section is the obstacle.
-        let (field, kind) = if p.catalog().is_some() {
-            ("model", "a catalog model ([model])")
-        } else {
-            ("external", "an external worker ([external])")
-        };
+        let kind = p.kind();
         FileError::new(
             path,
-            field,
-            format!("{what} works on a linear problem ([truth] and [filter] matrices); this one is {kind}"),
+            kind.field(),
+            format!(
+                "{what} works on {}; this one is {}",
+                ProblemKind::Linear.describe(),
+                kind.describe()
+            ),
         )
         .into()
     })

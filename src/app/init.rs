@@ -14,7 +14,7 @@ use clap::ValueEnum;
 
 use super::AppError;
 use super::args::OneOf;
-use crate::report::write_file;
+use crate::output::write_file;
 
 /// The starter models: `--model`, its help, its errors and the completions all list these.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]

@@ -39,8 +39,8 @@ use clap::{CommandFactory, FromArgMatches, Parser, Subcommand};
 use crate::experiment::Experiment;
 use crate::experiment::RecordedExperiment;
 use crate::input::FileError;
+use crate::output::WriteError;
 use crate::problem::Problem;
-use crate::report::WriteError;
 use crate::tune::TuneSettings;
 
 /// Why a command could not do its job (exit code 2). Each renders as one line naming the
@@ -307,7 +307,7 @@ fn remove_temporary_files_on_interrupt() {
                     continue;
                 }
                 crate::external::stop_workers_and_remove_scratch();
-                crate::report::remove_temporary_files();
+                crate::output::remove_temporary_files();
                 std::process::exit(128 + signal);
             }
         });

@@ -8,9 +8,9 @@ use std::time::{Duration, Instant};
 use super::args::flag_error;
 use super::{AppError, paint_verdict, print_stdout};
 use crate::fieldlog::{Follower, NisReport, NisSettings, ReadOptions, Window, analyze};
+use crate::output::{Outputs, check_output_file, check_report_dir};
+use crate::report::nis::html::nis_html;
 use crate::report::nis::{nis_junit_xml, nis_markdown, nis_summary_text};
-use crate::report::nis_html::nis_html;
-use crate::report::{Outputs, check_output_file, check_report_dir};
 
 /// The arguments of `nis`.
 #[derive(Debug, Clone, clap::Args)]

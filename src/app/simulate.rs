@@ -8,8 +8,8 @@ use super::estimate::linear;
 use super::{AppError, print_stdout};
 use crate::estimate::{record_bytes, simulate};
 use crate::experiment::Experiment;
+use crate::output::{Outputs, check_output_file};
 use crate::problem::Problem;
-use crate::report::{Outputs, check_output_file};
 
 /// The arguments of `simulate`.
 #[derive(Debug, Clone, clap::Args)]

@@ -10,11 +10,12 @@ use super::args::{McArgs, OneOf, flag_error, name_value, param_index};
 use super::{AppError, paint_verdict, print_stdout};
 use crate::experiment::{Experiment, Source};
 use crate::input::FileError;
-use crate::report::advice::recommendations;
-use crate::report::html::tune_html;
+use crate::output::{Outputs, check_output_file, check_report_dir};
+use crate::report::check::advice::recommendations;
+use crate::report::check::html::tune_html;
+use crate::report::tune::tuned::{rejected_config_toml, tuned_config_toml};
 use crate::report::tune::{TuneReport, tune_markdown};
-use crate::report::tuned::{rejected_config_toml, tuned_config_toml};
-use crate::report::{Outputs, check_output_file, check_report_dir, fmt_fixed, fmt_g};
+use crate::report::{fmt_fixed, fmt_g};
 use crate::stats::{StatisticSummary, Verdict};
 use crate::tune::{LocalSearch, Observer, Scoring, TuneError, TuneSettings, TuneStatus, tune};
 
@@ -263,7 +264,7 @@ pub fn run_from(
         None => rejected_path,
     };
     let mut recs = recommendations(experiment, &result, &result.before);
-    crate::report::advice::amend_for_explanation(&mut recs, &explanations);
+    crate::report::check::advice::amend_for_explanation(&mut recs, &explanations);
     outputs.file(
         &out,
         if consistent {
@@ -333,7 +334,9 @@ pub fn run_from(
                     "  (how precisely one record determines each value: `autotune estimate --method ml` gives standard errors)"
                 )?;
             }
-            if let Some(lines) = crate::report::advice::family_finding(&result, &explanations) {
+            if let Some(lines) =
+                crate::report::check::advice::family_finding(&result, &explanations)
+            {
                 for l in lines {
                     writeln!(stdout, "  {l}")?;
                 }

@@ -69,6 +69,10 @@ impl Experiment for LinearExperiment {
         &self.definition
     }
 
+    fn linear(&self) -> Option<&LinearExperiment> {
+        Some(self)
+    }
+
     fn monte_carlo_with(
         &self,
         theta: &[f64],

@@ -267,6 +267,13 @@ pub trait Experiment: Sync {
         None
     }
 
+    /// The linear-Gaussian truth and Kalman filter this experiment is, where it is one: what
+    /// estimating Q and R from recorded measurements alone needs (the likelihood and ALS
+    /// work on the filter's matrices). `None`, the default, for every other experiment.
+    fn linear(&self) -> Option<&LinearExperiment> {
+        None
+    }
+
     /// Whether the sums are the same for every seed: a filter run over one recorded data
     /// set rather than a simulation. The tuner then confirms on that record once instead of
     /// on fresh seeds, and reports no seed-to-seed resolution (it would be zero).

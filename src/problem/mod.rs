@@ -14,10 +14,9 @@ use std::path::{Path, PathBuf};
 use sha2::{Digest, Sha256};
 
 use crate::experiment::{
-    CatalogExperiment, Covariances, Definition, Experiment, ExperimentError, Info,
-    LinearExperiment, RunOptions, Source,
+    Covariances, Definition, Experiment, ExperimentError, Info, LinearExperiment, RunOptions,
+    Source,
 };
-use crate::external::ExternalExperiment;
 use crate::input::{FileError, SettingError, parse_toml};
 use crate::montecarlo::{Engine, McConfig};
 use crate::params::{ParamDef, ParamSpace, Target};
@@ -27,26 +26,59 @@ use crate::userfile::read_text;
 pub use spec::ProblemSpec;
 use validate::{VResult, Validator};
 
-/// What a problem file describes.
-#[derive(Debug)]
-enum System {
-    /// `[truth]` and `[filter]`.
-    Linear(Box<LinearExperiment>),
-    /// `[model]`.
-    Catalog(Box<CatalogExperiment>),
-    /// `[external]`.
-    External(Box<ExternalExperiment>),
+/// Which kind of system a problem file describes: the section that defines it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ProblemKind {
+    /// `[truth]` and `[filter]` matrices: a linear truth and Kalman filter.
+    Linear,
+    /// `[model]`: a named model of the catalog.
+    Catalog,
+    /// `[external]`: a worker program.
+    External,
+}
+
+impl ProblemKind {
+    /// The file's section that defines this kind (`truth`, `model`, `external`), for errors
+    /// that must name where the obstacle is.
+    pub fn field(self) -> &'static str {
+        match self {
+            ProblemKind::Linear => "truth",
+            ProblemKind::Catalog => "model",
+            ProblemKind::External => "external",
+        }
+    }
+
+    /// How a sentence names the kind: "a catalog model ([model])".
+    pub fn describe(self) -> &'static str {
+        match self {
+            ProblemKind::Linear => "a linear problem ([truth] and [filter] matrices)",
+            ProblemKind::Catalog => "a catalog model ([model])",
+            ProblemKind::External => "an external worker ([external])",
+        }
+    }
 }
 
 /// A validated problem file: the experiment it describes, and its `[tune]` settings. It is
-/// an [`Experiment`] itself (delegating to the linear or catalog one).
-#[derive(Debug)]
+/// an [`Experiment`] itself (delegating to the one the file describes); the layers above
+/// see that experiment and nothing more concrete.
 pub struct Problem {
-    system: System,
+    experiment: Box<dyn Experiment>,
+    kind: ProblemKind,
     /// Sample period between filter steps, s.
     pub dt: f64,
     /// The file's `[tune]` section, validated (defaults where absent).
     pub tune: TuneSettings,
+}
+
+impl std::fmt::Debug for Problem {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Problem")
+            .field("name", &self.name())
+            .field("kind", &self.kind)
+            .field("dt", &self.dt)
+            .field("tune", &self.tune)
+            .finish_non_exhaustive()
+    }
 }
 
 impl Problem {
@@ -63,43 +95,17 @@ impl Problem {
 
     /// The experiment the file describes.
     pub fn experiment(&self) -> &dyn Experiment {
-        match &self.system {
-            System::Linear(l) => l.as_ref(),
-            System::Catalog(c) => c.as_ref(),
-            System::External(e) => e.as_ref(),
-        }
+        self.experiment.as_ref()
     }
 
-    /// The linear truth and filter model, if the problem is linear.
-    pub fn linear(&self) -> Option<&LinearExperiment> {
-        match &self.system {
-            System::Linear(l) => Some(l),
-            System::Catalog(_) | System::External(_) => None,
-        }
+    /// The experiment the file describes, owned.
+    pub fn into_experiment(self) -> Box<dyn Experiment> {
+        self.experiment
     }
 
-    /// Mutable access to the linear truth and filter model, if the problem is linear.
-    pub fn linear_mut(&mut self) -> Option<&mut LinearExperiment> {
-        match &mut self.system {
-            System::Linear(l) => Some(l),
-            System::Catalog(_) | System::External(_) => None,
-        }
-    }
-
-    /// The catalog model, if the problem names one.
-    pub fn catalog(&self) -> Option<&CatalogExperiment> {
-        match &self.system {
-            System::Linear(_) | System::External(_) => None,
-            System::Catalog(c) => Some(c),
-        }
-    }
-
-    /// Mutable access to the catalog model, if the problem names one.
-    pub fn catalog_mut(&mut self) -> Option<&mut CatalogExperiment> {
-        match &mut self.system {
-            System::Linear(_) | System::External(_) => None,
-            System::Catalog(c) => Some(c),
-        }
+    /// Which section defines the system.
+    pub fn kind(&self) -> ProblemKind {
+        self.kind
     }
 
     /// The problem's name (from the file, or its stem).
@@ -162,6 +168,10 @@ impl Experiment for Problem {
     fn alter(&self, change: &crate::experiment::Alteration) -> Option<Box<dyn Experiment>> {
         self.experiment().alter(change)
     }
+
+    fn linear(&self) -> Option<&LinearExperiment> {
+        self.experiment().linear()
+    }
 }
 
 /// SHA-256 of bytes as lowercase hex.
@@ -221,41 +231,50 @@ impl Validator<'_> {
                 sha256,
             },
         };
-        if let Some(ext) = &s.external {
-            if s.truth.is_some() || s.filter.is_some() || s.model.is_some() {
-                return self.err(
-                    "external",
-                    "give [external] alone, without [truth], [filter] or [model]",
-                );
-            }
-            let system = System::External(Box::new(self.external_problem(&s, ext, info, mc)?));
-            let tune = self.tune_settings(&s.tune)?;
-            return Ok(Problem { system, dt, tune });
-        }
-        let system = match (&s.truth, &s.filter, &s.model) {
-            (None, None, Some(model)) => {
-                System::Catalog(Box::new(self.catalog_problem(&s, model, info, mc)?))
-            }
-            (t, _, Some(_)) => {
-                let which = if t.is_some() { "truth" } else { "filter" };
-                return self.err(
-                    which,
-                    "give either [model] (a named model) or [truth] and [filter], not both",
-                );
-            }
-            (Some(t), Some(f), None) => {
-                System::Linear(Box::new(self.linear_problem(&s, t, f, info, mc)?))
-            }
-            (None, _, None) => {
-                return self.err(
-                    "truth",
-                    "missing: give [truth] and [filter], or [model] with a catalog name",
-                );
-            }
-            (Some(_), None, None) => return self.err("filter", "missing"),
-        };
+        // The one place the kinds of system are told apart: each section builds its
+        // experiment, and everything after sees only the trait.
+        let (kind, experiment): (ProblemKind, Box<dyn Experiment>) =
+            match (&s.external, &s.truth, &s.filter, &s.model) {
+                (Some(_), t, f, m) if t.is_some() || f.is_some() || m.is_some() => {
+                    return self.err(
+                        "external",
+                        "give [external] alone, without [truth], [filter] or [model]",
+                    );
+                }
+                (Some(ext), ..) => (
+                    ProblemKind::External,
+                    Box::new(self.external_problem(&s, ext, info, mc)?),
+                ),
+                (None, None, None, Some(model)) => (
+                    ProblemKind::Catalog,
+                    Box::new(self.catalog_problem(&s, model, info, mc)?),
+                ),
+                (None, t, _, Some(_)) => {
+                    let which = if t.is_some() { "truth" } else { "filter" };
+                    return self.err(
+                        which,
+                        "give either [model] (a named model) or [truth] and [filter], not both",
+                    );
+                }
+                (None, Some(t), Some(f), None) => (
+                    ProblemKind::Linear,
+                    Box::new(self.linear_problem(&s, t, f, info, mc)?),
+                ),
+                (None, None, _, None) => {
+                    return self.err(
+                        "truth",
+                        "missing: give [truth] and [filter], or [model] with a catalog name",
+                    );
+                }
+                (None, Some(_), None, None) => return self.err("filter", "missing"),
+            };
         let tune = self.tune_settings(&s.tune)?;
-        Ok(Problem { system, dt, tune })
+        Ok(Problem {
+            experiment,
+            kind,
+            dt,
+            tune,
+        })
     }
 
     /// `[montecarlo]` as a checked [`McConfig`].

@@ -1,44 +1,21 @@
-//! Output: the human summary, JSON, JUnit XML, and tuned configs; a command's files are
-//! checked before its work and written together, atomically (see [`Outputs`]).
+//! Rendering: every text, JSON, Markdown, HTML (with SVG plots), JUnit XML and TOML that
+//! autotune prints or writes, by command, with the primitives they share. Nothing here runs
+//! an experiment; a command's files are written together by [`crate::output`].
+//!
+//! - [`check`]: a consistency check's summary, JUnit, HTML and Markdown pages (the tune
+//!   report's statistics reuse them) and the per-parameter advice;
+//! - [`tune`]: a tuning run's summary, Markdown and JSON, and the tuned config it writes;
+//! - [`nis`]: a field log's summary, Markdown, JUnit and HTML report;
+//! - [`format`], [`html`] and `svg`: numbers, HTML escaping and page heads, and the plot
+//!   primitives.
 
-pub mod advice;
+pub mod check;
+pub mod format;
 pub mod html;
-mod junit;
 pub mod nis;
-pub mod nis_html;
-mod nis_plots;
-pub mod plots;
-mod summary;
+pub mod progress;
+mod svg;
 pub mod tune;
-pub mod tuned;
-mod write;
 
-pub use junit::junit_xml;
-pub use summary::{fmt_fixed, fmt_g, gate_text, run_spread_note, summary_text};
-pub use write::{
-    Outputs, REPORT_FILES, WriteError, check_output_file, check_report_dir, remove_temporary_files,
-    write_file,
-};
-
-use serde::Serialize;
-
-use crate::stats::ConsistencyReport;
-
-/// What a `check` run reports, for machines.
-#[derive(Debug, Clone, Serialize)]
-pub struct CheckOutput<'a> {
-    /// Problem name.
-    pub problem: &'a str,
-    /// Problem file.
-    pub file: String,
-    /// SHA-256 of the problem file (`null` for a model defined in Rust).
-    pub problem_hash: Option<&'a str>,
-    /// Base seed.
-    pub seed: u64,
-    /// Parameter values the filter was run with.
-    pub params: Vec<(String, f64)>,
-    /// The statistics.
-    pub report: &'a ConsistencyReport,
-    /// autotune version.
-    pub version: &'static str,
-}
+pub use check::{CheckOutput, check_summary, gate_text, junit_xml, run_spread_note, summary_text};
+pub use format::{fmt_fixed, fmt_g, paint_verdicts};

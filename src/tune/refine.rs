@@ -28,6 +28,7 @@ use statrs::distribution::{Binomial, DiscreteCDF};
 
 use super::cost::Cost;
 use super::result::Resolution;
+use crate::check::judge;
 use crate::experiment::Experiment;
 use crate::montecarlo::McConfig;
 use crate::stats::{ConsistencyReport, gate_deviates};
@@ -84,12 +85,11 @@ impl<'a> Gate<'a> {
     /// The gate's report at `theta` on `runs` runs from `seed`.
     pub(super) fn report(&self, theta: &[f64], runs: usize, seed: u64) -> ConsistencyReport {
         let mc = self.mc.with_runs(runs).unwrap_or(self.mc).with_seed(seed);
-        let acc = self.cost.monte_carlo(theta, &mc);
-        ConsistencyReport::from_accumulator(
-            &acc,
-            &mc.gate_spec(self.use_nees),
-            self.model.state_names(),
-            self.model.measurement_names(),
+        judge(
+            self.model,
+            &self.cost.monte_carlo(theta, &mc),
+            &mc,
+            self.use_nees,
         )
     }
 

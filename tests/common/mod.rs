@@ -21,11 +21,11 @@ pub fn load(name: &str) -> Problem {
 
 /// The truth's noise values for each shipped problem's parameters: as written in the linear
 /// problem files' [truth] sections, and as the catalog models report them.
-pub fn truth_values(problem: &Problem) -> Vec<f64> {
+pub fn truth_values(problem: &dyn Experiment) -> Vec<f64> {
     if let Some(v) = problem.truth_values() {
         return v;
     }
-    let table: &[(&str, f64)] = match problem.name() {
+    let table: &[(&str, f64)] = match problem.info().name.as_str() {
         "cv1d" => &[("q_accel", 0.5), ("r_pos", 1.0)],
         "cv2d" => &[
             ("q_accel_x", 0.5),
@@ -51,7 +51,7 @@ pub fn truth_values(problem: &Problem) -> Vec<f64> {
 }
 
 /// `theta` with every parameter whose name starts with `prefix` multiplied by `factor`.
-pub fn scaled(problem: &Problem, theta: &[f64], prefix: &str, factor: f64) -> Vec<f64> {
+pub fn scaled(problem: &dyn Experiment, theta: &[f64], prefix: &str, factor: f64) -> Vec<f64> {
     problem
         .params()
         .params

@@ -6,9 +6,9 @@ use plotters::coord::ranged1d::Ranged;
 use plotters::coord::types::RangedCoordf64;
 use plotters::prelude::*;
 
-use super::super::plots::Drawn;
 use super::legend::{LegendItem, Swatch};
 use crate::fieldlog::{EventKind, Px4Event};
+use crate::report::svg::Drawn;
 
 /// Takeoff and landing: the darkest lines, solid and dashed.
 pub(in crate::report) const FLIGHT: RGBColor = RGBColor(40, 40, 40);

@@ -5,7 +5,7 @@ use plotters::coord::Shift;
 use plotters::element::DashedPathElement;
 use plotters::prelude::*;
 
-use super::super::plots::{Drawn, FONT};
+use crate::report::svg::{Drawn, FONT};
 
 /// How an entry's sample is drawn (each kind as the plot draws its series).
 #[derive(Debug, Clone, Copy)]

@@ -3,10 +3,10 @@
 
 use std::fmt::Write;
 
-use super::super::fmt_g;
-use super::super::nis_plots::{InnovationSummary, SeriesScale, TimeAxis};
 use crate::fieldlog::EventKind;
 use crate::fieldlog::{NisReport, SensorReport};
+use crate::report::format::fmt_g;
+use crate::report::nis::plots::{InnovationSummary, SeriesScale, TimeAxis};
 use crate::stats::Verdict;
 
 /// A count a consistent filter would have, in few digits.

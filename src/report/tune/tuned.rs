@@ -187,13 +187,14 @@ pub fn rejected_config_toml(
     let mut head = String::from(
         "# REJECTED: this tuning did not make the filter consistent; do not apply these values.\n",
     );
-    let lines = super::advice::family_finding(result, explanations).unwrap_or_else(|| {
-        vec![format!(
-            "the search ended {} (confirmation: {})",
-            format!("{:?}", result.status).to_lowercase(),
-            result.confirmation.text()
-        )]
-    });
+    let lines =
+        crate::report::check::advice::family_finding(result, explanations).unwrap_or_else(|| {
+            vec![format!(
+                "the search ended {} (confirmation: {})",
+                format!("{:?}", result.status).to_lowercase(),
+                result.confirmation.text()
+            )]
+        });
     for l in lines {
         head.push_str("# ");
         head.push_str(&l.replace('\n', " "));

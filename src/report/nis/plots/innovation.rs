@@ -8,11 +8,11 @@ use std::collections::HashSet;
 use plotters::coord::Shift;
 use plotters::prelude::*;
 
-use super::super::plots::{BAND, Drawn, FONT, MID, chart_builder};
 use super::legend::{LegendItem, Swatch};
 use super::markers::{TimeAxis, draw_events};
 use super::{CELLS, render_with_legend, thin, time_decimals, time_range};
 use crate::fieldlog::SensorPlot;
+use crate::report::svg::{BAND, Drawn, FONT, MID, chart_builder};
 
 /// The ±2√S band, lighter than the ±√S one drawn over it.
 const BAND2: RGBColor = RGBColor(235, 235, 235);

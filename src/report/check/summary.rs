@@ -2,6 +2,7 @@
 
 use std::fmt::Write;
 
+use crate::report::format::{compact_numbers, fmt_fixed, fmt_g, fmt_signed};
 use crate::stats::{ComponentStat, ConsistencyReport, GateMode, StatisticSummary, Verdict};
 
 /// A gate statistic's cells as every table shows them: the time average, the gate
@@ -121,6 +122,29 @@ fn stat_row(out: &mut String, s: &StatisticSummary) {
         "  A{:<5} {:>10} {:>7}   {}   {:>7}     {}",
         s.name, c.average, c.target, c.interval, c.in_bounds, c.verdict
     );
+}
+
+/// `check`'s summary as printed: [`summary_text`], with a line after the first saying so
+/// when the experiment has no states and was judged by its innovations without being asked
+/// to (`no_states` and not `nis_only`).
+pub fn check_summary(
+    problem: &str,
+    params: &[(String, f64)],
+    r: &ConsistencyReport,
+    no_states: bool,
+    nis_only: bool,
+) -> String {
+    let mut out = String::new();
+    for (i, line) in summary_text(problem, params, r).lines().enumerate() {
+        if i == 1 && no_states && !nis_only {
+            out.push_str(
+                "  no states (no ground truth): judged by the innovations alone, NEES absent\n",
+            );
+        }
+        out.push_str(line);
+        out.push('\n');
+    }
+    out
 }
 
 /// A summary a person reads in seconds: the gate statistics with their intervals, the
@@ -336,98 +360,4 @@ pub fn run_spread_note(s: &StatisticSummary) -> Option<String> {
             half(&s.naive_interval),
         )
     })
-}
-
-/// A number with four significant digits, in scientific notation when it is very small or
-/// very large.
-pub fn fmt_g(v: f64) -> String {
-    let a = v.abs();
-    if a != 0.0 && !(1e-3..1e5).contains(&a) {
-        format!("{v:.3e}")
-    } else {
-        let digits = if a == 0.0 {
-            0
-        } else {
-            (3 - a.log10().floor() as i32).max(0) as usize
-        };
-        format!("{v:.digits$}")
-    }
-}
-
-/// Longest plain decimal number [`compact_numbers`] leaves as it is.
-const LONGEST_PLAIN_NUMBER: usize = 20;
-
-/// `text` with every plain decimal number longer than 20 characters rewritten as
-/// [`fmt_fixed`] writes it (scientific notation, four significant digits), for text that
-/// was built elsewhere with fixed decimals (the diagnosis's evidence): there a value of
-/// 10¹⁰⁰ is a hundred digits.
-pub(crate) fn compact_numbers(text: &str) -> String {
-    let mut out = String::with_capacity(text.len());
-    let mut rest = text;
-    while let Some(start) = rest.find(|c: char| c.is_ascii_digit()) {
-        out.push_str(&rest[..start]);
-        let tail = &rest[start..];
-        let len = tail
-            .find(|c: char| !(c.is_ascii_digit() || c == '.'))
-            .unwrap_or(tail.len());
-        let token = &tail[..len];
-        match token.parse::<f64>() {
-            Ok(v) if len > LONGEST_PLAIN_NUMBER => out.push_str(&fmt_fixed(v, 3)),
-            _ => out.push_str(token),
-        }
-        rest = &tail[len..];
-    }
-    out.push_str(rest);
-    out
-}
-
-/// Magnitude from which [`fmt_fixed`] switches to scientific notation.
-const FIXED_LIMIT: f64 = 1e6;
-
-/// A signed number with `decimals` decimals ("+0.02"), in scientific notation from the same
-/// size as [`fmt_fixed`]; a value that rounds to zero shows as "+0.00", never "-0.00".
-pub fn fmt_signed(v: f64, decimals: usize) -> String {
-    if v.abs() >= FIXED_LIMIT && v.is_finite() {
-        format!("{v:+.3e}")
-    } else if v.abs() < 0.5 * 10f64.powi(-(decimals as i32)) {
-        format!("{:+.decimals$}", 0.0)
-    } else {
-        format!("{v:+.decimals$}")
-    }
-}
-
-/// A number with `decimals` decimals, as `{:.decimals$}` prints it, but in scientific
-/// notation with four significant digits from a magnitude of 10⁶ on, so that a number such
-/// as the ANEES of an overflowing filter prints as `1.234e127` rather than as 128 digits.
-pub fn fmt_fixed(v: f64, decimals: usize) -> String {
-    if v.abs() >= FIXED_LIMIT && v.is_finite() {
-        format!("{v:.3e}")
-    } else {
-        format!("{v:.decimals$}")
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn huge_numbers_print_in_scientific_notation_and_ordinary_ones_as_before() {
-        assert_eq!(fmt_fixed(3.98765432, 4), "3.9877");
-        assert_eq!(fmt_fixed(-12.5, 2), "-12.50");
-        assert_eq!(fmt_fixed(999_999.0, 4), "999999.0000");
-        assert_eq!(fmt_fixed(1.5e127, 4), "1.500e127");
-        assert_eq!(fmt_fixed(-2e6, 4), "-2.000e6");
-        assert_eq!(fmt_fixed(f64::NAN, 4), "NaN");
-        assert_eq!(fmt_fixed(f64::INFINITY, 4), "inf");
-        assert_eq!(fmt_g(1e308), "1.000e308");
-        assert_eq!(fmt_g(0.5), "0.5000");
-        assert!(fmt_fixed(f64::MAX, 4).len() < 12);
-        let long = format!("ν²/S = {:.3}, ρ₁ = +0.916", 1e100);
-        assert_eq!(compact_numbers(&long), "ν²/S = 1.000e100, ρ₁ = +0.916");
-        assert_eq!(
-            compact_numbers("e²/P = 2.500 at 1e5"),
-            "e²/P = 2.500 at 1e5"
-        );
-    }
 }

@@ -67,7 +67,7 @@ pub(crate) fn fmt_evidence(v: f64) -> String {
     if v.is_nan() {
         "no data".into()
     } else {
-        super::fmt_fixed(v, 2)
+        crate::report::format::fmt_fixed(v, 2)
     }
 }
 
@@ -84,7 +84,7 @@ fn fmt_bounds((lower, upper): (f64, f64)) -> String {
 /// that ran to a far bound), 2 decimals below 10.
 fn fmt_factor(f: f64) -> String {
     if f >= 10.0 {
-        super::fmt_fixed(f, 0)
+        crate::report::format::fmt_fixed(f, 0)
     } else {
         format!("{f:.2}")
     }
@@ -336,7 +336,7 @@ fn best_achievable(result: &TuneResult) -> Vec<String> {
         .iter()
         .chain(std::iter::once(&a.nis))
         .map(|s| {
-            let c = super::summary::StatCells::of(s);
+            let c = crate::report::check::summary::StatCells::of(s);
             format!(
                 "A{} {} (target {}, interval {})",
                 s.name, c.average, c.target, c.interval
@@ -359,7 +359,7 @@ fn best_achievable(result: &TuneResult) -> Vec<String> {
             format!(
                 "{} {stat} = {} ({dir})",
                 c.name,
-                super::fmt_fixed(c.value, 3)
+                crate::report::format::fmt_fixed(c.value, 3)
             )
         })
         .collect();

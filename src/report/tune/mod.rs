@@ -1,14 +1,16 @@
 //! The report of a tuning run: Markdown for people, JSON for machines.
 
+pub mod tuned;
+
 use std::fmt::Write;
 
 use serde::Serialize;
 
-use super::advice::{Recommendation, fmt_evidence};
-use super::summary::{StatCells, component_cells};
-use super::{fmt_fixed, fmt_g};
 use crate::experiment::{Experiment, Source};
 use crate::explain::Explanation;
+use crate::report::check::advice::{Recommendation, fmt_evidence};
+use crate::report::check::summary::{StatCells, component_cells};
+use crate::report::format::{fmt_fixed, fmt_g};
 use crate::stats::{ConsistencyReport, StatisticSummary};
 use crate::tune::{TuneResult, TuneStatus};
 
@@ -93,7 +95,7 @@ pub fn tune_markdown(
         r.after.verdict.label(),
         r.status
     );
-    if let Some(lines) = super::advice::family_finding(r, explanations) {
+    if let Some(lines) = crate::report::check::advice::family_finding(r, explanations) {
         let _ = writeln!(o, "## {}\n", misfit_heading(r));
         for l in lines {
             let _ = writeln!(o, "- {l}");

@@ -14,8 +14,8 @@ use plotters::coord::types::RangedCoordf64;
 use plotters::prelude::*;
 use statrs::distribution::{ChiSquared, Continuous};
 
-use super::plots::{BAND, Drawn, FONT, MID, chart_builder, render_sized};
 use crate::fieldlog::{Histogram, SensorPlot};
+use crate::report::svg::{BAND, Drawn, FONT, MID, chart_builder, render_sized};
 
 mod innovation;
 mod legend;

@@ -2,9 +2,9 @@
 
 use std::fmt::Write;
 
-use super::fmt_fixed;
-use super::html::escape;
-use super::summary::has_data;
+use crate::report::check::summary::has_data;
+use crate::report::format::fmt_fixed;
+use crate::report::html::escape;
 use crate::stats::{ConsistencyReport, GateMode, StatisticSummary, Verdict};
 
 fn case(name: &str, class: &str, failure: Option<(String, String)>) -> String {
@@ -80,8 +80,8 @@ fn mean_case(report: &ConsistencyReport, class: &str) -> String {
                 "{} {} mean {}σ (z = {})",
                 c.kind,
                 c.name,
-                super::summary::fmt_signed(c.mean, 3),
-                super::summary::fmt_signed(c.mean_z, 2)
+                crate::report::format::fmt_signed(c.mean, 3),
+                crate::report::format::fmt_signed(c.mean_z, 2)
             )
         })
         .collect();
@@ -115,7 +115,7 @@ pub fn junit_xml(problem: &str, report: &ConsistencyReport) -> String {
         (
             format!(
                 "{} in {} of {} runs",
-                super::summary::stopped_runs(report.verdict),
+                crate::report::check::summary::stopped_runs(report.verdict),
                 report.diverged_runs,
                 report.runs
             ),

@@ -1,10 +1,13 @@
 //! What `autotune nis` prints and writes: the summary table, JUnit XML and Markdown.
 
+pub mod html;
+mod plots;
+
 use std::fmt::Write;
 
-use super::fmt_g;
-use super::html::escape;
 use crate::fieldlog::{NisReport, SensorReport};
+use crate::report::format::fmt_g;
+use crate::report::html::escape;
 use crate::stats::Verdict;
 
 /// Channels listed by name in the "not fused" line; the JSON lists all.
@@ -43,7 +46,7 @@ pub(super) fn mean_cell(s: &SensorReport) -> String {
             } else {
                 ""
             };
-            format!("{}{flag}", super::summary::fmt_signed(t.mean, 2))
+            format!("{}{flag}", crate::report::format::fmt_signed(t.mean, 2))
         })
 }
 
@@ -408,8 +411,8 @@ pub fn nis_junit_xml(r: &NisReport) -> String {
                 format!(
                     ", {} mean {}σ (z = {})",
                     t.component,
-                    super::summary::fmt_signed(t.mean, 3),
-                    super::summary::fmt_signed(t.z, 2)
+                    crate::report::format::fmt_signed(t.mean, 3),
+                    crate::report::format::fmt_signed(t.z, 2)
                 )
             })
             .collect::<String>();

@@ -8,13 +8,13 @@ mod px4;
 
 use std::fmt::Write;
 
-use super::html::{escape, figure, head_styled};
-use super::nis::{dropped, mean_cell, nis_gate_text, nis_verdict_line, rho1};
-use super::nis_plots::{
+use crate::fieldlog::{NisReport, SensorReport};
+use crate::report::format::{compact_numbers, fmt_g};
+use crate::report::html::{escape, figure, head_styled};
+use crate::report::nis::plots::{
     TimeAxis, innovation_svg, nis_histogram_svg, nis_series_svg, nis_whiteness_svg, series_scale,
 };
-use super::{fmt_g, summary::compact_numbers};
-use crate::fieldlog::{NisReport, SensorReport};
+use crate::report::nis::{dropped, mean_cell, nis_gate_text, nis_verdict_line, rho1};
 use crate::stats::Verdict;
 use captions::{
     count, histogram_caption, innovation_caption, interval, num, series_caption, short,
@@ -259,8 +259,8 @@ fn component_table(o: &mut String, s: &SensorReport) {
                 let _ = write!(
                     o,
                     "<td class=\"num\">{}</td><td class=\"num\">{}</td><td class=\"num\">{}</td>{}",
-                    super::summary::fmt_signed(t.mean, 3),
-                    super::summary::fmt_signed(t.z, 2),
+                    crate::report::format::fmt_signed(t.mean, 3),
+                    crate::report::format::fmt_signed(t.z, 2),
                     num(t.n_eff),
                     verdict_cell(t.verdict)
                 );

@@ -5,9 +5,9 @@
 
 use std::fmt::Write;
 
-use super::super::html::escape;
 use super::captions::{count, num};
 use crate::fieldlog::{NisReport, Px4Channel, Px4Info, SensorReport};
+use crate::report::html::escape;
 
 /// Events listed inline; more are folded away.
 const EVENTS_INLINE: usize = 12;

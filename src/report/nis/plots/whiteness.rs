@@ -1,14 +1,14 @@
 //! A sensor's innovation autocorrelation for the `autotune nis` report: the same plot as
-//! [`super::super::plots::whiteness_svg_sized`], with its legend in the strip under it like
+//! [`crate::report::svg::whiteness_svg_sized`], with its legend in the strip under it like
 //! the report's other plots, since a component's ρ at the first lags sits where a legend
 //! box in a corner would be.
 
 use plotters::coord::Shift;
 use plotters::prelude::*;
 
-use super::super::plots::{BAND, Drawn, FONT, MID, chart_builder};
 use super::legend::{LegendItem, Swatch};
 use super::render_with_legend;
+use crate::report::svg::{BAND, Drawn, FONT, MID, chart_builder};
 use crate::stats::WhitenessStat;
 
 /// The marker of the `i`-th component: a disc, a triangle, a cross, in turn.

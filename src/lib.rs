@@ -39,6 +39,7 @@ unsafe extern "C" {}
 pub mod app;
 pub mod catalog;
 pub mod check;
+pub mod commands;
 pub mod estimate;
 pub mod experiment;
 pub mod explain;

@@ -7,7 +7,7 @@ use std::process::ExitCode;
 use clap_complete::Shell;
 
 use super::AppError;
-use super::args::OneOf;
+use crate::commands::OneOf;
 
 #[derive(Debug, clap::Args)]
 pub struct CompletionsArgs {

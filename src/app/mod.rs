@@ -16,61 +16,45 @@
 //! `my_model check --report out`, `my_model tune --out tuned/my_model.toml`, … then behave as
 //! `autotune check problem.toml …` does. Exit codes: 0 consistent, 1 not, 2 bad input.
 
-mod args;
-mod check;
 mod completions;
-mod estimate;
-mod estimate_full;
-mod init;
+mod interrupt;
 mod nis;
-mod simulate;
-mod tune;
 
-pub use check::CheckOptions;
+pub use crate::commands::check::CheckOptions;
+pub use crate::commands::tune::TuneOptions;
 pub use nis::NisArgs;
-pub use tune::TuneOptions;
 
 use std::ffi::OsString;
+use std::io::IsTerminal;
 use std::path::PathBuf;
 use std::process::ExitCode;
 
 use clap::{CommandFactory, FromArgMatches, Parser, Subcommand};
 
-use crate::experiment::Experiment;
-use crate::experiment::RecordedExperiment;
+use crate::commands::estimate::{EstimateOptions, initial, measured_experiment};
+use crate::commands::init::InitOptions;
+use crate::commands::simulate::SimulateOptions;
+use crate::commands::{self, CommandError};
+use crate::experiment::{Experiment, ExperimentError, RecordedExperiment};
 use crate::input::FileError;
 use crate::output::WriteError;
 use crate::problem::Problem;
+use crate::report::progress::{CheckBar, TuneProgress};
+use crate::report::{check_summary, paint_verdicts};
+use crate::stats::Verdict;
 use crate::tune::TuneSettings;
 
 /// Why a command could not do its job (exit code 2). Each renders as one line naming the
 /// file and field, or the flag.
 #[derive(Debug, thiserror::Error)]
 pub enum AppError {
-    /// A bad input file.
+    /// A command's refusal or failure: a bad input file or flag, an output that could not
+    /// be written, an experiment that could not run.
     #[error(transparent)]
-    File(#[from] FileError),
-    /// A bad command-line option: the flag and what is wrong.
-    #[error("{flag}: {message}")]
-    Flag {
-        /// The flag, e.g. `--runs`.
-        flag: String,
-        /// What is wrong.
-        message: String,
-    },
+    Command(#[from] CommandError),
     /// Arguments clap refused (its first line, and where to find help).
     #[error("{0}")]
     Usage(String),
-    /// An output that could not be written.
-    #[error(transparent)]
-    Write(#[from] WriteError),
-    /// A refusal that names its own subject (e.g. an existing file).
-    #[error("{0}")]
-    Refused(String),
-    /// The experiment could not run: an external worker broke the protocol, records were
-    /// malformed.
-    #[error(transparent)]
-    Experiment(#[from] crate::experiment::ExperimentError),
     /// Standard output failed (a closed pipe is not reported).
     #[error(transparent)]
     Io(#[from] std::io::Error),
@@ -79,10 +63,25 @@ pub enum AppError {
 impl AppError {
     /// An error in option `flag`.
     pub fn flag(flag: &str, message: impl Into<String>) -> AppError {
-        AppError::Flag {
-            flag: flag.to_string(),
-            message: message.into(),
-        }
+        CommandError::option(flag, message).into()
+    }
+}
+
+impl From<FileError> for AppError {
+    fn from(e: FileError) -> Self {
+        CommandError::File(e).into()
+    }
+}
+
+impl From<WriteError> for AppError {
+    fn from(e: WriteError) -> Self {
+        CommandError::Write(e).into()
+    }
+}
+
+impl From<ExperimentError> for AppError {
+    fn from(e: ExperimentError) -> Self {
+        CommandError::Experiment(e).into()
     }
 }
 
@@ -108,13 +107,13 @@ enum Command {
     Nis(nis::NisArgs),
     /// Draw measurements (and optionally the true states) from a linear problem's truth, to
     /// try `estimate` on data whose answer is known.
-    Simulate(simulate::SimulateArgs),
+    Simulate(SimulateOptions),
     /// Estimate a linear problem's free Q/R parameters from recorded measurements alone:
     /// maximum likelihood with standard errors, or autocovariance least squares.
-    Estimate(estimate::EstimateArgs),
+    Estimate(EstimateOptions),
     /// Write a commented starter problem file (NAME.toml) whose filter equals its truth, so
     /// `autotune check` passes on it; replace its parameter values with your own guesses.
-    Init(init::InitArgs),
+    Init(InitOptions),
     /// Print a shell completion script on stdout, e.g.
     /// `autotune completions bash > ~/.local/share/bash-completion/completions/autotune`.
     Completions(completions::CompletionsArgs),
@@ -185,7 +184,7 @@ enum ModelCommand {
 /// directories and the temporary files of a write in progress, and exit 128 + the signal's
 /// number (130, 143, 129).
 pub fn main() -> ExitCode {
-    remove_temporary_files_on_interrupt();
+    interrupt::install();
     finish(run(std::env::args_os()))
 }
 
@@ -203,53 +202,153 @@ where
         Command::Check(a) => match (a.problem, &a.measurements) {
             (Some(p), Some(f)) => {
                 let problem = Problem::load(&p)?;
-                let measured = estimate::measured_experiment(&problem, &p, f)?;
-                check::run(&measured, a.options.nis_only())
+                let measured = measured_experiment(&problem, &p, f)?;
+                check(&measured, a.options.with_nis_only())
             }
-            (Some(p), None) => check::run(&Problem::load(&p)?, a.options),
-            (None, _) => check::run(&RecordedExperiment::read(&a.records)?, a.options),
+            (Some(p), None) => check(&Problem::load(&p)?, a.options),
+            (None, _) => check(&RecordedExperiment::read(&a.records)?, a.options),
         },
-        Command::Tune(a) => {
-            let p = Problem::load(&a.problem)?;
-            let init = match (&a.init, &a.measurements) {
-                (Some(m), _) if m == "problem" => None,
-                // One record is one draw: the search starts where the evidence is, the
-                // maximum of the likelihood on it, unless --init says otherwise.
-                (None, Some(f)) => {
-                    match estimate::initial(&p, &a.problem, Some(f.as_path()), "ml") {
-                        Ok(theta) => Some(theta),
-                        Err(AppError::Refused(why)) => {
-                            eprintln!("start: the problem's values ({why})");
-                            None
-                        }
-                        Err(e) => return Err(e),
-                    }
-                }
-                (None, None) => None,
-                (Some(method), _) => {
-                    let record = a.init_record.as_ref().or(a.measurements.as_ref());
-                    Some(estimate::initial(
-                        &p,
-                        &a.problem,
-                        record.map(|r| r.as_path()),
-                        method,
-                    )?)
-                }
-            };
-            match &a.measurements {
-                None => tune::run_from(&p, &p.tune, a.options, init),
-                Some(f) => {
-                    let measured = estimate::measured_experiment(&p, &a.problem, f)?;
-                    let settings = p.tune.clone().with_nis_only(true);
-                    tune::run_from(&measured, &settings, a.options, init)
-                }
-            }
-        }
+        Command::Tune(a) => tune_problem(a),
         Command::Nis(a) => nis::run(a),
-        Command::Simulate(a) => simulate::run_simulate(a),
-        Command::Estimate(a) => estimate::run_estimate(a),
-        Command::Init(a) => init::run(a),
+        Command::Simulate(a) => {
+            let text = commands::simulate::simulate(&a)?;
+            print_stdout(|o| o.write_all(text.as_bytes()))?;
+            Ok(ExitCode::SUCCESS)
+        }
+        Command::Estimate(a) => {
+            let run = commands::estimate::estimate(&a)?;
+            print_stdout(|o| o.write_all(run.output.as_bytes()))?;
+            Ok(ExitCode::SUCCESS)
+        }
+        Command::Init(a) => {
+            let text = commands::init::init(&a)?;
+            print_stdout(|o| o.write_all(text.as_bytes()))?;
+            Ok(ExitCode::SUCCESS)
+        }
         Command::Completions(a) => completions::run(a, Cli::command(), "autotune"),
+    }
+}
+
+/// `tune` on a problem file: from the problem's values, or from an estimate on recorded
+/// measurements (`--init`, and by default with `--measurements`), over the truth model or
+/// over the record.
+fn tune_problem(a: ProblemTune) -> Result<ExitCode, AppError> {
+    let p = Problem::load(&a.problem)?;
+    let start = |record: Option<&std::path::Path>, method: &str| {
+        initial(&p, &a.problem, record, method).map(|s| {
+            eprintln!("{}", s.note);
+            s.theta
+        })
+    };
+    let init = match (&a.init, &a.measurements) {
+        (Some(m), _) if m == "problem" => None,
+        // One record is one draw: the search starts where the evidence is, the maximum of
+        // the likelihood on it, unless --init says otherwise.
+        (None, Some(f)) => match start(Some(f.as_path()), "ml") {
+            Ok(theta) => Some(theta),
+            Err(e @ CommandError::Estimate { .. }) => {
+                eprintln!("start: the problem's values ({e})");
+                None
+            }
+            Err(e) => return Err(e.into()),
+        },
+        (None, None) => None,
+        (Some(method), _) => {
+            let record = a.init_record.as_ref().or(a.measurements.as_ref());
+            Some(start(record.map(|r| r.as_path()), method)?)
+        }
+    };
+    match &a.measurements {
+        None => tune(&p, &p.tune, a.options, init),
+        Some(f) => {
+            let measured = measured_experiment(&p, &a.problem, f)?;
+            let settings = p.tune.clone().with_nis_only(true);
+            tune(&measured, &settings, a.options, init)
+        }
+    }
+}
+
+/// Run `check` on `experiment` and print its summary (or JSON): exit 0 if the filter
+/// passes the gate, 1 if not; a truth that overflowed is an error after the report.
+fn check(experiment: &dyn Experiment, o: CheckOptions) -> Result<ExitCode, AppError> {
+    let run = if !o.quiet && std::io::stderr().is_terminal() {
+        commands::check::check(experiment, &o, &CheckBar::new())?
+    } else {
+        commands::check::check(experiment, &o, &())?
+    };
+    print_stdout(|stdout| {
+        if o.json {
+            stdout.write_all(run.json.as_bytes())?;
+            writeln!(stdout)?;
+        } else if !o.quiet {
+            let name = &experiment.info().name;
+            let text = check_summary(name, &run.params, &run.report, run.no_states, o.nis_only);
+            write_painted(stdout, &text, run.passes())?;
+        }
+        Ok(())
+    })?;
+    if run.report.verdict == Verdict::TruthOverflow {
+        return Err(commands::check::truth_overflow(experiment, &run.report).into());
+    }
+    Ok(exit_code(run.passes()))
+}
+
+/// Run `tune` on `experiment` from `defaults` and print its summary (or JSON): exit 0 if
+/// the tuned filter passes its confirmation, 1 if not.
+fn tune(
+    experiment: &dyn Experiment,
+    defaults: &TuneSettings,
+    o: TuneOptions,
+    init: Option<Vec<f64>>,
+) -> Result<ExitCode, AppError> {
+    let max_evals = o.settings(defaults).map_or(0, |s| s.max_evals());
+    let progress = TuneProgress::new(
+        max_evals,
+        !o.quiet && std::io::stderr().is_terminal(),
+        o.quiet,
+    );
+    let run = commands::tune::tune(experiment, defaults, &o, init, &progress);
+    progress.finish();
+    let run = run?;
+    print_stdout(|stdout| {
+        if o.json {
+            writeln!(stdout, "{}", run.json)?;
+        } else if !o.quiet {
+            let text = crate::report::tune::tune_summary(
+                &experiment.info().name,
+                &run.result,
+                &run.settings,
+                &run.recommendations,
+                &run.explanations,
+                &run.config,
+                run.report_dir.as_deref(),
+            );
+            write_painted(stdout, &text, run.consistent())?;
+        }
+        Ok(())
+    })?;
+    // A truth that overflows is the problem file's fault, as in `check`.
+    if run.result.after.verdict == Verdict::TruthOverflow {
+        return Err(commands::check::truth_overflow(experiment, &run.result.after).into());
+    }
+    Ok(exit_code(run.consistent()))
+}
+
+/// 0 for a pass, 1 for a verdict that fails.
+fn exit_code(pass: bool) -> ExitCode {
+    if pass {
+        ExitCode::SUCCESS
+    } else {
+        ExitCode::from(1)
+    }
+}
+
+/// `text` on `out`, its verdict lines coloured when stdout is a terminal that wants colour.
+fn write_painted(out: &mut dyn std::io::Write, text: &str, pass: bool) -> std::io::Result<()> {
+    if colour_enabled() {
+        out.write_all(paint_verdicts(text, pass).as_bytes())
+    } else {
+        out.write_all(text.as_bytes())
     }
 }
 
@@ -262,68 +361,8 @@ where
 /// scratch directories and temporary files, exit 128 + the signal's number), each unless
 /// the program installed a handler of its own for it first.
 pub fn main_for(experiment: &dyn Experiment, tune: &TuneSettings) -> ExitCode {
-    remove_temporary_files_on_interrupt();
+    interrupt::install();
     finish(run_for(experiment, tune, std::env::args_os()))
-}
-
-/// Set while `nis --follow` runs: Ctrl-C then ends the follow (and prints its summary)
-/// instead of the process.
-pub(crate) static FOLLOWING: std::sync::atomic::AtomicBool =
-    std::sync::atomic::AtomicBool::new(false);
-/// Set by Ctrl-C during a follow.
-pub(crate) static STOP_FOLLOWING: std::sync::atomic::AtomicBool =
-    std::sync::atomic::AtomicBool::new(false);
-
-/// On SIGINT, SIGTERM or SIGHUP: stop the external workers (their whole process groups,
-/// with a grace period) and remove their scratch directories, remove the temporary files of
-/// any write in progress, so no `.NAME.tmp.PID` file outlives the process, and exit with
-/// the signal's conventional code, 128 + its number (130 for Ctrl-C, 143 for SIGTERM, 129
-/// for SIGHUP). Installed once per process, for each signal that has its default
-/// disposition: a handler the program set before is left alone, and so is a signal the
-/// process was started with ignored (`nohup`'s SIGHUP, a script's background job's
-/// SIGINT): the user asked for it to be survived.
-fn remove_temporary_files_on_interrupt() {
-    static ONCE: std::sync::Once = std::sync::Once::new();
-    ONCE.call_once(|| {
-        let signals: Vec<libc::c_int> = [libc::SIGINT, libc::SIGTERM, libc::SIGHUP]
-            .into_iter()
-            .filter(|&s| has_default_disposition(s))
-            .collect();
-        if signals.is_empty() {
-            return;
-        }
-        // signal-hook's iterator hands the signal's number to an ordinary thread, where the
-        // cleanup may take locks, wait and exit.
-        let Ok(mut caught) = signal_hook::iterator::Signals::new(&signals) else {
-            return;
-        };
-        std::thread::spawn(move || {
-            use std::sync::atomic::Ordering;
-            for signal in caught.forever() {
-                // A follow ends on the first signal with its summary; a second one, or any
-                // other command, stops at once.
-                if FOLLOWING.load(Ordering::SeqCst) && !STOP_FOLLOWING.swap(true, Ordering::SeqCst)
-                {
-                    continue;
-                }
-                crate::external::stop_workers_and_remove_scratch();
-                crate::output::remove_temporary_files();
-                std::process::exit(128 + signal);
-            }
-        });
-    });
-}
-
-/// Whether `signal` has its default disposition (SIG_DFL) in this process: neither ignored
-/// nor handled by a handler someone installed before.
-fn has_default_disposition(signal: libc::c_int) -> bool {
-    // SAFETY: a null new action only reads the current one into `old`, which is a plain
-    // C struct for which all-zero bytes are a valid value.
-    unsafe {
-        let mut old: libc::sigaction = std::mem::zeroed();
-        libc::sigaction(signal, std::ptr::null(), &mut old) == 0
-            && old.sa_sigaction == libc::SIG_DFL
-    }
 }
 
 /// [`main_for`] with these arguments (the first is the program name).
@@ -353,8 +392,8 @@ where
         Err(e) => return usage_error(e, &program),
     };
     match cli.command {
-        ModelCommand::Check(o) => check::run(experiment, o),
-        ModelCommand::Tune(o) => tune::run(experiment, tune, o),
+        ModelCommand::Check(o) => check(experiment, o),
+        ModelCommand::Tune(o) => self::tune(experiment, tune, o, None),
     }
 }
 
@@ -419,16 +458,6 @@ fn finish(result: Result<ExitCode, AppError>) -> ExitCode {
 fn colour_enabled() -> bool {
     use std::io::IsTerminal;
     std::env::var_os("NO_COLOR").is_none_or(|v| v.is_empty()) && std::io::stdout().is_terminal()
-}
-
-/// `line` in bold green (pass) or bold red (fail) when colour is enabled.
-fn paint_verdict(line: &str, pass: bool) -> String {
-    if colour_enabled() {
-        let code = if pass { "1;32" } else { "1;31" };
-        format!("\x1b[{code}m{line}\x1b[0m")
-    } else {
-        line.to_string()
-    }
 }
 
 #[cfg(test)]

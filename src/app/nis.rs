@@ -5,8 +5,8 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::{Duration, Instant};
 
-use super::args::flag_error;
-use super::{AppError, paint_verdict, print_stdout};
+use super::{AppError, print_stdout, write_painted};
+use crate::commands::CommandError;
 use crate::fieldlog::{Follower, NisReport, NisSettings, ReadOptions, Window, analyze};
 use crate::output::{Outputs, check_output_file, check_report_dir};
 use crate::report::nis::html::nis_html;
@@ -82,13 +82,14 @@ impl NisArgs {
             .map_err(|_| AppError::flag("--lags", format!("{} is not in 1..=100", self.lags)))?;
         NisSettings::default()
             .with_alpha(self.alpha)
-            .map_err(flag_error("--alpha"))?
+            .map_err(CommandError::of_option("--alpha"))?
             .with_gate(self.gate)
-            .map_err(flag_error("--gate"))?
+            .map_err(CommandError::of_option("--gate"))?
             .with_lags(lags)
-            .map_err(flag_error("--lags"))?
-            .with_window(Window::parse(&self.window).map_err(flag_error("--window"))?)
-            .map_err(flag_error("--window"))
+            .map_err(CommandError::of_option("--lags"))?
+            .with_window(Window::parse(&self.window).map_err(CommandError::of_option("--window"))?)
+            .map_err(CommandError::of_option("--window"))
+            .map_err(AppError::from)
     }
 
     fn options(&self) -> ReadOptions {
@@ -142,8 +143,8 @@ fn follow(
 ) -> Result<NisReport, AppError> {
     use std::sync::atomic::Ordering;
     let mut f = Follower::new(path, settings, a.options())?;
-    super::FOLLOWING.store(true, Ordering::SeqCst);
-    let stopped = || super::STOP_FOLLOWING.load(Ordering::SeqCst);
+    super::interrupt::FOLLOWING.store(true, Ordering::SeqCst);
+    let stopped = || super::interrupt::STOP_FOLLOWING.load(Ordering::SeqCst);
     let start = Instant::now();
     let mut last_growth = Instant::now();
     let result = loop {
@@ -169,7 +170,7 @@ fn follow(
             std::thread::sleep(Duration::from_millis(50));
         }
     };
-    super::FOLLOWING.store(false, Ordering::SeqCst);
+    super::interrupt::FOLLOWING.store(false, Ordering::SeqCst);
     result
 }
 
@@ -188,13 +189,7 @@ fn finish(a: &NisArgs, report: &NisReport) -> Result<ExitCode, AppError> {
             stdout.write_all(json.as_bytes())?;
             writeln!(stdout)?;
         } else if !a.quiet {
-            for line in nis_summary_text(report).lines() {
-                if line.starts_with("verdict:") {
-                    writeln!(stdout, "{}", paint_verdict(line, report.verdict.passes()))?;
-                } else {
-                    writeln!(stdout, "{line}")?;
-                }
-            }
+            write_painted(stdout, &nis_summary_text(report), report.verdict.passes())?;
         }
         Ok(())
     })?;

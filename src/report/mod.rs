@@ -6,12 +6,16 @@
 //!   report's statistics reuse them) and the per-parameter advice;
 //! - [`tune`]: a tuning run's summary, Markdown and JSON, and the tuned config it writes;
 //! - [`nis`]: a field log's summary, Markdown, JUnit and HTML report;
+//! - [`estimate`]: estimates of Q and R from recorded measurements, and `simulate`'s output;
+//! - [`progress`]: a long check's bar and a tune's progress on stderr;
 //! - [`format`], [`html`] and `svg`: numbers, HTML escaping and page heads, and the plot
 //!   primitives.
 
 pub mod check;
+pub mod estimate;
 pub mod format;
 pub mod html;
+pub mod init;
 pub mod nis;
 pub mod progress;
 mod svg;

@@ -11,7 +11,7 @@ use crate::explain::Explanation;
 use crate::report::check::advice::{Recommendation, fmt_evidence};
 use crate::report::check::summary::{StatCells, component_cells};
 use crate::report::format::{fmt_fixed, fmt_g};
-use crate::stats::{ConsistencyReport, StatisticSummary};
+use crate::stats::{ConsistencyReport, StatisticSummary, Verdict};
 use crate::tune::{TuneResult, TuneStatus};
 
 /// Everything a tuning report says, for machines.
@@ -222,4 +222,136 @@ pub(super) fn misfit_heading(r: &TuneResult) -> &'static str {
     } else {
         "A search bound was in the way"
     }
+}
+
+/// `tune`'s summary as printed: the search's cost, each parameter's advice with its start
+/// and tuned values, a misfit's finding, the confirmation, the files written and the
+/// verdict (the `verdict:` line last).
+#[allow(clippy::too_many_arguments)]
+pub fn tune_summary(
+    problem: &str,
+    result: &TuneResult,
+    settings: &crate::tune::TuneSettings,
+    recs: &[Recommendation],
+    explanations: &[Explanation],
+    config: &std::path::Path,
+    report_dir: Option<&std::path::Path>,
+) -> String {
+    let mut o = String::new();
+    let scoring = if result.confirmation.recorded {
+        "each scored on the recorded measurements".to_string()
+    } else {
+        format!("{} scoring", format!("{:?}", result.scoring).to_lowercase())
+    };
+    let _ = writeln!(
+        o,
+        "autotune tune {}: {} evaluations ({scoring}) in {:.2} s, {} diverged",
+        problem, result.evaluations, result.seconds, result.diverged_evaluations
+    );
+    if result.status == TuneStatus::BudgetExhausted {
+        let _ = writeln!(
+            o,
+            "  the search stopped on its budget (--max-evals {}, --max-seconds {}): the values below are the best found so far",
+            settings.max_evals(),
+            settings.max_seconds()
+        );
+    }
+    for r in recs {
+        let _ = writeln!(
+            o,
+            "  {}  [{} → {}]",
+            r.advice,
+            fmt_g(r.initial),
+            fmt_g(r.tuned)
+        );
+    }
+    if result.confirmation.recorded {
+        let _ = writeln!(
+            o,
+            "  (how precisely one record determines each value: `autotune estimate --method ml` gives standard errors)"
+        );
+    }
+    if let Some(lines) = crate::report::check::advice::family_finding(result, explanations) {
+        for l in lines {
+            let _ = writeln!(o, "  {l}");
+        }
+    }
+    let line = |s: &StatisticSummary| {
+        if s.steps_with_data == 0 {
+            return format!("A{} no data {}", s.name, s.verdict.label());
+        }
+        format!(
+            "A{} {} in [{}, {}] {}",
+            s.name,
+            fmt_fixed(s.time_average, 4),
+            fmt_fixed(s.interval.lower, 4),
+            fmt_fixed(s.interval.upper, 4),
+            s.verdict.label()
+        )
+    };
+    let mut parts: Vec<String> = result.after.nees.iter().map(line).collect();
+    parts.push(line(&result.after.nis));
+    // The averages above can each be consistent while the gate fails on another
+    // of its tests (per component, whiteness): say which, so that "fail the gate"
+    // and "consistent" never stand on one line unexplained.
+    if !result.after.verdict.passes() {
+        parts.push(format!(
+            "the gate fails: {}",
+            result.after.verdict.describe()
+        ));
+    }
+    if result.confirmation.recorded {
+        let _ = writeln!(
+            o,
+            "  confirmation: {}: {}",
+            result.confirmation.text(),
+            parts.join("; ")
+        );
+    } else {
+        let _ = writeln!(
+            o,
+            "  confirmation ({} runs × {} steps, seeds from {}): {}; first seed: {}",
+            result.runs,
+            result.steps,
+            result.confirm_seed,
+            result.confirmation.text(),
+            parts.join("; ")
+        );
+    }
+    let _ = writeln!(o, "  wrote {}", config.display());
+    if let Some(dir) = report_dir {
+        let _ = writeln!(
+            o,
+            "  wrote {}/report.html, report.md, report.json",
+            dir.display()
+        );
+    }
+    // The status rests on every confirmation seed, not on the first one's report
+    // shown above: say what it rests on when the two could seem to disagree.
+    let c = &result.confirmation;
+    let stopped = matches!(
+        result.after.verdict,
+        Verdict::Diverged | Verdict::IllConditioned | Verdict::TruthOverflow
+    );
+    let after = if c.seeds > 1 && !stopped && (c.passed < c.seeds || !result.after.verdict.passes())
+    {
+        format!(
+            "{} of {} fresh seeds consistent ({})",
+            c.passed,
+            c.seeds,
+            if c.holds() {
+                "as a consistent filter would be"
+            } else {
+                "fewer than a consistent filter"
+            }
+        )
+    } else {
+        result.after.verdict.describe().to_string()
+    };
+    let verdict = format!(
+        "verdict: before {}, after {after}",
+        result.before.verdict.label(),
+    );
+    let _ = writeln!(o, "{verdict}");
+    o
 }

@@ -1,21 +1,16 @@
 //! `check`: the Monte Carlo consistency gate on any experiment.
 
-use std::io::IsTerminal;
 use std::path::PathBuf;
-use std::process::ExitCode;
 
-use indicatif::{ProgressBar, ProgressStyle};
-
-use super::args::{McArgs, OneOf};
-use super::{AppError, paint_verdict, print_stdout};
-use crate::check::check_with;
+use super::{CommandError, McOverrides, OneOf};
+use crate::check::{CheckProgress, check_with};
 use crate::experiment::{Experiment, RunOptions, Source};
 use crate::input::FileError;
-use crate::montecarlo::Engine;
+use crate::montecarlo::{Engine, McConfig};
 use crate::output::{Outputs, check_output_file, check_report_dir};
 use crate::report::check::html::{check_html, check_markdown};
 use crate::report::tune::tuned::TunedConfig;
-use crate::report::{CheckOutput, junit_xml, summary_text};
+use crate::report::{CheckOutput, junit_xml};
 use crate::stats::{ConsistencyReport, Verdict};
 
 /// The options of `check`.
@@ -23,39 +18,71 @@ use crate::stats::{ConsistencyReport, Verdict};
 pub struct CheckOptions {
     /// Tuned config whose parameter values replace the problem file's.
     #[arg(long)]
-    config: Option<PathBuf>,
+    pub config: Option<PathBuf>,
+    /// Monte Carlo settings and parameter values in place of the experiment's.
     #[command(flatten)]
-    mc: McArgs,
+    pub mc: McOverrides,
     /// Judge by NIS alone (ground truth not trusted).
     #[arg(long)]
-    nis_only: bool,
+    pub nis_only: bool,
     /// Print the full statistics as JSON on stdout instead of the summary.
     #[arg(long)]
-    json: bool,
+    pub json: bool,
     /// Write report.html, report.md and report.json into this directory.
     #[arg(long, value_name = "DIR")]
-    report: Option<PathBuf>,
+    pub report: Option<PathBuf>,
     /// Also write a JUnit XML report to this file.
     #[arg(long, value_name = "FILE")]
-    junit: Option<PathBuf>,
+    pub junit: Option<PathBuf>,
     /// Monte Carlo path (auto picks the fastest valid one).
     #[arg(long, default_value = "auto", value_parser = OneOf::<Engine>::new())]
-    engine: Engine,
+    pub engine: Engine,
     /// Print nothing; the exit code is the answer.
     #[arg(long, short, conflicts_with = "json")]
-    quiet: bool,
+    pub quiet: bool,
 }
 
 impl CheckOptions {
     /// The same options judging by NIS alone (an experiment without truth).
-    pub(super) fn nis_only(mut self) -> Self {
+    pub fn with_nis_only(mut self) -> Self {
         self.nis_only = true;
         self
     }
 }
 
-/// Run `check` on `experiment`.
-pub fn run(experiment: &dyn Experiment, a: CheckOptions) -> Result<ExitCode, AppError> {
+/// What a check found, and what it wrote.
+#[derive(Debug, Clone)]
+pub struct CheckRun {
+    /// The gate's report.
+    pub report: ConsistencyReport,
+    /// The parameter values the filter ran with, by name.
+    pub params: Vec<(String, f64)>,
+    /// The Monte Carlo settings it ran under.
+    pub mc: McConfig,
+    /// The report as JSON (what `--json` prints and `report.json` holds).
+    pub json: String,
+    /// Judged by the innovations alone because the experiment has no states (records or a
+    /// worker without ground truth), not because `--nis-only` asked for it.
+    pub no_states: bool,
+}
+
+impl CheckRun {
+    /// Whether the filter passed the gate (exit code 0).
+    pub fn passes(&self) -> bool {
+        self.report.verdict.passes()
+    }
+}
+
+/// Run `check` on `experiment` with `options`: its Monte Carlo at the configured (or
+/// overridden) parameter values, the gate, and the JUnit and report files asked for,
+/// written together. A truth that overflowed is an error after the report is written
+/// ([`truth_overflow`]): nothing about the filter was tested.
+pub fn check(
+    experiment: &dyn Experiment,
+    options: &CheckOptions,
+    progress: &dyn CheckProgress,
+) -> Result<CheckRun, CommandError> {
+    let a = options;
     let info = experiment.info();
     let mut theta = match &a.config {
         Some(c) => TunedConfig::load_values(c, experiment)?,
@@ -64,7 +91,7 @@ pub fn run(experiment: &dyn Experiment, a: CheckOptions) -> Result<ExitCode, App
     a.mc.set_params(experiment.params(), &mut theta)?;
     let mc = a.mc.apply(*experiment.mc())?;
     if !experiment.supports(a.engine) {
-        return Err(AppError::flag(
+        return Err(CommandError::option(
             "--engine linear",
             format!(
                 "{} has no linear fast path (its filter is nonlinear); use auto or generic",
@@ -79,52 +106,18 @@ pub fn run(experiment: &dyn Experiment, a: CheckOptions) -> Result<ExitCode, App
     if let Some(dir) = &a.report {
         check_report_dir(dir)?;
     }
-    // A progress bar with ETA on stderr, only on a terminal and only for runs long enough
-    // to be worth one; the linear fast path steps about 100 times faster than the others.
-    let long = if experiment.supports(crate::montecarlo::Engine::Linear) {
-        20_000_000
-    } else {
-        200_000
-    };
-    let bar = (!a.quiet
-        && std::io::stderr().is_terminal()
-        && mc.runs().saturating_mul(mc.steps()) >= long)
-        .then(|| {
-            let b = ProgressBar::new(mc.runs() as u64);
-            b.set_style(
-                ProgressStyle::with_template(
-                    "check [{bar:30}] {pos}/{len} runs, {elapsed} (ETA {eta})",
-                )
-                .expect("a valid template")
-                .progress_chars("=> "),
-            );
-            b
-        });
-    let on_runs = |done: usize| {
-        if let Some(b) = &bar {
-            b.set_position(done as u64);
-        }
-    };
-    let options = RunOptions {
+    progress.start(mc.runs(), mc.steps(), experiment.supports(Engine::Linear));
+    let on_runs = |done: usize| progress.runs_done(done);
+    let run = RunOptions {
         engine: a.engine,
         progress: Some(&on_runs),
     };
     // Records or a worker without states (no ground truth) are judged by their innovations
     // alone, as documented, rather than found inconclusive for want of a NEES.
     let no_states = experiment.state_names().is_empty();
-    let report = check_with(experiment, &theta, &mc, options, !a.nis_only && !no_states);
-    let report = match report {
-        Ok(r) => r,
-        Err(e) => {
-            if let Some(b) = &bar {
-                b.finish_and_clear();
-            }
-            return Err(e.into());
-        }
-    };
-    if let Some(b) = &bar {
-        b.finish_and_clear();
-    }
+    let report = check_with(experiment, &theta, &mc, run, !a.nis_only && !no_states);
+    progress.finish();
+    let report = report?;
     let params: Vec<(String, f64)> = experiment
         .params()
         .params
@@ -132,7 +125,6 @@ pub fn run(experiment: &dyn Experiment, a: CheckOptions) -> Result<ExitCode, App
         .zip(&theta)
         .map(|(p, &v)| (p.name.clone(), v))
         .collect();
-
     let out = CheckOutput {
         problem: &info.name,
         file: info.source.label(),
@@ -157,43 +149,20 @@ pub fn run(experiment: &dyn Experiment, a: CheckOptions) -> Result<ExitCode, App
         );
     }
     outputs.commit()?;
-    let code = if report.verdict.passes() {
-        ExitCode::SUCCESS
-    } else {
-        ExitCode::from(1)
-    };
-    print_stdout(|stdout| {
-        if a.json {
-            stdout.write_all(json.as_bytes())?;
-            writeln!(stdout)?;
-        } else if !a.quiet {
-            let text = summary_text(&info.name, &params, &report);
-            for (i, line) in text.lines().enumerate() {
-                if i == 1 && no_states && !a.nis_only {
-                    writeln!(
-                        stdout,
-                        "  no states (no ground truth): judged by the innovations alone, NEES absent"
-                    )?;
-                }
-                if line.starts_with("verdict:") {
-                    writeln!(stdout, "{}", paint_verdict(line, report.verdict.passes()))?;
-                } else {
-                    writeln!(stdout, "{line}")?;
-                }
-            }
-        }
-        Ok(())
-    })?;
-    if report.verdict == Verdict::TruthOverflow {
-        return Err(truth_overflow(experiment, &report));
-    }
-    Ok(code)
+    Ok(CheckRun {
+        report,
+        params,
+        mc,
+        json,
+        no_states,
+    })
 }
 
-/// A truth that overflows over the horizon as the bad input it is (exit 2, one line naming
-/// the file and the section that must change), after the report that shows it: nothing
-/// about the filter was tested.
-pub(super) fn truth_overflow(experiment: &dyn Experiment, report: &ConsistencyReport) -> AppError {
+/// A truth that overflowed over the horizon (the report's verdict
+/// [`Verdict::TruthOverflow`]) as the bad input it is: one line naming the file and the
+/// section that must change, or the program or records.
+pub fn truth_overflow(experiment: &dyn Experiment, report: &ConsistencyReport) -> CommandError {
+    debug_assert_eq!(report.verdict, Verdict::TruthOverflow);
     let first = report
         .divergences
         .first()
@@ -213,9 +182,13 @@ pub(super) fn truth_overflow(experiment: &dyn Experiment, report: &ConsistencyRe
             };
             FileError::new(path, field, message).into()
         }
-        Source::Program { name } => AppError::Refused(format!("{name}: {message}")),
-        Source::Records { .. } => {
-            AppError::Refused(format!("{}: {message}", experiment.info().source.label()))
-        }
+        Source::Program { name } => CommandError::TruthOverflow {
+            subject: name.clone(),
+            message,
+        },
+        Source::Records { .. } => CommandError::TruthOverflow {
+            subject: experiment.info().source.label(),
+            message,
+        },
     }
 }

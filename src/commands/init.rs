@@ -1,4 +1,4 @@
-//! `autotune init`: write a commented starter problem file.
+//! `init`: write a commented starter problem file.
 //!
 //! Each starter (`templates/<model>.toml`) is a complete problem file whose comments explain
 //! every section and field. Its filter parameters EQUAL the truth's noise, so `autotune check`
@@ -6,15 +6,13 @@
 //! `tests/cli_init.rs` run that check for every model); the comments tell the user to replace
 //! the values with their own guesses, which `autotune tune` then corrects.
 
-use std::io::Write;
 use std::path::PathBuf;
-use std::process::ExitCode;
 
 use clap::ValueEnum;
 
-use super::AppError;
-use super::args::OneOf;
+use super::{CommandError, OneOf};
 use crate::output::write_file;
+use crate::report::init::init_text;
 
 /// The starter models: `--model`, its help, its errors and the completions all list these.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
@@ -49,25 +47,26 @@ impl Model {
     }
 }
 
-#[derive(Debug, clap::Args)]
-pub struct InitArgs {
+/// The options of `init`.
+#[derive(Debug, Clone, clap::Args)]
+pub struct InitOptions {
     /// Problem name (letters, digits, '_' and '-'): written as `name = "NAME"`, and the
     /// default file is NAME.toml.
     #[arg(value_parser = parse_name)]
-    name: String,
+    pub name: String,
     /// Which system the starter models.
     #[arg(long, default_value = "cv2d", value_parser = OneOf::<Model>::new())]
-    model: Model,
+    pub model: Model,
     /// Write a starter for a filter in another program, run as a worker ([external],
     /// docs/external.md), instead of a built-in model.
     #[arg(long, conflicts_with = "model")]
-    external: bool,
+    pub external: bool,
     /// File to write (default: NAME.toml in the current directory).
     #[arg(long, value_name = "FILE")]
-    out: Option<PathBuf>,
+    pub out: Option<PathBuf>,
     /// Overwrite the file if it exists.
     #[arg(long)]
-    force: bool,
+    pub force: bool,
 }
 
 /// A problem name: non-empty, ASCII letters, digits, `_` and `-` only (it becomes a file
@@ -87,58 +86,30 @@ fn parse_name(name: &str) -> Result<String, String> {
     Ok(name.to_string())
 }
 
-pub fn run(a: InitArgs) -> Result<ExitCode, AppError> {
+/// Run `init`: write the starter problem file (never over an existing file unless
+/// `force`); returns what it printed.
+pub fn init(a: &InitOptions) -> Result<String, CommandError> {
     let path = a
         .out
+        .clone()
         .unwrap_or_else(|| PathBuf::from(format!("{}.toml", a.name)));
     // symlink_metadata: a dangling symlink or any other entry counts as existing.
     if !a.force && std::fs::symlink_metadata(&path).is_ok() {
-        return Err(AppError::Refused(format!(
-            "{} already exists (use --force to overwrite it)",
-            path.display()
-        )));
+        return Err(CommandError::Exists {
+            path: path.display().to_string(),
+        });
     }
     if a.external {
-        write_file(
-            &path,
-            EXTERNAL_TEMPLATE
-                .replace(NAME_PLACEHOLDER, &a.name)
-                .as_bytes(),
-        )?;
-        let mut stdout = std::io::stdout().lock();
-        writeln!(
-            stdout,
-            "wrote {} (external worker starter; docs/external.md describes the protocol)",
-            path.display()
-        )?;
-        writeln!(
-            stdout,
-            "next: point [external] command at your worker, name its sensors, states and \
-             parameters, then run `autotune check` and `autotune tune` on it"
-        )?;
-        stdout.flush()?;
-        return Ok(ExitCode::SUCCESS);
+        let text = EXTERNAL_TEMPLATE.replace(NAME_PLACEHOLDER, &a.name);
+        write_file(&path, text.as_bytes())?;
+        return Ok(init_text(&path, None));
     }
     write_file(&path, a.model.starter(&a.name).as_bytes())?;
     let model = a
         .model
         .to_possible_value()
         .map(|v| v.get_name().to_string());
-    let mut stdout = std::io::stdout().lock();
-    writeln!(
-        stdout,
-        "wrote {} ({} starter; its filter parameters equal the truth's noise, so \
-         `autotune check` passes on it as written)",
-        path.display(),
-        model.unwrap_or_default()
-    )?;
-    writeln!(
-        stdout,
-        "next: describe your system in [truth], replace the [params] values with your \
-         filter's, then run `autotune check` and `autotune tune` on it"
-    )?;
-    stdout.flush()?;
-    Ok(ExitCode::SUCCESS)
+    Ok(init_text(&path, Some(model.as_deref().unwrap_or_default())))
 }
 
 #[cfg(test)]

@@ -1,37 +1,37 @@
 //! `simulate`: measurements (and the true states) drawn from a linear problem's truth, to
-//! try `estimate` and `tune --measurements` on data whose answer is known.
+//! try `estimate` on data whose answer is known.
 
 use std::path::{Path, PathBuf};
-use std::process::ExitCode;
 
+use super::CommandError;
 use super::estimate::linear;
-use super::{AppError, print_stdout};
-use crate::estimate::{record_bytes, simulate};
+use crate::estimate::{record_bytes, simulate as draw};
 use crate::experiment::Experiment;
 use crate::output::{Outputs, check_output_file};
 use crate::problem::Problem;
+use crate::report::estimate::simulate_text;
 
-/// The arguments of `simulate`.
+/// The options of `simulate`.
 #[derive(Debug, Clone, clap::Args)]
-pub struct SimulateArgs {
+pub struct SimulateOptions {
     /// Problem file (TOML) with a linear [truth].
-    problem: PathBuf,
+    pub problem: PathBuf,
     /// Where to write the measurements: .csv, .jsonl or .npy (docs/measurements.md).
     #[arg(long, value_name = "FILE")]
-    out: PathBuf,
+    pub out: PathBuf,
     /// Also write the true states here (same formats, columns x_1 … x_n).
     #[arg(long, value_name = "FILE")]
-    truth: Option<PathBuf>,
+    pub truth: Option<PathBuf>,
     /// Number of sequences (runs).
     #[arg(long, default_value_t = 1)]
-    runs: usize,
+    pub runs: usize,
     /// Steps per sequence (default: the problem's montecarlo.steps).
     #[arg(long)]
-    steps: Option<usize>,
+    pub steps: Option<usize>,
     /// Seed (default: the problem's montecarlo.seed); run i draws from the same stream as
     /// run i of a Monte Carlo check.
     #[arg(long)]
-    seed: Option<u64>,
+    pub seed: Option<u64>,
 }
 
 /// Whether two output paths name the same file, however spelt (`x.csv`, `./x.csv`,
@@ -55,19 +55,20 @@ fn same_place(a: &Path, b: &Path) -> bool {
     a == b || resolve(a) == resolve(b)
 }
 
-/// Run `simulate`.
-pub fn run_simulate(a: SimulateArgs) -> Result<ExitCode, AppError> {
+/// Run `simulate`: draw the measurements (and the true states where asked) from problem's
+/// linear truth and write them; returns the line saying what was written.
+pub fn simulate(a: &SimulateOptions) -> Result<String, CommandError> {
     let p = Problem::load(&a.problem)?;
     let lin = linear(&p, &a.problem, "simulate")?;
     if !(1..=100_000).contains(&a.runs) {
-        return Err(AppError::flag(
+        return Err(CommandError::option(
             "--runs",
             format!("{} is not in 1..=100000", a.runs),
         ));
     }
     let steps = a.steps.unwrap_or(p.mc().steps());
     if !(1..=10_000_000).contains(&steps) || a.runs.saturating_mul(steps) > 10_000_000 {
-        return Err(AppError::flag(
+        return Err(CommandError::option(
             "--steps",
             format!(
                 "{steps} steps × {} runs: at most 10 000 000 steps in all",
@@ -80,7 +81,7 @@ pub fn run_simulate(a: SimulateArgs) -> Result<ExitCode, AppError> {
     if let Some(t) = &a.truth {
         check_output_file(t)?;
         if same_place(&a.out, t) {
-            return Err(AppError::flag(
+            return Err(CommandError::option(
                 "--truth",
                 format!(
                     "{} is the file --out names: the states would overwrite the measurements",
@@ -90,7 +91,7 @@ pub fn run_simulate(a: SimulateArgs) -> Result<ExitCode, AppError> {
         }
     }
     let m = lin.truth.n_z();
-    let sim = simulate(&lin.truth, m, a.runs, steps, seed);
+    let sim = draw(&lin.truth, m, a.runs, steps, seed);
     let z: Vec<&[f64]> = sim
         .measurements
         .sequences
@@ -104,13 +105,5 @@ pub fn run_simulate(a: SimulateArgs) -> Result<ExitCode, AppError> {
         outputs.file(t, record_bytes(t, "x", sim.n, &x)?);
     }
     outputs.commit()?;
-    print_stdout(|o| {
-        writeln!(
-            o,
-            "wrote {} run(s) × {steps} steps of {m} measurement components to {} (seed {seed})",
-            a.runs,
-            a.out.display()
-        )
-    })?;
-    Ok(ExitCode::SUCCESS)
+    Ok(simulate_text(a.runs, steps, m, &a.out, seed))
 }

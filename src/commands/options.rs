@@ -1,5 +1,6 @@
-//! Options shared by the commands, and how their values become settings: every value goes
-//! through the library's setters, and a refusal names the flag.
+//! Options several commands share, and how their values become settings: every value goes
+//! through the library's setters, and a refusal names the option as the command line spells
+//! it.
 
 use std::ffi::OsStr;
 use std::marker::PhantomData;
@@ -8,16 +9,16 @@ use clap::ValueEnum;
 use clap::builder::{PossibleValue, TypedValueParser};
 use clap::error::ErrorKind;
 
-use super::AppError;
-use crate::input::SettingError;
+use super::CommandError;
 use crate::montecarlo::McConfig;
 use crate::params::ParamSpace;
 use crate::stats::GateMode;
 
-/// Monte Carlo overrides shared by the commands. Numeric values may be negative on the
+/// Monte Carlo overrides shared by `check` and `tune`: the experiment's own settings with
+/// these values in their place. Numeric values may be negative on the
 /// command line (`--alpha -0.1` is a value, refused by the setter, not an unknown flag).
 #[derive(Debug, Clone, Default, clap::Args)]
-pub struct McArgs {
+pub struct McOverrides {
     /// Number of Monte Carlo runs N (overrides the file).
     #[arg(long, allow_negative_numbers = true)]
     runs: Option<usize>,
@@ -40,25 +41,24 @@ pub struct McArgs {
     set: Vec<String>,
 }
 
-/// A setter's refusal as an error of the flag that gave the value.
-pub fn flag_error(flag: &str) -> impl Fn(SettingError) -> AppError + '_ {
-    move |e| AppError::flag(flag, e.message)
-}
-
-impl McArgs {
+impl McOverrides {
     /// The experiment's Monte Carlo settings with the overrides applied.
-    pub fn apply(&self, mut mc: McConfig) -> Result<McConfig, AppError> {
+    pub fn apply(&self, mut mc: McConfig) -> Result<McConfig, CommandError> {
         if let Some(n) = self.runs {
-            mc = mc.with_runs(n).map_err(flag_error("--runs"))?;
+            mc = mc.with_runs(n).map_err(CommandError::of_option("--runs"))?;
         }
         if let Some(t) = self.steps {
-            mc = mc.with_steps(t).map_err(flag_error("--steps"))?;
+            mc = mc
+                .with_steps(t)
+                .map_err(CommandError::of_option("--steps"))?;
         }
         if let Some(s) = self.seed {
             mc = mc.with_seed(s);
         }
         if let Some(a) = self.alpha {
-            mc = mc.with_alpha(a).map_err(flag_error("--alpha"))?;
+            mc = mc
+                .with_alpha(a)
+                .map_err(CommandError::of_option("--alpha"))?;
         }
         if let Some(g) = self.gate {
             mc = mc.with_gate(g);
@@ -76,7 +76,7 @@ impl McArgs {
         &self,
         params: &ParamSpace,
         theta: &mut [f64],
-    ) -> Result<Vec<usize>, AppError> {
+    ) -> Result<Vec<usize>, CommandError> {
         let mut set = Vec::with_capacity(self.set.len());
         for kv in &self.set {
             let (i, v) = name_value(params, "--set", kv)?;
@@ -88,24 +88,34 @@ impl McArgs {
 }
 
 /// Parse `NAME=VALUE` with VALUE a finite number > 0 naming one of the parameters.
-pub fn name_value(params: &ParamSpace, flag: &str, kv: &str) -> Result<(usize, f64), AppError> {
+pub(crate) fn name_value(
+    params: &ParamSpace,
+    flag: &str,
+    kv: &str,
+) -> Result<(usize, f64), CommandError> {
     let (name, value) = kv
         .split_once('=')
-        .ok_or_else(|| AppError::flag(flag, format!("'{kv}' is not NAME=VALUE")))?;
+        .ok_or_else(|| CommandError::option(flag, format!("'{kv}' is not NAME=VALUE")))?;
     let i = param_index(params, flag, name)?;
     let v = value
         .trim()
         .parse()
         .ok()
         .filter(|v: &f64| v.is_finite() && *v > 0.0)
-        .ok_or_else(|| AppError::flag(flag, format!("{name}: '{value}' is not a number > 0")))?;
+        .ok_or_else(|| {
+            CommandError::option(flag, format!("{name}: '{value}' is not a number > 0"))
+        })?;
     Ok((i, v))
 }
 
 /// The index of parameter `name`, or an error of `flag` listing the known ones.
-pub fn param_index(params: &ParamSpace, flag: &str, name: &str) -> Result<usize, AppError> {
+pub(crate) fn param_index(
+    params: &ParamSpace,
+    flag: &str,
+    name: &str,
+) -> Result<usize, CommandError> {
     params.index(name.trim()).ok_or_else(|| {
-        AppError::flag(
+        CommandError::option(
             flag,
             format!(
                 "unknown parameter '{name}' (known: {})",
@@ -124,6 +134,12 @@ pub struct OneOf<E>(PhantomData<E>);
 impl<E> OneOf<E> {
     /// The parser.
     pub fn new() -> Self {
+        OneOf(PhantomData)
+    }
+}
+
+impl<E> Default for OneOf<E> {
+    fn default() -> Self {
         OneOf(PhantomData)
     }
 }

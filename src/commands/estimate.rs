@@ -1,0 +1,384 @@
+//! `estimate`: Q and R estimated from recorded measurements alone, and the pieces `tune`
+//! uses to run on a record (`--measurements`) or to start from an estimate (`--init`).
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use super::CommandError;
+use super::options::name_value;
+use crate::estimate::als::{self, AlsModel, FullMatrix};
+use crate::estimate::{
+    LinearFilterModel, MeasuredExperiment, Measurements, ml, read_measurements, simulate,
+};
+use crate::experiment::{Experiment, LinearExperiment};
+use crate::input::FileError;
+use crate::output::{Outputs, check_output_file};
+use crate::problem::{Problem, ProblemKind};
+use crate::report::estimate::{EstimateSummary, als_text, estimate_json, ml_text, start_note};
+use crate::report::tune::tuned::estimated_config_toml;
+
+/// The options of `estimate`.
+#[derive(Debug, Clone, clap::Args)]
+pub struct EstimateOptions {
+    /// Problem file (TOML) whose linear [filter] has the parameters to estimate.
+    pub problem: PathBuf,
+    /// The recorded measurements: .csv, .jsonl, .npy or .npz (docs/measurements.md).
+    #[arg(long, value_name = "FILE")]
+    pub measurements: PathBuf,
+    /// Estimation method: ml (maximum likelihood over the filter's innovations) or als
+    /// (autocovariance least squares from the innovations of the filter at the start values).
+    #[arg(long, default_value = "ml", value_parser = ["ml", "als"])]
+    pub method: String,
+    /// ALS: autocovariance lags L (0 … L − 1).
+    #[arg(long, default_value_t = 15)]
+    pub lags: usize,
+    /// ALS: passes, each with the gain of the filter at the previous estimate (1: the start
+    /// values' gain only).
+    #[arg(long, default_value_t = 2)]
+    pub passes: usize,
+    /// ALS: estimate Q (the covariance of the problem's process noise inputs), R, or both
+    /// (qr) as full matrices constrained positive semidefinite, instead of the problem's
+    /// parameters (a build with the `sdp` feature).
+    #[arg(long, value_name = "q|r|qr", value_parser = ["q", "r", "qr"])]
+    pub full: Option<String>,
+    /// Start a parameter at NAME=VALUE instead of the problem's value (repeatable).
+    #[arg(long = "set", value_name = "NAME=VALUE")]
+    pub set: Vec<String>,
+    /// L-BFGS iteration limit.
+    #[arg(long, default_value_t = 200)]
+    pub max_iterations: u64,
+    /// Also write the estimate as a config `autotune check PROBLEM --config FILE` reads.
+    #[arg(long, value_name = "FILE")]
+    pub out: Option<PathBuf>,
+    /// Print the estimate as JSON on stdout.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// What an estimate printed: a table, or JSON with `--json`.
+#[derive(Debug, Clone)]
+pub struct EstimateRun {
+    /// The estimate as `estimate` prints it (the table or the JSON).
+    pub output: String,
+}
+
+/// Write `theta` as a config to `out`, with where it came from.
+fn write_config(
+    p: &Problem,
+    out: &Path,
+    theta: &[f64],
+    method: &str,
+    record: &Path,
+    score: (&str, f64),
+) -> Result<(), CommandError> {
+    let mut prov = toml::Table::new();
+    prov.insert("autotune_version".into(), env!("CARGO_PKG_VERSION").into());
+    prov.insert("method".into(), method.into());
+    prov.insert("measurements".into(), record.display().to_string().into());
+    prov.insert(score.0.into(), score.1.into());
+    let mut outputs = Outputs::new();
+    outputs.file(out, estimated_config_toml(p, theta, prov));
+    outputs.commit()?;
+    Ok(())
+}
+
+/// The linear truth and filter of problem `p` (file `path`), which `what` needs; an error
+/// naming the section that is the obstacle otherwise.
+pub fn linear<'a>(
+    p: &'a Problem,
+    path: &Path,
+    what: &str,
+) -> Result<&'a LinearExperiment, CommandError> {
+    p.experiment().linear().ok_or_else(|| {
+        let kind = p.kind();
+        FileError::new(
+            path,
+            kind.field(),
+            format!(
+                "{what} works on {}; this one is {}",
+                ProblemKind::Linear.describe(),
+                kind.describe()
+            ),
+        )
+        .into()
+    })
+}
+
+/// The record `file` read, with as many components per step as problem `p` measures.
+fn read_record(
+    p: &Problem,
+    lin: &LinearExperiment,
+    file: &Path,
+) -> Result<Measurements, CommandError> {
+    let data = read_measurements(file)?;
+    let m = lin.filter.H.nrows();
+    if data.dim != m {
+        return Err(FileError::new(
+            file,
+            "z",
+            format!(
+                "{} components per step, but {} measures {m}",
+                data.dim,
+                p.name()
+            ),
+        )
+        .into());
+    }
+    Ok(data)
+}
+
+/// Refuse a record no estimate can come from: no measured value at all, or a single step
+/// (one innovation says nothing about how Q and R split), which would otherwise leave the
+/// start values standing as if they were estimates.
+fn estimable(file: &Path, data: &Measurements) -> Result<(), CommandError> {
+    if data.values() == 0 {
+        return Err(FileError::new(
+            file,
+            "z",
+            "no measured values (every component is empty): nothing to estimate from",
+        )
+        .into());
+    }
+    let steps: usize = data.sequences.iter().map(|s| s.steps).sum();
+    if steps < 2 {
+        return Err(FileError::new(
+            file,
+            "z",
+            "a single step: Q and R need at least two steps of measurements",
+        )
+        .into());
+    }
+    Ok(())
+}
+
+/// The filter of problem `p` (file `path`) over the measurement record `file`, as an
+/// experiment `check` and `tune` can judge by its innovations.
+pub fn measured_experiment(
+    p: &Problem,
+    path: &Path,
+    file: &Path,
+) -> Result<MeasuredExperiment, CommandError> {
+    let lin = linear(p, path, "--measurements")?;
+    let data = read_record(p, lin, file)?;
+    MeasuredExperiment::new(lin, data)
+        .map_err(|e| FileError::new(file, "", format!("{}: {}", e.setting, e.message)).into())
+}
+
+/// Added to the problem's seed for the record `tune --init` simulates.
+const INIT_SEED_OFFSET: u64 = 0x5eed_1417;
+
+/// Where a tune's search starts: the estimate, and the line saying where it came from.
+#[derive(Debug, Clone)]
+pub struct Start {
+    /// One value per parameter.
+    pub theta: Vec<f64>,
+    /// `start: ml estimate from FILE in 0.12 s: q = …`, for stderr.
+    pub note: String,
+}
+
+/// The start `tune --init METHOD` searches from: the estimate of `method` ("ml" or "als")
+/// on `record`, or on a record simulated from `p`'s truth (its Monte Carlo runs × steps,
+/// with another seed than the search's so that the start does not fit the search's noise).
+pub fn initial(
+    p: &Problem,
+    path: &Path,
+    record: Option<&Path>,
+    method: &str,
+) -> Result<Start, CommandError> {
+    let lin = linear(p, path, "--init")?;
+    let (data, origin) = match record {
+        Some(f) => {
+            let d = read_record(p, lin, f)?;
+            estimable(f, &d)?;
+            (d, f.display().to_string())
+        }
+        None => {
+            let mc = p.mc();
+            let seed = mc.seed().wrapping_add(INIT_SEED_OFFSET);
+            let sim = simulate(&lin.truth, lin.truth.n_z(), mc.runs(), mc.steps(), seed);
+            (
+                sim.measurements,
+                format!(
+                    "{} × {} steps simulated from the truth (seed {seed})",
+                    mc.runs(),
+                    mc.steps()
+                ),
+            )
+        }
+    };
+    let params = p.params();
+    let start = params.values();
+    let fixed: Vec<bool> = params.params.iter().map(|d| d.fixed).collect();
+    let t0 = Instant::now();
+    let failed = |m: String| CommandError::Estimate {
+        subject: format!("--init {method} on {origin}"),
+        message: m,
+    };
+    let theta = if method == "als" {
+        let model = AlsModel::of(lin);
+        als::estimate_passes(&model, &data, &start, &fixed, 15, 2)
+            .map_err(failed)?
+            .theta
+    } else {
+        let build = |theta: &[f64]| LinearFilterModel::of(lin, theta);
+        ml::estimate(&build, &data, &start, &fixed, 200)
+            .map_err(failed)?
+            .theta
+    };
+    let note = start_note(method, &origin, t0.elapsed().as_secs_f64(), params, &theta);
+    Ok(Start { theta, note })
+}
+
+/// The checked options of an estimate, before it runs.
+fn validate(a: &EstimateOptions) -> Result<(), CommandError> {
+    if a.method == "als" {
+        if !(1..=200).contains(&a.lags) {
+            return Err(CommandError::option(
+                "--lags",
+                format!("{} is not in 1..=200", a.lags),
+            ));
+        }
+        if !(1..=20).contains(&a.passes) {
+            return Err(CommandError::option(
+                "--passes",
+                format!("{} is not in 1..=20", a.passes),
+            ));
+        }
+        if a.full.is_some() && a.out.is_some() {
+            return Err(CommandError::option(
+                "--out",
+                "a full Q or R is not one of the problem's parameters, so there is no config to write; --json gives the matrices",
+            ));
+        }
+    } else if a.full.is_some() {
+        return Err(CommandError::option(
+            "--full",
+            "a full Q or R is estimated by --method als only",
+        ));
+    }
+    Ok(())
+}
+
+/// Run `estimate`: the problem's free parameters from the record by maximum likelihood or
+/// autocovariance least squares (or a full Q or R, with the `sdp` feature), written as a
+/// config where `--out` asks.
+pub fn estimate(a: &EstimateOptions) -> Result<EstimateRun, CommandError> {
+    let p = Problem::load(&a.problem)?;
+    let lin = linear(&p, &a.problem, "estimate")?;
+    let data = read_record(&p, lin, &a.measurements)?;
+    estimable(&a.measurements, &data)?;
+    if let Some(out) = &a.out {
+        check_output_file(out)?;
+    }
+    let params = p.params();
+    let mut start = params.values();
+    for kv in &a.set {
+        let (i, v) = name_value(params, "--set", kv)?;
+        start[i] = v;
+    }
+    let fixed: Vec<bool> = params.params.iter().map(|d| d.fixed).collect();
+    validate(a)?;
+    let failed = |m: String| CommandError::Estimate {
+        subject: a.measurements.display().to_string(),
+        message: m,
+    };
+    let mut summary = EstimateSummary {
+        problem: p.name(),
+        record: &a.measurements,
+        sequences: data.sequences.len(),
+        values: data.values(),
+        params,
+        start: &start,
+        seconds: 0.0,
+        max_iterations: a.max_iterations,
+    };
+    let t0 = Instant::now();
+    if a.method == "als" {
+        let model = AlsModel::of(lin);
+        if let Some(full) = &a.full {
+            let full = FullMatrix::parse(full).expect("clap allows q, r and qr only");
+            return full_estimate(&p, &mut summary, &data, &model, &fixed, full, a);
+        }
+        let est = als::estimate_passes(&model, &data, &start, &fixed, a.lags, a.passes)
+            .map_err(failed)?;
+        summary.seconds = t0.elapsed().as_secs_f64();
+        if let Some(out) = &a.out {
+            let score = ("residual", est.residual);
+            write_config(&p, out, &est.theta, "als", &a.measurements, score)?;
+        }
+        let output = if a.json {
+            estimate_json(&summary, "als", &est, serde_json::Map::new())
+        } else {
+            als_text(&summary, &est)
+        };
+        return Ok(EstimateRun { output });
+    }
+    let build = |theta: &[f64]| LinearFilterModel::of(lin, theta);
+    let est = ml::estimate(&build, &data, &start, &fixed, a.max_iterations).map_err(failed)?;
+    summary.seconds = t0.elapsed().as_secs_f64();
+    if let Some(out) = &a.out {
+        let score = ("neg_log_likelihood", est.neg_log_likelihood);
+        write_config(&p, out, &est.theta, "ml", &a.measurements, score)?;
+    }
+    let output = if a.json {
+        estimate_json(&summary, "ml", &est, serde_json::Map::new())
+    } else {
+        ml_text(&summary, &est)
+    };
+    Ok(EstimateRun { output })
+}
+
+/// A full Q or R by autocovariance least squares under a semidefinite constraint: needs
+/// the `sdp` build feature (clarabel's semidefinite cone on the system's OpenBLAS).
+#[cfg(not(feature = "sdp"))]
+fn full_estimate(
+    _p: &Problem,
+    _summary: &mut EstimateSummary<'_>,
+    _data: &Measurements,
+    _model: &AlsModel<'_>,
+    _fixed: &[bool],
+    _full: FullMatrix,
+    _a: &EstimateOptions,
+) -> Result<EstimateRun, CommandError> {
+    Err(CommandError::option(
+        "--full",
+        "this autotune was built without the `sdp` feature (clarabel's semidefinite cone needs a system OpenBLAS: apt-get install libopenblas-dev, then cargo build --release --features sdp)",
+    ))
+}
+
+/// A full Q or R by autocovariance least squares under a semidefinite constraint.
+#[cfg(feature = "sdp")]
+fn full_estimate(
+    p: &Problem,
+    summary: &mut EstimateSummary<'_>,
+    data: &Measurements,
+    model: &AlsModel<'_>,
+    fixed: &[bool],
+    full: FullMatrix,
+    a: &EstimateOptions,
+) -> Result<EstimateRun, CommandError> {
+    use crate::estimate::als_full::estimate_full;
+    use crate::report::estimate::{full_json, full_text};
+    let t0 = Instant::now();
+    let est =
+        estimate_full(model, data, summary.start, fixed, full, a.lags, a.passes).map_err(|m| {
+            CommandError::Estimate {
+                subject: a.measurements.display().to_string(),
+                message: m,
+            }
+        })?;
+    summary.seconds = t0.elapsed().as_secs_f64();
+    let exp = p.experiment();
+    let output = if a.json {
+        full_json(summary, &est, model, exp.measurement_names())
+    } else {
+        full_text(
+            summary,
+            &est,
+            model,
+            exp.state_names(),
+            exp.measurement_names(),
+        )
+    };
+    Ok(EstimateRun { output })
+}

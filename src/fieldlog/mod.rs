@@ -19,6 +19,7 @@ mod advice;
 mod analysis;
 mod follow;
 mod ingest;
+mod monitor;
 mod px4;
 mod records;
 mod report;
@@ -32,6 +33,7 @@ use serde::Serialize;
 
 pub use analysis::{Dropped, MAX_SENSORS, NisAnalyzer, SensorInfo, SeriesPoint, Update};
 pub use follow::{Follower, Status};
+pub use monitor::{MonitorError, MonitorStatus, NisMonitor, SensorStatus, WindowStatus};
 pub use px4::{EventKind, NotJudged, ParamAdvice, Px4Channel, Px4Event, Px4Info, Px4Instance};
 pub use report::{
     CentredWhiteness, Histogram, MeanTest, NisAverage, NisReport, NotFused, Overall, SensorPlot,

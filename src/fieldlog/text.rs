@@ -276,7 +276,7 @@ impl CsvColumns {
     }
 }
 
-fn check_sensor(name: &str) -> Result<(), String> {
+pub(super) fn check_sensor(name: &str) -> Result<(), String> {
     if name.is_empty() {
         return Err("empty sensor name".into());
     }
@@ -290,7 +290,7 @@ fn check_sensor(name: &str) -> Result<(), String> {
 }
 
 /// `Err((i, j))` (1-based) where S is not symmetric to a relative 1e-9.
-fn symmetric(s: &[f64], m: usize) -> Result<(), (usize, usize)> {
+pub(super) fn symmetric(s: &[f64], m: usize) -> Result<(), (usize, usize)> {
     for i in 0..m {
         for j in 0..i {
             let (a, b) = (s[i * m + j], s[j * m + i]);

@@ -16,5 +16,6 @@ mod options;
 pub mod simulate;
 pub mod tune;
 
+pub use crate::input::OneOf;
 pub use error::CommandError;
-pub use options::{McOverrides, OneOf};
+pub use options::McOverrides;

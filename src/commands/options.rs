@@ -2,14 +2,8 @@
 //! through the library's setters, and a refusal names the option as the command line spells
 //! it.
 
-use std::ffi::OsStr;
-use std::marker::PhantomData;
-
-use clap::ValueEnum;
-use clap::builder::{PossibleValue, TypedValueParser};
-use clap::error::ErrorKind;
-
 use super::CommandError;
+use crate::input::OneOf;
 use crate::montecarlo::McConfig;
 use crate::params::ParamSpace;
 use crate::stats::GateMode;
@@ -123,67 +117,4 @@ pub(crate) fn param_index(
             ),
         )
     })
-}
-
-/// Value parser for a [`ValueEnum`] whose error lists the known values on its first line:
-/// the CLI reports only the first line of a parse error, where clap's own parser puts the
-/// possible values on the second. Help and completions get the values as usual.
-#[derive(Debug)]
-pub struct OneOf<E>(PhantomData<E>);
-
-impl<E> OneOf<E> {
-    /// The parser.
-    pub fn new() -> Self {
-        OneOf(PhantomData)
-    }
-}
-
-impl<E> Default for OneOf<E> {
-    fn default() -> Self {
-        OneOf(PhantomData)
-    }
-}
-
-impl<E> Clone for OneOf<E> {
-    fn clone(&self) -> Self {
-        OneOf(PhantomData)
-    }
-}
-
-impl<E: ValueEnum + Clone + Send + Sync + 'static> TypedValueParser for OneOf<E> {
-    type Value = E;
-
-    fn parse_ref(
-        &self,
-        cmd: &clap::Command,
-        arg: Option<&clap::Arg>,
-        value: &OsStr,
-    ) -> Result<E, clap::Error> {
-        let text = value.to_string_lossy();
-        E::from_str(&text, false).map_err(|_| {
-            let known: Vec<String> = E::value_variants()
-                .iter()
-                .filter_map(ValueEnum::to_possible_value)
-                .filter(|v| !v.is_hide_set())
-                .map(|v| v.get_name().to_string())
-                .collect();
-            let arg = arg.map_or_else(|| "...".to_string(), |a| a.to_string());
-            clap::Error::raw(
-                ErrorKind::InvalidValue,
-                format!(
-                    "invalid value '{text}' for '{arg}' (known: {})\n",
-                    known.join(", ")
-                ),
-            )
-            .with_cmd(cmd)
-        })
-    }
-
-    fn possible_values(&self) -> Option<Box<dyn Iterator<Item = PossibleValue> + '_>> {
-        Some(Box::new(
-            E::value_variants()
-                .iter()
-                .filter_map(ValueEnum::to_possible_value),
-        ))
-    }
 }

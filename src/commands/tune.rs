@@ -4,7 +4,7 @@
 use std::path::PathBuf;
 
 use super::options::{name_value, param_index};
-use super::{CommandError, McOverrides, OneOf};
+use super::{CommandError, McOverrides};
 use crate::experiment::{Experiment, Source};
 use crate::explain::Explanation;
 use crate::input::FileError;
@@ -15,7 +15,7 @@ use crate::report::check::html::tune_html;
 use crate::report::tune::tuned::{rejected_config_toml, tuned_config_toml};
 use crate::report::tune::{TuneReport, tune_markdown};
 use crate::tune::{
-    LocalSearch, Observer, Scoring, TuneError, TuneResult, TuneSettings, TuneStatus, tune as search,
+    Observer, TuneError, TuneResult, TuneSettings, TuneSpec, TuneStatus, tune as search,
 };
 
 /// The options of `tune`.
@@ -36,33 +36,9 @@ pub struct TuneOptions {
     /// Hold a parameter fixed, NAME or NAME=VALUE (repeatable).
     #[arg(long, value_name = "NAME[=VALUE]")]
     pub fix: Vec<String>,
-    /// Set an objective weight, NAME=VALUE (mean, interval, per_step, components,
-    /// whiteness, shape; repeatable).
-    #[arg(long, value_name = "NAME=VALUE")]
-    pub weight: Vec<String>,
-    /// Score innovations only (ground truth not trusted).
-    #[arg(long)]
-    pub nis_only: bool,
-    /// Evaluation budget of the search.
-    #[arg(long, allow_negative_numbers = true)]
-    pub max_evals: Option<usize>,
-    /// Wall-time budget of the search, s.
-    #[arg(long, allow_negative_numbers = true)]
-    pub max_seconds: Option<f64>,
-    /// How candidates are scored.
-    #[arg(long, value_parser = OneOf::<Scoring>::new())]
-    pub scoring: Option<Scoring>,
-    /// Local search from the best global points: simplex (Nelder–Mead) or gauss_newton
-    /// (Levenberg–Marquardt, for many expensive parameters).
-    #[arg(long, value_parser = OneOf::<LocalSearch>::new())]
-    pub local: Option<LocalSearch>,
-    /// Seed of the first confirmation run.
-    #[arg(long, allow_negative_numbers = true)]
-    pub confirm_seed: Option<u64>,
-    /// Number of fresh seeds the tuned filter is confirmed on (default 20; with
-    /// --measurements the record is one draw, confirmed once).
-    #[arg(long, allow_negative_numbers = true)]
-    pub confirm_seeds: Option<usize>,
+    /// The search's settings, over the problem file's `[tune]`.
+    #[command(flatten)]
+    pub settings: TuneSpec,
     /// Print the full report as JSON on stdout instead of the summary.
     #[arg(long)]
     pub json: bool,
@@ -72,51 +48,12 @@ pub struct TuneOptions {
 }
 
 impl TuneOptions {
-    /// `defaults` with the command line's settings applied.
+    /// `defaults` (a problem file's `[tune]`) with the command line's settings laid over
+    /// them; a refusal names the flag.
     pub fn settings(&self, defaults: &TuneSettings) -> Result<TuneSettings, CommandError> {
-        let mut weights = Vec::with_capacity(self.weight.len());
-        for kv in &self.weight {
-            let (name, value) = kv.split_once('=').ok_or_else(|| {
-                CommandError::option("--weight", format!("'{kv}' is not NAME=VALUE"))
-            })?;
-            let v: f64 = value.trim().parse().map_err(|_| {
-                CommandError::option("--weight", format!("{name}: '{value}' is not a number"))
-            })?;
-            weights.push((name.trim(), v));
-        }
-        let mut s = if weights.is_empty() {
-            defaults.clone()
-        } else {
-            defaults
-                .clone()
-                .with_named_weights(weights)
-                .map_err(CommandError::of_option("--weight"))?
-        };
-        if self.nis_only {
-            s = s.with_nis_only(true);
-        }
-        if let Some(n) = self.max_evals {
-            s = s
-                .with_max_evals(n)
-                .map_err(CommandError::of_option("--max-evals"))?;
-        }
-        if let Some(v) = self.max_seconds {
-            s = s
-                .with_max_seconds(v)
-                .map_err(CommandError::of_option("--max-seconds"))?;
-        }
-        if let Some(x) = self.scoring {
-            s = s.with_scoring(x);
-        }
-        if let Some(x) = self.local {
-            s = s.with_local(x);
-        }
-        if let Some(k) = self.confirm_seeds {
-            s = s
-                .with_confirm_seeds(k)
-                .map_err(CommandError::of_option("--confirm-seeds"))?;
-        }
-        Ok(s.with_confirm_seed(self.confirm_seed))
+        self.settings
+            .apply(defaults.clone())
+            .map_err(|e| CommandError::option(&TuneSpec::flag(&e.setting), e.message))
     }
 }
 
@@ -301,7 +238,7 @@ fn search_and_explain(
     a: &TuneOptions,
     observer: &dyn Observer,
 ) -> Result<(TuneResult, Vec<Explanation>), CommandError> {
-    let from_flag = a.scoring.is_some();
+    let from_flag = a.settings.scoring.is_some();
     let result = search(experiment, start, fixed, mc, settings, observer)
         .map_err(|e| tune_error(e, experiment, from_flag))?;
     let explanations = if crate::explain::needed(&result) {

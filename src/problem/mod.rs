@@ -21,7 +21,7 @@ use crate::input::{FileError, SettingError, parse_toml};
 use crate::montecarlo::{Engine, McConfig};
 use crate::params::{ParamDef, ParamSpace, Target};
 use crate::stats::Accumulator;
-use crate::tune::{LocalSearch, Scoring, TuneSettings};
+use crate::tune::TuneSettings;
 use crate::userfile::read_text;
 pub use spec::ProblemSpec;
 use validate::{VResult, Validator};
@@ -291,44 +291,10 @@ impl Validator<'_> {
         }
     }
 
-    /// `[tune]` applied to the defaults through the setters, in the order the fields are
-    /// documented.
-    fn tune_settings(&self, t: &spec::TuneSpec) -> VResult<TuneSettings> {
-        let at = |e: SettingError| FileError::from_setting(self.file, "tune.", e);
-        let mut s = TuneSettings::default()
-            .with_named_weights(t.weights.iter().map(|(name, &v)| (name.as_str(), v)))
-            .map_err(at)?;
-        if let Some(n) = t.max_evals {
-            s = s.with_max_evals(n).map_err(at)?;
-        }
-        if let Some(v) = t.max_seconds {
-            s = s.with_max_seconds(v).map_err(at)?;
-        }
-        if let Some(n) = t.starts {
-            s = s.with_starts(n).map_err(at)?;
-        }
-        if let Some(b) = t.nis_only {
-            s = s.with_nis_only(b);
-        }
-        if let Some(n) = t.search_runs {
-            s = s.with_search_runs(n).map_err(at)?;
-        }
-        if let Some(n) = t.refine_runs {
-            s = s.with_refine_runs(Some(n)).map_err(at)?;
-        }
-        if let Some(n) = t.confirm_seeds {
-            s = s.with_confirm_seeds(n).map_err(at)?;
-        }
-        if let Some(n) = t.global_points {
-            s = s.with_global_points(n).map_err(at)?;
-        }
-        if let Some(l) = &t.local {
-            s = s.with_local(LocalSearch::from_name(l).map_err(at)?);
-        }
-        if let Some(x) = &t.scoring {
-            s = s.with_scoring(Scoring::from_name(x).map_err(at)?);
-        }
-        Ok(s)
+    /// `[tune]` laid over the defaults through the setters.
+    fn tune_settings(&self, t: &crate::tune::TuneSpec) -> VResult<TuneSettings> {
+        t.apply(TuneSettings::default())
+            .map_err(|e| FileError::from_setting(self.file, "tune.", e))
     }
 
     /// `[params]` in file order, each checked by [`ParamDef::validate`].

@@ -40,7 +40,7 @@ pub struct ProblemSpec {
     pub params: IndexMap<String, ParamSpec>,
     /// Tuner settings (all optional).
     #[serde(default)]
-    pub tune: TuneSpec,
+    pub tune: crate::tune::TuneSpec,
 }
 
 /// A TOML table in the order its keys appear in the file. The `toml` reader hands a table's
@@ -59,36 +59,6 @@ where
         .into_iter()
         .map(|(k, v)| (k, v.into_inner()))
         .collect())
-}
-
-/// `[tune]`: defaults for `autotune tune`, each overridable on the command line.
-#[derive(Debug, Clone, Default, Deserialize, PartialEq)]
-#[serde(deny_unknown_fields)]
-pub struct TuneSpec {
-    /// Objective weights by term name (mean, interval, per_step, components, whiteness,
-    /// shape).
-    #[serde(default)]
-    pub weights: IndexMap<String, f64>,
-    /// Evaluation budget.
-    pub max_evals: Option<i64>,
-    /// Wall-time budget, s.
-    pub max_seconds: Option<f64>,
-    /// Local searches from the best global points.
-    pub starts: Option<i64>,
-    /// Score innovations only.
-    pub nis_only: Option<bool>,
-    /// "auto", "exact" or "monte_carlo".
-    pub scoring: Option<String>,
-    /// Runs per Monte Carlo evaluation during the search (default 4 N).
-    pub search_runs: Option<i64>,
-    /// Runs of the final refinement under Monte Carlo scoring (default 4 × search_runs).
-    pub refine_runs: Option<i64>,
-    /// Fresh seeds of the confirmation (default 20).
-    pub confirm_seeds: Option<i64>,
-    /// Quasi-random points of the global stage per free parameter (default 16).
-    pub global_points: Option<i64>,
-    /// "simplex" or "gauss_newton".
-    pub local: Option<String>,
 }
 
 /// `[external]`: the worker program and what its records hold.

@@ -40,6 +40,7 @@ mod result;
 mod separable;
 mod settings;
 mod simplex;
+mod spec;
 #[cfg(test)]
 mod tests;
 
@@ -47,6 +48,7 @@ pub use objective::{Objective, Terms, Weights};
 pub use refine::{Confirmation, band_low, seed_at};
 pub use result::{Observer, Resolution, Silent, TuneResult, TuneStatus, Widening};
 pub use settings::{LocalSearch, Plan, Scoring, TuneSettings};
+pub use spec::TuneSpec;
 
 use std::time::{Duration, Instant};
 

@@ -161,6 +161,38 @@ pub fn ml_text(summary: &EstimateSummary<'_>, est: &MlEstimate) -> String {
         est.evaluations,
         summary.seconds,
     );
+    convergence_line(&mut o, summary, est);
+    if !est.at_bound.is_empty() {
+        let names: Vec<&str> = est
+            .at_bound
+            .iter()
+            .map(|&i| summary.params.params[i].name.as_str())
+            .collect();
+        let _ = writeln!(
+            o,
+            "at the bound (0): {} (setting it to zero changes −log L by less than 0.001 nats); the other standard errors leave it out",
+            names.join(", ")
+        );
+    }
+    if !est.not_identified.is_empty() {
+        let names: Vec<&str> = est
+            .not_identified
+            .iter()
+            .map(|&i| summary.params.params[i].name.as_str())
+            .collect();
+        let _ = writeln!(
+            o,
+            "not identified by these data (relative standard error above 1, or no curvature): {}",
+            names.join(", ")
+        );
+    }
+    o
+}
+
+/// Whether the likelihood's maximum was reached: the gain the quadratic model still
+/// predicts and the gradient, or why not (parameters stuck near zero, gain left, no
+/// maximum) and whether the iteration limit stopped it.
+fn convergence_line(o: &mut String, summary: &EstimateSummary<'_>, est: &MlEstimate) {
     let gradient: Vec<String> = est.gradient.iter().map(|g| fmt_g(*g)).collect();
     if est.converged {
         let _ = writeln!(
@@ -201,31 +233,6 @@ pub fn ml_text(summary: &EstimateSummary<'_>, est: &MlEstimate) -> String {
             }
         );
     }
-    if !est.at_bound.is_empty() {
-        let names: Vec<&str> = est
-            .at_bound
-            .iter()
-            .map(|&i| summary.params.params[i].name.as_str())
-            .collect();
-        let _ = writeln!(
-            o,
-            "at the bound (0): {} (setting it to zero changes −log L by less than 0.001 nats); the other standard errors leave it out",
-            names.join(", ")
-        );
-    }
-    if !est.not_identified.is_empty() {
-        let names: Vec<&str> = est
-            .not_identified
-            .iter()
-            .map(|&i| summary.params.params[i].name.as_str())
-            .collect();
-        let _ = writeln!(
-            o,
-            "not identified by these data (relative standard error above 1, or no curvature): {}",
-            names.join(", ")
-        );
-    }
-    o
 }
 
 /// Where a tune's search starts: `start: ml estimate from FILE in 0.123 s: q = …, r = …`.
@@ -344,47 +351,6 @@ pub fn full_text(
             full.name(),
             est.lags - 1
         )?;
-        let matrix = |o: &mut String,
-                      title: &str,
-                      names: &[String],
-                      m: &nalgebra::DMatrix<f64>|
-         -> std::fmt::Result {
-            writeln!(o, "{title}")?;
-            let w = names
-                .iter()
-                .map(|s| s.chars().count())
-                .max()
-                .unwrap_or(0)
-                .max(12);
-            write!(o, "  {:<w$}", "")?;
-            for n in names {
-                write!(o, " {n:>w$}")?;
-            }
-            writeln!(o)?;
-            for (i, n) in names.iter().enumerate() {
-                write!(o, "  {n:<w$}")?;
-                for j in 0..names.len() {
-                    write!(o, " {:>w$}", fmt_g(m[(i, j)]))?;
-                }
-                writeln!(o)?;
-            }
-            // Correlations say more than covariances about what the structured model misses.
-            for i in 0..names.len() {
-                for j in i + 1..names.len() {
-                    let d = (m[(i, i)] * m[(j, j)]).sqrt();
-                    if d > 0.0 {
-                        writeln!(
-                            o,
-                            "  correlation {} – {}: {:.3}",
-                            names[i],
-                            names[j],
-                            m[(i, j)] / d
-                        )?;
-                    }
-                }
-            }
-            Ok(())
-        };
         let eig = |v: Option<f64>| v.map_or("-".to_string(), fmt_g);
         if matches!(full, FullMatrix::Q | FullMatrix::Both) {
             // What each input is: its column of G, in the state's components.
@@ -411,7 +377,7 @@ pub fn full_text(
                     "(the full W takes the place of every Q term, the fixed ones included)"
                 )?;
             }
-            matrix(
+            matrix_lines(
                 o,
                 "W, the covariance of the process noise inputs (Q = G W G'; units of each input's parameter):",
                 &inputs,
@@ -425,7 +391,7 @@ pub fn full_text(
             )?;
         }
         if matches!(full, FullMatrix::R | FullMatrix::Both) {
-            matrix(o, "R, the measurement noise covariance:", z_names, &est.R)?;
+            matrix_lines(o, "R, the measurement noise covariance:", z_names, &est.R)?;
             writeln!(
                 o,
                 "  smallest eigenvalue {} (unconstrained least squares: {})",
@@ -440,24 +406,7 @@ pub fn full_text(
             FullMatrix::Both => None,
         };
         if let Some(cov) = structured {
-            let mut shown = Vec::new();
-            for t in &cov.terms {
-                if let Coef::Param(i) = t.coef {
-                    if shown.contains(&i) {
-                        continue;
-                    }
-                    shown.push(i);
-                    let d = &params.params[i];
-                    writeln!(
-                        o,
-                        "{:<14} {:>12}  {}{}",
-                        d.name,
-                        fmt_g(est.theta[i]),
-                        d.unit,
-                        if d.fixed { " (fixed)" } else { "" }
-                    )?;
-                }
-            }
+            structured_lines(o, params, cov, &est.theta)?;
         }
         writeln!(
             o,
@@ -471,4 +420,81 @@ pub fn full_text(
     };
     let _ = write();
     text
+}
+
+/// A named square matrix as a table, then the correlation of each pair of its components
+/// (correlations say more than covariances about what a structured model misses).
+#[cfg(feature = "sdp")]
+fn matrix_lines(
+    o: &mut String,
+    title: &str,
+    names: &[String],
+    m: &nalgebra::DMatrix<f64>,
+) -> std::fmt::Result {
+    writeln!(o, "{title}")?;
+    let w = names
+        .iter()
+        .map(|s| s.chars().count())
+        .max()
+        .unwrap_or(0)
+        .max(12);
+    write!(o, "  {:<w$}", "")?;
+    for n in names {
+        write!(o, " {n:>w$}")?;
+    }
+    writeln!(o)?;
+    for (i, n) in names.iter().enumerate() {
+        write!(o, "  {n:<w$}")?;
+        for j in 0..names.len() {
+            write!(o, " {:>w$}", fmt_g(m[(i, j)]))?;
+        }
+        writeln!(o)?;
+    }
+    // Correlations say more than covariances about what the structured model misses.
+    for i in 0..names.len() {
+        for j in i + 1..names.len() {
+            let d = (m[(i, i)] * m[(j, j)]).sqrt();
+            if d > 0.0 {
+                writeln!(
+                    o,
+                    "  correlation {} – {}: {:.3}",
+                    names[i],
+                    names[j],
+                    m[(i, j)] / d
+                )?;
+            }
+        }
+    }
+    Ok(())
+}
+
+/// The parameters of the matrix that stayed structured (Q when R is full, R when Q is),
+/// each once, with its estimate and unit.
+#[cfg(feature = "sdp")]
+fn structured_lines(
+    o: &mut String,
+    params: &ParamSpace,
+    cov: &crate::params::CovModel,
+    theta: &[f64],
+) -> std::fmt::Result {
+    use crate::params::Coef;
+    let mut shown = Vec::new();
+    for t in &cov.terms {
+        if let Coef::Param(i) = t.coef {
+            if shown.contains(&i) {
+                continue;
+            }
+            shown.push(i);
+            let d = &params.params[i];
+            writeln!(
+                o,
+                "{:<14} {:>12}  {}{}",
+                d.name,
+                fmt_g(theta[i]),
+                d.unit,
+                if d.fixed { " (fixed)" } else { "" }
+            )?;
+        }
+    }
+    Ok(())
 }

@@ -98,121 +98,17 @@ pub fn recommendations(
 ) -> Vec<Recommendation> {
     let mut rows = Vec::new();
     for (i, p) in experiment.params().params.iter().enumerate() {
-        let Target {
-            kind,
-            components: indices,
-        } = experiment
-            .target(i)
-            .unwrap_or_else(|| Target::measurement(&[]));
-        let is_q = kind == NoiseKind::Process;
-        let (comps, names) = if is_q {
-            (&before.state_components, experiment.state_names())
-        } else {
-            (
-                &before.measurement_components,
-                experiment.measurement_names(),
-            )
-        };
-        let mut evidence: Vec<(String, f64)> = indices
-            .iter()
-            .filter_map(|&j| comps.get(j).map(|c| (names[j].clone(), c.value)))
-            .collect();
-        if is_q && evidence.is_empty() {
-            // NIS-only runs have no state components; fall back to the measurements.
-            evidence = before
-                .measurement_components
-                .iter()
-                .map(|c| (c.name.clone(), c.value))
-                .collect();
-        }
+        let evidence = start_evidence(experiment, i, before);
         let initial = result.initial[i];
         let tuned = result.tuned[i];
         let factor = tuned / initial;
         let res = result.resolution.as_ref().map(|r| r[i]);
-        let what = if evidence.is_empty() {
-            String::new()
-        } else {
-            let stat = if is_q && !before.state_components.is_empty() {
-                "e²/P"
-            } else {
-                "ν²/S"
-            };
-            let names: Vec<&str> = evidence.iter().map(|(n, _)| n.as_str()).collect();
-            let values: Vec<String> = evidence.iter().map(|(_, v)| fmt_evidence(*v)).collect();
-            format!("{} ({stat} = {})", names.join(", "), values.join(", "))
-        };
-        let label = evidence_label(&evidence);
-        let what = match (what.is_empty(), label.is_empty()) {
-            (true, _) => String::new(),
-            (false, true) => format!("{what}; "),
-            (false, false) => format!("{what} {label} at the start; "),
-        };
-        let action = if factor > NEGLIGIBLE {
-            format!("increase ×{}", fmt_factor(factor))
-        } else if factor < 1.0 / NEGLIGIBLE {
-            format!(
-                "decrease ×{} (÷{})",
-                fmt_factor(factor),
-                fmt_factor(1.0 / factor)
-            )
-        } else {
-            format!("about right (×{})", fmt_factor(factor))
-        };
         let unsearched = result.status == TuneStatus::BudgetExhausted && tuned == initial;
         // Flagged from the run's own flags, at any status: a run that stopped on its
         // budget has no resolution, but its value can still sit on a bound.
         let at_bound = result.at_bound.get(i).copied().unwrap_or(false);
-        let widening = result.widened.iter().find(|w| w.param == i);
-        let advice = if result.fixed[i] {
-            format!(
-                "{}: held fixed at {}",
-                p.name,
-                crate::report::fmt_g(initial)
-            )
-        } else if unsearched {
-            format!(
-                "{}: not searched (the budget ran out before the search moved it); {what}raise the budget",
-                p.name
-            )
-        } else if let (true, Some(w)) = (at_bound, widening) {
-            format!(
-                "{}: {what}still at its search bound after it was widened once from {} to {}; the data want it further still, a thousand times past the file's bound: check the model and the parameter's units",
-                p.name,
-                fmt_bounds(w.from),
-                fmt_bounds(w.to)
-            )
-        } else if at_bound {
-            format!(
-                "{}: stopped at its search bound [{}, {}]; the data may want it beyond, widen the bounds",
-                p.name,
-                crate::report::fmt_g(p.lower),
-                crate::report::fmt_g(p.upper)
-            )
-        } else if let Some(w) = widening {
-            let tail = if result.status == TuneStatus::Inconsistent {
-                ", but no value of the free parameters makes the filter consistent (see below)"
-            } else {
-                ""
-            };
-            format!(
-                "{}: stopped at its search bound {}, widened once to {} and searched again (put the new bounds in the problem file): {what}{action}{tail}",
-                p.name,
-                fmt_bounds(w.from),
-                fmt_bounds(w.to)
-            )
-        } else if res.is_some_and(|r| !r.identifiable) {
-            format!(
-                "{}: not identifiable from this data (the gate's runs leave it free by more than a factor of 2); keep a prior value such as a datasheet's",
-                p.name
-            )
-        } else if result.status == TuneStatus::Inconsistent {
-            format!(
-                "{}: {what}best fit in this family {action}, but no value of the free parameters makes the filter consistent (see below)",
-                p.name
-            )
-        } else {
-            format!("{}: {what}{action}", p.name)
-        };
+        let what = evidence_text(experiment, i, before, &evidence);
+        let advice = advice_line(result, i, p, &what, factor, unsearched, at_bound);
         // On one record the reports say once why there is no resolution.
         let advice =
             if res.is_none() && !result.fixed[i] && !unsearched && !result.confirmation.recorded {
@@ -236,6 +132,151 @@ pub fn recommendations(
         });
     }
     rows
+}
+
+/// Whether parameter `i` is a process-noise (Q) parameter, and the components it drives.
+fn target_of(experiment: &dyn Experiment, i: usize) -> (bool, Vec<usize>) {
+    let Target { kind, components } = experiment
+        .target(i)
+        .unwrap_or_else(|| Target::measurement(&[]));
+    (kind == NoiseKind::Process, components)
+}
+
+/// The start's statistics of the components parameter `i` drives, by name: e²/P of the
+/// states a Q parameter drives (the measurements' ν²/S where the run has no states), ν²/S
+/// of the measurements an R parameter drives.
+fn start_evidence(
+    experiment: &dyn Experiment,
+    i: usize,
+    before: &ConsistencyReport,
+) -> Vec<(String, f64)> {
+    let (is_q, indices) = target_of(experiment, i);
+    let (comps, names) = if is_q {
+        (&before.state_components, experiment.state_names())
+    } else {
+        (
+            &before.measurement_components,
+            experiment.measurement_names(),
+        )
+    };
+    let evidence: Vec<(String, f64)> = indices
+        .iter()
+        .filter_map(|&j| comps.get(j).map(|c| (names[j].clone(), c.value)))
+        .collect();
+    if is_q && evidence.is_empty() {
+        // NIS-only runs have no state components; fall back to the measurements.
+        return before
+            .measurement_components
+            .iter()
+            .map(|c| (c.name.clone(), c.value))
+            .collect();
+    }
+    evidence
+}
+
+/// The evidence as the advice quotes it, `x, vx (e²/P = 2.1, 1.9) overconfident at the
+/// start; `, or nothing.
+fn evidence_text(
+    experiment: &dyn Experiment,
+    i: usize,
+    before: &ConsistencyReport,
+    evidence: &[(String, f64)],
+) -> String {
+    if evidence.is_empty() {
+        return String::new();
+    }
+    let (is_q, _) = target_of(experiment, i);
+    let stat = if is_q && !before.state_components.is_empty() {
+        "e²/P"
+    } else {
+        "ν²/S"
+    };
+    let names: Vec<&str> = evidence.iter().map(|(n, _)| n.as_str()).collect();
+    let values: Vec<String> = evidence.iter().map(|(_, v)| fmt_evidence(*v)).collect();
+    let what = format!("{} ({stat} = {})", names.join(", "), values.join(", "));
+    let label = evidence_label(evidence);
+    if label.is_empty() {
+        format!("{what}; ")
+    } else {
+        format!("{what} {label} at the start; ")
+    }
+}
+
+/// The advice for parameter `i` (`p`) with the start's evidence `what`: held fixed, not
+/// searched, at or past its search bound, not identifiable, a best fit of a family that
+/// does not fit, or the change to make.
+fn advice_line(
+    result: &TuneResult,
+    i: usize,
+    p: &crate::params::ParamDef,
+    what: &str,
+    factor: f64,
+    unsearched: bool,
+    at_bound: bool,
+) -> String {
+    let action = if factor > NEGLIGIBLE {
+        format!("increase ×{}", fmt_factor(factor))
+    } else if factor < 1.0 / NEGLIGIBLE {
+        format!(
+            "decrease ×{} (÷{})",
+            fmt_factor(factor),
+            fmt_factor(1.0 / factor)
+        )
+    } else {
+        format!("about right (×{})", fmt_factor(factor))
+    };
+    let widening = result.widened.iter().find(|w| w.param == i);
+    let res = result.resolution.as_ref().map(|r| r[i]);
+    if result.fixed[i] {
+        format!(
+            "{}: held fixed at {}",
+            p.name,
+            crate::report::fmt_g(result.initial[i])
+        )
+    } else if unsearched {
+        format!(
+            "{}: not searched (the budget ran out before the search moved it); {what}raise the budget",
+            p.name
+        )
+    } else if let (true, Some(w)) = (at_bound, widening) {
+        format!(
+            "{}: {what}still at its search bound after it was widened once from {} to {}; the data want it further still, a thousand times past the file's bound: check the model and the parameter's units",
+            p.name,
+            fmt_bounds(w.from),
+            fmt_bounds(w.to)
+        )
+    } else if at_bound {
+        format!(
+            "{}: stopped at its search bound [{}, {}]; the data may want it beyond, widen the bounds",
+            p.name,
+            crate::report::fmt_g(p.lower),
+            crate::report::fmt_g(p.upper)
+        )
+    } else if let Some(w) = widening {
+        let tail = if result.status == TuneStatus::Inconsistent {
+            ", but no value of the free parameters makes the filter consistent (see below)"
+        } else {
+            ""
+        };
+        format!(
+            "{}: stopped at its search bound {}, widened once to {} and searched again (put the new bounds in the problem file): {what}{action}{tail}",
+            p.name,
+            fmt_bounds(w.from),
+            fmt_bounds(w.to)
+        )
+    } else if res.is_some_and(|r| !r.identifiable) {
+        format!(
+            "{}: not identifiable from this data (the gate's runs leave it free by more than a factor of 2); keep a prior value such as a datasheet's",
+            p.name
+        )
+    } else if result.status == TuneStatus::Inconsistent {
+        format!(
+            "{}: {what}best fit in this family {action}, but no value of the free parameters makes the filter consistent (see below)",
+            p.name
+        )
+    } else {
+        format!("{}: {what}{action}", p.name)
+    }
 }
 
 /// Amend the rows of a misfit run whose first explanation's trial reached consistency: the

@@ -177,40 +177,85 @@ pub fn summary_text(problem: &str, params: &[(String, f64)], r: &ConsistencyRepo
     } else {
         " (diagnostic, not gated)"
     };
+    component_lines(&mut out, r, gated);
+    mean_lines(&mut out, r, gated);
+    whiteness_line(&mut out, r, gated);
+    if let Some(head) = r.diagnosis.headline() {
+        let _ = writeln!(out, "  diagnosis: {head}");
+        for f in &r.diagnosis.findings {
+            let _ = writeln!(
+                out,
+                "    {}: {} → {}",
+                f.component,
+                compact_numbers(&f.evidence),
+                f.action
+            );
+        }
+    }
+    for s in &stats {
+        power_notes(&mut out, r, s);
+    }
+    if r.diverged_runs > 0 {
+        let first = r
+            .divergences
+            .first()
+            .map(|d| format!(" (first: run {}, {})", d.run, d.reason))
+            .unwrap_or_default();
+        let _ = writeln!(
+            out,
+            "  {} in {} of {} runs{first}",
+            stopped_runs(r.verdict),
+            r.diverged_runs,
+            r.runs
+        );
+    }
+    let _ = writeln!(out, "verdict: {}", r.verdict.describe());
+    out
+}
+
+/// `state` or `meas`, as the summary's component lists name a component's kind.
+fn kind_word(c: &ComponentStat) -> &'static str {
+    if c.kind == "state" { "state" } else { "meas" }
+}
+
+/// The components off their target 1, or (when none is) the three worst of those inside
+/// their intervals.
+fn component_lines(out: &mut String, r: &ConsistencyReport, gated: &str) {
     let off: Vec<String> = r
         .state_components
         .iter()
         .chain(&r.measurement_components)
         .filter(|c| matches!(c.verdict, Verdict::Overconfident | Verdict::Underconfident))
         .map(|c| {
-            let kind = if c.kind == "state" { "state" } else { "meas" };
             let (value, interval) = component_cells(c);
-            format!("{kind} {} {value} {interval}", c.name)
+            format!("{} {} {value} {interval}", kind_word(c), c.name)
         })
         .collect();
-    if off.is_empty() {
-        let worst = r.worst_components(3);
-        if !worst.is_empty() {
-            let w: Vec<String> = worst
-                .iter()
-                .map(|c| {
-                    let kind = if c.kind == "state" { "state" } else { "meas" };
-                    format!("{kind} {} {}", c.name, fmt_fixed(c.value, 3))
-                })
-                .collect();
-            let _ = writeln!(
-                out,
-                "  components (target 1, all inside their intervals; worst first): {}",
-                w.join("; ")
-            );
-        }
-    } else {
+    if !off.is_empty() {
         let _ = writeln!(
             out,
             "  components off their target 1{gated}: {}",
             off.join("; ")
         );
+        return;
     }
+    let worst = r.worst_components(3);
+    if !worst.is_empty() {
+        let w: Vec<String> = worst
+            .iter()
+            .map(|c| format!("{} {} {}", kind_word(c), c.name, fmt_fixed(c.value, 3)))
+            .collect();
+        let _ = writeln!(
+            out,
+            "  components (target 1, all inside their intervals; worst first): {}",
+            w.join("; ")
+        );
+    }
+}
+
+/// The components whose errors or innovations are not zero-mean, or (when all are) the
+/// three largest means by |z|.
+fn mean_lines(out: &mut String, r: &ConsistencyReport, gated: &str) {
     let comps: Vec<&ComponentStat> = r
         .state_components
         .iter()
@@ -218,9 +263,8 @@ pub fn summary_text(problem: &str, params: &[(String, f64)], r: &ConsistencyRepo
         .filter(|c| c.mean_z.is_finite())
         .collect();
     let mean_text = |c: &ComponentStat| {
-        let kind = if c.kind == "state" { "state" } else { "meas" };
         let (mean, z) = mean_cells(c);
-        format!("{kind} {} {mean} (z {z})", c.name)
+        format!("{} {} {mean} (z {z})", kind_word(c), c.name)
     };
     let biased: Vec<String> = comps
         .iter()
@@ -243,6 +287,10 @@ pub fn summary_text(problem: &str, params: &[(String, f64)], r: &ConsistencyRepo
             top.join("; ")
         );
     }
+}
+
+/// The measurement components whose innovations are not white, if any.
+fn whiteness_line(out: &mut String, r: &ConsistencyReport, gated: &str) {
     let white: Vec<String> = r
         .whiteness_tests
         .iter()
@@ -261,57 +309,32 @@ pub fn summary_text(problem: &str, params: &[(String, f64)], r: &ConsistencyRepo
     if !white.is_empty() {
         let _ = writeln!(out, "  innovations not white{gated}: {}", white.join("; "));
     }
-    if let Some(head) = r.diagnosis.headline() {
-        let _ = writeln!(out, "  diagnosis: {head}");
-        for f in &r.diagnosis.findings {
-            let _ = writeln!(
-                out,
-                "    {}: {} → {}",
-                f.component,
-                compact_numbers(&f.evidence),
-                f.action
-            );
-        }
+}
+
+/// What statistic `s` can and cannot tell at this N and T: a wide run-to-run spread, no
+/// data, too few degrees of freedom for its time average or its per-step tests.
+fn power_notes(out: &mut String, r: &ConsistencyReport, s: &StatisticSummary) {
+    if let Some(note) = run_spread_note(s) {
+        let _ = writeln!(out, "  note: {note}");
     }
-    for s in &stats {
-        if let Some(note) = run_spread_note(s) {
-            let _ = writeln!(out, "  note: {note}");
-        }
-        if !has_data(s) {
-            let _ = writeln!(out, "  note: {}", no_data_reason(s, r));
-        } else if r.diverged_runs >= r.runs {
-            // Every run stopped part-way: the stopped-runs line below says why, and "add
-            // runs or steps" would be the wrong advice.
-        } else if !s.has_power {
-            let _ = writeln!(
-                out,
-                "  warning: the time-averaged A{} test has only {:.1} effective degrees of freedom and cannot tell a factor-2 covariance error; add runs or steps",
-                s.name, s.effective_dof
-            );
-        } else if !s.per_step_has_power {
-            let _ = writeln!(
-                out,
-                "  note: per-step A{} tests have too few degrees of freedom (N·dof small) to detect a factor-2 error at a single step; the time average carries the verdict",
-                s.name
-            );
-        }
-    }
-    if r.diverged_runs > 0 {
-        let first = r
-            .divergences
-            .first()
-            .map(|d| format!(" (first: run {}, {})", d.run, d.reason))
-            .unwrap_or_default();
+    if !has_data(s) {
+        let _ = writeln!(out, "  note: {}", no_data_reason(s, r));
+    } else if r.diverged_runs >= r.runs {
+        // Every run stopped part-way: the stopped-runs line says why, and "add runs or
+        // steps" would be the wrong advice.
+    } else if !s.has_power {
         let _ = writeln!(
             out,
-            "  {} in {} of {} runs{first}",
-            stopped_runs(r.verdict),
-            r.diverged_runs,
-            r.runs
+            "  warning: the time-averaged A{} test has only {:.1} effective degrees of freedom and cannot tell a factor-2 covariance error; add runs or steps",
+            s.name, s.effective_dof
+        );
+    } else if !s.per_step_has_power {
+        let _ = writeln!(
+            out,
+            "  note: per-step A{} tests have too few degrees of freedom (N·dof small) to detect a factor-2 error at a single step; the time average carries the verdict",
+            s.name
         );
     }
-    let _ = writeln!(out, "verdict: {}", r.verdict.describe());
-    out
 }
 
 /// The gate in one line: which tests, how many, and the level of each.

@@ -134,10 +134,6 @@ pub fn nis_summary_text(r: &NisReport) -> String {
             px4_estimator_text(&mut o, p);
         }
     }
-    for w in &r.warnings {
-        let _ = writeln!(o, "warning: {w}");
-    }
-    let _ = writeln!(o, "{}", nis_gate_text(r));
     let listed = r.warnings.len().min(WARNINGS_LISTED);
     for w in &r.warnings[..listed] {
         let _ = writeln!(o, "warning: {w}");
@@ -149,7 +145,51 @@ pub fn nis_summary_text(r: &NisReport) -> String {
             r.warnings.len() - listed
         );
     }
+    let _ = writeln!(o, "{}", nis_gate_text(r));
     let _ = writeln!(o);
+    sensor_table(&mut o, r);
+    for s in &r.sensors {
+        if let Some(reason) = &s.inconclusive_reason {
+            let _ = writeln!(o, "{}: NIS level not judged: {reason}", s.name);
+        }
+    }
+    not_fused_lines(&mut o, r);
+    let ov = &r.overall;
+    if ov.nis_per_dof.is_finite() {
+        let _ = writeln!(
+            o,
+            "overall: NIS per degree of freedom {} ({} expected, interval [{}, {}]) over {} updates, {} outliers",
+            fmt_g(ov.nis_per_dof),
+            fmt_g(ov.target),
+            fmt_g(ov.interval.lower),
+            fmt_g(ov.interval.upper),
+            ov.updates,
+            ov.outliers
+        );
+    }
+    px4_channels_text(&mut o, r);
+    let findings: Vec<_> = r
+        .sensors
+        .iter()
+        .filter_map(|s| s.finding.as_ref())
+        .collect();
+    if !findings.is_empty() {
+        let _ = writeln!(
+            o,
+            "\nadvice (from the NIS alone; see the README's Field logs):"
+        );
+        for f in findings {
+            let _ = writeln!(o, "  {}: {} — {}", f.component, f.action, f.evidence);
+        }
+    }
+    let _ = writeln!(o, "\n{}", nis_verdict_line(r));
+    o
+}
+
+/// The per-sensor table: updates, the gated and plain NIS averages against their interval,
+/// the share of updates inside their own interval, outliers, ρ₁, the mean, the windows
+/// outside, the verdict and the rows dropped.
+fn sensor_table(o: &mut String, r: &NisReport) {
     let inside = format!("in {:.0}%", 100.0 * (1.0 - r.alpha));
     let width = r
         .sensors
@@ -209,12 +249,11 @@ pub fn nis_summary_text(r: &NisReport) -> String {
             dropped(s)
         );
     }
-    for s in &r.sensors {
-        if let Some(reason) = &s.inconclusive_reason {
-            let _ = writeln!(o, "{}: NIS level not judged: {reason}", s.name);
-        }
-    }
-    // Channels fused only on the ground have updates: `--in-air` set them aside.
+}
+
+/// The channels without an update, and those fused only on the ground (`--in-air` set
+/// their updates aside), the first few of each by name.
+fn not_fused_lines(o: &mut String, r: &NisReport) {
     let (ground, idle): (Vec<_>, Vec<_>) =
         r.not_fused.iter().partition(|n| n.dropped.on_ground > 0);
     for (list, words) in [
@@ -241,36 +280,6 @@ pub fn nis_summary_text(r: &NisReport) -> String {
             }
         );
     }
-    let ov = &r.overall;
-    if ov.nis_per_dof.is_finite() {
-        let _ = writeln!(
-            o,
-            "overall: NIS per degree of freedom {} ({} expected, interval [{}, {}]) over {} updates, {} outliers",
-            fmt_g(ov.nis_per_dof),
-            fmt_g(ov.target),
-            fmt_g(ov.interval.lower),
-            fmt_g(ov.interval.upper),
-            ov.updates,
-            ov.outliers
-        );
-    }
-    px4_channels_text(&mut o, r);
-    let findings: Vec<_> = r
-        .sensors
-        .iter()
-        .filter_map(|s| s.finding.as_ref())
-        .collect();
-    if !findings.is_empty() {
-        let _ = writeln!(
-            o,
-            "\nadvice (from the NIS alone; see the README's Field logs):"
-        );
-        for f in findings {
-            let _ = writeln!(o, "  {}: {} — {}", f.component, f.action, f.evidence);
-        }
-    }
-    let _ = writeln!(o, "\n{}", nis_verdict_line(r));
-    o
 }
 
 /// What a PX4 log says about its estimators: publisher, release, instances, the channels not

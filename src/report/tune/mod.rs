@@ -102,6 +102,15 @@ pub fn tune_markdown(
         }
         let _ = writeln!(o);
     }
+    recommendations_markdown(&mut o, recs);
+    consistency_markdown(&mut o, r);
+    search_markdown(&mut o, r);
+    o
+}
+
+/// The advice, and the table of each parameter's start, tuned value, factor, resolution
+/// and evidence.
+fn recommendations_markdown(o: &mut String, recs: &[Recommendation]) {
     let _ = writeln!(o, "## Recommendations\n");
     for rec in recs {
         let _ = writeln!(o, "- {}", rec.advice);
@@ -130,6 +139,11 @@ pub fn tune_markdown(
             ev.join(", ")
         );
     }
+}
+
+/// Consistency before and after: the runs it rests on, the confirmation, the statistics
+/// and each component of the tuned filter.
+fn consistency_markdown(o: &mut String, r: &TuneResult) {
     if r.confirmation.recorded {
         let _ = writeln!(
             o,
@@ -144,7 +158,7 @@ pub fn tune_markdown(
         );
     }
     let _ = writeln!(o, "Confirmation: {}.\n", r.confirmation.text());
-    stats_table(&mut o, &r.before, &r.after);
+    stats_table(o, &r.before, &r.after);
     let _ = writeln!(
         o,
         "\nPer-component normalized errors of the tuned filter (target 1):\n"
@@ -166,6 +180,11 @@ pub fn tune_markdown(
             c.verdict.label()
         );
     }
+}
+
+/// How the search went: its scoring, cost, objective, refinement and what the resolution
+/// means.
+fn search_markdown(o: &mut String, r: &TuneResult) {
     let _ = writeln!(o, "\n## Search\n");
     let _ = writeln!(
         o,
@@ -201,7 +220,6 @@ pub fn tune_markdown(
             r.confirmation.seeds
         );
     }
-    o
 }
 
 /// What the "after" verdict of a tune report is: with several confirmation seeds it is the
@@ -276,6 +294,22 @@ pub fn tune_summary(
             let _ = writeln!(o, "  {l}");
         }
     }
+    confirmation_line(&mut o, result);
+    let _ = writeln!(o, "  wrote {}", config.display());
+    if let Some(dir) = report_dir {
+        let _ = writeln!(
+            o,
+            "  wrote {}/report.html, report.md, report.json",
+            dir.display()
+        );
+    }
+    let _ = writeln!(o, "{}", tune_verdict_line(result));
+    o
+}
+
+/// The confirmation's line: its runs and seeds (or the record), its outcome, and the
+/// first seed's averages against their intervals (with the test that fails, if one does).
+fn confirmation_line(o: &mut String, result: &TuneResult) {
     let line = |s: &StatisticSummary| {
         if s.steps_with_data == 0 {
             return format!("A{} no data {}", s.name, s.verdict.label());
@@ -318,14 +352,11 @@ pub fn tune_summary(
             parts.join("; ")
         );
     }
-    let _ = writeln!(o, "  wrote {}", config.display());
-    if let Some(dir) = report_dir {
-        let _ = writeln!(
-            o,
-            "  wrote {}/report.html, report.md, report.json",
-            dir.display()
-        );
-    }
+}
+
+/// The tune's verdict line: the start's verdict, and the tuned filter's over every
+/// confirmation seed.
+fn tune_verdict_line(result: &TuneResult) -> String {
     // The status rests on every confirmation seed, not on the first one's report
     // shown above: say what it rests on when the two could seem to disagree.
     let c = &result.confirmation;
@@ -348,10 +379,8 @@ pub fn tune_summary(
     } else {
         result.after.verdict.describe().to_string()
     };
-    let verdict = format!(
+    format!(
         "verdict: before {}, after {after}",
         result.before.verdict.label(),
-    );
-    let _ = writeln!(o, "{verdict}");
-    o
+    )
 }

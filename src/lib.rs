@@ -1,9 +1,9 @@
 //! autotune: make Kalman filters statistically consistent.
 //!
 //! The library checks a filter by truth-model Monte Carlo (NEES and NIS against chi-square
-//! intervals, [`stats`]) and tunes its noise covariances Q and R ([`tune`]). Everything
+//! intervals, `stats`) and tunes its noise covariances Q and R ([`tune`]). Everything
 //! goes through one seam, [`experiment::Experiment`]: "the Monte Carlo sums of the filter at
-//! parameter values θ". A problem file ([`problem`]), a catalog model ([`catalog`]) and a
+//! parameter values θ". A problem file (`problem`), a catalog model (`catalog`) and a
 //! Rust user's own truth model and filter ([`experiment::Custom`]) are each one
 //! implementation; [`check`], [`tune`], [`report`] and the command line ([`app`]) take any
 //! of them. docs/ARCHITECTURE.md draws the layers.
@@ -29,6 +29,10 @@
 //! ```
 
 #![warn(missing_docs)]
+// Without `internals` the modules below the API are crate-private: what they export for the
+// crate's own tests and benches is then unused by the library itself. The `internals`
+// build (every test, bench, example and lint run) still reports unused code.
+#![cfg_attr(not(feature = "internals"), allow(unused_imports, dead_code))]
 
 // The BLAS and LAPACK that clarabel's semidefinite cone calls (the `sdp` feature): the
 // system's shared OpenBLAS (Debian: libopenblas-dev).
@@ -36,30 +40,88 @@
 #[link(name = "openblas")]
 unsafe extern "C" {}
 
+/// Declares the modules below the public API. They are public to the crate's own tests,
+/// benches and examples (the `internals` feature, which the package's dev-dependency on
+/// itself turns on) and crate-private to everyone else: a Rust user sees the names
+/// re-exported below, the command line ([`app`]), the commands ([`commands`]) and the
+/// renderers ([`report`]).
+macro_rules! internal {
+    ($($name:ident),* $(,)?) => {
+        $(
+            #[cfg(feature = "internals")]
+            #[doc(hidden)]
+            pub mod $name;
+            #[cfg(not(feature = "internals"))]
+            pub(crate) mod $name;
+        )*
+    };
+}
+
 pub mod app;
-pub mod catalog;
-pub mod check;
 pub mod commands;
-pub mod estimate;
-pub mod experiment;
-pub mod explain;
-pub mod external;
-pub mod fieldlog;
-pub mod filter;
-pub mod input;
-pub mod linalg;
-pub mod measurement;
-pub mod model;
-pub mod montecarlo;
-pub mod output;
-pub mod params;
-pub mod problem;
-pub mod records;
+pub mod prelude;
 pub mod report;
-pub mod statespace;
-pub mod stats;
-pub mod tune;
-pub mod userfile;
+
+internal!(
+    catalog,
+    check,
+    estimate,
+    experiment,
+    explain,
+    external,
+    fieldlog,
+    filter,
+    input,
+    linalg,
+    measurement,
+    model,
+    montecarlo,
+    output,
+    params,
+    problem,
+    records,
+    statespace,
+    stats,
+    tune,
+    userfile,
+);
+
+// The seam, and a problem file as one implementation of it.
+pub use experiment::{
+    Alteration, Block, Covariances, Definition, Experiment, ExperimentError, Info,
+    LinearExperiment, RunOptions, Source,
+};
+pub use problem::{Problem, ProblemKind};
+
+// A model defined in Rust: its truth, its filter, its parameters.
+pub use experiment::{Custom, CustomBuilder};
+pub use filter::{Ekf, Filter, FilterError, KalmanFilter, SystemModel, Ukf};
+pub use measurement::Measurement;
+pub use model::{TruthModel, sample_gaussian};
+pub use params::{NoiseKind, ParamDef, ParamSpace, Target, cwna_block};
+
+// Judging a filter: the Monte Carlo settings and sums, the gate and its report.
+pub use check::{CheckProgress, accumulate, check, check_with, judge};
+pub use montecarlo::{Engine, McConfig};
+pub use stats::{
+    Accumulator, ComponentStat, ConsistencyReport, Diagnosis, Divergence, GateMode, Interval,
+    StatisticSummary, Verdict, WhitenessStat,
+};
+
+// Tuning.
+pub use tune::{
+    LocalSearch, Observer, Scoring, Silent, TuneError, TuneResult, TuneSettings, TuneSpec,
+    TuneStatus, tune,
+};
+
+// Field logs judged without truth, and live monitoring.
+pub use fieldlog::{
+    MonitorError, MonitorStatus, NisMonitor, NisReport, NisSettings, SensorStatus, Window,
+    WindowStatus,
+};
+
+// Errors of bad input.
+pub use input::{FileError, SettingError};
 
 /// The random number generator of one Monte Carlo run (xoshiro256++: fast, seedable, and
 /// with independent streams per seed).

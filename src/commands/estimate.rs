@@ -20,7 +20,7 @@ use crate::report::tune::tuned::estimated_config_toml;
 /// The options of `estimate`.
 #[derive(Debug, Clone, clap::Args)]
 pub struct EstimateOptions {
-    /// Problem file (TOML) whose linear [filter] has the parameters to estimate.
+    /// Problem file (TOML) whose linear filter has the parameters to estimate.
     pub problem: PathBuf,
     /// The recorded measurements: .csv, .jsonl, .npy or .npz (docs/measurements.md).
     #[arg(long, value_name = "FILE")]

@@ -57,7 +57,7 @@ pub struct InitOptions {
     /// Which system the starter models.
     #[arg(long, default_value = "cv2d", value_parser = OneOf::<Model>::new())]
     pub model: Model,
-    /// Write a starter for a filter in another program, run as a worker ([external],
+    /// Write a starter for a filter in another program, run as a worker (external,
     /// docs/external.md), instead of a built-in model.
     #[arg(long, conflicts_with = "model")]
     pub external: bool,

@@ -1,7 +1,7 @@
 //! The commands as library functions: what `autotune check`, `tune`, `estimate`,
 //! `simulate` and `init` do, with their options as plain values (the same structs the
 //! command line parses into) and their results returned. The files a command writes are
-//! checked before its work and written together, atomically ([`crate::output`]), before it
+//! checked before its work and written together, atomically (`crate::output`), before it
 //! returns; what it prints is rendered by [`crate::report`] from what it returns.
 //!
 //! [`crate::app`] is the command line over these: it parses, calls one of them, prints and

@@ -14,7 +14,7 @@ use crate::report::estimate::simulate_text;
 /// The options of `simulate`.
 #[derive(Debug, Clone, clap::Args)]
 pub struct SimulateOptions {
-    /// Problem file (TOML) with a linear [truth].
+    /// Problem file (TOML) with a linear truth.
     pub problem: PathBuf,
     /// Where to write the measurements: .csv, .jsonl or .npy (docs/measurements.md).
     #[arg(long, value_name = "FILE")]

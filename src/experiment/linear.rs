@@ -35,9 +35,9 @@ pub struct FilterModel {
 
 /// A linear-Gaussian truth and a Kalman filter whose Q and R are sums of parameterized
 /// terms. It runs on the linear fast path, and when the filter has the truth's states and uses
-/// its F and H its expected statistics have a closed form ([`expected_accumulator`]).
+/// its F and H its expected statistics have a closed form (`expected_accumulator`).
 ///
-/// The filter may have other states than the truth ([`FilterModel::map`]): the truth-model
+/// The filter may have other states than the truth (`FilterModel::map`): the truth-model
 /// test of a filter that omits what the truth carries (an acceleration, a bias, a flexible
 /// mode). Both engines then take the NEES on the mapped error, in the filter's dimension.
 #[derive(Debug, Clone)]

@@ -154,7 +154,7 @@ pub struct ExperimentError(pub String);
 /// A change to a filter that an explanation of a misfit tries ([`Experiment::alter`]).
 #[derive(Debug, Clone, PartialEq)]
 pub enum Alteration {
-    /// The filter's time step becomes one more parameter, [`DT_SCALE`], appended to θ: the
+    /// The filter's time step becomes one more parameter, `DT_SCALE`, appended to θ: the
     /// filter predicts over `s` times the step its transition was built for.
     TimeScale,
     /// The filter takes a constant offset off each measurement component before using it

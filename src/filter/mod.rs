@@ -140,7 +140,7 @@ pub enum FilterError {
     },
     /// A covariance the filter or the engine inverts is too ill-conditioned for the result
     /// to mean anything: its Jacobi-scaled condition number exceeds
-    /// [`conditioning::MAX_CONDITION`] (see [`conditioning`]).
+    /// `conditioning::MAX_CONDITION` (see `conditioning`).
     #[error("{which} is ill-conditioned at step {step} ({}): its inverse keeps fewer than 4 significant digits", conditioning::describe(*condition))]
     IllConditioned {
         /// "P⁻" (predicted covariance), "S" (innovation covariance) or "P" (state
@@ -194,16 +194,16 @@ pub fn check_measurement(expected: Option<usize>, meas: &Measurement) -> Result<
 /// 1. keep `Estimate::P` symmetric positive definite, or return
 ///    [`FilterError::NotPositiveDefinite`] (the run then counts as diverged, never NaN);
 /// 2. return each update's innovation ν, its covariance S and the NIS `ν' S⁻¹ ν`;
-/// 3. check the measurement's sensor and dimension ([`check_measurement`]);
-/// 4. set [`Estimate::error_map`] to the map from the previous posterior error to the
+/// 3. check the measurement's sensor and dimension (`check_measurement`);
+/// 4. set `Estimate::error_map` to the map from the previous posterior error to the
 ///    current one: the transition `F_k` in predict (for a UKF, its statistical
 ///    linearization), composed with `I − K H` in every update
-///    ([`Estimate::compose_error_map`]). Under consistency the errors obey
+///    (`Estimate::compose_error_map`). Under consistency the errors obey
 ///    `e_k = A_k e_{k−1} + noise`, and the engine uses `A_k` to predict how strongly NEES
 ///    is correlated over time: the time-averaged NEES gate is only as narrow as that
 ///    prediction is right.
 ///
-/// A filter that cannot supply the error map leaves it `None` (as [`Estimate::new`] does).
+/// A filter that cannot supply the error map leaves it `None` (as `Estimate::new` does).
 /// The engine then falls back to the variance of the per-run NEES sums measured across the
 /// runs, with a Student-t quantile for its estimation and never narrower than the textbook
 /// interval; the report says so. It needs at least two runs and is a little wider than the

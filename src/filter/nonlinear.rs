@@ -156,7 +156,7 @@ impl<M: SystemModel> Filter for Ekf<M> {
 /// The unscented Kalman filter with additive noise and the scaled sigma points of Julier
 /// (2002) / van der Merwe: 2n + 1 points at `x ± columns of √((n + λ) P)`,
 /// `λ = α² (n + κ) − n`, mean weights `λ/(n+λ)` and `1/(2(n+λ))`, and covariance weight
-/// `λ/(n+λ) + 1 − α² + β` for the centre point ([`unscented`] holds the arithmetic).
+/// `λ/(n+λ) + 1 − α² + β` for the centre point (`unscented` holds the arithmetic).
 #[derive(Debug, Clone)]
 pub struct Ukf<M> {
     /// The system model, the noise covariances and the initial estimate: the five things an

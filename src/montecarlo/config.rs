@@ -27,7 +27,7 @@ pub const DEFAULT_LAGS: usize = 5;
 /// A Monte Carlo consistency test: N runs of T steps from a base seed, tested at
 /// significance α by a gate of the chosen kind, with innovation autocorrelations up to a
 /// lag. Every value is checked by its setter, so a `McConfig` is always valid:
-/// 1 ≤ N ≤ [`MAX_RUNS`], 1 ≤ T ≤ [`MAX_STEPS`],
+/// 1 ≤ N ≤ `MAX_RUNS`, 1 ≤ T ≤ `MAX_STEPS`,
 /// 0 < α < 1, lags < T.
 ///
 /// ```
@@ -49,8 +49,8 @@ pub struct McConfig {
 }
 
 impl McConfig {
-    /// `runs` × `steps` with seed 0, α = [`DEFAULT_ALPHA`] and lags up to
-    /// [`DEFAULT_LAGS`] (at most T − 1).
+    /// `runs` × `steps` with seed 0, α = `DEFAULT_ALPHA` and lags up to
+    /// `DEFAULT_LAGS` (at most T − 1).
     pub fn new<R, S>(runs: R, steps: S) -> Result<McConfig, SettingError>
     where
         R: TryInto<usize> + Display + Copy,
@@ -67,7 +67,7 @@ impl McConfig {
         mc.with_runs(runs)?.with_steps(steps)
     }
 
-    /// Number of runs N, in 1..=[`MAX_RUNS`].
+    /// Number of runs N, in 1..=`MAX_RUNS`.
     pub fn with_runs<R: TryInto<usize> + Display + Copy>(
         mut self,
         runs: R,
@@ -76,7 +76,7 @@ impl McConfig {
         Ok(self)
     }
 
-    /// Steps per run T, in 1..=[`MAX_STEPS`]; the lags are capped at T − 1.
+    /// Steps per run T, in 1..=`MAX_STEPS`; the lags are capped at T − 1.
     pub fn with_steps<S: TryInto<usize> + Display + Copy>(
         mut self,
         steps: S,

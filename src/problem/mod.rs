@@ -48,7 +48,7 @@ impl ProblemKind {
         }
     }
 
-    /// How a sentence names the kind: "a catalog model ([model])".
+    /// How a sentence names the kind: "a catalog model (model)".
     pub fn describe(self) -> &'static str {
         match self {
             ProblemKind::Linear => "a linear problem ([truth] and [filter] matrices)",

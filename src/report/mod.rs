@@ -1,6 +1,6 @@
 //! Rendering: every text, JSON, Markdown, HTML (with SVG plots), JUnit XML and TOML that
 //! autotune prints or writes, by command, with the primitives they share. Nothing here runs
-//! an experiment; a command's files are written together by [`crate::output`].
+//! an experiment; a command's files are written together by `crate::output`.
 //!
 //! - [`check`]: a consistency check's summary, JUnit, HTML and Markdown pages (the tune
 //!   report's statistics reuse them) and the per-parameter advice;
@@ -8,7 +8,7 @@
 //! - [`nis`]: a field log's summary, Markdown, JUnit and HTML report;
 //! - [`estimate`]: estimates of Q and R from recorded measurements, and `simulate`'s output;
 //! - [`progress`]: a long check's bar and a tune's progress on stderr;
-//! - [`format`], [`html`] and `svg`: numbers, HTML escaping and page heads, and the plot
+//! - [`format`](mod@format), [`html`] and `svg`: numbers, HTML escaping and page heads, and the plot
 //!   primitives.
 
 pub mod check;

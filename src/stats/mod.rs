@@ -60,7 +60,7 @@ pub struct StatisticSummary {
     pub fraction_in_bounds: f64,
     /// Number of steps with data.
     pub steps_with_data: usize,
-    /// Whether the per-step tests can detect a factor-2 covariance error (see [`has_power`]).
+    /// Whether the per-step tests can detect a factor-2 covariance error (see `has_power`).
     pub per_step_has_power: bool,
     /// Time average over all runs and steps.
     pub time_average: f64,
@@ -132,7 +132,7 @@ pub struct ConsistencyReport {
     pub diverged_runs: usize,
     /// The gate's verdict.
     pub verdict: Verdict,
-    /// Which of Q and R the components and whiteness point to (see [`diagnose`]).
+    /// Which of Q and R the components and whiteness point to (see `diagnose`).
     pub diagnosis: Diagnosis,
 }
 

@@ -59,15 +59,15 @@ pub struct Accumulator {
     /// Number of runs contributing a NEES at the step.
     pub nees_count: Vec<f64>,
     /// Σ over the runs counted in `null_var_runs` of the variance of the per-run NEES sum
-    /// the filter predicts under consistency (see [`super::NeesNullVariance`]); read it through
+    /// the filter predicts under consistency (see `super::NeesNullVariance`); read it through
     /// [`Accumulator::nees_null_variance`].
     pub nees_null_var: f64,
     /// Runs whose predicted NEES-sum variance is in `nees_null_var`: all of them on the
     /// linear and exact paths, every `NULL_VAR_STRIDE`-th on the generic one
-    /// ([`crate::montecarlo::NULL_VAR_STRIDE`]).
+    /// (`crate::montecarlo::NULL_VAR_STRIDE`).
     pub null_var_runs: usize,
     /// Runs sampled for the predicted variance whose filter supplied no error map
-    /// ([`crate::filter::Estimate::error_map`]); when any did, the gate takes the NEES-sum
+    /// (`crate::filter::Estimate::error_map`); when any did, the gate takes the NEES-sum
     /// variance from the spread of the per-run sums instead.
     pub error_map_missing: usize,
     /// Σ over finished runs i of the run's NEES sum `S_i = Σ_k ε_ik`.
@@ -94,7 +94,7 @@ pub struct Accumulator {
     pub state_comp_run_sq: Vec<f64>,
     /// Σ over the runs counted in `comp_null_var_runs` of the variance of the per-run sum
     /// of e_j²/P_jj that the filter predicts under consistency (see
-    /// [`super::ComponentNullVariance`]).
+    /// `super::ComponentNullVariance`).
     pub state_comp_null_var: Vec<f64>,
     /// Runs whose predicted component variances are in `state_comp_null_var` (computed for
     /// the full gate only, on the same runs as the NEES-sum variance).
@@ -112,7 +112,7 @@ pub struct Accumulator {
     pub state_mean_run_sq: Vec<f64>,
     /// Σ over the runs counted in `comp_null_var_runs` of the variance of the per-run sum
     /// `Σ_k e_jk/√P_jj,k` that a consistent filter predicts (n_x; see
-    /// [`super::ComponentNullVariance::mean_variances`]).
+    /// `super::ComponentNullVariance::mean_variances`).
     pub state_mean_null_var: Vec<f64>,
     /// Σ_{i,k} ν_j/√S_jj per measurement component (n_z). Innovations of a consistent filter
     /// are white, so its null variance is exactly its sample count, `meas_comp_samples`.
@@ -135,7 +135,7 @@ pub struct Accumulator {
     pub white_b2: Vec<f64>,
     /// Number of pairs.
     pub white_pairs: Vec<f64>,
-    /// Number of runs that stopped early, for any [`StopCause`].
+    /// Number of runs that stopped early, for any `StopCause`.
     pub diverged_runs: usize,
     /// Of those, the runs stopped by an ill-conditioned covariance.
     pub ill_conditioned_runs: usize,

@@ -149,7 +149,7 @@ mod tests {
             "max_evals = 77\nmax_seconds = 9.5\nstarts = 2\nglobal_points = 5\n\
              scoring = \"monte_carlo\"\nlocal = \"gauss_newton\"\nnis_only = true\n\
              search_runs = 40\nrefine_runs = 80\nconfirm_seeds = 7\nconfirm_seed = 99\n\
-             [weights]\nshape = 2.5\nmean = 0.25\n",
+             [weights]\nmean = 0.25\nshape = 2.5\n",
         );
         let flags = Cli::parse_from([
             "t",
@@ -175,9 +175,9 @@ mod tests {
             "--confirm-seed",
             "99",
             "--weight",
-            "shape=2.5",
-            "--weight",
             "mean=0.25",
+            "--weight",
+            "shape=2.5",
         ])
         .spec;
         assert_eq!(file, flags);

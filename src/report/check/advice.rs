@@ -29,7 +29,7 @@ pub struct Recommendation {
     pub factor: f64,
     /// Held fixed during tuning.
     pub fixed: bool,
-    /// Whether the data pin the parameter down (see [`crate::tune::Resolution`]); `None`
+    /// Whether the data pin the parameter down (see `crate::tune::Resolution`); `None`
     /// when not assessed because the search stopped on its budget.
     pub identifiable: Option<bool>,
     /// Factor within which the tuned value is determined, if known.
@@ -329,7 +329,7 @@ impl Recommendation {
     }
 }
 
-/// What a tuning run that needed explaining ([`crate::explain::needed`]) says about it, in
+/// What a tuning run that needed explaining (`crate::explain::needed`) says about it, in
 /// lines of text: when no value of the free parameters makes the filter consistent (the
 /// search converged and the tuned filter still fails the gate on fresh seeds more often
 /// than a consistent one), the best achievable statistics and what stays off; then the

@@ -51,7 +51,6 @@ struct Fence {
 
 /// One `$ command` of a console block with the output the page shows.
 struct Example {
-    page: PathBuf,
     /// 1-based line of the `$`.
     line: usize,
     /// The command as written, without its `# …` comment.
@@ -84,7 +83,10 @@ fn pages() -> Vec<PathBuf> {
 }
 
 fn rel(path: &Path) -> String {
-    path.strip_prefix(ROOT).unwrap_or(path).display().to_string()
+    path.strip_prefix(ROOT)
+        .unwrap_or(path)
+        .display()
+        .to_string()
 }
 
 /// The fenced blocks of a Markdown page (``` fences, as the pages use).
@@ -192,7 +194,11 @@ fn examples(page: &Path) -> Vec<Example> {
                         .next()
                         .and_then(|c| c.parse().ok())
                         .unwrap_or_else(|| {
-                            panic!("{}:{}: `# exit N` wants a number", rel(page), fence.line + n + 1)
+                            panic!(
+                                "{}:{}: `# exit N` wants a number",
+                                rel(page),
+                                fence.line + n + 1
+                            )
                         }),
                     None => 0,
                 };
@@ -201,7 +207,6 @@ fn examples(page: &Path) -> Vec<Example> {
                     _ => command,
                 };
                 out.push(Example {
-                    page: page.to_path_buf(),
                     line: fence.line + n + 1,
                     command: command.to_string(),
                     args,
@@ -294,8 +299,8 @@ fn sandbox() -> tempfile::TempDir {
 fn run(ex: &Example, dir: &Path) -> Result<(i32, String), String> {
     let (bin, args) = match program(ex)? {
         Program::Cat(file) => {
-            let text = std::fs::read_to_string(dir.join(&file))
-                .map_err(|e| format!("cat {file}: {e}"))?;
+            let text =
+                std::fs::read_to_string(dir.join(&file)).map_err(|e| format!("cat {file}: {e}"))?;
             return Ok((0, text));
         }
         Program::Bin(bin, args) => (bin, args),
@@ -315,9 +320,7 @@ fn run(ex: &Example, dir: &Path) -> Result<(i32, String), String> {
             cmd.env_remove(key);
         }
     }
-    let mut child = cmd
-        .spawn()
-        .map_err(|e| format!("{}: {e}", bin.display()))?;
+    let mut child = cmd.spawn().map_err(|e| format!("{}: {e}", bin.display()))?;
     let start = Instant::now();
     let status = loop {
         if let Some(status) = child.try_wait().unwrap() {
@@ -410,10 +413,7 @@ fn every_example_in_the_readme_and_the_guide_prints_what_the_page_shows() {
             started.elapsed().as_secs_f64()
         );
     }
-    eprintln!(
-        "{count} examples in {:.1} s",
-        total.elapsed().as_secs_f64()
-    );
+    eprintln!("{count} examples in {:.1} s", total.elapsed().as_secs_f64());
     assert!(count > 0, "no console examples found");
     assert!(
         failures.is_empty(),
@@ -459,7 +459,9 @@ fn shown_check_lines() -> Vec<String> {
                 continue;
             };
             if args.first().is_some_and(|a| a == "check")
-                && !args.iter().any(|a| a == "--json" || a == "--quiet" || a == "-q")
+                && !args
+                    .iter()
+                    .any(|a| a == "--json" || a == "--quiet" || a == "-q")
             {
                 lines.extend(ex.expected.lines().map(String::from));
             }
@@ -575,12 +577,10 @@ const CHECK_LINES: &[(&str, &[&str])] = &[
 /// Fragments of `check`'s lines that no example in the pages shows, and why. Every other
 /// line and fragment the summary can print appears in a `check` example of the README or
 /// the guide, so a change to any of them fails the doc-example test.
-const NOT_SHOWN: &[(&str, &str)] = &[
-    (
-        "the A{} test has no data: no step of the {} runs × {} steps had {}",
-        "needs a problem whose sensors never report in a whole run; the other no-data line (every run stopped) is shown",
-    ),
-];
+const NOT_SHOWN: &[(&str, &str)] = &[(
+    "the A{} test has no data: no step of the {} runs × {} steps had {}",
+    "needs a problem whose sensors never report in a whole run; the other no-data line (every run stopped) is shown",
+)];
 
 /// Changing any printed line of `check` must fail a doc-example test: every line (and
 /// every variant of a line's fixed text) that `check`'s summary is built from appears in
@@ -603,7 +603,11 @@ fn every_kind_of_line_check_prints_is_shown_in_the_docs() {
             }
         }
     }
-    assert!(templates.len() > 15, "found only {} templates", templates.len());
+    assert!(
+        templates.len() > 15,
+        "found only {} templates",
+        templates.len()
+    );
     for t in &templates {
         if NOT_SHOWN.iter().any(|(n, _)| n == t) {
             continue;
@@ -672,7 +676,10 @@ fn the_template_matcher_reads_format_strings() {
     assert!(matches_template("  gate: {}", "  gate: full (…)"));
     assert!(matches_template("  A{:<5} {:>10}", "  ANEES     5.4316"));
     assert!(!matches_template("  params: {}", "  stat    time-avg"));
-    assert!(matches_template("{} in {} of {} runs{first}", "filter diverged in 3 of 200 runs"));
+    assert!(matches_template(
+        "{} in {} of {} runs{first}",
+        "filter diverged in 3 of 200 runs"
+    ));
     assert_eq!(
         format_literals("writeln!(\n out,\n \"  a {x} \\\"b\\\"\"\n);"),
         vec!["  a {x} \"b\"".to_string()]
@@ -771,5 +778,8 @@ fn every_page_of_the_guide_is_in_its_summary() {
         .map(|p| p.strip_prefix(&src).unwrap().display().to_string())
         .filter(|p| !summary.contains(&format!("]({p})")))
         .collect();
-    assert!(missing.is_empty(), "pages not in docs/src/SUMMARY.md: {missing:?}");
+    assert!(
+        missing.is_empty(),
+        "pages not in docs/src/SUMMARY.md: {missing:?}"
+    );
 }

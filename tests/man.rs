@@ -68,7 +68,12 @@ fn the_committed_man_pages_are_what_the_command_line_renders() {
 fn the_check_page_documents_its_flags() {
     let pages = rendered();
     let check = &pages["autotune-check.1"];
-    for flag in ["\\-\\-config", "\\-\\-junit", "\\-\\-nis\\-only", "\\-\\-records"] {
+    for flag in [
+        "\\-\\-config",
+        "\\-\\-junit",
+        "\\-\\-nis\\-only",
+        "\\-\\-records",
+    ] {
         assert!(check.contains(flag), "autotune-check.1 lacks {flag}");
     }
     assert!(pages["autotune.1"].contains("autotune\\-check(1)"));

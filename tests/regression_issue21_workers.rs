@@ -383,33 +383,34 @@ fn issue21_one_worker_whose_state_advances_between_requests_breaks_the_contract(
     breaks_contract("advancing", 2, &["asked for again", "worker 2"]);
 }
 
-/// Item 4: where `[external]` is introduced (the README's "Your simulator in the loop",
-/// docs/external.md's opening, the `init --external` starter) a reader learns that
-/// `check`/`tune` on such a file run the program it names, before any example of it.
+/// Item 4: where `[external]` is introduced (the guide's Workers chapter, before its first
+/// example and before the protocol's reference; the `init --external` starter) a reader
+/// learns that `check`/`tune` on such a file run the program it names.
 #[test]
 fn issue21_the_docs_say_a_problem_file_with_external_is_code() {
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
     let read = |p: &str| std::fs::read_to_string(root.join(p)).unwrap();
-    let readme = read("README.md");
-    let intro = readme
+    let doc = read("docs/src/workers.md");
+    let intro = doc
         .find("**Your simulator in the loop.**")
-        .expect("the README introduces [external] workers");
+        .expect("the guide introduces [external] workers");
     let first_example = intro
-        + readme[intro..]
+        + doc[intro..]
             .find("```toml")
             .expect("an example problem file follows");
-    let paragraph = &readme[intro..first_example];
+    let paragraph = &doc[intro..first_example];
     assert!(
         paragraph.contains("is therefore code") && paragraph.contains("files you trust"),
-        "README, before the first [external] example: {paragraph}"
+        "docs/src/workers.md, before the first [external] example: {paragraph}"
     );
-    let doc = read("docs/external.md");
     let warning = doc
         .find("**A problem file with `[external]` is code.**")
-        .expect("docs/external.md warns");
+        .expect("docs/src/workers.md warns");
     assert!(
-        warning < doc.find("## 1.").unwrap() && doc[warning..].contains("files you trust"),
-        "docs/external.md warns before its first section"
+        warning < intro
+            && warning < doc.find("## The worker protocol").unwrap()
+            && doc[warning..].contains("files you trust"),
+        "docs/src/workers.md warns before its first example and the protocol"
     );
     let starter = read("src/app/templates/external.toml");
     assert!(

@@ -137,7 +137,7 @@ pub fn read_measurements(path: &Path) -> Result<Measurements, FileError> {
         _ => Err(FileError::new(
             path,
             "",
-            "not a measurement record: expected .csv, .jsonl, .npy or .npz (docs/measurements.md)",
+            "not a measurement record: expected .csv, .jsonl, .npy or .npz (docs/src/measurements.md)",
         )),
     }
 }
@@ -412,7 +412,7 @@ pub fn record_bytes(
         _ => Err(FileError::new(
             path,
             "",
-            "writes .csv, .jsonl or .npy (docs/measurements.md)",
+            "writes .csv, .jsonl or .npy (docs/src/measurements.md)",
         )),
     }
 }

@@ -318,7 +318,7 @@ impl ExternalExperiment {
         }
         let breaks = |what: String| {
             ExperimentError(format!(
-                "worker `{}` breaks the seed contract: {what} (run i's random numbers must depend on the seed and i alone; see docs/external.md)",
+                "worker `{}` breaks the seed contract: {what} (run i's random numbers must depend on the seed and i alone; see docs/src/workers.md)",
                 self.command.display()
             ))
         };

@@ -120,7 +120,7 @@ fn kind_of(path: &Path) -> Result<Kind, FileError> {
         _ => Err(FileError::new(
             path,
             "",
-            "not a field log: expected .ulg (PX4), .csv or .jsonl (docs/fieldlog.md), or a records file (.npz, .npy)",
+            "not a field log: expected .ulg (PX4), .csv or .jsonl (docs/src/field-logs.md), or a records file (.npz, .npy)",
         )),
     }
 }

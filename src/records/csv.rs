@@ -91,7 +91,7 @@ fn columns(path: &Path, rdr: &mut Reader) -> Result<Columns, FileError> {
                     Some(1),
                     "header",
                     format!(
-                        "unknown column '{}' (see docs/external.md for the names)",
+                        "unknown column '{}' (see docs/src/records.md for the names)",
                         shown(name)
                     ),
                 )

@@ -160,7 +160,7 @@ pub(super) fn infer_layout(found: &Found) -> Result<Layout, String> {
         sensors.push(layout);
     }
     if state.is_none() && sensors.is_empty() {
-        return Err("no state or sensor quantities (see docs/external.md)".into());
+        return Err("no state or sensor quantities (see docs/src/records.md)".into());
     }
     Ok(Layout { state, sensors })
 }
@@ -400,7 +400,7 @@ pub(super) fn format_of(path: &Path) -> Result<Format, FileError> {
         _ => Err(FileError::new(
             path,
             "",
-            "not a records file: expected .csv, .npz, .npy or .jsonl (see docs/external.md)",
+            "not a records file: expected .csv, .npz, .npy or .jsonl (see docs/src/records.md)",
         )),
     }
 }

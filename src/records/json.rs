@@ -81,7 +81,7 @@ fn found(obj: &Map<String, Value>) -> Result<Found, String> {
     for (k, v) in obj {
         let q = Quantity::parse(k).ok_or_else(|| {
             format!(
-                "unknown key '{}' (see docs/external.md for the names)",
+                "unknown key '{}' (see docs/src/records.md for the names)",
                 shown(k)
             )
         })?;

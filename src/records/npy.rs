@@ -123,7 +123,7 @@ fn read_array<R: Read>(
     let cost = len * 8 * copies;
     if cost > budget.left {
         return Err(err(format!(
-            "{} as float64: the arrays expand beyond the limit of {} for this file (docs/external.md, Limits)",
+            "{} as float64: the arrays expand beyond the limit of {} for this file (docs/src/records.md, Limits)",
             userfile::size_text(len * 8),
             userfile::size_text(budget.total)
         )));
@@ -314,7 +314,7 @@ impl Arrays {
             let q = Quantity::parse(&name).ok_or_else(|| {
                 err(
                     &name,
-                    "unknown name (see docs/external.md for the names)".into(),
+                    "unknown name (see docs/src/records.md for the names)".into(),
                 )
             })?;
             match q {
@@ -379,7 +379,7 @@ impl Arrays {
             FileError::new(
                 &file,
                 "",
-                "no arrays of records (e, P, nu_<sensor>, …; see docs/external.md)",
+                "no arrays of records (e, P, nu_<sensor>, …; see docs/src/records.md)",
             )
         })?;
         for (name, t) in &shared_steps {

@@ -214,7 +214,7 @@ fn advice(o: &mut String, r: &NisReport) {
     if findings.is_empty() {
         return;
     }
-    o.push_str("<h2>Advice</h2><p>From the NIS alone (see the README's Field logs): without ground truth the innovations tell whether S fits them, and their whiteness hints at which of Q and R is off.</p><ul>");
+    o.push_str("<h2>Advice</h2><p>From the NIS alone (see docs/src/nis.md): without ground truth the innovations tell whether S fits them, and their whiteness hints at which of Q and R is off.</p><ul>");
     for f in findings {
         let _ = write!(
             o,

@@ -174,10 +174,7 @@ pub fn nis_summary_text(r: &NisReport) -> String {
         .filter_map(|s| s.finding.as_ref())
         .collect();
     if !findings.is_empty() {
-        let _ = writeln!(
-            o,
-            "\nadvice (from the NIS alone; see the README's Field logs):"
-        );
+        let _ = writeln!(o, "\nadvice (from the NIS alone; see docs/src/nis.md):");
         for f in findings {
             let _ = writeln!(o, "  {}: {} — {}", f.component, f.action, f.evidence);
         }

@@ -128,11 +128,11 @@ struct ProblemCheck {
     problem: Option<PathBuf>,
     /// Judge the records another program wrote instead of a problem file: CSV, NumPy
     /// (.npz, or .npy files named after their quantities) or JSON Lines; several files are
-    /// one experiment (format: docs/external.md).
+    /// one experiment (format: docs/src/records.md).
     #[arg(long, num_args = 1.., value_name = "FILE", conflicts_with_all = ["problem", "config", "runs", "steps", "seed", "set", "engine"])]
     records: Vec<PathBuf>,
     /// Judge the problem's filter on recorded measurements instead of its truth model: the
-    /// filter runs over the record (CSV, JSON Lines, NumPy; docs/measurements.md) and is
+    /// filter runs over the record (CSV, JSON Lines, NumPy; docs/src/measurements.md) and is
     /// judged by its innovations alone. Linear problems.
     #[arg(long, value_name = "FILE", requires = "problem", conflicts_with_all = ["runs", "steps", "seed", "engine"])]
     measurements: Option<PathBuf>,
@@ -145,7 +145,7 @@ struct ProblemTune {
     /// Problem file (TOML).
     problem: PathBuf,
     /// Tune against recorded measurements instead of the truth model: the filter runs over
-    /// the record (CSV, JSON Lines, NumPy; docs/measurements.md) and candidates are scored by
+    /// the record (CSV, JSON Lines, NumPy; docs/src/measurements.md) and candidates are scored by
     /// their innovations alone (NIS, per-component NIS, whiteness). Linear problems.
     #[arg(long, value_name = "FILE", conflicts_with_all = ["runs", "steps", "seed"])]
     measurements: Option<PathBuf>,

@@ -15,8 +15,8 @@ use crate::report::nis::{nis_junit_xml, nis_markdown, nis_summary_text};
 /// The arguments of `nis`.
 #[derive(Debug, Clone, clap::Args)]
 pub struct NisArgs {
-    /// Logs: PX4 ULog (.ulg), CSV or JSON Lines field logs (docs/fieldlog.md), or records
-    /// files (docs/external.md) read without truth. Several files are judged together.
+    /// Logs: PX4 ULog (.ulg), CSV or JSON Lines field logs (docs/src/field-logs.md), or records
+    /// files (docs/src/records.md) read without truth. Several files are judged together.
     #[arg(required_unless_present = "follow", value_name = "LOG")]
     logs: Vec<PathBuf>,
     /// Follow a CSV / JSON Lines log while it is written: a status line per second with the

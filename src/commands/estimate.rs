@@ -22,7 +22,7 @@ use crate::report::tune::tuned::estimated_config_toml;
 pub struct EstimateOptions {
     /// Problem file (TOML) whose linear filter has the parameters to estimate.
     pub problem: PathBuf,
-    /// The recorded measurements: .csv, .jsonl, .npy or .npz (docs/measurements.md).
+    /// The recorded measurements: .csv, .jsonl, .npy or .npz (docs/src/measurements.md).
     #[arg(long, value_name = "FILE")]
     pub measurements: PathBuf,
     /// Estimation method: ml (maximum likelihood over the filter's innovations) or als

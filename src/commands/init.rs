@@ -58,7 +58,7 @@ pub struct InitOptions {
     #[arg(long, default_value = "cv2d", value_parser = OneOf::<Model>::new())]
     pub model: Model,
     /// Write a starter for a filter in another program, run as a worker (external,
-    /// docs/external.md), instead of a built-in model.
+    /// docs/src/workers.md), instead of a built-in model.
     #[arg(long, conflicts_with = "model")]
     pub external: bool,
     /// File to write (default: NAME.toml in the current directory).

@@ -16,7 +16,7 @@ use crate::report::estimate::simulate_text;
 pub struct SimulateOptions {
     /// Problem file (TOML) with a linear truth.
     pub problem: PathBuf,
-    /// Where to write the measurements: .csv, .jsonl or .npy (docs/measurements.md).
+    /// Where to write the measurements: .csv, .jsonl or .npy (docs/src/measurements.md).
     #[arg(long, value_name = "FILE")]
     pub out: PathBuf,
     /// Also write the true states here (same formats, columns x_1 … x_n).

@@ -33,7 +33,7 @@ pub struct ProblemSpec {
     /// `[truth]` and `[filter]`.
     pub model: Option<toml::Table>,
     /// A filter and simulator in another program, driven over the worker protocol
-    /// (docs/external.md), instead of `[truth]`/`[filter]` or `[model]`.
+    /// (docs/src/workers.md), instead of `[truth]`/`[filter]` or `[model]`.
     pub external: Option<ExternalSpec>,
     /// Named parameters, in file order.
     #[serde(default, deserialize_with = "in_file_order")]

@@ -7,7 +7,7 @@ use std::path::Path;
 pub fn init_text(path: &Path, model: Option<&str>) -> String {
     match model {
         None => format!(
-            "wrote {} (external worker starter; docs/external.md describes the protocol)\n\
+            "wrote {} (external worker starter; docs/src/workers.md describes the protocol)\n\
              next: point [external] command at your worker, name its sensors, states and \
              parameters, then run `autotune check` and `autotune tune` on it\n",
             path.display()

@@ -1,21 +1,19 @@
 //! autotune: make Kalman filters statistically consistent.
 //!
 //! The library checks a filter by truth-model Monte Carlo (NEES and NIS against chi-square
-//! intervals, `stats`) and tunes its noise covariances Q and R ([`tune`]). Everything
-//! goes through one seam, [`experiment::Experiment`]: "the Monte Carlo sums of the filter at
-//! parameter values θ". A problem file (`problem`), a catalog model (`catalog`) and a
-//! Rust user's own truth model and filter ([`experiment::Custom`]) are each one
-//! implementation; [`check`], [`tune`], [`report`] and the command line ([`app`]) take any
-//! of them. docs/ARCHITECTURE.md draws the layers.
+//! intervals) and tunes its noise covariances Q and R. Everything goes through one seam,
+//! [`Experiment`]: "the Monte Carlo sums of the filter at parameter values θ". A problem file
+//! ([`Problem`]), a catalog model, a worker program in another language and a Rust user's
+//! own truth model and filter ([`Custom`]) are each one implementation; [`check`], [`tune`],
+//! the [`commands`], the renderers in [`report`] and the command line ([`app`]) take any of
+//! them. A running filter's innovations are judged live by [`NisMonitor`].
+//! docs/ARCHITECTURE.md draws the layers and lists this API.
 //!
 //! Check a shipped problem's filter with the truth's noise values, then tune it from the
 //! designer's guess:
 //!
 //! ```
-//! use autotune::check::check;
-//! use autotune::experiment::Experiment;
-//! use autotune::problem::Problem;
-//! use autotune::tune::{Silent, TuneSettings, tune};
+//! use autotune::prelude::*;
 //!
 //! let p = Problem::load(std::path::Path::new("problems/cv1d.toml")).unwrap();
 //! // Parameters in file order: q_accel ((m/s²)²), r_pos (m²).
@@ -26,6 +24,17 @@
 //! let start = p.params().values();
 //! let result = tune(&p, &start, &fixed, p.mc(), &TuneSettings::default(), &Silent).unwrap();
 //! assert!((result.tuned[0] / 0.5 - 1.0).abs() < 1e-4);
+//! ```
+//!
+//! Watch a running filter's innovations, the way a vehicle's status line would:
+//!
+//! ```
+//! use autotune::prelude::*;
+//!
+//! let mut monitor = NisMonitor::new(NisSettings::default());
+//! // Each update: sensor, time (s), innovation ν, and S (row-major, m × m).
+//! monitor.update("gps", 0.1, &[0.3, -0.2], &[1.0, 0.0, 0.0, 1.0]).unwrap();
+//! println!("{}", monitor.status());
 //! ```
 
 #![warn(missing_docs)]
@@ -95,10 +104,13 @@ pub use problem::{Problem, ProblemKind};
 
 // A model defined in Rust: its truth, its filter, its parameters.
 pub use experiment::{Custom, CustomBuilder};
-pub use filter::{Ekf, Filter, FilterError, KalmanFilter, SystemModel, Ukf};
+pub use filter::{
+    Ekf, Estimate, Filter, FilterError, Innovation, KalmanFilter, PredictResult, SystemModel, Ukf,
+    UpdateResult, check_measurement,
+};
 pub use measurement::Measurement;
-pub use model::{TruthModel, sample_gaussian};
-pub use params::{NoiseKind, ParamDef, ParamSpace, Target, cwna_block};
+pub use model::{LinearGaussianModel, TruthModel, sample_gaussian};
+pub use params::{NoiseKind, ParamDef, ParamSpace, Target, cwna_block, dwna_block};
 
 // Judging a filter: the Monte Carlo settings and sums, the gate and its report.
 pub use check::{CheckProgress, accumulate, check, check_with, judge};

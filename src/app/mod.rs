@@ -1,14 +1,15 @@
-//! The command line as a library: `autotune check`, `tune`, `init` and `completions`.
+//! The command line: `autotune check`, `tune`, `nis`, `estimate`, `simulate`, `init` and
+//! `completions` parsed, dispatched to [`crate::commands`], printed and mapped to exit codes.
 //!
 //! The `autotune` binary is [`main`] and nothing else. A Rust user's own model gets the same
 //! `check` and `tune` commands, with every option, report, the advice and the tuned config,
 //! from one call in its own `main`:
 //!
 //! ```no_run
-//! # fn my_experiment() -> autotune::problem::Problem { unimplemented!() }
-//! use autotune::tune::TuneSettings;
+//! # fn my_experiment() -> autotune::Problem { unimplemented!() }
+//! use autotune::TuneSettings;
 //! fn main() -> std::process::ExitCode {
-//!     let model = my_experiment(); // e.g. autotune::experiment::Custom::builder(...).build()
+//!     let model = my_experiment(); // e.g. autotune::Custom::builder(...).build()
 //!     autotune::app::main_for(&model, &TuneSettings::default())
 //! }
 //! ```

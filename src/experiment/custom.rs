@@ -17,11 +17,11 @@ type CovarianceFn = Box<dyn Fn(&[f64]) -> Covariances + Send + Sync>;
 /// treat a problem file.
 ///
 /// ```
-/// use autotune::experiment::{Custom, Experiment};
-/// use autotune::filter::KalmanFilter;
-/// use autotune::model::LinearGaussianModel;
-/// use autotune::montecarlo::McConfig;
-/// use autotune::params::{ParamDef, Target, dwna_block};
+/// use autotune::{Custom, Experiment};
+/// use autotune::KalmanFilter;
+/// use autotune::LinearGaussianModel;
+/// use autotune::McConfig;
+/// use autotune::{ParamDef, Target, dwna_block};
 /// use nalgebra::{DMatrix, DVector};
 ///
 /// let f = DMatrix::from_row_slice(2, 2, &[1.0, 1.0, 0.0, 1.0]);
@@ -44,7 +44,7 @@ type CovarianceFn = Box<dyn Fn(&[f64]) -> Covariances + Send + Sync>;
 ///     .montecarlo(McConfig::new(50, 100).unwrap())
 ///     .build()
 ///     .unwrap();
-/// let report = autotune::check::check(&model, &[0.5, 1.0], model.mc(), true).unwrap();
+/// let report = autotune::check(&model, &[0.5, 1.0], model.mc(), true).unwrap();
 /// assert_eq!(report.nees.unwrap().target, 2.0);
 /// ```
 pub struct Custom<T, B> {

@@ -45,8 +45,8 @@ use crate::stats::{Finding, Interval, Verdict};
 ///
 /// ```
 /// use autotune::SimRng;
-/// use autotune::fieldlog::{MonitorError, NisMonitor, NisSettings};
-/// use autotune::stats::Verdict;
+/// use autotune::{MonitorError, NisMonitor, NisSettings};
+/// use autotune::Verdict;
 /// use rand::{RngExt, SeedableRng};
 /// use rand_distr::StandardNormal;
 ///

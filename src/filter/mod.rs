@@ -210,10 +210,10 @@ pub fn check_measurement(expected: Option<usize>, meas: &Measurement) -> Result<
 /// filter's own prediction, never a silently wider interval from a wrong map.
 ///
 /// ```
-/// use autotune::filter::{
-///     Estimate, Filter, FilterError, Innovation, PredictResult, UpdateResult, check_measurement,
+/// use autotune::{
+///     Estimate, Filter, FilterError, Innovation, Measurement, PredictResult, UpdateResult,
+///     check_measurement,
 /// };
-/// use autotune::measurement::Measurement;
 /// use nalgebra::{DMatrix, DVector};
 ///
 /// /// A scalar random walk `x_k = x_{k−1} + w`, measured directly: a Kalman filter written

@@ -54,7 +54,7 @@ pub fn sample_gaussian(
 /// `x_k = F x_{k−1} + w_k, w_k ~ N(0, Q)`, `z_k = H x_k + v_k, v_k ~ N(0, R)`,
 /// `x_0 ~ N(x0, P0)`, one sensor measured at every step.
 ///
-/// It reads as its [`LinearGaussian`] model (`truth.F`, `truth.Q`, …) and keeps the
+/// It reads as its `LinearGaussian` model (`truth.F`, `truth.Q`, …) and keeps the
 /// factors it samples with.
 #[derive(Debug, Clone)]
 pub struct LinearGaussianModel {

@@ -31,12 +31,12 @@ pub const DEFAULT_LAGS: usize = 5;
 /// 0 < α < 1, lags < T.
 ///
 /// ```
-/// use autotune::montecarlo::McConfig;
+/// use autotune::McConfig;
 /// let mc = McConfig::new(200, 100)?.with_seed(7).with_alpha(0.01)?;
 /// assert_eq!((mc.runs(), mc.steps(), mc.lags()), (200, 100, 5));
 /// assert!(McConfig::new(0, 100).is_err());
 /// assert!(mc.with_lags(100).is_err());
-/// # Ok::<(), autotune::input::SettingError>(())
+/// # Ok::<(), autotune::SettingError>(())
 /// ```
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct McConfig {

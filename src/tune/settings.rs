@@ -89,14 +89,14 @@ impl LocalSearch {
 /// Search settings. Every value is checked by its setter:
 ///
 /// ```
-/// use autotune::tune::{LocalSearch, TuneSettings};
+/// use autotune::{LocalSearch, TuneSettings};
 /// let s = TuneSettings::default()
 ///     .with_max_evals(500)?
 ///     .with_local(LocalSearch::GaussNewton)
 ///     .with_weight("shape", 1.0)?;
 /// assert_eq!(s.max_evals(), 500);
 /// assert!(TuneSettings::default().with_starts(0).is_err());
-/// # Ok::<(), autotune::input::SettingError>(())
+/// # Ok::<(), autotune::SettingError>(())
 /// ```
 #[derive(Debug, Clone, PartialEq)]
 pub struct TuneSettings {

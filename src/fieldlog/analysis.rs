@@ -22,6 +22,55 @@ const HIST_DOFS: usize = 8;
 /// few kilobytes and a block of the report, and a real log has at most a few hundred.
 pub const MAX_SENSORS: usize = 10_000;
 
+/// Why the analyzer refused a sensor or an update.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum AnalyzerError {
+    /// A sensor seen before with another number of components.
+    #[error("sensor {sensor} has {here} components here, {before} before")]
+    Components {
+        /// Its name.
+        sensor: String,
+        /// Components now.
+        here: usize,
+        /// Components before.
+        before: usize,
+    },
+    /// One sensor more than [`MAX_SENSORS`] (its name, as an error quotes it).
+    #[error("more than {MAX_SENSORS} sensors (a new one, '{0}'): too many to judge")]
+    TooManySensors(String),
+    /// An update of a sensor index the analyzer does not have.
+    #[error("no sensor {0}")]
+    NoSensor(usize),
+    /// Degrees of freedom outside 1..=64.
+    #[error("{sensor}: dof {dof} is not in 1..=64")]
+    Dof {
+        /// The sensor.
+        sensor: String,
+        /// The update's degrees of freedom.
+        dof: usize,
+    },
+    /// A NIS that is negative or not finite, or a time that is not finite.
+    #[error("{sensor}: NIS {nis} at time {time}")]
+    Nis {
+        /// The sensor.
+        sensor: String,
+        /// The update's NIS.
+        nis: f64,
+        /// Its time.
+        time: f64,
+    },
+    /// Normalized innovations not one finite value per component.
+    #[error("{sensor}: {given} normalized innovations for {components} components")]
+    Normalized {
+        /// The sensor.
+        sensor: String,
+        /// Values given.
+        given: usize,
+        /// The sensor's components.
+        components: usize,
+    },
+}
+
 /// A sensor of a log: its name, its components, and the estimator it belongs to.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct SensorInfo {
@@ -254,25 +303,23 @@ impl NisAnalyzer {
     /// The index of sensor `info.name`, adding it when new. `Err` when a sensor of that
     /// name was seen with other components, or when it would be one more than
     /// [`MAX_SENSORS`].
-    pub fn sensor(&mut self, info: SensorInfo) -> Result<usize, String> {
+    pub fn sensor(&mut self, info: SensorInfo) -> Result<usize, AnalyzerError> {
         if let Some(&i) = self.by_name.get(&info.name) {
             let known = &self.sensors[i].info;
             if known.components.len() != info.components.len() {
-                return Err(format!(
-                    "sensor {} has {} components here, {} before",
-                    info.name,
-                    info.components.len(),
-                    known.components.len()
-                ));
+                return Err(AnalyzerError::Components {
+                    sensor: info.name,
+                    here: info.components.len(),
+                    before: known.components.len(),
+                });
             }
             return Ok(i);
         }
         let i = self.sensors.len();
         if i >= MAX_SENSORS {
-            return Err(format!(
-                "more than {MAX_SENSORS} sensors (a new one, '{}'): too many to judge",
-                crate::records::shown_up_to(&info.name, 40)
-            ));
+            return Err(AnalyzerError::TooManySensors(crate::records::shown_up_to(
+                &info.name, 40,
+            )));
         }
         self.by_name.insert(info.name.clone(), i);
         self.sensors.push(SensorSums::new(info));
@@ -326,33 +373,33 @@ impl NisAnalyzer {
 
     /// Add an update of sensor `i`: a finite NIS ≥ 0 at a finite time, dof in 1..=64, `u` (if
     /// any) of the sensor's length with finite entries; `Err` says which is not.
-    pub fn push(&mut self, i: usize, up: Update) -> Result<(), String> {
+    pub fn push(&mut self, i: usize, up: Update) -> Result<(), AnalyzerError> {
         // The readers check their rows; a Rust caller gets the same checks here, so that
         // nothing below can index out of range or average a NaN.
         let Some(sensor) = self.sensors.get(i) else {
-            return Err(format!("no sensor {i}"));
+            return Err(AnalyzerError::NoSensor(i));
         };
         if !(1..=64).contains(&up.dof) {
-            return Err(format!(
-                "{}: dof {} is not in 1..=64",
-                sensor.info.name, up.dof
-            ));
+            return Err(AnalyzerError::Dof {
+                sensor: sensor.info.name.clone(),
+                dof: up.dof,
+            });
         }
         if !(up.nis.is_finite() && up.nis >= 0.0 && up.time.is_finite()) {
-            return Err(format!(
-                "{}: NIS {} at time {}",
-                sensor.info.name, up.nis, up.time
-            ));
+            return Err(AnalyzerError::Nis {
+                sensor: sensor.info.name.clone(),
+                nis: up.nis,
+                time: up.time,
+            });
         }
         if let Some(u) = &up.u
             && (u.len() != sensor.info.components.len() || u.iter().any(|x| !x.is_finite()))
         {
-            return Err(format!(
-                "{}: {} normalized innovations for {} components",
-                sensor.info.name,
-                u.len(),
-                sensor.info.components.len()
-            ));
+            return Err(AnalyzerError::Normalized {
+                sensor: sensor.info.name.clone(),
+                given: u.len(),
+                components: sensor.info.components.len(),
+            });
         }
         self.push_checked(i, up);
         Ok(())

@@ -8,9 +8,7 @@ use std::time::Instant;
 use super::args::name_value;
 use super::{AppError, print_stdout};
 use crate::estimate::als::{self, AlsModel, FullMatrix};
-use crate::estimate::{
-    LinearFilterModel, MeasuredExperiment, Measurements, ml, read_measurements, simulate,
-};
+use crate::estimate::{MeasuredExperiment, Measurements, ml, read_measurements, simulate};
 use crate::experiment::{Experiment, LinearExperiment};
 use crate::input::FileError;
 use crate::problem::Problem;
@@ -200,7 +198,7 @@ pub fn initial(
             .map_err(|m| AppError::Refused(format!("--init als on {origin}: {m}")))?
             .theta
     } else {
-        let build = |theta: &[f64]| LinearFilterModel::of(lin, theta);
+        let build = |theta: &[f64]| lin.filter_at(theta);
         ml::estimate(&build, &data, &start, &fixed, 200)
             .map_err(|m| AppError::Refused(format!("--init ml on {origin}: {m}")))?
             .theta
@@ -251,7 +249,7 @@ pub fn run_estimate(a: EstimateArgs) -> Result<ExitCode, AppError> {
         start[i] = v;
     }
     let fixed: Vec<bool> = params.params.iter().map(|d| d.fixed).collect();
-    let build = |theta: &[f64]| LinearFilterModel::of(lin, theta);
+    let build = |theta: &[f64]| lin.filter_at(theta);
     if a.method == "als" {
         if !(1..=200).contains(&a.lags) {
             return Err(AppError::flag(

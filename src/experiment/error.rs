@@ -39,20 +39,10 @@ pub enum ExperimentError {
         /// Why it did not start.
         why: StartFailure,
     },
-    /// A worker broke the protocol or answered records that cannot be summed.
-    #[error("worker `{command}` ({worker}), request {request}: {failure}; {stderr}")]
-    Worker {
-        /// The command as one would type it.
-        command: String,
-        /// Which worker.
-        worker: WorkerRole,
-        /// The request it failed.
-        request: RequestInfo,
-        /// How it failed.
-        failure: WorkerFailure,
-        /// The last lines of its stderr, as a clause.
-        stderr: String,
-    },
+    /// A worker broke the protocol or answered records that cannot be summed (boxed: it
+    /// carries the request and the failure, and the error travels in every `Result`).
+    #[error(transparent)]
+    Worker(Box<WorkerError>),
     /// A worker whose runs do not depend on (seed, run) alone.
     #[error(
         "worker `{command}` breaks the seed contract: {violation} (run i's random numbers must depend on the seed and i alone; see docs/external.md)"
@@ -63,6 +53,23 @@ pub enum ExperimentError {
         /// What showed it.
         violation: SeedContractViolation,
     },
+}
+
+/// A worker's failed request: which worker, the request, how it failed, and the end of
+/// its stderr.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("worker `{command}` ({worker}), request {request}: {failure}; {stderr}")]
+pub struct WorkerError {
+    /// The command as one would type it.
+    pub command: String,
+    /// Which worker.
+    pub worker: WorkerRole,
+    /// The request it failed.
+    pub request: RequestInfo,
+    /// How it failed.
+    pub failure: WorkerFailure,
+    /// The last lines of its stderr, as a clause.
+    pub stderr: String,
 }
 
 /// Why a worker program did not start.

@@ -24,7 +24,7 @@ pub use catalog::CatalogExperiment;
 pub use custom::{Custom, CustomBuilder};
 pub use error::{
     Ended, ExperimentError, RequestInfo, SeedContractViolation, StartFailure, Uncontained,
-    WorkerFailure, WorkerRole,
+    WorkerError, WorkerFailure, WorkerRole,
 };
 pub use linear::{FilterModel, LinearExperiment};
 pub use recorded::RecordedExperiment;

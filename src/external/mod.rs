@@ -30,7 +30,7 @@ use std::time::Duration;
 
 use crate::experiment::{
     Definition, Experiment, ExperimentError, RequestInfo, RunOptions, SeedContractViolation,
-    StartFailure, WorkerFailure, WorkerRole,
+    StartFailure, WorkerError, WorkerFailure, WorkerRole,
 };
 use crate::montecarlo::{CHUNK, McConfig};
 use crate::params::Target;
@@ -136,7 +136,7 @@ impl ExternalExperiment {
         } else {
             WorkerRole::ContractCheck
         };
-        ExperimentError::Worker {
+        ExperimentError::Worker(Box::new(WorkerError {
             command: self.command.display(),
             worker,
             request: RequestInfo {
@@ -147,7 +147,7 @@ impl ExternalExperiment {
             },
             failure,
             stderr: w.stderr_tail(),
-        }
+        }))
     }
 
     /// The error of a worker that did not start (`for_contract_check`: a fresh one for the

@@ -4,7 +4,7 @@
 //! single likelihood evaluations on records with 1% of the cells empty.
 
 use autotune::estimate::als::{self, AlsModel};
-use autotune::estimate::{LinearFilterModel, Measurements, ml, simulate};
+use autotune::estimate::{Measurements, ml, simulate};
 use autotune::experiment::Experiment as _;
 use autotune::problem::Problem;
 use criterion::{Criterion, criterion_group, criterion_main};
@@ -13,7 +13,7 @@ fn estimate(c: &mut Criterion) {
     let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("problems/cv2d.toml");
     let p = Problem::load(&path).expect("the shipped problem loads");
     let lin = p.linear().expect("cv2d is linear");
-    let build = |theta: &[f64]| LinearFilterModel::of(lin, theta);
+    let build = |theta: &[f64]| lin.filter_at(theta);
     let start = [1.0; 4];
     let fixed = [false; 4];
     let mut g = c.benchmark_group("estimate_cv2d");

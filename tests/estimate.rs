@@ -2,7 +2,7 @@
 
 mod common;
 
-use autotune::estimate::{LinearFilterModel, ml, simulate};
+use autotune::estimate::{EstimateError, ml, simulate};
 use autotune::experiment::{Experiment, LinearExperiment};
 use autotune::problem::Problem;
 
@@ -12,8 +12,8 @@ fn cv2d() -> (Problem, LinearExperiment) {
     (p, lin)
 }
 
-fn builder(lin: &LinearExperiment) -> impl Fn(&[f64]) -> LinearFilterModel + '_ {
-    move |theta: &[f64]| LinearFilterModel::of(lin, theta)
+fn builder(lin: &LinearExperiment) -> impl Fn(&[f64]) -> autotune::filter::KalmanFilter + '_ {
+    move |theta: &[f64]| lin.filter_at(theta)
 }
 
 /// 5 000 steps: every parameter within 3 of its own standard errors of the truth, and the
@@ -338,11 +338,13 @@ fn als_refuses_gaps_short_records_and_unstable_filters() {
     let mut sim = simulate(&lin.truth, 2, 1, 60, 1);
     let e = autotune::estimate::als::estimate(&model, &sim.measurements, &start, &[false; 4], 15)
         .unwrap_err();
-    assert!(e.contains("too short"), "{e}");
+    assert!(matches!(e, EstimateError::TooShort { .. }), "{e}");
+    assert!(e.to_string().contains("too short"), "{e}");
     sim.measurements.sequences[0].z[7] = f64::NAN;
     let e = autotune::estimate::als::estimate(&model, &sim.measurements, &start, &[false; 4], 15)
         .unwrap_err();
-    assert!(e.contains("every component"), "{e}");
+    assert_eq!(e, EstimateError::Gaps);
+    assert!(e.to_string().contains("every component"), "{e}");
     // A filter that does not see y (H's second row zero) and believes y still (its F has no
     // y velocity coupling, its q_accel_y is 0): its covariance settles, but its error in y
     // never decays (Ā has an eigenvalue 1), so its innovations are not stationary.
@@ -359,6 +361,8 @@ fn als_refuses_gaps_short_records_and_unstable_filters() {
         15,
     )
     .unwrap_err();
+    assert!(matches!(e, EstimateError::Unstable(_)), "{e}");
+    let e = e.to_string();
     assert!(
         e.contains("unstable") && e.contains("spectral radius"),
         "{e}"

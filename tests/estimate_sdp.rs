@@ -208,7 +208,8 @@ fn a_full_q_the_autocovariances_cannot_see_is_refused() {
         15,
         2,
     )
-    .unwrap_err();
+    .unwrap_err()
+    .to_string();
     assert!(
         e.contains("not identified") && e.contains("12 unknowns"),
         "{e}"

@@ -6,7 +6,7 @@ mod common;
 
 use std::path::PathBuf;
 
-use autotune::estimate::{LinearFilterModel, ml, simulate};
+use autotune::estimate::{ml, simulate};
 use autotune::experiment::{Experiment, LinearExperiment};
 use autotune::problem::Problem;
 
@@ -27,7 +27,7 @@ fn data_problem(name: &str) -> (PathBuf, Problem, LinearExperiment) {
 #[test]
 fn issue21_ml_converged_means_a_restart_gains_nothing() {
     let (_, p, lin) = data_problem("fullq2_issue21.toml");
-    let build = |t: &[f64]| LinearFilterModel::of(&lin, t);
+    let build = |t: &[f64]| lin.filter_at(t);
     let start = p.params().values();
     assert!(start.iter().all(|&v| v == 0.01));
     let fixed = vec![false; start.len()];
@@ -98,7 +98,7 @@ fn issue21_estimate_reports_not_converged_with_gradient() {
 #[test]
 fn issue21_a_parameter_at_zero_leaves_the_others_identified() {
     let (_, p, lin) = data_problem("diagq2_issue21.toml");
-    let build = |t: &[f64]| LinearFilterModel::of(&lin, t);
+    let build = |t: &[f64]| lin.filter_at(t);
     let start = p.params().values();
     let fixed = vec![false; start.len()];
     let names = p.params().names();

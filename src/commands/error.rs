@@ -2,6 +2,7 @@
 //! not be written, an experiment that could not run. Each renders as one line naming the
 //! file and field, or the option; the command line exits 2 on any of them.
 
+use crate::estimate::EstimateError;
 use crate::experiment::ExperimentError;
 use crate::input::{FileError, SettingError};
 use crate::output::WriteError;
@@ -29,12 +30,12 @@ pub enum CommandError {
     Experiment(#[from] ExperimentError),
     /// An estimate from recorded measurements failed on `subject` (the record, or where
     /// a start estimate came from).
-    #[error("{subject}: {message}")]
+    #[error("{subject}: {source}")]
     Estimate {
         /// What the estimate ran on, as the message names it.
         subject: String,
         /// Why it failed.
-        message: String,
+        source: EstimateError,
     },
     /// The truth of a model defined in a program or by records overflowed: nothing about
     /// its filter was tested. (A problem file's overflow is a [`CommandError::File`] error

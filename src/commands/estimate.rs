@@ -6,10 +6,9 @@ use std::time::Instant;
 
 use super::CommandError;
 use super::options::name_value;
+use crate::estimate::EstimateError;
 use crate::estimate::als::{self, AlsModel, FullMatrix};
-use crate::estimate::{
-    LinearFilterModel, MeasuredExperiment, Measurements, ml, read_measurements, simulate,
-};
+use crate::estimate::{MeasuredExperiment, Measurements, ml, read_measurements, simulate};
 use crate::experiment::{Experiment, LinearExperiment};
 use crate::input::FileError;
 use crate::output::{Outputs, check_output_file};
@@ -210,9 +209,9 @@ pub fn initial(
     let start = params.values();
     let fixed: Vec<bool> = params.params.iter().map(|d| d.fixed).collect();
     let t0 = Instant::now();
-    let failed = |m: String| CommandError::Estimate {
+    let failed = |e: EstimateError| CommandError::Estimate {
         subject: format!("--init {method} on {origin}"),
-        message: m,
+        source: e,
     };
     let theta = if method == "als" {
         let model = AlsModel::of(lin);
@@ -220,7 +219,7 @@ pub fn initial(
             .map_err(failed)?
             .theta
     } else {
-        let build = |theta: &[f64]| LinearFilterModel::of(lin, theta);
+        let build = |theta: &[f64]| lin.filter_at(theta);
         ml::estimate(&build, &data, &start, &fixed, 200)
             .map_err(failed)?
             .theta
@@ -278,9 +277,9 @@ pub fn estimate(a: &EstimateOptions) -> Result<EstimateRun, CommandError> {
     }
     let fixed: Vec<bool> = params.params.iter().map(|d| d.fixed).collect();
     validate(a)?;
-    let failed = |m: String| CommandError::Estimate {
+    let failed = |e: EstimateError| CommandError::Estimate {
         subject: a.measurements.display().to_string(),
-        message: m,
+        source: e,
     };
     let mut summary = EstimateSummary {
         problem: p.name(),
@@ -313,7 +312,7 @@ pub fn estimate(a: &EstimateOptions) -> Result<EstimateRun, CommandError> {
         };
         return Ok(EstimateRun { output });
     }
-    let build = |theta: &[f64]| LinearFilterModel::of(lin, theta);
+    let build = |theta: &[f64]| lin.filter_at(theta);
     let est = ml::estimate(&build, &data, &start, &fixed, a.max_iterations).map_err(failed)?;
     summary.seconds = t0.elapsed().as_secs_f64();
     if let Some(out) = &a.out {
@@ -361,10 +360,10 @@ fn full_estimate(
     use crate::report::estimate::{full_json, full_text};
     let t0 = Instant::now();
     let est =
-        estimate_full(model, data, summary.start, fixed, full, a.lags, a.passes).map_err(|m| {
+        estimate_full(model, data, summary.start, fixed, full, a.lags, a.passes).map_err(|e| {
             CommandError::Estimate {
                 subject: a.measurements.display().to_string(),
-                message: m,
+                source: e,
             }
         })?;
     summary.seconds = t0.elapsed().as_secs_f64();

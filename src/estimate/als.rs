@@ -27,7 +27,7 @@ use faer::linalg::solvers::Solve;
 use nalgebra::{DMatrix, DVector};
 use serde::Serialize;
 
-use super::Measurements;
+use super::{EstimateError, Measurements};
 use crate::params::{Coef, CovModel};
 
 /// The fewest steps dropped at the start of each sequence before the autocovariances, so
@@ -138,13 +138,13 @@ fn steady_gain(
     H: &DMatrix<f64>,
     Q: &DMatrix<f64>,
     R: &DMatrix<f64>,
-) -> Result<DMatrix<f64>, String> {
+) -> Result<DMatrix<f64>, EstimateError> {
     let n = F.nrows();
     let mut P = DMatrix::<f64>::identity(n, n);
     for _ in 0..100_000 {
         let Pp = F * &P * F.transpose() + Q;
         let S = H * &Pp * H.transpose() + R;
-        let Si = S.try_inverse().ok_or("S is singular at the start values")?;
+        let Si = S.try_inverse().ok_or(EstimateError::SingularS)?;
         let K = &Pp * H.transpose() * Si;
         let next = (DMatrix::identity(n, n) - &K * H) * &Pp;
         let change = (&next - &P).abs().max();
@@ -153,7 +153,7 @@ fn steady_gain(
             return Ok(K);
         }
     }
-    Err("the filter's covariance does not settle at the start values".into())
+    Err(EstimateError::NotSettling)
 }
 
 /// [`estimate`] repeated `passes` times, each pass with the steady-state gain of the filter
@@ -168,7 +168,7 @@ pub fn estimate_passes(
     fixed: &[bool],
     lags: usize,
     passes: usize,
-) -> Result<AlsEstimate, String> {
+) -> Result<AlsEstimate, EstimateError> {
     let mut est = estimate(model, data, start, fixed, lags)?;
     for _ in 1..passes {
         // A parameter held at zero would give a degenerate gain (a filter that stops
@@ -215,11 +215,11 @@ impl Autocovariances {
         Q: &DMatrix<f64>,
         R: &DMatrix<f64>,
         lags: usize,
-    ) -> Result<Self, String> {
+    ) -> Result<Self, EstimateError> {
         let (F, H) = (model.F, model.H);
         let (n, m) = (F.nrows(), H.nrows());
         if !data.complete() {
-            return Err("ALS needs every component measured at every step (use --method ml for records with gaps)".into());
+            return Err(EstimateError::Gaps);
         }
         let K = steady_gain(F, H, Q, R)?;
         let Abar = F * (DMatrix::identity(n, n) - &K * H);
@@ -229,9 +229,7 @@ impl Autocovariances {
             .map(|c| c.norm())
             .fold(0.0, f64::max);
         if radius.is_nan() || radius >= 1.0 {
-            return Err(format!(
-                "the filter at the start values is unstable (spectral radius of F(I − KH) is {radius:.4}): ALS needs a stable filter"
-            ));
+            return Err(EstimateError::Unstable(radius));
         }
         let burn = burn_in(radius);
         let mut sums = vec![DMatrix::<f64>::zeros(m, m); lags];
@@ -259,9 +257,11 @@ impl Autocovariances {
             }
         }
         if counts.iter().any(|&c| c < 10 * m * m) || samples < 4 * lags {
-            return Err(format!(
-                "the record is too short for {lags} lags: {samples} innovations after dropping the first {burn} steps of each sequence (the filter's transient)"
-            ));
+            return Err(EstimateError::TooShort {
+                lags,
+                samples,
+                burn,
+            });
         }
         let empirical = sums
             .iter()
@@ -324,10 +324,10 @@ pub(crate) fn constrained_ls(
     cols: &[Vec<f64>],
     b: &[f64],
     cones: &[SupportedConeT<f64>],
-) -> Result<(Vec<f64>, Vec<f64>), String> {
+) -> Result<(Vec<f64>, Vec<f64>), EstimateError> {
     let (rows, k) = (b.len(), cols.len());
     if k == 0 {
-        return Err("there is nothing to estimate: every parameter is fixed".into());
+        return Err(EstimateError::NothingToEstimate);
     }
     // The right-hand side at unit norm, and the solution scaled back: autocovariances of
     // 1e-5 rad² would put the whole objective below the solver's absolute tolerances (a
@@ -365,16 +365,16 @@ pub(crate) fn constrained_ls(
         ..DefaultSettings::default()
     };
     let mut solver = DefaultSolver::new(&Pm, &q, &Am, &vec![0.0; k], cones, settings)
-        .map_err(|e| format!("the least-squares problem could not be set up: {e:?}"))?;
+        .map_err(|e| EstimateError::SolverSetup(format!("{e:?}")))?;
     solver.solve();
     if !matches!(
         solver.solution.status,
         SolverStatus::Solved | SolverStatus::AlmostSolved
     ) {
-        return Err(format!(
-            "the constrained least squares did not solve: {:?}",
+        return Err(EstimateError::NotSolved(format!(
+            "{:?}",
             solver.solution.status
-        ));
+        )));
     }
     let unc = (0..k).map(|i| unconstrained[(i, 0)] * b_scale).collect();
     let x = solver.solution.x.iter().map(|v| v * b_scale).collect();
@@ -383,19 +383,21 @@ pub(crate) fn constrained_ls(
 
 /// Refuse unknowns the autocovariances do not determine (`what` names them in the message):
 /// a rank-deficient fit has no unique answer, whatever the solver returns.
-pub(crate) fn identified(cols: &[Vec<f64>], what: &str) -> Result<(), String> {
+pub(crate) fn identified(cols: &[Vec<f64>], what: &str) -> Result<(), EstimateError> {
     let (rows, k) = (cols.first().map_or(0, Vec::len), cols.len());
     if k == 0 || rows == 0 {
-        return Err("there is nothing to estimate: every parameter is fixed".into());
+        return Err(EstimateError::NothingToEstimate);
     }
     let A = DMatrix::from_fn(rows, k, |r, c| cols[c][r]);
     let sv = A.singular_values();
     let top = sv.max();
     let rank = sv.iter().filter(|&&s| s > 1e-8 * top).count();
     if rank < k || !top.is_finite() {
-        return Err(format!(
-            "{what} not identified by these autocovariances: {k} unknowns in all, only {rank} independent (fewer free parameters or noise inputs, more lags)"
-        ));
+        return Err(EstimateError::NotIdentified {
+            what: what.to_string(),
+            unknowns: k,
+            rank,
+        });
     }
     Ok(())
 }
@@ -414,7 +416,7 @@ pub fn estimate(
     start: &[f64],
     fixed: &[bool],
     lags: usize,
-) -> Result<AlsEstimate, String> {
+) -> Result<AlsEstimate, EstimateError> {
     let (n, m) = (model.F.nrows(), model.H.nrows());
     let ac = Autocovariances::new(
         model,

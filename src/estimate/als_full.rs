@@ -19,8 +19,8 @@ use clarabel::solver::{NonnegativeConeT, PSDTriangleConeT, SupportedConeT};
 use nalgebra::DMatrix;
 use serde::Serialize;
 
-use super::Measurements;
 use super::als::{AlsModel, Autocovariances, FullMatrix, constrained_ls, identified, rms};
+use super::{EstimateError, Measurements};
 use crate::params::{Coef, CovModel};
 
 /// Eigenvalues this far below the largest count as zero (rank of a basis, the boundary of
@@ -205,19 +205,20 @@ const INDEFINITE: f64 = 1e-6;
 
 /// `M` with its round-off-sized negative eigenvalues set to zero, and its smallest
 /// eigenvalue before that; an error when `M` is indefinite beyond round-off.
-fn settle_psd(M: &DMatrix<f64>, what: &str) -> Result<(DMatrix<f64>, f64), String> {
+fn settle_psd(M: &DMatrix<f64>, what: &str) -> Result<(DMatrix<f64>, f64), EstimateError> {
     let e = ((M + M.transpose()) * 0.5).symmetric_eigenvalues();
     let (low, top) = (e.min(), e.max());
     if low.is_nan() || low < -INDEFINITE * top.abs() {
-        return Err(format!(
-            "the semidefinite solver returned an indefinite {what} (smallest eigenvalue {low:e})"
-        ));
+        return Err(EstimateError::Indefinite {
+            what: what.to_string(),
+            smallest: low,
+        });
     }
     Ok((clamp_psd(M), low))
 }
 
-/// One pass: the gain of the filter with `gain_at`'s Q and R.
-fn pass(
+/// The fit with the fixed gain of the filter with `gain_at`'s Q and R.
+fn fit_at_gain(
     model: &AlsModel<'_>,
     data: &Measurements,
     start: &[f64],
@@ -225,67 +226,18 @@ fn pass(
     full: FullMatrix,
     gain_at: (&DMatrix<f64>, &DMatrix<f64>),
     lags: usize,
-) -> Result<FullEstimate, String> {
-    let (n, m) = (model.F.nrows(), model.H.nrows());
+) -> Result<FullEstimate, EstimateError> {
+    let m = model.H.nrows();
     let ac = Autocovariances::new(model, data, gain_at.0, gain_at.1, lags)?;
     let (G, input_terms) = noise_inputs(model.q);
     let k = G.ncols();
-    let (zq, zr) = (DMatrix::zeros(n, n), DMatrix::zeros(m, m));
     let full_q = matches!(full, FullMatrix::Q | FullMatrix::Both);
     let full_r = matches!(full, FullMatrix::R | FullMatrix::Both);
     if full_q && k == 0 {
-        return Err("the problem's Q has no noise inputs to estimate a covariance of".into());
+        return Err(EstimateError::NoNoiseInputs);
     }
     let mut b = ac.empirical.clone();
-    let mut blocks: Vec<Block> = Vec::new();
-    if full_q {
-        blocks.push(psd_block(k, |B| ac.column(&(&G * B * G.transpose()), &zr)));
-    }
-    if full_r {
-        blocks.push(psd_block(m, |B| ac.column(&zq, B)));
-    }
-    // The structured matrix: its free parameters ≥ 0, fixed ones moved to the right, each
-    // column at unit norm (a positive diagonal scaling keeps the nonnegative cone).
-    let structured: Option<(&CovModel, bool)> = match full {
-        FullMatrix::Q => Some((model.r, false)),
-        FullMatrix::R => Some((model.q, true)),
-        FullMatrix::Both => None,
-    };
-    let mut free: Vec<usize> = Vec::new();
-    if let Some((cov, is_q)) = structured {
-        let mut cols: Vec<(usize, Vec<f64>)> = Vec::new();
-        for t in &cov.terms {
-            let col = if is_q {
-                ac.column(&t.basis, &zr)
-            } else {
-                ac.column(&zq, &t.basis)
-            };
-            match t.coef {
-                Coef::Param(i) if !fixed[i] => match cols.iter_mut().find(|(j, _)| *j == i) {
-                    Some((_, c)) => c.iter_mut().zip(&col).for_each(|(a, v)| *a += v),
-                    None => cols.push((i, col)),
-                },
-                Coef::Param(i) => b.iter_mut().zip(&col).for_each(|(y, c)| *y -= start[i] * c),
-                Coef::Fixed(v) => b.iter_mut().zip(&col).for_each(|(y, c)| *y -= v * c),
-            }
-        }
-        if !cols.is_empty() {
-            free = cols.iter().map(|(i, _)| *i).collect();
-            let scale: Vec<f64> = cols
-                .iter()
-                .map(|(_, c)| norm(c).max(f64::MIN_POSITIVE))
-                .collect();
-            blocks.push(Block {
-                cols: cols
-                    .iter()
-                    .zip(&scale)
-                    .map(|((_, c), s)| c.iter().map(|v| v / s).collect())
-                    .collect(),
-                cone: NonnegativeConeT(free.len()),
-                scale,
-            });
-        }
-    }
+    let (blocks, free) = unknowns(model, &ac, &G, full, start, fixed, &mut b);
     let all_cols: Vec<Vec<f64>> = blocks.iter().flat_map(|b| b.cols.clone()).collect();
     let cones: Vec<SupportedConeT<f64>> = blocks.iter().map(|b| b.cone.clone()).collect();
     identified(&all_cols, &format!("a full {} is", full.name()))?;
@@ -301,43 +253,22 @@ fn pass(
     let mut blocks = blocks.iter();
     if full_q {
         let blk = blocks.next().expect("the Q block was pushed first");
-        let d = k * (k + 1) / 2;
-        let (w, low) = settle_psd(&psd_unscale(&x[at..at + d], &blk.scale), "W")?;
-        W = w;
-        min_eigenvalue[0] = Some(low);
-        let wu = psd_unscale(&unc[at..at + d], &blk.scale);
-        unconstrained_min_eigenvalue[0] = Some(min_eig(&wu));
-        W_proj = clamp_psd(&wu);
-        at += d;
+        let sol = PsdSolution::of(&x, &unc, &mut at, blk, "W")?;
+        (W, W_proj) = (sol.matrix, sol.projected);
+        min_eigenvalue[0] = Some(sol.min_eigenvalue);
+        unconstrained_min_eigenvalue[0] = Some(sol.unconstrained_min_eigenvalue);
     }
     if full_r {
         let blk = blocks.next().expect("the R block follows Q's");
-        let d = m * (m + 1) / 2;
-        let (r, low) = settle_psd(&psd_unscale(&x[at..at + d], &blk.scale), "R")?;
-        R = r;
-        min_eigenvalue[1] = Some(low);
-        let ru = psd_unscale(&unc[at..at + d], &blk.scale);
-        unconstrained_min_eigenvalue[1] = Some(min_eig(&ru));
-        R_proj = clamp_psd(&ru);
-        at += d;
+        let sol = PsdSolution::of(&x, &unc, &mut at, blk, "R")?;
+        (R, R_proj) = (sol.matrix, sol.projected);
+        min_eigenvalue[1] = Some(sol.min_eigenvalue);
+        unconstrained_min_eigenvalue[1] = Some(sol.unconstrained_min_eigenvalue);
     }
-    let mut theta = start.to_vec();
-    let mut theta_proj = start.to_vec();
-    let mut at_zero = Vec::new();
-    if let Some(blk) = blocks.next() {
-        // In the unit-norm coordinates a value this far below the largest is the bound.
-        let top = x[at..].iter().fold(0.0_f64, |a, v| a.max(v.abs()));
-        for (c, &i) in free.iter().enumerate() {
-            let v = x[at + c];
-            theta[i] = if v <= 1e-6 * top {
-                at_zero.push(i);
-                0.0
-            } else {
-                v / blk.scale[c]
-            };
-            theta_proj[i] = (unc[at + c] / blk.scale[c]).max(0.0);
-        }
-    }
+    let (theta, theta_proj, at_zero) = match blocks.next() {
+        Some(blk) => structured_solution(&x[at..], &unc[at..], blk, &free, start),
+        None => (start.to_vec(), start.to_vec(), Vec::new()),
+    };
     let build = |W: &DMatrix<f64>, R: &DMatrix<f64>, theta: &[f64]| {
         let Q = if full_q {
             &G * W * G.transpose()
@@ -382,6 +313,157 @@ fn pass(
     })
 }
 
+/// The blocks of unknowns, in solution order: the full Q's noise-input covariance W (on
+/// the inputs `G`), the full R, then the structured matrix's free parameters (their indices
+/// returned beside), whose fixed contributions are taken off `b`.
+fn unknowns(
+    model: &AlsModel<'_>,
+    ac: &Autocovariances,
+    G: &DMatrix<f64>,
+    full: FullMatrix,
+    start: &[f64],
+    fixed: &[bool],
+    b: &mut [f64],
+) -> (Vec<Block>, Vec<usize>) {
+    let (n, m) = (model.F.nrows(), model.H.nrows());
+    let (zq, zr) = (DMatrix::zeros(n, n), DMatrix::zeros(m, m));
+    let mut blocks: Vec<Block> = Vec::new();
+    if matches!(full, FullMatrix::Q | FullMatrix::Both) {
+        blocks.push(psd_block(G.ncols(), |B| {
+            ac.column(&(G * B * G.transpose()), &zr)
+        }));
+    }
+    if matches!(full, FullMatrix::R | FullMatrix::Both) {
+        blocks.push(psd_block(m, |B| ac.column(&zq, B)));
+    }
+    // The structured matrix: its free parameters ≥ 0, fixed ones moved to the right.
+    let structured = match full {
+        FullMatrix::Q => Some((model.r, false)),
+        FullMatrix::R => Some((model.q, true)),
+        FullMatrix::Both => None,
+    };
+    let mut free: Vec<usize> = Vec::new();
+    if let Some((cov, is_q)) = structured {
+        let column = |basis: &DMatrix<f64>| {
+            if is_q {
+                ac.column(basis, &zr)
+            } else {
+                ac.column(&zq, basis)
+            }
+        };
+        if let Some((params, block)) = structured_block(cov, &column, start, fixed, b) {
+            free = params;
+            blocks.push(block);
+        }
+    }
+    (blocks, free)
+}
+
+/// The nonnegative block of the structured matrix `cov`'s free parameters (their indices,
+/// in the order of their first term), each column at unit norm (a positive diagonal scaling
+/// keeps the cone); what fixed coefficients and fixed parameters contribute is taken off
+/// `b`. `None` when every parameter of `cov` is fixed.
+fn structured_block(
+    cov: &CovModel,
+    column: &dyn Fn(&DMatrix<f64>) -> Vec<f64>,
+    start: &[f64],
+    fixed: &[bool],
+    b: &mut [f64],
+) -> Option<(Vec<usize>, Block)> {
+    let mut cols: Vec<(usize, Vec<f64>)> = Vec::new();
+    for t in &cov.terms {
+        let col = column(&t.basis);
+        match t.coef {
+            Coef::Param(i) if !fixed[i] => match cols.iter_mut().find(|(j, _)| *j == i) {
+                Some((_, c)) => c.iter_mut().zip(&col).for_each(|(a, v)| *a += v),
+                None => cols.push((i, col)),
+            },
+            Coef::Param(i) => b.iter_mut().zip(&col).for_each(|(y, c)| *y -= start[i] * c),
+            Coef::Fixed(v) => b.iter_mut().zip(&col).for_each(|(y, c)| *y -= v * c),
+        }
+    }
+    if cols.is_empty() {
+        return None;
+    }
+    let free: Vec<usize> = cols.iter().map(|(i, _)| *i).collect();
+    let scale: Vec<f64> = cols
+        .iter()
+        .map(|(_, c)| norm(c).max(f64::MIN_POSITIVE))
+        .collect();
+    let block = Block {
+        cols: cols
+            .iter()
+            .zip(&scale)
+            .map(|((_, c), s)| c.iter().map(|v| v / s).collect())
+            .collect(),
+        cone: NonnegativeConeT(free.len()),
+        scale,
+    };
+    Some((free, block))
+}
+
+/// The structured matrix's parameters from its nonnegative block `blk` of the constrained
+/// solution `x` and the unconstrained `unc` (from the block's first coordinate): θ with the
+/// free parameters set (those at the bound listed), and θ of the unconstrained solution
+/// projected onto the cone.
+fn structured_solution(
+    x: &[f64],
+    unc: &[f64],
+    blk: &Block,
+    free: &[usize],
+    start: &[f64],
+) -> (Vec<f64>, Vec<f64>, Vec<usize>) {
+    let mut theta = start.to_vec();
+    let mut theta_proj = start.to_vec();
+    let mut at_zero = Vec::new();
+    // In the unit-norm coordinates a value this far below the largest is the bound.
+    let top = x.iter().fold(0.0_f64, |a, v| a.max(v.abs()));
+    for (c, &i) in free.iter().enumerate() {
+        let v = x[c];
+        theta[i] = if v <= 1e-6 * top {
+            at_zero.push(i);
+            0.0
+        } else {
+            v / blk.scale[c]
+        };
+        theta_proj[i] = (unc[c] / blk.scale[c]).max(0.0);
+    }
+    (theta, theta_proj, at_zero)
+}
+
+/// A PSD block's share of the solution: the matrix (round-off settled), its smallest
+/// eigenvalue, and the unconstrained solution's smallest eigenvalue and projection onto the
+/// cone.
+struct PsdSolution {
+    matrix: DMatrix<f64>,
+    min_eigenvalue: f64,
+    unconstrained_min_eigenvalue: f64,
+    projected: DMatrix<f64>,
+}
+
+impl PsdSolution {
+    /// The block `blk` (the matrix called `what` in messages) of the constrained solution
+    /// `x` and the unconstrained `unc`, from coordinate `at`, which moves past it.
+    fn of(
+        x: &[f64],
+        unc: &[f64],
+        at: &mut usize,
+        blk: &Block,
+        what: &str,
+    ) -> Result<PsdSolution, EstimateError> {
+        let d = blk.scale.len() * (blk.scale.len() + 1) / 2;
+        let (matrix, low) = settle_psd(&psd_unscale(&x[*at..*at + d], &blk.scale), what)?;
+        let u = psd_unscale(&unc[*at..*at + d], &blk.scale);
+        *at += d;
+        Ok(PsdSolution {
+            matrix,
+            min_eigenvalue: low,
+            unconstrained_min_eigenvalue: min_eig(&u),
+            projected: clamp_psd(&u),
+        })
+    }
+}
+
 /// ALS with `full` (Q, R or both) a full PSD matrix, `passes` times: the first with the
 /// gain of the filter at `start`, each later one with the gain at the previous estimate
 /// unless that estimate is on the boundary of the cone (a singular W or R gives a filter at
@@ -394,9 +476,9 @@ pub fn estimate_full(
     full: FullMatrix,
     lags: usize,
     passes: usize,
-) -> Result<FullEstimate, String> {
+) -> Result<FullEstimate, EstimateError> {
     let (Q0, R0) = (model.q.build(start), model.r.build(start));
-    let mut est = pass(model, data, start, fixed, full, (&Q0, &R0), lags)?;
+    let mut est = fit_at_gain(model, data, start, fixed, full, (&Q0, &R0), lags)?;
     for _ in 1..passes {
         let boundary = |M: &DMatrix<f64>| {
             let e = M.symmetric_eigenvalues();
@@ -408,7 +490,7 @@ pub fn estimate_full(
         if on_edge {
             break;
         }
-        match pass(model, data, start, fixed, full, (&est.Q, &est.R), lags) {
+        match fit_at_gain(model, data, start, fixed, full, (&est.Q, &est.R), lags) {
             Ok(next) => {
                 let done = est.passes + 1;
                 est = next;

@@ -240,7 +240,8 @@ fn read_jsonl(path: &Path) -> Result<Measurements, FileError> {
             continue;
         }
         let res = (|| {
-            let obj = crate::records::json_object(&line).map_err(|m| (String::new(), m))?;
+            let obj =
+                crate::records::json_object(&line).map_err(|e| (String::new(), e.to_string()))?;
             let int = |k: &str, default: Option<usize>| match obj.get(k) {
                 None => default.ok_or_else(|| (k.to_string(), "missing".to_string())),
                 Some(v) => v

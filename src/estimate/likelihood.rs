@@ -12,40 +12,9 @@
 
 use nalgebra::{DMatrix, DVector};
 
-use super::Measurements;
+use super::{Measurements, NotDefinite};
+use crate::filter::KalmanFilter;
 use crate::linalg::cholesky;
-
-/// A linear filter's model at one parameter value.
-#[derive(Debug, Clone)]
-pub struct LinearFilterModel {
-    /// State transition, n × n.
-    pub F: DMatrix<f64>,
-    /// Measurement matrix, m × n.
-    pub H: DMatrix<f64>,
-    /// Process noise covariance, n × n.
-    pub Q: DMatrix<f64>,
-    /// Measurement noise covariance, m × m.
-    pub R: DMatrix<f64>,
-    /// Initial estimate, n.
-    pub x0: DVector<f64>,
-    /// Initial covariance, n × n.
-    pub P0: DMatrix<f64>,
-}
-
-impl LinearFilterModel {
-    /// The filter of the linear problem `lin` at parameter values `theta`.
-    pub fn of(lin: &crate::experiment::LinearExperiment, theta: &[f64]) -> Self {
-        let kf = lin.filter_at(theta);
-        LinearFilterModel {
-            F: kf.F,
-            H: kf.H,
-            Q: kf.Q,
-            R: kf.R,
-            x0: kf.x0,
-            P0: kf.P0,
-        }
-    }
-}
 
 /// One step of the covariance recursion: the gain, `S⁻¹` and `log det S`.
 struct Step {
@@ -168,7 +137,7 @@ impl Scratch {
     }
 }
 
-/// The model row-major, for the allocation-free steps of [`LinearFilterModel::with_gaps`].
+/// The model row-major, for the allocation-free steps of [`KalmanFilter::with_gaps`].
 struct Flat {
     n: usize,
     F: Vec<f64>,
@@ -194,7 +163,22 @@ impl Flat {
     ) -> Result<f64, NotDefinite> {
         let n = self.n;
         let r = pat.rows.len();
-        // F P, then (F P) F' + Q on and above the diagonal.
+        self.predict_covariance(P, ws);
+        if r == 0 {
+            ws.P.copy_from_slice(&ws.Pp);
+            return Ok(0.0);
+        }
+        innovation_covariance(pat, ws, n);
+        let log_det = factor_innovation_covariance(ws, r).ok_or(NotDefinite { step })?;
+        gain_and_update(ws, n, r);
+        Ok(log_det)
+    }
+
+    /// `P⁻ = F P F' + Q` into `ws.Pp` (through `ws.FP`), formed on and above the diagonal
+    /// and mirrored.
+    #[inline(always)]
+    fn predict_covariance(&self, P: &[f64], ws: &mut Scratch) {
+        let n = self.n;
         for i in 0..n {
             let Fi = &self.F[i * n..(i + 1) * n];
             let out = &mut ws.FP[i * n..(i + 1) * n];
@@ -216,87 +200,6 @@ impl Flat {
                 ws.Pp[j * n + i] = v;
             }
         }
-        if r == 0 {
-            ws.P.copy_from_slice(&ws.Pp);
-            return Ok(0.0);
-        }
-        // U = P⁻ H' (n × r), S = H U + R.
-        for i in 0..n {
-            let Ppi = &ws.Pp[i * n..(i + 1) * n];
-            for (a, Ha) in pat.H.chunks_exact(n).enumerate() {
-                ws.U[i * r + a] = Ppi.iter().zip(Ha).map(|(x, y)| x * y).sum();
-            }
-        }
-        for (a, Ha) in pat.H.chunks_exact(n).enumerate() {
-            for b in 0..=a {
-                let v = (0..n).map(|k| Ha[k] * ws.U[k * r + b]).sum::<f64>() + pat.R[a * r + b];
-                ws.S[a * r + b] = v;
-                ws.S[b * r + a] = v;
-            }
-        }
-        // S = L L' in place (lower triangle), then L⁻¹.
-        let not_definite = || NotDefinite(format!("S is not positive definite at step {step}"));
-        let mut log_det = 0.0;
-        for j in 0..r {
-            let mut d = ws.S[j * r + j];
-            for c in 0..j {
-                d -= ws.S[j * r + c] * ws.S[j * r + c];
-            }
-            if !(d > 0.0 && d.is_finite()) {
-                return Err(not_definite());
-            }
-            let l = d.sqrt();
-            log_det += 2.0 * l.ln();
-            ws.S[j * r + j] = l;
-            for i in j + 1..r {
-                let mut v = ws.S[i * r + j];
-                for c in 0..j {
-                    v -= ws.S[i * r + c] * ws.S[j * r + c];
-                }
-                ws.S[i * r + j] = v / l;
-            }
-        }
-        ws.Linv[..r * r].fill(0.0);
-        for j in 0..r {
-            ws.Linv[j * r + j] = 1.0 / ws.S[j * r + j];
-            for i in j + 1..r {
-                let mut v = 0.0;
-                for c in j..i {
-                    v -= ws.S[i * r + c] * ws.Linv[c * r + j];
-                }
-                ws.Linv[i * r + j] = v / ws.S[i * r + i];
-            }
-        }
-        // W = U L⁻ᵀ, K = W L⁻¹, S⁻¹ = L⁻ᵀ L⁻¹.
-        for i in 0..n {
-            for a in 0..r {
-                ws.W[i * r + a] = (0..=a).map(|c| ws.U[i * r + c] * ws.Linv[a * r + c]).sum();
-            }
-        }
-        let (K, S_inv) = ws.gain.split_at_mut(n * r);
-        for i in 0..n {
-            for b in 0..r {
-                K[i * r + b] = (b..r).map(|a| ws.W[i * r + a] * ws.Linv[a * r + b]).sum();
-            }
-        }
-        for a in 0..r {
-            for b in 0..=a {
-                let v: f64 = (a..r)
-                    .map(|c| ws.Linv[c * r + a] * ws.Linv[c * r + b])
-                    .sum();
-                S_inv[a * r + b] = v;
-                S_inv[b * r + a] = v;
-            }
-        }
-        for i in 0..n {
-            for j in i..n {
-                let ww: f64 = (0..r).map(|a| ws.W[i * r + a] * ws.W[j * r + a]).sum();
-                let v = ws.Pp[i * n + j] - ww;
-                ws.P[i * n + j] = v;
-                ws.P[j * n + i] = v;
-            }
-        }
-        Ok(log_det)
     }
 
     /// The mean's step with gain `K` (n × r) and `S⁻¹` (r × r) of pattern `pat`, from `x`
@@ -338,17 +241,348 @@ impl Flat {
     }
 }
 
+/// `U = P⁻ H'` (n × r) and `S = H U + R` of pattern `pat` into `ws`.
+#[inline(always)]
+fn innovation_covariance(pat: &Pattern, ws: &mut Scratch, n: usize) {
+    let r = pat.rows.len();
+    for i in 0..n {
+        let Ppi = &ws.Pp[i * n..(i + 1) * n];
+        for (a, Ha) in pat.H.chunks_exact(n).enumerate() {
+            ws.U[i * r + a] = Ppi.iter().zip(Ha).map(|(x, y)| x * y).sum();
+        }
+    }
+    for (a, Ha) in pat.H.chunks_exact(n).enumerate() {
+        for b in 0..=a {
+            let v = (0..n).map(|k| Ha[k] * ws.U[k * r + b]).sum::<f64>() + pat.R[a * r + b];
+            ws.S[a * r + b] = v;
+            ws.S[b * r + a] = v;
+        }
+    }
+}
+
+/// `S = L L'` in place (lower triangle of `ws.S`, r × r), then `L⁻¹` into `ws.Linv`:
+/// `log det S`, or `None` when S is not positive definite.
+#[inline(always)]
+fn factor_innovation_covariance(ws: &mut Scratch, r: usize) -> Option<f64> {
+    let mut log_det = 0.0;
+    for j in 0..r {
+        let mut d = ws.S[j * r + j];
+        for c in 0..j {
+            d -= ws.S[j * r + c] * ws.S[j * r + c];
+        }
+        if !(d > 0.0 && d.is_finite()) {
+            return None;
+        }
+        let l = d.sqrt();
+        log_det += 2.0 * l.ln();
+        ws.S[j * r + j] = l;
+        for i in j + 1..r {
+            let mut v = ws.S[i * r + j];
+            for c in 0..j {
+                v -= ws.S[i * r + c] * ws.S[j * r + c];
+            }
+            ws.S[i * r + j] = v / l;
+        }
+    }
+    ws.Linv[..r * r].fill(0.0);
+    for j in 0..r {
+        ws.Linv[j * r + j] = 1.0 / ws.S[j * r + j];
+        for i in j + 1..r {
+            let mut v = 0.0;
+            for c in j..i {
+                v -= ws.S[i * r + c] * ws.Linv[c * r + j];
+            }
+            ws.Linv[i * r + j] = v / ws.S[i * r + i];
+        }
+    }
+    Some(log_det)
+}
+
+/// `W = U L⁻ᵀ`, the gain `K = W L⁻¹` and `S⁻¹ = L⁻ᵀ L⁻¹` into `ws.gain`, and the
+/// covariance after the update `P⁻ − W W'` into `ws.P`.
+#[inline(always)]
+fn gain_and_update(ws: &mut Scratch, n: usize, r: usize) {
+    for i in 0..n {
+        for a in 0..r {
+            ws.W[i * r + a] = (0..=a).map(|c| ws.U[i * r + c] * ws.Linv[a * r + c]).sum();
+        }
+    }
+    let (K, S_inv) = ws.gain.split_at_mut(n * r);
+    for i in 0..n {
+        for b in 0..r {
+            K[i * r + b] = (b..r).map(|a| ws.W[i * r + a] * ws.Linv[a * r + b]).sum();
+        }
+    }
+    for a in 0..r {
+        for b in 0..=a {
+            let v: f64 = (a..r)
+                .map(|c| ws.Linv[c * r + a] * ws.Linv[c * r + b])
+                .sum();
+            S_inv[a * r + b] = v;
+            S_inv[b * r + a] = v;
+        }
+    }
+    for i in 0..n {
+        for j in i..n {
+            let ww: f64 = (0..r).map(|a| ws.W[i * r + a] * ws.W[j * r + a]).sum();
+            let v = ws.Pp[i * n + j] - ww;
+            ws.P[i * n + j] = v;
+            ws.P[j * n + i] = v;
+        }
+    }
+}
+
+/// The root of a [`Tree`]: the initial covariance.
+const ROOT: usize = 0;
+
+/// One evaluation of [`KalmanFilter::with_gaps`]: the model row-major, the patterns of
+/// measured components seen so far, the memoized covariance recursion and its steady node,
+/// and the scratch space of the steps.
+struct Gaps {
+    flat: Flat,
+    m: usize,
+    /// H (m × n) and R (m × m), row-major.
+    H: Vec<f64>,
+    R: Vec<f64>,
+    /// Pattern 0 measures every component.
+    patterns: Vec<Pattern>,
+    ws: Scratch,
+    tree: Tree,
+    /// The node where the complete record's recursion settled, and how close a covariance
+    /// must come to it to be back on it.
+    steady: Option<usize>,
+    tol: f64,
+    /// A sequence's own covariance, once the tree is full.
+    own: Vec<f64>,
+    /// The mean's state, prediction, and scratch of m.
+    x: Vec<f64>,
+    xp: Vec<f64>,
+    nu: Vec<f64>,
+    w: Vec<f64>,
+}
+
+impl Gaps {
+    fn new(f: &KalmanFilter, m: usize) -> Gaps {
+        let n = f.F.nrows();
+        let mut tree = Tree {
+            n,
+            covs: Vec::new(),
+            full: Vec::new(),
+            partial: Vec::new(),
+            edges: Vec::new(),
+            gains: Vec::new(),
+        };
+        tree.push_node(&row_major(&f.P0));
+        let mut gaps = Gaps {
+            flat: Flat {
+                n,
+                F: row_major(&f.F),
+                Q: row_major(&f.Q),
+            },
+            m,
+            H: row_major(&f.H),
+            R: row_major(&f.R),
+            patterns: Vec::new(),
+            ws: Scratch::new(n, m),
+            tree,
+            steady: None,
+            tol: 0.0,
+            own: vec![0.0; n * n],
+            x: vec![0.0; n],
+            xp: vec![0.0; n],
+            nu: vec![0.0; m],
+            w: vec![0.0; m],
+        };
+        let all = gaps.pattern(vec![true; m]);
+        gaps.patterns.push(all);
+        gaps
+    }
+
+    /// The rows of H and the block of R that `measured` keeps.
+    fn pattern(&self, measured: Vec<bool>) -> Pattern {
+        let (n, m) = (self.flat.n, self.m);
+        let rows: Vec<usize> = (0..m).filter(|&j| measured[j]).collect();
+        let H = rows
+            .iter()
+            .flat_map(|&j| self.H[j * n..(j + 1) * n].iter().copied())
+            .collect();
+        let R = rows
+            .iter()
+            .flat_map(|&a| rows.iter().map(move |&b| (a, b)))
+            .map(|(a, b)| self.R[a * m + b])
+            .collect();
+        Pattern {
+            measured,
+            rows,
+            H,
+            R,
+        }
+    }
+
+    /// The index of the pattern of the finite entries of `zk`, added when new.
+    fn pattern_of(&mut self, zk: &[f64]) -> usize {
+        if zk.iter().all(|v| v.is_finite()) {
+            return 0;
+        }
+        let same = |p: &Pattern| p.measured.iter().zip(zk).all(|(&f, v)| f == v.is_finite());
+        match self.patterns.iter().position(same) {
+            Some(p) => p,
+            None => {
+                let p = self.pattern(zk.iter().map(|v| v.is_finite()).collect());
+                self.patterns.push(p);
+                self.patterns.len() - 1
+            }
+        }
+    }
+
+    /// The complete record's recursion from the start, to its steady state (at most
+    /// `steps` steps, and as many as the tree holds).
+    fn grow_complete(&mut self, steps: usize) -> Result<(), NotDefinite> {
+        let (n, m) = (self.flat.n, self.m);
+        let mut node = ROOT;
+        for k in 1..=steps.min(MAX_NODES - 1) {
+            let log_det =
+                self.flat
+                    .cov_step(self.tree.cov(node), &self.patterns[0], &mut self.ws, k)?;
+            let change = max_abs_diff(&self.ws.P, self.tree.cov(node));
+            let scale = self
+                .ws
+                .P
+                .iter()
+                .fold(f64::MIN_POSITIVE, |a, v| a.max(v.abs()));
+            let at = self.tree.gains.len();
+            self.tree
+                .gains
+                .extend_from_slice(&self.ws.gain[..n * m + m * m]);
+            let to = self.tree.push_node(&self.ws.P);
+            self.tree.add(
+                node,
+                Edge {
+                    pattern: 0,
+                    to: to as u32,
+                    log_det,
+                    at,
+                },
+            );
+            node = to;
+            if change <= 1e-14 * scale && k > 2 {
+                self.steady = Some(node);
+                break;
+            }
+        }
+        self.tol = self.steady.map_or(0.0, |s| {
+            1e-12
+                * self
+                    .tree
+                    .cov(s)
+                    .iter()
+                    .fold(f64::MIN_POSITIVE, |a, v| a.max(v.abs()))
+        });
+        Ok(())
+    }
+
+    /// Add one sequence's `−log L` (its measurements `z`, T × m row-major, from the
+    /// initial estimate `x0`) to `nll`.
+    fn sequence(&mut self, x0: &[f64], z: &[f64], nll: &mut f64) -> Result<(), NotDefinite> {
+        let n = self.flat.n;
+        self.x.copy_from_slice(x0);
+        // Where the sequence's covariance is: a node of the tree, or `own`.
+        let mut at = Some(ROOT);
+        for (k, zk) in z.chunks(self.m).enumerate() {
+            let p = self.pattern_of(zk);
+            let pat = &self.patterns[p];
+            let p = p as u32;
+            if let Some(node) = at
+                && self.tree.edge(node, p).is_none()
+                && self.tree.nodes() >= MAX_NODES
+            {
+                self.own.copy_from_slice(self.tree.cov(node));
+                at = None;
+            }
+            let Some(node) = at else {
+                let log_det = self.flat.cov_step(&self.own, pat, &mut self.ws, k + 1)?;
+                self.own.copy_from_slice(&self.ws.P);
+                let r = pat.rows.len();
+                let gain = &self.ws.gain[..n * r + r * r];
+                *nll += self.flat.mean_step(
+                    &mut self.x,
+                    &mut self.xp,
+                    &mut self.nu,
+                    &mut self.w,
+                    zk,
+                    pat,
+                    gain,
+                    log_det,
+                );
+                if let Some(sn) = self.steady
+                    && max_abs_diff(&self.own, self.tree.cov(sn)) <= self.tol
+                {
+                    at = Some(sn);
+                }
+                continue;
+            };
+            let e = match self.tree.edge(node, p) {
+                Some(e) => e,
+                None => self.new_edge(node, p, k + 1)?,
+            };
+            let e = self.tree.edges[e];
+            let pat = &self.patterns[p as usize];
+            let r = pat.rows.len();
+            let gain = &self.tree.gains[e.at..e.at + n * r + r * r];
+            *nll += self.flat.mean_step(
+                &mut self.x,
+                &mut self.xp,
+                &mut self.nu,
+                &mut self.w,
+                zk,
+                pat,
+                gain,
+                e.log_det,
+            );
+            at = Some(e.to as usize);
+        }
+        Ok(())
+    }
+
+    /// The covariance step from `node` measuring pattern `p` at step `k`, memoized: back to
+    /// the steady node when it lands on it, a new node otherwise.
+    fn new_edge(&mut self, node: usize, p: u32, k: usize) -> Result<usize, NotDefinite> {
+        let n = self.flat.n;
+        let pat = &self.patterns[p as usize];
+        let log_det = self
+            .flat
+            .cov_step(self.tree.cov(node), pat, &mut self.ws, k)?;
+        let back = self.steady.is_some_and(|sn| {
+            (node == sn && p == 0) || max_abs_diff(&self.ws.P, self.tree.cov(sn)) <= self.tol
+        });
+        let to = match self.steady {
+            Some(sn) if back => sn,
+            _ => self.tree.push_node(&self.ws.P),
+        };
+        let r = pat.rows.len();
+        let at = self.tree.gains.len();
+        self.tree
+            .gains
+            .extend_from_slice(&self.ws.gain[..n * r + r * r]);
+        let edge = Edge {
+            pattern: p,
+            to: to as u32,
+            log_det,
+            at,
+        };
+        Ok(self.tree.add(node, edge))
+    }
+}
+
 fn max_abs_diff(a: &[f64], b: &[f64]) -> f64 {
     a.iter()
         .zip(b)
         .fold(0.0, |acc, (x, y)| acc.max((x - y).abs()))
 }
 
-/// Why a likelihood could not be evaluated: a covariance lost definiteness.
-#[derive(Debug, Clone, PartialEq)]
-pub struct NotDefinite(pub String);
-
-impl LinearFilterModel {
+/// The likelihood of a filter's innovations, on the filter's own model: its F, H, Q, R, x0
+/// and P0 are the parameter value's.
+impl KalmanFilter {
     /// `−log L` of `data` under this filter.
     pub fn neg_log_likelihood(&self, data: &Measurements) -> Result<f64, NotDefinite> {
         if data.complete() {
@@ -367,8 +601,7 @@ impl LinearFilterModel {
         for k in 1..=steps {
             let Pp = &self.F * &P * self.F.transpose() + &self.Q;
             let S = &self.H * &Pp * self.H.transpose() + &self.R;
-            let chol = cholesky(&S)
-                .ok_or_else(|| NotDefinite(format!("S is not positive definite at step {k}")))?;
+            let chol = cholesky(&S).ok_or(NotDefinite { step: k })?;
             let S_inv = chol.inverse();
             let log_det = 2.0 * chol.l().diagonal().iter().map(|d| d.ln()).sum::<f64>();
             let K = &Pp * self.H.transpose() * &S_inv;
@@ -425,152 +658,12 @@ impl LinearFilterModel {
     /// arenas and allocate nothing: with nalgebra's allocating products a record with 1%
     /// empty cells cost 5–27× a complete one per evaluation.
     fn with_gaps(&self, data: &Measurements) -> Result<f64, NotDefinite> {
-        const ROOT: usize = 0;
         let steps = data.sequences.iter().map(|s| s.steps).max().unwrap_or(0);
-        let (n, m) = (self.F.nrows(), data.dim);
-        let flat = Flat {
-            n,
-            F: row_major(&self.F),
-            Q: row_major(&self.Q),
-        };
-        let (H, R) = (row_major(&self.H), row_major(&self.R));
-        let pattern = |measured: Vec<bool>| {
-            let rows: Vec<usize> = (0..m).filter(|&j| measured[j]).collect();
-            let H = rows
-                .iter()
-                .flat_map(|&j| H[j * n..(j + 1) * n].iter().copied())
-                .collect();
-            let R = rows
-                .iter()
-                .flat_map(|&a| rows.iter().map(move |&b| (a, b)))
-                .map(|(a, b)| R[a * m + b])
-                .collect();
-            Pattern {
-                measured,
-                rows,
-                H,
-                R,
-            }
-        };
-        let mut patterns = vec![pattern(vec![true; m])];
-        let mut ws = Scratch::new(n, m);
-        let mut tree = Tree {
-            n,
-            covs: Vec::new(),
-            full: Vec::new(),
-            partial: Vec::new(),
-            edges: Vec::new(),
-            gains: Vec::new(),
-        };
-        tree.push_node(&row_major(&self.P0));
-        // The complete record's recursion from the start, to its steady state.
-        let mut steady = None;
-        let mut node = ROOT;
-        for k in 1..=steps.min(MAX_NODES - 1) {
-            let log_det = flat.cov_step(tree.cov(node), &patterns[0], &mut ws, k)?;
-            let change = max_abs_diff(&ws.P, tree.cov(node));
-            let scale = ws.P.iter().fold(f64::MIN_POSITIVE, |a, v| a.max(v.abs()));
-            let at = tree.gains.len();
-            tree.gains.extend_from_slice(&ws.gain[..n * m + m * m]);
-            let to = tree.push_node(&ws.P);
-            tree.add(
-                node,
-                Edge {
-                    pattern: 0,
-                    to: to as u32,
-                    log_det,
-                    at,
-                },
-            );
-            node = to;
-            if change <= 1e-14 * scale && k > 2 {
-                steady = Some(node);
-                break;
-            }
-        }
-        let tol = steady.map_or(0.0, |s| {
-            1e-12
-                * tree
-                    .cov(s)
-                    .iter()
-                    .fold(f64::MIN_POSITIVE, |a, v| a.max(v.abs()))
-        });
+        let mut gaps = Gaps::new(self, data.dim);
+        gaps.grow_complete(steps)?;
         let mut nll = 0.0;
-        let mut x = vec![0.0; n];
-        let mut xp = vec![0.0; n];
-        let mut nu = vec![0.0; m];
-        let mut w = vec![0.0; m];
-        // A sequence's own covariance, once the tree is full.
-        let mut own = vec![0.0; n * n];
         for s in &data.sequences {
-            x.copy_from_slice(self.x0.as_slice());
-            // Where the sequence's covariance is: a node of the tree, or `own`.
-            let mut at = Some(ROOT);
-            for (k, zk) in s.z.chunks(m).enumerate() {
-                let p = if zk.iter().all(|v| v.is_finite()) {
-                    0
-                } else {
-                    let same =
-                        |p: &Pattern| p.measured.iter().zip(zk).all(|(&f, v)| f == v.is_finite());
-                    match patterns.iter().position(same) {
-                        Some(p) => p,
-                        None => {
-                            patterns.push(pattern(zk.iter().map(|v| v.is_finite()).collect()));
-                            patterns.len() - 1
-                        }
-                    }
-                };
-                let pat = &patterns[p];
-                let p = p as u32;
-                if let Some(node) = at
-                    && tree.edge(node, p).is_none()
-                    && tree.nodes() >= MAX_NODES
-                {
-                    own.copy_from_slice(tree.cov(node));
-                    at = None;
-                }
-                let Some(node) = at else {
-                    let log_det = flat.cov_step(&own, pat, &mut ws, k + 1)?;
-                    own.copy_from_slice(&ws.P);
-                    let r = pat.rows.len();
-                    let gain = &ws.gain[..n * r + r * r];
-                    nll += flat.mean_step(&mut x, &mut xp, &mut nu, &mut w, zk, pat, gain, log_det);
-                    if let Some(sn) = steady
-                        && max_abs_diff(&own, tree.cov(sn)) <= tol
-                    {
-                        at = Some(sn);
-                    }
-                    continue;
-                };
-                let e = match tree.edge(node, p) {
-                    Some(e) => e,
-                    None => {
-                        let log_det = flat.cov_step(tree.cov(node), pat, &mut ws, k + 1)?;
-                        let back = steady.is_some_and(|sn| {
-                            (node == sn && p == 0) || max_abs_diff(&ws.P, tree.cov(sn)) <= tol
-                        });
-                        let to = match steady {
-                            Some(sn) if back => sn,
-                            _ => tree.push_node(&ws.P),
-                        };
-                        let r = pat.rows.len();
-                        let at = tree.gains.len();
-                        tree.gains.extend_from_slice(&ws.gain[..n * r + r * r]);
-                        let edge = Edge {
-                            pattern: p,
-                            to: to as u32,
-                            log_det,
-                            at,
-                        };
-                        tree.add(node, edge)
-                    }
-                };
-                let e = tree.edges[e];
-                let r = pat.rows.len();
-                let gain = &tree.gains[e.at..e.at + n * r + r * r];
-                nll += flat.mean_step(&mut x, &mut xp, &mut nu, &mut w, zk, pat, gain, e.log_det);
-                at = Some(e.to as usize);
-            }
+            gaps.sequence(self.x0.as_slice(), &s.z, &mut nll)?;
         }
         Ok(nll)
     }
@@ -594,9 +687,7 @@ impl LinearFilterModel {
             let H = self.H.select_rows(&rows);
             let R = self.R.select_rows(&rows).select_columns(&rows);
             let S = &H * &P * H.transpose() + &R;
-            let chol = cholesky(&S).ok_or_else(|| {
-                NotDefinite(format!("S is not positive definite at step {}", k + 1))
-            })?;
+            let chol = cholesky(&S).ok_or_else(|| NotDefinite { step: k + 1 })?;
             let nu = DVector::from_iterator(rows.len(), rows.iter().map(|&j| zk[j])) - &H * &x;
             let log_det = 2.0 * chol.l().diagonal().iter().map(|d| d.ln()).sum::<f64>();
             let w = chol.solve(&nu);
@@ -624,7 +715,7 @@ mod tests {
     fn gaps_rejoin_the_steady_state_without_changing_the_likelihood() {
         let f = DMatrix::from_row_slice(2, 2, &[0.9, 0.0, -0.3, 0.8]);
         let q = DMatrix::from_row_slice(2, 2, &[2.0, -0.5, -0.5, 1.0]);
-        let simple = LinearFilterModel {
+        let simple = KalmanFilter {
             F: f.clone(),
             H: DMatrix::identity(2, 2),
             Q: q.clone(),
@@ -632,7 +723,7 @@ mod tests {
             x0: DVector::zeros(2),
             P0: DMatrix::identity(2, 2),
         };
-        let dense = LinearFilterModel {
+        let dense = KalmanFilter {
             F: f,
             H: DMatrix::from_row_slice(3, 2, &[1.0, 0.5, -0.7, 2.0, 0.3, 0.3]),
             Q: q,

@@ -18,7 +18,8 @@ use argmin::solver::quasinewton::LBFGS;
 use nalgebra::{DMatrix, DVector};
 use serde::Serialize;
 
-use super::{LinearFilterModel, Measurements};
+use super::{EstimateError, Measurements};
+use crate::filter::KalmanFilter;
 
 /// Relative step of the differenced gradient, in log space.
 const GRAD_STEP: f64 = 1e-5;
@@ -68,7 +69,7 @@ pub struct MlEstimate {
 
 /// What L-BFGS sees: `−log L` over the free parameters' logs.
 struct Objective<'a> {
-    build: &'a dyn Fn(&[f64]) -> LinearFilterModel,
+    build: &'a dyn Fn(&[f64]) -> KalmanFilter,
     data: &'a Measurements,
     theta: Vec<f64>,
     free: Vec<usize>,
@@ -144,12 +145,12 @@ impl Gradient for &Objective<'_> {
 /// quadratic model still predicts, `½ g' H⁻¹ g`, is below [`PREDICTED_TOL`] nats. Only that
 /// makes `converged` true. `max_iterations` bounds the L-BFGS iterations of all restarts.
 pub fn estimate(
-    build: &dyn Fn(&[f64]) -> LinearFilterModel,
+    build: &dyn Fn(&[f64]) -> KalmanFilter,
     data: &Measurements,
     start: &[f64],
     fixed: &[bool],
     max_iterations: u64,
-) -> Result<MlEstimate, String> {
+) -> Result<MlEstimate, EstimateError> {
     let free: Vec<usize> = (0..start.len()).filter(|&i| !fixed[i]).collect();
     let obj = Objective {
         build,
@@ -162,96 +163,38 @@ pub fn estimate(
     let phi0: Vec<f64> = free.iter().map(|&i| start[i].ln()).collect();
     let start_nll = obj.value(&phi0) * obj.scale;
     if start_nll.is_nan() || start_nll >= f64::MAX {
-        return Err(
-            "the likelihood is not defined at the start values (S is not positive definite)".into(),
-        );
+        return Err(EstimateError::UndefinedAtStart);
     }
-    let mut phi = phi0;
-    let mut nll = start_nll;
-    let mut iterations = 0;
-    let mut restarts = 0;
-    let mut newton = 0;
-    let mut escapes = 0;
+    let mut search = Search {
+        obj: &obj,
+        phi: phi0,
+        nll: start_nll,
+        iterations: 0,
+        restarts: 0,
+        newton: 0,
+        escapes: 0,
+        max_iterations,
+    };
     let check = loop {
-        let round_start = nll;
+        let round_start = search.nll;
         if !free.is_empty() {
-            let mut first = true;
-            loop {
-                let (next, its) = lbfgs(&obj, phi.clone(), max_iterations - iterations)?;
-                iterations += its;
-                let next_nll = obj.value(&next) * obj.scale;
-                let moved = nll - next_nll;
-                if next_nll < nll {
-                    phi = next;
-                    nll = next_nll;
-                }
-                // The first run always gets a restart: its stop is what is in question.
-                if (!first && moved < RESTART_TOL)
-                    || iterations >= max_iterations
-                    || restarts >= MAX_RESTARTS
-                {
-                    break;
-                }
-                first = false;
-                restarts += 1;
-            }
+            search.lbfgs_until_still()?;
         }
-        // Newton steps until the quadratic model predicts nothing left to gain.
-        let mut check = Check::at(&obj, &phi);
-        let mut steps = 0;
-        while check.predicted >= PREDICTED_TOL && steps < MAX_NEWTON {
-            let Some(step) = check.newton_step() else {
-                break;
-            };
-            let mut t = 1.0;
-            let mut moved = false;
-            for _ in 0..30 {
-                let trial: Vec<f64> = phi.iter().zip(&step).map(|(p, s)| p + t * s).collect();
-                let v = obj.value(&trial) * obj.scale;
-                if v < nll {
-                    phi = trial;
-                    nll = v;
-                    moved = true;
-                    break;
-                }
-                t *= 0.5;
-            }
-            steps += 1;
-            newton += 1;
-            if !moved {
-                break;
-            }
-            check = Check::at(&obj, &phi);
-        }
+        let check = search.newton_steps();
         // A parameter walked so close to zero that its log no longer feels the pull back
         // up: in φ its gradient is θ times the pull, and the quadratic model there predicts
         // nothing. Put it back where the likelihood along θ is best, and search again.
-        if check.converged() || escapes >= MAX_ESCAPES || iterations >= max_iterations {
+        if check.converged() || search.escapes >= MAX_ESCAPES || search.iterations >= max_iterations
+        {
             break check;
         }
-        escapes += 1;
-        let mut improved = nll < round_start - RESTART_TOL;
-        for &k in &check.stuck {
-            let mut best = (nll, phi[k]);
-            for j in 0..40 {
-                let mut trial = phi.clone();
-                trial[k] = start[free[k]].ln() - j as f64 * std::f64::consts::LN_2;
-                let v = obj.value(&trial) * obj.scale;
-                if v < best.0 {
-                    best = (v, trial[k]);
-                }
-            }
-            if best.0 < nll {
-                nll = best.0;
-                phi[k] = best.1;
-                improved = true;
-            }
-        }
-        if !improved {
+        search.escapes += 1;
+        let moved_back = search.free_stuck(&check.stuck, start, &free);
+        if !(search.nll < round_start - RESTART_TOL || moved_back) {
             break check;
         }
     };
-    let theta = obj.theta_at(&phi);
+    let theta = obj.theta_at(&search.phi);
     let mut std_errors = vec![None; start.len()];
     let mut not_identified = Vec::new();
     let at_bound: Vec<usize> = check.at_bound.iter().map(|&k| free[k]).collect();
@@ -271,17 +214,115 @@ pub fn estimate(
         std_errors,
         not_identified,
         at_bound,
-        neg_log_likelihood: nll,
+        neg_log_likelihood: search.nll,
         start_neg_log_likelihood: start_nll,
-        iterations,
-        restarts,
-        newton_steps: newton,
+        iterations: search.iterations,
+        restarts: search.restarts,
+        newton_steps: search.newton,
         evaluations: obj.evaluations.get(),
         converged: check.converged(),
         stuck: check.stuck.iter().map(|&k| free[k]).collect(),
         gradient,
         predicted_improvement: check.predicted,
     })
+}
+
+/// Where the likelihood search is (φ, its `−log L`) and what it has spent.
+struct Search<'a, 'b> {
+    obj: &'a Objective<'b>,
+    phi: Vec<f64>,
+    nll: f64,
+    iterations: u64,
+    restarts: u32,
+    newton: u32,
+    escapes: u32,
+    max_iterations: u64,
+}
+
+impl Search<'_, '_> {
+    /// L-BFGS from the point reached, restarted with fresh memory until a restart no
+    /// longer moves (the first run always gets one: its stop is what is in question), the
+    /// iterations run out, or [`MAX_RESTARTS`].
+    fn lbfgs_until_still(&mut self) -> Result<(), EstimateError> {
+        let mut first = true;
+        loop {
+            let (next, its) = lbfgs(
+                self.obj,
+                self.phi.clone(),
+                self.max_iterations - self.iterations,
+            )?;
+            self.iterations += its;
+            let next_nll = self.obj.value(&next) * self.obj.scale;
+            let moved = self.nll - next_nll;
+            if next_nll < self.nll {
+                self.phi = next;
+                self.nll = next_nll;
+            }
+            if (!first && moved < RESTART_TOL)
+                || self.iterations >= self.max_iterations
+                || self.restarts >= MAX_RESTARTS
+            {
+                return Ok(());
+            }
+            first = false;
+            self.restarts += 1;
+        }
+    }
+
+    /// Newton steps (halved until they gain) until the quadratic model predicts nothing
+    /// left to gain; the check at the point reached.
+    fn newton_steps(&mut self) -> Check {
+        let mut check = Check::at(self.obj, &self.phi);
+        let mut steps = 0;
+        while check.predicted >= PREDICTED_TOL && steps < MAX_NEWTON {
+            let Some(step) = check.newton_step() else {
+                break;
+            };
+            let mut t = 1.0;
+            let mut moved = false;
+            for _ in 0..30 {
+                let trial: Vec<f64> = self.phi.iter().zip(&step).map(|(p, s)| p + t * s).collect();
+                let v = self.obj.value(&trial) * self.obj.scale;
+                if v < self.nll {
+                    self.phi = trial;
+                    self.nll = v;
+                    moved = true;
+                    break;
+                }
+                t *= 0.5;
+            }
+            steps += 1;
+            self.newton += 1;
+            if !moved {
+                break;
+            }
+            check = Check::at(self.obj, &self.phi);
+        }
+        check
+    }
+
+    /// Put each `stuck` free parameter (index into `free`) back where the likelihood along
+    /// θ is best, halving from its start value; whether any moved.
+    fn free_stuck(&mut self, stuck: &[usize], start: &[f64], free: &[usize]) -> bool {
+        let mut improved = false;
+        for &k in stuck {
+            let mut best = (self.nll, self.phi[k]);
+            for j in 0..40 {
+                let mut trial = self.phi.clone();
+                trial[k] = start[free[k]].ln() - j as f64 * std::f64::consts::LN_2;
+                let v = self.obj.value(&trial) * self.obj.scale;
+                if v < best.0 {
+                    best = (v, trial[k]);
+                }
+            }
+            if best.0 < self.nll {
+                self.nll = best.0;
+                self.phi[k] = best.1;
+                improved = true;
+            }
+        }
+        improved
+    }
 }
 
 /// A restart that gains less than this (nats) no longer moves: `−log L` of a record of
@@ -303,17 +344,22 @@ pub const PREDICTED_TOL: f64 = 1e-6;
 const AT_BOUND_TOL: f64 = 1e-3;
 
 /// One L-BFGS run from `phi0` with fresh memory: the best point and the iterations taken.
-fn lbfgs(obj: &Objective<'_>, phi0: Vec<f64>, max_iters: u64) -> Result<(Vec<f64>, u64), String> {
+fn lbfgs(
+    obj: &Objective<'_>,
+    phi0: Vec<f64>,
+    max_iters: u64,
+) -> Result<(Vec<f64>, u64), EstimateError> {
     let line = MoreThuenteLineSearch::new();
+    // argmin refuses only negative tolerances.
     let solver = LBFGS::new(line, 7)
         .with_tolerance_grad(1e-9)
-        .map_err(|e| e.to_string())?
+        .expect("a positive gradient tolerance")
         .with_tolerance_cost(1e-12)
-        .map_err(|e| e.to_string())?;
+        .expect("a positive cost tolerance");
     let res = Executor::new(obj, solver)
         .configure(|s| s.param(phi0.clone()).max_iters(max_iters))
         .run()
-        .map_err(|e| format!("the likelihood search failed: {e}"))?;
+        .map_err(|e| EstimateError::SearchFailed(e.to_string()))?;
     let st = res.state();
     let best = st.get_best_param().cloned().unwrap_or(phi0);
     Ok((best, st.get_iter()))

@@ -6,6 +6,7 @@
 pub mod als;
 #[cfg(feature = "sdp")]
 pub mod als_full;
+mod error;
 mod files;
 mod likelihood;
 mod measured;
@@ -13,7 +14,7 @@ pub mod ml;
 
 pub use files::{read_measurements, record_bytes};
 
-pub use likelihood::{LinearFilterModel, NotDefinite};
+pub use error::{EstimateError, NotDefinite};
 pub use measured::MeasuredExperiment;
 
 use nalgebra::DVector;

@@ -15,12 +15,17 @@
 mod altered;
 mod catalog;
 mod custom;
+mod error;
 mod linear;
 mod recorded;
 
 pub use altered::{DT_SCALE, TimeScaled};
 pub use catalog::CatalogExperiment;
 pub use custom::{Custom, CustomBuilder};
+pub use error::{
+    Ended, ExperimentError, RequestInfo, SeedContractViolation, StartFailure, Uncontained,
+    WorkerError, WorkerFailure, WorkerRole,
+};
 pub use linear::{FilterModel, LinearExperiment};
 pub use recorded::RecordedExperiment;
 
@@ -143,13 +148,6 @@ pub struct Block {
     /// Measurement component indices ([`Experiment::measurement_names`] order), ascending.
     pub measurements: Vec<usize>,
 }
-
-/// An experiment that could not produce its sums at all: its worker failed, its records
-/// were malformed. This is bad input or a broken setup (exit code 2), not a verdict on the
-/// filter: a filter that diverged gives sums with its runs marked diverged instead.
-#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
-#[error("{0}")]
-pub struct ExperimentError(pub String);
 
 /// A change to a filter that an explanation of a misfit tries ([`Experiment::alter`]).
 #[derive(Debug, Clone, PartialEq)]

@@ -65,16 +65,11 @@ impl Experiment for RecordedExperiment {
     ) -> Result<Accumulator, ExperimentError> {
         let r = &self.recorded;
         if (mc.runs(), mc.steps(), mc.lags()) != (r.runs, r.steps, r.sums.lags) {
-            return Err(ExperimentError(format!(
-                "{}: the records hold {} runs × {} steps ({} lags); they cannot give {} runs × {} steps ({} lags)",
-                self.definition.info.source.label(),
-                r.runs,
-                r.steps,
-                r.sums.lags,
-                mc.runs(),
-                mc.steps(),
-                mc.lags()
-            )));
+            return Err(ExperimentError::RecordsDiffer {
+                source_label: self.definition.info.source.label(),
+                held: (r.runs, r.steps, r.sums.lags),
+                asked: (mc.runs(), mc.steps(), mc.lags()),
+            });
         }
         Ok(r.sums.clone())
     }

@@ -28,10 +28,15 @@ use std::sync::Mutex;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::Duration;
 
-use crate::experiment::{Definition, Experiment, ExperimentError, RunOptions};
+use crate::experiment::{
+    Definition, Experiment, ExperimentError, RequestInfo, RunOptions, SeedContractViolation,
+    StartFailure, WorkerError, WorkerFailure, WorkerRole,
+};
 use crate::montecarlo::{CHUNK, McConfig};
 use crate::params::Target;
-use crate::records::{Layout, RecordSink, SensorRecord, StateRecord, StepRecord, StepSink};
+use crate::records::{
+    Layout, RecordError, RecordSink, SensorRecord, StateRecord, StepRecord, StepSink,
+};
 use crate::stats::Accumulator;
 use worker::{Request, Worker};
 
@@ -121,23 +126,39 @@ impl ExternalExperiment {
         &self.layout
     }
 
-    /// A one-line error about `worker`'s request `req`.
-    fn error(&self, w: &Worker, req: &Request<'_>, what: &str) -> ExperimentError {
-        let which = if w.index < self.command.workers {
-            format!("worker {} of {}", w.index + 1, self.command.workers)
+    /// The error of `worker`'s request `req`.
+    fn error(&self, w: &Worker, req: &Request<'_>, failure: WorkerFailure) -> ExperimentError {
+        let worker = if w.index < self.command.workers {
+            WorkerRole::Pool {
+                index: w.index,
+                of: self.command.workers,
+            }
         } else {
-            "a fresh worker started for the seed-contract check".to_string()
+            WorkerRole::ContractCheck
         };
-        ExperimentError(format!(
-            "worker `{}` ({which}), request {} (seed {}, runs {}..{}, {} steps): {what}; {}",
-            self.command.display(),
-            req.id,
-            req.seed,
-            req.runs.start,
-            req.runs.end,
-            req.steps,
-            w.stderr_tail()
-        ))
+        ExperimentError::Worker(Box::new(WorkerError {
+            command: self.command.display(),
+            worker,
+            request: RequestInfo {
+                id: req.id,
+                seed: req.seed,
+                runs: req.runs.clone(),
+                steps: req.steps,
+            },
+            failure,
+            stderr: w.stderr_tail(),
+        }))
+    }
+
+    /// The error of a worker that did not start (`for_contract_check`: a fresh one for the
+    /// seed-contract check).
+    fn start_error(&self, for_contract_check: bool, why: StartFailure) -> ExperimentError {
+        ExperimentError::WorkerStart {
+            command: self.command.display(),
+            dir: self.command.dir.clone(),
+            for_contract_check,
+            why,
+        }
     }
 
     /// θ as the request's JSON object, in parameter order.
@@ -192,8 +213,8 @@ impl ExternalExperiment {
             None => w.request(&req, &self.layout, &mut sink, self.command.timeout),
         };
         asked
-            .and_then(|()| sink.finish())
-            .map_err(|m| self.error(w, &req, &m))
+            .and_then(|()| sink.finish().map_err(WorkerFailure::from))
+            .map_err(|failure| self.error(w, &req, failure))
     }
 
     fn run(
@@ -205,14 +226,8 @@ impl ExternalExperiment {
         let mut pool = self.pool.lock().unwrap_or_else(|p| p.into_inner());
         if pool.is_empty() {
             for k in 0..self.command.workers {
-                let w =
-                    Worker::start(&self.command.command, &self.command.dir, k).map_err(|m| {
-                        ExperimentError(format!(
-                            "worker `{}` (in {}): {m}",
-                            self.command.display(),
-                            self.command.dir.display()
-                        ))
-                    })?;
+                let w = Worker::start(&self.command.command, &self.command.dir, k)
+                    .map_err(|why| self.start_error(false, why))?;
                 pool.push(w);
             }
         }
@@ -316,23 +331,16 @@ impl ExternalExperiment {
         if first.len() < 2 {
             return Ok(());
         }
-        let breaks = |what: String| {
-            ExperimentError(format!(
-                "worker `{}` breaks the seed contract: {what} (run i's random numbers must depend on the seed and i alone; see docs/src/workers.md)",
-                self.command.display()
-            ))
+        let breaks = |violation| ExperimentError::SeedContract {
+            command: self.command.display(),
+            violation,
         };
         let mut prints = whole.0.values();
         if let Some(one) = prints.next()
             && whole.0.len() == first.len()
             && prints.all(|p| p == one)
         {
-            return Err(breaks(format!(
-                "the {} runs {}..{} all gave the same records, as if every run were seeded alike (e.g. with (seed, 0) instead of (seed, i))",
-                first.len(),
-                first.start,
-                first.end
-            )));
+            return Err(breaks(SeedContractViolation::AllAlike(first)));
         }
         let mid = first.len() / 2;
         let halves = [mid..first.end, first.start..mid];
@@ -340,25 +348,20 @@ impl ExternalExperiment {
         let (w, from) = if pool.len() > 1 {
             (&mut pool[1], "worker 2")
         } else {
-            let w = Worker::start(&self.command.command, &self.command.dir, pool.len()).map_err(
-                |m| {
-                    ExperimentError(format!(
-                        "worker `{}` (in {}), a fresh worker for the seed-contract check: {m}",
-                        self.command.display(),
-                        self.command.dir.display()
-                    ))
-                },
-            )?;
+            let w = Worker::start(&self.command.command, &self.command.dir, pool.len())
+                .map_err(|why| self.start_error(true, why))?;
             (fresh.insert(w), "a fresh worker")
         };
         for half in halves {
             let mut again = Fingerprints::new();
             self.ask(w, theta, mc, half.clone(), Some(&mut again))?;
             if let Some(run) = half.clone().find(|i| again.0.get(i) != whole.0.get(i)) {
-                return Err(breaks(format!(
-                    "run {run} asked for again (runs {}..{}, from {from}) gave other records than the first time (runs {}..{} from worker 1)",
-                    half.start, half.end, first.start, first.end
-                )));
+                return Err(breaks(SeedContractViolation::NotRepeatable {
+                    run,
+                    again: half,
+                    from,
+                    first,
+                }));
             }
         }
         Ok(())
@@ -382,7 +385,9 @@ struct Fingerprinting<'a> {
 }
 
 impl StepSink for Fingerprinting<'_> {
-    fn push(&mut self, r: StepRecord) -> Result<(), String> {
+    type Error = RecordError;
+
+    fn push(&mut self, r: StepRecord) -> Result<(), RecordError> {
         let mut h = DefaultHasher::new();
         self.prints.0.get(&r.run).hash(&mut h);
         hash_record(&r, &mut h);

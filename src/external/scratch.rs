@@ -17,6 +17,8 @@ use std::process::{Child, Command};
 use std::sync::{Mutex, MutexGuard};
 use std::time::{Duration, Instant};
 
+use crate::experiment::Uncontained;
+
 /// What is live now: the worker process groups (each worker leads its own) and the scratch
 /// directories.
 struct Live {
@@ -152,21 +154,19 @@ impl ScratchDir {
     /// The file a worker named as `answer` (relative paths are relative to the scratch
     /// directory), if it resolves to a regular file inside it; otherwise why not, as a
     /// clause ("is not inside …") that does not repeat the worker's text.
-    pub(super) fn contain(&self, answer: &str) -> Result<Contained, String> {
+    pub(super) fn contain(&self, answer: &str) -> Result<Contained, Uncontained> {
         let named = Path::new(answer);
         let joined = self.path.join(named);
         let canonical = joined
             .canonicalize()
-            .map_err(|e| format!("cannot be opened ({e})"))?;
+            .map_err(|e| Uncontained::CannotOpen(e.to_string()))?;
         if !canonical.starts_with(&self.path) || canonical == self.path {
-            return Err(format!(
-                "is not inside the worker's scratch directory {} (a worker writes its files there; autotune reads and deletes nothing else)",
-                self.path.display()
-            ));
+            return Err(Uncontained::Outside(self.path.clone()));
         }
-        let meta = std::fs::metadata(&canonical).map_err(|e| format!("cannot be opened ({e})"))?;
+        let meta =
+            std::fs::metadata(&canonical).map_err(|e| Uncontained::CannotOpen(e.to_string()))?;
         if !meta.is_file() {
-            return Err("is not a regular file".to_string());
+            return Err(Uncontained::NotRegular);
         }
         let removable = canonical.parent() == Some(self.path.as_path());
         Ok(Contained {

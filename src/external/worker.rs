@@ -13,7 +13,8 @@ use std::time::{Duration, Instant};
 use serde_json::Value;
 
 use super::scratch::{self, ScratchDir};
-use crate::records::{Layout, StepSink, feed_file, parse_record_line};
+use crate::experiment::{Ended, StartFailure, WorkerFailure};
+use crate::records::{Layout, RecordError, StepSink, feed_file, parse_record_line};
 
 /// Lines of a worker's stderr kept for error messages.
 const STDERR_LINES: usize = 3;
@@ -33,6 +34,21 @@ pub(super) struct Request<'a> {
     pub seed: u64,
     pub runs: std::ops::Range<usize>,
     pub steps: usize,
+}
+
+/// How long a request may still wait for lines.
+struct Wait {
+    deadline: Instant,
+    timeout: Duration,
+    /// Set once the worker has exited: how, and when.
+    exited: Option<(Ended, Instant)>,
+}
+
+/// Whether an answer goes on after a line.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Answer {
+    More,
+    Done,
 }
 
 /// A running worker.
@@ -99,23 +115,26 @@ fn quote(line: &str) -> String {
     format!("'{}'", crate::records::shown_up_to(line, QUOTE))
 }
 
-/// How a worker ended, as a clause ("exited with status 3").
-fn ended(s: ExitStatus) -> String {
+/// How a worker ended ("exited with status 3").
+fn ended(s: ExitStatus) -> Ended {
     match s.code() {
-        Some(c) => format!("exited with status {c}"),
-        None => format!("was killed ({s})"),
+        Some(c) => Ended::Exited(c),
+        None => Ended::Killed(s.to_string()),
     }
 }
 
 impl Worker {
     /// Start `command` in `cwd` as worker `index`.
-    pub(super) fn start(command: &[String], cwd: &Path, index: usize) -> Result<Worker, String> {
-        let scratch = ScratchDir::create(&format!("w{index}")).map_err(|e| {
-            format!(
-                "cannot create a scratch directory in {}: {e}",
-                std::env::temp_dir().display()
-            )
-        })?;
+    pub(super) fn start(
+        command: &[String],
+        cwd: &Path,
+        index: usize,
+    ) -> Result<Worker, StartFailure> {
+        let scratch =
+            ScratchDir::create(&format!("w{index}")).map_err(|e| StartFailure::Scratch {
+                temp: std::env::temp_dir(),
+                why: e.to_string(),
+            })?;
         let mut cmd = Command::new(&command[0]);
         // Its own process group, so that a kill reaches what it started too (a shell
         // wrapper's interpreter, a MATLAB's helpers), not just the process autotune started.
@@ -128,7 +147,7 @@ impl Worker {
             .stdout(Stdio::piped())
             .stderr(Stdio::piped());
         let mut child =
-            scratch::spawn_registered(&mut cmd).map_err(|e| format!("cannot start it: {e}"))?;
+            scratch::spawn_registered(&mut cmd).map_err(|e| StartFailure::Spawn(e.to_string()))?;
         let stdout = child.stdout.take().expect("piped");
         let stderr = child.stderr.take().expect("piped");
         let (tx, lines) = channel();
@@ -197,7 +216,7 @@ impl Worker {
     }
 
     /// How the worker ended, if it has.
-    fn exit_status(&mut self) -> Option<String> {
+    fn exit_status(&mut self) -> Option<Ended> {
         let deadline = Instant::now() + Duration::from_millis(500);
         loop {
             match self.child.try_wait() {
@@ -216,9 +235,29 @@ impl Worker {
         &mut self,
         req: &Request<'_>,
         layout: &Layout,
-        sink: &mut dyn StepSink,
+        sink: &mut dyn StepSink<Error = RecordError>,
         timeout: Duration,
-    ) -> Result<(), String> {
+    ) -> Result<(), WorkerFailure> {
+        self.send(req)?;
+        let mut wait = Wait {
+            deadline: Instant::now() + timeout,
+            timeout,
+            exited: None,
+        };
+        loop {
+            let line = self.next_line(&mut wait)?;
+            let trimmed = line.trim();
+            if trimmed.is_empty() {
+                continue;
+            }
+            if self.answer(trimmed, req, layout, sink)? == Answer::Done {
+                return Ok(());
+            }
+        }
+    }
+
+    /// Write the request line to the worker's stdin.
+    fn send(&mut self, req: &Request<'_>) -> Result<(), WorkerFailure> {
         let line = format!(
             "{{\"id\":{},\"theta\":{},\"seed\":{},\"runs\":[{},{}],\"steps\":{},\"dir\":{}}}\n",
             req.id,
@@ -237,103 +276,112 @@ impl Worker {
             None => Err(std::io::ErrorKind::BrokenPipe.into()),
         };
         if sent.is_err() {
-            let how = self
-                .exit_status()
-                .unwrap_or_else(|| "closed its stdin".into());
-            return Err(format!("{how} before it was asked"));
+            let how = self.exit_status().unwrap_or(Ended::ClosedStdin);
+            return Err(WorkerFailure::GoneBeforeAsked(how));
         }
-        let deadline = Instant::now() + timeout;
-        // Set once the worker has exited: how, and when.
-        let mut exited: Option<(String, Instant)> = None;
+        Ok(())
+    }
+
+    /// The worker's next stdout line, waiting until `wait`'s deadline; a worker that has
+    /// exited gets [`AFTER_EXIT`] for the lines it printed before.
+    fn next_line(&mut self, wait: &mut Wait) -> Result<String, WorkerFailure> {
         loop {
             let now = Instant::now();
-            let wait = match &exited {
+            let patience = match &wait.exited {
                 Some((_, at)) => (*at + AFTER_EXIT).saturating_duration_since(now),
-                None => deadline.saturating_duration_since(now).min(POLL),
+                None => wait.deadline.saturating_duration_since(now).min(POLL),
             };
-            let line = match self.lines.recv_timeout(wait) {
-                Ok(Ok(line)) => line,
-                Ok(Err(e)) => return Err(format!("its stdout failed: {e}")),
+            match self.lines.recv_timeout(patience) {
+                Ok(Ok(line)) => return Ok(line),
+                Ok(Err(e)) => return Err(WorkerFailure::Stdout(e.to_string())),
                 Err(RecvTimeoutError::Timeout) => {
-                    if let Some((how, _)) = exited {
+                    if let Some((how, _)) = wait.exited.take() {
                         // Its stdout is still open: a process it started holds it.
-                        return Err(format!("{how} before answering"));
+                        return Err(WorkerFailure::GoneBeforeAnswering(how));
                     }
-                    if Instant::now() >= deadline {
+                    if Instant::now() >= wait.deadline {
                         self.kill();
-                        return Err(format!(
-                            "no answer within the timeout of {} s (killed)",
-                            timeout.as_secs_f64()
-                        ));
+                        return Err(WorkerFailure::TimedOut {
+                            seconds: wait.timeout.as_secs_f64(),
+                        });
                     }
                     if let Ok(Some(s)) = self.child.try_wait() {
-                        exited = Some((ended(s), Instant::now()));
+                        wait.exited = Some((ended(s), Instant::now()));
                     }
-                    continue;
                 }
                 Err(RecvTimeoutError::Disconnected) => {
-                    let how = self
-                        .exit_status()
-                        .unwrap_or_else(|| "closed its stdout".into());
-                    return Err(format!("{how} before answering"));
+                    let how = self.exit_status().unwrap_or(Ended::ClosedStdout);
+                    return Err(WorkerFailure::GoneBeforeAnswering(how));
                 }
-            };
-            let trimmed = line.trim();
-            if trimmed.is_empty() {
-                continue;
             }
-            let Ok(obj) = crate::records::json_object(trimmed) else {
-                return Err(format!(
-                    "printed {} on stdout, which is not a protocol line (print diagnostics to stderr)",
-                    quote(trimmed)
-                ));
-            };
-            if obj.contains_key("run") && !obj.contains_key("id") {
-                let r = parse_record_line(trimmed, layout)
-                    .map_err(|m| format!("inline record: {m}"))?;
-                sink.push(r).map_err(|m| format!("inline record: {m}"))?;
-                continue;
-            }
-            let id = obj.get("id").and_then(Value::as_u64);
-            if id != Some(req.id) {
-                return Err(format!(
-                    "answered {} to request {}",
-                    match obj.get("id") {
-                        Some(v) => format!("id {v}"),
-                        None => format!("{} without an id", quote(trimmed)),
-                    },
-                    req.id
-                ));
-            }
-            if let Some(msg) = obj.get("error") {
-                let msg = msg.as_str().map_or_else(|| msg.to_string(), str::to_string);
-                return Err(format!("reported an error: {}", quote(&msg)));
-            }
-            if obj.get("done").and_then(Value::as_bool) == Some(true) {
-                return Ok(());
-            }
-            if let Some(file) = obj.get("file") {
-                let Some(file) = file.as_str() else {
-                    return Err(format!("answered {}: 'file' is not a path", quote(trimmed)));
-                };
-                // Resolved and contained before anything is read or deleted: a worker's
-                // answer must not make autotune touch a file it did not ask for.
-                let found = self.scratch.contain(file).map_err(|why| {
-                    format!("named the records file {}, which {why}", quote(file))
-                })?;
-                let read = feed_file(&found.path, layout, req.steps, req.runs.start, sink)
-                    .map_err(|e| format!("its records file {e}"));
-                // The scratch directory is autotune's: its files go once read.
-                if found.removable {
-                    let _ = std::fs::remove_file(&found.path);
-                }
-                return read;
-            }
-            return Err(format!(
-                "answered {}: expected \"file\", \"done\" or \"error\"",
-                quote(trimmed)
-            ));
         }
+    }
+
+    /// Act on one non-empty protocol line of the answer to `req`: an inline record goes to
+    /// `sink`; a records file is read into it, and ends the answer, as `done` does.
+    fn answer(
+        &mut self,
+        line: &str,
+        req: &Request<'_>,
+        layout: &Layout,
+        sink: &mut dyn StepSink<Error = RecordError>,
+    ) -> Result<Answer, WorkerFailure> {
+        let Ok(obj) = crate::records::json_object(line) else {
+            return Err(WorkerFailure::NotProtocol(quote(line)));
+        };
+        if obj.contains_key("run") && !obj.contains_key("id") {
+            let r = parse_record_line(line, layout).map_err(WorkerFailure::InlineRecord)?;
+            sink.push(r).map_err(WorkerFailure::InlineRecord)?;
+            return Ok(Answer::More);
+        }
+        if obj.get("id").and_then(Value::as_u64) != Some(req.id) {
+            return Err(WorkerFailure::WrongId {
+                id: obj.get("id").map(Value::to_string),
+                line: quote(line),
+                request: req.id,
+            });
+        }
+        if let Some(msg) = obj.get("error") {
+            let msg = msg.as_str().map_or_else(|| msg.to_string(), str::to_string);
+            return Err(WorkerFailure::Reported(quote(&msg)));
+        }
+        if obj.get("done").and_then(Value::as_bool) == Some(true) {
+            return Ok(Answer::Done);
+        }
+        if let Some(file) = obj.get("file") {
+            let Some(file) = file.as_str() else {
+                return Err(WorkerFailure::FileNotPath(quote(line)));
+            };
+            self.read_file(file, req, layout, sink)?;
+            return Ok(Answer::Done);
+        }
+        Err(WorkerFailure::Unexpected(quote(line)))
+    }
+
+    /// Read the records file the worker named as `file` into `sink`, and remove it.
+    fn read_file(
+        &self,
+        file: &str,
+        req: &Request<'_>,
+        layout: &Layout,
+        sink: &mut dyn StepSink<Error = RecordError>,
+    ) -> Result<(), WorkerFailure> {
+        // Resolved and contained before anything is read or deleted: a worker's answer must
+        // not make autotune touch a file it did not ask for.
+        let found = self
+            .scratch
+            .contain(file)
+            .map_err(|why| WorkerFailure::Uncontained {
+                file: quote(file),
+                why,
+            })?;
+        let read = feed_file(&found.path, layout, req.steps, req.runs.start, sink)
+            .map_err(WorkerFailure::RecordsFile);
+        // The scratch directory is autotune's: its files go once read.
+        if found.removable {
+            let _ = std::fs::remove_file(&found.path);
+        }
+        read
     }
 
     /// Close the worker's stdin, which asks it to exit; [`Drop`] waits at most a second

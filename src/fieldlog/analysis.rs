@@ -22,6 +22,55 @@ const HIST_DOFS: usize = 8;
 /// few kilobytes and a block of the report, and a real log has at most a few hundred.
 pub const MAX_SENSORS: usize = 10_000;
 
+/// Why the analyzer refused a sensor or an update.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum AnalyzerError {
+    /// A sensor seen before with another number of components.
+    #[error("sensor {sensor} has {here} components here, {before} before")]
+    Components {
+        /// Its name.
+        sensor: String,
+        /// Components now.
+        here: usize,
+        /// Components before.
+        before: usize,
+    },
+    /// One sensor more than [`MAX_SENSORS`] (its name, as an error quotes it).
+    #[error("more than {MAX_SENSORS} sensors (a new one, '{0}'): too many to judge")]
+    TooManySensors(String),
+    /// An update of a sensor index the analyzer does not have.
+    #[error("no sensor {0}")]
+    NoSensor(usize),
+    /// Degrees of freedom outside 1..=64.
+    #[error("{sensor}: dof {dof} is not in 1..=64")]
+    Dof {
+        /// The sensor.
+        sensor: String,
+        /// The update's degrees of freedom.
+        dof: usize,
+    },
+    /// A NIS that is negative or not finite, or a time that is not finite.
+    #[error("{sensor}: NIS {nis} at time {time}")]
+    Nis {
+        /// The sensor.
+        sensor: String,
+        /// The update's NIS.
+        nis: f64,
+        /// Its time.
+        time: f64,
+    },
+    /// Normalized innovations not one finite value per component.
+    #[error("{sensor}: {given} normalized innovations for {components} components")]
+    Normalized {
+        /// The sensor.
+        sensor: String,
+        /// Values given.
+        given: usize,
+        /// The sensor's components.
+        components: usize,
+    },
+}
+
 /// A sensor of a log: its name, its components, and the estimator it belongs to.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct SensorInfo {
@@ -254,25 +303,23 @@ impl NisAnalyzer {
     /// The index of sensor `info.name`, adding it when new. `Err` when a sensor of that
     /// name was seen with other components, or when it would be one more than
     /// [`MAX_SENSORS`].
-    pub fn sensor(&mut self, info: SensorInfo) -> Result<usize, String> {
+    pub fn sensor(&mut self, info: SensorInfo) -> Result<usize, AnalyzerError> {
         if let Some(&i) = self.by_name.get(&info.name) {
             let known = &self.sensors[i].info;
             if known.components.len() != info.components.len() {
-                return Err(format!(
-                    "sensor {} has {} components here, {} before",
-                    info.name,
-                    info.components.len(),
-                    known.components.len()
-                ));
+                return Err(AnalyzerError::Components {
+                    sensor: info.name,
+                    here: info.components.len(),
+                    before: known.components.len(),
+                });
             }
             return Ok(i);
         }
         let i = self.sensors.len();
         if i >= MAX_SENSORS {
-            return Err(format!(
-                "more than {MAX_SENSORS} sensors (a new one, '{}'): too many to judge",
-                crate::records::shown_up_to(&info.name, 40)
-            ));
+            return Err(AnalyzerError::TooManySensors(crate::records::shown_up_to(
+                &info.name, 40,
+            )));
         }
         self.by_name.insert(info.name.clone(), i);
         self.sensors.push(SensorSums::new(info));
@@ -326,33 +373,33 @@ impl NisAnalyzer {
 
     /// Add an update of sensor `i`: a finite NIS ≥ 0 at a finite time, dof in 1..=64, `u` (if
     /// any) of the sensor's length with finite entries; `Err` says which is not.
-    pub fn push(&mut self, i: usize, up: Update) -> Result<(), String> {
+    pub fn push(&mut self, i: usize, up: Update) -> Result<(), AnalyzerError> {
         // The readers check their rows; a Rust caller gets the same checks here, so that
         // nothing below can index out of range or average a NaN.
         let Some(sensor) = self.sensors.get(i) else {
-            return Err(format!("no sensor {i}"));
+            return Err(AnalyzerError::NoSensor(i));
         };
         if !(1..=64).contains(&up.dof) {
-            return Err(format!(
-                "{}: dof {} is not in 1..=64",
-                sensor.info.name, up.dof
-            ));
+            return Err(AnalyzerError::Dof {
+                sensor: sensor.info.name.clone(),
+                dof: up.dof,
+            });
         }
         if !(up.nis.is_finite() && up.nis >= 0.0 && up.time.is_finite()) {
-            return Err(format!(
-                "{}: NIS {} at time {}",
-                sensor.info.name, up.nis, up.time
-            ));
+            return Err(AnalyzerError::Nis {
+                sensor: sensor.info.name.clone(),
+                nis: up.nis,
+                time: up.time,
+            });
         }
         if let Some(u) = &up.u
             && (u.len() != sensor.info.components.len() || u.iter().any(|x| !x.is_finite()))
         {
-            return Err(format!(
-                "{}: {} normalized innovations for {} components",
-                sensor.info.name,
-                u.len(),
-                sensor.info.components.len()
-            ));
+            return Err(AnalyzerError::Normalized {
+                sensor: sensor.info.name.clone(),
+                given: u.len(),
+                components: sensor.info.components.len(),
+            });
         }
         self.push_checked(i, up);
         Ok(())
@@ -365,19 +412,7 @@ impl NisAnalyzer {
         let s = &mut self.sensors[i];
         s.updates += 1;
         s.nis_sum_all += up.nis;
-        if s.first_time.is_none() {
-            s.first_time = Some(up.time);
-        }
-        s.last_time = up.time;
-        if s.prev_time.is_some_and(|t| up.time <= t) {
-            s.non_increasing += 1;
-        }
-        s.prev_time = Some(up.time);
-        if s.window_start.is_none() {
-            s.window_start = Some(up.time);
-        }
-        s.time_min = s.time_min.min(up.time);
-        s.time_max = s.time_max.max(up.time);
+        s.add_time(up.time);
         if up.nis >= q.lower && up.nis <= q.upper {
             s.inside += 1;
         }
@@ -388,35 +423,8 @@ impl NisAnalyzer {
             _ => None,
         };
         let u = if outlier { None } else { up.u };
-        // Whiteness: pair this update with the last L of the same sequence.
         if let Some(u) = &u {
-            let m = u.len();
-            let need = s.ring.len() * m;
-            if s.white_ab.len() < need {
-                for v in [
-                    &mut s.white_ab,
-                    &mut s.white_a2,
-                    &mut s.white_b2,
-                    &mut s.white_pairs,
-                ] {
-                    v.resize(need, 0.0);
-                }
-            }
-            for (back, prev) in s.ring.iter().rev().enumerate() {
-                let Some(prev) = prev else { continue };
-                let base = back * m;
-                for j in 0..m {
-                    s.white_ab[base + j] += u[j] * prev[j];
-                    s.white_a2[base + j] += u[j] * u[j];
-                    s.white_b2[base + j] += prev[j] * prev[j];
-                    s.white_pairs[base + j] += 1.0;
-                }
-            }
-            for (j, x) in u.iter().enumerate() {
-                s.comp_sum[j] += x * x;
-                s.comp_mean_sum[j] += x;
-                s.comp_n[j] += 1.0;
-            }
+            s.add_components(u);
         }
         if lags > 0 {
             if s.ring.len() == lags {
@@ -436,73 +444,142 @@ impl NisAnalyzer {
         s.dof_sum += up.dof as f64;
         s.mean_sum += q.mean;
         s.var_sum += q.var;
-        // The moving window over gated updates. A window in seconds cannot reach across a
-        // jump back in time: it starts afresh there.
-        if matches!(window, Window::Seconds(_)) && s.window.back().is_some_and(|b| up.time < b.0) {
-            s.window.clear();
-            s.window_nis = 0.0;
-            s.window_dof = 0;
-            s.window_start = Some(up.time);
-        }
-        s.window.push_back((up.time, up.nis, up.dof));
-        s.window_nis += up.nis;
-        s.window_dof += up.dof;
-        let full =
-            match window {
-                Window::Updates(n) => {
-                    while s.window.len() > n {
-                        evict(s);
-                    }
-                    s.window.len() == n
-                }
-                Window::Seconds(w) => {
-                    // A window whose updates all share one time spans no seconds: keeping them
-                    // all would grow without bound on a log whose clock stands still.
-                    while s.window.front().is_some_and(|f| {
-                        up.time - f.0 > w || (f.0 >= up.time && s.window.len() > 1)
-                    }) {
-                        evict(s);
-                    }
-                    // A time window counts once the sensor's data span it.
-                    s.window_start.is_some_and(|t0| up.time - t0 >= w)
-                }
-            };
+        let full = s.slide_window(window, up.time, up.nis, up.dof);
         let point_window = if full && !s.window.is_empty() {
-            let (count, dof, sum) = (s.window.len(), s.window_dof, s.window_nis);
-            let avg = sum.max(0.0) / count as f64;
-            let (lo, hi) = self.window_bounds(dof, count);
-            let s = &mut self.sensors[i];
-            s.windows += 1;
-            if avg < lo || avg > hi {
-                s.windows_outside += 1;
-            }
-            if s.window_min.is_none_or(|(v, _)| avg < v) {
-                s.window_min = Some((avg, up.time));
-            }
-            if s.window_max.is_none_or(|(v, _)| avg > v) {
-                s.window_max = Some((avg, up.time));
-            }
-            s.last_window = Some((avg, lo, hi));
-            Some((avg, lo, hi))
+            Some(self.judge_window(i, up.time))
         } else {
             None
         };
+        self.sensors[i].add_series_point(SeriesPoint {
+            t: up.time,
+            nis: up.nis,
+            window: point_window.map(|w| w.0),
+            lower: point_window.map(|w| w.1),
+            upper: point_window.map(|w| w.2),
+            innovation,
+        });
+    }
+
+    /// Sensor `i`'s full moving window at `time`, judged against its bounds: its average
+    /// and the bounds `(avg, lo, hi)`, counted among the sensor's windows.
+    fn judge_window(&mut self, i: usize, time: f64) -> (f64, f64, f64) {
+        let s = &self.sensors[i];
+        let (count, dof, sum) = (s.window.len(), s.window_dof, s.window_nis);
+        let avg = sum.max(0.0) / count as f64;
+        let (lo, hi) = self.window_bounds(dof, count);
         let s = &mut self.sensors[i];
-        s.skipped += 1;
-        if s.skipped >= s.stride {
-            s.skipped = 0;
-            s.series.push(SeriesPoint {
-                t: up.time,
-                nis: up.nis,
-                window: point_window.map(|w| w.0),
-                lower: point_window.map(|w| w.1),
-                upper: point_window.map(|w| w.2),
-                innovation,
-            });
-            if s.series.len() >= SERIES_CAP {
-                let kept: Vec<SeriesPoint> = s.series.iter().step_by(2).copied().collect();
-                s.series = kept;
-                s.stride *= 2;
+        s.windows += 1;
+        if avg < lo || avg > hi {
+            s.windows_outside += 1;
+        }
+        if s.window_min.is_none_or(|(v, _)| avg < v) {
+            s.window_min = Some((avg, time));
+        }
+        if s.window_max.is_none_or(|(v, _)| avg > v) {
+            s.window_max = Some((avg, time));
+        }
+        s.last_window = Some((avg, lo, hi));
+        (avg, lo, hi)
+    }
+}
+
+impl SensorSums {
+    /// Note an update's time: the span, the order within the sequence, and where a moving
+    /// window in seconds starts.
+    fn add_time(&mut self, time: f64) {
+        if self.first_time.is_none() {
+            self.first_time = Some(time);
+        }
+        self.last_time = time;
+        if self.prev_time.is_some_and(|t| time <= t) {
+            self.non_increasing += 1;
+        }
+        self.prev_time = Some(time);
+        if self.window_start.is_none() {
+            self.window_start = Some(time);
+        }
+        self.time_min = self.time_min.min(time);
+        self.time_max = self.time_max.max(time);
+    }
+
+    /// Add the normalized innovations `u` of an update inside the gate: their sums per
+    /// component, and the whiteness products with the last L of the same sequence.
+    fn add_components(&mut self, u: &[f64]) {
+        let m = u.len();
+        let need = self.ring.len() * m;
+        if self.white_ab.len() < need {
+            for v in [
+                &mut self.white_ab,
+                &mut self.white_a2,
+                &mut self.white_b2,
+                &mut self.white_pairs,
+            ] {
+                v.resize(need, 0.0);
+            }
+        }
+        for (back, prev) in self.ring.iter().rev().enumerate() {
+            let Some(prev) = prev else { continue };
+            let base = back * m;
+            for j in 0..m {
+                self.white_ab[base + j] += u[j] * prev[j];
+                self.white_a2[base + j] += u[j] * u[j];
+                self.white_b2[base + j] += prev[j] * prev[j];
+                self.white_pairs[base + j] += 1.0;
+            }
+        }
+        for (j, x) in u.iter().enumerate() {
+            self.comp_sum[j] += x * x;
+            self.comp_mean_sum[j] += x;
+            self.comp_n[j] += 1.0;
+        }
+    }
+
+    /// Move the moving window over gated updates to one at `time`; whether it is full. A
+    /// window in seconds cannot reach across a jump back in time: it starts afresh there.
+    fn slide_window(&mut self, window: Window, time: f64, nis: f64, dof: usize) -> bool {
+        if matches!(window, Window::Seconds(_)) && self.window.back().is_some_and(|b| time < b.0) {
+            self.window.clear();
+            self.window_nis = 0.0;
+            self.window_dof = 0;
+            self.window_start = Some(time);
+        }
+        self.window.push_back((time, nis, dof));
+        self.window_nis += nis;
+        self.window_dof += dof;
+        match window {
+            Window::Updates(n) => {
+                while self.window.len() > n {
+                    evict(self);
+                }
+                self.window.len() == n
+            }
+            Window::Seconds(w) => {
+                // A window whose updates all share one time spans no seconds: keeping them
+                // all would grow without bound on a log whose clock stands still.
+                while self
+                    .window
+                    .front()
+                    .is_some_and(|f| time - f.0 > w || (f.0 >= time && self.window.len() > 1))
+                {
+                    evict(self);
+                }
+                // A time window counts once the sensor's data span it.
+                self.window_start.is_some_and(|t0| time - t0 >= w)
+            }
+        }
+    }
+
+    /// Keep every `stride`-th point of the series, halving it (and doubling the stride)
+    /// when it reaches [`SERIES_CAP`].
+    fn add_series_point(&mut self, point: SeriesPoint) {
+        self.skipped += 1;
+        if self.skipped >= self.stride {
+            self.skipped = 0;
+            self.series.push(point);
+            if self.series.len() >= SERIES_CAP {
+                let kept: Vec<SeriesPoint> = self.series.iter().step_by(2).copied().collect();
+                self.series = kept;
+                self.stride *= 2;
             }
         }
     }

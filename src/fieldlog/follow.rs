@@ -184,7 +184,7 @@ impl Follower {
             match &self.columns {
                 None => {
                     let cols = CsvColumns::new(&rec)
-                        .map_err(|m| at_line(&self.path, line_no, "header", m))?;
+                        .map_err(|e| at_line(&self.path, line_no, "header", e.to_string()))?;
                     self.columns = Some((cols, rec.len()));
                     return Ok(());
                 }

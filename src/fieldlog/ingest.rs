@@ -27,7 +27,8 @@ impl Ingest {
         };
         let n = match normalize_sensor(&row.record, dim, components) {
             Ok(Ok(n)) => n,
-            Ok(Err(why)) | Err(why) => return Err((field_of(&row.record), why)),
+            Ok(Err(why)) => return Err((field_of(&row.record), why.to_string())),
+            Err(why) => return Err((field_of(&row.record), why.to_string())),
         };
         if n.dof.fract() != 0.0 {
             return Err(("dof".into(), format!("{} is not a whole number", n.dof)));
@@ -67,7 +68,7 @@ impl Ingest {
                 components: names,
                 group: String::new(),
             })
-            .map_err(|m| ("sensor".to_string(), m))?;
+            .map_err(|e| ("sensor".to_string(), e.to_string()))?;
         self.last_time.insert(row.sensor, row.time);
         an.push(
             i,
@@ -79,7 +80,7 @@ impl Ingest {
                 sd: None,
             },
         )
-        .map_err(|m| ("nu".to_string(), m))
+        .map_err(|e| ("nu".to_string(), e.to_string()))
     }
 }
 

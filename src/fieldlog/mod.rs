@@ -31,7 +31,9 @@ use std::path::{Path, PathBuf};
 
 use serde::Serialize;
 
-pub use analysis::{Dropped, MAX_SENSORS, NisAnalyzer, SensorInfo, SeriesPoint, Update};
+pub use analysis::{
+    AnalyzerError, Dropped, MAX_SENSORS, NisAnalyzer, SensorInfo, SeriesPoint, Update,
+};
 pub use follow::{Follower, Status};
 pub use monitor::{MonitorError, MonitorStatus, NisMonitor, SensorStatus, WindowStatus};
 pub use px4::{EventKind, NotJudged, ParamAdvice, Px4Channel, Px4Event, Px4Info, Px4Instance};

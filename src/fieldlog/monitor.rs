@@ -156,7 +156,7 @@ impl NisMonitor {
 
     /// The checks that need neither S nor the analyzer: name, dimension, time.
     fn check(&self, sensor: &str, time: f64, m: usize) -> Result<(), MonitorError> {
-        check_sensor(sensor).map_err(MonitorError::SensorName)?;
+        check_sensor(sensor).map_err(|e| MonitorError::SensorName(e.to_string()))?;
         let name = || sensor.to_string();
         if !(1..=MAX_DIM).contains(&m) {
             return Err(MonitorError::InnovationLength {

@@ -4,9 +4,39 @@
 use std::path::PathBuf;
 
 use super::LogSource;
-use super::analysis::{NisAnalyzer, SensorInfo, Update};
+use super::analysis::{AnalyzerError, NisAnalyzer, SensorInfo, Update};
 use crate::input::FileError;
-use crate::records::{Layout, StepRecord, StepSink, feed_files, normalize_sensor, scan_files};
+use crate::records::{
+    Layout, SensorShapeError, StepRecord, StepSink, feed_files, normalize_sensor, scan_files,
+};
+
+/// Why a record cannot be read as a field log's updates.
+#[derive(Debug, thiserror::Error)]
+enum LogRecordError {
+    /// A sensor index the layout does not have.
+    #[error("run {run}, step {step}: sensor index {index}")]
+    SensorIndex {
+        run: usize,
+        step: usize,
+        index: usize,
+    },
+    /// A sensor's record that does not fit its layout.
+    #[error("run {run}, step {step}: {problem}")]
+    Shape {
+        run: usize,
+        step: usize,
+        problem: SensorShapeError,
+    },
+    /// Degrees of freedom beyond what a sensor of the analyzer may have.
+    #[error(
+        "run {run}, step {step}: nis_dof {dof} is not a whole number in 1..={}",
+        super::text::MAX_DIM
+    )]
+    Dof { run: usize, step: usize, dof: f64 },
+    /// An update the analyzer refuses.
+    #[error(transparent)]
+    Analyzer(#[from] AnalyzerError),
+}
 
 /// Streams records into an analyzer.
 struct Sink<'a> {
@@ -20,7 +50,9 @@ struct Sink<'a> {
 }
 
 impl StepSink for Sink<'_> {
-    fn push(&mut self, r: StepRecord) -> Result<(), String> {
+    type Error = LogRecordError;
+
+    fn push(&mut self, r: StepRecord) -> Result<(), LogRecordError> {
         self.rows += 1;
         if self.run != Some(r.run) {
             self.run = Some(r.run);
@@ -34,28 +66,31 @@ impl StepSink for Sink<'_> {
             self.stop(r.run, r.step, why);
             return Ok(());
         }
+        let (run, step) = (r.run, r.step);
         for (s, rec) in &r.sensors {
             let layout = self
                 .layout
                 .sensors
                 .get(*s)
-                .ok_or_else(|| format!("run {}, step {}: sensor index {s}", r.run, r.step))?;
+                .ok_or(LogRecordError::SensorIndex {
+                    run,
+                    step,
+                    index: *s,
+                })?;
             let n = match normalize_sensor(rec, layout.dim, layout.components) {
                 Ok(Ok(n)) => n,
                 Ok(Err(why)) => {
-                    self.stop(r.run, r.step, &why);
+                    self.stop(run, step, &why.to_string());
                     return Ok(());
                 }
-                Err(why) => return Err(format!("run {}, step {}: {why}", r.run, r.step)),
+                Err(problem) => return Err(LogRecordError::Shape { run, step, problem }),
             };
             if n.dof.fract() != 0.0 || n.dof > super::text::MAX_DIM as f64 {
-                return Err(format!(
-                    "run {}, step {}: nis_dof {} is not a whole number in 1..={}",
-                    r.run,
-                    r.step,
-                    n.dof,
-                    super::text::MAX_DIM
-                ));
+                return Err(LogRecordError::Dof {
+                    run,
+                    step,
+                    dof: n.dof,
+                });
             }
             self.an.push(
                 self.ids[*s],
@@ -103,7 +138,7 @@ pub(super) fn read(paths: &[PathBuf], an: &mut NisAnalyzer) -> Result<LogSource,
                 components,
                 group: String::new(),
             })
-            .map_err(|m| FileError::new(&paths[0], "", m))?,
+            .map_err(|e| FileError::new(&paths[0], "", e.to_string()))?,
         );
     }
     let mut sink = Sink {

@@ -508,72 +508,9 @@ impl NisAnalyzer {
             sensors.push(self.sensor_report(s, level, z, &mut intervals));
         }
         super::advice::attribute(&mut sensors, z);
-        let (mut n, mut o, mut nis, mut dof, mut mean, mut var) = (0, 0, 0.0, 0.0, 0.0, 0.0);
-        for s in &self.sensors {
-            n += s.updates;
-            o += s.outliers;
-            nis += s.nis_sum;
-            dof += s.dof_sum;
-            mean += s.mean_sum;
-            var += s.var_sum;
-        }
-        let overall = if dof > 0.0 {
-            let interval = gated_interval(level, mean, var, dof);
-            Overall {
-                updates: n,
-                outliers: o,
-                nis_per_dof: nis / dof,
-                target: mean / dof,
-                interval,
-                level: interval.classify(nis / dof),
-            }
-        } else {
-            let nan = Interval {
-                lower: f64::NAN,
-                upper: f64::NAN,
-            };
-            Overall {
-                updates: n,
-                outliers: o,
-                nis_per_dof: f64::NAN,
-                target: f64::NAN,
-                interval: nan,
-                level: Verdict::Inconclusive,
-            }
-        };
-        let verdict = if sensors.is_empty() {
-            Verdict::Inconclusive
-        } else {
-            // A sensor with too few updates for its tests to have power, and nothing
-            // failed, says nothing either way: the others decide, unless all are like it.
-            let decided: Vec<Verdict> = sensors
-                .iter()
-                .map(|s| s.verdict)
-                .filter(|v| *v != Verdict::Inconclusive)
-                .collect();
-            if decided.is_empty() {
-                Verdict::Inconclusive
-            } else {
-                combine(&decided)
-            }
-        };
-        let blames = |x: Suspect| {
-            sensors
-                .iter()
-                .any(|s| s.finding.as_ref().is_some_and(|f| f.suspect == Some(x)))
-        };
-        let suspect = match (
-            blames(Suspect::Bias),
-            blames(Suspect::Q),
-            blames(Suspect::R),
-            blames(Suspect::QAndR),
-        ) {
-            (true, ..) => Some(Suspect::Bias),
-            (false, false, false, false) => None,
-            (false, true, false, false) => Some(Suspect::Q),
-            (false, false, true, false) => Some(Suspect::R),
-            _ => Some(Suspect::QAndR),
-        };
+        let overall = overall(&self.sensors, level);
+        let verdict = verdict_of(&sensors);
+        let suspect = suspect_of(&sensors);
         NisReport {
             sources: Vec::new(),
             alpha,
@@ -605,157 +542,29 @@ impl NisAnalyzer {
         let centred: Vec<CentredWhiteness> = (0..m)
             .filter_map(|j| centred_whiteness(s, j, lags, level, z))
             .collect();
-        // Strongly correlated innovations carry fewer independent samples than updates: the
-        // NIS average's variance grows by the components' mean factor (independent
-        // components add their sums' variances).
-        let factor = {
-            let f: Vec<f64> = (0..m)
-                .filter(|&j| s.comp_n[j] > 0.0)
-                .map(|j| {
-                    centred
-                        .iter()
-                        .find(|c| c.component == s.info.components[j])
-                        .map_or(1.0, |c| c.square_factor)
-                })
-                .collect();
-            if f.is_empty() {
-                1.0
-            } else {
-                f.iter().sum::<f64>() / f.len() as f64
-            }
-        };
+        let factor = correlation_factor(s, &centred);
         let n_eff = s.gated as f64 / factor;
-        let mut inconclusive_reason = None;
-        let nis = if s.gated > 0 {
-            let count = s.gated as f64;
-            let interval = gated_interval(level, s.mean_sum, s.var_sum * factor, count);
-            let mean = s.nis_sum / count;
-            let mut verdict = interval.classify(mean);
-            let powered = has_power(level, s.dof_sum / factor);
-            if factor > 1.0 && !powered {
-                let worst = centred
-                    .iter()
-                    .max_by(|a, b| a.square_factor.total_cmp(&b.square_factor));
-                inconclusive_reason = Some(format!(
-                    "not enough independent samples to judge: about {} of {}{}",
-                    about(n_eff),
-                    s.gated,
-                    worst.map_or(String::new(), |w| format!(" (ρ₁ = {:+.2})", w.rho1))
-                ));
-                verdict = Verdict::Inconclusive;
-            } else if verdict == Verdict::Consistent && !powered {
-                verdict = Verdict::Inconclusive;
-            }
-            NisAverage {
-                mean,
-                target: s.mean_sum / count,
-                interval,
-                dof: s.dof_sum,
-                verdict,
-            }
-        } else {
-            NisAverage {
-                mean: f64::NAN,
-                target: f64::NAN,
-                interval: Interval {
-                    lower: f64::NAN,
-                    upper: f64::NAN,
-                },
-                dof: 0.0,
-                verdict: Verdict::Inconclusive,
-            }
-        };
+        let (nis, inconclusive_reason) = nis_average(s, level, factor, &centred);
         let p_value = binomial_tail(s.outliers, k, gate);
         let outliers_verdict = if p_value < level {
             Verdict::Overconfident
         } else {
             Verdict::Consistent
         };
-        let component_stats: Vec<ComponentStat> = if m > 1 {
-            (0..m)
-                .filter(|&j| s.comp_n[j] > 0.0)
-                .map(|j| {
-                    let n = s.comp_n[j];
-                    let f = centred
-                        .iter()
-                        .find(|c| c.component == s.info.components[j])
-                        .map_or(1.0, |c| c.square_factor);
-                    // The average of n u² with variance factor f is χ²(n/f)/(n/f).
-                    let interval = if f > 1.0 {
-                        chi2_average_interval(level, n / f, n / f)
-                    } else {
-                        *intervals
-                            .entry(n.to_bits())
-                            .or_insert_with(|| chi2_average_interval(level, n, n))
-                    };
-                    let value = s.comp_sum[j] / n;
-                    let verdict = if f > 1.0 && !has_power(level, n / f) {
-                        Verdict::Inconclusive
-                    } else {
-                        interval.classify(value)
-                    };
-                    let mt = mean_test(s, j, self.settings.lags(), level);
-                    ComponentStat {
-                        mean: s.comp_mean_sum[j] / n,
-                        mean_z: mt.as_ref().map_or(f64::NAN, |t| t.z),
-                        mean_verdict: mt.as_ref().map_or(Verdict::Inconclusive, |t| t.verdict),
-                        name: s.info.components[j].clone(),
-                        kind: "measurement",
-                        value,
-                        interval,
-                        samples: n,
-                        verdict,
-                    }
-                })
-                .collect()
+        let component_stats = if m > 1 {
+            component_stats(s, lags, level, &centred, intervals)
         } else {
             Vec::new()
         };
-        let mut whiteness = Vec::new();
-        for lag in 1..=self.settings.lags() {
-            for j in 0..m {
-                let idx = (lag - 1) * m + j;
-                let pairs = s.white_pairs.get(idx).copied().unwrap_or(0.0);
-                if pairs < 1.0 {
-                    continue;
-                }
-                let den = (s.white_a2[idx] * s.white_b2[idx]).sqrt();
-                whiteness.push(WhitenessStat {
-                    component: s.info.components[j].clone(),
-                    lag,
-                    rho: if den > 0.0 {
-                        s.white_ab[idx] / den
-                    } else {
-                        0.0
-                    },
-                    band: z / pairs.sqrt(),
-                    pairs,
-                });
-            }
-        }
+        let whiteness = whiteness_stats(s, lags, z);
         let whiteness_tests = whiteness_tests(&whiteness, &s.info.components, level);
         let mean_tests: Vec<MeanTest> = (0..m)
-            .filter_map(|j| mean_test(s, j, self.settings.lags(), level))
+            .filter_map(|j| mean_test(s, j, lags, level))
             .collect();
         let mut all: Vec<Verdict> = vec![nis.verdict, outliers_verdict];
         all.extend(component_stats.iter().map(|c| c.verdict));
         all.extend(whiteness_tests.iter().map(|w| w.verdict));
         all.extend(mean_tests.iter().map(|t| t.verdict));
-        let histogram = s
-            .hist
-            .iter()
-            .max_by_key(|h| h.1.iter().sum::<u64>() + h.2)
-            .map(|(dof, counts, above)| Histogram {
-                dof: *dof,
-                top: crate::stats::chi2_inv(0.999, *dof as f64),
-                counts: counts.clone(),
-                above: *above,
-            });
-        debug_assert!(
-            histogram
-                .as_ref()
-                .is_none_or(|h| h.counts.len() == HIST_BINS)
-        );
         SensorReport {
             name: s.info.name.clone(),
             group: s.info.group.clone(),
@@ -791,8 +600,257 @@ impl NisAnalyzer {
             plot: SensorPlot {
                 series: s.series.clone(),
                 outliers: s.outlier_points.clone(),
-                histogram,
+                histogram: histogram(s),
             },
         }
     }
+}
+
+/// The overall NIS per degree of freedom of every sensor's gated updates, against its
+/// interval at `level`.
+fn overall(sums: &[SensorSums], level: f64) -> Overall {
+    let (mut n, mut o, mut nis, mut dof, mut mean, mut var) = (0, 0, 0.0, 0.0, 0.0, 0.0);
+    for s in sums {
+        n += s.updates;
+        o += s.outliers;
+        nis += s.nis_sum;
+        dof += s.dof_sum;
+        mean += s.mean_sum;
+        var += s.var_sum;
+    }
+    if dof > 0.0 {
+        let interval = gated_interval(level, mean, var, dof);
+        Overall {
+            updates: n,
+            outliers: o,
+            nis_per_dof: nis / dof,
+            target: mean / dof,
+            interval,
+            level: interval.classify(nis / dof),
+        }
+    } else {
+        let nan = Interval {
+            lower: f64::NAN,
+            upper: f64::NAN,
+        };
+        Overall {
+            updates: n,
+            outliers: o,
+            nis_per_dof: f64::NAN,
+            target: f64::NAN,
+            interval: nan,
+            level: Verdict::Inconclusive,
+        }
+    }
+}
+
+/// The log's verdict from its sensors'.
+fn verdict_of(sensors: &[SensorReport]) -> Verdict {
+    if sensors.is_empty() {
+        return Verdict::Inconclusive;
+    }
+    // A sensor with too few updates for its tests to have power, and nothing failed, says
+    // nothing either way: the others decide, unless all are like it.
+    let decided: Vec<Verdict> = sensors
+        .iter()
+        .map(|s| s.verdict)
+        .filter(|v| *v != Verdict::Inconclusive)
+        .collect();
+    if decided.is_empty() {
+        Verdict::Inconclusive
+    } else {
+        combine(&decided)
+    }
+}
+
+/// What the sensors' findings blame together: a bias first, then Q or R where all that
+/// blame one blame the same, Q and R otherwise.
+fn suspect_of(sensors: &[SensorReport]) -> Option<Suspect> {
+    let blames = |x: Suspect| {
+        sensors
+            .iter()
+            .any(|s| s.finding.as_ref().is_some_and(|f| f.suspect == Some(x)))
+    };
+    match (
+        blames(Suspect::Bias),
+        blames(Suspect::Q),
+        blames(Suspect::R),
+        blames(Suspect::QAndR),
+    ) {
+        (true, ..) => Some(Suspect::Bias),
+        (false, false, false, false) => None,
+        (false, true, false, false) => Some(Suspect::Q),
+        (false, false, true, false) => Some(Suspect::R),
+        _ => Some(Suspect::QAndR),
+    }
+}
+
+/// The factor by which strongly correlated innovations inflate the variance of the NIS
+/// average: they carry fewer independent samples than updates, so the average's variance
+/// grows by the components' mean factor (independent components add their sums'
+/// variances).
+fn correlation_factor(s: &SensorSums, centred: &[CentredWhiteness]) -> f64 {
+    let m = s.info.components.len();
+    let f: Vec<f64> = (0..m)
+        .filter(|&j| s.comp_n[j] > 0.0)
+        .map(|j| {
+            centred
+                .iter()
+                .find(|c| c.component == s.info.components[j])
+                .map_or(1.0, |c| c.square_factor)
+        })
+        .collect();
+    if f.is_empty() {
+        1.0
+    } else {
+        f.iter().sum::<f64>() / f.len() as f64
+    }
+}
+
+/// The gated NIS average against its interval at `level` (widened by the correlation
+/// `factor`), and why it is inconclusive when too few independent samples remain.
+fn nis_average(
+    s: &SensorSums,
+    level: f64,
+    factor: f64,
+    centred: &[CentredWhiteness],
+) -> (NisAverage, Option<String>) {
+    if s.gated == 0 {
+        let nan = NisAverage {
+            mean: f64::NAN,
+            target: f64::NAN,
+            interval: Interval {
+                lower: f64::NAN,
+                upper: f64::NAN,
+            },
+            dof: 0.0,
+            verdict: Verdict::Inconclusive,
+        };
+        return (nan, None);
+    }
+    let mut inconclusive_reason = None;
+    let count = s.gated as f64;
+    let interval = gated_interval(level, s.mean_sum, s.var_sum * factor, count);
+    let mean = s.nis_sum / count;
+    let mut verdict = interval.classify(mean);
+    let powered = has_power(level, s.dof_sum / factor);
+    if factor > 1.0 && !powered {
+        let worst = centred
+            .iter()
+            .max_by(|a, b| a.square_factor.total_cmp(&b.square_factor));
+        inconclusive_reason = Some(format!(
+            "not enough independent samples to judge: about {} of {}{}",
+            about(s.gated as f64 / factor),
+            s.gated,
+            worst.map_or(String::new(), |w| format!(" (ρ₁ = {:+.2})", w.rho1))
+        ));
+        verdict = Verdict::Inconclusive;
+    } else if verdict == Verdict::Consistent && !powered {
+        verdict = Verdict::Inconclusive;
+    }
+    let average = NisAverage {
+        mean,
+        target: s.mean_sum / count,
+        interval,
+        dof: s.dof_sum,
+        verdict,
+    };
+    (average, inconclusive_reason)
+}
+
+/// Each measured component's average of `u²` against its interval at `level` (widened by
+/// its correlation factor), with its mean test. `intervals` caches the intervals by sample
+/// count: a chi-square quantile costs microseconds, and a log may have thousands of
+/// components.
+fn component_stats(
+    s: &SensorSums,
+    lags: usize,
+    level: f64,
+    centred: &[CentredWhiteness],
+    intervals: &mut HashMap<u64, Interval>,
+) -> Vec<ComponentStat> {
+    (0..s.info.components.len())
+        .filter(|&j| s.comp_n[j] > 0.0)
+        .map(|j| {
+            let n = s.comp_n[j];
+            let f = centred
+                .iter()
+                .find(|c| c.component == s.info.components[j])
+                .map_or(1.0, |c| c.square_factor);
+            // The average of n u² with variance factor f is χ²(n/f)/(n/f).
+            let interval = if f > 1.0 {
+                chi2_average_interval(level, n / f, n / f)
+            } else {
+                *intervals
+                    .entry(n.to_bits())
+                    .or_insert_with(|| chi2_average_interval(level, n, n))
+            };
+            let value = s.comp_sum[j] / n;
+            let verdict = if f > 1.0 && !has_power(level, n / f) {
+                Verdict::Inconclusive
+            } else {
+                interval.classify(value)
+            };
+            let mt = mean_test(s, j, lags, level);
+            ComponentStat {
+                mean: s.comp_mean_sum[j] / n,
+                mean_z: mt.as_ref().map_or(f64::NAN, |t| t.z),
+                mean_verdict: mt.as_ref().map_or(Verdict::Inconclusive, |t| t.verdict),
+                name: s.info.components[j].clone(),
+                kind: "measurement",
+                value,
+                interval,
+                samples: n,
+                verdict,
+            }
+        })
+        .collect()
+}
+
+/// The lagged autocorrelations of each component, lag by lag, with their bands `z/√pairs`.
+fn whiteness_stats(s: &SensorSums, lags: usize, z: f64) -> Vec<WhitenessStat> {
+    let m = s.info.components.len();
+    let mut whiteness = Vec::new();
+    for lag in 1..=lags {
+        for j in 0..m {
+            let idx = (lag - 1) * m + j;
+            let pairs = s.white_pairs.get(idx).copied().unwrap_or(0.0);
+            if pairs < 1.0 {
+                continue;
+            }
+            let den = (s.white_a2[idx] * s.white_b2[idx]).sqrt();
+            whiteness.push(WhitenessStat {
+                component: s.info.components[j].clone(),
+                lag,
+                rho: if den > 0.0 {
+                    s.white_ab[idx] / den
+                } else {
+                    0.0
+                },
+                band: z / pairs.sqrt(),
+                pairs,
+            });
+        }
+    }
+    whiteness
+}
+
+/// The histogram of the NIS of the degrees of freedom with the most updates.
+fn histogram(s: &SensorSums) -> Option<Histogram> {
+    let histogram = s
+        .hist
+        .iter()
+        .max_by_key(|h| h.1.iter().sum::<u64>() + h.2)
+        .map(|(dof, counts, above)| Histogram {
+            dof: *dof,
+            top: crate::stats::chi2_inv(0.999, *dof as f64),
+            counts: counts.clone(),
+            above: *above,
+        });
+    debug_assert!(
+        histogram
+            .as_ref()
+            .is_none_or(|h| h.counts.len() == HIST_BINS)
+    );
+    histogram
 }

@@ -100,9 +100,35 @@ fn index(name: &str, prefix: &str) -> Option<Vec<usize>> {
     idx
 }
 
+/// What is wrong with a CSV log's header.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub(super) enum HeaderError {
+    /// A column given twice.
+    #[error("column {0} appears twice")]
+    Twice(String),
+    /// A column of no known name (as an error quotes it).
+    #[error("unknown column '{0}' (expected time, sensor, nu_<j>, S_<i>_<j>, nis, dof)")]
+    Unknown(String),
+    /// A column every log needs.
+    #[error("no '{0}' column")]
+    Missing(&'static str),
+    /// A gap in the innovation's columns.
+    #[error("nu columns must be nu_1 … nu_{m} without gaps (nu_{j} is missing)")]
+    NuGap { m: usize, j: usize },
+    /// A covariance entry beyond the innovation's components.
+    #[error("column S_{i}_{j} beyond the {m} nu columns")]
+    SBeyond { i: usize, j: usize, m: usize },
+    /// Neither innovations nor a NIS.
+    #[error("neither nu_<j> nor nis columns: nothing to judge")]
+    NothingToJudge,
+    /// A NIS without its degrees of freedom, or the other way round.
+    #[error("a 'nis' column needs a 'dof' column, and the other way round")]
+    NisWithoutDof,
+}
+
 impl CsvColumns {
     /// The columns of a header, or what is wrong with it.
-    pub(super) fn new(header: &csv::StringRecord) -> Result<CsvColumns, String> {
+    pub(super) fn new(header: &csv::StringRecord) -> Result<CsvColumns, HeaderError> {
         let mut time = None;
         let mut sensor = None;
         let mut nu: HashMap<usize, usize> = HashMap::new();
@@ -117,42 +143,37 @@ impl CsvColumns {
                 _ => {
                     if let Some(i) = index(name, "nu_").filter(|v| v.len() == 1) {
                         if nu.insert(i[0], c).is_some() {
-                            return Err(format!("column {name} appears twice"));
+                            return Err(HeaderError::Twice(name.to_string()));
                         }
                     } else if let Some(ij) = index(name, "S_").filter(|v| v.len() == 2) {
                         if s.insert((ij[0], ij[1]), c).is_some() {
-                            return Err(format!("column {name} appears twice"));
+                            return Err(HeaderError::Twice(name.to_string()));
                         }
                     } else {
-                        return Err(format!(
-                            "unknown column '{}' (expected time, sensor, nu_<j>, S_<i>_<j>, nis, dof)",
-                            shown_up_to(name, 40)
-                        ));
+                        return Err(HeaderError::Unknown(shown_up_to(name, 40)));
                     }
                     continue;
                 }
             };
             if slot.replace(c).is_some() {
-                return Err(format!("column {name} appears twice"));
+                return Err(HeaderError::Twice(name.to_string()));
             }
         }
-        let time = time.ok_or("no 'time' column")?;
-        let sensor = sensor.ok_or("no 'sensor' column")?;
+        let time = time.ok_or(HeaderError::Missing("time"))?;
+        let sensor = sensor.ok_or(HeaderError::Missing("sensor"))?;
         let m = nu.len();
         let mut nu_cols = Vec::with_capacity(m);
         for j in 1..=m {
-            nu_cols.push(*nu.get(&j).ok_or_else(|| {
-                format!("nu columns must be nu_1 … nu_{m} without gaps (nu_{j} is missing)")
-            })?);
+            nu_cols.push(*nu.get(&j).ok_or(HeaderError::NuGap { m, j })?);
         }
         if let Some((&(i, j), _)) = s.iter().find(|((i, j), _)| *i > m || *j > m) {
-            return Err(format!("column S_{i}_{j} beyond the {m} nu columns"));
+            return Err(HeaderError::SBeyond { i, j, m });
         }
         if m == 0 && nis.is_none() {
-            return Err("neither nu_<j> nor nis columns: nothing to judge".into());
+            return Err(HeaderError::NothingToJudge);
         }
         if nis.is_some() != dof.is_some() {
-            return Err("a 'nis' column needs a 'dof' column, and the other way round".into());
+            return Err(HeaderError::NisWithoutDof);
         }
         Ok(CsvColumns {
             time,
@@ -166,24 +187,12 @@ impl CsvColumns {
 
     /// Parse one data row; `Err((field, message))`.
     pub(super) fn row(&self, rec: &csv::StringRecord) -> Result<Row, (String, String)> {
-        let cell = |c: usize| rec.get(c).map(str::trim).unwrap_or("");
-        let num = |c: usize, field: &str| -> Result<Option<f64>, (String, String)> {
-            let t = cell(c);
-            if t.is_empty() {
-                return Ok(None);
-            }
-            t.parse::<f64>().map(Some).map_err(|_| {
-                (
-                    field.to_string(),
-                    format!("'{}' is not a number", shown_up_to(t, 24)),
-                )
-            })
-        };
+        let num = |c: usize, field: &str| number(cell(rec, c), field);
         let time = num(self.time, "time")?
             .filter(|t| t.is_finite())
             .ok_or_else(|| ("time".to_string(), "missing or not finite".to_string()))?;
-        let sensor = cell(self.sensor).to_string();
-        check_sensor(&sensor).map_err(|m| ("sensor".to_string(), m))?;
+        let sensor = cell(rec, self.sensor).to_string();
+        check_sensor(&sensor).map_err(|e| ("sensor".to_string(), e.to_string()))?;
         let mut nu = Vec::new();
         for (j, &c) in self.nu.iter().enumerate() {
             match num(c, &format!("nu_{}", j + 1))? {
@@ -197,8 +206,7 @@ impl CsvColumns {
                 None => {}
             }
         }
-        let m = nu.len();
-        if m == 0 {
+        if nu.is_empty() {
             let (Some(nc), Some(dc)) = (self.nis, self.dof) else {
                 return Err(("nu_1".into(), "empty: no innovation in this row".into()));
             };
@@ -211,9 +219,20 @@ impl CsvColumns {
                 record: SensorRecord::Normalized { nis, dof, u: None },
             });
         }
+        let s = self.covariance(rec, nu.len())?;
+        Ok(Row {
+            time,
+            sensor,
+            record: SensorRecord::Raw { nu, s },
+        })
+    }
+
+    /// The row's S for an innovation of `m` components (row-major): all of it, one
+    /// triangle, or its diagonal alone; symmetric, with no entry beyond `m`.
+    fn covariance(&self, rec: &csv::StringRecord, m: usize) -> Result<Vec<f64>, (String, String)> {
         let cell_of = |i: usize, j: usize| -> Result<Option<f64>, (String, String)> {
             match self.s.get(&(i, j)) {
-                Some(&c) => num(c, &format!("S_{i}_{j}")),
+                Some(&c) => number(cell(rec, c), &format!("S_{i}_{j}")),
                 None => Ok(None),
             }
         };
@@ -255,7 +274,7 @@ impl CsvColumns {
             }
         }
         for (&(i, j), &c) in &self.s {
-            if (i > m || j > m) && !cell(c).is_empty() {
+            if (i > m || j > m) && !cell(rec, c).is_empty() {
                 return Err((
                     format!("S_{i}_{j}"),
                     format!("filled for a sensor of {m} components"),
@@ -268,23 +287,44 @@ impl CsvColumns {
                 format!("differs from S_{j}_{i}: S must be symmetric"),
             )
         })?;
-        Ok(Row {
-            time,
-            sensor,
-            record: SensorRecord::Raw { nu, s },
-        })
+        Ok(s)
     }
 }
 
-pub(super) fn check_sensor(name: &str) -> Result<(), String> {
+/// Cell `c` of a row, trimmed (empty where the row is short).
+fn cell(rec: &csv::StringRecord, c: usize) -> &str {
+    rec.get(c).map(str::trim).unwrap_or("")
+}
+
+/// The number in cell text `t` (`None` when empty), or `(field, why not)`.
+fn number(t: &str, field: &str) -> Result<Option<f64>, (String, String)> {
+    if t.is_empty() {
+        return Ok(None);
+    }
+    t.parse::<f64>().map(Some).map_err(|_| {
+        (
+            field.to_string(),
+            format!("'{}' is not a number", shown_up_to(t, 24)),
+        )
+    })
+}
+
+/// Why a sensor name is refused.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub(super) enum SensorNameError {
+    #[error("empty sensor name")]
+    Empty,
+    /// Too long or with control characters (the name, as an error quotes it).
+    #[error("'{0}' is not a sensor name (at most 64 printable characters)")]
+    Invalid(String),
+}
+
+pub(super) fn check_sensor(name: &str) -> Result<(), SensorNameError> {
     if name.is_empty() {
-        return Err("empty sensor name".into());
+        return Err(SensorNameError::Empty);
     }
     if name.len() > 64 || name.chars().any(char::is_control) {
-        return Err(format!(
-            "'{}' is not a sensor name (at most 64 printable characters)",
-            shown_up_to(name, 24)
-        ));
+        return Err(SensorNameError::Invalid(shown_up_to(name, 24)));
     }
     Ok(())
 }
@@ -304,7 +344,7 @@ pub(super) fn symmetric(s: &[f64], m: usize) -> Result<(), (usize, usize)> {
 
 /// Parse one JSON Lines row; `Err((field, message))`.
 pub(super) fn json_row(line: &str) -> Result<Row, (String, String)> {
-    let obj = crate::records::json_object(line).map_err(|m| (String::new(), m))?;
+    let obj = crate::records::json_object(line).map_err(|e| (String::new(), e.to_string()))?;
     let f = |k: &str, m: &str| (k.to_string(), m.to_string());
     let time = obj
         .get("time")
@@ -316,7 +356,7 @@ pub(super) fn json_row(line: &str) -> Result<Row, (String, String)> {
         .and_then(Value::as_str)
         .ok_or_else(|| f("sensor", "missing or not a string"))?
         .to_string();
-    check_sensor(&sensor).map_err(|m| ("sensor".to_string(), m))?;
+    check_sensor(&sensor).map_err(|e| ("sensor".to_string(), e.to_string()))?;
     let number = |v: &Value, k: &str| -> Result<f64, (String, String)> {
         v.as_f64().ok_or_else(|| f(k, "not a number"))
     };
@@ -450,7 +490,8 @@ pub(super) fn read(
             .map_err(|e| err_json(path, 1, "header", csv_text(&e)))?
             .clone();
         crate::userfile::check_columns(path, header.len())?;
-        let cols = CsvColumns::new(&header).map_err(|m| err_json(path, 1, "header", m))?;
+        let cols =
+            CsvColumns::new(&header).map_err(|e| err_json(path, 1, "header", e.to_string()))?;
         let mut rec = csv::StringRecord::new();
         loop {
             let line_no = rdr.position().line() as usize;

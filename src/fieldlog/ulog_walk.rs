@@ -200,10 +200,10 @@ fn read_full(r: &mut impl Read, buf: &mut [u8]) -> std::io::Result<usize> {
     Ok(got)
 }
 
-/// Walk the ULog file at `path` (its header already checked) into `parser`; `stop` is asked
-/// between messages. `Err` for a file whose header or definitions are unreadable, or that
-/// would cost too much.
-pub(super) fn walk(
+/// Feed the ULog file at `path` (its header already checked) to `parser` message by
+/// message; `stop` is asked between messages. `Err` for a file whose header or definitions
+/// are unreadable, or that would cost too much.
+pub(super) fn feed_ulog(
     path: &Path,
     parser: &mut LogParser,
     stop: &dyn Fn() -> bool,
@@ -211,136 +211,34 @@ pub(super) fn walk(
     let io = |e: std::io::Error| FileError::new(path, "", format!("cannot read: {e}"));
     let file = crate::userfile::open_io(path).map_err(io)?;
     let file_len = file.metadata().map_err(io)?.len();
-    let mut r = BufReader::with_capacity(1 << 16, file);
-    let mut msg = vec![0u8; 16];
-    if read_full(&mut r, &mut msg).map_err(io)? < 16 {
+    let mut w = Walker {
+        path,
+        parser,
+        r: BufReader::with_capacity(1 << 16, file),
+        msg: vec![0u8; 16],
+        formats: Formats::default(),
+        copies: 0,
+        end: None,
+        sections: Vec::new(),
+        offsets_known: false,
+        pos: 16,
+    };
+    if read_full(&mut w.r, &mut w.msg).map_err(io)? < 16 {
         return Err(FileError::new(
             path,
             "",
             "not a ULog file (shorter than its header)",
         ));
     }
-    let damaged = |at: u64, why: &str, in_data: bool| -> Result<Ending, FileError> {
-        let why = format!(
-            "message at byte {at}: {}",
-            shown_up_to(why.lines().next().unwrap_or(""), 160)
-        );
-        if in_data {
-            Ok(Ending::Malformed(why))
-        } else {
-            Err(FileError::new(
-                path,
-                "",
-                format!("not a readable ULog file (its header or definitions are damaged): {why}"),
-            ))
-        }
-    };
-    if let Err(e) = parser.consume_bytes(&msg) {
-        return damaged(0, &e.description, false);
+    if let Err(e) = w.parser.consume_bytes(&w.msg) {
+        return w.damaged(0, &e.description, false);
     }
-    let mut formats = Formats::default();
-    let mut copies = 0u64;
-    // Where the current section ends (None: at the end of the file), and the sections of
-    // appended data still to read.
-    let mut end: Option<u64> = None;
-    let mut sections: Vec<(u64, Option<u64>)> = Vec::new();
-    let mut offsets_known = false;
-    let mut pos = 16u64;
     loop {
-        // Read one section's messages; `partial`: it ended partway through one.
-        let partial = loop {
-            if stop() {
-                return Ok(Ending::Complete);
-            }
-            let room = end.map_or(u64::MAX, |e| e.saturating_sub(pos));
-            if room == 0 {
-                break false;
-            }
-            msg.resize(3, 0);
-            let got = read_full(&mut r, &mut msg[..3]).map_err(io)?;
-            if got == 0 {
-                break false;
-            }
-            if got < 3 {
-                break true;
-            }
-            let size = u16::from_le_bytes([msg[0], msg[1]]) as usize;
-            let typ = msg[2];
-            if (3 + size) as u64 > room {
-                break true;
-            }
-            msg.resize(3 + size, 0);
-            if read_full(&mut r, &mut msg[3..]).map_err(io)? < size {
-                break true;
-            }
-            let payload = &msg[3..];
-            if let Some(why) = unsafe_for_parser(typ, payload) {
-                return damaged(pos, &why, parser.in_data());
-            }
-            if starts_data(typ) && !parser.in_data() && parser.header_complete() {
-                // The crate flattens every format now.
-                let cost = formats.total();
-                let why = match cost {
-                    Err(TooDeep) => Some(format!("formats nest deeper than {MAX_NESTING} levels")),
-                    Ok(c) if c > MAX_FIELD_COPIES => Some(format!(
-                        "the formats declare about {c} fields (nested arrays counted), more than {MAX_FIELD_COPIES}"
-                    )),
-                    Ok(c) => {
-                        copies = c;
-                        None
-                    }
-                };
-                if let Some(why) = why {
-                    return Err(FileError::new(
-                        path,
-                        "",
-                        format!("message at byte {pos} starts the data, but {why}"),
-                    ));
-                }
-            }
-            if typ == b'A' && parser.header_complete() {
-                // Each subscription copies its format's flattened fields.
-                let name = String::from_utf8_lossy(&payload[3..]).into_owned();
-                let c = formats.cost(&name).unwrap_or(u64::MAX);
-                copies = copies.saturating_add(c);
-                if copies > MAX_FIELD_COPIES {
-                    return Err(FileError::new(
-                        path,
-                        "",
-                        format!(
-                            "message at byte {pos}: the subscriptions copy more than {MAX_FIELD_COPIES} fields (formats subscribed too many times)"
-                        ),
-                    ));
-                }
-            }
-            if let Err(e) = parser.consume_bytes(&msg) {
-                // Damage in the data section ends the readable data; before it, the file.
-                return damaged(pos, &e.description, parser.in_data());
-            }
-            if typ == b'F' && !parser.in_data() {
-                formats.add(&msg[3..]);
-            }
-            pos += msg.len() as u64;
-            if typ == b'B' && !offsets_known && parser.header_complete() {
-                // The main section ends at the first appended-data offset; each appended
-                // section at the next one (or at the end of the file).
-                offsets_known = true;
-                let offsets: Vec<u64> = parser
-                    .appended_offsets()
-                    .iter()
-                    .copied()
-                    .filter(|&o| o != 0)
-                    .collect();
-                if let Some(&first) = offsets.first() {
-                    end = Some(first);
-                    for (i, &o) in offsets.iter().enumerate() {
-                        sections.push((o, offsets.get(i + 1).copied()));
-                    }
-                    sections.reverse();
-                }
-            }
+        let partial = match w.section(stop)? {
+            Section::Ended { partial } => partial,
+            Section::Stopped(ending) => return Ok(ending),
         };
-        let Some((start, next_end)) = sections.pop() else {
+        let Some((start, next_end)) = w.sections.pop() else {
             return Ok(if partial {
                 Ending::Truncated
             } else {
@@ -351,13 +249,179 @@ pub(super) fn walk(
         // starts past the end of the file is empty (an offset beyond 2^63 would not even
         // seek).
         if start >= file_len {
-            pos = start;
-            end = Some(start);
+            w.pos = start;
+            w.end = Some(start);
             continue;
         }
-        r.seek(SeekFrom::Start(start)).map_err(io)?;
-        pos = start;
-        end = next_end;
+        w.r.seek(SeekFrom::Start(start)).map_err(io)?;
+        w.pos = start;
+        w.end = next_end;
+    }
+}
+
+/// How reading a section's messages ended.
+enum Section {
+    /// At its end; `partial`: partway through a message.
+    Ended { partial: bool },
+    /// Before it: asked to stop, or at a damaged message in the data.
+    Stopped(Ending),
+}
+
+/// One file being fed to the parser: where it is, the formats defined so far and what
+/// flattening them costs, and the sections of appended data still to read.
+struct Walker<'a, 'p> {
+    path: &'a Path,
+    parser: &'a mut LogParser<'p>,
+    r: BufReader<std::fs::File>,
+    /// The current message.
+    msg: Vec<u8>,
+    formats: Formats,
+    /// Flattened fields the crate builds for the formats and the subscriptions so far.
+    copies: u64,
+    /// Where the current section ends (None: at the end of the file).
+    end: Option<u64>,
+    /// The sections of appended data still to read, the next last.
+    sections: Vec<(u64, Option<u64>)>,
+    offsets_known: bool,
+    /// The file offset of the current message.
+    pos: u64,
+}
+
+impl Walker<'_, '_> {
+    fn io(&self, e: std::io::Error) -> FileError {
+        FileError::new(self.path, "", format!("cannot read: {e}"))
+    }
+
+    /// A damaged message at byte `at`: in the data section it ends the readable data;
+    /// before it, the file is unreadable.
+    fn damaged<T: From<Ending>>(&self, at: u64, why: &str, in_data: bool) -> Result<T, FileError> {
+        let why = format!(
+            "message at byte {at}: {}",
+            shown_up_to(why.lines().next().unwrap_or(""), 160)
+        );
+        if in_data {
+            Ok(Ending::Malformed(why).into())
+        } else {
+            Err(FileError::new(
+                self.path,
+                "",
+                format!("not a readable ULog file (its header or definitions are damaged): {why}"),
+            ))
+        }
+    }
+
+    /// Read the current section's messages into the parser.
+    fn section(&mut self, stop: &dyn Fn() -> bool) -> Result<Section, FileError> {
+        loop {
+            if stop() {
+                return Ok(Section::Stopped(Ending::Complete));
+            }
+            let room = self.end.map_or(u64::MAX, |e| e.saturating_sub(self.pos));
+            if room == 0 {
+                return Ok(Section::Ended { partial: false });
+            }
+            self.msg.resize(3, 0);
+            let got = read_full(&mut self.r, &mut self.msg[..3]).map_err(|e| self.io(e))?;
+            if got == 0 {
+                return Ok(Section::Ended { partial: false });
+            }
+            if got < 3 {
+                return Ok(Section::Ended { partial: true });
+            }
+            let size = u16::from_le_bytes([self.msg[0], self.msg[1]]) as usize;
+            let typ = self.msg[2];
+            if (3 + size) as u64 > room {
+                return Ok(Section::Ended { partial: true });
+            }
+            self.msg.resize(3 + size, 0);
+            if read_full(&mut self.r, &mut self.msg[3..]).map_err(|e| self.io(e))? < size {
+                return Ok(Section::Ended { partial: true });
+            }
+            if let Some(why) = unsafe_for_parser(typ, &self.msg[3..]) {
+                return self.damaged(self.pos, &why, self.parser.in_data());
+            }
+            self.count_copies(typ)?;
+            if let Err(e) = self.parser.consume_bytes(&self.msg) {
+                // Damage in the data section ends the readable data; before it, the file.
+                return self.damaged(self.pos, &e.description, self.parser.in_data());
+            }
+            if typ == b'F' && !self.parser.in_data() {
+                self.formats.add(&self.msg[3..]);
+            }
+            self.pos += self.msg.len() as u64;
+            if typ == b'B' && !self.offsets_known && self.parser.header_complete() {
+                self.read_offsets();
+            }
+        }
+    }
+
+    /// Count the flattened fields the current message (of type `typ`) makes the crate
+    /// build, before it does: every format when it starts the data, a format's copy when
+    /// it subscribes to it. `Err` past [`MAX_FIELD_COPIES`] or [`MAX_NESTING`].
+    fn count_copies(&mut self, typ: u8) -> Result<(), FileError> {
+        let pos = self.pos;
+        if starts_data(typ) && !self.parser.in_data() && self.parser.header_complete() {
+            let why = match self.formats.total() {
+                Err(TooDeep) => Some(format!("formats nest deeper than {MAX_NESTING} levels")),
+                Ok(c) if c > MAX_FIELD_COPIES => Some(format!(
+                    "the formats declare about {c} fields (nested arrays counted), more than {MAX_FIELD_COPIES}"
+                )),
+                Ok(c) => {
+                    self.copies = c;
+                    None
+                }
+            };
+            if let Some(why) = why {
+                return Err(FileError::new(
+                    self.path,
+                    "",
+                    format!("message at byte {pos} starts the data, but {why}"),
+                ));
+            }
+        }
+        if typ == b'A' && self.parser.header_complete() {
+            // Each subscription copies its format's flattened fields.
+            let name = String::from_utf8_lossy(&self.msg[6..]).into_owned();
+            let c = self.formats.cost(&name).unwrap_or(u64::MAX);
+            self.copies = self.copies.saturating_add(c);
+            if self.copies > MAX_FIELD_COPIES {
+                return Err(FileError::new(
+                    self.path,
+                    "",
+                    format!(
+                        "message at byte {pos}: the subscriptions copy more than {MAX_FIELD_COPIES} fields (formats subscribed too many times)"
+                    ),
+                ));
+            }
+        }
+        Ok(())
+    }
+
+    /// The sections of appended data, from the flag bits: the main section ends at the
+    /// first appended-data offset, each appended section at the next one (or at the end
+    /// of the file).
+    fn read_offsets(&mut self) {
+        self.offsets_known = true;
+        let offsets: Vec<u64> = self
+            .parser
+            .appended_offsets()
+            .iter()
+            .copied()
+            .filter(|&o| o != 0)
+            .collect();
+        if let Some(&first) = offsets.first() {
+            self.end = Some(first);
+            for (i, &o) in offsets.iter().enumerate() {
+                self.sections.push((o, offsets.get(i + 1).copied()));
+            }
+            self.sections.reverse();
+        }
+    }
+}
+
+impl From<Ending> for Section {
+    fn from(e: Ending) -> Section {
+        Section::Stopped(e)
     }
 }
 

@@ -12,11 +12,11 @@
 
 #![allow(non_snake_case)]
 
-use nalgebra::{DMatrix, DVector};
+use nalgebra::{Cholesky, DMatrix, DVector, Dyn};
 
 use super::McConfig;
 use super::generic::Fault;
-use crate::filter::{Filter, FilterError, KalmanFilter};
+use crate::filter::{CovarianceUpdate, Filter, FilterError, KalmanFilter};
 use crate::linalg::cholesky;
 use crate::model::LinearGaussianModel;
 use crate::stats::Accumulator;
@@ -47,31 +47,21 @@ pub fn expected_accumulator(
     let lags = mc.lags();
     let runs = mc.runs() as f64;
     let mut acc = Accumulator::new(mc.steps(), n, m, lags);
-    let F = &f.F;
-    let H = &f.H;
-    let Ht = H.transpose();
 
     let mut P = f.P0.clone();
-    let mut mu: DVector<f64> = &truth.x0 - &f.x0;
-    let mut sigma = truth.P0.clone();
+    let mut moments = ErrorMoments::new(truth, f, lags);
     let mut null_var = NeesNullVariance::new(n);
     // The component variances (second and first moment) cost n times the NEES one; only
     // the full gate reads them, as on the Monte Carlo paths.
     let mut comp_var = (mc.gate() == GateMode::Full).then(|| ComponentNullVariance::new(n));
     // Σ_k E[e_j]/√P_jj: every run's expected first-moment sum.
     let mut mean_x = vec![0.0; n];
-    // window[l − 1] = E[e_{k−1} ν_{k−l}'] (n × m), most recent first.
-    let mut window: Vec<DMatrix<f64>> = Vec::with_capacity(lags);
-    // History of diag(S) for the lagged normalizations, most recent first.
-    let mut s_diag_hist: Vec<DVector<f64>> = Vec::with_capacity(lags);
     let mut comp_x = vec![0.0; n];
     let mut comp_z = vec![0.0; m];
     let mut steady: Option<StepValues> = None;
     let mut previous: Option<StepValues> = None;
     let mut quiet_steps = 0usize;
     let mut last_null = None;
-    // History of expected u_j² per step, most recent first.
-    let mut comp_z_hist: Vec<Vec<f64>> = Vec::with_capacity(lags);
 
     // The truth's second moment E[x x'], to stop where the Monte Carlo runs would: a truth
     // that overflows or outgrows double precision relative to the filter's P ([`Fault`]).
@@ -103,16 +93,136 @@ pub fn expected_accumulator(
             which: "P",
             step: k,
         })?;
-        let A = &cu.IKH * F;
+        let A = &cu.IKH * &f.F;
         null_var.step(&A, &cu.P, &chol_p);
         if let Some(cv) = &mut comp_var {
             cv.step(&A, &cu.P);
         }
-        last_null = Some((A.clone(), cu.P.clone(), chol_p.clone()));
+        let values = moments.step(truth, f, &cu, &chol_p, &A);
+        last_null = Some((A, cu.P.clone(), chol_p));
+        if let Some(fault) = truth_m2.step(truth, &cu.P, &values.comp_x) {
+            return Ok(stop_all(acc, mc, k, fault));
+        }
+        values.add(&mut acc, i, runs, n, m, &mut comp_x, &mut comp_z, lags, k);
+        for (s, y) in mean_x.iter_mut().zip(&values.mean_x) {
+            *s += y;
+        }
+        // Steady state is judged on the per-step expected values themselves, each relative
+        // to its own size, so that a state with a tiny variance converging slowly is not
+        // hidden behind one with a large variance (a whole-matrix norm would be unit-bound).
+        // Several quiet steps in a row are required.
+        quiet_steps = match &previous {
+            Some(prev) if values.same_as(prev) => quiet_steps + 1,
+            _ => 0,
+        };
+        let converged = k > lags + 1 && quiet_steps >= STEADY_STEPS;
+        P = cu.P;
+        if converged {
+            steady = Some(values);
+        } else {
+            previous = Some(values);
+        }
+    }
+    let runs_sums = RunSums {
+        comp_x: &comp_x,
+        comp_z: &comp_z,
+        mean_x: &mean_x,
+    };
+    runs_sums.add(&mut acc, mc, &null_var, comp_var.as_ref());
+    Ok(acc)
+}
 
+/// Every run's expected sums over its steps, for the per-run spreads.
+struct RunSums<'a> {
+    /// Σ_k E[e_j²]/P_jj.
+    comp_x: &'a [f64],
+    /// Σ_k E[u_j²].
+    comp_z: &'a [f64],
+    /// Σ_k E[e_j]/√P_jj.
+    mean_x: &'a [f64],
+}
+
+impl RunSums<'_> {
+    /// Set the per-run sums and the null variances of `mc.runs()` runs that all equal the
+    /// mean.
+    fn add(
+        &self,
+        acc: &mut Accumulator,
+        mc: &McConfig,
+        null_var: &NeesNullVariance,
+        comp_var: Option<&ComponentNullVariance>,
+    ) {
+        let runs = mc.runs() as f64;
+        let t = mc.steps() as f64;
+        for (j, c) in self.comp_x.iter().enumerate() {
+            acc.state_comp_run_sum[j] = runs * c / t;
+            acc.state_comp_run_sq[j] = runs * (c / t).powi(2);
+        }
+        for (j, c) in self.comp_z.iter().enumerate() {
+            acc.meas_comp_run_sum[j] = runs * c / t;
+            acc.meas_comp_run_sq[j] = runs * (c / t).powi(2);
+            acc.meas_comp_runs[j] = mc.runs();
+        }
+        for (j, c) in self.mean_x.iter().enumerate() {
+            acc.state_mean_run_sq[j] = runs * c * c;
+        }
+        acc.runs = mc.runs();
+        acc.nees_null_var = runs * null_var.variance();
+        acc.null_var_runs = mc.runs();
+        if let Some(cv) = comp_var {
+            for (s, v) in acc.state_comp_null_var.iter_mut().zip(cv.variances()) {
+                *s = runs * v;
+            }
+            for (s, v) in acc.state_mean_null_var.iter_mut().zip(cv.mean_variances()) {
+                *s = runs * v;
+            }
+            acc.comp_null_var_runs = mc.runs();
+        }
+    }
+}
+
+/// The estimation error's mean and covariance, and the innovation cross-moments the
+/// whiteness sums need, propagated step by step.
+struct ErrorMoments {
+    mu: DVector<f64>,
+    sigma: DMatrix<f64>,
+    lags: usize,
+    /// `window[l − 1] = E[e_{k−1} ν_{k−l}']` (n × m), most recent first.
+    window: Vec<DMatrix<f64>>,
+    /// History of diag(S) for the lagged normalizations, most recent first.
+    s_diag_hist: Vec<DVector<f64>>,
+    /// History of expected u_j² per step, most recent first.
+    comp_z_hist: Vec<Vec<f64>>,
+}
+
+impl ErrorMoments {
+    fn new(truth: &LinearGaussianModel, f: &KalmanFilter, lags: usize) -> Self {
+        ErrorMoments {
+            mu: &truth.x0 - &f.x0,
+            sigma: truth.P0.clone(),
+            lags,
+            window: Vec::with_capacity(lags),
+            s_diag_hist: Vec::with_capacity(lags),
+            comp_z_hist: Vec::with_capacity(lags),
+        }
+    }
+
+    /// Through one step of the filter (its covariance update `cu`, `P`'s Cholesky factor
+    /// `chol_p`, the error map `A = (I − K H) F`): the step's expected values.
+    fn step(
+        &mut self,
+        truth: &LinearGaussianModel,
+        f: &KalmanFilter,
+        cu: &CovarianceUpdate,
+        chol_p: &Cholesky<f64, Dyn>,
+        A: &DMatrix<f64>,
+    ) -> StepValues {
+        let (F, H) = (&f.F, &f.H);
+        let Ht = H.transpose();
+        let (n, m) = (F.nrows(), H.nrows());
         // Error moments before and after the update.
-        let mu_p = F * &mu;
-        let mut sig_p = F * &sigma * F.transpose() + &truth.Q;
+        let mu_p = F * &self.mu;
+        let mut sig_p = F * &self.sigma * F.transpose() + &truth.Q;
         crate::linalg::symmetrize(&mut sig_p);
         let m2_p = &sig_p + &mu_p * mu_p.transpose();
         let nu_mean = H * &mu_p;
@@ -124,13 +234,13 @@ pub fn expected_accumulator(
         let e_m2 = &sig + &mu_new * mu_new.transpose();
 
         let nees = chol_p.solve(&e_m2).trace();
-        let nees_sq = gaussian_quadratic_second_moment(&chol_p, &sig, &mu_new);
+        let nees_sq = gaussian_quadratic_second_moment(chol_p, &sig, &mu_new);
         let nis = cu.chol.solve(&nu_m2).trace();
         let nu_cov = &nu_m2 - &nu_mean * nu_mean.transpose();
         let nis_sq = gaussian_quadratic_second_moment(&cu.chol, &nu_cov, &nu_mean);
 
         let s_diag = cu.S.diagonal();
-        let cross: Vec<DVector<f64>> = window.iter().map(|y| (H * F * y).diagonal()).collect();
+        let cross: Vec<DVector<f64>> = self.window.iter().map(|y| (H * F * y).diagonal()).collect();
         let comp_z_now: Vec<f64> = (0..m).map(|j| nu_m2[(j, j)] / s_diag[j]).collect();
         let values = StepValues {
             nees,
@@ -143,77 +253,31 @@ pub fn expected_accumulator(
             mean_z: (0..m).map(|j| nu_mean[j] / s_diag[j].sqrt()).collect(),
             white: cross
                 .iter()
-                .zip(&s_diag_hist)
+                .zip(&self.s_diag_hist)
                 .map(|(c, sd)| (0..m).map(|j| c[j] / (s_diag[j] * sd[j]).sqrt()).collect())
                 .collect(),
-            lagged_b2: comp_z_hist.clone(),
+            lagged_b2: self.comp_z_hist.clone(),
         };
-        if let Some(fault) = truth_m2.step(truth, &cu.P, &values.comp_x) {
-            return Ok(stop_all(acc, mc, k, fault));
-        }
-        values.add(&mut acc, i, runs, n, m, &mut comp_x, &mut comp_z, lags, k);
-        for (s, y) in mean_x.iter_mut().zip(&values.mean_x) {
-            *s += y;
-        }
 
         // Advance the cross-moment window: E[e_k ν_k'] and older ones through A_k.
+        let lags = self.lags;
         let d = &cu.IKH * &m2_p * &Ht - K * &truth.R;
         let mut next = Vec::with_capacity(lags);
         if lags > 0 {
             next.push(d);
-            for y in window.iter().take(lags - 1) {
-                next.push(&A * y);
+            for y in self.window.iter().take(lags - 1) {
+                next.push(A * y);
             }
         }
-        // Steady state is judged on the per-step expected values themselves, each relative
-        // to its own size, so that a state with a tiny variance converging slowly is not
-        // hidden behind one with a large variance (a whole-matrix norm would be unit-bound).
-        // Several quiet steps in a row are required.
-        quiet_steps = match &previous {
-            Some(prev) if values.same_as(prev) => quiet_steps + 1,
-            _ => 0,
-        };
-        let converged = k > lags + 1 && quiet_steps >= STEADY_STEPS;
-        window = next;
-        s_diag_hist.insert(0, s_diag.clone_owned());
-        s_diag_hist.truncate(lags);
-        comp_z_hist.insert(0, comp_z_now);
-        comp_z_hist.truncate(lags);
-        P = cu.P;
-        sigma = sig;
-        mu = mu_new;
-        if converged {
-            steady = Some(values);
-        } else {
-            previous = Some(values);
-        }
+        self.window = next;
+        self.s_diag_hist.insert(0, s_diag.clone_owned());
+        self.s_diag_hist.truncate(lags);
+        self.comp_z_hist.insert(0, comp_z_now);
+        self.comp_z_hist.truncate(lags);
+        self.sigma = sig;
+        self.mu = mu_new;
+        values
     }
-    let t = mc.steps() as f64;
-    for (j, c) in comp_x.iter().enumerate() {
-        acc.state_comp_run_sum[j] = runs * c / t;
-        acc.state_comp_run_sq[j] = runs * (c / t).powi(2);
-    }
-    for (j, c) in comp_z.iter().enumerate() {
-        acc.meas_comp_run_sum[j] = runs * c / t;
-        acc.meas_comp_run_sq[j] = runs * (c / t).powi(2);
-        acc.meas_comp_runs[j] = mc.runs();
-    }
-    for (j, c) in mean_x.iter().enumerate() {
-        acc.state_mean_run_sq[j] = runs * c * c;
-    }
-    acc.runs = mc.runs();
-    acc.nees_null_var = runs * null_var.variance();
-    acc.null_var_runs = mc.runs();
-    if let Some(cv) = &comp_var {
-        for (s, v) in acc.state_comp_null_var.iter_mut().zip(cv.variances()) {
-            *s = runs * v;
-        }
-        for (s, v) in acc.state_mean_null_var.iter_mut().zip(cv.mean_variances()) {
-            *s = runs * v;
-        }
-        acc.comp_null_var_runs = mc.runs();
-    }
-    Ok(acc)
 }
 
 /// The truth's second moment `E[x_k x_k']`, propagated until it settles (a stable truth)

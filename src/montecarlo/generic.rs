@@ -6,11 +6,11 @@
 //! meaning anything ([`Fault`]): the truth state overflows, the state outgrows double
 //! precision relative to the filter's standard deviation, or the NEES or NIS overflows.
 
-use nalgebra::DVector;
+use nalgebra::{Cholesky, DVector, Dyn};
 
 use super::{McConfig, Progress, record_divergence, run_chunked, run_rng};
 use crate::filter::conditioning::{MAX_CONDITION, check_conditioned};
-use crate::filter::{Filter, FilterError, check_measurement};
+use crate::filter::{Estimate, Filter, FilterError, check_measurement};
 use crate::linalg::cholesky;
 use crate::measurement::{Measurement, sensor_offsets};
 use crate::model::TruthModel;
@@ -178,11 +178,7 @@ where
     let mut rng = run_rng(mc.seed(), run);
     let mut x = truth.initial_state(&mut rng);
     let mut est = filter.initial();
-    let mut null_var = NeesNullVariance::new(n_x);
-    let sample_null_var = run % NULL_VAR_STRIDE == 0;
-    // The per-component variances cost n_x times the NEES one; only the full gate reads them.
-    let mut comp_var = (mc.gate() == GateMode::Full).then(|| ComponentNullVariance::new(n_x));
-    let mut map_missing = false;
+    let mut null_var = RunNullVariance::new(n_x, mc, run);
     let mut run_nees = 0.0;
     for k in 1..=mc.steps() {
         let i = k - 1;
@@ -197,16 +193,7 @@ where
             Some(u) => filter.predict_with_input(k, &mut est, u)?,
             None => filter.predict(k, &mut est)?,
         }
-        let (mut nis, mut dof) = (0.0, 0usize);
-        for m in meas.iter() {
-            check_measurement(dims.get(m.sensor).copied(), m)?;
-            let inn = filter.update(k, &mut est, m)?;
-            nis += inn.nis;
-            dof += m.z.len();
-            for j in 0..m.z.len() {
-                scratch.innovation(offsets[m.sensor] + j, inn.nu[j] / inn.S[(j, j)].sqrt());
-            }
-        }
+        let (nis, dof) = update_all(filter, k, &mut est, meas, dims, offsets, scratch)?;
 
         let e: DVector<f64> = filter.state_error(&x, &est.x);
         let chol = cholesky(&est.P).ok_or(FilterError::NotPositiveDefinite {
@@ -234,33 +221,95 @@ where
         acc.add_nees(i, nees, n_x as f64);
         run_nees += nees;
         scratch.state_step(acc, (0..n_x).map(|j| e[j] / est.P[(j, j)].sqrt()));
-        if sample_null_var && !map_missing {
-            match &est.error_map {
-                Some(a) if a.shape() == (n_x, n_x) => {
-                    null_var.step(a, &est.P, &chol);
-                    if let Some(cv) = &mut comp_var {
-                        cv.step(a, &est.P);
-                    }
-                }
-                _ => map_missing = true,
-            }
-        }
+        null_var.step(&est, &chol);
     }
     acc.add_run_nees_total(run_nees);
-    if map_missing {
-        acc.error_map_missing += 1;
-    } else if sample_null_var {
-        acc.nees_null_var += null_var.variance();
-        acc.null_var_runs += 1;
-        if let Some(cv) = &comp_var {
-            for (s, v) in acc.state_comp_null_var.iter_mut().zip(cv.variances()) {
-                *s += v;
-            }
-            for (s, v) in acc.state_mean_null_var.iter_mut().zip(cv.mean_variances()) {
-                *s += v;
-            }
-            acc.comp_null_var_runs += 1;
+    null_var.add_to(acc);
+    Ok(())
+}
+
+/// Update the filter with every measurement of step `k`: the step's NIS and its degrees
+/// of freedom, and each component's normalized innovation into `scratch`.
+#[inline]
+fn update_all<F: Filter + ?Sized>(
+    filter: &F,
+    k: usize,
+    est: &mut Estimate,
+    meas: &[Measurement],
+    dims: &[usize],
+    offsets: &[usize],
+    scratch: &mut RunRecorder,
+) -> Result<(f64, usize), Stop> {
+    let (mut nis, mut dof) = (0.0, 0usize);
+    for m in meas {
+        check_measurement(dims.get(m.sensor).copied(), m)?;
+        let inn = filter.update(k, est, m)?;
+        nis += inn.nis;
+        dof += m.z.len();
+        for j in 0..m.z.len() {
+            scratch.innovation(offsets[m.sensor] + j, inn.nu[j] / inn.S[(j, j)].sqrt());
         }
     }
-    Ok(())
+    Ok((nis, dof))
+}
+
+/// The predicted variance of one run's NEES sums (and, for the full gate, of its
+/// per-component sums), from the filter's error map; sampled every [`NULL_VAR_STRIDE`]-th
+/// run.
+struct RunNullVariance {
+    sample: bool,
+    nees: NeesNullVariance,
+    /// The per-component variances cost n_x times the NEES one; only the full gate reads
+    /// them.
+    components: Option<ComponentNullVariance>,
+    /// The filter did not give its error map at some step.
+    map_missing: bool,
+}
+
+impl RunNullVariance {
+    fn new(n_x: usize, mc: &McConfig, run: usize) -> Self {
+        RunNullVariance {
+            sample: run % NULL_VAR_STRIDE == 0,
+            nees: NeesNullVariance::new(n_x),
+            components: (mc.gate() == GateMode::Full).then(|| ComponentNullVariance::new(n_x)),
+            map_missing: false,
+        }
+    }
+
+    /// Step with the estimate's error map (`chol` is P's Cholesky factor).
+    #[inline]
+    fn step(&mut self, est: &Estimate, chol: &Cholesky<f64, Dyn>) {
+        if !self.sample || self.map_missing {
+            return;
+        }
+        let n_x = est.P.nrows();
+        match &est.error_map {
+            Some(a) if a.shape() == (n_x, n_x) => {
+                self.nees.step(a, &est.P, chol);
+                if let Some(cv) = &mut self.components {
+                    cv.step(a, &est.P);
+                }
+            }
+            _ => self.map_missing = true,
+        }
+    }
+
+    /// Add the run's variances to the sums (or count its missing map).
+    fn add_to(self, acc: &mut Accumulator) {
+        if self.map_missing {
+            acc.error_map_missing += 1;
+        } else if self.sample {
+            acc.nees_null_var += self.nees.variance();
+            acc.null_var_runs += 1;
+            if let Some(cv) = &self.components {
+                for (s, v) in acc.state_comp_null_var.iter_mut().zip(cv.variances()) {
+                    *s += v;
+                }
+                for (s, v) in acc.state_mean_null_var.iter_mut().zip(cv.mean_variances()) {
+                    *s += v;
+                }
+                acc.comp_null_var_runs += 1;
+            }
+        }
+    }
 }

@@ -186,7 +186,7 @@ pub fn run_linear_with_progress(
                 sched: &sched,
                 mc,
             };
-            chunk_dispatch(&job, range, acc)
+            run_chunk_dispatch(&job, range, acc)
         }),
         // The covariance recursion is the same in every run, so every run stops at the same
         // step.
@@ -251,24 +251,24 @@ fn col_mut(m: &mut DMatrix<f64>, j: usize) -> &mut [f64] {
     &mut m.as_mut_slice()[j * b..(j + 1) * b]
 }
 
-/// [`chunk`] compiled for AVX2 where the CPU has it (checked at run time), else for the
+/// [`run_chunk`] compiled for AVX2 where the CPU has it (checked at run time), else for the
 /// baseline. The arithmetic is the same element by element (Rust never fuses a multiply and
 /// an add on its own, and every reduction has a fixed order), so results are identical;
 /// only the vector width changes.
-fn chunk_dispatch(job: &Job<'_>, range: Range<usize>, acc: &mut Accumulator) {
+fn run_chunk_dispatch(job: &Job<'_>, range: Range<usize>, acc: &mut Accumulator) {
     #[cfg(target_arch = "x86_64")]
     if std::is_x86_feature_detected!("avx2") {
         // SAFETY: the CPU supports AVX2, checked just above.
-        unsafe { chunk_avx2(job, range, acc) };
+        unsafe { run_chunk_avx2(job, range, acc) };
         return;
     }
-    chunk(job, range, acc);
+    run_chunk(job, range, acc);
 }
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
-fn chunk_avx2(job: &Job<'_>, range: Range<usize>, acc: &mut Accumulator) {
-    chunk(job, range, acc);
+fn run_chunk_avx2(job: &Job<'_>, range: Range<usize>, acc: &mut Accumulator) {
+    run_chunk(job, range, acc);
 }
 
 /// What every chunk of one evaluation shares.
@@ -317,101 +317,181 @@ fn zero_row(r: usize, mats: &mut [&mut DMatrix<f64>]) {
 /// vector operations of length B. A run that faults ([`Fault`]) is recorded as diverged at
 /// that step and its rows are zeroed from then on (its error and innovation contribute
 /// nothing; the counts are of the live runs), so the sums equal the generic path's.
+///
+/// Every stage is `#[inline(always)]`, so that the whole step loop is compiled as one body
+/// for the AVX2 build of [`run_chunk_dispatch`].
 #[inline(always)]
-fn chunk(job: &Job<'_>, range: Range<usize>, acc: &mut Accumulator) {
-    let Job {
-        truth,
-        f,
-        map_t,
-        sched,
-        mc,
-    } = *job;
-    let n = f.n_x();
-    let nt = truth.F.nrows();
-    let m = f.H.nrows();
-    let b = range.len();
-    let lags = mc.lags();
-    let lq_t = truth.factors.q.transpose();
-    let lr_t = truth.factors.r.transpose();
-    let (rq, rr) = (lq_t.nrows(), lr_t.nrows());
-    let ft_t = truth.F.transpose();
-    let ht_t = truth.H.transpose();
-    let ff_t = f.F.transpose();
-    let hf_t = f.H.transpose();
-
-    let mut rngs: Vec<_> = range.clone().map(|i| run_rng(mc.seed(), i)).collect();
-    let mut xt = DMatrix::zeros(b, nt);
-    for (c, rng) in rngs.iter_mut().enumerate() {
-        xt.set_row(
-            c,
-            &sample_gaussian(&truth.x0, &truth.factors.p0, rng).transpose(),
-        );
+fn run_chunk(job: &Job<'_>, range: Range<usize>, acc: &mut Accumulator) {
+    let mut c = Chunk::new(job, range);
+    for k in 1..=job.mc.steps() {
+        let si = job.sched.at(k - 1);
+        c.simulate_and_filter(job, si);
+        let suspect = c.estimation_errors(job, si);
+        let (tot_x, tot_z) = c.normalize(job, si, k, suspect);
+        c.add_step_sums(job, acc, k, tot_x, tot_z);
+        c.add_state_component_sums(job, acc, si);
+        c.add_measurement_component_sums(job, acc, si, k);
     }
-    let mut xh = DMatrix::from_fn(b, n, |_, j| f.x0[j]);
-    let mut tmp_t = DMatrix::zeros(b, nt);
-    let mut tmp = DMatrix::zeros(b, n);
-    // The truth in the filter's state, when it has its own.
-    let mut mx = DMatrix::zeros(if map_t.is_some() { b } else { 0 }, n);
-    let mut wq = DMatrix::zeros(b, rq);
-    let mut wr = DMatrix::zeros(b, rr);
-    let mut z = DMatrix::zeros(b, m);
-    let mut nu = DMatrix::zeros(b, m);
-    let mut e = DMatrix::zeros(b, n);
-    let mut we = DMatrix::zeros(b, n);
-    let mut vn = DMatrix::zeros(b, m);
-    let (mut sq_x, mut sq_z) = (vec![0.0; b], vec![0.0; b]);
-    // Each run's NEES sum over its steps.
-    let mut run_nees = vec![0.0; b];
-    // Per-run sums of e_j²/P_jj and u_j², and the last `lags` normalized innovations.
-    let mut run_x = DMatrix::<f64>::zeros(b, n);
-    // Per-run sums of e_j/√P_jj.
-    let mut run_mx = DMatrix::<f64>::zeros(b, n);
-    let mut run_z = DMatrix::<f64>::zeros(b, m);
-    let mut u = DMatrix::<f64>::zeros(b, m);
-    let mut ring: Vec<DMatrix<f64>> = (0..lags).map(|_| DMatrix::zeros(b, m)).collect();
-    let mut ring_sq = vec![0.0; lags * m];
-    // Runs stopped by a fault, and (run, step, fault) in the order found.
-    let mut dead = vec![false; b];
-    let mut faults: Vec<(usize, usize, Fault)> = Vec::new();
+    c.finish(job, acc);
+}
 
-    for k in 1..=mc.steps() {
-        let i = k - 1;
-        let si = sched.at(i);
-        // Per run: process noise first, then measurement noise, as the generic path does.
+/// The model's matrices transposed, to multiply run rows from the right.
+struct Transposed {
+    /// Truth: process and measurement noise factors, transition, measurement.
+    lq: DMatrix<f64>,
+    lr: DMatrix<f64>,
+    ft: DMatrix<f64>,
+    ht: DMatrix<f64>,
+    /// Filter: transition, measurement.
+    ff: DMatrix<f64>,
+    hf: DMatrix<f64>,
+}
+
+/// One chunk's runs as matrix rows: their streams, truth and estimate, this step's
+/// quantities, and the per-run sums kept until the runs end.
+struct Chunk {
+    first_run: usize,
+    t: Transposed,
+    rngs: Vec<crate::SimRng>,
+    /// True state (B × n_t) and estimate (B × n).
+    xt: DMatrix<f64>,
+    xh: DMatrix<f64>,
+    tmp_t: DMatrix<f64>,
+    tmp: DMatrix<f64>,
+    /// The truth in the filter's state, when it has its own.
+    mx: DMatrix<f64>,
+    /// This step's standard normal draws for process and measurement noise.
+    wq: DMatrix<f64>,
+    wr: DMatrix<f64>,
+    z: DMatrix<f64>,
+    nu: DMatrix<f64>,
+    e: DMatrix<f64>,
+    /// `e' (L_P⁻¹)'` and `ν' (L_S⁻¹)'`: NEES and NIS are their row norms.
+    we: DMatrix<f64>,
+    vn: DMatrix<f64>,
+    sq_x: Vec<f64>,
+    sq_z: Vec<f64>,
+    /// Each run's NEES sum over its steps.
+    run_nees: Vec<f64>,
+    /// Per-run sums of e_j²/P_jj.
+    run_x: DMatrix<f64>,
+    /// Per-run sums of e_j/√P_jj.
+    run_mx: DMatrix<f64>,
+    /// Per-run sums of u_j².
+    run_z: DMatrix<f64>,
+    /// This step's normalized innovations, and the last `lags` steps' with their squares.
+    u: DMatrix<f64>,
+    ring: Vec<DMatrix<f64>>,
+    ring_sq: Vec<f64>,
+    /// Runs stopped by a fault, and (run, step, fault) in the order found.
+    dead: Vec<bool>,
+    faults: Vec<(usize, usize, Fault)>,
+    /// Runs not stopped.
+    live: usize,
+}
+
+impl Chunk {
+    /// The runs of `range` at their initial states.
+    #[inline(always)]
+    fn new(job: &Job<'_>, range: Range<usize>) -> Chunk {
+        let (truth, f, mc) = (job.truth, job.f, job.mc);
+        let (n, nt, m, b) = (f.n_x(), truth.F.nrows(), f.H.nrows(), range.len());
+        let lags = mc.lags();
+        let t = Transposed {
+            lq: truth.factors.q.transpose(),
+            lr: truth.factors.r.transpose(),
+            ft: truth.F.transpose(),
+            ht: truth.H.transpose(),
+            ff: f.F.transpose(),
+            hf: f.H.transpose(),
+        };
+        let (rq, rr) = (t.lq.nrows(), t.lr.nrows());
+        let mut rngs: Vec<_> = range.clone().map(|i| run_rng(mc.seed(), i)).collect();
+        let mut xt = DMatrix::zeros(b, nt);
         for (c, rng) in rngs.iter_mut().enumerate() {
+            xt.set_row(
+                c,
+                &sample_gaussian(&truth.x0, &truth.factors.p0, rng).transpose(),
+            );
+        }
+        Chunk {
+            first_run: range.start,
+            t,
+            rngs,
+            xt,
+            xh: DMatrix::from_fn(b, n, |_, j| f.x0[j]),
+            tmp_t: DMatrix::zeros(b, nt),
+            tmp: DMatrix::zeros(b, n),
+            mx: DMatrix::zeros(if job.map_t.is_some() { b } else { 0 }, n),
+            wq: DMatrix::zeros(b, rq),
+            wr: DMatrix::zeros(b, rr),
+            z: DMatrix::zeros(b, m),
+            nu: DMatrix::zeros(b, m),
+            e: DMatrix::zeros(b, n),
+            we: DMatrix::zeros(b, n),
+            vn: DMatrix::zeros(b, m),
+            sq_x: vec![0.0; b],
+            sq_z: vec![0.0; b],
+            run_nees: vec![0.0; b],
+            run_x: DMatrix::zeros(b, n),
+            run_mx: DMatrix::zeros(b, n),
+            run_z: DMatrix::zeros(b, m),
+            u: DMatrix::zeros(b, m),
+            ring: (0..lags).map(|_| DMatrix::zeros(b, m)).collect(),
+            ring_sq: vec![0.0; lags * m],
+            dead: vec![false; b],
+            faults: Vec::new(),
+            live: b,
+        }
+    }
+
+    /// One step of every run: the truth moves and is measured, and the filter predicts and
+    /// updates with the step's gain (schedule index `si`).
+    #[inline(always)]
+    fn simulate_and_filter(&mut self, job: &Job<'_>, si: usize) {
+        let t = &self.t;
+        let (rq, rr) = (t.lq.nrows(), t.lr.nrows());
+        // Per run: process noise first, then measurement noise, as the generic path does.
+        for (c, rng) in self.rngs.iter_mut().enumerate() {
             for r in 0..rq {
-                wq[(c, r)] = rng.sample(StandardNormal);
+                self.wq[(c, r)] = rng.sample(StandardNormal);
             }
             for r in 0..rr {
-                wr[(c, r)] = rng.sample(StandardNormal);
+                self.wr[(c, r)] = rng.sample(StandardNormal);
             }
         }
-        gemm_rows(&mut tmp_t, 1.0, &xt, &ft_t, 0.0);
-        gemm_rows(&mut tmp_t, 1.0, &wq, &lq_t, 1.0);
-        std::mem::swap(&mut xt, &mut tmp_t);
-        gemm_rows(&mut z, 1.0, &xt, &ht_t, 0.0);
-        gemm_rows(&mut z, 1.0, &wr, &lr_t, 1.0);
+        gemm_rows(&mut self.tmp_t, 1.0, &self.xt, &t.ft, 0.0);
+        gemm_rows(&mut self.tmp_t, 1.0, &self.wq, &t.lq, 1.0);
+        std::mem::swap(&mut self.xt, &mut self.tmp_t);
+        gemm_rows(&mut self.z, 1.0, &self.xt, &t.ht, 0.0);
+        gemm_rows(&mut self.z, 1.0, &self.wr, &t.lr, 1.0);
 
-        gemm_rows(&mut tmp, 1.0, &xh, &ff_t, 0.0);
-        std::mem::swap(&mut xh, &mut tmp);
-        nu.copy_from(&z);
-        gemm_rows(&mut nu, -1.0, &xh, &hf_t, 1.0);
-        gemm_rows(&mut xh, 1.0, &nu, &sched.Kt[si], 1.0);
-        let pinv = &sched.p_inv_diag[si];
-        // e = (map ·) x_true − x̂, noting the largest magnitude of the estimate. A truth that
-        // overflows needs no screen of its own: it makes e, and so the NEES, non-finite.
-        let truth_f = match map_t {
+        gemm_rows(&mut self.tmp, 1.0, &self.xh, &t.ff, 0.0);
+        std::mem::swap(&mut self.xh, &mut self.tmp);
+        self.nu.copy_from(&self.z);
+        gemm_rows(&mut self.nu, -1.0, &self.xh, &t.hf, 1.0);
+        gemm_rows(&mut self.xh, 1.0, &self.nu, &job.sched.Kt[si], 1.0);
+    }
+
+    /// e = (map ·) x_true − x̂; whether some run may have faulted: an estimate too large for
+    /// its covariance to resolve, or a truth state that overflowed.
+    #[inline(always)]
+    fn estimation_errors(&mut self, job: &Job<'_>, si: usize) -> bool {
+        let pinv = &job.sched.p_inv_diag[si];
+        // A truth that overflows needs no screen of its own: it makes e, and so the NEES,
+        // non-finite.
+        let truth_f = match job.map_t {
             Some(mt) => {
-                gemm_rows(&mut mx, 1.0, &xt, mt, 0.0);
-                &mx
+                gemm_rows(&mut self.mx, 1.0, &self.xt, mt, 0.0);
+                &self.mx
             }
-            None => &xt,
+            None => &self.xt,
         };
         let mut suspect = false;
-        for j in 0..n {
+        for j in 0..self.e.ncols() {
             let mut hb = 0;
-            let (tj, hj) = (col(truth_f, j), col(&xh, j));
-            for ((ev, t), h) in col_mut(&mut e, j).iter_mut().zip(tj).zip(hj) {
+            let (tj, hj) = (col(truth_f, j), col(&self.xh, j));
+            for ((ev, t), h) in col_mut(&mut self.e, j).iter_mut().zip(tj).zip(hj) {
                 *ev = t - h;
                 hb = max_abs_bits(hb, *h);
             }
@@ -421,142 +501,201 @@ fn chunk(job: &Job<'_>, range: Range<usize>, acc: &mut Accumulator) {
             suspect |= r > MAX_RATIO_SQ || r.is_nan();
         }
         // Truth states the map leaves out can overflow unseen by e.
-        suspect |= map_t.is_some() && xt.iter().any(|v| !v.is_finite());
-        for r in (0..b).filter(|&r| dead[r]) {
-            zero_row(r, &mut [&mut e, &mut nu]);
+        suspect |= job.map_t.is_some() && self.xt.iter().any(|v| !v.is_finite());
+        suspect
+    }
+
+    /// The whitened error and innovation, and the totals of their squares over the live
+    /// runs; when a run may have faulted, it is found, stopped and its rows zeroed first.
+    #[inline(always)]
+    fn normalize(&mut self, job: &Job<'_>, si: usize, k: usize, suspect: bool) -> (f64, f64) {
+        for r in (0..self.dead.len()).filter(|&r| self.dead[r]) {
+            zero_row(r, &mut [&mut self.e, &mut self.nu]);
         }
-        gemm_rows(&mut we, 1.0, &e, &sched.Wt[si], 0.0);
-        gemm_rows(&mut vn, 1.0, &nu, &sched.Vt[si], 0.0);
+        let sched = job.sched;
+        gemm_rows(&mut self.we, 1.0, &self.e, &sched.Wt[si], 0.0);
+        gemm_rows(&mut self.vn, 1.0, &self.nu, &sched.Vt[si], 0.0);
         // NEES and NIS per run are row norms.
-        let mut tot_x = row_norms(&mut sq_x, &we);
-        let mut tot_z = row_norms(&mut sq_z, &vn);
-        if suspect || !tot_x.is_finite() || !tot_z.is_finite() {
-            for r in 0..b {
-                let fault = if dead[r] {
-                    None
-                } else if xt.row(r).iter().any(|v| !v.is_finite()) {
-                    Some(Fault::TruthOverflow)
-                } else if let Some(f) = Fault::resolution(n, |j| {
-                    xh[(r, j)].powi(2) / (1.0 / pinv[j]).max(e[(r, j)].powi(2))
-                }) {
-                    Some(f)
-                } else if !sq_x[r].is_finite() || !sq_z[r].is_finite() {
-                    Some(Fault::Overflow)
-                } else {
-                    None
-                };
-                if let Some(fault) = fault {
-                    dead[r] = true;
-                    faults.push((range.start + r, k, fault));
-                }
-                if dead[r] {
-                    // Restart the stopped run's rows from zero so that they stay finite.
-                    zero_row(r, &mut [&mut e, &mut nu, &mut xt, &mut xh]);
-                }
-            }
-            gemm_rows(&mut we, 1.0, &e, &sched.Wt[si], 0.0);
-            gemm_rows(&mut vn, 1.0, &nu, &sched.Vt[si], 0.0);
-            tot_x = row_norms(&mut sq_x, &we);
-            tot_z = row_norms(&mut sq_z, &vn);
+        let tot_x = row_norms(&mut self.sq_x, &self.we);
+        let tot_z = row_norms(&mut self.sq_z, &self.vn);
+        if !suspect && tot_x.is_finite() && tot_z.is_finite() {
+            return (tot_x, tot_z);
         }
-        let live = dead.iter().filter(|d| !**d).count();
+        self.stop_faulted(&sched.p_inv_diag[si], k);
+        gemm_rows(&mut self.we, 1.0, &self.e, &sched.Wt[si], 0.0);
+        gemm_rows(&mut self.vn, 1.0, &self.nu, &sched.Vt[si], 0.0);
+        (
+            row_norms(&mut self.sq_x, &self.we),
+            row_norms(&mut self.sq_z, &self.vn),
+        )
+    }
+
+    /// Stop each live run whose numbers at step `k` have stopped meaning anything, and
+    /// restart every stopped run's rows from zero so that they stay finite.
+    #[cold]
+    fn stop_faulted(&mut self, pinv: &DVector<f64>, k: usize) {
+        let n = self.e.ncols();
+        for r in 0..self.dead.len() {
+            let fault = if self.dead[r] {
+                None
+            } else if self.xt.row(r).iter().any(|v| !v.is_finite()) {
+                Some(Fault::TruthOverflow)
+            } else if let Some(f) = Fault::resolution(n, |j| {
+                self.xh[(r, j)].powi(2) / (1.0 / pinv[j]).max(self.e[(r, j)].powi(2))
+            }) {
+                Some(f)
+            } else if !self.sq_x[r].is_finite() || !self.sq_z[r].is_finite() {
+                Some(Fault::Overflow)
+            } else {
+                None
+            };
+            if let Some(fault) = fault {
+                self.dead[r] = true;
+                self.live -= 1;
+                self.faults.push((self.first_run + r, k, fault));
+            }
+            if self.dead[r] {
+                zero_row(
+                    r,
+                    &mut [&mut self.e, &mut self.nu, &mut self.xt, &mut self.xh],
+                );
+            }
+        }
+    }
+
+    /// The step's NEES and NIS sums (totals `tot_x`, `tot_z`) and counts.
+    #[inline(always)]
+    fn add_step_sums(
+        &mut self,
+        job: &Job<'_>,
+        acc: &mut Accumulator,
+        k: usize,
+        tot_x: f64,
+        tot_z: f64,
+    ) {
+        let i = k - 1;
+        let (n, m, live) = (job.f.n_x(), job.f.H.nrows(), self.live);
         acc.nees_sum[i] += tot_x;
-        acc.nees_sq[i] += dot(&sq_x, &sq_x);
+        acc.nees_sq[i] += dot(&self.sq_x, &self.sq_x);
         acc.nis_sum[i] += tot_z;
-        acc.nis_sq[i] += dot(&sq_z, &sq_z);
-        for (r, s) in run_nees.iter_mut().zip(&sq_x) {
+        acc.nis_sq[i] += dot(&self.sq_z, &self.sq_z);
+        for (r, s) in self.run_nees.iter_mut().zip(&self.sq_x) {
             *r += s;
         }
         acc.nees_dof[i] += (n * live) as f64;
         acc.nees_count[i] += live as f64;
         acc.nis_dof[i] += (m * live) as f64;
         acc.nis_count[i] += live as f64;
+    }
 
-        let pis = &sched.p_inv_sqrt_diag[si];
-        for j in 0..n {
-            let ej = col(&e, j);
+    /// Per state component: the step's `e_j²/P_jj` and `e_j/√P_jj` sums, and each run's.
+    #[inline(always)]
+    fn add_state_component_sums(&mut self, job: &Job<'_>, acc: &mut Accumulator, si: usize) {
+        let (pinv, pis) = (&job.sched.p_inv_diag[si], &job.sched.p_inv_sqrt_diag[si]);
+        let live = self.live as f64;
+        for j in 0..self.e.ncols() {
+            let ej = col(&self.e, j);
             acc.state_comp_total[j] += dot(ej, ej) * pinv[j];
-            acc.state_comp_samples[j] += live as f64;
-            acc.state_mean_samples[j] += live as f64;
-            for (r, v) in col_mut(&mut run_x, j).iter_mut().zip(ej) {
+            acc.state_comp_samples[j] += live;
+            acc.state_mean_samples[j] += live;
+            for (r, v) in col_mut(&mut self.run_x, j).iter_mut().zip(ej) {
                 *r += v * v * pinv[j];
             }
             // Stopped runs' rows are zero, so they add nothing.
             let mut sum = 0.0;
-            for (r, v) in col_mut(&mut run_mx, j).iter_mut().zip(ej) {
+            for (r, v) in col_mut(&mut self.run_mx, j).iter_mut().zip(ej) {
                 let y = v * pis[j];
                 *r += y;
                 sum += y;
             }
             acc.state_mean_total[j] += sum;
         }
-        let srt = &sched.s_inv_sqrt_diag[si];
+    }
+
+    /// Per measurement component: the normalized innovations' sums, each run's sum of
+    /// squares, and their products with the last `lags` steps' (whiteness).
+    #[inline(always)]
+    fn add_measurement_component_sums(
+        &mut self,
+        job: &Job<'_>,
+        acc: &mut Accumulator,
+        si: usize,
+        k: usize,
+    ) {
+        let srt = &job.sched.s_inv_sqrt_diag[si];
+        let (m, lags, live) = (self.u.ncols(), job.mc.lags(), self.live as f64);
         let slot = if lags > 0 { k % lags } else { 0 };
         for j in 0..m {
-            for (uv, nv) in col_mut(&mut u, j).iter_mut().zip(col(&nu, j)) {
+            for (uv, nv) in col_mut(&mut self.u, j).iter_mut().zip(col(&self.nu, j)) {
                 *uv = nv * srt[j];
             }
-            let uj = col(&u, j);
+            let uj = col(&self.u, j);
             let total = dot(uj, uj);
             acc.meas_mean_total[j] += uj.iter().sum::<f64>();
-            for (r, v) in col_mut(&mut run_z, j).iter_mut().zip(uj) {
+            for (r, v) in col_mut(&mut self.run_z, j).iter_mut().zip(uj) {
                 *r += v * v;
             }
             acc.meas_comp_total[j] += total;
-            acc.meas_comp_samples[j] += live as f64;
+            acc.meas_comp_samples[j] += live;
             for lag in 1..=lags.min(k - 1) {
                 let prev = (k - lag) % lags;
                 let o = (lag - 1) * m + j;
-                acc.white_ab[o] += dot(uj, col(&ring[prev], j));
+                acc.white_ab[o] += dot(uj, col(&self.ring[prev], j));
                 acc.white_a2[o] += total;
-                acc.white_b2[o] += ring_sq[prev * m + j];
-                acc.white_pairs[o] += live as f64;
+                acc.white_b2[o] += self.ring_sq[prev * m + j];
+                acc.white_pairs[o] += live;
             }
             if lags > 0 {
-                ring_sq[slot * m + j] = total;
+                self.ring_sq[slot * m + j] = total;
             }
         }
         if lags > 0 {
-            ring[slot].copy_from(&u);
+            self.ring[slot].copy_from(&self.u);
         }
     }
-    let t = mc.steps() as f64;
-    let live = dead.iter().filter(|d| !**d).count();
-    for (j, col) in run_x.column_iter().enumerate() {
-        for (v, _) in col.iter().zip(&dead).filter(|(_, d)| !**d) {
-            acc.add_run_component(true, j, v / t);
+
+    /// The live runs' own sums, the faults in run order, and the runs' share of the null
+    /// variances.
+    fn finish(mut self, job: &Job<'_>, acc: &mut Accumulator) {
+        let t = job.mc.steps() as f64;
+        let (dead, live) = (&self.dead, self.live);
+        for (j, col) in self.run_x.column_iter().enumerate() {
+            for (v, _) in col.iter().zip(dead).filter(|(_, d)| !**d) {
+                acc.add_run_component(true, j, v / t);
+            }
         }
-    }
-    for (j, col) in run_mx.column_iter().enumerate() {
-        for (v, _) in col.iter().zip(&dead).filter(|(_, d)| !**d) {
-            acc.state_mean_run_sq[j] += v * v;
+        for (j, col) in self.run_mx.column_iter().enumerate() {
+            for (v, _) in col.iter().zip(dead).filter(|(_, d)| !**d) {
+                acc.state_mean_run_sq[j] += v * v;
+            }
         }
-    }
-    for (j, col) in run_z.column_iter().enumerate() {
-        for (v, _) in col.iter().zip(&dead).filter(|(_, d)| !**d) {
-            acc.add_run_component(false, j, v / t);
+        for (j, col) in self.run_z.column_iter().enumerate() {
+            for (v, _) in col.iter().zip(dead).filter(|(_, d)| !**d) {
+                acc.add_run_component(false, j, v / t);
+            }
+            acc.meas_comp_runs[j] += live;
         }
-        acc.meas_comp_runs[j] += live;
-    }
-    for (&total, _) in run_nees.iter().zip(&dead).filter(|(_, d)| !**d) {
-        acc.add_run_nees_total(total);
-    }
-    // In run order, as the generic path records them.
-    faults.sort_by_key(|&(run, ..)| run);
-    for (run, step, fault) in faults {
-        acc.record_stop(run, step, fault.cause(), fault.reason(step));
-    }
-    acc.runs += b;
-    acc.nees_null_var += sched.null_var * live as f64;
-    acc.null_var_runs += live;
-    if !sched.comp_null_var.is_empty() {
-        for (s, v) in acc.state_comp_null_var.iter_mut().zip(&sched.comp_null_var) {
-            *s += v * live as f64;
+        for (&total, _) in self.run_nees.iter().zip(dead).filter(|(_, d)| !**d) {
+            acc.add_run_nees_total(total);
         }
-        for (s, v) in acc.state_mean_null_var.iter_mut().zip(&sched.mean_null_var) {
-            *s += v * live as f64;
+        // In run order, as the generic path records them.
+        self.faults.sort_by_key(|&(run, ..)| run);
+        for (run, step, fault) in self.faults {
+            acc.record_stop(run, step, fault.cause(), fault.reason(step));
         }
-        acc.comp_null_var_runs += live;
+        let sched = job.sched;
+        acc.runs += self.dead.len();
+        acc.nees_null_var += sched.null_var * live as f64;
+        acc.null_var_runs += live;
+        if !sched.comp_null_var.is_empty() {
+            for (s, v) in acc.state_comp_null_var.iter_mut().zip(&sched.comp_null_var) {
+                *s += v * live as f64;
+            }
+            for (s, v) in acc.state_mean_null_var.iter_mut().zip(&sched.mean_null_var) {
+                *s += v * live as f64;
+            }
+            acc.comp_null_var_runs += live;
+        }
     }
 }
 
@@ -600,9 +739,9 @@ mod tests {
             sched: &sched,
             mc: &mc,
         };
-        chunk(&job, 0..100, &mut base);
+        run_chunk(&job, 0..100, &mut base);
         let mut fast = Accumulator::new(50, 2, 1, 3);
-        chunk_dispatch(&job, 0..100, &mut fast);
+        run_chunk_dispatch(&job, 0..100, &mut fast);
         assert_eq!(base, fast);
         assert!(base.nees_sum.iter().all(|v| *v > 0.0));
     }

@@ -86,52 +86,6 @@ impl Validator<'_> {
         let mut out = Vec::with_capacity(terms.len());
         for (t, term) in terms.iter().enumerate() {
             let tf = format!("{field}[{t}]");
-            let indices = |needed: Option<usize>| -> VResult<Vec<usize>> {
-                let Some(ix) = &term.indices else {
-                    return self.err(
-                        format!("{tf}.indices"),
-                        format!("kind '{}' needs indices", kind_name(term.kind)),
-                    );
-                };
-                if let Some(k) = needed
-                    && ix.len() != k
-                {
-                    return self.err(
-                        format!("{tf}.indices"),
-                        format!(
-                            "needs exactly {k} indices (position, velocity), got {}",
-                            ix.len()
-                        ),
-                    );
-                }
-                if ix.is_empty() {
-                    return self.err(format!("{tf}.indices"), "needs at least one index");
-                }
-                let mut v = Vec::with_capacity(ix.len());
-                for &i in ix {
-                    if i < 0 || i as usize >= dim {
-                        return self.err(
-                            format!("{tf}.indices"),
-                            format!("index {i} out of range 0..{dim}"),
-                        );
-                    }
-                    if v.contains(&(i as usize)) {
-                        return self.err(format!("{tf}.indices"), format!("index {i} repeated"));
-                    }
-                    v.push(i as usize);
-                }
-                Ok(v)
-            };
-            let unexpected = |name: &str, present: bool| -> VResult<()> {
-                if present {
-                    self.err(
-                        format!("{tf}.{name}"),
-                        format!("not used by kind '{}'", kind_name(term.kind)),
-                    )
-                } else {
-                    Ok(())
-                }
-            };
             if !is_q
                 && matches!(
                     term.kind,
@@ -146,110 +100,178 @@ impl Validator<'_> {
                     ),
                 );
             }
-            let basis = match term.kind {
-                TermKind::Dwna | TermKind::Cwna => {
-                    unexpected("matrix", term.matrix.is_some())?;
-                    unexpected("input", term.input.is_some())?;
-                    let ix = indices(Some(2))?;
-                    let block = if term.kind == TermKind::Dwna {
-                        dwna_block(dt)
-                    } else {
-                        cwna_block(dt)
-                    };
-                    embed(dim, &ix, &block)
-                }
-                TermKind::Diag => {
-                    unexpected("matrix", term.matrix.is_some())?;
-                    unexpected("input", term.input.is_some())?;
-                    let ix = indices(None)?;
-                    let mut m = DMatrix::zeros(dim, dim);
-                    for i in ix {
-                        m[(i, i)] = 1.0;
-                    }
-                    m
-                }
-                TermKind::Matrix => {
-                    unexpected("indices", term.indices.is_some())?;
-                    unexpected("input", term.input.is_some())?;
-                    let Some(ms) = &term.matrix else {
-                        return self.err(format!("{tf}.matrix"), "kind 'matrix' needs matrix");
-                    };
-                    let m = self.matrix(&format!("{tf}.matrix"), ms, Some(dim), Some(dim))?;
-                    self.symmetric_psd(&format!("{tf}.matrix"), &m, false)?;
-                    m
-                }
-                TermKind::Continuous => {
-                    unexpected("indices", term.indices.is_some())?;
-                    unexpected("matrix", term.matrix.is_some())?;
-                    let Some(a) = a else {
-                        return self.err(
-                            format!("{tf}.kind"),
-                            "kind 'continuous' needs the model's continuous-time A",
-                        );
-                    };
-                    let Some(g) = &term.input else {
-                        return self.err(
-                            format!("{tf}.input"),
-                            "kind 'continuous' needs input (the noise input vector g)",
-                        );
-                    };
-                    let g = self.vector(&format!("{tf}.input"), g, dim)?;
-                    van_loan(a, &(&g * g.transpose()), dt)
-                }
-            };
+            let basis = self.term_basis(&tf, term, dim, dt, a)?;
             if basis.iter().any(|v| !v.is_finite()) {
                 return self.err(
                     tf.clone(),
                     format!("kind '{}' overflows with dt = {dt:e}", kind_name(term.kind)),
                 );
             }
-            let coef = match (&term.param, term.value) {
-                (Some(_), Some(_)) => {
-                    return self.err(
-                        format!("{tf}.value"),
-                        "give either param or value, not both",
-                    );
-                }
-                (None, None) => {
-                    return self.err(
-                        tf.clone(),
-                        "needs param (a named parameter) or value (a fixed number)",
-                    );
-                }
-                (None, Some(v)) => {
-                    self.finite(&format!("{tf}.value"), v)?;
-                    if v < 0.0 {
-                        return self.err(
-                            format!("{tf}.value"),
-                            format!("{v} is negative; a variance must be ≥ 0"),
-                        );
-                    }
-                    Coef::Fixed(v)
-                }
-                (Some(name), None) => {
-                    let Some(ps) = params else {
-                        return self.err(
-                            format!("{tf}.param"),
-                            "the truth takes fixed values: use value",
-                        );
-                    };
-                    match ps.index(name) {
-                        Some(i) => Coef::Param(i),
-                        None => {
-                            let known = ps.names().join(", ");
-                            return self.err(
-                                format!("{tf}.param"),
-                                format!(
-                                    "unknown parameter '{name}' (defined in [params]: {known})"
-                                ),
-                            );
-                        }
-                    }
-                }
-            };
+            let coef = self.term_coef(&tf, term, params)?;
             out.push(CovTerm { coef, basis });
         }
         Ok(CovModel { dim, terms: out })
+    }
+
+    /// The basis matrix of term `tf` of its kind, in a state or measurement of `dim`
+    /// components.
+    fn term_basis(
+        &self,
+        tf: &str,
+        term: &TermSpec,
+        dim: usize,
+        dt: f64,
+        a: Option<&DMatrix<f64>>,
+    ) -> VResult<DMatrix<f64>> {
+        let unused = |name: &str, present: bool| -> VResult<()> {
+            if present {
+                self.err(
+                    format!("{tf}.{name}"),
+                    format!("not used by kind '{}'", kind_name(term.kind)),
+                )
+            } else {
+                Ok(())
+            }
+        };
+        match term.kind {
+            TermKind::Dwna | TermKind::Cwna => {
+                unused("matrix", term.matrix.is_some())?;
+                unused("input", term.input.is_some())?;
+                let ix = self.term_indices(tf, term, dim, Some(2))?;
+                let block = if term.kind == TermKind::Dwna {
+                    dwna_block(dt)
+                } else {
+                    cwna_block(dt)
+                };
+                Ok(embed(dim, &ix, &block))
+            }
+            TermKind::Diag => {
+                unused("matrix", term.matrix.is_some())?;
+                unused("input", term.input.is_some())?;
+                let ix = self.term_indices(tf, term, dim, None)?;
+                let mut m = DMatrix::zeros(dim, dim);
+                for i in ix {
+                    m[(i, i)] = 1.0;
+                }
+                Ok(m)
+            }
+            TermKind::Matrix => {
+                unused("indices", term.indices.is_some())?;
+                unused("input", term.input.is_some())?;
+                let Some(ms) = &term.matrix else {
+                    return self.err(format!("{tf}.matrix"), "kind 'matrix' needs matrix");
+                };
+                let m = self.matrix(&format!("{tf}.matrix"), ms, Some(dim), Some(dim))?;
+                self.symmetric_psd(&format!("{tf}.matrix"), &m, false)?;
+                Ok(m)
+            }
+            TermKind::Continuous => {
+                unused("indices", term.indices.is_some())?;
+                unused("matrix", term.matrix.is_some())?;
+                let Some(a) = a else {
+                    return self.err(
+                        format!("{tf}.kind"),
+                        "kind 'continuous' needs the model's continuous-time A",
+                    );
+                };
+                let Some(g) = &term.input else {
+                    return self.err(
+                        format!("{tf}.input"),
+                        "kind 'continuous' needs input (the noise input vector g)",
+                    );
+                };
+                let g = self.vector(&format!("{tf}.input"), g, dim)?;
+                Ok(van_loan(a, &(&g * g.transpose()), dt))
+            }
+        }
+    }
+
+    /// Term `tf`'s indices into `dim` components: `needed` of them where its kind fixes
+    /// the count, distinct and in range.
+    fn term_indices(
+        &self,
+        tf: &str,
+        term: &TermSpec,
+        dim: usize,
+        needed: Option<usize>,
+    ) -> VResult<Vec<usize>> {
+        let Some(ix) = &term.indices else {
+            return self.err(
+                format!("{tf}.indices"),
+                format!("kind '{}' needs indices", kind_name(term.kind)),
+            );
+        };
+        if let Some(k) = needed
+            && ix.len() != k
+        {
+            return self.err(
+                format!("{tf}.indices"),
+                format!(
+                    "needs exactly {k} indices (position, velocity), got {}",
+                    ix.len()
+                ),
+            );
+        }
+        if ix.is_empty() {
+            return self.err(format!("{tf}.indices"), "needs at least one index");
+        }
+        let mut v = Vec::with_capacity(ix.len());
+        for &i in ix {
+            if i < 0 || i as usize >= dim {
+                return self.err(
+                    format!("{tf}.indices"),
+                    format!("index {i} out of range 0..{dim}"),
+                );
+            }
+            if v.contains(&(i as usize)) {
+                return self.err(format!("{tf}.indices"), format!("index {i} repeated"));
+            }
+            v.push(i as usize);
+        }
+        Ok(v)
+    }
+
+    /// Term `tf`'s coefficient: a fixed variance, or a parameter of `params` (none: the
+    /// truth, which takes fixed values only).
+    fn term_coef(&self, tf: &str, term: &TermSpec, params: Option<&ParamSpace>) -> VResult<Coef> {
+        match (&term.param, term.value) {
+            (Some(_), Some(_)) => self.err(
+                format!("{tf}.value"),
+                "give either param or value, not both",
+            ),
+            (None, None) => self.err(
+                tf.to_string(),
+                "needs param (a named parameter) or value (a fixed number)",
+            ),
+            (None, Some(v)) => {
+                self.finite(&format!("{tf}.value"), v)?;
+                if v < 0.0 {
+                    return self.err(
+                        format!("{tf}.value"),
+                        format!("{v} is negative; a variance must be ≥ 0"),
+                    );
+                }
+                Ok(Coef::Fixed(v))
+            }
+            (Some(name), None) => {
+                let Some(ps) = params else {
+                    return self.err(
+                        format!("{tf}.param"),
+                        "the truth takes fixed values: use value",
+                    );
+                };
+                match ps.index(name) {
+                    Some(i) => Ok(Coef::Param(i)),
+                    None => {
+                        let known = ps.names().join(", ");
+                        self.err(
+                            format!("{tf}.param"),
+                            format!("unknown parameter '{name}' (defined in [params]: {known})"),
+                        )
+                    }
+                }
+            }
+        }
     }
 }
 

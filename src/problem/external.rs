@@ -8,7 +8,7 @@ use super::validate::{VResult, Validator};
 use crate::experiment::{Definition, Info};
 use crate::external::{ExternalExperiment, WorkerCommand};
 use crate::montecarlo::McConfig;
-use crate::params::Target;
+use crate::params::{ParamSpace, Target};
 use crate::records::{Layout, SensorLayout, StateLayout};
 
 /// Most workers a problem may ask for.
@@ -44,25 +44,7 @@ impl Validator<'_> {
                 "missing: name the sensors and their components (and state_names, with ground truth)",
             );
         }
-        let mut sensors = Vec::new();
-        let mut measurement_names = Vec::new();
-        for (name, comps) in &e.sensors {
-            if !crate::records::valid_sensor(name) {
-                return self.err(
-                    format!("external.sensors.{name}"),
-                    "a sensor name is a letter, then letters, digits and _ (not 'dof')",
-                );
-            }
-            if comps.is_empty() {
-                return self.err(format!("external.sensors.{name}"), "no components");
-            }
-            measurement_names.extend(comps.iter().map(|c| format!("{name}_{c}")));
-            sensors.push(SensorLayout {
-                name: name.clone(),
-                dim: comps.len(),
-                components: true,
-            });
-        }
+        let (sensors, measurement_names) = self.external_sensors(e)?;
         let state_names = s.state_names.clone().unwrap_or_default();
         if s.state_names.as_ref().is_some_and(Vec::is_empty) {
             return self.err(
@@ -77,27 +59,7 @@ impl Validator<'_> {
             }),
             sensors,
         };
-        let workers = match e.workers {
-            None => std::thread::available_parallelism().map_or(1, |n| n.get()),
-            Some(n) if (1..=MAX_WORKERS).contains(&n) => n as usize,
-            Some(n) => {
-                return self.err(
-                    "external.workers",
-                    format!("{n}: must be 1 to {MAX_WORKERS}"),
-                );
-            }
-        };
-        let timeout = match e.timeout {
-            None => 300.0,
-            Some(t) if t.is_finite() && t > 0.0 && t <= MAX_TIMEOUT => t,
-            Some(t) => {
-                return self.err(
-                    "external.timeout",
-                    // `{:?}`: 1e300 as written, not its 301 digits.
-                    format!("{t:?}: must be a number of seconds in (0, {MAX_TIMEOUT}]"),
-                );
-            }
-        };
+        let (workers, timeout) = self.external_workers(e)?;
         let params = self.params(&s.params)?;
         if params.params.is_empty() {
             return self.err(
@@ -107,57 +69,9 @@ impl Validator<'_> {
         }
         let truth = match &e.truth {
             None => None,
-            Some(t) => {
-                for name in t.keys() {
-                    if params.index(name).is_none() {
-                        return self.err(format!("external.truth.{name}"), "not one of [params]");
-                    }
-                }
-                let mut v = Vec::new();
-                for p in &params.params {
-                    match t.get(&p.name) {
-                        Some(&x) if x.is_finite() && x > 0.0 => v.push(x),
-                        Some(&x) => {
-                            return self.err(
-                                format!("external.truth.{}", p.name),
-                                format!("{x}: must be > 0"),
-                            );
-                        }
-                        None => {
-                            return self.err("external.truth", format!("no value for {}", p.name));
-                        }
-                    }
-                }
-                Some(v)
-            }
+            Some(t) => Some(self.external_truth(t, &params)?),
         };
-        let mut targets = vec![None; params.params.len()];
-        for (name, comps) in e.drives.iter().flatten() {
-            let field = format!("external.drives.{name}");
-            let Some(i) = params.index(name) else {
-                return self.err(field, "not one of [params]");
-            };
-            if comps.is_empty() {
-                return self.err(
-                    field,
-                    "empty: name the state or measurement components it drives",
-                );
-            }
-            let find = |list: &[String], c: &str| list.iter().position(|n| n == c);
-            let states: Option<Vec<usize>> = comps.iter().map(|c| find(&state_names, c)).collect();
-            let meas: Option<Vec<usize>> =
-                comps.iter().map(|c| find(&measurement_names, c)).collect();
-            targets[i] = Some(match (states, meas) {
-                (Some(s), _) => Target::process(&s),
-                (None, Some(m)) => Target::measurement(&m),
-                (None, None) => {
-                    return self.err(
-                        field,
-                        unknown_component(comps, &state_names, &measurement_names, &e.sensors),
-                    );
-                }
-            });
-        }
+        let targets = self.external_targets(e, &params, &state_names, &measurement_names)?;
         let dir = match self.file.parent() {
             Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
             _ => std::path::PathBuf::from("."),
@@ -180,6 +94,125 @@ impl Validator<'_> {
             mc,
         };
         Ok(ExternalExperiment::new(definition, layout, command, truth).with_targets(targets))
+    }
+
+    /// The sensors of `[external.sensors]` and their measurement components' names
+    /// (`<sensor>_<component>`).
+    fn external_sensors(&self, e: &ExternalSpec) -> VResult<(Vec<SensorLayout>, Vec<String>)> {
+        let mut sensors = Vec::new();
+        let mut measurement_names = Vec::new();
+        for (name, comps) in &e.sensors {
+            if !crate::records::valid_sensor(name) {
+                return self.err(
+                    format!("external.sensors.{name}"),
+                    "a sensor name is a letter, then letters, digits and _ (not 'dof')",
+                );
+            }
+            if comps.is_empty() {
+                return self.err(format!("external.sensors.{name}"), "no components");
+            }
+            measurement_names.extend(comps.iter().map(|c| format!("{name}_{c}")));
+            sensors.push(SensorLayout {
+                name: name.clone(),
+                dim: comps.len(),
+                components: true,
+            });
+        }
+        Ok((sensors, measurement_names))
+    }
+
+    /// The number of workers (the machine's parallelism by default) and the timeout of one
+    /// answer, s (300 by default).
+    fn external_workers(&self, e: &ExternalSpec) -> VResult<(usize, f64)> {
+        let workers = match e.workers {
+            None => std::thread::available_parallelism().map_or(1, |n| n.get()),
+            Some(n) if (1..=MAX_WORKERS).contains(&n) => n as usize,
+            Some(n) => {
+                return self.err(
+                    "external.workers",
+                    format!("{n}: must be 1 to {MAX_WORKERS}"),
+                );
+            }
+        };
+        let timeout = match e.timeout {
+            None => 300.0,
+            Some(t) if t.is_finite() && t > 0.0 && t <= MAX_TIMEOUT => t,
+            Some(t) => {
+                return self.err(
+                    "external.timeout",
+                    // `{:?}`: 1e300 as written, not its 301 digits.
+                    format!("{t:?}: must be a number of seconds in (0, {MAX_TIMEOUT}]"),
+                );
+            }
+        };
+        Ok((workers, timeout))
+    }
+
+    /// `[external.truth]`'s value of every parameter, in parameter order.
+    fn external_truth(
+        &self,
+        t: &indexmap::IndexMap<String, f64>,
+        params: &ParamSpace,
+    ) -> VResult<Vec<f64>> {
+        for name in t.keys() {
+            if params.index(name).is_none() {
+                return self.err(format!("external.truth.{name}"), "not one of [params]");
+            }
+        }
+        let mut v = Vec::new();
+        for p in &params.params {
+            match t.get(&p.name) {
+                Some(&x) if x.is_finite() && x > 0.0 => v.push(x),
+                Some(&x) => {
+                    return self.err(
+                        format!("external.truth.{}", p.name),
+                        format!("{x}: must be > 0"),
+                    );
+                }
+                None => {
+                    return self.err("external.truth", format!("no value for {}", p.name));
+                }
+            }
+        }
+        Ok(v)
+    }
+
+    /// What each parameter drives, from `[external.drives]` (`None` where not declared).
+    fn external_targets(
+        &self,
+        e: &ExternalSpec,
+        params: &ParamSpace,
+        state_names: &[String],
+        measurement_names: &[String],
+    ) -> VResult<Vec<Option<Target>>> {
+        let mut targets = vec![None; params.params.len()];
+        for (name, comps) in e.drives.iter().flatten() {
+            let field = format!("external.drives.{name}");
+            let Some(i) = params.index(name) else {
+                return self.err(field, "not one of [params]");
+            };
+            if comps.is_empty() {
+                return self.err(
+                    field,
+                    "empty: name the state or measurement components it drives",
+                );
+            }
+            let find = |list: &[String], c: &str| list.iter().position(|n| n == c);
+            let states: Option<Vec<usize>> = comps.iter().map(|c| find(state_names, c)).collect();
+            let meas: Option<Vec<usize>> =
+                comps.iter().map(|c| find(measurement_names, c)).collect();
+            targets[i] = Some(match (states, meas) {
+                (Some(s), _) => Target::process(&s),
+                (None, Some(m)) => Target::measurement(&m),
+                (None, None) => {
+                    return self.err(
+                        field,
+                        unknown_component(comps, state_names, measurement_names, &e.sensors),
+                    );
+                }
+            });
+        }
+        Ok(targets)
     }
 }
 

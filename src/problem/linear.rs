@@ -7,7 +7,7 @@
 
 #![allow(non_snake_case)]
 
-use nalgebra::DMatrix;
+use nalgebra::{DMatrix, DVector};
 
 use super::spec::{FilterSpec, MatrixSpec, ProblemSpec, TruthSpec};
 use super::validate::{VResult, Validator};
@@ -15,6 +15,18 @@ use crate::experiment::{Definition, FilterModel, Info, LinearExperiment};
 use crate::input::FileError;
 use crate::model::LinearGaussianModel;
 use crate::montecarlo::McConfig;
+use crate::params::ParamSpace;
+
+/// `[truth]`'s matrices: F (and A, when given in continuous time), H, x0, P0, Q, R.
+struct TruthMatrices {
+    F: DMatrix<f64>,
+    A: Option<DMatrix<f64>>,
+    H: DMatrix<f64>,
+    x0: DVector<f64>,
+    P0: DMatrix<f64>,
+    Q: DMatrix<f64>,
+    R: DMatrix<f64>,
+}
 
 impl Validator<'_> {
     /// Build the linear truth, the filter's model and the parameters.
@@ -27,29 +39,85 @@ impl Validator<'_> {
         mc: McConfig,
     ) -> VResult<LinearExperiment> {
         let dt = s.dt.unwrap_or(1.0);
-        let Some((tF, tA)) = self.dynamics("truth", &t.F, &t.A, dt, None)? else {
-            return self.err("truth.F", "missing: give F (discrete) or A (continuous)");
-        };
-        let n = tF.nrows();
-        let tH = self.matrix("truth.H", &t.H, None, Some(n))?;
-        let m = tH.nrows();
-        let tx0 = self.vector("truth.x0", &t.x0, n)?;
-        let tP0 = self.matrix("truth.P0", &t.P0, Some(n), Some(n))?;
-        self.symmetric_psd("truth.P0", &tP0, false)?;
-        let tQ = self
-            .cov_model("truth.Q", &t.Q, n, true, dt, tA.as_ref(), None)?
-            .build(&[]);
-        let tR = self
-            .cov_model("truth.R", &t.R, m, false, dt, None, None)?
-            .build(&[]);
-        self.symmetric_psd("truth.Q", &tQ, false)?;
-        self.symmetric_psd("truth.R", &tR, false)?;
-
+        let tm = self.truth_matrices(t, dt)?;
+        let (n, m) = (tm.F.nrows(), tm.H.nrows());
         let params = self.params(&s.params)?;
         let map = match &f.map {
             Some(spec) => self.truth_map(spec, n)?,
             None => None,
         };
+        let filter = self.filter_model(f, &tm, map, &params, dt)?;
+        let nf = filter.F.nrows();
+        let mapped = filter.map.is_some();
+        let truth = LinearGaussianModel::new(tm.F, tm.H, tm.Q, tm.R, tm.x0, tm.P0)
+            .map_err(|e| FileError::new(self.file, format!("truth.{}", e.which), e.to_string()))?;
+        let state_names = self
+            .names("state_names", &s.state_names, nf, "x")
+            .map_err(|e| {
+                if mapped {
+                    FileError {
+                        message: format!("{} (they name the filter's states)", e.message),
+                        ..e
+                    }
+                } else {
+                    e
+                }
+            })?;
+        let measurement_names = self.names("measurement_names", &s.measurement_names, m, "z")?;
+        Ok(LinearExperiment {
+            definition: Definition {
+                info,
+                params,
+                state_names,
+                measurement_names,
+                mc,
+            },
+            truth,
+            filter,
+        })
+    }
+
+    /// `[truth]`'s matrices, checked (Q and R built from their fixed terms).
+    fn truth_matrices(&self, t: &TruthSpec, dt: f64) -> VResult<TruthMatrices> {
+        let Some((F, A)) = self.dynamics("truth", &t.F, &t.A, dt, None)? else {
+            return self.err("truth.F", "missing: give F (discrete) or A (continuous)");
+        };
+        let n = F.nrows();
+        let H = self.matrix("truth.H", &t.H, None, Some(n))?;
+        let m = H.nrows();
+        let x0 = self.vector("truth.x0", &t.x0, n)?;
+        let P0 = self.matrix("truth.P0", &t.P0, Some(n), Some(n))?;
+        self.symmetric_psd("truth.P0", &P0, false)?;
+        let Q = self
+            .cov_model("truth.Q", &t.Q, n, true, dt, A.as_ref(), None)?
+            .build(&[]);
+        let R = self
+            .cov_model("truth.R", &t.R, m, false, dt, None, None)?
+            .build(&[]);
+        self.symmetric_psd("truth.Q", &Q, false)?;
+        self.symmetric_psd("truth.R", &R, false)?;
+        Ok(TruthMatrices {
+            F,
+            A,
+            H,
+            x0,
+            P0,
+            Q,
+            R,
+        })
+    }
+
+    /// `[filter]`'s model: its own matrices where given, the truth's (through `map`, when
+    /// there is one) otherwise, with Q and R over `params`, each of which it must use.
+    fn filter_model(
+        &self,
+        f: &FilterSpec,
+        tm: &TruthMatrices,
+        map: Option<DMatrix<f64>>,
+        params: &ParamSpace,
+        dt: f64,
+    ) -> VResult<FilterModel> {
+        let (n, m) = (tm.F.nrows(), tm.H.nrows());
         let nf = map.as_ref().map_or(n, |m| m.nrows());
         // Without a map the filter's matrices have the truth's number of states; a filter
         // of another size is what a map is for, so say so (not for H's rows, which count
@@ -69,20 +137,20 @@ impl Validator<'_> {
             .map_err(hint)?
         {
             Some(d) => d,
-            None if map.is_none() => (tF.clone(), tA.clone()),
+            None if map.is_none() => (tm.F.clone(), tm.A.clone()),
             None => return self.err("filter.F", own_matrix(nf, n, "F (or A), n_f × n_f")),
         };
         let fH = match &f.H {
             Some(h) => self
                 .matrix("filter.H", h, Some(m), Some(nf))
                 .map_err(hint)?,
-            None if map.is_none() => tH.clone(),
+            None if map.is_none() => tm.H.clone(),
             None => return self.err("filter.H", own_matrix(nf, n, "H, m × n_f")),
         };
         let fx0 = match (&f.x0, &map) {
             (Some(x), _) => self.vector("filter.x0", x, nf).map_err(hint)?,
-            (None, Some(M)) => M * &tx0,
-            (None, None) => tx0.clone(),
+            (None, Some(M)) => M * &tm.x0,
+            (None, None) => tm.x0.clone(),
         };
         let (fP0, p0_field) = match (&f.P0, &map) {
             (Some(p), _) => (
@@ -91,14 +159,14 @@ impl Validator<'_> {
                 "filter.P0",
             ),
             (None, Some(M)) => (
-                M * &tP0 * M.transpose(),
+                M * &tm.P0 * M.transpose(),
                 "truth.P0 through filter.map (used as filter.P0)",
             ),
-            (None, None) => (tP0.clone(), "truth.P0 (used as filter.P0)"),
+            (None, None) => (tm.P0.clone(), "truth.P0 (used as filter.P0)"),
         };
         self.symmetric_psd(p0_field, &fP0, true)?;
-        let q = self.cov_model("filter.Q", &f.Q, nf, true, dt, fA.as_ref(), Some(&params))?;
-        let r = self.cov_model("filter.R", &f.R, m, false, dt, None, Some(&params))?;
+        let q = self.cov_model("filter.Q", &f.Q, nf, true, dt, fA.as_ref(), Some(params))?;
+        let r = self.cov_model("filter.R", &f.R, m, false, dt, None, Some(params))?;
         for (i, p) in params.params.iter().enumerate() {
             if !q.uses(i) && !r.uses(i) {
                 return self.err(
@@ -107,36 +175,14 @@ impl Validator<'_> {
                 );
             }
         }
-        let truth = LinearGaussianModel::new(tF, tH, tQ, tR, tx0, tP0)
-            .map_err(|e| FileError::new(self.file, format!("truth.{}", e.which), e.to_string()))?;
-        let state_names =
-            self.names("state_names", &s.state_names, nf, "x")
-                .map_err(|e| match &map {
-                    Some(_) => FileError {
-                        message: format!("{} (they name the filter's states)", e.message),
-                        ..e
-                    },
-                    None => e,
-                })?;
-        let measurement_names = self.names("measurement_names", &s.measurement_names, m, "z")?;
-        Ok(LinearExperiment {
-            definition: Definition {
-                info,
-                params,
-                state_names,
-                measurement_names,
-                mc,
-            },
-            truth,
-            filter: FilterModel {
-                F: fF,
-                H: fH,
-                x0: fx0,
-                P0: fP0,
-                q,
-                r,
-                map,
-            },
+        Ok(FilterModel {
+            F: fF,
+            H: fH,
+            x0: fx0,
+            P0: fP0,
+            q,
+            r,
+            map,
         })
     }
 

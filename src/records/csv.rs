@@ -5,6 +5,7 @@
 use std::collections::{HashMap, HashSet};
 use std::path::Path;
 
+use super::error::RecordError;
 use super::files::{Found, Keys, Row, fits, infer_layout, shown, step_record};
 use super::names::{Quantity, parse_column};
 use super::{Layout, MAX_STEPS, StepSink};
@@ -120,62 +121,7 @@ fn columns(path: &Path, rdr: &mut Reader) -> Result<Columns, FileError> {
     let mut quantities = HashMap::new();
     let mut found = Found::new();
     for (q, list) in lists {
-        let label = q.name();
-        let (dims, slots) = match q.rank() {
-            0 => (vec![], vec![Some(list[0].1)]),
-            1 => {
-                let n = list.iter().map(|(i, _)| i[0] + 1).max().unwrap_or(0);
-                // The first gap is found among the columns there are, before anything the
-                // size of an index (`e_99999999999`) is allocated.
-                let given: HashSet<usize> = list.iter().map(|(i, _)| i[0]).collect();
-                if let Some(j) = (0..n).find(|j| !given.contains(j)) {
-                    return Err(line_error(
-                        path,
-                        Some(1),
-                        "header",
-                        format!("column {label}_{} missing ({label} has {n} entries)", j + 1),
-                    ));
-                }
-                let mut slots = vec![None; n];
-                for (i, c) in list {
-                    slots[i[0]] = Some(c);
-                }
-                (vec![n], slots)
-            }
-            _ => {
-                let n = list
-                    .iter()
-                    .map(|(i, _)| i[0].max(i[1]) + 1)
-                    .max()
-                    .unwrap_or(0);
-                // As for vectors: every (a, b) column present covers at most two entries,
-                // so a gap turns up within 2·len + 1 entries, and the n × n slots are
-                // allocated only for a matrix whose triangle is complete (n² ≤ 2·len + n).
-                let given: HashSet<(usize, usize)> =
-                    list.iter().map(|(i, _)| (i[0], i[1])).collect();
-                for a in 0..n {
-                    for b in 0..n {
-                        if !given.contains(&(a, b)) && !given.contains(&(b, a)) {
-                            return Err(line_error(
-                                path,
-                                Some(1),
-                                "header",
-                                format!(
-                                    "column {label}_{}_{} missing ({label} is {n}×{n}: give every entry of one triangle)",
-                                    a + 1,
-                                    b + 1
-                                ),
-                            ));
-                        }
-                    }
-                }
-                let mut slots = vec![None; n * n];
-                for (i, c) in list {
-                    slots[i[0] * n + i[1]] = Some(c);
-                }
-                (vec![n, n], slots)
-            }
-        };
+        let (dims, slots) = slots_of(path, &q, &list)?;
         found.push((q.clone(), dims));
         quantities.insert(q, slots);
     }
@@ -185,6 +131,71 @@ fn columns(path: &Path, rdr: &mut Reader) -> Result<Columns, FileError> {
         quantities,
         found,
     })
+}
+
+/// Quantity `q`'s dimensions and the column of each entry (row-major; `None` for a matrix
+/// entry given only in the other triangle's column), from its columns `list`; an error
+/// names the first entry missing.
+fn slots_of(
+    path: &Path,
+    q: &Quantity,
+    list: &[Cell],
+) -> Result<(Vec<usize>, Vec<Option<usize>>), FileError> {
+    let label = q.name();
+    match q.rank() {
+        0 => Ok((vec![], vec![Some(list[0].1)])),
+        1 => {
+            let n = list.iter().map(|(i, _)| i[0] + 1).max().unwrap_or(0);
+            // The first gap is found among the columns there are, before anything the size
+            // of an index (`e_99999999999`) is allocated.
+            let given: HashSet<usize> = list.iter().map(|(i, _)| i[0]).collect();
+            if let Some(j) = (0..n).find(|j| !given.contains(j)) {
+                return Err(line_error(
+                    path,
+                    Some(1),
+                    "header",
+                    format!("column {label}_{} missing ({label} has {n} entries)", j + 1),
+                ));
+            }
+            let mut slots = vec![None; n];
+            for &(i, c) in list {
+                slots[i[0]] = Some(c);
+            }
+            Ok((vec![n], slots))
+        }
+        _ => {
+            let n = list
+                .iter()
+                .map(|(i, _)| i[0].max(i[1]) + 1)
+                .max()
+                .unwrap_or(0);
+            // As for vectors: every (a, b) column present covers at most two entries, so a
+            // gap turns up within 2·len + 1 entries, and the n × n slots are allocated only
+            // for a matrix whose triangle is complete (n² ≤ 2·len + n).
+            let given: HashSet<(usize, usize)> = list.iter().map(|(i, _)| (i[0], i[1])).collect();
+            for a in 0..n {
+                for b in 0..n {
+                    if !given.contains(&(a, b)) && !given.contains(&(b, a)) {
+                        return Err(line_error(
+                            path,
+                            Some(1),
+                            "header",
+                            format!(
+                                "column {label}_{}_{} missing ({label} is {n}×{n}: give every entry of one triangle)",
+                                a + 1,
+                                b + 1
+                            ),
+                        ));
+                    }
+                }
+            }
+            let mut slots = vec![None; n * n];
+            for &(i, c) in list {
+                slots[i[0] * n + i[1]] = Some(c);
+            }
+            Ok((vec![n, n], slots))
+        }
+    }
 }
 
 /// An unsigned integer cell (`3`, or `3.0` as MATLAB may write it).
@@ -209,7 +220,8 @@ fn next_row(path: &Path, rdr: &mut Reader, rec: &mut csv::StringRecord) -> Resul
 pub(super) fn scan(path: &Path) -> Result<(Layout, usize), FileError> {
     let mut rdr = open(path)?;
     let cols = columns(path, &mut rdr)?;
-    let layout = infer_layout(&cols.found).map_err(|m| line_error(path, Some(1), "header", m))?;
+    let layout = infer_layout(&cols.found)
+        .map_err(|e| line_error(path, Some(1), "header", e.to_string()))?;
     let mut steps = 0;
     let mut rec = csv::StringRecord::new();
     while next_row(path, &mut rdr, &mut rec)? {
@@ -248,18 +260,20 @@ struct CsvRow<'a> {
 }
 
 impl CsvRow<'_> {
-    fn number(&self, c: usize) -> Result<f64, String> {
+    fn number(&self, c: usize) -> Result<f64, RecordError> {
         let cell = &self.rec[c];
         if cell.is_empty() {
             return Ok(f64::NAN);
         }
-        cell.parse::<f64>()
-            .map_err(|_| format!("{}: '{}' is not a number", &self.headers[c], shown(cell)))
+        cell.parse::<f64>().map_err(|_| RecordError::NotANumber {
+            column: self.headers[c].to_string(),
+            cell: shown(cell),
+        })
     }
 }
 
 impl Row for CsvRow<'_> {
-    fn values(&mut self, q: &Quantity) -> Result<Option<Vec<f64>>, String> {
+    fn values(&mut self, q: &Quantity) -> Result<Option<Vec<f64>>, RecordError> {
         let Some(slots) = self.cols.quantities.get(q) else {
             return Ok(None);
         };
@@ -280,7 +294,7 @@ impl Row for CsvRow<'_> {
         Ok(Some(out))
     }
 
-    fn diverged(&mut self) -> Result<Option<String>, String> {
+    fn diverged(&mut self) -> Result<Option<String>, RecordError> {
         let Some(slots) = self.cols.quantities.get(&Quantity::Diverged) else {
             return Ok(None);
         };
@@ -291,11 +305,17 @@ impl Row for CsvRow<'_> {
 }
 
 /// Stream a CSV records file into `sink`, which expects `layout`.
-pub(super) fn feed(path: &Path, layout: &Layout, sink: &mut dyn StepSink) -> Result<(), FileError> {
+pub(super) fn feed<E: std::error::Error>(
+    path: &Path,
+    layout: &Layout,
+    sink: &mut dyn StepSink<Error = E>,
+) -> Result<(), FileError> {
     let mut rdr = open(path)?;
     let cols = columns(path, &mut rdr)?;
-    let own = infer_layout(&cols.found).map_err(|m| line_error(path, Some(1), "header", m))?;
-    fits(&own, layout).map_err(|m| line_error(path, Some(1), "header", m))?;
+    let header_error =
+        |e: super::error::LayoutError| line_error(path, Some(1), "header", e.to_string());
+    let own = infer_layout(&cols.found).map_err(header_error)?;
+    fits(&own, layout).map_err(header_error)?;
     let headers = rdr
         .headers()
         .map_err(|e| line_error(path, Some(1), "header", csv_message(&e)))?
@@ -328,8 +348,9 @@ pub(super) fn feed(path: &Path, layout: &Layout, sink: &mut dyn StepSink) -> Res
             headers: &headers,
         };
         let r = step_record(layout, &keys, run, step, &mut row)
-            .map_err(|m| line_error(path, line, "", m))?;
-        sink.push(r).map_err(|m| line_error(path, line, "", m))?;
+            .map_err(|e| line_error(path, line, "", e.to_string()))?;
+        sink.push(r)
+            .map_err(|e| line_error(path, line, "", e.to_string()))?;
     }
     Ok(())
 }

@@ -4,6 +4,7 @@
 
 use std::path::{Path, PathBuf};
 
+use super::error::{LayoutError, RecordError};
 use super::names::Quantity;
 use super::{
     Layout, MAX_COMPONENTS, MAX_STEPS, RecordSink, SensorLayout, SensorRecord, StateLayout,
@@ -18,11 +19,14 @@ pub(super) type Found = Vec<(Quantity, Vec<usize>)>;
 
 /// The layout implied by the quantities a file holds; an error names what is missing,
 /// contradictory or of mismatched size.
-pub(super) fn infer_layout(found: &Found) -> Result<Layout, String> {
+pub(super) fn infer_layout(found: &Found) -> Result<Layout, LayoutError> {
     // A quantity without entries (JSON `[]`, a NumPy axis of length 0) measures nothing,
     // and lets a NumPy file claim any number of runs without holding a byte of them.
     if let Some((q, d)) = found.iter().find(|(_, d)| d.contains(&0)) {
-        return Err(format!("{} has shape {d:?}: no entries", q.name()));
+        return Err(LayoutError::Empty {
+            quantity: q.name(),
+            shape: d.clone(),
+        });
     }
     // The sums, the per-component verdicts and the report grow with the components: a
     // list of millions (one JSON line can hold four million) took gigabytes and minutes.
@@ -30,70 +34,115 @@ pub(super) fn infer_layout(found: &Found) -> Result<Layout, String> {
         .iter()
         .find(|(_, d)| d.iter().any(|&n| n > MAX_COMPONENTS))
     {
-        return Err(format!(
-            "{} has shape {d:?}: above the limit of {MAX_COMPONENTS} components",
-            q.name()
-        ));
+        return Err(LayoutError::TooManyComponents {
+            quantity: q.name(),
+            shape: d.clone(),
+        });
     }
-    let dims = |q: &Quantity| found.iter().find(|(f, _)| f == q).map(|(_, d)| d.clone());
-    let has = |q: &Quantity| dims(q).is_some();
-    let square = |q: &Quantity, name: &str| -> Result<Option<usize>, String> {
-        match dims(q) {
-            Some(d) if d.len() == 2 && d[0] == d[1] => Ok(Some(d[0])),
-            Some(d) => Err(format!("{name} is {d:?}, not square")),
-            None => Ok(None),
-        }
-    };
-    let vec_dim = |q: &Quantity| dims(q).and_then(|d| d.first().copied());
-
-    let raw_state = has(&Quantity::E) || has(&Quantity::X) || has(&Quantity::Xhat);
-    let state = if raw_state || has(&Quantity::P) {
-        if has(&Quantity::Nees) {
-            return Err("give e and P, or nees, not both".into());
-        }
-        let n = match (
-            vec_dim(&Quantity::E),
-            vec_dim(&Quantity::X),
-            vec_dim(&Quantity::Xhat),
-        ) {
-            (Some(n), None, None) => n,
-            (None, Some(a), Some(b)) if a == b => a,
-            (None, Some(a), Some(b)) => {
-                return Err(format!("x has {a} entries and xhat {b}"));
-            }
-            (None, _, _) => return Err("P without e (or x and xhat)".into()),
-            _ => return Err("give e, or x and xhat, not both".into()),
-        };
-        match square(&Quantity::P, "P")? {
-            Some(p) if p == n => {}
-            Some(p) => return Err(format!("P is {p}×{p} but e has {n} entries")),
-            None => return Err("e without P".into()),
-        }
-        Some(StateLayout {
-            dim: n,
-            components: true,
-        })
-    } else if has(&Quantity::Nees) {
-        let n = vec_dim(&Quantity::E2p);
-        if n.is_none() && !has(&Quantity::NeesDof) {
-            return Err("nees without nees_dof or e2p: its degrees of freedom are unknown".into());
-        }
-        Some(StateLayout {
-            dim: n.unwrap_or(0),
-            components: n.is_some(),
-        })
-    } else if has(&Quantity::E2p) || has(&Quantity::NeesDof) {
-        return Err("e2p or nees_dof without nees".into());
-    } else {
-        None
-    };
-
+    let held = Held(found);
+    let state = held.state()?;
     let mut sensors: Vec<SensorLayout> = Vec::new();
     for (q, _) in found {
         let Some(name) = q.sensor() else { continue };
         if sensors.iter().any(|s| s.name == name) {
             continue;
         }
+        sensors.push(held.sensor(name)?);
+    }
+    if state.is_none() && sensors.is_empty() {
+        return Err(LayoutError::Nothing);
+    }
+    Ok(Layout { state, sensors })
+}
+
+/// The quantities a file holds, asked what they imply.
+struct Held<'a>(&'a Found);
+
+impl Held<'_> {
+    fn dims(&self, q: &Quantity) -> Option<Vec<usize>> {
+        self.0.iter().find(|(f, _)| f == q).map(|(_, d)| d.clone())
+    }
+
+    fn has(&self, q: &Quantity) -> bool {
+        self.dims(q).is_some()
+    }
+
+    fn vec_dim(&self, q: &Quantity) -> Option<usize> {
+        self.dims(q).and_then(|d| d.first().copied())
+    }
+
+    /// The side of covariance `q` (called `name` in messages), if the file has it.
+    fn square(&self, q: &Quantity, name: &str) -> Result<Option<usize>, LayoutError> {
+        match self.dims(q) {
+            Some(d) if d.len() == 2 && d[0] == d[1] => Ok(Some(d[0])),
+            Some(d) => Err(LayoutError::NotSquare {
+                quantity: name.to_string(),
+                shape: d,
+            }),
+            None => Ok(None),
+        }
+    }
+
+    /// The state side: raw (e and P, or x, xhat and P), normalized (nees), or none.
+    fn state(&self) -> Result<Option<StateLayout>, LayoutError> {
+        let without = |given: &str, missing: &str| LayoutError::Without {
+            given: given.into(),
+            missing: missing.into(),
+        };
+        let raw_state =
+            self.has(&Quantity::E) || self.has(&Quantity::X) || self.has(&Quantity::Xhat);
+        if raw_state || self.has(&Quantity::P) {
+            if self.has(&Quantity::Nees) {
+                return Err(LayoutError::StateBothWays);
+            }
+            let n = match (
+                self.vec_dim(&Quantity::E),
+                self.vec_dim(&Quantity::X),
+                self.vec_dim(&Quantity::Xhat),
+            ) {
+                (Some(n), None, None) => n,
+                (None, Some(a), Some(b)) if a == b => a,
+                (None, Some(x), Some(xhat)) => return Err(LayoutError::StateSizes { x, xhat }),
+                (None, _, _) => return Err(without("P", "e (or x and xhat)")),
+                _ => return Err(LayoutError::ErrorBothWays),
+            };
+            match self.square(&Quantity::P, "P")? {
+                Some(p) if p == n => {}
+                Some(side) => {
+                    return Err(LayoutError::CovarianceSize {
+                        matrix: "P".into(),
+                        side,
+                        vector: "e".into(),
+                        len: n,
+                    });
+                }
+                None => return Err(without("e", "P")),
+            }
+            Ok(Some(StateLayout {
+                dim: n,
+                components: true,
+            }))
+        } else if self.has(&Quantity::Nees) {
+            let n = self.vec_dim(&Quantity::E2p);
+            if n.is_none() && !self.has(&Quantity::NeesDof) {
+                return Err(LayoutError::UnknownDof {
+                    given: "nees".into(),
+                    missing: "nees_dof or e2p".into(),
+                });
+            }
+            Ok(Some(StateLayout {
+                dim: n.unwrap_or(0),
+                components: n.is_some(),
+            }))
+        } else if self.has(&Quantity::E2p) || self.has(&Quantity::NeesDof) {
+            Err(without("e2p or nees_dof", "nees"))
+        } else {
+            Ok(None)
+        }
+    }
+
+    /// Sensor `name`: raw (its nu and S), or normalized (its nis, with nis_dof or u).
+    fn sensor(&self, name: &str) -> Result<SensorLayout, LayoutError> {
         let label = |base: &str| {
             if name.is_empty() {
                 base.to_string()
@@ -101,68 +150,53 @@ pub(super) fn infer_layout(found: &Found) -> Result<Layout, String> {
                 format!("{base}_{name}")
             }
         };
-        let nu = vec_dim(&Quantity::Nu(name.into()));
-        let s = square(&Quantity::S(name.into()), &label("S"))?;
-        let nis = has(&Quantity::Nis(name.into()));
-        let u = vec_dim(&Quantity::U(name.into()));
-        let nis_dof = has(&Quantity::NisDof(name.into()));
-        let layout = match (nu, s, nis) {
-            (Some(_), _, true) | (None, Some(_), true) => {
-                return Err(format!(
-                    "give {} and {}, or {}, not both",
-                    label("nu"),
-                    label("S"),
-                    label("nis")
-                ));
-            }
-            (Some(m), Some(ms), false) if m == ms => SensorLayout {
+        let without = |given: &str, missing: &str| LayoutError::Without {
+            given: label(given),
+            missing: missing.into(),
+        };
+        let nu = self.vec_dim(&Quantity::Nu(name.into()));
+        let s = self.square(&Quantity::S(name.into()), &label("S"))?;
+        let nis = self.has(&Quantity::Nis(name.into()));
+        let u = self.vec_dim(&Quantity::U(name.into()));
+        let nis_dof = self.has(&Quantity::NisDof(name.into()));
+        match (nu, s, nis) {
+            (Some(_), _, true) | (None, Some(_), true) => Err(LayoutError::SensorBothWays {
+                nu: label("nu"),
+                s: label("S"),
+                nis: label("nis"),
+            }),
+            (Some(m), Some(ms), false) if m == ms => Ok(SensorLayout {
                 name: name.into(),
                 dim: m,
                 components: true,
-            },
-            (Some(m), Some(ms), false) => {
-                return Err(format!(
-                    "{} is {ms}×{ms} but {} has {m} entries",
-                    label("S"),
-                    label("nu")
-                ));
-            }
-            (Some(_), None, false) => {
-                return Err(format!("{} without {}", label("nu"), label("S")));
-            }
-            (None, Some(_), false) => {
-                return Err(format!("{} without {}", label("S"), label("nu")));
-            }
+            }),
+            (Some(len), Some(side), false) => Err(LayoutError::CovarianceSize {
+                matrix: label("S"),
+                side,
+                vector: label("nu"),
+                len,
+            }),
+            (Some(_), None, false) => Err(without("nu", &label("S"))),
+            (None, Some(_), false) => Err(without("S", &label("nu"))),
             (None, None, true) => {
                 if u.is_none() && !nis_dof {
-                    return Err(format!(
-                        "{} without {} or {}: its degrees of freedom are unknown",
-                        label("nis"),
-                        label("nis_dof"),
-                        label("u")
-                    ));
+                    return Err(LayoutError::UnknownDof {
+                        given: label("nis"),
+                        missing: format!("{} or {}", label("nis_dof"), label("u")),
+                    });
                 }
-                SensorLayout {
+                Ok(SensorLayout {
                     name: name.into(),
                     dim: u.unwrap_or(0),
                     components: u.is_some(),
-                }
+                })
             }
-            (None, None, false) => {
-                return Err(format!(
-                    "{} or {} without {}",
-                    label("u"),
-                    label("nis_dof"),
-                    label("nis")
-                ));
-            }
-        };
-        sensors.push(layout);
+            (None, None, false) => Err(LayoutError::Without {
+                given: format!("{} or {}", label("u"), label("nis_dof")),
+                missing: label("nis"),
+            }),
+        }
     }
-    if state.is_none() && sensors.is_empty() {
-        return Err("no state or sensor quantities (see docs/src/records.md)".into());
-    }
-    Ok(Layout { state, sensors })
 }
 
 /// A cell or key of a file as an error message quotes it: a quoted CSV cell may hold
@@ -196,9 +230,9 @@ pub fn shown_up_to(text: &str, longest: usize) -> String {
 pub(super) trait Row {
     /// The numbers of quantity `q` (row-major for a matrix; NaN where a cell is empty), or
     /// `None` where the source has no such quantity at this step.
-    fn values(&mut self, q: &Quantity) -> Result<Option<Vec<f64>>, String>;
+    fn values(&mut self, q: &Quantity) -> Result<Option<Vec<f64>>, RecordError>;
     /// Why the run diverged at this step, if it is marked so.
-    fn diverged(&mut self) -> Result<Option<String>, String>;
+    fn diverged(&mut self) -> Result<Option<String>, RecordError>;
 }
 
 /// The quantities of each sensor of a layout, named once rather than at every step.
@@ -236,7 +270,7 @@ pub(super) fn step_record(
     run: usize,
     step: usize,
     row: &mut impl Row,
-) -> Result<StepRecord, String> {
+) -> Result<StepRecord, RecordError> {
     let mut r = StepRecord::new(run, step);
     if let Some(reason) = row.diverged()? {
         r.diverged = Some(reason);
@@ -259,7 +293,11 @@ pub(super) fn step_record(
                         Some(x.iter().zip(&xh).map(|(a, b)| a - b).collect())
                     }
                     (Some(x), Some(xh)) => {
-                        return Err(format!("x has {} entries and xhat {}", x.len(), xh.len()));
+                        return Err(LayoutError::StateSizes {
+                            x: x.len(),
+                            xhat: xh.len(),
+                        }
+                        .into());
                     }
                     _ => None,
                 },
@@ -303,62 +341,38 @@ pub(super) fn step_record(
     Ok(r)
 }
 
-/// A records file with state quantities for an experiment without them, and the hint.
-pub(super) const NO_GROUND_TRUTH: &str = "state quantities, but the experiment has no ground truth (an [external] problem declares its states, and so its ground truth, in state_names)";
-
 /// Check that a file's own layout fits the experiment's: the same state dimension and
 /// per-component data, and only sensors the experiment has, of their dimensions.
-pub(super) fn fits(own: &Layout, expected: &Layout) -> Result<(), String> {
+pub(super) fn fits(own: &Layout, expected: &Layout) -> Result<(), LayoutError> {
     match (own.state, expected.state) {
         (None, None) => {}
-        (Some(_), None) => {
-            return Err(NO_GROUND_TRUTH.into());
-        }
-        (None, Some(_)) => return Err("no state quantities (e and P, or nees)".into()),
+        (Some(_), None) => return Err(LayoutError::NoGroundTruth),
+        (None, Some(_)) => return Err(LayoutError::NoState),
         (Some(a), Some(b)) => {
             if a.components != b.components || (a.components && a.dim != b.dim) {
-                return Err(format!(
-                    "a state of dimension {}{}, expected {}{}",
-                    a.dim,
-                    if a.components {
-                        ""
-                    } else {
-                        " without components"
-                    },
-                    b.dim,
-                    if b.components {
-                        ""
-                    } else {
-                        " without components"
-                    }
-                ));
+                return Err(LayoutError::StateDimension {
+                    dim: a.dim,
+                    components: a.components,
+                    expected: b.dim,
+                    expected_components: b.components,
+                });
             }
         }
     }
     for s in &own.sensors {
-        let label = if s.name.is_empty() {
-            "the unnamed sensor".to_string()
-        } else {
-            format!("sensor '{}'", s.name)
-        };
         let Some(e) = expected.sensors.iter().find(|e| e.name == s.name) else {
-            let known: Vec<&str> = expected.sensors.iter().map(|e| e.name.as_str()).collect();
-            return Err(format!(
-                "{label} is not one of the experiment's sensors ({})",
-                known.join(", ")
-            ));
+            return Err(LayoutError::UnknownSensor {
+                sensor: s.name.clone(),
+                known: expected.sensors.iter().map(|e| e.name.clone()).collect(),
+            });
         };
         if s.components != e.components || (s.components && s.dim != e.dim) {
-            return Err(format!(
-                "{label} has dimension {}{}, expected {}",
-                s.dim,
-                if s.components {
-                    ""
-                } else {
-                    " without components"
-                },
-                e.dim
-            ));
+            return Err(LayoutError::SensorDimension {
+                sensor: s.name.clone(),
+                dim: s.dim,
+                components: s.components,
+                expected: e.dim,
+            });
         }
     }
     Ok(())
@@ -417,7 +431,7 @@ pub fn read_files(paths: &[PathBuf], lags: &dyn Fn(usize) -> usize) -> Result<Re
     let runs = sink.runs();
     let sums = sink
         .finish()
-        .map_err(|m| FileError::new(&paths[0], "", m))?;
+        .map_err(|e| FileError::new(&paths[0], "", e.to_string()))?;
     Ok(Recorded {
         layout,
         runs,
@@ -470,8 +484,8 @@ pub fn scan_files(paths: &[PathBuf]) -> Result<(Layout, usize), FileError> {
                 ),
             ));
         }
-        fits(l, &layout).map_err(|m| {
-            FileError::new(&src[0], "", format!("{m} (in {})", sources[0][0].display()))
+        fits(l, &layout).map_err(|e| {
+            FileError::new(&src[0], "", format!("{e} (in {})", sources[0][0].display()))
         })?;
     }
     if steps > MAX_STEPS {
@@ -486,11 +500,11 @@ pub fn scan_files(paths: &[PathBuf]) -> Result<(Layout, usize), FileError> {
 
 /// Stream the records files `paths`, of the `layout` and `steps` [`scan_files`] found, into
 /// `sink`, file by file in order.
-pub fn feed_files(
+pub fn feed_files<E: std::error::Error>(
     paths: &[PathBuf],
     layout: &Layout,
     steps: usize,
-    sink: &mut dyn StepSink,
+    sink: &mut dyn StepSink<Error = E>,
 ) -> Result<(), FileError> {
     for src in sources(paths)? {
         feed(&src, layout, steps, 0, sink)?;
@@ -501,12 +515,12 @@ pub fn feed_files(
 /// Stream the records file `path` (CSV, NumPy `.npz` or JSON Lines) into `sink`, an
 /// experiment of `layout` with `steps` steps; a NumPy file's runs are numbered from
 /// `first_run`.
-pub fn feed_file(
+pub fn feed_file<E: std::error::Error>(
     path: &Path,
     layout: &Layout,
     steps: usize,
     first_run: usize,
-    sink: &mut dyn StepSink,
+    sink: &mut dyn StepSink<Error = E>,
 ) -> Result<(), FileError> {
     feed(&[path.to_path_buf()], layout, steps, first_run, sink)
 }
@@ -524,12 +538,12 @@ fn scan(src: &[PathBuf]) -> Result<(Layout, usize), FileError> {
 }
 
 /// Stream one source's records into `sink`; NumPy runs are numbered from `first_run`.
-pub(super) fn feed(
+pub(super) fn feed<E: std::error::Error>(
     src: &[PathBuf],
     layout: &Layout,
     steps: usize,
     first_run: usize,
-    sink: &mut dyn StepSink,
+    sink: &mut dyn StepSink<Error = E>,
 ) -> Result<(), FileError> {
     match format_of(&src[0])? {
         Format::Csv => super::csv::feed(&src[0], layout, sink),

@@ -7,6 +7,7 @@ use std::path::Path;
 
 use serde_json::{Map, Value};
 
+use super::error::RecordError;
 use super::files::{Found, Keys, Row, infer_layout, shown, step_record};
 use super::names::Quantity;
 use super::{Layout, MAX_STEPS, StepRecord, StepSink};
@@ -23,8 +24,8 @@ fn number(v: &Value) -> Option<f64> {
 
 /// A quantity's numbers and dimensions: a number, an array of numbers, or an array of
 /// equal-length arrays (a matrix, row by row).
-fn numbers(key: &str, v: &Value) -> Result<(Vec<f64>, Vec<usize>), String> {
-    let bad = || format!("{key}: not a number, a list of numbers, or a list of rows");
+fn numbers(key: &str, v: &Value) -> Result<(Vec<f64>, Vec<usize>), RecordError> {
+    let bad = || RecordError::NotNumbers(key.to_string());
     if let Some(x) = number(v) {
         return Ok((vec![x], vec![]));
     }
@@ -41,7 +42,7 @@ fn numbers(key: &str, v: &Value) -> Result<(Vec<f64>, Vec<usize>), String> {
             return Err(bad());
         };
         if *width.get_or_insert(cells.len()) != cells.len() {
-            return Err(format!("{key}: rows of different lengths"));
+            return Err(RecordError::RaggedRows(key.to_string()));
         }
         for c in cells {
             out.push(number(c).ok_or_else(bad)?);
@@ -51,40 +52,36 @@ fn numbers(key: &str, v: &Value) -> Result<(Vec<f64>, Vec<usize>), String> {
 }
 
 /// The run and step of a record object.
-fn run_step(obj: &Map<String, Value>) -> Result<(usize, usize), String> {
-    let index = |key: &str| -> Result<u64, String> {
-        let v = obj.get(key).ok_or_else(|| format!("no '{key}'"))?;
+fn run_step(obj: &Map<String, Value>) -> Result<(usize, usize), RecordError> {
+    let index = |key: &'static str| -> Result<u64, RecordError> {
+        let v = obj.get(key).ok_or(RecordError::NoIndex(key))?;
         v.as_u64()
             .or_else(|| {
                 v.as_f64()
                     .filter(|x| *x >= 0.0 && x.fract() == 0.0 && *x < 9.0e15)
                     .map(|x| x as u64)
             })
-            .ok_or_else(|| format!("{key}: {v} is not a non-negative integer"))
+            .ok_or_else(|| RecordError::BadIndex {
+                key,
+                value: v.to_string(),
+            })
     };
     let run = index("run")? as usize;
     let step = index("step")? as usize;
     if step == 0 {
-        return Err("step: 0 (steps count from 1)".into());
+        return Err(RecordError::StepZero);
     }
     if step > MAX_STEPS {
-        return Err(format!(
-            "step: {step} is above the limit of {MAX_STEPS} steps per run"
-        ));
+        return Err(RecordError::StepAboveLimit(step));
     }
     Ok((run, step))
 }
 
 /// The quantities of one object, checked against the names.
-fn found(obj: &Map<String, Value>) -> Result<Found, String> {
+fn found(obj: &Map<String, Value>) -> Result<Found, RecordError> {
     let mut f = Found::new();
     for (k, v) in obj {
-        let q = Quantity::parse(k).ok_or_else(|| {
-            format!(
-                "unknown key '{}' (see docs/src/records.md for the names)",
-                shown(k)
-            )
-        })?;
+        let q = Quantity::parse(k).ok_or_else(|| RecordError::UnknownKey(shown(k)))?;
         if matches!(q, Quantity::Run | Quantity::Step | Quantity::Diverged) {
             continue;
         }
@@ -93,22 +90,25 @@ fn found(obj: &Map<String, Value>) -> Result<Found, String> {
             // A matrix given flat, row-major.
             let n = (dims[0] as f64).sqrt().round() as usize;
             if n * n != dims[0] {
-                return Err(format!("{k}: {} numbers, not a square matrix", dims[0]));
+                return Err(RecordError::NotSquareCount {
+                    key: k.clone(),
+                    count: dims[0],
+                });
             }
             vec![n, n]
         } else {
             dims
         };
         if dims.len() != q.rank() {
-            return Err(format!(
-                "{k}: {} where a {} is expected",
-                match dims.len() {
+            return Err(RecordError::WrongRank {
+                key: k.clone(),
+                given: match dims.len() {
                     0 => "a number",
                     1 => "a list",
                     _ => "a matrix",
                 },
-                ["number", "list", "matrix"][q.rank()]
-            ));
+                expected: ["number", "list", "matrix"][q.rank()],
+            });
         }
         f.push((q, dims));
     }
@@ -118,7 +118,7 @@ fn found(obj: &Map<String, Value>) -> Result<Found, String> {
 struct JsonRow<'a>(&'a Map<String, Value>);
 
 impl Row for JsonRow<'_> {
-    fn values(&mut self, q: &Quantity) -> Result<Option<Vec<f64>>, String> {
+    fn values(&mut self, q: &Quantity) -> Result<Option<Vec<f64>>, RecordError> {
         let key = q.name();
         match self.0.get(&key) {
             None => Ok(None),
@@ -126,7 +126,7 @@ impl Row for JsonRow<'_> {
         }
     }
 
-    fn diverged(&mut self) -> Result<Option<String>, String> {
+    fn diverged(&mut self) -> Result<Option<String>, RecordError> {
         Ok(match self.0.get("diverged") {
             None | Some(Value::Null) | Some(Value::Bool(false)) => None,
             Some(Value::String(s)) => Some(s.clone()),
@@ -136,7 +136,7 @@ impl Row for JsonRow<'_> {
     }
 }
 
-pub(crate) fn object(line: &str) -> Result<Map<String, Value>, String> {
+pub(crate) fn object(line: &str) -> Result<Map<String, Value>, RecordError> {
     // A file written with a byte-order mark (Windows tools do) starts its first line with
     // one: JSON has none.
     let line = line.strip_prefix('\u{feff}').unwrap_or(line);
@@ -155,29 +155,28 @@ pub(crate) fn object(line: &str) -> Result<Map<String, Value>, String> {
     });
     match parsed {
         Ok(Value::Object(m)) => Ok(m),
-        Ok(_) => Err("not a JSON object".into()),
-        Err(e) => Err(format!("not JSON: {e}")),
+        Ok(_) => Err(RecordError::NotObject),
+        Err(e) => Err(RecordError::NotJson(e.to_string())),
     }
 }
 
 /// One record line of an experiment of `layout`: a JSON object with `run`, `step` and
 /// quantities by name.
-pub fn parse_record_line(line: &str, layout: &Layout) -> Result<StepRecord, String> {
+pub fn parse_record_line(line: &str, layout: &Layout) -> Result<StepRecord, RecordError> {
     let obj = object(line)?;
     let (run, step) = run_step(&obj)?;
     for (q, _) in found(&obj)? {
         if let Some(s) = q.sensor()
             && layout.sensor(s).is_none()
         {
-            let known: Vec<&str> = layout.sensors.iter().map(|e| e.name.as_str()).collect();
-            return Err(format!(
-                "{}: '{s}' is not one of the experiment's sensors ({})",
-                q.name(),
-                known.join(", ")
-            ));
+            return Err(RecordError::UnknownSensor {
+                quantity: q.name(),
+                sensor: s.to_string(),
+                known: layout.sensors.iter().map(|e| e.name.clone()).collect(),
+            });
         }
         if q.sensor().is_none() && layout.state.is_none() {
-            return Err(format!("{}: {}", q.name(), super::files::NO_GROUND_TRUTH));
+            return Err(RecordError::NoGroundTruth(q.name()));
         }
     }
     step_record(layout, &Keys::new(layout), run, step, &mut JsonRow(&obj))
@@ -197,10 +196,10 @@ pub(super) fn scan(path: &Path) -> Result<(Layout, usize), FileError> {
         if line.trim().is_empty() {
             continue;
         }
-        let obj = object(&line).map_err(at)?;
-        let (_, step) = run_step(&obj).map_err(at)?;
+        let obj = object(&line).map_err(|e| at(e.to_string()))?;
+        let (_, step) = run_step(&obj).map_err(|e| at(e.to_string()))?;
         steps = steps.max(step);
-        for (q, dims) in found(&obj).map_err(at)? {
+        for (q, dims) in found(&obj).map_err(|e| at(e.to_string()))? {
             match all.iter().find(|(f, _)| *f == q) {
                 Some((_, d)) if *d != dims => {
                     return Err(at(format!(
@@ -216,12 +215,16 @@ pub(super) fn scan(path: &Path) -> Result<(Layout, usize), FileError> {
     if steps == 0 {
         return Err(FileError::new(path, "", "no records"));
     }
-    let layout = infer_layout(&all).map_err(|m| FileError::new(path, "", m))?;
+    let layout = infer_layout(&all).map_err(|e| FileError::new(path, "", e.to_string()))?;
     Ok((layout, steps))
 }
 
 /// Stream a JSON Lines records file into `sink`, which expects `layout`.
-pub(super) fn feed(path: &Path, layout: &Layout, sink: &mut dyn StepSink) -> Result<(), FileError> {
+pub(super) fn feed<E: std::error::Error>(
+    path: &Path,
+    layout: &Layout,
+    sink: &mut dyn StepSink<Error = E>,
+) -> Result<(), FileError> {
     for (i, line) in crate::userfile::text_lines(path)?.lines().enumerate() {
         let at = |m: String| {
             let mut e = FileError::new(path, "", m);
@@ -232,8 +235,8 @@ pub(super) fn feed(path: &Path, layout: &Layout, sink: &mut dyn StepSink) -> Res
         if line.trim().is_empty() {
             continue;
         }
-        let r = parse_record_line(&line, layout).map_err(at)?;
-        sink.push(r).map_err(at)?;
+        let r = parse_record_line(&line, layout).map_err(|e| at(e.to_string()))?;
+        sink.push(r).map_err(|e| at(e.to_string()))?;
     }
     Ok(())
 }

@@ -9,12 +9,14 @@
 //! with the number of runs.
 
 mod csv;
+mod error;
 mod files;
 mod json;
 mod names;
 mod npy;
 mod sink;
 
+pub use error::{Breakdown, LayoutError, RecordError, SensorShapeError, ShapeError};
 pub use files::{Recorded, feed_file, feed_files, read_files, scan_files, shown_up_to};
 pub(crate) use json::object as json_object;
 pub use json::parse_record_line;

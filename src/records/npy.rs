@@ -4,6 +4,7 @@
 use std::io::Read;
 use std::path::{Path, PathBuf};
 
+use super::error::RecordError;
 use super::files::{Found, Keys, Row, fits, infer_layout, step_record};
 use super::names::Quantity;
 use super::{Layout, MAX_STEPS, StepSink};
@@ -52,15 +53,40 @@ struct Budget {
 /// A stream whose first bytes were read to check them, put back in front.
 type Rejoined<R> = std::io::Chain<std::io::Cursor<Vec<u8>>, R>;
 
+/// Why a `.npy` stream was refused before its data was read.
+#[derive(Debug, thiserror::Error)]
+enum HeaderError {
+    /// The stream could not be read (the reader's words, on one line).
+    #[error("cannot read: {0}")]
+    Unreadable(String),
+    /// A header longer than [`MAX_HEADER`] or than the data.
+    #[error(
+        "not a .npy file: a header of {len} bytes (the limit is {}, the data has {available} bytes)",
+        userfile::size_text(MAX_HEADER)
+    )]
+    LongHeader {
+        /// The length the pre-header claims.
+        len: u64,
+        /// Bytes there are.
+        available: u64,
+    },
+    /// What NumPy's format does not allow (the reader's words, on one line).
+    #[error("not a .npy file: {0}")]
+    NotNpy(String),
+}
+
 /// Check the pre-header of a `.npy` stream (magic, version, header length) against the
 /// `available` bytes before the NumPy reader reserves memory for the header, and hand the
 /// stream on whole.
-fn checked_npy<R: Read>(mut r: R, available: u64) -> Result<npyz::NpyFile<Rejoined<R>>, String> {
+fn checked_npy<R: Read>(
+    mut r: R,
+    available: u64,
+) -> Result<npyz::NpyFile<Rejoined<R>>, HeaderError> {
     let mut head = Vec::with_capacity(12);
     (&mut r)
         .take(12)
         .read_to_end(&mut head)
-        .map_err(|e| format!("cannot read: {}", one_line(&e)))?;
+        .map_err(|e| HeaderError::Unreadable(one_line(&e)))?;
     if head.len() >= 10 && head.starts_with(b"\x93NUMPY") {
         let len = match head[6] {
             1 => u64::from(u16::from_le_bytes([head[8], head[9]])),
@@ -70,14 +96,11 @@ fn checked_npy<R: Read>(mut r: R, available: u64) -> Result<npyz::NpyFile<Rejoin
             _ => 0,
         };
         if len > MAX_HEADER.min(available) {
-            return Err(format!(
-                "not a .npy file: a header of {len} bytes (the limit is {}, the data has {available} bytes)",
-                userfile::size_text(MAX_HEADER)
-            ));
+            return Err(HeaderError::LongHeader { len, available });
         }
     }
     npyz::NpyFile::new(std::io::Cursor::new(head).chain(r))
-        .map_err(|e| format!("not a .npy file: {}", one_line(&e)))
+        .map_err(|e| HeaderError::NotNpy(one_line(&e)))
 }
 
 /// Read one array, whose data lies in the `available` bytes of its file or archive entry,
@@ -133,33 +156,7 @@ fn read_array<R: Read>(
     // The common case, little-endian float64, read in blocks straight into the numbers:
     // element by element, the zip reader's checksum and the buffering cost more than them.
     if dtype == "'<f8'" || (dtype == "'=f8'" && cfg!(target_endian = "little")) {
-        let mut data = Vec::with_capacity(len);
-        let mut reader = npy.into_inner().take(len as u64 * 8);
-        let mut block = vec![0u8; 1 << 16];
-        let mut filled = 0;
-        loop {
-            let n = match reader.read(&mut block[filled..]) {
-                Ok(0) => break,
-                Ok(n) => n,
-                Err(e) if e.kind() == std::io::ErrorKind::Interrupted => continue,
-                Err(e) => return Err(err(format!("cannot read: {}", one_line(&e)))),
-            };
-            filled += n;
-            let whole = filled / 8 * 8;
-            data.extend(
-                block[..whole]
-                    .chunks_exact(8)
-                    .map(|c| f64::from_le_bytes(c.try_into().expect("8 bytes"))),
-            );
-            block.copy_within(whole..filled, 0);
-            filled -= whole;
-        }
-        if data.len() < len {
-            return Err(err(format!(
-                "truncated: {} bytes of data for {len} float64 numbers",
-                data.len() * 8 + filled
-            )));
-        }
+        let data = read_le_f64(npy.into_inner(), len, &err)?;
         return Ok((shape.clone(), c_order(&shape, order, data)));
     }
     macro_rules! try_types {
@@ -184,6 +181,43 @@ fn read_array<R: Read>(
     Err(err(format!(
         "dtype {dtype} is not a real number type (use float64)"
     )))
+}
+
+/// `len` little-endian float64 numbers from `reader`, read in blocks; `err` names the
+/// array in an error.
+fn read_le_f64(
+    reader: impl Read,
+    len: usize,
+    err: &dyn Fn(String) -> FileError,
+) -> Result<Vec<f64>, FileError> {
+    let mut data = Vec::with_capacity(len);
+    let mut reader = reader.take(len as u64 * 8);
+    let mut block = vec![0u8; 1 << 16];
+    let mut filled = 0;
+    loop {
+        let n = match reader.read(&mut block[filled..]) {
+            Ok(0) => break,
+            Ok(n) => n,
+            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => continue,
+            Err(e) => return Err(err(format!("cannot read: {}", one_line(&e)))),
+        };
+        filled += n;
+        let whole = filled / 8 * 8;
+        data.extend(
+            block[..whole]
+                .chunks_exact(8)
+                .map(|c| f64::from_le_bytes(c.try_into().expect("8 bytes"))),
+        );
+        block.copy_within(whole..filled, 0);
+        filled -= whole;
+    }
+    if data.len() < len {
+        return Err(err(format!(
+            "truncated: {} bytes of data for {len} float64 numbers",
+            data.len() * 8 + filled
+        )));
+    }
+    Ok(data)
 }
 
 /// An error of the NumPy or zip reader on one line: a header the Python-literal parser
@@ -262,7 +296,7 @@ pub(crate) fn read_raw(paths: &[PathBuf]) -> Result<Vec<RawArray>, FileError> {
                 .map_err(|e| at(format!("cannot read: {}", one_line(&e))))?;
             // The entry's size is the zip's claim; reading stops at the data really there.
             let available = entry.size();
-            let npy = checked_npy(entry, available).map_err(at)?;
+            let npy = checked_npy(entry, available).map_err(|e| at(e.to_string()))?;
             let (shape, data) = read_array(&file, &name, npy, available, &mut budget)?;
             raw.push((name, shape, data));
         }
@@ -282,7 +316,7 @@ pub(crate) fn read_raw(paths: &[PathBuf]) -> Result<Vec<RawArray>, FileError> {
                 .unwrap_or_default()
                 .to_string();
             let npy = checked_npy(std::io::BufReader::new(f), len)
-                .map_err(|m| FileError::new(p, "", m))?;
+                .map_err(|e| FileError::new(p, "", e.to_string()))?;
             let (shape, data) = read_array(p, &name, npy, len, &mut budget)?;
             if raw.iter().any(|(n, _, _)| *n == name) {
                 return Err(FileError::new(p, format!("array {name}"), "given twice"));
@@ -293,23 +327,27 @@ pub(crate) fn read_raw(paths: &[PathBuf]) -> Result<Vec<RawArray>, FileError> {
     Ok(raw)
 }
 
-impl Arrays {
-    /// Read an `.npz` archive, or a set of `.npy` files.
-    pub(crate) fn read(paths: &[PathBuf]) -> Result<Arrays, FileError> {
-        Self::validate(paths[0].clone(), read_raw(paths)?)
-    }
+/// The arrays of a file by quantity, with their axes checked: (runs, steps) first and the
+/// same in each, or a covariance shared by every run.
+struct Shaped {
+    arrays: Vec<Array>,
+    /// N and T, from the first array with both axes (and its name).
+    nt: Option<(usize, usize, String)>,
+    /// Covariances without the runs axis, and their steps.
+    shared_steps: Vec<(String, usize)>,
+    /// The `diverged` array, as read.
+    diverged: Option<RawArray>,
+}
 
-    fn validate(
-        file: PathBuf,
-        raw: Vec<(String, Vec<usize>, Vec<f64>)>,
-    ) -> Result<Arrays, FileError> {
-        let err = |name: &str, m: String| FileError::new(&file, format!("array {name}"), m);
-        // N and T from the first array with both axes.
-        let mut nt: Option<(usize, usize, String)> = None;
-        // Covariances without the runs axis, and their steps.
-        let mut shared_steps: Vec<(String, usize)> = Vec::new();
-        let mut arrays = Vec::new();
-        let mut diverged_raw: Option<(String, Vec<usize>, Vec<f64>)> = None;
+impl Shaped {
+    fn of(file: &Path, raw: Vec<RawArray>) -> Result<Shaped, FileError> {
+        let err = |name: &str, m: String| FileError::new(file, format!("array {name}"), m);
+        let mut out = Shaped {
+            arrays: Vec::new(),
+            nt: None,
+            shared_steps: Vec::new(),
+            diverged: None,
+        };
         for (name, shape, data) in raw {
             let q = Quantity::parse(&name).ok_or_else(|| {
                 err(
@@ -325,7 +363,7 @@ impl Arrays {
                     ));
                 }
                 Quantity::Diverged => {
-                    diverged_raw = Some((name, shape, data));
+                    out.diverged = Some((name, shape, data));
                     continue;
                 }
                 _ => {}
@@ -339,7 +377,7 @@ impl Arrays {
                 shape
             };
             if shared {
-                shared_steps.push((name.clone(), shape[1]));
+                out.shared_steps.push((name.clone(), shape[1]));
             } else if !scalar_dof {
                 let want = 2 + q.rank();
                 if shape.len() != want {
@@ -355,8 +393,8 @@ impl Arrays {
                         ),
                     ));
                 }
-                match &nt {
-                    None => nt = Some((shape[0], shape[1], name.clone())),
+                match &out.nt {
+                    None => out.nt = Some((shape[0], shape[1], name.clone())),
                     Some((n, t, first)) if (shape[0], shape[1]) != (*n, *t) => {
                         return Err(err(
                             &name,
@@ -368,21 +406,36 @@ impl Arrays {
                     Some(_) => {}
                 }
             }
-            arrays.push(Array {
+            out.arrays.push(Array {
                 quantity: q,
                 shared,
                 shape,
                 data,
             });
         }
-        let (runs, steps, _) = nt.ok_or_else(|| {
+        Ok(out)
+    }
+}
+
+impl Arrays {
+    /// Read an `.npz` archive, or a set of `.npy` files.
+    pub(crate) fn read(paths: &[PathBuf]) -> Result<Arrays, FileError> {
+        Self::validate(paths[0].clone(), read_raw(paths)?)
+    }
+
+    /// The arrays `raw` of `file` as records: each named after a quantity, all of the same
+    /// runs and steps, of a layout, with the step each run diverged at.
+    fn validate(file: PathBuf, raw: Vec<RawArray>) -> Result<Arrays, FileError> {
+        let err = |name: &str, m: String| FileError::new(&file, format!("array {name}"), m);
+        let shaped = Shaped::of(&file, raw)?;
+        let (runs, steps, _) = shaped.nt.ok_or_else(|| {
             FileError::new(
                 &file,
                 "",
                 "no arrays of records (e, P, nu_<sensor>, …; see docs/src/records.md)",
             )
         })?;
-        for (name, t) in &shared_steps {
+        for (name, t) in &shaped.shared_steps {
             if *t != steps {
                 return Err(err(
                     name,
@@ -404,6 +457,7 @@ impl Arrays {
                 format!("{steps} steps per run, above the limit of {MAX_STEPS}"),
             ));
         }
+        let arrays = shaped.arrays;
         let mut found = Found::new();
         for a in &arrays {
             let dims = if a.shape.len() >= 2 {
@@ -413,8 +467,8 @@ impl Arrays {
             };
             found.push((a.quantity.clone(), dims));
         }
-        let layout = infer_layout(&found).map_err(|m| FileError::new(&file, "", m))?;
-        let diverged = match diverged_raw {
+        let layout = infer_layout(&found).map_err(|e| FileError::new(&file, "", e.to_string()))?;
+        let diverged = match shaped.diverged {
             None => vec![0; runs],
             Some((name, shape, data)) => {
                 if shape != [runs] {
@@ -450,14 +504,14 @@ impl Arrays {
 
     /// Stream the records into `sink` (an experiment of `layout`, `steps` steps), run r of
     /// the arrays being run `first_run + r`.
-    pub(crate) fn feed(
+    pub(crate) fn feed<E: std::error::Error>(
         &self,
         layout: &Layout,
         steps: usize,
         first_run: usize,
-        sink: &mut dyn StepSink,
+        sink: &mut dyn StepSink<Error = E>,
     ) -> Result<(), FileError> {
-        fits(&self.layout, layout).map_err(|m| FileError::new(&self.file, "", m))?;
+        fits(&self.layout, layout).map_err(|e| FileError::new(&self.file, "", e.to_string()))?;
         if self.steps != steps {
             return Err(FileError::new(
                 &self.file,
@@ -468,7 +522,9 @@ impl Arrays {
         let keys = Keys::new(layout);
         for r in 0..self.runs {
             for k in 1..=self.steps {
-                let at = |m: String| FileError::new(&self.file, format!("run {r}, step {k}"), m);
+                let at = |e: RecordError| {
+                    FileError::new(&self.file, format!("run {r}, step {k}"), e.to_string())
+                };
                 let mut row = NpyRow {
                     arrays: self,
                     r,
@@ -481,7 +537,7 @@ impl Arrays {
                 }
                 let stop = rec.diverged.is_some();
                 sink.push(rec)
-                    .map_err(|m| FileError::new(&self.file, "", m))?;
+                    .map_err(|e| FileError::new(&self.file, "", e.to_string()))?;
                 if stop {
                     break;
                 }
@@ -498,7 +554,7 @@ struct NpyRow<'a> {
 }
 
 impl Row for NpyRow<'_> {
-    fn values(&mut self, q: &Quantity) -> Result<Option<Vec<f64>>, String> {
+    fn values(&mut self, q: &Quantity) -> Result<Option<Vec<f64>>, RecordError> {
         let Some(a) = self.arrays.arrays.iter().find(|a| a.quantity == *q) else {
             return Ok(None);
         };
@@ -511,7 +567,7 @@ impl Row for NpyRow<'_> {
         Ok(Some(a.data[at..at + inner].to_vec()))
     }
 
-    fn diverged(&mut self) -> Result<Option<String>, String> {
+    fn diverged(&mut self) -> Result<Option<String>, RecordError> {
         Ok(None)
     }
 }

@@ -6,6 +6,7 @@ use std::collections::HashSet;
 
 use nalgebra::{DMatrix, DVector};
 
+use super::error::{Breakdown, RecordError, SensorShapeError, ShapeError};
 use super::{Layout, SensorRecord, StateRecord, StepRecord};
 use crate::linalg::{cholesky, mahalanobis_sq};
 use crate::stats::{Accumulator, RunRecorder, StopCause};
@@ -15,7 +16,7 @@ use crate::stats::{Accumulator, RunRecorder, StopCause};
 /// chi-square lost its degrees of freedom to underflow (10⁻³⁰⁰ panicked); above, the
 /// verdict's quantiles take seconds from about 10¹⁵ total degrees of freedom (N runs times
 /// this) and never returned at 10¹⁹, which a mistyped `nees_dof` reached.
-const MAX_DOF: f64 = 1e6;
+pub(super) const MAX_DOF: f64 = 1e6;
 
 /// `x` as an error message shows it: as written for everyday sizes, in exponent form when
 /// huge or tiny (`1e300`, not its 301 digits).
@@ -47,27 +48,27 @@ pub fn normalize_sensor(
     rec: &SensorRecord,
     dim: usize,
     components: bool,
-) -> Result<Result<NormalizedSensor, String>, String> {
+) -> Result<Result<NormalizedSensor, Breakdown>, SensorShapeError> {
     let m = dim;
     match rec {
         SensorRecord::Raw { nu, s: sm } => {
             if nu.len() != m || sm.len() != m * m {
-                return Err(format!(
-                    "nu has {} entries and S {}, expected {m} and {m}×{m}",
-                    nu.len(),
-                    sm.len()
-                ));
+                return Err(SensorShapeError::Sizes {
+                    nu: nu.len(),
+                    s: sm.len(),
+                    m,
+                });
             }
             if nu.iter().chain(sm).any(|v| !v.is_finite()) {
-                return Ok(Err("nu or S is not finite".into()));
+                return Ok(Err(Breakdown::NotFinite("nu or S")));
             }
             let smat = DMatrix::from_row_slice(m, m, sm);
             let Some(chol) = cholesky(&smat) else {
-                return Ok(Err("S is not positive definite".into()));
+                return Ok(Err(Breakdown::NotPositiveDefinite("S")));
             };
             let nis = mahalanobis_sq(&chol, &DVector::from_column_slice(nu));
             if !nis.is_finite() {
-                return Ok(Err("the NIS overflowed".into()));
+                return Ok(Err(Breakdown::Overflowed("NIS")));
             }
             let u = components.then(|| (0..m).map(|j| nu[j] / smat[(j, j)].sqrt()).collect());
             Ok(Ok(NormalizedSensor {
@@ -80,24 +81,21 @@ pub fn normalize_sensor(
             // Degrees of freedom count components: a fraction is a mistake in the file, as
             // `autotune nis` says of the same column.
             if !(*dof >= 1.0 && *dof <= MAX_DOF && dof.fract() == 0.0) {
-                return Err(format!(
-                    "nis_dof is {}, not a whole number in [1, {MAX_DOF}]",
-                    shown_number(*dof)
-                ));
+                return Err(SensorShapeError::Dof(*dof));
             }
             if components != u.is_some() {
-                return Err("u given at some steps and not at others".into());
+                return Err(SensorShapeError::SometimesU);
             }
             if let Some(u) = u {
                 if u.len() != m {
-                    return Err(format!("u has {} entries, expected {m}", u.len()));
+                    return Err(SensorShapeError::ULength { len: u.len(), m });
                 }
                 if u.iter().any(|x| !x.is_finite()) {
-                    return Ok(Err("u is not finite".into()));
+                    return Ok(Err(Breakdown::NotFinite("u")));
                 }
             }
             if !nis.is_finite() || *nis < 0.0 {
-                return Ok(Err("the NIS is negative or not finite".into()));
+                return Ok(Err(Breakdown::NegativeOrNotFinite("NIS")));
             }
             Ok(Ok(NormalizedSensor {
                 nis: *nis,
@@ -108,15 +106,94 @@ pub fn normalize_sensor(
     }
 }
 
+/// A step's normalized state: its NEES and degrees of freedom, `e_j²/P_jj` where given,
+/// and `e_j/√P_jj` for raw records with `components`.
+type NormalizedState = ((f64, f64), Option<Vec<f64>>, Option<Vec<f64>>);
+
+/// Normalize one state record of dimension `n`, as [`normalize_sensor`] a sensor's.
+fn normalize_state(
+    state: &StateRecord,
+    n: usize,
+    components: bool,
+) -> Result<Result<NormalizedState, Breakdown>, ShapeError> {
+    match state {
+        StateRecord::Raw { e, p } => {
+            if e.len() != n || p.len() != n * n {
+                return Err(ShapeError::StateSizes {
+                    e: e.len(),
+                    p: p.len(),
+                    n,
+                });
+            }
+            if e.iter().chain(p).any(|v| !v.is_finite()) {
+                return Ok(Err(Breakdown::NotFinite("e or P")));
+            }
+            let pm = DMatrix::from_row_slice(n, n, p);
+            let Some(chol) = cholesky(&pm) else {
+                return Ok(Err(Breakdown::NotPositiveDefinite("P")));
+            };
+            let nees = mahalanobis_sq(&chol, &DVector::from_column_slice(e));
+            if !nees.is_finite() {
+                return Ok(Err(Breakdown::Overflowed("NEES")));
+            }
+            let ep = components.then(|| (0..n).map(|j| e[j] / pm[(j, j)].sqrt()).collect());
+            Ok(Ok(((nees, n as f64), None, ep)))
+        }
+        StateRecord::Normalized { nees, dof, e2p } => {
+            if !(*dof >= 1.0 && *dof <= MAX_DOF && dof.fract() == 0.0) {
+                return Err(ShapeError::NeesDof(*dof));
+            }
+            if components != e2p.is_some() {
+                return Err(ShapeError::SometimesE2p);
+            }
+            if let Some(c) = e2p
+                && c.len() != n
+            {
+                return Err(ShapeError::E2pLength { len: c.len(), n });
+            }
+            let bad = !nees.is_finite()
+                || *nees < 0.0
+                || e2p
+                    .as_ref()
+                    .is_some_and(|c| c.iter().any(|v| !v.is_finite() || *v < 0.0));
+            if bad {
+                return Ok(Err(Breakdown::NegativeOrNotFinite("NEES or e2p")));
+            }
+            Ok(Ok(((*nees, *dof), e2p.clone(), None)))
+        }
+    }
+}
+
+/// Why a run stops at a step: a breakdown of its state's numbers, or of a sensor's.
+struct Stopped {
+    /// The sensor (empty: the unnamed one), `None` for the state or the step's total NIS.
+    sensor: Option<String>,
+    why: Breakdown,
+}
+
+impl std::fmt::Display for Stopped {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self.sensor.as_deref() {
+            None => write!(f, "{}", self.why),
+            Some("") => write!(f, "the sensor: {}", self.why),
+            Some(name) => write!(f, "sensor {name}: {}", self.why),
+        }
+    }
+}
+
 /// Where a reader's [`StepRecord`]s go: the Monte Carlo sums ([`RecordSink`]), or another
 /// consumer (the field-log reader takes records without truth as a log).
 pub trait StepSink {
+    /// Why a record is refused.
+    type Error: std::error::Error;
     /// Add the next record; `Err` names what is wrong with it (run, step, quantity).
-    fn push(&mut self, r: StepRecord) -> Result<(), String>;
+    fn push(&mut self, r: StepRecord) -> Result<(), Self::Error>;
 }
 
 impl StepSink for RecordSink {
-    fn push(&mut self, r: StepRecord) -> Result<(), String> {
+    type Error = RecordError;
+
+    fn push(&mut self, r: StepRecord) -> Result<(), RecordError> {
         RecordSink::push(self, r)
     }
 }
@@ -185,22 +262,20 @@ impl RecordSink {
     }
 
     /// Add the next record.
-    pub fn push(&mut self, r: StepRecord) -> Result<(), String> {
+    pub fn push(&mut self, r: StepRecord) -> Result<(), RecordError> {
         let (run, k) = (r.run, r.step);
         if self.current.as_ref().is_none_or(|c| c.run != run) {
             if let Some(range) = &self.expected
                 && !range.contains(&run)
             {
-                return Err(format!(
-                    "run {run} was not asked for (runs {}..{})",
-                    range.start, range.end
-                ));
+                return Err(RecordError::NotAskedFor {
+                    run,
+                    asked: range.clone(),
+                });
             }
             self.close()?;
             if !self.seen.insert(run) {
-                return Err(format!(
-                    "run {run} appears twice (a run's records must come together)"
-                ));
+                return Err(RecordError::RunTwice(run));
             }
             self.recorder.reset();
             self.current = Some(Current {
@@ -212,16 +287,19 @@ impl RecordSink {
         }
         let cur = self.current.as_mut().expect("set above");
         if k != cur.last_step + 1 {
-            return Err(format!(
-                "run {run}: step {k} follows step {} (steps go 1, 2, …, {} without gaps)",
-                cur.last_step, self.steps
-            ));
+            return Err(RecordError::StepGap {
+                run,
+                step: k,
+                last: cur.last_step,
+                steps: self.steps,
+            });
         }
         if k > self.steps {
-            return Err(format!(
-                "run {run}: step {k} beyond the {} steps of the experiment",
-                self.steps
-            ));
+            return Err(RecordError::StepBeyond {
+                run,
+                step: k,
+                steps: self.steps,
+            });
         }
         cur.last_step = k;
         // A filter that broke down usually goes on printing NaN: what follows the step it
@@ -233,20 +311,24 @@ impl RecordSink {
             self.stop(run, k, reason);
             return Ok(());
         }
-        match self.normalize(&r)? {
+        match self.normalize(&r).map_err(|problem| RecordError::Shape {
+            run,
+            step: k,
+            problem,
+        })? {
             Ok(n) => {
                 self.add(k, n);
                 Ok(())
             }
-            Err(reason) => {
-                self.stop(run, k, reason);
+            Err(stopped) => {
+                self.stop(run, k, format!("{stopped} at step {k}"));
                 Ok(())
             }
         }
     }
 
     /// The sums, once every run is complete.
-    pub fn finish(mut self) -> Result<Accumulator, String> {
+    pub fn finish(mut self) -> Result<Accumulator, RecordError> {
         self.close()?;
         if let Some(range) = &self.expected
             && self.seen.len() != range.len()
@@ -255,22 +337,20 @@ impl RecordSink {
                 .clone()
                 .find(|r| !self.seen.contains(r))
                 .unwrap_or(range.start);
-            return Err(format!(
-                "{} of the {} runs asked for ({}..{}) came back; run {missing} is missing",
-                self.seen.len(),
-                range.len(),
-                range.start,
-                range.end
-            ));
+            return Err(RecordError::RunsMissing {
+                came: self.seen.len(),
+                asked: range.clone(),
+                missing,
+            });
         }
         if self.acc.runs == 0 {
-            return Err("no runs".into());
+            return Err(RecordError::NoRuns);
         }
         Ok(self.acc)
     }
 
     /// Close the current run: it must have reached step T, or have stopped.
-    fn close(&mut self) -> Result<(), String> {
+    fn close(&mut self) -> Result<(), RecordError> {
         let Some(cur) = self.current.take() else {
             return Ok(());
         };
@@ -278,10 +358,11 @@ impl RecordSink {
             return Ok(());
         }
         if cur.last_step != self.steps {
-            return Err(format!(
-                "run {}: ends at step {} of {} without being marked diverged",
-                cur.run, cur.last_step, self.steps
-            ));
+            return Err(RecordError::EndsEarly {
+                run: cur.run,
+                last: cur.last_step,
+                steps: self.steps,
+            });
         }
         if self.layout.state.is_some() {
             self.acc.add_run_nees_total(cur.nees_total);
@@ -298,11 +379,9 @@ impl RecordSink {
         }
     }
 
-    /// Check the record's shapes (a shape error is `Err`), then normalize it: `Ok(Err(reason))`
+    /// Check the record's shapes (a shape error is `Err`), then normalize it: `Ok(Err(why))`
     /// when its numbers show a filter that broke down.
-    fn normalize(&self, r: &StepRecord) -> Result<Result<Normalized, String>, String> {
-        let (run, k) = (r.run, r.step);
-        let at = |what: &str| format!("run {run}, step {k}: {what}");
+    fn normalize(&self, r: &StepRecord) -> Result<Result<Normalized, Stopped>, ShapeError> {
         let mut out = Normalized {
             nees: None,
             e2p: None,
@@ -312,68 +391,16 @@ impl RecordSink {
         };
         match (&self.layout.state, &r.state) {
             (None, None) => {}
-            (None, Some(_)) => {
-                return Err(at(
-                    "state quantities in records whose other steps have none",
-                ));
-            }
-            (Some(_), None) => return Err(at("no state quantities (e and P, or nees)")),
+            (None, Some(_)) => return Err(ShapeError::UnexpectedState),
+            (Some(_), None) => return Err(ShapeError::NoState),
             (Some(layout), Some(state)) => {
-                let n = layout.dim;
-                match state {
-                    StateRecord::Raw { e, p } => {
-                        if e.len() != n || p.len() != n * n {
-                            return Err(at(&format!(
-                                "e has {} entries and P {}, expected {n} and {n}×{n}",
-                                e.len(),
-                                p.len()
-                            )));
-                        }
-                        if e.iter().chain(p).any(|v| !v.is_finite()) {
-                            return Ok(Err(format!("e or P is not finite at step {k}")));
-                        }
-                        let pm = DMatrix::from_row_slice(n, n, p);
-                        let Some(chol) = cholesky(&pm) else {
-                            return Ok(Err(format!("P is not positive definite at step {k}")));
-                        };
-                        let ev = DVector::from_column_slice(e);
-                        let nees = mahalanobis_sq(&chol, &ev);
-                        if !nees.is_finite() {
-                            return Ok(Err(format!("the NEES overflowed at step {k}")));
-                        }
-                        out.nees = Some((nees, n as f64));
-                        out.ep = layout
-                            .components
-                            .then(|| (0..n).map(|j| e[j] / pm[(j, j)].sqrt()).collect());
+                match normalize_state(state, layout.dim, layout.components)? {
+                    Ok((nees, e2p, ep)) => {
+                        out.nees = Some(nees);
+                        out.e2p = e2p;
+                        out.ep = ep;
                     }
-                    StateRecord::Normalized { nees, dof, e2p } => {
-                        if !(*dof >= 1.0 && *dof <= MAX_DOF && dof.fract() == 0.0) {
-                            return Err(at(&format!(
-                                "nees_dof is {}, not a whole number in [1, {MAX_DOF}]",
-                                shown_number(*dof)
-                            )));
-                        }
-                        if layout.components != e2p.is_some() {
-                            return Err(at("e2p given at some steps and not at others"));
-                        }
-                        if let Some(c) = e2p
-                            && c.len() != n
-                        {
-                            return Err(at(&format!("e2p has {} entries, expected {n}", c.len())));
-                        }
-                        let bad = !nees.is_finite()
-                            || *nees < 0.0
-                            || e2p
-                                .as_ref()
-                                .is_some_and(|c| c.iter().any(|v| !v.is_finite() || *v < 0.0));
-                        if bad {
-                            return Ok(Err(format!(
-                                "the NEES or e2p is negative or not finite at step {k}"
-                            )));
-                        }
-                        out.nees = Some((*nees, *dof));
-                        out.e2p = e2p.clone();
-                    }
+                    Err(why) => return Ok(Err(Stopped { sensor: None, why })),
                 }
             }
         }
@@ -381,17 +408,22 @@ impl RecordSink {
         let mut dof = 0.0;
         for (s, rec) in &r.sensors {
             let Some(layout) = self.layout.sensors.get(*s) else {
-                return Err(at(&format!("sensor index {s} out of range")));
-            };
-            let name = if layout.name.is_empty() {
-                "the sensor".to_string()
-            } else {
-                format!("sensor {}", layout.name)
+                return Err(ShapeError::SensorIndex(*s));
             };
             let n = match normalize_sensor(rec, layout.dim, layout.components) {
                 Ok(Ok(n)) => n,
-                Ok(Err(why)) => return Ok(Err(format!("{name}: {why} at step {k}"))),
-                Err(why) => return Err(at(&format!("{name}: {why}"))),
+                Ok(Err(why)) => {
+                    return Ok(Err(Stopped {
+                        sensor: Some(layout.name.clone()),
+                        why,
+                    }));
+                }
+                Err(problem) => {
+                    return Err(ShapeError::Sensor {
+                        sensor: layout.name.clone(),
+                        problem,
+                    });
+                }
             };
             nis += n.nis;
             dof += n.dof;
@@ -402,7 +434,10 @@ impl RecordSink {
             }
         }
         if !nis.is_finite() {
-            return Ok(Err(format!("the NIS overflowed at step {k}")));
+            return Ok(Err(Stopped {
+                sensor: None,
+                why: Breakdown::Overflowed("NIS"),
+            }));
         }
         if dof > 0.0 {
             out.nis = Some((nis, dof));

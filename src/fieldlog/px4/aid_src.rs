@@ -3,7 +3,7 @@
 
 use std::path::Path;
 
-use super::read::AID_SRC;
+use super::read::{AID_SRC, Topic};
 use super::{Ctx, NotJudged, Px4Info, Row, estimator, judge_channel, sort_rows};
 use crate::fieldlog::LogSource;
 use crate::fieldlog::analysis::NisAnalyzer;
@@ -29,7 +29,6 @@ pub(super) fn read_aid_sources(
         }
         topics.push(src.to_string());
         rows_read += topic.times.len();
-        let fake = src.starts_with("fake_");
         // 1-d topics have `innovation`; 2-d and 3-d ones `innovation[j]`.
         let axes: Vec<Option<usize>> = if topic.column("innovation").is_some() {
             vec![None]
@@ -44,70 +43,7 @@ pub(super) fn read_aid_sources(
                 .collect()
         };
         for axis in axes {
-            let field = |f: &str| match axis {
-                None => topic.column(f),
-                Some(j) => topic
-                    .column(&format!("{f}[{j}]"))
-                    .or_else(|| topic.column(f)),
-            };
-            let (Some(ci), Some(cv)) = (field("innovation"), field("innovation_variance")) else {
-                continue;
-            };
-            let (ct, co, cf, cr) = (
-                field("test_ratio"),
-                field("observation_variance"),
-                field("fused"),
-                field("innovation_rejected"),
-            );
-            let name = match axis {
-                None => src.to_string(),
-                Some(j) => format!("{src}[{j}]"),
-            };
-            if fake {
-                let fused = topic
-                    .values
-                    .iter()
-                    .filter(|v| cf.is_some_and(|c| v[c] != 0.0))
-                    .count();
-                info.not_judged.push(NotJudged {
-                    name: format!("ekf{inst}.{name}"),
-                    reason: "fake fusion (no aiding source): these innovations are the filter's own, not a sensor's".into(),
-                    updates: fused,
-                });
-                continue;
-            }
-            let rows: Vec<Row> = (0..topic.times.len())
-                .map(|r| {
-                    let v = &topic.values[r];
-                    Row {
-                        time: topic.times[r],
-                        nu: v[ci],
-                        s: v[cv],
-                        exact: true,
-                        test_ratio: ct.map(|c| v[c]),
-                        fused: Some((
-                            cf.is_none_or(|c| v[c] != 0.0),
-                            cr.is_some_and(|c| v[c] != 0.0),
-                        )),
-                        obs_var: co.map(|c| v[c]),
-                    }
-                })
-                .collect();
-            let source = estimator::Source::Always(aid_words(src));
-            let sorted = sort_rows(ctx, &rows, &source, None);
-            let base = src.to_string();
-            judge_channel(
-                ctx,
-                path,
-                an,
-                info,
-                inst,
-                &name,
-                &base,
-                &source,
-                topic.rate_hz(),
-                sorted,
-            )?;
+            read_axis(ctx, path, an, info, inst, src, topic, axis)?;
         }
     }
     source_out.notes.push(format!(
@@ -116,6 +52,85 @@ pub(super) fn read_aid_sources(
         topics.join(", ")
     ));
     Ok(rows_read)
+}
+
+/// Judge one axis (`None` for a 1-d source) of aid-source topic `src` of instance `inst`,
+/// or note why it is not judged (a fake fusion).
+#[allow(clippy::too_many_arguments)]
+fn read_axis(
+    ctx: &Ctx,
+    path: &Path,
+    an: &mut NisAnalyzer,
+    info: &mut Px4Info,
+    inst: u8,
+    src: &str,
+    topic: &Topic,
+    axis: Option<usize>,
+) -> Result<(), FileError> {
+    let field = |f: &str| match axis {
+        None => topic.column(f),
+        Some(j) => topic
+            .column(&format!("{f}[{j}]"))
+            .or_else(|| topic.column(f)),
+    };
+    let (Some(ci), Some(cv)) = (field("innovation"), field("innovation_variance")) else {
+        return Ok(());
+    };
+    let (ct, co, cf, cr) = (
+        field("test_ratio"),
+        field("observation_variance"),
+        field("fused"),
+        field("innovation_rejected"),
+    );
+    let name = match axis {
+        None => src.to_string(),
+        Some(j) => format!("{src}[{j}]"),
+    };
+    if src.starts_with("fake_") {
+        let fused = topic
+            .values
+            .iter()
+            .filter(|v| cf.is_some_and(|c| v[c] != 0.0))
+            .count();
+        info.not_judged.push(NotJudged {
+            name: format!("ekf{inst}.{name}"),
+            reason: "fake fusion (no aiding source): these innovations are the filter's own, not a sensor's".into(),
+            updates: fused,
+        });
+        return Ok(());
+    }
+    let rows: Vec<Row> = (0..topic.times.len())
+        .map(|r| {
+            let v = &topic.values[r];
+            Row {
+                time: topic.times[r],
+                nu: v[ci],
+                s: v[cv],
+                exact: true,
+                test_ratio: ct.map(|c| v[c]),
+                fused: Some((
+                    cf.is_none_or(|c| v[c] != 0.0),
+                    cr.is_some_and(|c| v[c] != 0.0),
+                )),
+                obs_var: co.map(|c| v[c]),
+            }
+        })
+        .collect();
+    let source = estimator::Source::Always(aid_words(src));
+    let sorted = sort_rows(ctx, &rows, &source, None);
+    let base = src.to_string();
+    judge_channel(
+        ctx,
+        path,
+        an,
+        info,
+        inst,
+        &name,
+        &base,
+        &source,
+        topic.rate_hz(),
+        sorted,
+    )
 }
 
 fn aid_words(src: &str) -> &'static str {

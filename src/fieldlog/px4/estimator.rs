@@ -338,9 +338,21 @@ pub(super) enum Status {
     Unknown,
 }
 
+/// A log whose innovations another estimator than EKF2 published: the parameter that says
+/// so, its value, and the estimator it selects.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error(
+    "{param} = {value}: the innovations were published by {who}, not EKF2; its \"variances\" are not EKF2's innovation variances S, so ν²/S is not a NIS"
+)]
+pub(super) struct NotEkf2 {
+    param: &'static str,
+    value: f64,
+    who: &'static str,
+}
+
 /// Who published the innovation topics, and how that is known: Ok((name, evidence)) for
 /// EKF2, Err(reason) for anything else.
-pub(super) fn publisher(read: &Read, legacy: bool) -> Result<(String, String), String> {
+pub(super) fn publisher(read: &Read, legacy: bool) -> Result<(String, String), NotEkf2> {
     let group = ["SYS_MC_EST_GROUP", "SYS_EST_GROUP"]
         .iter()
         .find_map(|p| read.params.get(*p).map(|v| (*p, *v)));
@@ -357,9 +369,11 @@ pub(super) fn publisher(read: &Read, legacy: bool) -> Result<(String, String), S
                 3 => "the Q attitude estimator",
                 _ => "an estimator other than EKF2",
             };
-            Err(format!(
-                "{p} = {v}: the innovations were published by {who}, not EKF2; its \"variances\" are not EKF2's innovation variances S, so ν²/S is not a NIS"
-            ))
+            Err(NotEkf2 {
+                param: p,
+                value: v,
+                who,
+            })
         }
         None if legacy => Ok((
             "EKF2".into(),

@@ -288,33 +288,11 @@ fn judge_channel(
 ) -> Result<(), FileError> {
     let full = format!("ekf{inst}.{name}");
     let n = sorted.updates.len();
-    if n == 0 && sorted.fake > 0 {
+    if let Some((reason, updates)) = not_judged(ctx, &sorted, source) {
         info.not_judged.push(NotJudged {
             name: full,
-            reason: "fake-position fusion: EKF2 had no horizontal aiding source, so these innovations are the filter's own, not a sensor's".into(),
-            updates: sorted.fake,
-        });
-        return Ok(());
-    }
-    if n == 0 && sorted.inactive > 0 {
-        info.not_judged.push(NotJudged {
-            name: full,
-            reason: format!(
-                "its source ({}) was never active by EKF2's status flags while it updated",
-                words_of(source)
-            ),
-            updates: sorted.inactive,
-        });
-        return Ok(());
-    }
-    if ctx.publisher_assumed && n >= CONSTANT_VARIANCE_UPDATES && sorted.same_variance == n {
-        info.not_judged.push(NotJudged {
-            name: full,
-            reason: format!(
-                "its variance is the same {} on all {n} updates: that is a fixed R, not an innovation variance S (which moves with the filter's covariance)",
-                f64::from_bits(sorted.first_variance.unwrap_or(0))
-            ),
-            updates: n,
+            reason,
+            updates,
         });
         return Ok(());
     }
@@ -324,14 +302,15 @@ fn judge_channel(
             components: vec![full.clone()],
             group: format!("ekf{inst}"),
         })
-        .map_err(|m| FileError::new(path, "", m))?;
+        .map_err(|e| FileError::new(path, "", e.to_string()))?;
     let (first, last) = (
         sorted.updates.first().map(|u| u.time),
         sorted.updates.last().map(|u| u.time),
     );
     let repeats = sorted.dropped.repeats;
     for up in std::mem::take(&mut sorted.updates) {
-        an.push(i, up).map_err(|m| FileError::new(path, "", m))?;
+        an.push(i, up)
+            .map_err(|e| FileError::new(path, "", e.to_string()))?;
     }
     an.drop_rows(i, sorted.dropped);
     let span = match (first, last) {
@@ -383,6 +362,38 @@ fn judge_channel(
     Ok(())
 }
 
+/// Why a channel's rows are not judged, and how many updates that leaves out: only
+/// fake-position fusions, a source never active, or (where EKF2 is only assumed) a variance
+/// that never moves.
+fn not_judged(ctx: &Ctx, sorted: &Sorted, source: &Source) -> Option<(String, usize)> {
+    let n = sorted.updates.len();
+    if n == 0 && sorted.fake > 0 {
+        return Some((
+            "fake-position fusion: EKF2 had no horizontal aiding source, so these innovations are the filter's own, not a sensor's".into(),
+            sorted.fake,
+        ));
+    }
+    if n == 0 && sorted.inactive > 0 {
+        return Some((
+            format!(
+                "its source ({}) was never active by EKF2's status flags while it updated",
+                words_of(source)
+            ),
+            sorted.inactive,
+        ));
+    }
+    if ctx.publisher_assumed && n >= CONSTANT_VARIANCE_UPDATES && sorted.same_variance == n {
+        return Some((
+            format!(
+                "its variance is the same {} on all {n} updates: that is a fixed R, not an innovation variance S (which moves with the filter's covariance)",
+                f64::from_bits(sorted.first_variance.unwrap_or(0))
+            ),
+            n,
+        ));
+    }
+    None
+}
+
 fn words_of(source: &Source) -> &'static str {
     match source {
         Source::Sensor { words, .. } | Source::HorizontalPosition { words, .. } => words,
@@ -414,54 +425,18 @@ fn read_innovations(
             ));
             return Ok(0);
         };
-        let var_at = columns(&vt.names);
-        let channels = topic
-            .names
-            .iter()
-            .enumerate()
-            .filter_map(|(i, n)| {
-                var_at.get(n.as_str()).map(|&v| {
-                    let (base, idx) = split_index(n);
-                    Channel {
-                        name: n.clone(),
-                        innov: i,
-                        var: v,
-                        base,
-                        idx,
-                    }
-                })
-            })
-            .collect();
-        (channels, pair(&topic.times, &vt.times), vt)
+        (
+            innovation_channels(topic, vt),
+            pair(&topic.times, &vt.times),
+            vt,
+        )
     };
     let ratio_topic = read.topics.get(&(TEST_RATIOS.to_string(), inst));
     let ratio_rows = ratio_topic.map(|t| pair(&topic.times, &t.times));
     let ratio_cols = ratio_topic.map(|t| columns(&t.names));
-    let exact = pairing
-        .iter()
-        .filter(|p| matches!(p, Some((_, true))))
-        .count();
-    let near = pairing
-        .iter()
-        .filter(|p| matches!(p, Some((_, false))))
-        .count();
-    let unpaired = pairing.len() - exact - near;
-    let stamp = if topic.sampled_time {
-        "timestamp_sample"
-    } else {
-        "timestamp (this release logs no timestamp_sample)"
-    };
-    if legacy {
-        source_out.notes.push(format!(
-            "ekf{inst}: {} rows of {LEGACY} (innovations and variances in one message)",
-            pairing.len()
-        ));
-    } else {
-        source_out.notes.push(format!(
-            "ekf{inst}: {} rows; {exact} paired with a variances row of the same {stamp}, {near} with the nearest within 50 ms, {unpaired} unpaired (dropped)",
-            pairing.len()
-        ));
-    }
+    source_out
+        .notes
+        .push(pairing_note(inst, topic, &pairing, legacy));
     let flags = Flags::of(read, inst);
     let logged_hz = topic.rate_hz();
     for ch in &channels {
@@ -514,6 +489,61 @@ fn read_innovations(
         }
     }
     Ok(pairing.len())
+}
+
+/// The channels of an innovations topic that its variances topic `vt` has a column for.
+fn innovation_channels(topic: &Topic, vt: &Topic) -> Vec<Channel> {
+    let var_at = columns(&vt.names);
+    topic
+        .names
+        .iter()
+        .enumerate()
+        .filter_map(|(i, n)| {
+            var_at.get(n.as_str()).map(|&v| {
+                let (base, idx) = split_index(n);
+                Channel {
+                    name: n.clone(),
+                    innov: i,
+                    var: v,
+                    base,
+                    idx,
+                }
+            })
+        })
+        .collect()
+}
+
+/// The note on how instance `inst`'s innovation rows were paired with their variances.
+fn pairing_note(
+    inst: u8,
+    topic: &Topic,
+    pairing: &[Option<(usize, bool)>],
+    legacy: bool,
+) -> String {
+    if legacy {
+        return format!(
+            "ekf{inst}: {} rows of {LEGACY} (innovations and variances in one message)",
+            pairing.len()
+        );
+    }
+    let exact = pairing
+        .iter()
+        .filter(|p| matches!(p, Some((_, true))))
+        .count();
+    let near = pairing
+        .iter()
+        .filter(|p| matches!(p, Some((_, false))))
+        .count();
+    let unpaired = pairing.len() - exact - near;
+    let stamp = if topic.sampled_time {
+        "timestamp_sample"
+    } else {
+        "timestamp (this release logs no timestamp_sample)"
+    };
+    format!(
+        "ekf{inst}: {} rows; {exact} paired with a variances row of the same {stamp}, {near} with the nearest within 50 ms, {unpaired} unpaired (dropped)",
+        pairing.len()
+    )
 }
 
 /// Takeoffs, landings, primary switches and aiding-source changes, in time order.
@@ -589,58 +619,11 @@ pub(super) fn read(
     let (read, ending) = read::read_file(path)?;
     let mut source = LogSource::new(path, "px4-ulog");
     source.rows = read.rows;
-    match ending {
-        Ending::Complete => {}
-        Ending::Truncated if options.allow_truncated => source
-            .notes
-            .push("the file is truncated: the data before the cut were judged".into()),
-        Ending::Truncated => {
-            return Err(FileError::new(
-                path,
-                "",
-                "the file is truncated (it ends partway through a message); --allow-truncated judges the data before the cut",
-            ));
-        }
-        Ending::Malformed(why) if options.allow_truncated => source.notes.push(format!(
-            "a malformed message ({}) ends the readable data: what came before was judged",
-            first_line(&why)
-        )),
-        Ending::Malformed(why) => {
-            return Err(FileError::new(
-                path,
-                "",
-                format!(
-                    "a malformed message in the data ({}); --allow-truncated judges the data before it",
-                    first_line(&why)
-                ),
-            ));
-        }
-    }
-    let mut instances: Vec<(u8, &str)> = Vec::new();
-    for (name, i) in read.topics.keys() {
-        let kind = if name.starts_with(AID_SRC) {
-            "aid"
-        } else if name == INNOVATIONS {
-            "innov"
-        } else if name == LEGACY {
-            "legacy"
-        } else {
-            continue;
-        };
-        instances.push((*i, kind));
-    }
-    if instances.is_empty() {
-        return Err(FileError::new(
-            path,
-            "",
-            format!(
-                "no estimator_aid_src_*, {INNOVATIONS} (with {VARIANCES}) or {LEGACY} data: nothing to judge"
-            ),
-        ));
-    }
+    note_ending(path, ending, options, &mut source)?;
+    let instances = instances(path, &read)?;
     let legacy_only = instances.iter().all(|(_, k)| *k == "legacy");
-    let (publisher, evidence) =
-        estimator::publisher(&read, legacy_only).map_err(|why| FileError::new(path, "", why))?;
+    let (publisher, evidence) = estimator::publisher(&read, legacy_only)
+        .map_err(|why| FileError::new(path, "", why.to_string()))?;
     if options.in_air && !read.topics.keys().any(|(n, _)| n == LAND) {
         return Err(FileError::new(
             path,
@@ -684,42 +667,13 @@ pub(super) fn read(
     numbers.sort_unstable();
     numbers.dedup();
     for &inst in &numbers {
-        let has = |k: &str| instances.iter().any(|x| x.0 == inst && x.1 == k);
-        let (rows, topics, hz) = if has("aid") {
-            if has("innov") {
-                source.notes.push(format!(
-                    "ekf{inst}: judged from the aid-source topics, which say what was fused; {INNOVATIONS} not used"
-                ));
-            }
-            let rows = aid_src::read_aid_sources(&ctx, path, an, &mut source, &mut info, inst)?;
-            let hz = read
-                .topics
-                .iter()
-                .filter(|((n, i), _)| *i == inst && n.starts_with(AID_SRC))
-                .map(|(_, t)| t.rate_hz())
-                .fold(0.0, f64::max);
-            (rows, "estimator_aid_src_*".to_string(), hz)
-        } else {
-            let legacy = !has("innov");
-            let name = if legacy { LEGACY } else { INNOVATIONS };
-            let topic = &read.topics[&(name.to_string(), inst)];
-            if !topic.stamps.is_empty() && topic.stamps.iter().all(|&t| t == topic.stamps[0]) {
-                source.notes.push(format!(
-                    "ekf{inst}: every row of {name} has the timestamp {}: the time axis and time windows are meaningless",
-                    topic.stamps[0]
-                ));
-            }
-            let rows =
-                read_innovations(&ctx, path, an, &mut source, &mut info, inst, topic, legacy)?;
-            (rows, name.to_string(), topic.rate_hz())
-        };
-        info.instances.push(Px4Instance {
-            index: inst,
-            topics,
-            rows,
-            logged_hz: hz,
-            primary_s: None,
-        });
+        let kinds: Vec<&str> = instances
+            .iter()
+            .filter(|x| x.0 == inst)
+            .map(|x| x.1)
+            .collect();
+        let instance = read_instance(&ctx, path, an, &mut source, &mut info, inst, &kinds)?;
+        info.instances.push(instance);
     }
     events(&ctx, &numbers, &mut info);
     let sampled: Vec<String> = info
@@ -738,6 +692,122 @@ pub(super) fn read(
     }
     source.px4 = Some(info);
     Ok(source)
+}
+
+/// How the file ended, as a note when the data before a cut or a damaged message may be
+/// judged (`--allow-truncated`), an error otherwise.
+fn note_ending(
+    path: &Path,
+    ending: Ending,
+    options: &ReadOptions,
+    source: &mut LogSource,
+) -> Result<(), FileError> {
+    match ending {
+        Ending::Complete => {}
+        Ending::Truncated if options.allow_truncated => source
+            .notes
+            .push("the file is truncated: the data before the cut were judged".into()),
+        Ending::Truncated => {
+            return Err(FileError::new(
+                path,
+                "",
+                "the file is truncated (it ends partway through a message); --allow-truncated judges the data before the cut",
+            ));
+        }
+        Ending::Malformed(why) if options.allow_truncated => source.notes.push(format!(
+            "a malformed message ({}) ends the readable data: what came before was judged",
+            first_line(&why)
+        )),
+        Ending::Malformed(why) => {
+            return Err(FileError::new(
+                path,
+                "",
+                format!(
+                    "a malformed message in the data ({}); --allow-truncated judges the data before it",
+                    first_line(&why)
+                ),
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// The estimator instances of the log and the kind of each innovation topic they logged
+/// (`aid`, `innov`, `legacy`); an error when there is none.
+fn instances<'r>(path: &Path, read: &'r Read) -> Result<Vec<(u8, &'r str)>, FileError> {
+    let mut instances: Vec<(u8, &str)> = Vec::new();
+    for (name, i) in read.topics.keys() {
+        let kind = if name.starts_with(AID_SRC) {
+            "aid"
+        } else if name == INNOVATIONS {
+            "innov"
+        } else if name == LEGACY {
+            "legacy"
+        } else {
+            continue;
+        };
+        instances.push((*i, kind));
+    }
+    if instances.is_empty() {
+        return Err(FileError::new(
+            path,
+            "",
+            format!(
+                "no estimator_aid_src_*, {INNOVATIONS} (with {VARIANCES}) or {LEGACY} data: nothing to judge"
+            ),
+        ));
+    }
+    Ok(instances)
+}
+
+/// Read estimator instance `inst`'s channels, from the aid-source topics where it logged
+/// them (its topics' `kinds`), else from its innovation topic.
+#[allow(clippy::too_many_arguments)]
+fn read_instance(
+    ctx: &Ctx<'_>,
+    path: &Path,
+    an: &mut NisAnalyzer,
+    source: &mut LogSource,
+    info: &mut Px4Info,
+    inst: u8,
+    kinds: &[&str],
+) -> Result<Px4Instance, FileError> {
+    let read = ctx.read;
+    let has = |k: &str| kinds.contains(&k);
+    let (rows, topics, hz) = if has("aid") {
+        if has("innov") {
+            source.notes.push(format!(
+                "ekf{inst}: judged from the aid-source topics, which say what was fused; {INNOVATIONS} not used"
+            ));
+        }
+        let rows = aid_src::read_aid_sources(ctx, path, an, source, info, inst)?;
+        let hz = read
+            .topics
+            .iter()
+            .filter(|((n, i), _)| *i == inst && n.starts_with(AID_SRC))
+            .map(|(_, t)| t.rate_hz())
+            .fold(0.0, f64::max);
+        (rows, "estimator_aid_src_*".to_string(), hz)
+    } else {
+        let legacy = !has("innov");
+        let name = if legacy { LEGACY } else { INNOVATIONS };
+        let topic = &read.topics[&(name.to_string(), inst)];
+        if !topic.stamps.is_empty() && topic.stamps.iter().all(|&t| t == topic.stamps[0]) {
+            source.notes.push(format!(
+                "ekf{inst}: every row of {name} has the timestamp {}: the time axis and time windows are meaningless",
+                topic.stamps[0]
+            ));
+        }
+        let rows = read_innovations(ctx, path, an, source, info, inst, topic, legacy)?;
+        (rows, name.to_string(), topic.rate_hz())
+    };
+    Ok(Px4Instance {
+        index: inst,
+        topics,
+        rows,
+        logged_hz: hz,
+        primary_s: None,
+    })
 }
 
 fn first_line(s: &str) -> String {

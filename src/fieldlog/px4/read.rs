@@ -8,7 +8,7 @@ use std::path::Path;
 use px4_ulog::stream_parser::model::{FlattenedFieldType, InfoMessage, LogStage, ParameterMessage};
 use px4_ulog::stream_parser::{DataMessage, LogParser};
 
-use super::super::ulog_walk::{Ending, walk};
+use super::super::ulog_walk::{Ending, feed_ulog};
 use crate::input::FileError;
 
 pub(super) const INNOVATIONS: &str = "estimator_innovations";
@@ -174,86 +174,11 @@ pub(super) fn read_file(path: &Path) -> Result<(Read, Ending), FileError> {
         if too_many.get() {
             return;
         }
-        let f = d.flattened_format;
-        let name = f.message_name();
-        let data = d.data;
-        let read_u64 = |field: &str| -> Option<u64> {
-            let x = f.field_iter().find(|x| x.flattened_field_name == field)?;
-            let o = x.offset as usize;
-            data.get(o..o + 8)
-                .map(|b| u64::from_le_bytes(b.try_into().expect("8 bytes")))
-        };
-        let stamp = read_u64("timestamp");
-        if let Some(s) = stamp {
-            last_stamp.set(last_stamp.get().max(s));
-        }
-        let mut out = out.borrow_mut();
-        if SOURCE_TOPICS.contains(&name) {
-            if let Some(s) = stamp {
-                let e = out.sources.entry(name.to_string()).or_insert((0, s, s));
-                e.0 += 1;
-                e.1 = e.1.min(s);
-                e.2 = e.2.max(s);
-            }
-            return;
-        }
-        let Some(keep) = keeps(name) else { return };
-        // `rows` counts the innovation rows (what the summary reports); the cap every kept row.
-        if matches!(name, INNOVATIONS | VARIANCES | LEGACY) || name.starts_with(AID_SRC) {
-            out.rows += 1;
-        }
-        out.kept += 1;
-        if out.kept > MAX_ROWS {
-            too_many.set(true);
-            return;
-        }
-        let fields: Vec<_> = f
-            .field_iter()
-            .filter(|x| keep(&x.flattened_field_name, &x.field_type))
-            .collect();
-        let sample = read_u64("timestamp_sample");
-        let Some(stamp) = stamp else { return };
-        let topic = out
-            .topics
-            .entry((name.to_string(), d.multi_id.value()))
-            .or_default();
-        if topic.names.is_empty() && topic.times.is_empty() {
-            topic.names = fields
-                .iter()
-                .map(|x| x.flattened_field_name.clone())
-                .collect();
-            topic.sampled_time = sample.is_some();
-        }
-        if fields.len() != topic.names.len() {
-            return;
-        }
-        topic.times.push(sample.unwrap_or(stamp));
-        topic.stamps.push(stamp);
-        topic.values.push(
-            fields
-                .iter()
-                .map(|x| value_at(data, x.offset, &x.field_type))
-                .collect(),
-        );
+        let full = add_data(&mut out.borrow_mut(), d, &last_stamp);
+        too_many.set(full);
     };
     let mut on_param = |p: &ParameterMessage| {
-        let (name, value, stage) = match p {
-            ParameterMessage::Float(n, v, s) => (*n, f64::from(*v), s),
-            ParameterMessage::Int32(n, v, s) => (*n, f64::from(*v), s),
-        };
-        if !estimator_param(name) {
-            return;
-        }
-        let mut out = out.borrow_mut();
-        match stage {
-            LogStage::Definitions => {
-                out.params.insert(name.to_string(), value);
-            }
-            LogStage::Data => {
-                out.param_changes
-                    .push((last_stamp.get(), name.to_string(), value));
-            }
-        }
+        add_param(&mut out.borrow_mut(), p, last_stamp.get());
     };
     let mut on_info = |i: &InfoMessage| {
         if i.key == "ver_sw_release" && i.type_str == "uint32_t" && i.value.len() >= 4 {
@@ -267,7 +192,7 @@ pub(super) fn read_file(path: &Path) -> Result<(Read, Ending), FileError> {
         parser.set_data_message_callback(&mut on_data);
         parser.set_parameter_message_callback(&mut on_param);
         parser.set_info_message_callback(&mut on_info);
-        walk(path, &mut parser, &|| too_many.get())?
+        feed_ulog(path, &mut parser, &|| too_many.get())?
     };
     if too_many.get() {
         return Err(FileError::new(
@@ -277,6 +202,97 @@ pub(super) fn read_file(path: &Path) -> Result<(Read, Ending), FileError> {
         ));
     }
     Ok((out.into_inner(), ending))
+}
+
+/// Keep what the report uses of a data message: an aiding source's rate, an estimator
+/// topic's fields; note the latest timestamp in `last_stamp`. `true` once the rows kept
+/// pass [`MAX_ROWS`].
+fn add_data(out: &mut Read, d: &DataMessage, last_stamp: &Cell<u64>) -> bool {
+    let f = d.flattened_format;
+    let name = f.message_name();
+    let data = d.data;
+    let read_u64 = |field: &str| -> Option<u64> {
+        let x = f.field_iter().find(|x| x.flattened_field_name == field)?;
+        let o = x.offset as usize;
+        data.get(o..o + 8)
+            .map(|b| u64::from_le_bytes(b.try_into().expect("8 bytes")))
+    };
+    let stamp = read_u64("timestamp");
+    if let Some(s) = stamp {
+        last_stamp.set(last_stamp.get().max(s));
+    }
+    if SOURCE_TOPICS.contains(&name) {
+        if let Some(s) = stamp {
+            let e = out.sources.entry(name.to_string()).or_insert((0, s, s));
+            e.0 += 1;
+            e.1 = e.1.min(s);
+            e.2 = e.2.max(s);
+        }
+        return false;
+    }
+    let Some(keep) = keeps(name) else {
+        return false;
+    };
+    // `rows` counts the innovation rows (what the summary reports); the cap every kept row.
+    if matches!(name, INNOVATIONS | VARIANCES | LEGACY) || name.starts_with(AID_SRC) {
+        out.rows += 1;
+    }
+    out.kept += 1;
+    if out.kept > MAX_ROWS {
+        return true;
+    }
+    let fields: Vec<_> = f
+        .field_iter()
+        .filter(|x| keep(&x.flattened_field_name, &x.field_type))
+        .collect();
+    let sample = read_u64("timestamp_sample");
+    let Some(stamp) = stamp else {
+        return false;
+    };
+    let topic = out
+        .topics
+        .entry((name.to_string(), d.multi_id.value()))
+        .or_default();
+    if topic.names.is_empty() && topic.times.is_empty() {
+        topic.names = fields
+            .iter()
+            .map(|x| x.flattened_field_name.clone())
+            .collect();
+        topic.sampled_time = sample.is_some();
+    }
+    if fields.len() != topic.names.len() {
+        return false;
+    }
+    topic.times.push(sample.unwrap_or(stamp));
+    topic.stamps.push(stamp);
+    topic.values.push(
+        fields
+            .iter()
+            .map(|x| value_at(data, x.offset, &x.field_type))
+            .collect(),
+    );
+    false
+}
+
+/// Keep an estimator parameter: its value in the definitions, or its change at
+/// `last_stamp` during the data.
+fn add_param(out: &mut Read, p: &ParameterMessage, last_stamp: u64) {
+    let (name, value, stage) = match p {
+        ParameterMessage::Float(n, v, s) => (*n, f64::from(*v), s),
+        ParameterMessage::Int32(n, v, s) => (*n, f64::from(*v), s),
+    };
+    if !estimator_param(name) {
+        return;
+    }
+    match stage {
+        LogStage::Definitions => {
+            out.params.insert(name.to_string(), value);
+        }
+        LogStage::Data => {
+            out.param_changes
+                .push((last_stamp, name.to_string(), value));
+        }
+    }
 }
 
 /// The 7 bytes every ULog file starts with (then a version byte and a 64-bit timestamp).

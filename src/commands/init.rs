@@ -69,19 +69,28 @@ pub struct InitOptions {
     pub force: bool,
 }
 
+/// Why a problem name is refused.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum NameError {
+    /// No characters.
+    #[error("the name is empty: use letters, digits, '_' and '-'")]
+    Empty,
+    /// A character other than ASCII letters, digits, `_` and `-`.
+    #[error("{0:?} is not allowed: use letters, digits, '_' and '-' only")]
+    Character(char),
+}
+
 /// A problem name: non-empty, ASCII letters, digits, `_` and `-` only (it becomes a file
 /// name and a TOML string).
-fn parse_name(name: &str) -> Result<String, String> {
+fn parse_name(name: &str) -> Result<String, NameError> {
     if name.is_empty() {
-        return Err("the name is empty: use letters, digits, '_' and '-'".into());
+        return Err(NameError::Empty);
     }
     if let Some(c) = name
         .chars()
         .find(|c| !(c.is_ascii_alphanumeric() || *c == '_' || *c == '-'))
     {
-        return Err(format!(
-            "{c:?} is not allowed: use letters, digits, '_' and '-' only"
-        ));
+        return Err(NameError::Character(c));
     }
     Ok(name.to_string())
 }

@@ -285,7 +285,8 @@ impl TunedConfig {
                 ("R", &cfg.r, cov.as_ref().map(|c| &c.R)),
             ] {
                 if let (Some(given), Some(expected)) = (given, expected) {
-                    same_matrix(given, expected).map_err(|m| FileError::new(path, field, m))?;
+                    same_matrix(given, expected)
+                        .map_err(|m| FileError::new(path, field, m.to_string()))?;
                 }
             }
         }
@@ -366,24 +367,56 @@ impl TunedConfig {
     }
 }
 
+/// How a config's stored matrix differs from what its parameters give.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+enum MatrixMismatch {
+    /// Another shape than the parameters' matrix.
+    #[error(
+        "is not {rows}×{cols}, the shape this problem's parameters give (remove Q and R, or tune again)"
+    )]
+    Shape {
+        /// The parameters' matrix's rows.
+        rows: usize,
+        /// Its columns.
+        cols: usize,
+    },
+    /// An entry off by more than the tolerance.
+    #[error(
+        "[{row}][{col}] = {given:e}, but the parameters give {expected:e} (remove Q and R, or tune again)"
+    )]
+    Entry {
+        /// Row index.
+        row: usize,
+        /// Column index.
+        col: usize,
+        /// The stored value.
+        given: f64,
+        /// The parameters' value.
+        expected: f64,
+    },
+}
+
 /// Whether the rows `given` hold `expected`, to 1e-9 of its largest entry; the error says
 /// where they differ.
-fn same_matrix(given: &[Vec<f64>], expected: &nalgebra::DMatrix<f64>) -> Result<(), String> {
-    let (n, m) = expected.shape();
-    if given.len() != n || given.iter().any(|r| r.len() != m) {
-        return Err(format!(
-            "is not {n}×{m}, the shape this problem's parameters give (remove Q and R, or tune again)"
-        ));
+fn same_matrix(
+    given: &[Vec<f64>],
+    expected: &nalgebra::DMatrix<f64>,
+) -> Result<(), MatrixMismatch> {
+    let (rows, cols) = expected.shape();
+    if given.len() != rows || given.iter().any(|r| r.len() != cols) {
+        return Err(MatrixMismatch::Shape { rows, cols });
     }
     let tol = 1e-9 * expected.amax().max(f64::MIN_POSITIVE);
     for (i, row) in given.iter().enumerate() {
         for (j, &v) in row.iter().enumerate() {
             let e = expected[(i, j)];
-            let close = (v - e).abs() <= tol;
-            if !close {
-                return Err(format!(
-                    "[{i}][{j}] = {v:e}, but the parameters give {e:e} (remove Q and R, or tune again)"
-                ));
+            if (v - e).abs() > tol {
+                return Err(MatrixMismatch::Entry {
+                    row: i,
+                    col: j,
+                    given: v,
+                    expected: e,
+                });
             }
         }
     }

@@ -4,7 +4,7 @@
 //! single likelihood evaluations on records with 1% of the cells empty.
 
 use autotune::estimate::als::{self, AlsModel};
-use autotune::estimate::{Measurements, ml, simulate};
+use autotune::estimate::{MeasurementRecord, ml, simulate};
 use autotune::experiment::Experiment as _;
 use autotune::problem::Problem;
 use criterion::{Criterion, criterion_group, criterion_main};
@@ -65,7 +65,7 @@ fn estimate(c: &mut Criterion) {
 
 /// `data` with 1% of its cells empty, drawn independently by a fixed linear congruential
 /// stream.
-fn with_gaps(mut data: Measurements) -> Measurements {
+fn with_gaps(mut data: MeasurementRecord) -> MeasurementRecord {
     let mut s: u64 = 7;
     for v in data.sequences.iter_mut().flat_map(|q| q.z.iter_mut()) {
         s = s

@@ -16,7 +16,7 @@
 use std::process::ExitCode;
 
 use autotune::SimRng;
-use autotune::experiment::{Covariances, Custom};
+use autotune::experiment::{Covariances, RustModel};
 use autotune::filter::{Ekf, SystemModel};
 use autotune::measurement::Measurement;
 use autotune::model::{TruthModel, sample_gaussian};
@@ -116,7 +116,7 @@ fn main() -> ExitCode {
         x0: DVector::from_column_slice(&[0.8, 0.0]),
         P0: p0.clone(),
     };
-    let model = Custom::builder("pendulum", truth, filter)
+    let model = RustModel::builder("pendulum", truth, filter)
         .description("damped pendulum, angle measured, EKF (autotune example)")
         .program("custom_model")
         .states(["angle", "rate"])

@@ -4,7 +4,7 @@
 //! intervals) and tunes its noise covariances Q and R. Everything goes through one seam,
 //! [`Experiment`]: "the Monte Carlo sums of the filter at parameter values θ". A problem file
 //! ([`Problem`]), a catalog model, a worker program in another language and a Rust user's
-//! own truth model and filter ([`Custom`]) are each one implementation; [`check`], [`tune`],
+//! own truth model and filter ([`RustModel`]) are each one implementation; [`check`], [`tune`],
 //! the [`commands`], the renderers in [`report`] and the command line ([`app`]) take any of
 //! them. A running filter's innovations are judged live by [`NisMonitor`].
 //! docs/ARCHITECTURE.md draws the layers and lists this API.
@@ -103,7 +103,7 @@ pub use experiment::{
 pub use problem::{Problem, ProblemKind};
 
 // A model defined in Rust: its truth, its filter, its parameters.
-pub use experiment::{Custom, CustomBuilder};
+pub use experiment::{RustModel, RustModelBuilder};
 pub use filter::{
     Ekf, Estimate, Filter, FilterError, Innovation, KalmanFilter, PredictResult, SystemModel, Ukf,
     UpdateResult, check_measurement,

@@ -5,7 +5,7 @@
 //!
 //! The model is the catalog's CTRV target with a lidar and a radar, assembled in Rust from
 //! its public parts (truth, fixed-size UKF, parameter definitions written out here) through
-//! `Custom::builder`; the problem file is `problems/ctrv.toml`. Both run the same generic
+//! `RustModel::builder`; the problem file is `problems/ctrv.toml`. Both run the same generic
 //! engine on the same draws, so everything but the source's name and hash must match to
 //! the bit. The search is cut short (20 runs × 60 steps, 12 evaluations) because equality,
 //! not the quality of the tuning, is under test.
@@ -15,7 +15,7 @@ use std::process::ExitCode;
 
 use autotune::catalog::ModelContext;
 use autotune::catalog::ctrv::{CtrvModel, ENTRY};
-use autotune::experiment::{Custom, Experiment};
+use autotune::experiment::{Experiment, RustModel};
 use autotune::params::{NoiseKind, ParamDef, Target};
 use autotune::problem::Problem;
 
@@ -60,7 +60,7 @@ fn rust_model(problem: &Problem) -> impl Experiment + use<> {
     let r = |name: &str, value: f64, unit: &str, about: &str| {
         q(name, value, value / 1e4, value * 1e4, unit, about).fixed()
     };
-    let built = Custom::builder("ctrv", truth, move |theta: &[f64]| model.ukf(theta))
+    let built = RustModel::builder("ctrv", truth, move |theta: &[f64]| model.ukf(theta))
         .description(&problem.info().description)
         .program("ctrv_rust")
         .states(names.0)

@@ -9,7 +9,7 @@
 //! # fn my_experiment() -> autotune::Problem { unimplemented!() }
 //! use autotune::TuneSettings;
 //! fn main() -> std::process::ExitCode {
-//!     let model = my_experiment(); // e.g. autotune::Custom::builder(...).build()
+//!     let model = my_experiment(); // e.g. autotune::RustModel::builder(...).build()
 //!     autotune::app::main_for(&model, &TuneSettings::default())
 //! }
 //! ```
@@ -36,7 +36,7 @@ use crate::commands::estimate::{EstimateOptions, initial, measured_experiment};
 use crate::commands::init::InitOptions;
 use crate::commands::simulate::SimulateOptions;
 use crate::commands::{self, CommandError};
-use crate::experiment::{Experiment, ExperimentError, RecordedExperiment};
+use crate::experiment::{Experiment, ExperimentError, RecordsExperiment};
 use crate::input::FileError;
 use crate::output::WriteError;
 use crate::problem::Problem;
@@ -210,7 +210,7 @@ where
                 check(&measured, a.options.with_nis_only())
             }
             (Some(p), None) => check(&Problem::load(&p)?, a.options),
-            (None, _) => check(&RecordedExperiment::read(&a.records)?, a.options),
+            (None, _) => check(&RecordsExperiment::read(&a.records)?, a.options),
         },
         Command::Tune(a) => tune_problem(a),
         Command::Nis(a) => nis::run(a),

@@ -8,7 +8,7 @@ use super::CommandError;
 use super::options::name_value;
 use crate::estimate::EstimateError;
 use crate::estimate::als::{self, AlsModel, FullMatrix};
-use crate::estimate::{MeasuredExperiment, Measurements, ml, read_measurements, simulate};
+use crate::estimate::{MeasurementRecord, ReplayExperiment, ml, read_measurements, simulate};
 use crate::experiment::{Experiment, LinearExperiment};
 use crate::input::FileError;
 use crate::output::{Outputs, check_output_file};
@@ -108,7 +108,7 @@ fn read_record(
     p: &Problem,
     lin: &LinearExperiment,
     file: &Path,
-) -> Result<Measurements, CommandError> {
+) -> Result<MeasurementRecord, CommandError> {
     let data = read_measurements(file)?;
     let m = lin.filter.H.nrows();
     if data.dim != m {
@@ -129,7 +129,7 @@ fn read_record(
 /// Refuse a record no estimate can come from: no measured value at all, or a single step
 /// (one innovation says nothing about how Q and R split), which would otherwise leave the
 /// start values standing as if they were estimates.
-fn estimable(file: &Path, data: &Measurements) -> Result<(), CommandError> {
+fn estimable(file: &Path, data: &MeasurementRecord) -> Result<(), CommandError> {
     if data.values() == 0 {
         return Err(FileError::new(
             file,
@@ -156,10 +156,10 @@ pub fn measured_experiment(
     p: &Problem,
     path: &Path,
     file: &Path,
-) -> Result<MeasuredExperiment, CommandError> {
+) -> Result<ReplayExperiment, CommandError> {
     let lin = linear(p, path, "--measurements")?;
     let data = read_record(p, lin, file)?;
-    MeasuredExperiment::new(lin, data)
+    ReplayExperiment::new(lin, data)
         .map_err(|e| FileError::new(file, "", format!("{}: {}", e.setting, e.message)).into())
 }
 
@@ -333,7 +333,7 @@ pub fn estimate(a: &EstimateOptions) -> Result<EstimateRun, CommandError> {
 fn full_estimate(
     _p: &Problem,
     _summary: &mut EstimateSummary<'_>,
-    _data: &Measurements,
+    _data: &MeasurementRecord,
     _model: &AlsModel<'_>,
     _fixed: &[bool],
     _full: FullMatrix,
@@ -350,7 +350,7 @@ fn full_estimate(
 fn full_estimate(
     p: &Problem,
     summary: &mut EstimateSummary<'_>,
-    data: &Measurements,
+    data: &MeasurementRecord,
     model: &AlsModel<'_>,
     fixed: &[bool],
     full: FullMatrix,

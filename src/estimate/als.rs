@@ -27,7 +27,7 @@ use faer::linalg::solvers::Solve;
 use nalgebra::{DMatrix, DVector};
 use serde::Serialize;
 
-use super::{EstimateError, Measurements};
+use super::{EstimateError, MeasurementRecord};
 use crate::params::{Coef, CovModel};
 
 /// The fewest steps dropped at the start of each sequence before the autocovariances, so
@@ -163,7 +163,7 @@ fn steady_gain(
 /// 20 000 steps from all parameters = 1: the worst parameter's error went from 26% to 4%).
 pub fn estimate_passes(
     model: &AlsModel<'_>,
-    data: &Measurements,
+    data: &MeasurementRecord,
     start: &[f64],
     fixed: &[bool],
     lags: usize,
@@ -211,7 +211,7 @@ impl Autocovariances {
     /// Run the filter of `model` with the steady-state gain for `Q`, `R` over `data`.
     pub(crate) fn new(
         model: &AlsModel<'_>,
-        data: &Measurements,
+        data: &MeasurementRecord,
         Q: &DMatrix<f64>,
         R: &DMatrix<f64>,
         lags: usize,
@@ -412,7 +412,7 @@ pub(crate) fn rms(fitted: &[f64], b: &[f64]) -> f64 {
 /// autocovariance lags, using the steady-state gain of the filter at `start`.
 pub fn estimate(
     model: &AlsModel<'_>,
-    data: &Measurements,
+    data: &MeasurementRecord,
     start: &[f64],
     fixed: &[bool],
     lags: usize,

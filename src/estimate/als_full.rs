@@ -20,7 +20,7 @@ use nalgebra::DMatrix;
 use serde::Serialize;
 
 use super::als::{AlsModel, Autocovariances, FullMatrix, constrained_ls, identified, rms};
-use super::{EstimateError, Measurements};
+use super::{EstimateError, MeasurementRecord};
 use crate::params::{Coef, CovModel};
 
 /// Eigenvalues this far below the largest count as zero (rank of a basis, the boundary of
@@ -220,7 +220,7 @@ fn settle_psd(M: &DMatrix<f64>, what: &str) -> Result<(DMatrix<f64>, f64), Estim
 /// The fit with the fixed gain of the filter with `gain_at`'s Q and R.
 fn fit_at_gain(
     model: &AlsModel<'_>,
-    data: &Measurements,
+    data: &MeasurementRecord,
     start: &[f64],
     fixed: &[bool],
     full: FullMatrix,
@@ -470,7 +470,7 @@ impl PsdSolution {
 /// the edge of stability, as a zero parameter does in [`super::als::estimate_passes`]).
 pub fn estimate_full(
     model: &AlsModel<'_>,
-    data: &Measurements,
+    data: &MeasurementRecord,
     start: &[f64],
     fixed: &[bool],
     full: FullMatrix,

@@ -10,7 +10,7 @@ use std::path::Path;
 use npyz::WriterBuilder;
 use serde_json::Value;
 
-use super::{Measurements, Sequence};
+use super::{MeasurementRecord, Sequence};
 use crate::input::FileError;
 
 /// Most values (measurement components, all runs and steps together) a record may have:
@@ -88,12 +88,12 @@ impl Builder {
         Ok(())
     }
 
-    fn finish(self, path: &Path) -> Result<Measurements, FileError> {
+    fn finish(self, path: &Path) -> Result<MeasurementRecord, FileError> {
         let dim = self
             .dim
             .filter(|_| !self.sequences.is_empty())
             .ok_or_else(|| FileError::new(path, "", "no measurements"))?;
-        Ok(Measurements {
+        Ok(MeasurementRecord {
             dim,
             sequences: self.sequences,
         })
@@ -125,7 +125,7 @@ fn index(text: &str, what: &str) -> Result<usize, (String, String)> {
 }
 
 /// Read a measurement record (by extension: `.csv`, `.jsonl`, `.npy`, `.npz`).
-pub fn read_measurements(path: &Path) -> Result<Measurements, FileError> {
+pub fn read_measurements(path: &Path) -> Result<MeasurementRecord, FileError> {
     let ext = path
         .extension()
         .and_then(|e| e.to_str())
@@ -142,7 +142,7 @@ pub fn read_measurements(path: &Path) -> Result<Measurements, FileError> {
     }
 }
 
-fn read_csv(path: &Path) -> Result<Measurements, FileError> {
+fn read_csv(path: &Path) -> Result<MeasurementRecord, FileError> {
     let mut rdr = crate::userfile::csv_reader(
         path,
         csv::ReaderBuilder::new()
@@ -230,7 +230,7 @@ fn read_csv(path: &Path) -> Result<Measurements, FileError> {
     b.finish(path)
 }
 
-fn read_jsonl(path: &Path) -> Result<Measurements, FileError> {
+fn read_jsonl(path: &Path) -> Result<MeasurementRecord, FileError> {
     use std::io::BufRead;
     let mut b = Builder::new();
     for (i, line) in crate::userfile::text_lines(path)?.lines().enumerate() {
@@ -270,7 +270,7 @@ fn read_jsonl(path: &Path) -> Result<Measurements, FileError> {
     b.finish(path)
 }
 
-fn read_numpy(path: &Path) -> Result<Measurements, FileError> {
+fn read_numpy(path: &Path) -> Result<MeasurementRecord, FileError> {
     let raw = crate::records::read_numpy_arrays(&[path.to_path_buf()])?;
     let single = raw.len() == 1;
     let (name, shape, data) = raw
@@ -327,7 +327,7 @@ fn read_numpy(path: &Path) -> Result<Measurements, FileError> {
             })
             .collect()
     };
-    Ok(Measurements { dim: m, sequences })
+    Ok(MeasurementRecord { dim: m, sequences })
 }
 
 /// The bytes of a record (by `path`'s extension: CSV, JSON Lines or `.npy`) holding `rows`

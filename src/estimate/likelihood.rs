@@ -12,7 +12,7 @@
 
 use nalgebra::{DMatrix, DVector};
 
-use super::{Measurements, NotDefinite};
+use super::{MeasurementRecord, NotDefinite};
 use crate::filter::KalmanFilter;
 use crate::linalg::cholesky;
 
@@ -584,7 +584,7 @@ fn max_abs_diff(a: &[f64], b: &[f64]) -> f64 {
 /// and P0 are the parameter value's.
 impl KalmanFilter {
     /// `−log L` of `data` under this filter.
-    pub fn neg_log_likelihood(&self, data: &Measurements) -> Result<f64, NotDefinite> {
+    pub fn neg_log_likelihood(&self, data: &MeasurementRecord) -> Result<f64, NotDefinite> {
         if data.complete() {
             self.shared(data)
         } else {
@@ -618,7 +618,7 @@ impl KalmanFilter {
         Ok(out)
     }
 
-    fn shared(&self, data: &Measurements) -> Result<f64, NotDefinite> {
+    fn shared(&self, data: &MeasurementRecord) -> Result<f64, NotDefinite> {
         let steps = data.sequences.iter().map(|s| s.steps).max().unwrap_or(0);
         let rec = self.recursion(steps)?;
         let (n, m) = (self.F.nrows(), data.dim);
@@ -657,7 +657,7 @@ impl KalmanFilter {
     /// a covariance step of their own. Those steps run on row-major scratch space and flat
     /// arenas and allocate nothing: with nalgebra's allocating products a record with 1%
     /// empty cells cost 5–27× a complete one per evaluation.
-    fn with_gaps(&self, data: &Measurements) -> Result<f64, NotDefinite> {
+    fn with_gaps(&self, data: &MeasurementRecord) -> Result<f64, NotDefinite> {
         let steps = data.sequences.iter().map(|s| s.steps).max().unwrap_or(0);
         let mut gaps = Gaps::new(self, data.dim);
         gaps.grow_complete(steps)?;
@@ -753,7 +753,7 @@ mod tests {
                 }
                 sequences.push(Sequence { steps, z });
             }
-            let data = Measurements { dim: m, sequences };
+            let data = MeasurementRecord { dim: m, sequences };
             assert!(!data.complete());
             let fast = model.with_gaps(&data).unwrap();
             let plain: f64 = data

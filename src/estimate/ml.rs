@@ -18,7 +18,7 @@ use argmin::solver::quasinewton::LBFGS;
 use nalgebra::{DMatrix, DVector};
 use serde::Serialize;
 
-use super::{EstimateError, Measurements};
+use super::{EstimateError, MeasurementRecord};
 use crate::filter::KalmanFilter;
 
 /// Relative step of the differenced gradient, in log space.
@@ -70,7 +70,7 @@ pub struct MlEstimate {
 /// What L-BFGS sees: `−log L` over the free parameters' logs.
 struct Objective<'a> {
     build: &'a dyn Fn(&[f64]) -> KalmanFilter,
-    data: &'a Measurements,
+    data: &'a MeasurementRecord,
     theta: Vec<f64>,
     free: Vec<usize>,
     /// Measured values in the record.
@@ -146,7 +146,7 @@ impl Gradient for &Objective<'_> {
 /// makes `converged` true. `max_iterations` bounds the L-BFGS iterations of all restarts.
 pub fn estimate(
     build: &dyn Fn(&[f64]) -> KalmanFilter,
-    data: &Measurements,
+    data: &MeasurementRecord,
     start: &[f64],
     fixed: &[bool],
     max_iterations: u64,

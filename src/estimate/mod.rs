@@ -9,13 +9,13 @@ pub mod als_full;
 mod error;
 mod files;
 mod likelihood;
-mod measured;
+mod replay;
 pub mod ml;
 
 pub use files::{read_measurements, record_bytes};
 
 pub use error::{EstimateError, NotDefinite};
-pub use measured::MeasuredExperiment;
+pub use replay::ReplayExperiment;
 
 use nalgebra::DVector;
 
@@ -33,14 +33,14 @@ pub struct Sequence {
 
 /// Recorded measurements: several sequences of one sensor of dimension m.
 #[derive(Debug, Clone, PartialEq)]
-pub struct Measurements {
+pub struct MeasurementRecord {
     /// Measurement dimension m.
     pub dim: usize,
     /// The sequences.
     pub sequences: Vec<Sequence>,
 }
 
-impl Measurements {
+impl MeasurementRecord {
     /// Whether every component was measured at every step.
     pub fn complete(&self) -> bool {
         self.sequences
@@ -62,7 +62,7 @@ impl Measurements {
 #[derive(Debug, Clone)]
 pub struct Simulated {
     /// The measurements.
-    pub measurements: Measurements,
+    pub measurements: MeasurementRecord,
     /// The true states, one `Vec` per sequence.
     pub states: Vec<Vec<f64>>,
     /// State dimension n.
@@ -100,7 +100,7 @@ pub fn simulate(
         states.push(xs);
     }
     Simulated {
-        measurements: Measurements { dim: m, sequences },
+        measurements: MeasurementRecord { dim: m, sequences },
         states,
         n,
     }

@@ -5,8 +5,8 @@
 //! Every source of a filter to judge is one implementation:
 //! - a problem file's linear `[truth]`/`[filter]` ([`LinearExperiment`]) or catalog `[model]`
 //!   ([`CatalogExperiment`]), both built by [`crate::problem::Problem`];
-//! - a Rust user's own truth model and filter ([`Custom`], built with [`Custom::builder`]);
-//! - records another program wrote ([`RecordedExperiment`]);
+//! - a Rust user's own truth model and filter ([`RustModel`], built with [`RustModel::builder`]);
+//! - records another program wrote ([`RecordsExperiment`]);
 //! - a worker program in another language ([`crate::external::ExternalExperiment`]).
 //!
 //! [`crate::check`], [`crate::tune`], [`crate::report`] and [`crate::app`] take
@@ -14,20 +14,20 @@
 
 mod altered;
 mod catalog;
-mod custom;
+mod rust_model;
 mod error;
 mod linear;
 mod recorded;
 
 pub use altered::{DT_SCALE, TimeScaled};
 pub use catalog::CatalogExperiment;
-pub use custom::{Custom, CustomBuilder};
+pub use rust_model::{RustModel, RustModelBuilder};
 pub use error::{
     Ended, ExperimentError, RequestInfo, SeedContractViolation, StartFailure, Uncontained,
     WorkerError, WorkerFailure, WorkerRole,
 };
 pub use linear::{FilterModel, LinearExperiment};
-pub use recorded::RecordedExperiment;
+pub use recorded::RecordsExperiment;
 
 use std::path::PathBuf;
 

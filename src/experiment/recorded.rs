@@ -13,22 +13,22 @@ use crate::stats::Accumulator;
 /// Records of one Monte Carlo experiment, summed: an experiment without parameters whose
 /// sums are the records' (N and T are theirs; asking for other runs or steps is an error).
 #[derive(Debug, Clone)]
-pub struct RecordedExperiment {
+pub struct RecordsExperiment {
     definition: Definition,
     recorded: Recorded,
 }
 
-impl RecordedExperiment {
+impl RecordsExperiment {
     /// Read the records in `files` (see [`read_files`], with the engines' default lags); the experiment is named by
     /// [`crate::records::experiment_name`] (the first file's stem, or for per-quantity
     /// arrays `e.npy`, `P.npy` their directory's name), its components `x1 … xn` and `<sensor>_<j>`.
-    pub fn read(files: &[PathBuf]) -> Result<RecordedExperiment, FileError> {
+    pub fn read(files: &[PathBuf]) -> Result<RecordsExperiment, FileError> {
         let recorded = read_files(files, &|steps| DEFAULT_LAGS.min(steps.saturating_sub(1)))?;
         let mc = McConfig::new(recorded.runs, recorded.steps)
             .and_then(|mc| mc.with_lags(recorded.sums.lags))
             .map_err(|e| FileError::new(&files[0], "", e.to_string()))?;
         let name = crate::records::experiment_name(files);
-        Ok(RecordedExperiment {
+        Ok(RecordsExperiment {
             definition: Definition {
                 info: Info {
                     name,
@@ -52,7 +52,7 @@ impl RecordedExperiment {
     }
 }
 
-impl Experiment for RecordedExperiment {
+impl Experiment for RecordsExperiment {
     fn definition(&self) -> &Definition {
         &self.definition
     }

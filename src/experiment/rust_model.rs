@@ -12,12 +12,12 @@ use crate::stats::Accumulator;
 type CovarianceFn = Box<dyn Fn(&[f64]) -> Covariances + Send + Sync>;
 
 /// A truth model `T` and a filter builder `B: θ ↦ filter`, with named parameters that each
-/// drive known components. Built by [`Custom::builder`], which checks everything once;
+/// drive known components. Built by [`RustModel::builder`], which checks everything once;
 /// `check`, `tune`, the reports, the advice and [`crate::app::main`] then treat it as they
 /// treat a problem file.
 ///
 /// ```
-/// use autotune::{Custom, Experiment};
+/// use autotune::{RustModel, Experiment};
 /// use autotune::KalmanFilter;
 /// use autotune::LinearGaussianModel;
 /// use autotune::McConfig;
@@ -36,7 +36,7 @@ type CovarianceFn = Box<dyn Fn(&[f64]) -> Covariances + Send + Sync>;
 ///     Q: dwna_block(1.0) * theta[0], R: DMatrix::from_element(1, 1, theta[1]),
 ///     x0: x0.clone(), P0: p0.clone(),
 /// };
-/// let model = Custom::builder("cv1d_rust", truth, filter)
+/// let model = RustModel::builder("cv1d_rust", truth, filter)
 ///     .states(["x", "vx"])
 ///     .measurements(["x"])
 ///     .param(ParamDef::new("q_accel", 0.5).unit("(m/s²)²"), Target::process(&[0, 1]))
@@ -47,7 +47,7 @@ type CovarianceFn = Box<dyn Fn(&[f64]) -> Covariances + Send + Sync>;
 /// let report = autotune::check(&model, &[0.5, 1.0], model.mc(), true).unwrap();
 /// assert_eq!(report.nees.unwrap().target, 2.0);
 /// ```
-pub struct Custom<T, B> {
+pub struct RustModel<T, B> {
     definition: Definition,
     truth: T,
     build: B,
@@ -56,8 +56,8 @@ pub struct Custom<T, B> {
     truth_values: Option<Vec<f64>>,
 }
 
-/// Collects a [`Custom`] experiment's parts; [`CustomBuilder::build`] checks them.
-pub struct CustomBuilder<T, B> {
+/// Collects a [`RustModel`] experiment's parts; [`RustModelBuilder::build`] checks them.
+pub struct RustModelBuilder<T, B> {
     name: String,
     description: String,
     program: Option<String>,
@@ -71,7 +71,7 @@ pub struct CustomBuilder<T, B> {
     truth_values: Option<Vec<f64>>,
 }
 
-impl<T, F, B> Custom<T, B>
+impl<T, F, B> RustModel<T, B>
 where
     T: TruthModel,
     F: Filter,
@@ -80,8 +80,8 @@ where
     /// Start an experiment called `name` (used for output names: letters, digits, `_`, `-`)
     /// from a truth model and a filter builder `θ ↦ filter` (θ in the order the parameters
     /// are added).
-    pub fn builder(name: &str, truth: T, build: B) -> CustomBuilder<T, B> {
-        CustomBuilder {
+    pub fn builder(name: &str, truth: T, build: B) -> RustModelBuilder<T, B> {
+        RustModelBuilder {
             name: name.to_string(),
             description: String::new(),
             program: None,
@@ -97,7 +97,7 @@ where
     }
 }
 
-impl<T, F, B> CustomBuilder<T, B>
+impl<T, F, B> RustModelBuilder<T, B>
 where
     T: TruthModel,
     F: Filter,
@@ -157,7 +157,7 @@ where
 
     /// Check every part and build the experiment. Errors name the setting (`name`,
     /// `params.q_accel.lower`, `states`, `params.r_pos.target`, …).
-    pub fn build(self) -> Result<Custom<T, B>, SettingError> {
+    pub fn build(self) -> Result<RustModel<T, B>, SettingError> {
         if self.name.is_empty()
             || !self
                 .name
@@ -228,7 +228,7 @@ where
             Some(mc) => mc,
             None => McConfig::new(100, 100)?,
         };
-        Ok(Custom {
+        Ok(RustModel {
             definition: Definition {
                 info: Info {
                     name: self.name,
@@ -249,7 +249,7 @@ where
     }
 }
 
-impl<T, F, B> Experiment for Custom<T, B>
+impl<T, F, B> Experiment for RustModel<T, B>
 where
     T: TruthModel,
     F: Filter,

@@ -7,7 +7,7 @@
 
 use nalgebra::{DMatrix, DVector};
 
-use super::Measurements;
+use super::MeasurementRecord;
 use crate::experiment::{
     Covariances, Definition, Experiment, ExperimentError, LinearExperiment, RunOptions,
 };
@@ -18,24 +18,24 @@ use crate::params::Target;
 use crate::stats::{Accumulator, RunRecorder, StopCause};
 
 /// A linear problem's filter and a measurement record.
-pub struct MeasuredExperiment {
+pub struct ReplayExperiment {
     definition: Definition,
     problem: LinearExperiment,
-    data: Measurements,
+    data: MeasurementRecord,
 }
 
-impl MeasuredExperiment {
+impl ReplayExperiment {
     /// The filter of `problem` over `data` (whose dimension the caller checked against the
     /// filter's H). The Monte Carlo settings become one run per sequence and the longest
     /// sequence's steps.
-    pub fn new(problem: &LinearExperiment, data: Measurements) -> Result<Self, SettingError> {
+    pub fn new(problem: &LinearExperiment, data: MeasurementRecord) -> Result<Self, SettingError> {
         let mut definition = problem.definition.clone();
         let steps = data.sequences.iter().map(|s| s.steps).max().unwrap_or(0);
         definition.mc = definition
             .mc
             .with_runs(data.sequences.len())?
             .with_steps(steps)?;
-        Ok(MeasuredExperiment {
+        Ok(ReplayExperiment {
             definition,
             problem: problem.clone(),
             data,
@@ -43,12 +43,12 @@ impl MeasuredExperiment {
     }
 
     /// The record.
-    pub fn data(&self) -> &Measurements {
+    pub fn data(&self) -> &MeasurementRecord {
         &self.data
     }
 }
 
-impl Experiment for MeasuredExperiment {
+impl Experiment for ReplayExperiment {
     fn definition(&self) -> &Definition {
         &self.definition
     }

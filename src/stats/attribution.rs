@@ -185,12 +185,6 @@ pub fn blame(lv: i32, g: i32) -> (Suspect, &'static str) {
 /// Read `report`'s components and whiteness for which of Q and R is off (see the module
 /// documentation for the reasoning).
 pub fn diagnose(report: &ConsistencyReport) -> Diagnosis {
-    let biased = |c: &ComponentStat| c.bias_explains();
-    let states_fit = report
-        .state_components
-        .iter()
-        .all(|c| level(c) == 0 || biased(c));
-    let has_truth = !report.state_components.is_empty();
     let mut findings: Vec<Finding> = report
         .measurement_components
         .iter()
@@ -198,70 +192,12 @@ pub fn diagnose(report: &ConsistencyReport) -> Diagnosis {
         .filter_map(bias_finding)
         .collect();
     let bias_findings = findings.len();
-    // The direction in which the innovations blame R (+1: R too small), if they do.
-    let mut r_direction = 0;
-    for c in report.measurement_components.iter().filter(|c| !biased(c)) {
-        let w = report
-            .whiteness_tests
-            .iter()
-            .find(|w| w.component == c.name);
-        let (lv, g) = (level(c), gain(w));
-        if lv == 0 && g == 0 {
-            continue;
-        }
-        let rho = w.map_or(String::new(), |w| format!(", ρ₁ = {:+.3}", w.rho1));
-        let evidence = format!("ν²/S = {:.3}{rho}", c.value);
-        let (suspect, action) = if lv != 0 && has_truth && states_fit {
-            // The state errors fit P: the mismatch is in the measurement model.
-            (Suspect::R, if lv > 0 { "increase R" } else { "decrease R" })
-        } else {
-            blame(lv, g)
-        };
-        if suspect == Suspect::R {
-            r_direction = if action.starts_with("increase") {
-                1
-            } else {
-                -1
-            };
-        }
-        findings.push(Finding {
-            component: c.name.clone(),
-            suspect: Some(suspect),
-            action: action.to_string(),
-            evidence,
-        });
-    }
+    let r_direction = measurement_findings(report, &mut findings);
     let innovations_fit = findings.len() == bias_findings;
-    // State components off while the innovations blame something else, and whether one of
-    // them is not explained by the innovations' blame of R.
-    let mut unexplained_state = false;
-    for c in report.state_components.iter().filter(|c| !biased(c)) {
-        let lv = level(c);
-        if lv == 0 {
-            continue;
-        }
-        if !innovations_fit && lv != r_direction {
-            unexplained_state = true;
-        }
-        let (suspect, action) = match (innovations_fit, lv > 0) {
-            (true, true) => (
-                Some(Suspect::Q),
-                "increase Q acting on it (or its initial variance)",
-            ),
-            (true, false) => (
-                Some(Suspect::Q),
-                "decrease Q acting on it (or its initial variance)",
-            ),
-            (false, true) => (None, "its variance in P is too small"),
-            (false, false) => (None, "its variance in P is too large"),
-        };
-        findings.push(Finding {
-            component: c.name.clone(),
-            suspect,
-            action: action.to_string(),
-            evidence: format!("e²/P = {:.3}", c.value),
-        });
-    }
+    // A state component off the way R's blame explains (a too-small R makes P too small as
+    // well) leaves no room for Q; one off the other way, or off while the innovations
+    // blame Q or both, does.
+    let states_off_too = state_findings(report, innovations_fit, r_direction, &mut findings);
     // A mean off zero that does not explain its component's second moment: context, not
     // the cause (a lag under too small a Q biases a nonlinear filter's errors).
     for c in report
@@ -295,13 +231,94 @@ pub fn diagnose(report: &ConsistencyReport) -> Diagnosis {
         (false, false, true, false) => Some(Suspect::R),
         _ => Some(Suspect::QAndR),
     };
-    // A state component off the way R's blame explains (a too-small R makes P too small as
-    // well) leaves no room for Q; one off the other way, or off while the innovations
-    // blame Q or both, does.
-    let states_off_too = unexplained_state;
     Diagnosis {
         findings,
         suspect,
         states_off_too,
     }
+}
+
+/// The measurement components a bias does not explain, each blamed on Q or R from its
+/// level and its innovations' whiteness (on R outright where the state errors fit P); the
+/// direction in which they blame R (+1: R too small, −1: too large, 0: they do not).
+fn measurement_findings(report: &ConsistencyReport, findings: &mut Vec<Finding>) -> i32 {
+    let biased = |c: &ComponentStat| c.bias_explains();
+    let states_fit = report
+        .state_components
+        .iter()
+        .all(|c| level(c) == 0 || biased(c));
+    let has_truth = !report.state_components.is_empty();
+    let mut r_direction = 0;
+    for c in report.measurement_components.iter().filter(|c| !biased(c)) {
+        let w = report
+            .whiteness_tests
+            .iter()
+            .find(|w| w.component == c.name);
+        let (lv, g) = (level(c), gain(w));
+        if lv == 0 && g == 0 {
+            continue;
+        }
+        let rho = w.map_or(String::new(), |w| format!(", ρ₁ = {:+.3}", w.rho1));
+        let evidence = format!("ν²/S = {:.3}{rho}", c.value);
+        let (suspect, action) = if lv != 0 && has_truth && states_fit {
+            // The state errors fit P: the mismatch is in the measurement model.
+            (Suspect::R, if lv > 0 { "increase R" } else { "decrease R" })
+        } else {
+            blame(lv, g)
+        };
+        if suspect == Suspect::R {
+            r_direction = if action.starts_with("increase") {
+                1
+            } else {
+                -1
+            };
+        }
+        findings.push(Finding {
+            component: c.name.clone(),
+            suspect: Some(suspect),
+            action: action.to_string(),
+            evidence,
+        });
+    }
+    r_direction
+}
+
+/// The state components off their target that a bias does not explain: Q acting on them
+/// where the innovations fit, else their variance in P. Whether one of them is off while
+/// the innovations blame something else and not the way their blame of R explains.
+fn state_findings(
+    report: &ConsistencyReport,
+    innovations_fit: bool,
+    r_direction: i32,
+    findings: &mut Vec<Finding>,
+) -> bool {
+    let mut unexplained_state = false;
+    for c in report.state_components.iter().filter(|c| !c.bias_explains()) {
+        let lv = level(c);
+        if lv == 0 {
+            continue;
+        }
+        if !innovations_fit && lv != r_direction {
+            unexplained_state = true;
+        }
+        let (suspect, action) = match (innovations_fit, lv > 0) {
+            (true, true) => (
+                Some(Suspect::Q),
+                "increase Q acting on it (or its initial variance)",
+            ),
+            (true, false) => (
+                Some(Suspect::Q),
+                "decrease Q acting on it (or its initial variance)",
+            ),
+            (false, true) => (None, "its variance in P is too small"),
+            (false, false) => (None, "its variance in P is too large"),
+        };
+        findings.push(Finding {
+            component: c.name.clone(),
+            suspect,
+            action: action.to_string(),
+            evidence: format!("e²/P = {:.3}", c.value),
+        });
+    }
+    unexplained_state
 }

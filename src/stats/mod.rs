@@ -178,42 +178,13 @@ impl ConsistencyReport {
     ) -> Self {
         let (alpha, use_nees, full) = (gate.alpha, gate.use_nees, gate.mode == GateMode::Full);
         let white = whiteness(acc, measurement_names, normal_two_sided_quantile(alpha));
-        let has = |samples: &[f64]| samples.iter().filter(|&&s| s > 0.0).count();
-        let white_components = measurement_names
-            .iter()
-            .filter(|n| white.iter().any(|w| &w.component == *n))
-            .count();
-        // Each component with samples brings two tests: its second moment and its mean.
-        let tests = if full {
-            1 + usize::from(use_nees)
-                + if use_nees {
-                    has(&acc.state_comp_samples) + has(&acc.state_mean_samples)
-                } else {
-                    0
-                }
-                + 2 * has(&acc.meas_comp_samples)
-                + white_components
-        } else {
-            1 + usize::from(use_nees)
-        };
-        let mean_tests = if full {
-            has(&acc.meas_comp_samples)
-                + if use_nees {
-                    has(&acc.state_mean_samples)
-                } else {
-                    0
-                }
-        } else {
-            0
-        };
-        let level = gate_alpha(alpha, tests - mean_tests + usize::from(mean_tests > 0));
-        // In the mean gate the components and whiteness are diagnostics, judged at α.
-        let diagnostic_level = if full { level } else { alpha };
-        let mean_level = if mean_tests > 0 {
-            level / mean_tests as f64
-        } else {
-            diagnostic_level
-        };
+        let levels = GateLevels::of(acc, gate, &white, measurement_names);
+        let (tests, level, diagnostic_level, mean_level) = (
+            levels.tests,
+            levels.level,
+            levels.diagnostic_level,
+            levels.mean_level,
+        );
         let mut cache = IntervalCache::new(alpha);
         let nees = summarize(
             "NEES",
@@ -234,34 +205,10 @@ impl ConsistencyReport {
             level,
             &mut cache,
         );
-        let state_components = components(
-            "state",
+        let (state_components, measurement_components) = component_stats(
+            acc,
             state_names,
-            &acc.state_comp_total,
-            &acc.state_comp_samples,
-            |j| acc.state_component_variance(j),
-            |j| MeanSums {
-                total: acc.state_mean_total[j],
-                samples: acc.state_mean_samples[j],
-                variance: acc.state_mean_variance(j),
-                second_moment: acc.state_comp_total[j] / acc.state_comp_samples[j],
-            },
-            (diagnostic_level, mean_level),
-        );
-        // White under consistency: each ν_j²/S_jj is an independent χ²(1).
-        let measurement_components = components(
-            "measurement",
             measurement_names,
-            &acc.meas_comp_total,
-            &acc.meas_comp_samples,
-            |j| SumVariance::Predicted(2.0 * acc.meas_comp_samples[j]),
-            // White under consistency: each ν_j/√S_jj is an independent N(0, 1).
-            |j| MeanSums {
-                total: acc.meas_mean_total[j],
-                samples: acc.meas_comp_samples[j],
-                variance: SumVariance::Predicted(acc.meas_comp_samples[j]),
-                second_moment: acc.meas_comp_total[j] / acc.meas_comp_samples[j],
-            },
             (diagnostic_level, mean_level),
         );
         let whiteness_tests = whiteness_tests(&white, measurement_names, diagnostic_level);
@@ -271,45 +218,15 @@ impl ConsistencyReport {
             Vec::new()
         };
 
-        let mut verdicts = vec![nis.verdict];
-        if use_nees {
-            verdicts.push(nees.verdict);
-        }
-        if full {
-            verdicts.extend(
-                state_components
-                    .iter()
-                    .chain(&measurement_components)
-                    .filter(|c| c.samples > 0.0)
-                    .map(|c| c.verdict),
-            );
-            // A mean test without a statistic (no sign in the records, no variance) is no
-            // test; it does not make the gate inconclusive.
-            verdicts.extend(
-                state_components
-                    .iter()
-                    .chain(&measurement_components)
-                    .filter(|c| c.mean_z.is_finite())
-                    .map(|c| c.mean_verdict),
-            );
-            verdicts.extend(whiteness_tests.iter().map(|w| w.verdict));
-        }
-        // A bias raises the second moments (E[y²] = 1 + b²), the time averages and the
-        // lagged products of the whiteness test with it: when it explains every component
-        // that fails, it is the verdict.
-        let bias_explains_all = full && {
-            let comps = || {
-                state_components
-                    .iter()
-                    .chain(&measurement_components)
-                    .filter(|c| c.samples > 0.0)
-            };
-            comps().any(|c| c.bias_explains())
-                && comps().all(|c| {
-                    c.bias_explains()
-                        || !matches!(c.verdict, Verdict::Overconfident | Verdict::Underconfident)
-                })
-        };
+        let verdicts = gate_verdicts(
+            (&nis, use_nees.then_some(&nees)),
+            &state_components,
+            &measurement_components,
+            &whiteness_tests,
+            full,
+        );
+        let bias_explains_all =
+            full && bias_explains_all(&state_components, &measurement_components);
         let verdict = acc.stop_verdict().unwrap_or_else(|| {
             if bias_explains_all {
                 Verdict::Biased
@@ -360,6 +277,166 @@ impl ConsistencyReport {
         all.truncate(k);
         all
     }
+}
+
+/// The gate's number of tests and its levels: each second-moment test at the Šidák level
+/// of α over the tests, the zero-mean tests sharing one Šidák slot (Bonferroni within it);
+/// in the mean gate the components and whiteness are diagnostics, judged at α.
+struct GateLevels {
+    tests: usize,
+    level: f64,
+    diagnostic_level: f64,
+    mean_level: f64,
+}
+
+impl GateLevels {
+    fn of(
+        acc: &Accumulator,
+        gate: &GateSpec,
+        white: &[WhitenessStat],
+        measurement_names: &[String],
+    ) -> Self {
+        let (alpha, use_nees, full) = (gate.alpha, gate.use_nees, gate.mode == GateMode::Full);
+        let has = |samples: &[f64]| samples.iter().filter(|&&s| s > 0.0).count();
+        let white_components = measurement_names
+            .iter()
+            .filter(|n| white.iter().any(|w| &w.component == *n))
+            .count();
+        // Each component with samples brings two tests: its second moment and its mean.
+        let tests = if full {
+            1 + usize::from(use_nees)
+                + if use_nees {
+                    has(&acc.state_comp_samples) + has(&acc.state_mean_samples)
+                } else {
+                    0
+                }
+                + 2 * has(&acc.meas_comp_samples)
+                + white_components
+        } else {
+            1 + usize::from(use_nees)
+        };
+        let mean_tests = if full {
+            has(&acc.meas_comp_samples)
+                + if use_nees {
+                    has(&acc.state_mean_samples)
+                } else {
+                    0
+                }
+        } else {
+            0
+        };
+        let level = gate_alpha(alpha, tests - mean_tests + usize::from(mean_tests > 0));
+        // In the mean gate the components and whiteness are diagnostics, judged at α.
+        let diagnostic_level = if full { level } else { alpha };
+        let mean_level = if mean_tests > 0 {
+            level / mean_tests as f64
+        } else {
+            diagnostic_level
+        };
+        GateLevels {
+            tests,
+            level,
+            diagnostic_level,
+            mean_level,
+        }
+    }
+}
+
+/// Each state and measurement component's second-moment and zero-mean statistics, judged
+/// at `levels` (the second moments', the means').
+fn component_stats(
+    acc: &Accumulator,
+    state_names: &[String],
+    measurement_names: &[String],
+    levels: (f64, f64),
+) -> (Vec<ComponentStat>, Vec<ComponentStat>) {
+    let state_components = components(
+        "state",
+        state_names,
+        &acc.state_comp_total,
+        &acc.state_comp_samples,
+        |j| acc.state_component_variance(j),
+        |j| MeanSums {
+            total: acc.state_mean_total[j],
+            samples: acc.state_mean_samples[j],
+            variance: acc.state_mean_variance(j),
+            second_moment: acc.state_comp_total[j] / acc.state_comp_samples[j],
+        },
+        levels,
+    );
+    // White under consistency: each ν_j²/S_jj is an independent χ²(1).
+    let measurement_components = components(
+        "measurement",
+        measurement_names,
+        &acc.meas_comp_total,
+        &acc.meas_comp_samples,
+        |j| SumVariance::Predicted(2.0 * acc.meas_comp_samples[j]),
+        // White under consistency: each ν_j/√S_jj is an independent N(0, 1).
+        |j| MeanSums {
+            total: acc.meas_mean_total[j],
+            samples: acc.meas_comp_samples[j],
+            variance: SumVariance::Predicted(acc.meas_comp_samples[j]),
+            second_moment: acc.meas_comp_total[j] / acc.meas_comp_samples[j],
+        },
+        levels,
+    );
+    (state_components, measurement_components)
+}
+
+/// The verdicts the gate combines: NIS (and NEES with the truth); in the full gate also
+/// each component with samples, each zero-mean test with a statistic, and each whiteness
+/// test.
+fn gate_verdicts(
+    (nis, nees): (&StatisticSummary, Option<&StatisticSummary>),
+    state_components: &[ComponentStat],
+    measurement_components: &[ComponentStat],
+    whiteness_tests: &[WhitenessTest],
+    full: bool,
+) -> Vec<Verdict> {
+        let mut verdicts = vec![nis.verdict];
+        if let Some(nees) = nees {
+            verdicts.push(nees.verdict);
+        }
+        if full {
+            verdicts.extend(
+                state_components
+                    .iter()
+                    .chain(measurement_components)
+                    .filter(|c| c.samples > 0.0)
+                    .map(|c| c.verdict),
+            );
+            // A mean test without a statistic (no sign in the records, no variance) is no
+            // test; it does not make the gate inconclusive.
+            verdicts.extend(
+                state_components
+                    .iter()
+                    .chain(measurement_components)
+                    .filter(|c| c.mean_z.is_finite())
+                    .map(|c| c.mean_verdict),
+            );
+            verdicts.extend(whiteness_tests.iter().map(|w| w.verdict));
+        }
+        verdicts
+}
+
+/// Whether a bias explains every component that fails: a bias raises the second moments
+/// (E[y²] = 1 + b²), the time averages and the lagged products of the whiteness test with
+/// it, so when it explains every component off its target, it is the verdict.
+fn bias_explains_all(
+    state_components: &[ComponentStat],
+    measurement_components: &[ComponentStat],
+) -> bool {
+    let comps = || {
+        state_components
+            .iter()
+            .chain(measurement_components)
+            .filter(|c| c.samples > 0.0)
+    };
+    comps().any(|c| c.bias_explains())
+        && comps().all(|c| {
+            c.bias_explains()
+                || !matches!(c.verdict, Verdict::Overconfident | Verdict::Underconfident)
+        })
 }
 
 /// Chi-square quantiles cost microseconds each; a problem has only a handful of distinct

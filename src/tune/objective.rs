@@ -263,7 +263,7 @@ impl Objective {
     }
 
     /// The terms of J; with `res`, each term's weighted square roots are pushed onto it.
-    fn score(&self, acc: &Accumulator, mut res: Option<&mut Vec<f64>>) -> Terms {
+    fn score(&self, acc: &Accumulator, res: Option<&mut Vec<f64>>) -> Terms {
         let inf = Terms {
             total: f64::INFINITY,
             ..Terms::default()
@@ -271,68 +271,95 @@ impl Objective {
         if acc.diverged_runs > 0 {
             return inf;
         }
-        // Adds `weight · mean(x²)` over `xs` to `term` and pushes `√(weight/len) · x`.
-        let mut add = |term: &mut f64, weight: f64, xs: &[f64]| {
-            if xs.is_empty() || weight == 0.0 {
-                return;
-            }
-            let scale = weight / xs.len() as f64;
-            *term += scale * xs.iter().map(|x| x * x).sum::<f64>();
-            if let Some(r) = res.as_deref_mut() {
-                r.extend(xs.iter().map(|x| scale.sqrt() * x));
+        let w = self.weights;
+        let mut s = Scored {
+            t: Terms::default(),
+            res,
+        };
+        if let Some((states, meas)) = &self.block {
+            self.block_terms(acc, states, meas, &mut s);
+            let t = &mut s.t;
+            t.total = t.terms.mean + t.terms.components + t.terms.whiteness;
+            return if t.total.is_finite() { s.t } else { inf };
+        }
+        if !self.average_terms(acc, &mut s) {
+            return inf;
+        }
+        s.add(
+            Term::Components,
+            w.components,
+            &log_ratios(&acc.meas_comp_total, &acc.meas_comp_samples),
+        );
+        if !self.nis_only {
+            s.add(
+                Term::Components,
+                w.components,
+                &log_ratios(&acc.state_comp_total, &acc.state_comp_samples),
+            );
+        }
+        s.add(Term::Whiteness, w.whiteness, &lag_correlations(acc, |_| true));
+        if w.shape > 0.0 && !self.nis_only {
+            s.add(Term::Shape, w.shape, &shape_deviations(acc));
+        }
+        let t = &mut s.t;
+        t.total = t.terms.mean
+            + t.terms.interval
+            + t.terms.per_step
+            + t.terms.components
+            + t.terms.whiteness
+            + t.terms.shape;
+        if !t.total.is_finite() {
+            return inf;
+        }
+        s.t
+    }
+
+    /// One decoupled block's terms: its pooled component ratios (the mean term), each of its
+    /// components, and its measurements' lagged correlations.
+    fn block_terms(&self, acc: &Accumulator, states: &[usize], meas: &[usize], s: &mut Scored<'_>) {
+        let w = self.weights;
+        let pooled = |total: &[f64], samples: &[f64], idx: &[usize]| -> Vec<f64> {
+            let (a, b) = idx.iter().fold((0.0, 0.0), |(a, b), &j| {
+                (
+                    a + total.get(j).copied().unwrap_or(0.0),
+                    b + samples.get(j).copied().unwrap_or(0.0),
+                )
+            });
+            if b > 0.0 {
+                vec![(a / b).ln()]
+            } else {
+                Vec::new()
             }
         };
-        let w = self.weights;
-        let mut t = Terms::default();
-        if let Some((states, meas)) = &self.block {
-            let pooled = |total: &[f64], samples: &[f64], idx: &[usize]| -> Vec<f64> {
-                let (a, b) = idx.iter().fold((0.0, 0.0), |(a, b), &j| {
-                    (
-                        a + total.get(j).copied().unwrap_or(0.0),
-                        b + samples.get(j).copied().unwrap_or(0.0),
-                    )
-                });
-                if b > 0.0 {
-                    vec![(a / b).ln()]
-                } else {
-                    Vec::new()
-                }
-            };
-            let pick = |total: &[f64], samples: &[f64], idx: &[usize]| -> Vec<f64> {
-                idx.iter()
-                    .filter(|&&j| samples.get(j).is_some_and(|&n| n > 0.0))
-                    .map(|&j| (total[j] / samples[j]).ln())
-                    .collect()
-            };
-            let kinds = [
-                (&acc.meas_comp_total, &acc.meas_comp_samples, meas, true),
-                (
-                    &acc.state_comp_total,
-                    &acc.state_comp_samples,
-                    states,
-                    !self.nis_only,
-                ),
-            ];
-            for (total, samples, idx, _) in kinds.into_iter().filter(|k| k.3) {
-                add(&mut t.terms.mean, w.mean, &pooled(total, samples, idx));
-                add(
-                    &mut t.terms.components,
-                    w.components,
-                    &pick(total, samples, idx),
-                );
-            }
-            let n_z = acc.meas_comp_total.len().max(1);
-            let rho: Vec<f64> = (0..acc.white_ab.len())
-                .filter(|o| meas.contains(&(o % n_z)))
-                .filter_map(|o| {
-                    let den = (acc.white_a2[o] * acc.white_b2[o]).sqrt();
-                    (acc.white_pairs[o] > 0.0 && den > 0.0).then(|| acc.white_ab[o] / den)
-                })
-                .collect();
-            add(&mut t.terms.whiteness, w.whiteness, &rho);
-            t.total = t.terms.mean + t.terms.components + t.terms.whiteness;
-            return if t.total.is_finite() { t } else { inf };
+        let pick = |total: &[f64], samples: &[f64], idx: &[usize]| -> Vec<f64> {
+            idx.iter()
+                .filter(|&&j| samples.get(j).is_some_and(|&n| n > 0.0))
+                .map(|&j| (total[j] / samples[j]).ln())
+                .collect()
+        };
+        let kinds = [
+            (&acc.meas_comp_total, &acc.meas_comp_samples, meas, true),
+            (
+                &acc.state_comp_total,
+                &acc.state_comp_samples,
+                states,
+                !self.nis_only,
+            ),
+        ];
+        for (total, samples, idx, _) in kinds.into_iter().filter(|k| k.3) {
+            s.add(Term::Mean, w.mean, &pooled(total, samples, idx));
+            s.add(Term::Components, w.components, &pick(total, samples, idx));
         }
+        let n_z = acc.meas_comp_total.len().max(1);
+        let rho = lag_correlations(acc, |o| meas.contains(&(o % n_z)));
+        s.add(Term::Whiteness, w.whiteness, &rho);
+    }
+
+    /// The time averages' terms (ANIS, and ANEES unless NIS only): each average's log ratio
+    /// to its target, its distance outside the gate interval, and the per-step distances.
+    /// False when a variance is not finite (J is then +∞).
+    fn average_terms(&self, acc: &Accumulator, s: &mut Scored<'_>) -> bool {
+        let w = self.weights;
         let nis_var = SumVariance::Predicted(2.0 * acc.nis_dof.iter().sum::<f64>());
         let mut stats = vec![(&acc.nis_sum, &acc.nis_dof, &acc.nis_count, nis_var)];
         if !self.nis_only {
@@ -344,83 +371,112 @@ impl Objective {
             ));
         }
         for (sum, dof, count, var) in stats {
-            let (s, d, c): (f64, f64, f64) =
+            let (total, d, c): (f64, f64, f64) =
                 (sum.iter().sum(), dof.iter().sum(), count.iter().sum());
             if c <= 0.0 || d <= 0.0 {
                 continue;
             }
-            let avg = s / c;
+            let avg = total / c;
             let var = match var {
                 SumVariance::Predicted(v) => SumVariance::Predicted(v.max(2.0 * d)),
                 other => other,
             };
             if matches!(var, SumVariance::Predicted(v) if !v.is_finite()) {
-                return inf;
+                return false;
             }
             let iv = self.gate_interval(d, var, c);
-            add(&mut t.terms.mean, w.mean, &[(avg / (d / c)).ln()]);
-            add(&mut t.terms.interval, w.interval, &[outside(avg, &iv)]);
+            s.add(Term::Mean, w.mean, &[(avg / (d / c)).ln()]);
+            s.add(Term::Interval, w.interval, &[outside(avg, &iv)]);
             if w.per_step > 0.0 {
                 let h: Vec<f64> = (0..sum.len())
                     .filter(|&k| count[k] > 0.0 && dof[k] > 0.0)
                     .map(|k| outside(sum[k] / count[k], &self.step_interval(dof[k], count[k])))
                     .collect();
-                add(&mut t.terms.per_step, w.per_step, &h);
+                s.add(Term::PerStep, w.per_step, &h);
             }
         }
-        let log_ratios = |total: &[f64], samples: &[f64]| -> Vec<f64> {
-            total
-                .iter()
-                .zip(samples)
-                .filter(|(_, b)| **b > 0.0)
-                .map(|(a, b)| (a / b).ln())
-                .collect()
-        };
-        add(
-            &mut t.terms.components,
-            w.components,
-            &log_ratios(&acc.meas_comp_total, &acc.meas_comp_samples),
-        );
-        if !self.nis_only {
-            add(
-                &mut t.terms.components,
-                w.components,
-                &log_ratios(&acc.state_comp_total, &acc.state_comp_samples),
-            );
-        }
-        let rho: Vec<f64> = (0..acc.white_ab.len())
-            .filter_map(|o| {
-                let den = (acc.white_a2[o] * acc.white_b2[o]).sqrt();
-                (acc.white_pairs[o] > 0.0 && den > 0.0).then(|| acc.white_ab[o] / den)
-            })
-            .collect();
-        add(&mut t.terms.whiteness, w.whiteness, &rho);
-        if w.shape > 0.0 && !self.nis_only {
-            let shape: Vec<f64> = (0..acc.nees_sum.len())
-                .filter_map(|k| {
-                    let c = acc.nees_count[k];
-                    if c <= 1.0 {
-                        return None;
-                    }
-                    let mean = acc.nees_sum[k] / c;
-                    let var = acc.nees_sq[k] / c - mean * mean;
-                    let target = 2.0 * acc.nees_dof[k] / c;
-                    (var > 0.0).then(|| (var / target).ln())
-                })
-                .collect();
-            add(&mut t.terms.shape, w.shape, &shape);
-        }
-        t.total = t.terms.mean
-            + t.terms.interval
-            + t.terms.per_step
-            + t.terms.components
-            + t.terms.whiteness
-            + t.terms.shape;
-        if !t.total.is_finite() {
-            return inf;
-        }
-        t
+        true
     }
+}
+
+/// Which term of J a deviation adds to.
+#[derive(Debug, Clone, Copy)]
+enum Term {
+    Mean,
+    Interval,
+    PerStep,
+    Components,
+    Whiteness,
+    Shape,
+}
+
+/// J's terms as they accumulate, with the residuals behind them where asked for.
+struct Scored<'r> {
+    t: Terms,
+    res: Option<&'r mut Vec<f64>>,
+}
+
+impl Scored<'_> {
+    /// Adds `weight · mean(x²)` over `xs` to `term` and pushes `√(weight/len) · x`.
+    fn add(&mut self, term: Term, weight: f64, xs: &[f64]) {
+        if xs.is_empty() || weight == 0.0 {
+            return;
+        }
+        let scale = weight / xs.len() as f64;
+        let terms = &mut self.t.terms;
+        let slot = match term {
+            Term::Mean => &mut terms.mean,
+            Term::Interval => &mut terms.interval,
+            Term::PerStep => &mut terms.per_step,
+            Term::Components => &mut terms.components,
+            Term::Whiteness => &mut terms.whiteness,
+            Term::Shape => &mut terms.shape,
+        };
+        *slot += scale * xs.iter().map(|x| x * x).sum::<f64>();
+        if let Some(r) = self.res.as_deref_mut() {
+            r.extend(xs.iter().map(|x| scale.sqrt() * x));
+        }
+    }
+}
+
+/// Each component's log ratio of its total to its samples, over the components with
+/// samples.
+fn log_ratios(total: &[f64], samples: &[f64]) -> Vec<f64> {
+    total
+        .iter()
+        .zip(samples)
+        .filter(|(_, b)| **b > 0.0)
+        .map(|(a, b)| (a / b).ln())
+        .collect()
+}
+
+/// The normalized lagged correlations of the innovations (lag-major over the measurement
+/// components), for the entries `keep` accepts that have pairs.
+fn lag_correlations(acc: &Accumulator, keep: impl Fn(usize) -> bool) -> Vec<f64> {
+    (0..acc.white_ab.len())
+        .filter(|&o| keep(o))
+        .filter_map(|o| {
+            let den = (acc.white_a2[o] * acc.white_b2[o]).sqrt();
+            (acc.white_pairs[o] > 0.0 && den > 0.0).then(|| acc.white_ab[o] / den)
+        })
+        .collect()
+}
+
+/// Per step with two or more runs, the log ratio of the NEES's spread over the runs to the
+/// χ² spread a consistent filter's NEES has (2 · dof).
+fn shape_deviations(acc: &Accumulator) -> Vec<f64> {
+    (0..acc.nees_sum.len())
+        .filter_map(|k| {
+            let c = acc.nees_count[k];
+            if c <= 1.0 {
+                return None;
+            }
+            let mean = acc.nees_sum[k] / c;
+            let var = acc.nees_sq[k] / c - mean * mean;
+            let target = 2.0 * acc.nees_dof[k] / c;
+            (var > 0.0).then(|| (var / target).ln())
+        })
+        .collect()
 }
 
 #[cfg(test)]

@@ -371,7 +371,7 @@ fn bad_input_is_an_error_naming_the_field() {
         vec![0.5],
     ] {
         let acc = run_generic(model.truth(), &model.filter(&theta), &settings);
-        assert_eq!(acc.diverged_runs, 4, "{theta:?}");
+        assert_eq!(acc.diverged_runs(), 4, "{theta:?}");
     }
 }
 

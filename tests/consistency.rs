@@ -140,26 +140,30 @@ fn linear_fast_path_matches_generic_path() {
             );
         }
     };
-    close(&a.nees_sum, &b.nees_sum, "nees_sum");
-    close(&a.nis_sum, &b.nis_sum, "nis_sum");
-    close(&a.nees_sq, &b.nees_sq, "nees_sq");
-    close(&a.state_comp_total, &b.state_comp_total, "state_comp_total");
-    close(&a.meas_comp_total, &b.meas_comp_total, "meas_comp_total");
+    close(a.nees_sum(), b.nees_sum(), "nees_sum");
+    close(a.nis_sum(), b.nis_sum(), "nis_sum");
+    close(a.nees_sq(), b.nees_sq(), "nees_sq");
     close(
-        &a.state_comp_run_sq,
-        &b.state_comp_run_sq,
+        a.state_comp_total(),
+        b.state_comp_total(),
+        "state_comp_total",
+    );
+    close(a.meas_comp_total(), b.meas_comp_total(), "meas_comp_total");
+    close(
+        a.state_comp_run_sq(),
+        b.state_comp_run_sq(),
         "state_comp_run_sq",
     );
-    close(&a.white_ab, &b.white_ab, "white_ab");
-    close(&a.white_b2, &b.white_b2, "white_b2");
+    close(a.white_ab(), b.white_ab(), "white_ab");
+    close(a.white_b2(), b.white_b2(), "white_b2");
     close(
         &[a.nees_null_variance()],
         &[b.nees_null_variance()],
         "nees_null_variance",
     );
-    assert_eq!(a.nis_dof, b.nis_dof);
-    assert_eq!(a.white_pairs, b.white_pairs);
-    assert_eq!(a.runs, b.runs);
+    assert_eq!(a.nis_dof(), b.nis_dof());
+    assert_eq!(a.white_pairs(), b.white_pairs());
+    assert_eq!(a.runs(), b.runs());
 }
 
 #[test]
@@ -212,10 +216,10 @@ fn diverging_filter_is_reported_not_nan() {
     let mut kf = p.linear().unwrap().filter_at(&truth_values(&p));
     kf.R[(0, 0)] = -1e3;
     let acc = autotune::montecarlo::run_linear(&p.linear().unwrap().truth, &kf, p.mc());
-    assert_eq!(acc.diverged_runs, p.mc().runs());
-    assert_eq!(acc.divergences[0].step, 1);
+    assert_eq!(acc.diverged_runs(), p.mc().runs());
+    assert_eq!(acc.divergences()[0].step, 1);
     let acc = autotune::montecarlo::run_generic(&p.linear().unwrap().truth, &kf, p.mc());
-    assert_eq!(acc.diverged_runs, p.mc().runs());
+    assert_eq!(acc.diverged_runs(), p.mc().runs());
     let r = autotune::stats::ConsistencyReport::from_accumulator(
         &acc,
         &autotune::stats::GateSpec::full(0.05, true),

@@ -31,8 +31,13 @@ fn expected_sums_match_large_monte_carlo() {
         // the ~100 comparisons below about 1e-4.
         for i in 0..mc.steps() {
             for (s, e, e2, what) in [
-                (sim.nees_sum[i], exp.nees_sum[i], exp.nees_sq[i], "NEES"),
-                (sim.nis_sum[i], exp.nis_sum[i], exp.nis_sq[i], "NIS"),
+                (
+                    sim.nees_sum()[i],
+                    exp.nees_sum()[i],
+                    exp.nees_sq()[i],
+                    "NEES",
+                ),
+                (sim.nis_sum()[i], exp.nis_sum()[i], exp.nis_sq()[i], "NIS"),
             ] {
                 let mean = e / nn;
                 let sd = ((e2 / nn - mean * mean) / nn).sqrt();
@@ -44,33 +49,33 @@ fn expected_sums_match_large_monte_carlo() {
                 );
             }
             // The second moment itself, to 10% (it is a fourth-moment estimate, noisier).
-            let r = sim.nees_sq[i] / exp.nees_sq[i];
+            let r = sim.nees_sq()[i] / exp.nees_sq()[i];
             assert!(
                 (r - 1.0).abs() < 0.1,
                 "{name} NEES² step {}: ratio {r}",
                 i + 1
             );
         }
-        for j in 0..exp.meas_comp_total.len() {
-            let r = sim.meas_comp_total[j] / exp.meas_comp_total[j];
+        for j in 0..exp.meas_comp_total().len() {
+            let r = sim.meas_comp_total()[j] / exp.meas_comp_total()[j];
             assert!((r - 1.0).abs() < 0.02, "{name} ν² component {j}: ratio {r}");
         }
-        for j in 0..exp.state_comp_total.len() {
-            let r = sim.state_comp_total[j] / exp.state_comp_total[j];
+        for j in 0..exp.state_comp_total().len() {
+            let r = sim.state_comp_total()[j] / exp.state_comp_total()[j];
             assert!((r - 1.0).abs() < 0.02, "{name} e² component {j}: ratio {r}");
         }
-        for o in 0..exp.white_ab.len() {
-            let rho_exp = exp.white_ab[o] / (exp.white_a2[o] * exp.white_b2[o]).sqrt();
-            let rho_sim = sim.white_ab[o] / (sim.white_a2[o] * sim.white_b2[o]).sqrt();
+        for o in 0..exp.white_ab().len() {
+            let rho_exp = exp.white_ab()[o] / (exp.white_a2()[o] * exp.white_b2()[o]).sqrt();
+            let rho_sim = sim.white_ab()[o] / (sim.white_a2()[o] * sim.white_b2()[o]).sqrt();
             // Sample autocorrelation over `pairs` products: sd about 1/sqrt(pairs), but the
             // pairs within a run are not independent; allow 6/sqrt(pairs).
-            let tol = 6.0 / sim.white_pairs[o].sqrt();
+            let tol = 6.0 / sim.white_pairs()[o].sqrt();
             assert!(
                 (rho_exp - rho_sim).abs() < tol,
                 "{name} whiteness {o}: exact {rho_exp} vs MC {rho_sim}"
             );
         }
-        assert_eq!(exp.white_pairs, sim.white_pairs);
+        assert_eq!(exp.white_pairs(), sim.white_pairs());
         let r = sim.nees_null_variance() / exp.nees_null_variance();
         assert!((r - 1.0).abs() < 1e-9, "{name} null variance ratio {r}");
     }
@@ -109,17 +114,17 @@ value = 4e-10
     let sim = accumulate(&p, &theta, p.mc(), Engine::Linear).unwrap();
     let nn = p.mc().runs() as f64;
     for i in [99, 199, 399] {
-        let mean = exp.nees_sum[i] / nn;
-        let sd = ((exp.nees_sq[i] / nn - mean * mean) / nn).sqrt();
+        let mean = exp.nees_sum()[i] / nn;
+        let sd = ((exp.nees_sq()[i] / nn - mean * mean) / nn).sqrt();
         assert!(
-            (sim.nees_sum[i] / nn - mean).abs() < 5.0 * sd,
+            (sim.nees_sum()[i] / nn - mean).abs() < 5.0 * sd,
             "step {}: MC {} vs exact {mean} (sd {sd})",
             i + 1,
-            sim.nees_sum[i] / nn
+            sim.nees_sum()[i] / nn
         );
     }
     let total = |v: &[f64]| v.iter().sum::<f64>() / (nn * p.mc().steps() as f64);
-    let (e, s) = (total(&exp.nees_sum), total(&sim.nees_sum));
+    let (e, s) = (total(exp.nees_sum()), total(sim.nees_sum()));
     assert!(
         (e / s - 1.0).abs() < 0.01,
         "time-averaged NEES exact {e} vs MC {s}"

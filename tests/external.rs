@@ -193,8 +193,8 @@ fn statistics_are_bit_identical_on_one_two_and_four_workers() {
             p.monte_carlo(&theta, p.mc()).unwrap()
         })
         .collect();
-    assert_eq!(sums[0].runs, 300);
-    assert!(sums[0].nees_sum.iter().all(|v| *v > 0.0));
+    assert_eq!(sums[0].runs(), 300);
+    assert!(sums[0].nees_sum().iter().all(|v| *v > 0.0));
     assert_eq!(sums[0], sums[1], "1 vs 2 workers");
     assert_eq!(sums[0], sums[2], "1 vs 4 workers");
     // Inline records and a records file are the same records.

@@ -398,10 +398,13 @@ fn issue22_first_moment_sums_agree_across_engines() {
         let sim = accumulate(&l, &theta, &mc, Engine::Linear).unwrap();
         let generic = accumulate(&l, &theta, &mc, Engine::Generic).unwrap();
         let nn = mc.runs() as f64;
-        for j in 0..exp.state_mean_total.len() {
+        for j in 0..exp.state_mean_total().len() {
             // The mean of N per-run sums: 5 standard errors from their own spread.
-            let (s, e) = (sim.state_mean_total[j] / nn, exp.state_mean_total[j] / nn);
-            let var = sim.state_mean_run_sq[j] / nn - s * s;
+            let (s, e) = (
+                sim.state_mean_total()[j] / nn,
+                exp.state_mean_total()[j] / nn,
+            );
+            let var = sim.state_mean_run_sq()[j] / nn - s * s;
             let se = (var / nn).sqrt();
             assert!(
                 (s - e).abs() < 5.0 * se,
@@ -411,14 +414,14 @@ fn issue22_first_moment_sums_agree_across_engines() {
                 e.abs() > 2.0 * se,
                 "{name} state {j}: the mean {e} is too small to test"
             );
-            assert_eq!(sim.state_mean_samples[j], exp.state_mean_samples[j]);
-            let g = generic.state_mean_total[j] / nn;
+            assert_eq!(sim.state_mean_samples()[j], exp.state_mean_samples()[j]);
+            let g = generic.state_mean_total()[j] / nn;
             assert!(
                 (g - s).abs() <= 1e-9 * (1.0 + s.abs()),
                 "{name} state {j}: generic {g} vs linear {s}"
             );
             let per_run = |a: &autotune::stats::Accumulator| {
-                a.state_mean_null_var[j] / a.comp_null_var_runs as f64
+                a.state_mean_null_var()[j] / a.comp_null_var_runs() as f64
             };
             for (what, v) in [("exact", per_run(&exp)), ("generic", per_run(&generic))] {
                 let r = v / per_run(&sim);
@@ -428,16 +431,16 @@ fn issue22_first_moment_sums_agree_across_engines() {
                 );
             }
         }
-        for j in 0..exp.meas_mean_total.len() {
+        for j in 0..exp.meas_mean_total().len() {
             // White innovations of a mis-tuned filter are not white, so bound by the
             // per-sample spread times the steps (a loose, conservative standard error).
-            let (s, e) = (sim.meas_mean_total[j] / nn, exp.meas_mean_total[j] / nn);
-            let se = (sim.meas_comp_total[j] / nn * mc.steps() as f64 / nn).sqrt();
+            let (s, e) = (sim.meas_mean_total()[j] / nn, exp.meas_mean_total()[j] / nn);
+            let se = (sim.meas_comp_total()[j] / nn * mc.steps() as f64 / nn).sqrt();
             assert!(
                 (s - e).abs() < 5.0 * se,
                 "{name} meas {j}: MC {s} vs exact {e} (se {se})"
             );
-            let g = generic.meas_mean_total[j] / nn;
+            let g = generic.meas_mean_total()[j] / nn;
             assert!(
                 (g - s).abs() <= 1e-9 * (1.0 + s.abs()),
                 "{name} meas {j}: generic {g} vs linear {s}"

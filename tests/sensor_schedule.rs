@@ -117,7 +117,7 @@ fn nis_interval_follows_the_measurement_dimension_of_each_step() {
         .with_lags(2)
         .unwrap();
     let acc = run_generic(&truth, &ekf, &settings);
-    assert_eq!(acc.diverged_runs, 0);
+    assert_eq!(acc.diverged_runs(), 0);
     let names: Vec<String> = ["x", "vx", "y", "vy"]
         .iter()
         .map(|s| s.to_string())
@@ -127,7 +127,7 @@ fn nis_interval_follows_the_measurement_dimension_of_each_step() {
     let n = settings.runs() as f64;
     for k in 1..=settings.steps() {
         let dim: usize = sensors_at(k).iter().map(|&s| [2, 1][s]).sum();
-        assert_eq!(acc.nis_dof[k - 1], n * dim as f64, "step {k}");
+        assert_eq!(acc.nis_dof()[k - 1], n * dim as f64, "step {k}");
         if dim == 0 {
             assert!(
                 r.nis.per_step[k - 1].is_none(),

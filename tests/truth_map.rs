@@ -123,19 +123,23 @@ fn a_truth_with_more_states_than_the_filter_runs_on_both_engines_alike() {
             );
         }
     };
-    close(&a.nees_sum, &b.nees_sum, "nees_sum");
-    close(&a.nis_sum, &b.nis_sum, "nis_sum");
-    close(&a.state_comp_total, &b.state_comp_total, "state_comp_total");
-    close(&a.white_ab, &b.white_ab, "white_ab");
+    close(a.nees_sum(), b.nees_sum(), "nees_sum");
+    close(a.nis_sum(), b.nis_sum(), "nis_sum");
+    close(
+        a.state_comp_total(),
+        b.state_comp_total(),
+        "state_comp_total",
+    );
+    close(a.white_ab(), b.white_ab(), "white_ab");
     close(
         &[a.nees_null_variance()],
         &[b.nees_null_variance()],
         "nees_null_variance",
     );
     // The NEES is taken on the filter's two states.
-    assert!(a.nees_dof.iter().all(|&d| d == 2.0 * 150.0));
-    assert_eq!(a.state_comp_total.len(), 2);
-    assert_eq!((a.diverged_runs, b.diverged_runs), (0, 0));
+    assert!(a.nees_dof().iter().all(|&d| d == 2.0 * 150.0));
+    assert_eq!(a.state_comp_total().len(), 2);
+    assert_eq!((a.diverged_runs(), b.diverged_runs()), (0, 0));
 }
 
 #[test]
@@ -155,8 +159,8 @@ fn mapped_nees_nis_and_components_match_the_joint_closed_form() {
         let acc = accumulate(&p, &theta, &mc, Engine::Linear).unwrap();
         let runs = mc.runs() as f64;
         for (what, sum, sq, want) in [
-            ("NEES", &acc.nees_sum, &acc.nees_sq, &exact.nees),
-            ("NIS", &acc.nis_sum, &acc.nis_sq, &exact.nis),
+            ("NEES", &acc.nees_sum(), &acc.nees_sq(), &exact.nees),
+            ("NIS", &acc.nis_sum(), &acc.nis_sq(), &exact.nis),
         ] {
             for k in 0..mc.steps() {
                 let mean = sum[k] / runs;
@@ -171,10 +175,10 @@ fn mapped_nees_nis_and_components_match_the_joint_closed_form() {
         }
         // Per-component time averages, with the spread of the per-run averages.
         for j in 0..2 {
-            let mean = acc.state_comp_total[j] / acc.state_comp_samples[j];
+            let mean = acc.state_comp_total()[j] / acc.state_comp_samples()[j];
             let want = exact.comp.iter().map(|c| c[j]).sum::<f64>() / mc.steps() as f64;
-            let m1 = acc.state_comp_run_sum[j] / runs;
-            let se = ((acc.state_comp_run_sq[j] / runs - m1 * m1) / runs).sqrt();
+            let m1 = acc.state_comp_run_sum()[j] / runs;
+            let se = ((acc.state_comp_run_sq()[j] / runs - m1 * m1) / runs).sqrt();
             assert!(
                 (mean - want).abs() <= 4.5 * se,
                 "{file} component {j}: {mean} vs {want} (se {se})"

@@ -45,104 +45,104 @@ pub struct Divergence {
 #[derive(Debug, Clone, PartialEq)]
 pub struct Accumulator {
     /// Runs completed or diverged.
-    pub runs: usize,
+    pub(crate) runs: usize,
     /// Steps per run.
-    pub steps: usize,
+    pub(crate) steps: usize,
     /// Largest autocorrelation lag.
-    pub lags: usize,
+    pub(crate) lags: usize,
     /// Σ_i NEES_ik.
-    pub nees_sum: Vec<f64>,
+    pub(crate) nees_sum: Vec<f64>,
     /// Σ_i NEES_ik².
-    pub nees_sq: Vec<f64>,
+    pub(crate) nees_sq: Vec<f64>,
     /// Σ_i n_x (degrees of freedom of the step's NEES sum).
-    pub nees_dof: Vec<f64>,
+    pub(crate) nees_dof: Vec<f64>,
     /// Number of runs contributing a NEES at the step.
-    pub nees_count: Vec<f64>,
+    pub(crate) nees_count: Vec<f64>,
     /// Σ over the runs counted in `null_var_runs` of the variance of the per-run NEES sum
     /// the filter predicts under consistency (see `super::NeesNullVariance`); read it through
     /// [`Accumulator::nees_null_variance`].
-    pub nees_null_var: f64,
+    pub(crate) nees_null_var: f64,
     /// Runs whose predicted NEES-sum variance is in `nees_null_var`: all of them on the
     /// linear and exact paths, every `NULL_VAR_STRIDE`-th on the generic one
     /// (`crate::montecarlo::NULL_VAR_STRIDE`).
-    pub null_var_runs: usize,
+    pub(crate) null_var_runs: usize,
     /// Runs sampled for the predicted variance whose filter supplied no error map
     /// (`crate::filter::Estimate::error_map`); when any did, the gate takes the NEES-sum
     /// variance from the spread of the per-run sums instead.
-    pub error_map_missing: usize,
+    pub(crate) error_map_missing: usize,
     /// Σ over finished runs i of the run's NEES sum `S_i = Σ_k ε_ik`.
-    pub nees_run_total: f64,
+    pub(crate) nees_run_total: f64,
     /// Σ over finished runs of `S_i²`.
-    pub nees_run_total_sq: f64,
+    pub(crate) nees_run_total_sq: f64,
     /// Finished runs behind `nees_run_total` (0 on the exact path, which has no runs).
-    pub nees_total_runs: usize,
+    pub(crate) nees_total_runs: usize,
     /// Σ_i NIS_ik.
-    pub nis_sum: Vec<f64>,
+    pub(crate) nis_sum: Vec<f64>,
     /// Σ_i NIS_ik².
-    pub nis_sq: Vec<f64>,
+    pub(crate) nis_sq: Vec<f64>,
     /// Σ_i n_z,ik (the dimension of the measurement each run used at the step).
-    pub nis_dof: Vec<f64>,
+    pub(crate) nis_dof: Vec<f64>,
     /// Number of runs with a measurement at the step.
-    pub nis_count: Vec<f64>,
+    pub(crate) nis_count: Vec<f64>,
     /// Σ_{i,k} e_j²/P_jj per state component.
-    pub state_comp_total: Vec<f64>,
+    pub(crate) state_comp_total: Vec<f64>,
     /// Samples behind `state_comp_total`.
-    pub state_comp_samples: Vec<f64>,
+    pub(crate) state_comp_samples: Vec<f64>,
     /// Σ_i of the per-run time average of e_j²/P_jj.
-    pub state_comp_run_sum: Vec<f64>,
+    pub(crate) state_comp_run_sum: Vec<f64>,
     /// Σ_i of its square.
-    pub state_comp_run_sq: Vec<f64>,
+    pub(crate) state_comp_run_sq: Vec<f64>,
     /// Σ over the runs counted in `comp_null_var_runs` of the variance of the per-run sum
     /// of e_j²/P_jj that the filter predicts under consistency (see
     /// `super::ComponentNullVariance`).
-    pub state_comp_null_var: Vec<f64>,
+    pub(crate) state_comp_null_var: Vec<f64>,
     /// Runs whose predicted component variances are in `state_comp_null_var` (computed for
     /// the full gate only, on the same runs as the NEES-sum variance).
-    pub comp_null_var_runs: usize,
+    pub(crate) comp_null_var_runs: usize,
     /// Σ_{i,k} e_j/√P_jj per state component (n_x): the first moment, 0 in expectation
     /// for a consistent filter. Linear in the data, so a difference of two evaluations with
     /// common random numbers is smooth in a sensor offset.
-    pub state_mean_total: Vec<f64>,
+    pub(crate) state_mean_total: Vec<f64>,
     /// Samples behind `state_mean_total`: as `state_comp_samples`, except for records that
     /// give only `e_j²/P_jj` (no sign), which leave it 0 and get no zero-mean test.
-    pub state_mean_samples: Vec<f64>,
+    pub(crate) state_mean_samples: Vec<f64>,
     /// Σ over finished runs i of the square of the run's own sum `Σ_k e_j/√P_jj` (n_x): the
     /// run-to-run spread, the null variance of `state_mean_total` for a filter that supplies
     /// no error map.
-    pub state_mean_run_sq: Vec<f64>,
+    pub(crate) state_mean_run_sq: Vec<f64>,
     /// Σ over the runs counted in `comp_null_var_runs` of the variance of the per-run sum
     /// `Σ_k e_jk/√P_jj,k` that a consistent filter predicts (n_x; see
     /// `super::ComponentNullVariance::mean_variances`).
-    pub state_mean_null_var: Vec<f64>,
+    pub(crate) state_mean_null_var: Vec<f64>,
     /// Σ_{i,k} ν_j/√S_jj per measurement component (n_z). Innovations of a consistent filter
     /// are white, so its null variance is exactly its sample count, `meas_comp_samples`.
-    pub meas_mean_total: Vec<f64>,
+    pub(crate) meas_mean_total: Vec<f64>,
     /// Σ_{i,k} ν_j²/S_jj per measurement component.
-    pub meas_comp_total: Vec<f64>,
+    pub(crate) meas_comp_total: Vec<f64>,
     /// Samples behind `meas_comp_total`.
-    pub meas_comp_samples: Vec<f64>,
+    pub(crate) meas_comp_samples: Vec<f64>,
     /// Σ_i of the per-run time average of ν_j²/S_jj.
-    pub meas_comp_run_sum: Vec<f64>,
+    pub(crate) meas_comp_run_sum: Vec<f64>,
     /// Σ_i of its square.
-    pub meas_comp_run_sq: Vec<f64>,
+    pub(crate) meas_comp_run_sq: Vec<f64>,
     /// Runs in which the component was measured at least once.
-    pub meas_comp_runs: Vec<usize>,
+    pub(crate) meas_comp_runs: Vec<usize>,
     /// Σ u_k u_{k−l} with u = ν_j/√S_jj.
-    pub white_ab: Vec<f64>,
+    pub(crate) white_ab: Vec<f64>,
     /// Σ u_k².
-    pub white_a2: Vec<f64>,
+    pub(crate) white_a2: Vec<f64>,
     /// Σ u_{k−l}².
-    pub white_b2: Vec<f64>,
+    pub(crate) white_b2: Vec<f64>,
     /// Number of pairs.
-    pub white_pairs: Vec<f64>,
+    pub(crate) white_pairs: Vec<f64>,
     /// Number of runs that stopped early, for any `StopCause`.
-    pub diverged_runs: usize,
+    pub(crate) diverged_runs: usize,
     /// Of those, the runs stopped by an ill-conditioned covariance.
-    pub ill_conditioned_runs: usize,
+    pub(crate) ill_conditioned_runs: usize,
     /// Of those, the runs stopped by a truth state that overflowed.
-    pub truth_overflow_runs: usize,
+    pub(crate) truth_overflow_runs: usize,
     /// The first few divergences, by run index.
-    pub divergences: Vec<Divergence>,
+    pub(crate) divergences: Vec<Divergence>,
 }
 
 impl Accumulator {
@@ -410,4 +410,423 @@ impl Accumulator {
             None
         }
     }
+}
+
+
+/// Read access to the sums: the engines fill them through the methods above, and the
+/// statistics read them here.
+impl Accumulator {
+    /// Runs completed or diverged.
+    pub fn runs(&self) -> usize {
+        self.runs
+    }
+
+    /// Steps per run.
+    pub fn steps(&self) -> usize {
+        self.steps
+    }
+
+    /// Largest autocorrelation lag.
+    pub fn lags(&self) -> usize {
+        self.lags
+    }
+
+    /// Σ_i NEES_ik.
+    pub fn nees_sum(&self) -> &[f64] {
+        &self.nees_sum
+    }
+
+    /// Σ_i NEES_ik².
+    pub fn nees_sq(&self) -> &[f64] {
+        &self.nees_sq
+    }
+
+    /// Σ_i n_x (degrees of freedom of the step's NEES sum).
+    pub fn nees_dof(&self) -> &[f64] {
+        &self.nees_dof
+    }
+
+    /// Number of runs contributing a NEES at the step.
+    pub fn nees_count(&self) -> &[f64] {
+        &self.nees_count
+    }
+
+    /// Σ over the runs counted in `null_var_runs` of the variance of the per-run NEES sum
+    /// the filter predicts under consistency (see `super::NeesNullVariance`); read it
+    /// through `Accumulator::nees_null_variance`.
+    pub fn nees_null_var(&self) -> f64 {
+        self.nees_null_var
+    }
+
+    /// Runs whose predicted NEES-sum variance is in `nees_null_var`: all of them on the
+    /// linear and exact paths, every `NULL_VAR_STRIDE`-th on the generic one
+    /// (`crate::montecarlo::NULL_VAR_STRIDE`).
+    pub fn null_var_runs(&self) -> usize {
+        self.null_var_runs
+    }
+
+    /// Runs sampled for the predicted variance whose filter supplied no error map
+    /// (`crate::filter::Estimate::error_map`); when any did, the gate takes the NEES-sum
+    /// variance from the spread of the per-run sums instead.
+    pub fn error_map_missing(&self) -> usize {
+        self.error_map_missing
+    }
+
+    /// Σ over finished runs i of the run's NEES sum `S_i = Σ_k ε_ik`.
+    pub fn nees_run_total(&self) -> f64 {
+        self.nees_run_total
+    }
+
+    /// Σ over finished runs of `S_i²`.
+    pub fn nees_run_total_sq(&self) -> f64 {
+        self.nees_run_total_sq
+    }
+
+    /// Finished runs behind `nees_run_total` (0 on the exact path, which has no runs).
+    pub fn nees_total_runs(&self) -> usize {
+        self.nees_total_runs
+    }
+
+    /// Σ_i NIS_ik.
+    pub fn nis_sum(&self) -> &[f64] {
+        &self.nis_sum
+    }
+
+    /// Σ_i NIS_ik².
+    pub fn nis_sq(&self) -> &[f64] {
+        &self.nis_sq
+    }
+
+    /// Σ_i n_z,ik (the dimension of the measurement each run used at the step).
+    pub fn nis_dof(&self) -> &[f64] {
+        &self.nis_dof
+    }
+
+    /// Number of runs with a measurement at the step.
+    pub fn nis_count(&self) -> &[f64] {
+        &self.nis_count
+    }
+
+    /// Σ_{i,k} e_j²/P_jj per state component.
+    pub fn state_comp_total(&self) -> &[f64] {
+        &self.state_comp_total
+    }
+
+    /// Samples behind `state_comp_total`.
+    pub fn state_comp_samples(&self) -> &[f64] {
+        &self.state_comp_samples
+    }
+
+    /// Σ_i of the per-run time average of e_j²/P_jj.
+    pub fn state_comp_run_sum(&self) -> &[f64] {
+        &self.state_comp_run_sum
+    }
+
+    /// Σ_i of its square.
+    pub fn state_comp_run_sq(&self) -> &[f64] {
+        &self.state_comp_run_sq
+    }
+
+    /// Σ over the runs counted in `comp_null_var_runs` of the variance of the per-run sum
+    /// of e_j²/P_jj that the filter predicts under consistency (see
+    /// `super::ComponentNullVariance`).
+    pub fn state_comp_null_var(&self) -> &[f64] {
+        &self.state_comp_null_var
+    }
+
+    /// Runs whose predicted component variances are in `state_comp_null_var` (computed for
+    /// the full gate only, on the same runs as the NEES-sum variance).
+    pub fn comp_null_var_runs(&self) -> usize {
+        self.comp_null_var_runs
+    }
+
+    /// Σ_{i,k} e_j/√P_jj per state component (n_x): the first moment, 0 in expectation for
+    /// a consistent filter. Linear in the data, so a difference of two evaluations with
+    /// common random numbers is smooth in a sensor offset.
+    pub fn state_mean_total(&self) -> &[f64] {
+        &self.state_mean_total
+    }
+
+    /// Samples behind `state_mean_total`: as `state_comp_samples`, except for records that
+    /// give only `e_j²/P_jj` (no sign), which leave it 0 and get no zero-mean test.
+    pub fn state_mean_samples(&self) -> &[f64] {
+        &self.state_mean_samples
+    }
+
+    /// Σ over finished runs i of the square of the run's own sum `Σ_k e_j/√P_jj` (n_x): the
+    /// run-to-run spread, the null variance of `state_mean_total` for a filter that
+    /// supplies no error map.
+    pub fn state_mean_run_sq(&self) -> &[f64] {
+        &self.state_mean_run_sq
+    }
+
+    /// Σ over the runs counted in `comp_null_var_runs` of the variance of the per-run sum
+    /// `Σ_k e_jk/√P_jj,k` that a consistent filter predicts (n_x; see
+    /// `super::ComponentNullVariance::mean_variances`).
+    pub fn state_mean_null_var(&self) -> &[f64] {
+        &self.state_mean_null_var
+    }
+
+    /// Σ_{i,k} ν_j/√S_jj per measurement component (n_z). Innovations of a consistent
+    /// filter are white, so its null variance is exactly its sample count,
+    /// `meas_comp_samples`.
+    pub fn meas_mean_total(&self) -> &[f64] {
+        &self.meas_mean_total
+    }
+
+    /// Σ_{i,k} ν_j²/S_jj per measurement component.
+    pub fn meas_comp_total(&self) -> &[f64] {
+        &self.meas_comp_total
+    }
+
+    /// Samples behind `meas_comp_total`.
+    pub fn meas_comp_samples(&self) -> &[f64] {
+        &self.meas_comp_samples
+    }
+
+    /// Σ_i of the per-run time average of ν_j²/S_jj.
+    pub fn meas_comp_run_sum(&self) -> &[f64] {
+        &self.meas_comp_run_sum
+    }
+
+    /// Σ_i of its square.
+    pub fn meas_comp_run_sq(&self) -> &[f64] {
+        &self.meas_comp_run_sq
+    }
+
+    /// Runs in which the component was measured at least once.
+    pub fn meas_comp_runs(&self) -> &[usize] {
+        &self.meas_comp_runs
+    }
+
+    /// Σ u_k u_{k−l} with u = ν_j/√S_jj.
+    pub fn white_ab(&self) -> &[f64] {
+        &self.white_ab
+    }
+
+    /// Σ u_k².
+    pub fn white_a2(&self) -> &[f64] {
+        &self.white_a2
+    }
+
+    /// Σ u_{k−l}².
+    pub fn white_b2(&self) -> &[f64] {
+        &self.white_b2
+    }
+
+    /// Number of pairs.
+    pub fn white_pairs(&self) -> &[f64] {
+        &self.white_pairs
+    }
+
+    /// Number of runs that stopped early, for any `StopCause`.
+    pub fn diverged_runs(&self) -> usize {
+        self.diverged_runs
+    }
+
+    /// Of those, the runs stopped by an ill-conditioned covariance.
+    pub fn ill_conditioned_runs(&self) -> usize {
+        self.ill_conditioned_runs
+    }
+
+    /// Of those, the runs stopped by a truth state that overflowed.
+    pub fn truth_overflow_runs(&self) -> usize {
+        self.truth_overflow_runs
+    }
+
+    /// The first few divergences, by run index.
+    pub fn divergences(&self) -> &[Divergence] {
+        &self.divergences
+    }
+}
+
+#[cfg(test)]
+mod merge_properties {
+    //! Monte Carlo sums merge associatively and add every field: the engine relies on it to
+    //! give the same result whatever the chunking.
+
+    use super::*;
+    use proptest::prelude::*;
+
+    proptest! {
+    /// `(a + b) + c == a + (b + c)` exactly, on sums whose values are small integers (exact
+    /// in floating point, so any field merged wrongly, twice or not at all shows).
+    #[test]
+    fn sums_merge_associatively(
+        va in proptest::collection::vec(0u32..100, 64),
+        vb in proptest::collection::vec(0u32..100, 64),
+        vc in proptest::collection::vec(0u32..100, 64),
+    ) {
+        let a = accumulator(&va);
+        let b = accumulator(&vb);
+        let c = accumulator(&vc);
+        let mut left = a.clone();
+        left.merge(&b);
+        left.merge(&c);
+        let mut bc = b.clone();
+        bc.merge(&c);
+        let mut right = a.clone();
+        right.merge(&bc);
+        prop_assert_eq!(&left, &right);
+        // And merging adds every sum (associativity alone would not see a field that is
+        // never merged).
+        let (sa, sb, sc, sl) = (scalars(&a), scalars(&b), scalars(&c), scalars(&left));
+        for i in 0..sl.len() {
+            prop_assert_eq!(sl[i], sa[i] + sb[i] + sc[i], "scalar {}", i);
+        }
+        let (va, vb, vc, vl) = (vectors(&a), vectors(&b), vectors(&c), vectors(&left));
+        for (k, l) in vl.iter().enumerate() {
+            for j in 0..l.len() {
+                prop_assert_eq!(l[j], va[k][j] + vb[k][j] + vc[k][j], "vector {} [{}]", k, j);
+            }
+        }
+    }
+    }
+
+/// Every scalar sum of `acc`, as f64.
+fn scalars(acc: &Accumulator) -> Vec<f64> {
+    vec![
+        acc.runs as f64,
+        acc.nees_null_var,
+        acc.null_var_runs as f64,
+        acc.error_map_missing as f64,
+        acc.nees_run_total,
+        acc.nees_run_total_sq,
+        acc.nees_total_runs as f64,
+        acc.diverged_runs as f64,
+        acc.meas_comp_runs[0] as f64,
+        acc.meas_comp_runs[1] as f64,
+    ]
+}
+
+/// Every vector sum of `acc`.
+fn vectors(acc: &Accumulator) -> Vec<Vec<f64>> {
+    let mut a = acc.clone();
+    fields(&mut a).into_iter().map(|v| v.clone()).collect()
+}
+
+/// The vector sums of `acc`, for filling and for checking.
+fn fields(acc: &mut Accumulator) -> [&mut Vec<f64>; 26] {
+    [
+        &mut acc.nees_sum,
+        &mut acc.nees_sq,
+        &mut acc.nees_dof,
+        &mut acc.nees_count,
+        &mut acc.nis_sum,
+        &mut acc.nis_sq,
+        &mut acc.nis_dof,
+        &mut acc.nis_count,
+        &mut acc.state_comp_total,
+        &mut acc.state_comp_samples,
+        &mut acc.state_comp_run_sum,
+        &mut acc.state_comp_run_sq,
+        &mut acc.state_comp_null_var,
+        &mut acc.state_mean_total,
+        &mut acc.state_mean_samples,
+        &mut acc.state_mean_run_sq,
+        &mut acc.state_mean_null_var,
+        &mut acc.meas_mean_total,
+        &mut acc.meas_comp_total,
+        &mut acc.meas_comp_samples,
+        &mut acc.meas_comp_run_sum,
+        &mut acc.meas_comp_run_sq,
+        &mut acc.white_ab,
+        &mut acc.white_a2,
+        &mut acc.white_b2,
+        &mut acc.white_pairs,
+    ]
+}
+
+/// An accumulator of 3 steps, 2 states, 2 measurement components and 2 lags, every field
+/// filled from `v` (cycled), with up to 7 divergences.
+fn accumulator(v: &[u32]) -> Accumulator {
+    let mut acc = Accumulator::new(3, 2, 2, 2);
+    let mut it = v.iter().cycle().map(|&x| f64::from(x));
+    let mut fill = |xs: &mut Vec<f64>| xs.iter_mut().for_each(|x| *x = it.next().unwrap());
+    for xs in fields(&mut acc) {
+        fill(xs);
+    }
+    acc.runs = v[0] as usize;
+    acc.nees_null_var = f64::from(v[1]);
+    acc.null_var_runs = v[2] as usize;
+    acc.error_map_missing = v[3] as usize % 3;
+    acc.nees_run_total = f64::from(v[4]);
+    acc.nees_run_total_sq = f64::from(v[5]);
+    acc.nees_total_runs = v[6] as usize;
+    acc.meas_comp_runs = vec![v[7] as usize, v[8] as usize];
+    for i in 0..(v[9] as usize % 8) {
+        acc.record_divergence(i, v[10 + i] as usize, format!("reason {i}"));
+    }
+    acc
+}
+
+    /// Each reader gives its own sum: the fields hold distinct values, so a reader that
+    /// gave another field's sum, or a default, fails here by name.
+    #[test]
+    fn every_reader_gives_its_own_sum() {
+        let v: Vec<u32> = (2..=65).collect();
+        let mut acc = accumulator(&v);
+        acc.comp_null_var_runs = 65;
+        acc.ill_conditioned_runs = 66;
+        acc.truth_overflow_runs = 67;
+        acc.lags = 68;
+        assert_eq!(acc.runs(), acc.runs, "runs");
+        assert_eq!(acc.steps(), acc.steps, "steps");
+        assert_eq!(acc.lags(), acc.lags, "lags");
+        assert_eq!(acc.nees_sum(), &acc.nees_sum[..], "nees_sum");
+        assert_eq!(acc.nees_sq(), &acc.nees_sq[..], "nees_sq");
+        assert_eq!(acc.nees_dof(), &acc.nees_dof[..], "nees_dof");
+        assert_eq!(acc.nees_count(), &acc.nees_count[..], "nees_count");
+        assert_eq!(acc.nees_null_var(), acc.nees_null_var, "nees_null_var");
+        assert_eq!(acc.null_var_runs(), acc.null_var_runs, "null_var_runs");
+        assert_eq!(acc.error_map_missing(), acc.error_map_missing, "error_map_missing");
+        assert_eq!(acc.nees_run_total(), acc.nees_run_total, "nees_run_total");
+        assert_eq!(acc.nees_run_total_sq(), acc.nees_run_total_sq, "nees_run_total_sq");
+        assert_eq!(acc.nees_total_runs(), acc.nees_total_runs, "nees_total_runs");
+        assert_eq!(acc.nis_sum(), &acc.nis_sum[..], "nis_sum");
+        assert_eq!(acc.nis_sq(), &acc.nis_sq[..], "nis_sq");
+        assert_eq!(acc.nis_dof(), &acc.nis_dof[..], "nis_dof");
+        assert_eq!(acc.nis_count(), &acc.nis_count[..], "nis_count");
+        assert_eq!(acc.state_comp_total(), &acc.state_comp_total[..], "state_comp_total");
+        assert_eq!(acc.state_comp_samples(), &acc.state_comp_samples[..], "state_comp_samples");
+        assert_eq!(acc.state_comp_run_sum(), &acc.state_comp_run_sum[..], "state_comp_run_sum");
+        assert_eq!(acc.state_comp_run_sq(), &acc.state_comp_run_sq[..], "state_comp_run_sq");
+        assert_eq!(acc.state_comp_null_var(), &acc.state_comp_null_var[..], "state_comp_null_var");
+        assert_eq!(acc.comp_null_var_runs(), acc.comp_null_var_runs, "comp_null_var_runs");
+        assert_eq!(acc.state_mean_total(), &acc.state_mean_total[..], "state_mean_total");
+        assert_eq!(acc.state_mean_samples(), &acc.state_mean_samples[..], "state_mean_samples");
+        assert_eq!(acc.state_mean_run_sq(), &acc.state_mean_run_sq[..], "state_mean_run_sq");
+        assert_eq!(acc.state_mean_null_var(), &acc.state_mean_null_var[..], "state_mean_null_var");
+        assert_eq!(acc.meas_mean_total(), &acc.meas_mean_total[..], "meas_mean_total");
+        assert_eq!(acc.meas_comp_total(), &acc.meas_comp_total[..], "meas_comp_total");
+        assert_eq!(acc.meas_comp_samples(), &acc.meas_comp_samples[..], "meas_comp_samples");
+        assert_eq!(acc.meas_comp_run_sum(), &acc.meas_comp_run_sum[..], "meas_comp_run_sum");
+        assert_eq!(acc.meas_comp_run_sq(), &acc.meas_comp_run_sq[..], "meas_comp_run_sq");
+        assert_eq!(acc.meas_comp_runs(), &acc.meas_comp_runs[..], "meas_comp_runs");
+        assert_eq!(acc.white_ab(), &acc.white_ab[..], "white_ab");
+        assert_eq!(acc.white_a2(), &acc.white_a2[..], "white_a2");
+        assert_eq!(acc.white_b2(), &acc.white_b2[..], "white_b2");
+        assert_eq!(acc.white_pairs(), &acc.white_pairs[..], "white_pairs");
+        assert_eq!(acc.diverged_runs(), acc.diverged_runs, "diverged_runs");
+        assert_eq!(acc.ill_conditioned_runs(), acc.ill_conditioned_runs, "ill_conditioned_runs");
+        assert_eq!(acc.truth_overflow_runs(), acc.truth_overflow_runs, "truth_overflow_runs");
+        assert_eq!(acc.divergences(), &acc.divergences[..], "divergences");
+        assert!(acc.runs() > 1 && acc.divergences().len() > 1);
+    }
+
+#[test]
+fn divergence_details_keep_the_first_ten_in_run_order() {
+    let mut a = Accumulator::new(1, 1, 1, 0);
+    for run in 0..8 {
+        a.record_divergence(run, 1, "S".into());
+    }
+    let mut b = Accumulator::new(1, 1, 1, 0);
+    for run in 8..12 {
+        b.record_divergence(run, 2, "P".into());
+    }
+    a.merge(&b);
+    assert_eq!(a.diverged_runs, 12);
+    let runs: Vec<usize> = a.divergences.iter().map(|d: &Divergence| d.run).collect();
+    assert_eq!(runs, (0..10).collect::<Vec<_>>());
+}
 }

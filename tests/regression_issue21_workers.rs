@@ -412,7 +412,7 @@ fn issue21_the_docs_say_a_problem_file_with_external_is_code() {
             && doc[warning..].contains("files you trust"),
         "docs/src/workers.md warns before its first example and the protocol"
     );
-    let starter = read("src/app/templates/external.toml");
+    let starter = read("src/commands/templates/external.toml");
     assert!(
         starter.contains("RUN THE COMMAND") && starter.contains("is code"),
         "the `init --external` starter warns"

@@ -3,10 +3,10 @@
 //! passes, 15 lags) on 20 000, and with the `sdp` feature ALS with a full Q and R; ML and
 //! single likelihood evaluations on records with 1% of the cells empty.
 
-use autotune::estimate::als::{self, AlsModel};
-use autotune::estimate::{MeasurementRecord, ml, simulate};
-use autotune::experiment::Experiment as _;
-use autotune::problem::Problem;
+use autotune::internals::estimate::als::{self, AlsModel};
+use autotune::internals::estimate::{MeasurementRecord, ml, simulate};
+use autotune::internals::experiment::Experiment as _;
+use autotune::internals::problem::Problem;
 use criterion::{Criterion, criterion_group, criterion_main};
 
 fn estimate(c: &mut Criterion) {
@@ -48,7 +48,7 @@ fn estimate(c: &mut Criterion) {
     #[cfg(feature = "sdp")]
     g.bench_function("als_full_qr_20000_steps", |b| {
         b.iter(|| {
-            autotune::estimate::als_full::estimate_full(
+            autotune::internals::estimate::als_full::estimate_full(
                 &model,
                 &data,
                 &start,

@@ -6,8 +6,8 @@
 
 use std::path::Path;
 
-use autotune::experiment::Experiment;
-use autotune::problem::Problem;
+use autotune::internals::experiment::Experiment;
+use autotune::internals::problem::Problem;
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 
 fn problem(dir: &Path, workers: usize, runs: usize, steps: usize) -> Problem {

@@ -5,7 +5,7 @@
 use std::fmt::Write as _;
 use std::path::PathBuf;
 
-use autotune::fieldlog::{NisSettings, ReadOptions, analyze};
+use autotune::internals::fieldlog::{NisSettings, ReadOptions, analyze};
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 
 /// splitmix64 → two uniforms → one Box–Muller normal: enough for a bench's numbers.

@@ -7,10 +7,10 @@
 use std::hint::black_box;
 use std::path::Path;
 
-use autotune::check::accumulate;
-use autotune::experiment::Experiment;
-use autotune::montecarlo::Engine;
-use autotune::problem::Problem;
+use autotune::internals::check::accumulate;
+use autotune::internals::experiment::Experiment;
+use autotune::internals::montecarlo::Engine;
+use autotune::internals::problem::Problem;
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 
 fn load(name: &str) -> Problem {

@@ -4,9 +4,9 @@
 use std::hint::black_box;
 use std::path::Path;
 
-use autotune::experiment::Experiment;
-use autotune::problem::Problem;
-use autotune::tune::{Silent, TuneSettings, tune};
+use autotune::internals::experiment::Experiment;
+use autotune::internals::problem::Problem;
+use autotune::internals::tune::{Silent, TuneSettings, tune};
 use criterion::{Criterion, criterion_group, criterion_main};
 
 fn load(name: &str) -> Problem {

@@ -15,14 +15,10 @@
 
 use std::process::ExitCode;
 
-use autotune::SimRng;
-use autotune::experiment::{Covariances, RustModel};
-use autotune::filter::{Ekf, SystemModel};
-use autotune::measurement::Measurement;
-use autotune::model::{TruthModel, sample_gaussian};
-use autotune::montecarlo::McConfig;
-use autotune::params::{ParamDef, Target, cwna_block};
-use autotune::tune::TuneSettings;
+use autotune::{
+    Covariances, Ekf, McConfig, Measurement, ParamDef, RustModel, SimRng, SystemModel, Target,
+    TruthModel, TuneSettings, cwna_block, psd_factor, sample_gaussian,
+};
 use nalgebra::{DMatrix, DVector};
 
 /// Filter step, s.
@@ -102,7 +98,7 @@ impl TruthModel for Truth {
 }
 
 fn main() -> ExitCode {
-    let factor = |m: &DMatrix<f64>| autotune::linalg::psd_factor(m).expect("PSD");
+    let factor = |m: &DMatrix<f64>| psd_factor(m).expect("PSD");
     let p0 = DMatrix::from_diagonal(&DVector::from_column_slice(&[0.01, 0.01]));
     let truth = Truth {
         noise: factor(&(cwna_block(DT) * Q_TRUE)),

@@ -1,7 +1,7 @@
 //! A vehicle filter that watches its own consistency while it runs: a phone-like navigation
 //! KF (planar position and velocity, altitude and climb rate) fusing a 1 Hz GPS fix and a
 //! 10 Hz barometer, with the barometer's R set 4× too small (σ 0.25 m where the sensor's
-//! noise is 0.5 m). Every update goes to an [`autotune::fieldlog::NisMonitor`]; a status line
+//! noise is 0.5 m). Every update goes to an [`autotune::NisMonitor`]; a status line
 //! every 30 s of simulated time gives each sensor's running NIS against its χ² interval, the
 //! last window's NIS against its own, and the verdict so far; at the end, the verdict and the
 //! advice of `autotune nis`.
@@ -23,7 +23,7 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use autotune::SimRng;
-use autotune::fieldlog::{NisMonitor, NisSettings};
+use autotune::{NisMonitor, NisSettings};
 use nalgebra::{SMatrix, SVector};
 use rand::{RngExt, SeedableRng};
 use rand_distr::StandardNormal;

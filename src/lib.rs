@@ -49,51 +49,105 @@
 #[link(name = "openblas")]
 unsafe extern "C" {}
 
-/// Declares the modules below the public API. They are public to the crate's own tests,
-/// benches and examples (the `internals` feature, which the package's dev-dependency on
-/// itself turns on) and crate-private to everyone else: a Rust user sees the names
-/// re-exported below, the command line ([`app`]), the commands ([`commands`]) and the
-/// renderers ([`report`]).
-macro_rules! internal {
-    ($($name:ident),* $(,)?) => {
-        $(
-            #[cfg(feature = "internals")]
-            #[doc(hidden)]
-            pub mod $name;
-            #[cfg(not(feature = "internals"))]
-            pub(crate) mod $name;
-        )*
-    };
-}
-
 pub mod app;
 pub mod commands;
 pub mod prelude;
 pub mod report;
 
-internal!(
-    catalog,
-    check,
-    estimate,
-    experiment,
-    explain,
-    external,
-    fieldlog,
-    filter,
-    input,
-    linalg,
-    measurement,
-    model,
-    montecarlo,
-    output,
-    params,
-    problem,
-    records,
-    statespace,
-    stats,
-    tune,
-    userfile,
-);
+// The modules below the public API: private, their names re-exported below where a Rust
+// user needs them.
+mod catalog;
+mod check;
+mod estimate;
+mod experiment;
+mod explain;
+mod external;
+mod fieldlog;
+mod filter;
+mod input;
+mod linalg;
+mod measurement;
+mod model;
+mod montecarlo;
+mod output;
+mod params;
+mod problem;
+mod records;
+mod statespace;
+mod stats;
+mod tune;
+mod userfile;
+
+/// Every module below the public API, whole: for the crate's own tests, benches and
+/// examples (the `internals` feature, which the package's dev-dependency on itself turns
+/// on). Not part of the API.
+#[cfg(feature = "internals")]
+#[doc(hidden)]
+pub mod internals {
+    pub mod catalog {
+        pub use crate::catalog::*;
+    }
+    pub mod check {
+        pub use crate::check::*;
+    }
+    pub mod estimate {
+        pub use crate::estimate::*;
+    }
+    pub mod experiment {
+        pub use crate::experiment::*;
+    }
+    pub mod explain {
+        pub use crate::explain::*;
+    }
+    pub mod external {
+        pub use crate::external::*;
+    }
+    pub mod fieldlog {
+        pub use crate::fieldlog::*;
+    }
+    pub mod filter {
+        pub use crate::filter::*;
+    }
+    pub mod input {
+        pub use crate::input::*;
+    }
+    pub mod linalg {
+        pub use crate::linalg::*;
+    }
+    pub mod measurement {
+        pub use crate::measurement::*;
+    }
+    pub mod model {
+        pub use crate::model::*;
+    }
+    pub mod montecarlo {
+        pub use crate::montecarlo::*;
+    }
+    pub mod output {
+        pub use crate::output::*;
+    }
+    pub mod params {
+        pub use crate::params::*;
+    }
+    pub mod problem {
+        pub use crate::problem::*;
+    }
+    pub mod records {
+        pub use crate::records::*;
+    }
+    pub mod statespace {
+        pub use crate::statespace::*;
+    }
+    pub mod stats {
+        pub use crate::stats::*;
+    }
+    pub mod tune {
+        pub use crate::tune::*;
+    }
+    pub mod userfile {
+        pub use crate::userfile::*;
+    }
+}
 
 // The seam, and a problem file as one implementation of it.
 pub use experiment::{
@@ -108,6 +162,7 @@ pub use filter::{
     Ekf, Estimate, Filter, FilterError, Innovation, KalmanFilter, PredictResult, SystemModel, Ukf,
     UpdateResult, check_measurement,
 };
+pub use linalg::psd_factor;
 pub use measurement::Measurement;
 pub use model::{LinearGaussianModel, TruthModel, sample_gaussian};
 pub use params::{NoiseKind, ParamDef, ParamSpace, Target, cwna_block, dwna_block};

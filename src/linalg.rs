@@ -73,7 +73,7 @@ pub fn jacobi_scaled(m: &DMatrix<f64>) -> (DMatrix<f64>, DVector<f64>) {
 /// A factor `L` (n × r) of a symmetric positive-semidefinite matrix, `L L' = M`, where r is
 /// the numerical rank. Used to draw Gaussian samples with a possibly singular covariance
 /// (a DWNA process noise has rank 1 per axis) from only r standard normals. The rank is
-/// judged on the Jacobi-scaled matrix ([`jacobi_scaled`]), so it does not depend on units.
+/// judged on the Jacobi-scaled matrix (`jacobi_scaled`), so it does not depend on units.
 ///
 /// Returns `Err(lambda_min)` (of the scaled matrix) when `M` has an eigenvalue below
 /// `-SYMMETRY_RTOL·max|λ|` there.

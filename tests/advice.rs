@@ -4,9 +4,9 @@
 
 mod common;
 
-use autotune::experiment::Experiment;
+use autotune::internals::experiment::Experiment;
+use autotune::internals::tune::{Silent, TuneSettings, TuneStatus, tune};
 use autotune::report::check::advice::recommendations;
-use autotune::tune::{Silent, TuneSettings, TuneStatus, tune};
 use common::load;
 
 fn advice_of(name: &str, settings: &TuneSettings) -> (TuneStatus, Vec<(String, String)>) {

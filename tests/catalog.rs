@@ -13,8 +13,8 @@
 mod common;
 
 use assert_cmd::Command;
-use autotune::experiment::Experiment;
-use autotune::params::NoiseKind;
+use autotune::internals::experiment::Experiment;
+use autotune::internals::params::NoiseKind;
 use statrs::distribution::{Binomial, DiscreteCDF};
 
 const CATALOG: [&str; 3] = ["ctrv", "orbit2d", "ins_gnss"];
@@ -80,7 +80,7 @@ fn check_fails_overconfident_with_q_scaled_by_a_hundredth() {
 fn catalog_problems_load_with_model_names_and_parameters_in_model_order() {
     for name in CATALOG {
         let p = common::load(name);
-        assert_eq!(p.kind(), autotune::problem::ProblemKind::Catalog);
+        assert_eq!(p.kind(), autotune::internals::problem::ProblemKind::Catalog);
         assert!(p.linear().is_none());
         // The model the file's [model] table builds through its catalog entry, apart from
         // the problem loader.
@@ -88,8 +88,8 @@ fn catalog_problems_load_with_model_names_and_parameters_in_model_order() {
         let file: toml::Table = text.parse().unwrap();
         let mut table = file["model"].as_table().unwrap().clone();
         let model_name = table.remove("name").unwrap();
-        let entry = autotune::catalog::find(model_name.as_str().unwrap()).unwrap();
-        let ctx = autotune::catalog::ModelContext {
+        let entry = autotune::internals::catalog::find(model_name.as_str().unwrap()).unwrap();
+        let ctx = autotune::internals::catalog::ModelContext {
             dt: file["dt"].as_float().unwrap(),
             steps: p.mc().steps(),
         };
@@ -123,7 +123,7 @@ fn false_alarms(name: &str, seeds: u64) -> u64 {
     (0..seeds)
         .filter(|s| {
             let mc = p.mc().with_seed(7000 + s);
-            !autotune::check::check(&p, &truth, &mc, true)
+            !autotune::internals::check::check(&p, &truth, &mc, true)
                 .unwrap()
                 .verdict
                 .passes()

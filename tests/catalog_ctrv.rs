@@ -7,13 +7,13 @@
 use std::f64::consts::PI;
 
 use autotune::SimRng;
-use autotune::catalog::ctrv::{CtrvModel, CtrvSystem, ENTRY, LIDAR, RADAR, wrap_angle};
-use autotune::catalog::{CatalogModel, ModelContext};
-use autotune::filter::{Filter, SystemModel, numerical_jacobian};
-use autotune::measurement::Measurement;
-use autotune::model::TruthModel;
-use autotune::montecarlo::{McConfig, run_generic, run_rng};
-use autotune::stats::{ConsistencyReport, Verdict};
+use autotune::internals::catalog::ctrv::{CtrvModel, CtrvSystem, ENTRY, LIDAR, RADAR, wrap_angle};
+use autotune::internals::catalog::{CatalogModel, ModelContext};
+use autotune::internals::filter::{Filter, SystemModel, numerical_jacobian};
+use autotune::internals::measurement::Measurement;
+use autotune::internals::model::TruthModel;
+use autotune::internals::montecarlo::{McConfig, run_generic, run_rng};
+use autotune::internals::stats::{ConsistencyReport, Verdict};
 use nalgebra::{DMatrix, DVector};
 use rand::{RngExt, SeedableRng};
 
@@ -394,7 +394,7 @@ fn shipped_check_is_consistent_at_truth_and_overconfident_with_small_q() {
     let acc = run_generic(model.truth(), &model.filter(&tv), &settings);
     let r = ConsistencyReport::from_accumulator(
         &acc,
-        &autotune::stats::GateSpec::full(s.alpha, true),
+        &autotune::internals::stats::GateSpec::full(s.alpha, true),
         &sn,
         &mn,
     );
@@ -406,7 +406,7 @@ fn shipped_check_is_consistent_at_truth_and_overconfident_with_small_q() {
     let acc = run_generic(model.truth(), &model.filter(&small), &settings);
     let r = ConsistencyReport::from_accumulator(
         &acc,
-        &autotune::stats::GateSpec::full(s.alpha, true),
+        &autotune::internals::stats::GateSpec::full(s.alpha, true),
         &sn,
         &mn,
     );

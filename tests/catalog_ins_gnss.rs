@@ -4,17 +4,17 @@
 //! attitude-error wrapping, and settings validation.
 
 use autotune::SimRng;
-use autotune::catalog::ins_gnss::nav::{
+use autotune::internals::catalog::ins_gnss::nav::{
     ImuSample, Mat15, Nominal, Vec15, continuous_f, error_rate, mechanize,
 };
-use autotune::catalog::ins_gnss::truth::{InsTruth, layout, truth_nominal};
-use autotune::catalog::ins_gnss::{ENTRY, InsGnss};
-use autotune::catalog::{CatalogModel, ModelContext};
-use autotune::filter::{Filter, numerical_jacobian};
-use autotune::measurement::Measurement;
-use autotune::model::TruthModel;
-use autotune::montecarlo::{McConfig, run_generic, run_rng};
-use autotune::stats::{ConsistencyReport, Verdict};
+use autotune::internals::catalog::ins_gnss::truth::{InsTruth, layout, truth_nominal};
+use autotune::internals::catalog::ins_gnss::{ENTRY, InsGnss};
+use autotune::internals::catalog::{CatalogModel, ModelContext};
+use autotune::internals::filter::{Filter, numerical_jacobian};
+use autotune::internals::measurement::Measurement;
+use autotune::internals::model::TruthModel;
+use autotune::internals::montecarlo::{McConfig, run_generic, run_rng};
+use autotune::internals::stats::{ConsistencyReport, Verdict};
 use nalgebra::{DMatrix, DVector, UnitQuaternion, Vector3};
 use rand::RngExt;
 use rand_distr::StandardNormal;
@@ -250,7 +250,7 @@ fn check(model: &dyn CatalogModel, theta: &[f64], s: &Shipped) -> ConsistencyRep
     );
     ConsistencyReport::from_accumulator(
         &acc,
-        &autotune::stats::GateSpec::full(s.alpha, true),
+        &autotune::internals::stats::GateSpec::full(s.alpha, true),
         &model.state_names(),
         &model.measurement_names(),
     )
@@ -348,7 +348,7 @@ fn truth_imu_reproduces_the_truth_trajectory() {
     let model = build(&s.table, s.dt, s.steps);
     let base = model.truth_values();
     let truth = InsTruth {
-        noise: autotune::catalog::ins_gnss::truth::TruthNoise {
+        noise: autotune::internals::catalog::ins_gnss::truth::TruthNoise {
             accel: Vector3::from_element(1e-30),
             gyro: 1e-30,
             accel_bias: 1e-30,

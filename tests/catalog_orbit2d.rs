@@ -7,12 +7,12 @@
 #![allow(non_snake_case)] // paper notation (Q, C) for the filter matrices
 
 use autotune::SimRng;
-use autotune::catalog::orbit2d::{self, EARTH_RADIUS, MU, Orbit2d};
-use autotune::catalog::{CatalogModel, ModelContext, find};
-use autotune::filter::{Ekf, Filter, FilterError, SystemModel, numerical_jacobian};
-use autotune::measurement::Measurement;
-use autotune::montecarlo::{McConfig, run_generic};
-use autotune::stats::{ConsistencyReport, Verdict};
+use autotune::internals::catalog::orbit2d::{self, EARTH_RADIUS, MU, Orbit2d};
+use autotune::internals::catalog::{CatalogModel, ModelContext, find};
+use autotune::internals::filter::{Ekf, Filter, FilterError, SystemModel, numerical_jacobian};
+use autotune::internals::measurement::Measurement;
+use autotune::internals::montecarlo::{McConfig, run_generic};
+use autotune::internals::stats::{ConsistencyReport, Verdict};
 use nalgebra::{DMatrix, DVector, Matrix2, Vector2, Vector4};
 use rand::{RngExt, SeedableRng};
 use rand_distr::StandardNormal;
@@ -62,7 +62,7 @@ fn check(m: &Orbit2d, theta: &[f64], s: &Shipped) -> ConsistencyReport {
     let acc = run_generic(m.truth(), &m.filter(theta), &s.settings);
     ConsistencyReport::from_accumulator(
         &acc,
-        &autotune::stats::GateSpec::full(s.alpha, true),
+        &autotune::internals::stats::GateSpec::full(s.alpha, true),
         &m.state_names(),
         &m.measurement_names(),
     )

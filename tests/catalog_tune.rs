@@ -21,11 +21,11 @@
 
 mod common;
 
-use autotune::experiment::Experiment;
-use autotune::montecarlo::McConfig;
-use autotune::problem::Problem;
-use autotune::stats::Verdict;
-use autotune::tune::{Silent, TuneResult, TuneSettings, tune};
+use autotune::internals::experiment::Experiment;
+use autotune::internals::montecarlo::McConfig;
+use autotune::internals::problem::Problem;
+use autotune::internals::stats::Verdict;
+use autotune::internals::tune::{Silent, TuneResult, TuneSettings, tune};
 use common::{load, truth_values};
 
 /// Tune `p` with every free parameter started at `factor` × its truth value (fixed ones at
@@ -121,7 +121,10 @@ fn ins_gnss_tunes_from_a_tenth() {
     // 0.06, 0.10), rounded up.
     let p = load("ins_gnss");
     let settings = p.tune.clone();
-    assert_eq!(settings.local(), autotune::tune::LocalSearch::GaussNewton);
+    assert_eq!(
+        settings.local(),
+        autotune::internals::tune::LocalSearch::GaussNewton
+    );
     let seed = p.mc().seed();
     assert_recovers(
         "ins_gnss",

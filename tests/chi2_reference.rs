@@ -4,7 +4,7 @@
 //! `tests/data/gen_chi2_reference.py` (its header records the scipy and numpy versions and
 //! the command that regenerates it). Every quantile must agree to 1e-9 relative.
 
-use autotune::stats::{chi2_average_interval, chi2_inv};
+use autotune::internals::stats::{chi2_average_interval, chi2_inv};
 
 const REL_TOL: f64 = 1e-9;
 

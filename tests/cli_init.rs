@@ -3,8 +3,8 @@
 use std::path::Path;
 
 use assert_cmd::Command;
-use autotune::experiment::Experiment;
-use autotune::problem::Problem;
+use autotune::internals::experiment::Experiment;
+use autotune::internals::problem::Problem;
 use nalgebra::DMatrix;
 
 fn autotune() -> Command {

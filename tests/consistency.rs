@@ -3,10 +3,10 @@
 
 mod common;
 
-use autotune::check::{accumulate, check};
-use autotune::experiment::Experiment;
-use autotune::montecarlo::Engine;
-use autotune::stats::{GateMode, Verdict};
+use autotune::internals::check::{accumulate, check};
+use autotune::internals::experiment::Experiment;
+use autotune::internals::montecarlo::Engine;
+use autotune::internals::stats::{GateMode, Verdict};
 use common::{load, scaled, truth_values};
 use statrs::distribution::{Binomial, DiscreteCDF};
 
@@ -65,7 +65,7 @@ fn false_alarm_rate_matches_alpha_over_200_seeds() {
         nis_rej += u64::from(!r.nis.verdict.passes());
         gate_rej += u64::from(!r.verdict.passes());
     }
-    let alpha_s = autotune::stats::gate_alpha(alpha, 2);
+    let alpha_s = autotune::internals::stats::gate_alpha(alpha, 2);
     let (lo, hi) = binomial_band(seeds, alpha_s);
     assert!(
         (lo..=hi).contains(&nees_rej),
@@ -215,14 +215,14 @@ fn diverging_filter_is_reported_not_nan() {
     let p = load("cv1d");
     let mut kf = p.linear().unwrap().filter_at(&truth_values(&p));
     kf.R[(0, 0)] = -1e3;
-    let acc = autotune::montecarlo::run_linear(&p.linear().unwrap().truth, &kf, p.mc());
+    let acc = autotune::internals::montecarlo::run_linear(&p.linear().unwrap().truth, &kf, p.mc());
     assert_eq!(acc.diverged_runs(), p.mc().runs());
     assert_eq!(acc.divergences()[0].step, 1);
-    let acc = autotune::montecarlo::run_generic(&p.linear().unwrap().truth, &kf, p.mc());
+    let acc = autotune::internals::montecarlo::run_generic(&p.linear().unwrap().truth, &kf, p.mc());
     assert_eq!(acc.diverged_runs(), p.mc().runs());
-    let r = autotune::stats::ConsistencyReport::from_accumulator(
+    let r = autotune::internals::stats::ConsistencyReport::from_accumulator(
         &acc,
-        &autotune::stats::GateSpec::full(0.05, true),
+        &autotune::internals::stats::GateSpec::full(0.05, true),
         p.state_names(),
         p.measurement_names(),
     );

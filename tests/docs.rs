@@ -628,7 +628,7 @@ fn every_kind_of_line_check_prints_is_shown_in_the_docs() {
         }
     }
     // Every verdict `check` can reach, in the words of its last line.
-    use autotune::stats::Verdict;
+    use autotune::internals::stats::Verdict;
     let verdicts = [
         Verdict::Consistent,
         Verdict::Overconfident,

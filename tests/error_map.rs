@@ -7,11 +7,11 @@
 
 mod common;
 
-use autotune::experiment::Experiment;
-use autotune::filter::{Estimate, Filter, FilterError, Innovation, KalmanFilter};
-use autotune::measurement::Measurement;
-use autotune::montecarlo::run_generic;
-use autotune::stats::{ConsistencyReport, Verdict};
+use autotune::internals::experiment::Experiment;
+use autotune::internals::filter::{Estimate, Filter, FilterError, Innovation, KalmanFilter};
+use autotune::internals::measurement::Measurement;
+use autotune::internals::montecarlo::run_generic;
+use autotune::internals::stats::{ConsistencyReport, Verdict};
 use common::{load, scaled, truth_values};
 use nalgebra::DVector;
 use statrs::distribution::{Binomial, DiscreteCDF};
@@ -69,7 +69,7 @@ fn report(theta: &[f64], with_map: bool, seed: u64) -> ConsistencyReport {
     };
     ConsistencyReport::from_accumulator(
         &acc,
-        &autotune::stats::GateSpec::full(mc.alpha(), true),
+        &autotune::internals::stats::GateSpec::full(mc.alpha(), true),
         p.state_names(),
         p.measurement_names(),
     )
@@ -140,7 +140,7 @@ fn without_an_error_map_false_alarms_stay_at_the_statistics_level() {
     let p = load("cv2d");
     let theta = truth_values(&p);
     let seeds = 100u64;
-    let alpha_s = autotune::stats::gate_alpha(p.mc().alpha(), 2);
+    let alpha_s = autotune::internals::stats::gate_alpha(p.mc().alpha(), 2);
     let mut rejected = 0u64;
     for seed in 0..seeds {
         let r = report(&theta, false, 1000 + seed);

@@ -2,9 +2,9 @@
 
 mod common;
 
-use autotune::estimate::{EstimateError, ml, simulate};
-use autotune::experiment::{Experiment, LinearExperiment};
-use autotune::problem::Problem;
+use autotune::internals::estimate::{EstimateError, ml, simulate};
+use autotune::internals::experiment::{Experiment, LinearExperiment};
+use autotune::internals::problem::Problem;
 
 fn cv2d() -> (Problem, LinearExperiment) {
     let p = common::load("cv2d");
@@ -12,7 +12,9 @@ fn cv2d() -> (Problem, LinearExperiment) {
     (p, lin)
 }
 
-fn builder(lin: &LinearExperiment) -> impl Fn(&[f64]) -> autotune::filter::KalmanFilter + '_ {
+fn builder(
+    lin: &LinearExperiment,
+) -> impl Fn(&[f64]) -> autotune::internals::filter::KalmanFilter + '_ {
     move |theta: &[f64]| lin.filter_at(theta)
 }
 
@@ -129,7 +131,7 @@ fn log_likelihood_matches_pykalman() {
         "7",
     ]);
     assert_eq!(code, Some(0), "{err}");
-    let data = autotune::estimate::read_measurements(&rec).unwrap();
+    let data = autotune::internals::estimate::read_measurements(&rec).unwrap();
     let nll = builder(&lin)(&theta).neg_log_likelihood(&data).unwrap();
     assert!(
         ((-nll) / reference - 1.0).abs() < 1e-12,
@@ -192,8 +194,8 @@ fn tune_against_recorded_measurements_recovers_the_truth() {
     }
 }
 
-fn als_model(lin: &LinearExperiment) -> autotune::estimate::als::AlsModel<'_> {
-    autotune::estimate::als::AlsModel::of(lin)
+fn als_model(lin: &LinearExperiment) -> autotune::internals::estimate::als::AlsModel<'_> {
+    autotune::internals::estimate::als::AlsModel::of(lin)
 }
 
 /// ALS from all parameters = 1.0 on 20 000-step cv2d records: every per-axis Q and R
@@ -208,7 +210,7 @@ fn als_recovers_every_parameter_within_ten_percent_on_20000_steps() {
     for seed in 21..26 {
         let sim = simulate(&lin.truth, 2, 1, 20_000, seed);
         let start = vec![1.0; truth.len()];
-        let est = autotune::estimate::als::estimate_passes(
+        let est = autotune::internals::estimate::als::estimate_passes(
             &model,
             &sim.measurements,
             &start,
@@ -243,7 +245,7 @@ fn als_on_small_noise_lands_on_the_least_squares_solution() {
     let start = p.params().values();
     for seed in 1..=5 {
         let sim = simulate(&lin.truth, 1, 1, 20_000, seed);
-        let est = autotune::estimate::als::estimate_passes(
+        let est = autotune::internals::estimate::als::estimate_passes(
             &model,
             &sim.measurements,
             &start,
@@ -293,7 +295,7 @@ fn als_never_returns_a_negative_variance() {
     let mut negative = 0;
     for seed in 1..=8 {
         let sim = simulate(&lin.truth, 2, 1, 400, seed);
-        let est = autotune::estimate::als::estimate_passes(
+        let est = autotune::internals::estimate::als::estimate_passes(
             &model,
             &sim.measurements,
             &start,
@@ -336,13 +338,25 @@ fn als_refuses_gaps_short_records_and_unstable_filters() {
     let model = als_model(&lin);
     let start = vec![1.0; 4];
     let mut sim = simulate(&lin.truth, 2, 1, 60, 1);
-    let e = autotune::estimate::als::estimate(&model, &sim.measurements, &start, &[false; 4], 15)
-        .unwrap_err();
+    let e = autotune::internals::estimate::als::estimate(
+        &model,
+        &sim.measurements,
+        &start,
+        &[false; 4],
+        15,
+    )
+    .unwrap_err();
     assert!(matches!(e, EstimateError::TooShort { .. }), "{e}");
     assert!(e.to_string().contains("too short"), "{e}");
     sim.measurements.sequences[0].z[7] = f64::NAN;
-    let e = autotune::estimate::als::estimate(&model, &sim.measurements, &start, &[false; 4], 15)
-        .unwrap_err();
+    let e = autotune::internals::estimate::als::estimate(
+        &model,
+        &sim.measurements,
+        &start,
+        &[false; 4],
+        15,
+    )
+    .unwrap_err();
     assert_eq!(e, EstimateError::Gaps);
     assert!(e.to_string().contains("every component"), "{e}");
     // A filter that does not see y (H's second row zero) and believes y still (its F has no
@@ -353,7 +367,7 @@ fn als_refuses_gaps_short_records_and_unstable_filters() {
     blind.filter.H[(1, 2)] = 0.0;
     let bm = als_model(&blind);
     let sim = simulate(&lin.truth, 2, 1, 2000, 1);
-    let e = autotune::estimate::als::estimate(
+    let e = autotune::internals::estimate::als::estimate(
         &bm,
         &sim.measurements,
         &[1.0, 0.0, 1.0, 1.0],

@@ -5,11 +5,11 @@
 
 mod common;
 
-use autotune::estimate::als::{AlsModel, FullMatrix};
-use autotune::estimate::als_full::estimate_full;
-use autotune::estimate::simulate;
-use autotune::experiment::Experiment;
-use autotune::problem::Problem;
+use autotune::internals::estimate::als::{AlsModel, FullMatrix};
+use autotune::internals::estimate::als_full::estimate_full;
+use autotune::internals::estimate::simulate;
+use autotune::internals::experiment::Experiment;
+use autotune::internals::problem::Problem;
 
 /// cv2d with the truth's Q = G W G' (G: the two DWNA inputs, g = [½, 1] per axis) and R
 /// full, written as `matrix` terms.
@@ -94,7 +94,7 @@ fn full_q_and_r_recover_correlated_noise() {
         let q = &lin.truth.model.Q;
         let rel = (&est.Q - q).abs().max() / q.abs().max();
         assert!(rel < 0.10, "seed {seed}: Q off by {rel}");
-        let structured = autotune::estimate::als::estimate_passes(
+        let structured = autotune::internals::estimate::als::estimate_passes(
             &m,
             &sim.measurements,
             &start,

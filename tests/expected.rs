@@ -2,10 +2,10 @@
 
 mod common;
 
-use autotune::check::accumulate;
-use autotune::experiment::Experiment;
-use autotune::montecarlo::Engine;
-use autotune::montecarlo::{expected_accumulator, models_match};
+use autotune::internals::check::accumulate;
+use autotune::internals::experiment::Experiment;
+use autotune::internals::montecarlo::Engine;
+use autotune::internals::montecarlo::{expected_accumulator, models_match};
 use common::{load, scaled, truth_values};
 
 #[test]
@@ -107,7 +107,8 @@ R = [{ kind = "diag", indices = [0], param = "r1" }, { kind = "diag", indices = 
 value = 4e-10
 "#;
     let p =
-        autotune::problem::Problem::from_toml(text, std::path::Path::new("mixed.toml")).unwrap();
+        autotune::internals::problem::Problem::from_toml(text, std::path::Path::new("mixed.toml"))
+            .unwrap();
     let theta = p.params().values();
     let kf = p.linear().unwrap().filter_at(&theta);
     let exp = expected_accumulator(&p.linear().unwrap().truth, &kf, p.mc()).unwrap();

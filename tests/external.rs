@@ -7,9 +7,9 @@
 use std::path::{Path, PathBuf};
 
 mod common;
-use autotune::experiment::Experiment;
-use autotune::problem::Problem;
-use autotune::tune::{Silent, TuneError, TuneSettings, tune};
+use autotune::internals::experiment::Experiment;
+use autotune::internals::problem::Problem;
+use autotune::internals::tune::{Silent, TuneError, TuneSettings, tune};
 use common::autotune;
 
 fn worker_script() -> PathBuf {

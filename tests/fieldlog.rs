@@ -632,7 +632,7 @@ fn records_files_read_as_field_logs() {
 /// an error or a report, never panics (a panic fails the test).
 #[test]
 fn damaged_ulog_files_never_panic() {
-    use autotune::fieldlog::{NisSettings, ReadOptions, analyze};
+    use autotune::internals::fieldlog::{NisSettings, ReadOptions, analyze};
     let dir = tempfile::tempdir().unwrap();
     let bytes = std::fs::read(px4("v1_15_events.ulg")).unwrap();
     let p = dir.path().join("d.ulg");
@@ -988,7 +988,7 @@ fn thousands_of_channels_are_judged_and_too_many_are_refused() {
     assert_ne!(code, Some(2), "{err}");
     let v: Value = serde_json::from_str(&out).unwrap();
     assert_eq!(v["sensors"].as_array().unwrap().len(), 9000);
-    let limit = autotune::fieldlog::MAX_SENSORS;
+    let limit = autotune::internals::fieldlog::MAX_SENSORS;
     let p = dir.path().join("wider.ulg");
     std::fs::write(&p, wide_ulog(limit / 2 + 1, 2)).unwrap();
     refused(
@@ -1083,7 +1083,7 @@ fn follow_reads_a_large_log_in_pieces() {
 /// the first, each section at the next, a message cut by a section's end is dropped).
 #[test]
 fn the_ulog_walker_reads_what_the_crate_reader_reads() {
-    use autotune::fieldlog::{NisSettings, ReadOptions, analyze};
+    use autotune::internals::fieldlog::{NisSettings, ReadOptions, analyze};
     use px4_ulog::stream_parser::{Message, SimpleCallbackResult, read_file_with_simple_callback};
     let crate_rows = |p: &Path| {
         let mut n = 0;

@@ -22,7 +22,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
-use autotune::problem::Problem;
+use autotune::internals::problem::Problem;
 use autotune::report::tune::tuned::TunedConfig;
 
 #[path = "common/fuzzing.rs"]

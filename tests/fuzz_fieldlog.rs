@@ -24,7 +24,7 @@
 //! panic, print an error as one line naming the file, print valid JSON with `--json`, stay
 //! under 30 s and under [`RSS_LIMIT_MB`] of memory (a memory limit of the address space
 //! makes a runaway allocation abort); inputs the binary survived also go to
-//! `autotune::fieldlog::analyze` in-process (and the reports are rendered), which must
+//! `autotune::internals::fieldlog::analyze` in-process (and the reports are rendered), which must
 //! return `Ok` or `Err`, never panic.
 //!
 //! It runs for `AUTOTUNE_FUZZ_SECONDS` (default 8 s, split 40 / 40 / 20 % among the three
@@ -43,7 +43,7 @@ use std::process::{Child, Command, Stdio};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
-use autotune::fieldlog::{NisSettings, ReadOptions, Window, analyze};
+use autotune::internals::fieldlog::{NisSettings, ReadOptions, Window, analyze};
 
 #[path = "common/fuzzing.rs"]
 mod fuzzing;
@@ -190,7 +190,7 @@ fn analyze_in_process(
             let _ = autotune::report::nis::nis_junit_xml(&r);
             let _ = autotune::report::nis::html::nis_html(&r);
         }
-        Ok::<_, autotune::input::FileError>(())
+        Ok::<_, autotune::internals::input::FileError>(())
     }));
     match result {
         Ok(Ok(())) => Ok(true),

@@ -5,10 +5,12 @@
 
 mod common;
 
-use autotune::check::check;
-use autotune::experiment::Experiment;
-use autotune::montecarlo::McConfig;
-use autotune::stats::{ConsistencyReport, GateMode, Suspect, Verdict, WhitenessTest, gate_alpha};
+use autotune::internals::check::check;
+use autotune::internals::experiment::Experiment;
+use autotune::internals::montecarlo::McConfig;
+use autotune::internals::stats::{
+    ConsistencyReport, GateMode, Suspect, Verdict, WhitenessTest, gate_alpha,
+};
 use common::{load, scaled, truth_values};
 use statrs::distribution::{Binomial, DiscreteCDF};
 

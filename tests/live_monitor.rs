@@ -16,10 +16,10 @@ mod common;
 use std::fmt::Write as _;
 
 use autotune::SimRng;
-use autotune::fieldlog::{
+use autotune::internals::fieldlog::{
     MonitorError, NisMonitor, NisReport, NisSettings, ReadOptions, Window, analyze,
 };
-use autotune::stats::Verdict;
+use autotune::internals::stats::Verdict;
 use common::autotune;
 use nalgebra::{DMatrix, Matrix2, Matrix3};
 use rand::{RngExt, SeedableRng};
@@ -276,7 +276,7 @@ fn status_at_any_time_is_the_batch_report_of_the_rows_so_far() {
                 s.name
             );
             assert_eq!(s.verdict, b.verdict);
-            let words = |f: Option<&autotune::stats::Finding>| {
+            let words = |f: Option<&autotune::internals::stats::Finding>| {
                 f.map(|f| (f.action.clone(), f.evidence.clone()))
             };
             assert_eq!(words(s.advice.as_ref()), words(b.finding.as_ref()));

@@ -13,15 +13,19 @@ mod common;
 use std::path::Path;
 
 use assert_cmd::Command;
-use autotune::check::check_with;
-use autotune::experiment::{Experiment, RunOptions};
-use autotune::montecarlo::{Engine, McConfig};
-use autotune::problem::Problem;
-use autotune::stats::{ConsistencyReport, StopCause, Verdict};
+use autotune::internals::check::check_with;
+use autotune::internals::experiment::{Experiment, RunOptions};
+use autotune::internals::montecarlo::{Engine, McConfig};
+use autotune::internals::problem::Problem;
+use autotune::internals::stats::{ConsistencyReport, StopCause, Verdict};
 use common::{load, problem_path};
 
 /// `check` of `p` at `theta` with its own Monte Carlo settings on `engine`, with the truth.
-fn check_on(p: &Problem, theta: &[f64], engine: Engine) -> autotune::stats::ConsistencyReport {
+fn check_on(
+    p: &Problem,
+    theta: &[f64],
+    engine: Engine,
+) -> autotune::internals::stats::ConsistencyReport {
     check_with(
         p,
         theta,

@@ -3,13 +3,13 @@
 
 mod common;
 
-use autotune::experiment::Experiment;
-use autotune::filter::{
+use autotune::internals::experiment::Experiment;
+use autotune::internals::filter::{
     Ekf, Filter, KalmanFilter, LinearSystem, SystemModel, Ukf, numerical_jacobian,
 };
-use autotune::measurement::Measurement;
-use autotune::model::TruthModel;
-use autotune::montecarlo::{run_generic, run_rng};
+use autotune::internals::measurement::Measurement;
+use autotune::internals::model::TruthModel;
+use autotune::internals::montecarlo::{run_generic, run_rng};
 use common::{load, truth_values};
 use nalgebra::{DMatrix, DVector};
 

@@ -5,10 +5,10 @@
 
 mod common;
 
-use autotune::experiment::Experiment;
-use autotune::filter::{Ekf, Filter, KalmanFilter, LinearSystem, Ukf};
-use autotune::linalg::{asymmetry, max_abs, min_eigenvalue};
-use autotune::measurement::Measurement;
+use autotune::internals::experiment::Experiment;
+use autotune::internals::filter::{Ekf, Filter, KalmanFilter, LinearSystem, Ukf};
+use autotune::internals::linalg::{asymmetry, max_abs, min_eigenvalue};
+use autotune::internals::measurement::Measurement;
 use nalgebra::{DMatrix, DVector};
 use proptest::prelude::*;
 

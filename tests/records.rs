@@ -416,7 +416,7 @@ fn python_records_agree_with_the_built_in_problem_to_monte_carlo_precision() {
             let sd = |v: &Value| {
                 let i = &v["report"][stat]["interval"];
                 let (lo, hi) = (i["lower"].as_f64().unwrap(), i["upper"].as_f64().unwrap());
-                let z = autotune::stats::normal_two_sided_quantile(
+                let z = autotune::internals::stats::normal_two_sided_quantile(
                     v["report"]["statistic_alpha"].as_f64().unwrap(),
                 );
                 (hi - lo) / (2.0 * z)
@@ -439,8 +439,8 @@ fn python_records_agree_with_the_built_in_problem_to_monte_carlo_precision() {
 #[test]
 fn absurd_sizes_and_headers_are_one_line_errors() {
     assert_eq!(
-        autotune::records::MAX_STEPS,
-        autotune::montecarlo::MAX_STEPS
+        autotune::internals::records::MAX_STEPS,
+        autotune::internals::montecarlo::MAX_STEPS
     );
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();

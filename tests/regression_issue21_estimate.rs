@@ -6,9 +6,9 @@ mod common;
 
 use std::path::PathBuf;
 
-use autotune::estimate::{ml, simulate};
-use autotune::experiment::{Experiment, LinearExperiment};
-use autotune::problem::Problem;
+use autotune::internals::estimate::{ml, simulate};
+use autotune::internals::experiment::{Experiment, LinearExperiment};
+use autotune::internals::problem::Problem;
 
 fn data_problem(name: &str) -> (PathBuf, Problem, LinearExperiment) {
     let path = PathBuf::from(env!("CARGO_MANIFEST_DIR"))

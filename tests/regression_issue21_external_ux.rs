@@ -15,12 +15,12 @@ use std::sync::OnceLock;
 use std::time::Duration;
 
 use assert_cmd::cargo::CommandCargoExt;
-use autotune::experiment::{Definition, Experiment, ExperimentError, RunOptions};
-use autotune::montecarlo::McConfig;
-use autotune::params::Target;
-use autotune::problem::Problem;
-use autotune::stats::Accumulator;
-use autotune::tune::{LocalSearch, Silent, TuneSettings, TuneStatus, tune};
+use autotune::internals::experiment::{Definition, Experiment, ExperimentError, RunOptions};
+use autotune::internals::montecarlo::McConfig;
+use autotune::internals::params::Target;
+use autotune::internals::problem::Problem;
+use autotune::internals::stats::Accumulator;
+use autotune::internals::tune::{LocalSearch, Silent, TuneSettings, TuneStatus, tune};
 use common::{autotune, load, truth_values};
 
 /// `autotune args…` run in `dir`: exit code, stdout, stderr.
@@ -440,7 +440,10 @@ fn issue21_init_writes_an_external_starter() {
     assert!(text.contains("state_names"), "{text}");
     let p = Problem::load(&path).unwrap();
     assert_eq!(p.name(), "myworker");
-    assert_eq!(p.kind(), autotune::problem::ProblemKind::External);
+    assert_eq!(
+        p.kind(),
+        autotune::internals::problem::ProblemKind::External
+    );
     assert!(p.linear().is_none());
 }
 

@@ -422,7 +422,7 @@ fn wide_csv(dir: &Path, n: usize) -> std::path::PathBuf {
 fn header_seconds(path: &Path) -> f64 {
     let t = Instant::now();
     // A header without rows is refused once it is parsed: the parse is timed.
-    let e = autotune::records::scan_files(&[path.to_path_buf()]).unwrap_err();
+    let e = autotune::internals::records::scan_files(&[path.to_path_buf()]).unwrap_err();
     assert!(e.to_string().contains("no rows"), "{e}");
     t.elapsed().as_secs_f64()
 }

@@ -8,10 +8,10 @@
 use std::path::PathBuf;
 
 use assert_cmd::Command;
-use autotune::experiment::Experiment;
-use autotune::problem::Problem;
+use autotune::internals::experiment::Experiment;
+use autotune::internals::problem::Problem;
+use autotune::internals::tune::{Silent, TuneResult, TuneSettings, TuneStatus, tune};
 use autotune::report::check::advice::recommendations;
-use autotune::tune::{Silent, TuneResult, TuneSettings, TuneStatus, tune};
 
 fn path() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/data/misfit/at_bound.toml")

@@ -10,10 +10,10 @@
 
 use std::path::{Path, PathBuf};
 
-use autotune::experiment::Experiment;
-use autotune::explain::{Cause, Explanation, explain};
-use autotune::problem::Problem;
-use autotune::tune::{Silent, TuneResult, TuneStatus, tune};
+use autotune::internals::experiment::Experiment;
+use autotune::internals::explain::{Cause, Explanation, explain};
+use autotune::internals::problem::Problem;
+use autotune::internals::tune::{Silent, TuneResult, TuneStatus, tune};
 
 fn misfit(name: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR"))
@@ -183,20 +183,23 @@ fn issue22_a_misfit_writes_a_rejected_config_that_starts_with_its_explanations()
 struct Unalterable<'a>(&'a Problem);
 
 impl Experiment for Unalterable<'_> {
-    fn definition(&self) -> &autotune::experiment::Definition {
+    fn definition(&self) -> &autotune::internals::experiment::Definition {
         self.0.definition()
     }
 
     fn monte_carlo_with(
         &self,
         theta: &[f64],
-        mc: &autotune::montecarlo::McConfig,
-        options: autotune::experiment::RunOptions<'_>,
-    ) -> Result<autotune::stats::Accumulator, autotune::experiment::ExperimentError> {
+        mc: &autotune::internals::montecarlo::McConfig,
+        options: autotune::internals::experiment::RunOptions<'_>,
+    ) -> Result<
+        autotune::internals::stats::Accumulator,
+        autotune::internals::experiment::ExperimentError,
+    > {
         self.0.monte_carlo_with(theta, mc, options)
     }
 
-    fn target(&self, i: usize) -> Option<autotune::params::Target> {
+    fn target(&self, i: usize) -> Option<autotune::internals::params::Target> {
         self.0.target(i)
     }
 }

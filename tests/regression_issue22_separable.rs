@@ -11,9 +11,9 @@
 
 use std::path::PathBuf;
 
-use autotune::experiment::Experiment;
-use autotune::problem::Problem;
-use autotune::tune::{Silent, TuneResult, TuneSettings, tune};
+use autotune::internals::experiment::Experiment;
+use autotune::internals::problem::Problem;
+use autotune::internals::tune::{Silent, TuneResult, TuneSettings, tune};
 
 fn misfit(name: &str) -> Problem {
     let path = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
@@ -60,7 +60,7 @@ fn within_resolution(p: &Problem, r: &TuneResult, names: &[&str], truth: &[f64])
 
 #[test]
 fn issue22_cv2d_is_two_blocks() {
-    let p = autotune::problem::Problem::load(
+    let p = autotune::internals::problem::Problem::load(
         &PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("problems/cv2d.toml"),
     )
     .unwrap();

@@ -9,12 +9,12 @@ mod common;
 use std::path::PathBuf;
 
 use autotune::SimRng;
-use autotune::check::check;
-use autotune::experiment::Experiment;
-use autotune::fieldlog::{NisAnalyzer, NisSettings, SensorInfo, Update};
-use autotune::params::NoiseKind;
-use autotune::problem::Problem;
-use autotune::stats::{ConsistencyReport, Suspect, Verdict, gate_alpha};
+use autotune::internals::check::check;
+use autotune::internals::experiment::Experiment;
+use autotune::internals::fieldlog::{NisAnalyzer, NisSettings, SensorInfo, Update};
+use autotune::internals::params::NoiseKind;
+use autotune::internals::problem::Problem;
+use autotune::internals::stats::{ConsistencyReport, Suspect, Verdict, gate_alpha};
 use common::{load, scaled, truth_values};
 use rand::SeedableRng;
 use rand_distr::{Distribution, StandardNormal};
@@ -378,8 +378,8 @@ fn issue22_check_json_has_component_means() {
 /// path on the same draws (to rounding), including the predicted null variance per run.
 #[test]
 fn issue22_first_moment_sums_agree_across_engines() {
-    use autotune::check::accumulate;
-    use autotune::montecarlo::{Engine, expected_accumulator};
+    use autotune::internals::check::accumulate;
+    use autotune::internals::montecarlo::{Engine, expected_accumulator};
     for name in ["cv1d", "cv2d"] {
         let p = load(name);
         let theta = scaled(&p, &scaled(&p, &truth_values(&p), "q_", 3.0), "r_", 0.5);
@@ -420,7 +420,7 @@ fn issue22_first_moment_sums_agree_across_engines() {
                 (g - s).abs() <= 1e-9 * (1.0 + s.abs()),
                 "{name} state {j}: generic {g} vs linear {s}"
             );
-            let per_run = |a: &autotune::stats::Accumulator| {
+            let per_run = |a: &autotune::internals::stats::Accumulator| {
                 a.state_mean_null_var()[j] / a.comp_null_var_runs() as f64
             };
             for (what, v) in [("exact", per_run(&exp)), ("generic", per_run(&generic))] {

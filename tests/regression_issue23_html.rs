@@ -7,7 +7,7 @@
 //! The report is built from a synthetic `NisReport` (the PX4 reader fills the same fields).
 //! Set `ISSUE23_HTML_DUMP=/path.html` to write it out for a look in a browser.
 
-use autotune::fieldlog::{
+use autotune::internals::fieldlog::{
     EventKind, LogSource, NisAnalyzer, NisReport, NisSettings, NotJudged, ParamAdvice, Px4Channel,
     Px4Event, Px4Info, Px4Instance, SensorInfo, Update,
 };

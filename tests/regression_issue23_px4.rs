@@ -7,8 +7,8 @@ mod support;
 
 use std::path::{Path, PathBuf};
 
-use autotune::fieldlog::{EventKind, NisReport, NisSettings, ReadOptions, analyze};
-use autotune::stats::Suspect;
+use autotune::internals::fieldlog::{EventKind, NisReport, NisSettings, ReadOptions, analyze};
+use autotune::internals::stats::Suspect;
 use support::px4_fixtures as fx;
 
 fn write(dir: &Path, name: &str, bytes: &[u8]) -> PathBuf {
@@ -358,7 +358,7 @@ fn issue23_the_real_v1_15_log_judges_gps_only_after_it_starts() {
 
 #[test]
 fn issue23_channels_fused_only_on_the_ground_are_not_called_not_fused() {
-    use autotune::fieldlog::{Dropped, NisAnalyzer, SensorInfo};
+    use autotune::internals::fieldlog::{Dropped, NisAnalyzer, SensorInfo};
     let mut an = NisAnalyzer::new(NisSettings::default());
     for (name, dropped) in [
         (

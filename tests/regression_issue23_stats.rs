@@ -371,7 +371,7 @@ fn issue23_time_stamps_that_stand_still_or_go_back_are_warned_about() {
 /// ever full (it spans no time) and none is reported.
 #[test]
 fn issue23_a_window_in_seconds_never_reaches_across_time_going_back_or_standing_still() {
-    use autotune::fieldlog::{NisAnalyzer, NisSettings, SensorInfo, Update, Window};
+    use autotune::internals::fieldlog::{NisAnalyzer, NisSettings, SensorInfo, Update, Window};
     let settings = NisSettings::default()
         .with_window(Window::Seconds(10.0))
         .unwrap();

@@ -13,11 +13,11 @@
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
-use autotune::catalog::ModelContext;
-use autotune::catalog::ctrv::{CtrvModel, ENTRY};
-use autotune::experiment::{Experiment, RustModel};
-use autotune::params::{NoiseKind, ParamDef, Target};
-use autotune::problem::Problem;
+use autotune::internals::catalog::ModelContext;
+use autotune::internals::catalog::ctrv::{CtrvModel, ENTRY};
+use autotune::internals::experiment::{Experiment, RustModel};
+use autotune::internals::params::{NoiseKind, ParamDef, Target};
+use autotune::internals::problem::Problem;
 
 const RUNS: &str = "20";
 const STEPS: &str = "60";
@@ -48,7 +48,7 @@ fn rust_model(problem: &Problem) -> impl Experiment + use<> {
     let model = CtrvModel::from_table(&model_table, &ctx).unwrap();
     let truth = model.truth.clone();
     let names = {
-        use autotune::catalog::CatalogModel;
+        use autotune::internals::catalog::CatalogModel;
         (model.state_names(), model.measurement_names())
     };
     let q = |name: &str, value: f64, lower: f64, upper: f64, unit: &str, about: &str| {

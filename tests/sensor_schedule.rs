@@ -2,11 +2,11 @@
 //! measurements actually used at that step.
 
 use autotune::SimRng;
-use autotune::filter::{Ekf, SystemModel};
-use autotune::measurement::Measurement;
-use autotune::model::{TruthModel, sample_gaussian};
-use autotune::montecarlo::{McConfig, run_generic};
-use autotune::stats::{ConsistencyReport, Verdict, chi2_average_interval};
+use autotune::internals::filter::{Ekf, SystemModel};
+use autotune::internals::measurement::Measurement;
+use autotune::internals::model::{TruthModel, sample_gaussian};
+use autotune::internals::montecarlo::{McConfig, run_generic};
+use autotune::internals::stats::{ConsistencyReport, Verdict, chi2_average_interval};
 use nalgebra::{DMatrix, DVector};
 
 const DT: f64 = 1.0;
@@ -37,8 +37,9 @@ impl Cv2d {
         )
     }
     fn q() -> DMatrix<f64> {
-        let b = autotune::params::dwna_block(DT) * 0.3;
-        autotune::params::embed(4, &[0, 1], &b) + autotune::params::embed(4, &[2, 3], &b)
+        let b = autotune::internals::params::dwna_block(DT) * 0.3;
+        autotune::internals::params::embed(4, &[0, 1], &b)
+            + autotune::internals::params::embed(4, &[2, 3], &b)
     }
     fn r() -> Vec<DMatrix<f64>> {
         vec![
@@ -95,7 +96,7 @@ impl TruthModel for Truth {
 
 #[test]
 fn nis_interval_follows_the_measurement_dimension_of_each_step() {
-    let factor = |m: &DMatrix<f64>| autotune::linalg::psd_factor(m).unwrap();
+    let factor = |m: &DMatrix<f64>| autotune::internals::linalg::psd_factor(m).unwrap();
     let x0 = DVector::from_column_slice(&[500.0, 5.0, 300.0, -2.0]);
     let p0 = DMatrix::from_diagonal(&DVector::from_column_slice(&[4.0, 1.0, 4.0, 1.0]));
     let truth = Truth {

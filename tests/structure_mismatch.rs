@@ -17,11 +17,11 @@ mod common;
 
 use std::path::{Path, PathBuf};
 
-use autotune::check::check;
-use autotune::experiment::Experiment;
-use autotune::problem::Problem;
-use autotune::stats::{GateMode, Verdict};
-use autotune::tune::{Silent, TuneSettings, TuneStatus, tune};
+use autotune::internals::check::check;
+use autotune::internals::experiment::Experiment;
+use autotune::internals::problem::Problem;
+use autotune::internals::stats::{GateMode, Verdict};
+use autotune::internals::tune::{Silent, TuneSettings, TuneStatus, tune};
 
 fn data(name: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR"))
@@ -50,10 +50,10 @@ fn failures_at_best_point(file: &str) -> (usize, Vec<f64>) {
     // richer model, not a confident number or "increase Q"; the richer model is the first
     // explanation, after the expressible changes were tried and failed (issue 22).
     let explanations =
-        autotune::explain::explain(&p, &r, p.mc(), &TuneSettings::default()).unwrap();
+        autotune::internals::explain::explain(&p, &r, p.mc(), &TuneSettings::default()).unwrap();
     assert_eq!(
         explanations.first().map(|e| e.cause),
-        Some(autotune::explain::Cause::MissingState),
+        Some(autotune::internals::explain::Cause::MissingState),
         "{file}: {explanations:#?}"
     );
     let finding = autotune::report::check::advice::family_finding(&r, &explanations)

@@ -11,11 +11,11 @@
 use std::path::{Path, PathBuf};
 
 use assert_cmd::Command;
-use autotune::check::accumulate;
-use autotune::experiment::Experiment;
-use autotune::montecarlo::Engine;
-use autotune::problem::Problem;
-use autotune::tune::{Scoring, Silent, TuneSettings, tune};
+use autotune::internals::check::accumulate;
+use autotune::internals::experiment::Experiment;
+use autotune::internals::montecarlo::Engine;
+use autotune::internals::problem::Problem;
+use autotune::internals::tune::{Scoring, Silent, TuneSettings, tune};
 use nalgebra::{DMatrix, DVector};
 
 fn data(name: &str) -> PathBuf {

@@ -2,9 +2,9 @@
 
 mod common;
 
-use autotune::experiment::Experiment;
-use autotune::problem::Problem;
-use autotune::tune::{
+use autotune::internals::experiment::Experiment;
+use autotune::internals::problem::Problem;
+use autotune::internals::tune::{
     LocalSearch, Objective, Scoring, Silent, TuneResult, TuneSettings, TuneStatus, Weights, tune,
 };
 use common::{load, truth_values};
@@ -128,7 +128,7 @@ fn nis_only_tuning_passes_check() {
         // Innovations alone pin dcmotor's voltage noise less sharply: the objective is flat
         // enough there that the simplex stops 3e-3 away (measured); 1e-2 for all three.
         assert_within(&p, &r, 1e-2);
-        let full = autotune::check::check(&p, &r.tuned, p.mc(), true).unwrap();
+        let full = autotune::internals::check::check(&p, &r.tuned, p.mc(), true).unwrap();
         assert!(full.verdict.passes(), "{name}: {:?}", full.verdict);
     }
 }
@@ -219,7 +219,7 @@ fn diverging_candidates_are_counted_not_fatal() {
     }
     // A filter with no process noise and no measurement noise cannot stay positive definite.
     let kf = p.filter_at(&[1e-300, 1e-300, 1e-300, 1e-300]);
-    let acc = autotune::montecarlo::expected_accumulator(&p.truth, &kf, p.mc());
+    let acc = autotune::internals::montecarlo::expected_accumulator(&p.truth, &kf, p.mc());
     assert!(acc.is_err(), "the extreme candidate must diverge");
     let r = run(&p, 5, false, &TuneSettings::default());
     assert!(

@@ -3,8 +3,8 @@
 
 mod common;
 
-use autotune::check::check;
-use autotune::experiment::Experiment;
+use autotune::internals::check::check;
+use autotune::internals::experiment::Experiment;
 use autotune::report::tune::tuned::TunedConfig;
 use common::{load, problem_path};
 

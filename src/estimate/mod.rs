@@ -9,8 +9,8 @@ pub mod als_full;
 mod error;
 mod files;
 mod likelihood;
-mod replay;
 pub mod ml;
+mod replay;
 
 pub use files::{read_measurements, record_bytes};
 

@@ -14,20 +14,20 @@
 
 mod altered;
 mod catalog;
-mod rust_model;
 mod error;
 mod linear;
 mod recorded;
+mod rust_model;
 
 pub use altered::{DT_SCALE, TimeScaled};
 pub use catalog::CatalogExperiment;
-pub use rust_model::{RustModel, RustModelBuilder};
 pub use error::{
     Ended, ExperimentError, RequestInfo, SeedContractViolation, StartFailure, Uncontained,
     WorkerError, WorkerFailure, WorkerRole,
 };
 pub use linear::{FilterModel, LinearExperiment};
 pub use recorded::RecordsExperiment;
+pub use rust_model::{RustModel, RustModelBuilder};
 
 use std::path::PathBuf;
 

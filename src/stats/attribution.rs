@@ -293,7 +293,11 @@ fn state_findings(
     findings: &mut Vec<Finding>,
 ) -> bool {
     let mut unexplained_state = false;
-    for c in report.state_components.iter().filter(|c| !c.bias_explains()) {
+    for c in report
+        .state_components
+        .iter()
+        .filter(|c| !c.bias_explains())
+    {
         let lv = level(c);
         if lv == 0 {
             continue;

@@ -393,30 +393,30 @@ fn gate_verdicts(
     whiteness_tests: &[WhitenessTest],
     full: bool,
 ) -> Vec<Verdict> {
-        let mut verdicts = vec![nis.verdict];
-        if let Some(nees) = nees {
-            verdicts.push(nees.verdict);
-        }
-        if full {
-            verdicts.extend(
-                state_components
-                    .iter()
-                    .chain(measurement_components)
-                    .filter(|c| c.samples > 0.0)
-                    .map(|c| c.verdict),
-            );
-            // A mean test without a statistic (no sign in the records, no variance) is no
-            // test; it does not make the gate inconclusive.
-            verdicts.extend(
-                state_components
-                    .iter()
-                    .chain(measurement_components)
-                    .filter(|c| c.mean_z.is_finite())
-                    .map(|c| c.mean_verdict),
-            );
-            verdicts.extend(whiteness_tests.iter().map(|w| w.verdict));
-        }
-        verdicts
+    let mut verdicts = vec![nis.verdict];
+    if let Some(nees) = nees {
+        verdicts.push(nees.verdict);
+    }
+    if full {
+        verdicts.extend(
+            state_components
+                .iter()
+                .chain(measurement_components)
+                .filter(|c| c.samples > 0.0)
+                .map(|c| c.verdict),
+        );
+        // A mean test without a statistic (no sign in the records, no variance) is no
+        // test; it does not make the gate inconclusive.
+        verdicts.extend(
+            state_components
+                .iter()
+                .chain(measurement_components)
+                .filter(|c| c.mean_z.is_finite())
+                .map(|c| c.mean_verdict),
+        );
+        verdicts.extend(whiteness_tests.iter().map(|w| w.verdict));
+    }
+    verdicts
 }
 
 /// Whether a bias explains every component that fails: a bias raises the second moments

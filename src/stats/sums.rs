@@ -412,7 +412,6 @@ impl Accumulator {
     }
 }
 
-
 /// Read access to the sums: the engines fill them through the methods above, and the
 /// statistics read them here.
 impl Accumulator {
@@ -683,82 +682,82 @@ mod merge_properties {
     }
     }
 
-/// Every scalar sum of `acc`, as f64.
-fn scalars(acc: &Accumulator) -> Vec<f64> {
-    vec![
-        acc.runs as f64,
-        acc.nees_null_var,
-        acc.null_var_runs as f64,
-        acc.error_map_missing as f64,
-        acc.nees_run_total,
-        acc.nees_run_total_sq,
-        acc.nees_total_runs as f64,
-        acc.diverged_runs as f64,
-        acc.meas_comp_runs[0] as f64,
-        acc.meas_comp_runs[1] as f64,
-    ]
-}
-
-/// Every vector sum of `acc`.
-fn vectors(acc: &Accumulator) -> Vec<Vec<f64>> {
-    let mut a = acc.clone();
-    fields(&mut a).into_iter().map(|v| v.clone()).collect()
-}
-
-/// The vector sums of `acc`, for filling and for checking.
-fn fields(acc: &mut Accumulator) -> [&mut Vec<f64>; 26] {
-    [
-        &mut acc.nees_sum,
-        &mut acc.nees_sq,
-        &mut acc.nees_dof,
-        &mut acc.nees_count,
-        &mut acc.nis_sum,
-        &mut acc.nis_sq,
-        &mut acc.nis_dof,
-        &mut acc.nis_count,
-        &mut acc.state_comp_total,
-        &mut acc.state_comp_samples,
-        &mut acc.state_comp_run_sum,
-        &mut acc.state_comp_run_sq,
-        &mut acc.state_comp_null_var,
-        &mut acc.state_mean_total,
-        &mut acc.state_mean_samples,
-        &mut acc.state_mean_run_sq,
-        &mut acc.state_mean_null_var,
-        &mut acc.meas_mean_total,
-        &mut acc.meas_comp_total,
-        &mut acc.meas_comp_samples,
-        &mut acc.meas_comp_run_sum,
-        &mut acc.meas_comp_run_sq,
-        &mut acc.white_ab,
-        &mut acc.white_a2,
-        &mut acc.white_b2,
-        &mut acc.white_pairs,
-    ]
-}
-
-/// An accumulator of 3 steps, 2 states, 2 measurement components and 2 lags, every field
-/// filled from `v` (cycled), with up to 7 divergences.
-fn accumulator(v: &[u32]) -> Accumulator {
-    let mut acc = Accumulator::new(3, 2, 2, 2);
-    let mut it = v.iter().cycle().map(|&x| f64::from(x));
-    let mut fill = |xs: &mut Vec<f64>| xs.iter_mut().for_each(|x| *x = it.next().unwrap());
-    for xs in fields(&mut acc) {
-        fill(xs);
+    /// Every scalar sum of `acc`, as f64.
+    fn scalars(acc: &Accumulator) -> Vec<f64> {
+        vec![
+            acc.runs as f64,
+            acc.nees_null_var,
+            acc.null_var_runs as f64,
+            acc.error_map_missing as f64,
+            acc.nees_run_total,
+            acc.nees_run_total_sq,
+            acc.nees_total_runs as f64,
+            acc.diverged_runs as f64,
+            acc.meas_comp_runs[0] as f64,
+            acc.meas_comp_runs[1] as f64,
+        ]
     }
-    acc.runs = v[0] as usize;
-    acc.nees_null_var = f64::from(v[1]);
-    acc.null_var_runs = v[2] as usize;
-    acc.error_map_missing = v[3] as usize % 3;
-    acc.nees_run_total = f64::from(v[4]);
-    acc.nees_run_total_sq = f64::from(v[5]);
-    acc.nees_total_runs = v[6] as usize;
-    acc.meas_comp_runs = vec![v[7] as usize, v[8] as usize];
-    for i in 0..(v[9] as usize % 8) {
-        acc.record_divergence(i, v[10 + i] as usize, format!("reason {i}"));
+
+    /// Every vector sum of `acc`.
+    fn vectors(acc: &Accumulator) -> Vec<Vec<f64>> {
+        let mut a = acc.clone();
+        fields(&mut a).into_iter().map(|v| v.clone()).collect()
     }
-    acc
-}
+
+    /// The vector sums of `acc`, for filling and for checking.
+    fn fields(acc: &mut Accumulator) -> [&mut Vec<f64>; 26] {
+        [
+            &mut acc.nees_sum,
+            &mut acc.nees_sq,
+            &mut acc.nees_dof,
+            &mut acc.nees_count,
+            &mut acc.nis_sum,
+            &mut acc.nis_sq,
+            &mut acc.nis_dof,
+            &mut acc.nis_count,
+            &mut acc.state_comp_total,
+            &mut acc.state_comp_samples,
+            &mut acc.state_comp_run_sum,
+            &mut acc.state_comp_run_sq,
+            &mut acc.state_comp_null_var,
+            &mut acc.state_mean_total,
+            &mut acc.state_mean_samples,
+            &mut acc.state_mean_run_sq,
+            &mut acc.state_mean_null_var,
+            &mut acc.meas_mean_total,
+            &mut acc.meas_comp_total,
+            &mut acc.meas_comp_samples,
+            &mut acc.meas_comp_run_sum,
+            &mut acc.meas_comp_run_sq,
+            &mut acc.white_ab,
+            &mut acc.white_a2,
+            &mut acc.white_b2,
+            &mut acc.white_pairs,
+        ]
+    }
+
+    /// An accumulator of 3 steps, 2 states, 2 measurement components and 2 lags, every field
+    /// filled from `v` (cycled), with up to 7 divergences.
+    fn accumulator(v: &[u32]) -> Accumulator {
+        let mut acc = Accumulator::new(3, 2, 2, 2);
+        let mut it = v.iter().cycle().map(|&x| f64::from(x));
+        let mut fill = |xs: &mut Vec<f64>| xs.iter_mut().for_each(|x| *x = it.next().unwrap());
+        for xs in fields(&mut acc) {
+            fill(xs);
+        }
+        acc.runs = v[0] as usize;
+        acc.nees_null_var = f64::from(v[1]);
+        acc.null_var_runs = v[2] as usize;
+        acc.error_map_missing = v[3] as usize % 3;
+        acc.nees_run_total = f64::from(v[4]);
+        acc.nees_run_total_sq = f64::from(v[5]);
+        acc.nees_total_runs = v[6] as usize;
+        acc.meas_comp_runs = vec![v[7] as usize, v[8] as usize];
+        for i in 0..(v[9] as usize % 8) {
+            acc.record_divergence(i, v[10 + i] as usize, format!("reason {i}"));
+        }
+        acc
+    }
 
     /// Each reader gives its own sum: the fields hold distinct values, so a reader that
     /// gave another field's sum, or a default, fails here by name.
@@ -779,54 +778,138 @@ fn accumulator(v: &[u32]) -> Accumulator {
         assert_eq!(acc.nees_count(), &acc.nees_count[..], "nees_count");
         assert_eq!(acc.nees_null_var(), acc.nees_null_var, "nees_null_var");
         assert_eq!(acc.null_var_runs(), acc.null_var_runs, "null_var_runs");
-        assert_eq!(acc.error_map_missing(), acc.error_map_missing, "error_map_missing");
+        assert_eq!(
+            acc.error_map_missing(),
+            acc.error_map_missing,
+            "error_map_missing"
+        );
         assert_eq!(acc.nees_run_total(), acc.nees_run_total, "nees_run_total");
-        assert_eq!(acc.nees_run_total_sq(), acc.nees_run_total_sq, "nees_run_total_sq");
-        assert_eq!(acc.nees_total_runs(), acc.nees_total_runs, "nees_total_runs");
+        assert_eq!(
+            acc.nees_run_total_sq(),
+            acc.nees_run_total_sq,
+            "nees_run_total_sq"
+        );
+        assert_eq!(
+            acc.nees_total_runs(),
+            acc.nees_total_runs,
+            "nees_total_runs"
+        );
         assert_eq!(acc.nis_sum(), &acc.nis_sum[..], "nis_sum");
         assert_eq!(acc.nis_sq(), &acc.nis_sq[..], "nis_sq");
         assert_eq!(acc.nis_dof(), &acc.nis_dof[..], "nis_dof");
         assert_eq!(acc.nis_count(), &acc.nis_count[..], "nis_count");
-        assert_eq!(acc.state_comp_total(), &acc.state_comp_total[..], "state_comp_total");
-        assert_eq!(acc.state_comp_samples(), &acc.state_comp_samples[..], "state_comp_samples");
-        assert_eq!(acc.state_comp_run_sum(), &acc.state_comp_run_sum[..], "state_comp_run_sum");
-        assert_eq!(acc.state_comp_run_sq(), &acc.state_comp_run_sq[..], "state_comp_run_sq");
-        assert_eq!(acc.state_comp_null_var(), &acc.state_comp_null_var[..], "state_comp_null_var");
-        assert_eq!(acc.comp_null_var_runs(), acc.comp_null_var_runs, "comp_null_var_runs");
-        assert_eq!(acc.state_mean_total(), &acc.state_mean_total[..], "state_mean_total");
-        assert_eq!(acc.state_mean_samples(), &acc.state_mean_samples[..], "state_mean_samples");
-        assert_eq!(acc.state_mean_run_sq(), &acc.state_mean_run_sq[..], "state_mean_run_sq");
-        assert_eq!(acc.state_mean_null_var(), &acc.state_mean_null_var[..], "state_mean_null_var");
-        assert_eq!(acc.meas_mean_total(), &acc.meas_mean_total[..], "meas_mean_total");
-        assert_eq!(acc.meas_comp_total(), &acc.meas_comp_total[..], "meas_comp_total");
-        assert_eq!(acc.meas_comp_samples(), &acc.meas_comp_samples[..], "meas_comp_samples");
-        assert_eq!(acc.meas_comp_run_sum(), &acc.meas_comp_run_sum[..], "meas_comp_run_sum");
-        assert_eq!(acc.meas_comp_run_sq(), &acc.meas_comp_run_sq[..], "meas_comp_run_sq");
-        assert_eq!(acc.meas_comp_runs(), &acc.meas_comp_runs[..], "meas_comp_runs");
+        assert_eq!(
+            acc.state_comp_total(),
+            &acc.state_comp_total[..],
+            "state_comp_total"
+        );
+        assert_eq!(
+            acc.state_comp_samples(),
+            &acc.state_comp_samples[..],
+            "state_comp_samples"
+        );
+        assert_eq!(
+            acc.state_comp_run_sum(),
+            &acc.state_comp_run_sum[..],
+            "state_comp_run_sum"
+        );
+        assert_eq!(
+            acc.state_comp_run_sq(),
+            &acc.state_comp_run_sq[..],
+            "state_comp_run_sq"
+        );
+        assert_eq!(
+            acc.state_comp_null_var(),
+            &acc.state_comp_null_var[..],
+            "state_comp_null_var"
+        );
+        assert_eq!(
+            acc.comp_null_var_runs(),
+            acc.comp_null_var_runs,
+            "comp_null_var_runs"
+        );
+        assert_eq!(
+            acc.state_mean_total(),
+            &acc.state_mean_total[..],
+            "state_mean_total"
+        );
+        assert_eq!(
+            acc.state_mean_samples(),
+            &acc.state_mean_samples[..],
+            "state_mean_samples"
+        );
+        assert_eq!(
+            acc.state_mean_run_sq(),
+            &acc.state_mean_run_sq[..],
+            "state_mean_run_sq"
+        );
+        assert_eq!(
+            acc.state_mean_null_var(),
+            &acc.state_mean_null_var[..],
+            "state_mean_null_var"
+        );
+        assert_eq!(
+            acc.meas_mean_total(),
+            &acc.meas_mean_total[..],
+            "meas_mean_total"
+        );
+        assert_eq!(
+            acc.meas_comp_total(),
+            &acc.meas_comp_total[..],
+            "meas_comp_total"
+        );
+        assert_eq!(
+            acc.meas_comp_samples(),
+            &acc.meas_comp_samples[..],
+            "meas_comp_samples"
+        );
+        assert_eq!(
+            acc.meas_comp_run_sum(),
+            &acc.meas_comp_run_sum[..],
+            "meas_comp_run_sum"
+        );
+        assert_eq!(
+            acc.meas_comp_run_sq(),
+            &acc.meas_comp_run_sq[..],
+            "meas_comp_run_sq"
+        );
+        assert_eq!(
+            acc.meas_comp_runs(),
+            &acc.meas_comp_runs[..],
+            "meas_comp_runs"
+        );
         assert_eq!(acc.white_ab(), &acc.white_ab[..], "white_ab");
         assert_eq!(acc.white_a2(), &acc.white_a2[..], "white_a2");
         assert_eq!(acc.white_b2(), &acc.white_b2[..], "white_b2");
         assert_eq!(acc.white_pairs(), &acc.white_pairs[..], "white_pairs");
         assert_eq!(acc.diverged_runs(), acc.diverged_runs, "diverged_runs");
-        assert_eq!(acc.ill_conditioned_runs(), acc.ill_conditioned_runs, "ill_conditioned_runs");
-        assert_eq!(acc.truth_overflow_runs(), acc.truth_overflow_runs, "truth_overflow_runs");
+        assert_eq!(
+            acc.ill_conditioned_runs(),
+            acc.ill_conditioned_runs,
+            "ill_conditioned_runs"
+        );
+        assert_eq!(
+            acc.truth_overflow_runs(),
+            acc.truth_overflow_runs,
+            "truth_overflow_runs"
+        );
         assert_eq!(acc.divergences(), &acc.divergences[..], "divergences");
         assert!(acc.runs() > 1 && acc.divergences().len() > 1);
     }
 
-#[test]
-fn divergence_details_keep_the_first_ten_in_run_order() {
-    let mut a = Accumulator::new(1, 1, 1, 0);
-    for run in 0..8 {
-        a.record_divergence(run, 1, "S".into());
+    #[test]
+    fn divergence_details_keep_the_first_ten_in_run_order() {
+        let mut a = Accumulator::new(1, 1, 1, 0);
+        for run in 0..8 {
+            a.record_divergence(run, 1, "S".into());
+        }
+        let mut b = Accumulator::new(1, 1, 1, 0);
+        for run in 8..12 {
+            b.record_divergence(run, 2, "P".into());
+        }
+        a.merge(&b);
+        assert_eq!(a.diverged_runs, 12);
+        let runs: Vec<usize> = a.divergences.iter().map(|d: &Divergence| d.run).collect();
+        assert_eq!(runs, (0..10).collect::<Vec<_>>());
     }
-    let mut b = Accumulator::new(1, 1, 1, 0);
-    for run in 8..12 {
-        b.record_divergence(run, 2, "P".into());
-    }
-    a.merge(&b);
-    assert_eq!(a.diverged_runs, 12);
-    let runs: Vec<usize> = a.divergences.iter().map(|d: &Divergence| d.run).collect();
-    assert_eq!(runs, (0..10).collect::<Vec<_>>());
-}
 }

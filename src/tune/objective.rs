@@ -297,7 +297,11 @@ impl Objective {
                 &log_ratios(&acc.state_comp_total, &acc.state_comp_samples),
             );
         }
-        s.add(Term::Whiteness, w.whiteness, &lag_correlations(acc, |_| true));
+        s.add(
+            Term::Whiteness,
+            w.whiteness,
+            &lag_correlations(acc, |_| true),
+        );
         if w.shape > 0.0 && !self.nis_only {
             s.add(Term::Shape, w.shape, &shape_deviations(acc));
         }

@@ -12,9 +12,8 @@ use super::cost::{Candidate, Cost};
 use super::refine::{self, Confirmation, Gate};
 use super::separable::{self, Part, Searched};
 use super::{
-    Objective, Observer, Plan, Resolution, Scoring, Terms, TuneError, TuneResult,
-    TuneSettings, TuneStatus, Widening, bound_flags, default_confirm_seed, exact_scoring,
-    local,
+    Objective, Observer, Plan, Resolution, Scoring, Terms, TuneError, TuneResult, TuneSettings,
+    TuneStatus, Widening, bound_flags, default_confirm_seed, exact_scoring, local,
 };
 use crate::experiment::Experiment;
 use crate::montecarlo::McConfig;
@@ -250,8 +249,7 @@ impl<'a> Tuning<'a> {
                     .for_block(&part.block.states, &part.block.measurements);
                 let yb = cb.start();
                 evaluations += yb.len() + 1;
-                let Some((_, d)) = refine::sensitivity(&gb, &cb, &yb, sens_runs, mc.seed())
-                else {
+                let Some((_, d)) = refine::sensitivity(&gb, &cb, &yb, sens_runs, mc.seed()) else {
                     continue;
                 };
                 if d.nrows() == 0 {

@@ -4,8 +4,8 @@
 use assert_cmd::cargo::CommandCargoExt;
 use std::path::PathBuf;
 
-use autotune::experiment::Experiment;
-use autotune::problem::Problem;
+use autotune::internals::experiment::Experiment;
+use autotune::internals::problem::Problem;
 
 /// Path of a shipped problem file.
 pub fn problem_path(name: &str) -> PathBuf {

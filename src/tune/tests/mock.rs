@@ -12,7 +12,12 @@
 //! ```
 //!
 //! a quadratic in log space with its minimum 0 at y* (a flat direction where A is singular).
+//!
+//! [`Mock::bent`] adds a quadratic term to each component's log, `ln c_j = Σ_i A_ji d_i +
+//! Σ_i B_ji d_i²` with `d = y* − y`, so that J can have two basins (see
+//! [`super::two_basins`]).
 
+use std::sync::Mutex;
 use std::sync::atomic::{AtomicUsize, Ordering};
 
 use crate::experiment::{Definition, Experiment, ExperimentError, Info, RunOptions, Source};
@@ -29,12 +34,16 @@ pub(crate) struct Mock {
     pub truth: Vec<f64>,
     /// `A`, one row per state component.
     exponents: Vec<Vec<f64>>,
+    /// `B`, one row per state component, when the mock is bent ([`Mock::bent`]).
+    bend: Option<Vec<Vec<f64>>>,
     /// A candidate diverges when parameter `.0` exceeds `.1`.
     diverge_above: Option<(usize, f64)>,
     /// Calls of `expected` and `monte_carlo_with`.
     pub calls: AtomicUsize,
     /// Those calls that returned diverged sums.
     pub diverged_calls: AtomicUsize,
+    /// The parameter values of every call, in call order.
+    pub points: Mutex<Vec<Vec<f64>>>,
 }
 
 impl Mock {
@@ -61,10 +70,33 @@ impl Mock {
             },
             truth: truth.to_vec(),
             exponents: exponents.iter().map(|r| r.to_vec()).collect(),
+            bend: None,
             diverge_above: None,
             calls: AtomicUsize::new(0),
             diverged_calls: AtomicUsize::new(0),
+            points: Mutex::new(Vec::new()),
         }
+    }
+
+    /// The mock with `ln c_j = Σ_i A_ji d_i + Σ_i B_ji d_i²` (`d = y* − y`), `B` given one
+    /// row per state component. Each parameter's targets stay where A is not zero.
+    pub(crate) fn bent(mut self, quadratic: &[&[f64]]) -> Mock {
+        assert_eq!(
+            quadratic.len(),
+            self.exponents.len(),
+            "one row of B per component"
+        );
+        self.bend = Some(quadratic.iter().map(|r| r.to_vec()).collect());
+        self
+    }
+
+    /// The log-points of every call so far, in call order.
+    pub(crate) fn log_points(&self) -> Vec<Vec<f64>> {
+        let points = self.points.lock().unwrap();
+        points
+            .iter()
+            .map(|t| t.iter().map(|v| v.ln()).collect())
+            .collect()
     }
 
     /// Candidates whose parameter `i` exceeds `limit` diverge.
@@ -85,6 +117,22 @@ impl Mock {
     }
 
     fn components(&self, theta: &[f64]) -> Vec<f64> {
+        if let Some(bend) = &self.bend {
+            let d: Vec<f64> = theta
+                .iter()
+                .zip(&self.truth)
+                .map(|(t, s)| (s / t).ln())
+                .collect();
+            return self
+                .exponents
+                .iter()
+                .zip(bend)
+                .map(|(a, b)| {
+                    let ln_c: f64 = (0..d.len()).map(|i| a[i] * d[i] + b[i] * d[i] * d[i]).sum();
+                    ln_c.exp()
+                })
+                .collect();
+        }
         self.exponents
             .iter()
             .map(|row| {
@@ -101,6 +149,7 @@ impl Mock {
     /// scoring see bit-identical sums.
     fn sums(&self, theta: &[f64]) -> Accumulator {
         self.calls.fetch_add(1, Ordering::SeqCst);
+        self.points.lock().unwrap().push(theta.to_vec());
         let c = self.components(theta);
         let (n_x, n_z) = (c.len(), 1);
         let (runs, steps) = (self.mc().runs(), self.mc().steps());

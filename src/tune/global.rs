@@ -125,6 +125,21 @@ mod tests {
         let (ranked, points, mock) = scanned();
         assert_eq!(points.len(), 33, "the start and 16 points per parameter");
         assert_eq!(ranked.len(), 33, "every point scores finite");
+        // The 32 quasi-random points fill the log box [ln 1e-4, ln 1e4]² as a Latin
+        // hypercube: one point in each 32nd of each axis.
+        let (lo, hi) = (1e-4f64.ln(), 1e4f64.ln());
+        for k in 0..2 {
+            let mut slices: Vec<usize> = points[1..]
+                .iter()
+                .map(|y| ((y[k] - lo) / (hi - lo) * 32.0).floor() as usize)
+                .collect();
+            slices.sort_unstable();
+            assert_eq!(
+                slices,
+                (0..32).collect::<Vec<_>>(),
+                "axis {k}: the scan's points map the unit cube onto the box"
+            );
+        }
         let j = |y: &[f64]| mock.j(&y.iter().map(|v| v.exp()).collect::<Vec<_>>());
         let mut by_formula: Vec<(f64, &Vec<f64>)> = points.iter().map(|y| (j(y), y)).collect();
         assert!(

@@ -482,3 +482,94 @@ fn summarize(
         verdict,
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn names(prefix: &str, n: usize) -> Vec<String> {
+        (0..n).map(|j| format!("{prefix}{j}")).collect()
+    }
+
+    /// Sums with three state and three measurement components: states 0 and 1 have
+    /// second-moment samples and state 0 alone signed ones (its mean is tested); measurements
+    /// 0 and 1 have samples; only measurement 0 has innovation pairs (two lags). Nothing
+    /// else is filled: the counts and levels depend on which components have data.
+    fn sums() -> Accumulator {
+        let mut acc = Accumulator::new(5, 3, 3, 2);
+        acc.state_comp_samples = vec![10.0, 10.0, 0.0];
+        acc.state_mean_samples = vec![10.0, 0.0, 0.0];
+        acc.meas_comp_samples = vec![10.0, 10.0, 0.0];
+        for lag in 0..2 {
+            acc.white_pairs[lag * 3] = 8.0;
+        }
+        acc
+    }
+
+    fn report(acc: &Accumulator, mode: GateMode, use_nees: bool) -> ConsistencyReport {
+        let gate = GateSpec {
+            alpha: 0.05,
+            mode,
+            use_nees,
+        };
+        ConsistencyReport::from_accumulator(acc, &gate, &names("x", 3), &names("z", 3))
+    }
+
+    #[test]
+    fn gate_test_count_and_sidak_levels_with_one_slot_for_the_zero_mean_tests() {
+        // Full gate with truth: ANIS, ANEES, 2 state second moments, 1 state mean, 2
+        // measurement second moments and 2 means, 1 whiteness test: 10 tests, of which the
+        // 3 means share one Šidák slot: k = 8, level 1 − 0.95^{1/8}, each mean a third of it.
+        // Without truth: ANIS, 2 + 2 measurement tests, 1 whiteness: 6, k = 5, means halves.
+        // Mean gate: the time averages alone (2 with truth, 1 without), means at α. Levels
+        // computed independently (Python, 1 − 0.95**(1/k)); tolerance 1e-12 relative.
+        let cases = [
+            (GateMode::Full, true, 10, 0.006391150954545011, 3.0),
+            (GateMode::Full, false, 6, 0.010206218313011495, 2.0),
+            (GateMode::Mean, true, 2, 0.025320565519103666, f64::NAN),
+            (GateMode::Mean, false, 1, 0.05, f64::NAN),
+        ];
+        for (mode, use_nees, tests, level, means) in cases {
+            let r = report(&sums(), mode, use_nees);
+            let what = format!("{mode:?} gate, truth {use_nees}");
+            assert_eq!(r.tests, tests, "{what}: test count");
+            assert!(
+                (r.statistic_alpha - level).abs() <= 1e-12 * level,
+                "{what}: Šidák level {} vs {level}",
+                r.statistic_alpha
+            );
+            // In the mean gate the zero-mean tests are diagnostics at α.
+            let mean_level = if means.is_nan() { 0.05 } else { level / means };
+            assert!(
+                (r.mean_alpha - mean_level).abs() <= 1e-12 * mean_level,
+                "{what}: zero-mean level {} vs {mean_level}",
+                r.mean_alpha
+            );
+            assert_eq!(r.nees.is_some(), use_nees, "{what}: NEES summary");
+            assert_eq!(r.state_components.len(), if use_nees { 3 } else { 0 });
+            assert_eq!(r.measurement_components.len(), 3);
+            assert_eq!(
+                r.whiteness_tests.len(),
+                1,
+                "{what}: whiteness tested where there are pairs"
+            );
+        }
+    }
+
+    #[test]
+    fn a_full_gate_without_zero_mean_tests_gives_every_test_an_equal_share() {
+        // No signed samples and no measurement samples: ANIS, ANEES, 2 state second moments
+        // and 1 whiteness test, k = 5 with no slot for means (there are none).
+        let mut acc = sums();
+        acc.state_mean_samples = vec![0.0; 3];
+        acc.meas_comp_samples = vec![0.0; 3];
+        let r = report(&acc, GateMode::Full, true);
+        assert_eq!(r.tests, 5);
+        let level = 0.010206218313011495;
+        assert!((r.statistic_alpha - level).abs() <= 1e-12 * level);
+        assert!(
+            (r.mean_alpha - level).abs() <= 1e-12 * level,
+            "no mean tests: their level is the statistics' level"
+        );
+    }
+}

@@ -305,3 +305,19 @@ fn the_search_spends_a_pinned_number_of_evaluations() {
         );
     }
 }
+
+#[test]
+fn the_best_local_search_wins_whatever_the_order_of_the_starts() {
+    // Eight starts on the two-basin mock: the later ones (worse points of the global stage)
+    // include points on the shallow side, whose searches end there with J ≈ 0.08; the answer
+    // must be the best search's end (the deep basin), not the last one's or the first's.
+    for local in [LocalSearch::Simplex, LocalSearch::GaussNewton] {
+        let mock = two_basins();
+        let s = settings(Scoring::Exact)
+            .with_local(local)
+            .with_starts(8)
+            .unwrap();
+        let r = run(&mock, &s);
+        assert_converged(&mock, &r, local, TWO_BASINS_SIMPLEX_TOL);
+    }
+}

@@ -321,3 +321,138 @@ fn the_best_local_search_wins_whatever_the_order_of_the_starts() {
         assert_converged(&mock, &r, local, TWO_BASINS_SIMPLEX_TOL);
     }
 }
+
+#[test]
+fn the_default_confirmation_seed_flips_bits_0_and_40() {
+    // seed ^ 0x0000_0100_0000_0001, by hand: 0 → 2⁴⁰ + 1, 1 → 2⁴⁰, 42 → 2⁴⁰ + 43.
+    let two_40 = 1u64 << 40;
+    for (seed, want) in [(0, two_40 + 1), (1, two_40), (42, two_40 + 43), (two_40, 1)] {
+        assert_eq!(default_confirm_seed(seed), want, "seed {seed}");
+    }
+    let r = run(&quadratic(), &settings(Scoring::Exact));
+    assert_eq!(
+        r.confirm_seed,
+        default_confirm_seed(0),
+        "the confirmation's seed when none is set"
+    );
+}
+
+#[test]
+fn start_values_and_fixed_flags_must_each_match_the_parameters() {
+    let mock = quadratic();
+    let s = settings(Scoring::Exact);
+    for (start, fixed) in [
+        (vec![1.0; 2], vec![false; 3]),
+        (vec![1.0; 3], vec![false; 2]),
+    ] {
+        let err = tune(&mock, &start, &fixed, mock.mc(), &s, &Silent).unwrap_err();
+        assert_eq!(
+            err,
+            TuneError::Shape {
+                start: start.len(),
+                fixed: fixed.len(),
+                params: 2
+            },
+            "shape check"
+        );
+    }
+}
+
+#[test]
+fn exact_scoring_needs_exact_sums_and_auto_falls_back_to_monte_carlo() {
+    let mock = quadratic().without_exact_sums();
+    let start = mock.params().values();
+    let err = tune(
+        &mock,
+        &start,
+        &[false; 2],
+        mock.mc(),
+        &settings(Scoring::Exact),
+        &Silent,
+    )
+    .unwrap_err();
+    assert!(
+        matches!(&err, TuneError::Setting(e) if e.setting == "scoring"),
+        "exact scoring without exact sums: {err:?}"
+    );
+    let r = run(&mock, &settings(Scoring::Auto));
+    assert_eq!(r.scoring, Scoring::MonteCarlo, "auto without exact sums");
+    let r = run(&quadratic(), &settings(Scoring::Auto));
+    assert_eq!(r.scoring, Scoring::Exact, "auto with exact sums");
+}
+
+/// The most frequent run count of a mock's Monte Carlo calls.
+fn usual_runs(mock: &Mock) -> usize {
+    let runs = mock.runs.lock().unwrap();
+    let mut counts = std::collections::BTreeMap::new();
+    for r in runs.iter() {
+        *counts.entry(*r).or_insert(0) += 1;
+    }
+    counts.into_iter().max_by_key(|&(_, n)| n).unwrap().0
+}
+
+#[test]
+fn a_monte_carlo_search_runs_four_times_the_gates_runs_unless_told() {
+    // The mock's gate has N = 100 runs; most evaluations are the search's.
+    let mock = quadratic();
+    run(&mock, &settings(Scoring::MonteCarlo));
+    assert_eq!(usual_runs(&mock), 400, "search runs: 4 N by default");
+    let mock = quadratic();
+    run(
+        &mock,
+        &settings(Scoring::MonteCarlo).with_search_runs(7).unwrap(),
+    );
+    assert_eq!(usual_runs(&mock), 7, "search runs as set");
+}
+
+#[test]
+fn an_experiment_without_states_is_tuned_on_its_innovations() {
+    // The quadratic's components as measurement components and no ground truth: the
+    // search and the gate judge the innovations alone (a NEES with no states would leave
+    // the gate without a verdict).
+    let mock = quadratic().measuring();
+    let r = run(&mock, &settings(Scoring::Exact));
+    assert_converged(&mock, &r, LocalSearch::Simplex, QUADRATIC_SIMPLEX_TOL);
+    assert!(r.after.nees.is_none(), "no NEES without states");
+}
+
+#[test]
+fn with_every_parameter_fixed_nothing_is_searched() {
+    // The start is the truth: no evaluation, the start kept, each parameter's resolution
+    // that of a fixed one, and the start confirmed consistent.
+    let mock = Mock::new(&[1.0, 1.0], &[&[4.0, 2.0], &[0.0, 8.0]]);
+    let start = mock.params().values();
+    let r = tune(
+        &mock,
+        &start,
+        &[true; 2],
+        mock.mc(),
+        &settings(Scoring::Exact),
+        &Silent,
+    )
+    .unwrap();
+    assert_eq!(r.evaluations, 0, "nothing to search");
+    assert_eq!(r.tuned, start);
+    assert_eq!(r.resolution, Some(vec![Resolution::FIXED; 2]));
+    assert_eq!(r.status, TuneStatus::Consistent);
+}
+
+#[test]
+fn declared_blocks_are_searched_one_by_one() {
+    // A diagonal quadratic (each parameter drives its own component) declared as two
+    // blocks: the search runs block by block and lands on the same minimum.
+    let blocks: Vec<crate::experiment::Block> = (0..2)
+        .map(|i| crate::experiment::Block {
+            params: vec![i],
+            states: vec![i],
+            measurements: vec![],
+        })
+        .collect();
+    for local in [LocalSearch::Simplex, LocalSearch::GaussNewton] {
+        let mock = Mock::new(&[0.3, 20.0], &[&[4.0, 0.0], &[0.0, 8.0]]).with_blocks(blocks.clone());
+        let r = run(&mock, &settings(Scoring::Exact).with_local(local));
+        assert!(r.separable, "{local:?}: the blocks are searched one by one");
+        // σ_min(A) = 4: the simplex is within √(2 · 1e-10)/4 = 3.5e-6 of y*.
+        assert_converged(&mock, &r, local, 3.6e-6);
+    }
+}

@@ -456,3 +456,75 @@ fn declared_blocks_are_searched_one_by_one() {
         assert_converged(&mock, &r, local, 3.6e-6);
     }
 }
+
+/// p0's truth 1e5 lies beyond its upper bound 1e4 (A = diag(1, 2): the simplex stops within
+/// √(2 · 1e-10)/1 = 1.42e-5 of y* once the box allows it).
+fn beyond_the_bound() -> Mock {
+    Mock::new(&[1e5, 20.0], &[&[1.0, 0.0], &[0.0, 2.0]])
+}
+
+#[test]
+fn a_parameter_that_ends_on_its_bound_is_widened_once_and_searched_again() {
+    let mock = beyond_the_bound();
+    let r = run(&mock, &settings(Scoring::Exact));
+    assert_eq!(
+        r.widened,
+        vec![Widening {
+            param: 0,
+            from: (1e-4, 1e4),
+            to: (1e-4, 1e7)
+        }],
+        "the upper bound widened by 1000"
+    );
+    assert_converged(&mock, &r, LocalSearch::Simplex, 1.42e-5);
+    assert_eq!(r.at_bound, vec![false, false]);
+}
+
+#[test]
+fn a_search_that_ran_out_of_budget_on_a_bound_is_not_widened() {
+    // 100 evaluations end with p0 on its upper bound (ln 1e4 = 9.21) before the search
+    // converged: a bound is widened only after a converged search.
+    let mock = beyond_the_bound();
+    let r = run(
+        &mock,
+        &settings(Scoring::Exact).with_max_evals(100).unwrap(),
+    );
+    assert_eq!(r.status, TuneStatus::BudgetExhausted);
+    assert!(
+        (r.tuned[0].ln() - 1e4f64.ln()).abs() < 0.05,
+        "{:?}",
+        r.tuned
+    );
+    assert_eq!(r.at_bound, vec![true, false]);
+    assert!(
+        r.widened.is_empty(),
+        "widened after a budget ran out: {:?}",
+        r.widened
+    );
+}
+
+#[test]
+fn blocks_are_refined_on_monte_carlo_runs_only_after_a_converged_search() {
+    let blocks: Vec<crate::experiment::Block> = (0..2)
+        .map(|i| crate::experiment::Block {
+            params: vec![i],
+            states: vec![i],
+            measurements: vec![],
+        })
+        .collect();
+    let mock = || Mock::new(&[0.3, 20.0], &[&[4.0, 0.0], &[0.0, 8.0]]).with_blocks(blocks.clone());
+    let s = settings(Scoring::MonteCarlo);
+    let r = run(&mock(), &s);
+    assert!(
+        r.separable && r.status == TuneStatus::Consistent,
+        "{:?}",
+        r.status
+    );
+    assert!(r.refine_evaluations > 0, "a converged search is refined");
+    let r = run(&mock(), &s.with_max_evals(10).unwrap());
+    assert_eq!(r.status, TuneStatus::BudgetExhausted);
+    assert_eq!(
+        r.refine_evaluations, 0,
+        "no refinement after a budget ran out"
+    );
+}

@@ -298,3 +298,157 @@ pub fn gate_deviates(report: &super::ConsistencyReport) -> Vec<f64> {
     }
     out
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::stats::{ConsistencyReport, GateSpec};
+
+    /// Upper 5% points of χ²(1..=5) from a printed table (NIST/SEMATECH e-Handbook,
+    /// §1.3.6.7.4), to the table's three decimals: an independent reference for the
+    /// portmanteau test's threshold.
+    const CHI2_95: [f64; 5] = [3.841, 5.991, 7.815, 9.488, 11.070];
+    /// Half a unit in the table's last place.
+    const TABLE_TOL: f64 = 5e-4;
+
+    fn names(n: usize) -> Vec<String> {
+        (0..n).map(|j| format!("z{j}")).collect()
+    }
+
+    /// Whiteness sums of two measurement components over `lags` lags: at lag l,
+    /// `200 − l` pairs of unit variance with autocorrelation `rho(l, j)`.
+    fn white_sums(lags: usize, rho: impl Fn(usize, usize) -> f64) -> Accumulator {
+        let mut acc = Accumulator::new(10, 0, 2, lags);
+        for lag in 1..=lags {
+            for j in 0..2 {
+                let idx = (lag - 1) * 2 + j;
+                let pairs = (200 - lag) as f64;
+                acc.white_pairs[idx] = pairs;
+                acc.white_a2[idx] = pairs;
+                acc.white_b2[idx] = pairs;
+                acc.white_ab[idx] = rho(lag, j) * pairs;
+            }
+        }
+        acc
+    }
+
+    #[test]
+    fn whiteness_lag_count_covers_lags_one_to_l_for_every_component() {
+        let acc = white_sums(4, |lag, j| 0.01 * (lag + 10 * j) as f64);
+        let white = whiteness(&acc, &names(2), 1.959964);
+        let seen: Vec<(usize, &str)> = white
+            .iter()
+            .map(|w| (w.lag, w.component.as_str()))
+            .collect();
+        let want: Vec<(usize, &str)> = (1..=4).flat_map(|lag| [(lag, "z0"), (lag, "z1")]).collect();
+        assert_eq!(
+            seen, want,
+            "lag count: every lag 1..=L (L = 4) of every component, lag-major"
+        );
+        for w in &white {
+            let j = usize::from(w.component == "z1");
+            let want_rho = 0.01 * (w.lag + 10 * j) as f64;
+            assert!(
+                (w.rho - want_rho).abs() < 1e-12,
+                "lag {} {}: ρ {} vs {want_rho}",
+                w.lag,
+                w.component,
+                w.rho
+            );
+            assert_eq!(w.pairs, (200 - w.lag) as f64, "pairs at lag {}", w.lag);
+            let band = 1.959964 / ((200 - w.lag) as f64).sqrt();
+            assert!((w.band - band).abs() < 1e-12, "band at lag {}", w.lag);
+        }
+    }
+
+    #[test]
+    fn whiteness_rho_normalizes_by_both_sums_of_squares() {
+        // Σ ab = 3, Σ a² = 4, Σ b² = 9: ρ = 3 / √36 = 0.5; a lag with no pairs is left out,
+        // and one with pairs but zero variance gives ρ = 0.
+        let mut acc = Accumulator::new(10, 0, 1, 3);
+        (
+            acc.white_ab[0],
+            acc.white_a2[0],
+            acc.white_b2[0],
+            acc.white_pairs[0],
+        ) = (3.0, 4.0, 9.0, 5.0);
+        acc.white_pairs[2] = 2.0;
+        let white = whiteness(&acc, &names(1), 2.0);
+        assert_eq!(white.len(), 2, "lags with pairs: 1 and 3, {white:?}");
+        assert!((white[0].rho - 0.5).abs() < 1e-15, "{white:?}");
+        assert_eq!((white[1].lag, white[1].rho), (3, 0.0), "{white:?}");
+        assert!((white[0].band - 2.0 / 5f64.sqrt()).abs() < 1e-15);
+    }
+
+    #[test]
+    fn whiteness_test_degrees_of_freedom_are_the_lags_and_its_threshold_the_chi2_quantile() {
+        // Component z0 correlates at the last lag only (ρ_4 = 0.25 over 196 pairs: Q =
+        // 196 · 0.0625 = 12.25, above χ²₀.₉₅(4) = 9.488), so a test over lags 1..=3 would
+        // miss it; z1 has ρ = 0.1 at every lag (Q = 0.01 · (199 + 198 + 197 + 196) = 7.9,
+        // below 9.488 but above χ²₀.₉₅(3) = 7.815: its verdict needs the fourth degree of
+        // freedom).
+        let acc = white_sums(4, |lag, j| match (lag, j) {
+            (4, 0) => 0.25,
+            (_, 0) => 0.0,
+            _ => 0.1,
+        });
+        let white = whiteness(&acc, &names(2), 1.959964);
+        let tests = whiteness_tests(&white, &names(2), 0.05);
+        assert_eq!(tests.len(), 2);
+        for t in &tests {
+            assert_eq!(t.dof, 4, "{}: degrees of freedom = lag count", t.component);
+            assert!(
+                (t.threshold - CHI2_95[3]).abs() < TABLE_TOL,
+                "{}: threshold {} vs the table's χ²₀.₉₅(4) = {}",
+                t.component,
+                t.threshold,
+                CHI2_95[3]
+            );
+        }
+        assert!((tests[0].statistic - 12.25).abs() < 1e-9, "{:?}", tests[0]);
+        assert_eq!(
+            tests[0].verdict,
+            Verdict::NotWhite,
+            "a correlation at the last lag L is tested"
+        );
+        assert_eq!(tests[0].rho1, 0.0);
+        assert!((tests[1].statistic - 7.9).abs() < 1e-9, "{:?}", tests[1]);
+        assert_eq!(tests[1].verdict, Verdict::Consistent, "{:?}", tests[1]);
+        assert!((tests[1].rho1 - 0.1).abs() < 1e-12, "{:?}", tests[1]);
+    }
+
+    #[test]
+    fn whiteness_test_thresholds_follow_the_table_for_one_to_five_lags() {
+        for lags in 1..=5 {
+            let acc = white_sums(lags, |_, _| 0.0);
+            let tests = whiteness_tests(&whiteness(&acc, &names(2), 2.0), &names(2), 0.05);
+            for t in &tests {
+                assert_eq!(t.dof, lags, "lag count: {lags} lags, {} dof", t.dof);
+                assert!(
+                    (t.threshold - CHI2_95[lags - 1]).abs() < TABLE_TOL,
+                    "{lags} lags: threshold {} vs table {}",
+                    t.threshold,
+                    CHI2_95[lags - 1]
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn the_full_gate_tests_whiteness_over_all_lags() {
+        // The gate's own report: one portmanteau test per measurement component, over the
+        // accumulator's L = 4 lags (χ²(4)), at the gate's Šidák level (3 tests: 0.017, a
+        // threshold near 12.1; ρ_4 = 0.3 over 196 pairs gives Q = 17.64).
+        let acc = white_sums(4, |lag, j| if (lag, j) == (4, 0) { 0.3 } else { 0.0 });
+        let r =
+            ConsistencyReport::from_accumulator(&acc, &GateSpec::full(0.05, false), &[], &names(2));
+        assert_eq!(r.whiteness.len(), 8, "lag count: 4 lags × 2 components");
+        assert_eq!(
+            r.whiteness_tests.iter().map(|t| t.dof).collect::<Vec<_>>(),
+            vec![4, 4],
+            "whiteness degrees of freedom"
+        );
+        assert_eq!(r.whiteness_tests[0].verdict, Verdict::NotWhite);
+        assert!(!r.verdict.passes(), "{:?}", r.verdict);
+    }
+}

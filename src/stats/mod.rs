@@ -559,3 +559,394 @@ fn summarize(
         verdict,
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn names(prefix: &str, n: usize) -> Vec<String> {
+        (0..n).map(|j| format!("{prefix}{j}")).collect()
+    }
+
+    /// Sums with three state and three measurement components: states 0 and 1 have
+    /// second-moment samples and state 0 alone signed ones (its mean is tested); measurements
+    /// 0 and 1 have samples; only measurement 0 has innovation pairs (two lags). Nothing
+    /// else is filled: the counts and levels depend on which components have data.
+    fn sums() -> Accumulator {
+        let mut acc = Accumulator::new(5, 3, 3, 2);
+        acc.state_comp_samples = vec![10.0, 10.0, 0.0];
+        acc.state_mean_samples = vec![10.0, 0.0, 0.0];
+        acc.meas_comp_samples = vec![10.0, 10.0, 0.0];
+        for lag in 0..2 {
+            acc.white_pairs[lag * 3] = 8.0;
+        }
+        acc
+    }
+
+    fn report(acc: &Accumulator, mode: GateMode, use_nees: bool) -> ConsistencyReport {
+        let gate = GateSpec {
+            alpha: 0.05,
+            mode,
+            use_nees,
+        };
+        let (n_x, n_z) = (acc.state_comp_total.len(), acc.meas_comp_total.len());
+        ConsistencyReport::from_accumulator(acc, &gate, &names("x", n_x), &names("z", n_z))
+    }
+
+    #[test]
+    fn gate_test_count_and_sidak_levels_with_one_slot_for_the_zero_mean_tests() {
+        // Full gate with truth: ANIS, ANEES, 2 state second moments, 1 state mean, 2
+        // measurement second moments and 2 means, 1 whiteness test: 10 tests, of which the
+        // 3 means share one Šidák slot: k = 8, level 1 − 0.95^{1/8}, each mean a third of it.
+        // Without truth: ANIS, 2 + 2 measurement tests, 1 whiteness: 6, k = 5, means halves.
+        // Mean gate: the time averages alone (2 with truth, 1 without), means at α. Levels
+        // computed independently (Python, 1 − 0.95**(1/k)); tolerance 1e-12 relative.
+        let cases = [
+            (GateMode::Full, true, 10, 0.006391150954545011, 3.0),
+            (GateMode::Full, false, 6, 0.010206218313011495, 2.0),
+            (GateMode::Mean, true, 2, 0.025320565519103666, f64::NAN),
+            (GateMode::Mean, false, 1, 0.05, f64::NAN),
+        ];
+        for (mode, use_nees, tests, level, means) in cases {
+            let r = report(&sums(), mode, use_nees);
+            let what = format!("{mode:?} gate, truth {use_nees}");
+            assert_eq!(r.tests, tests, "{what}: test count");
+            assert!(
+                (r.statistic_alpha - level).abs() <= 1e-12 * level,
+                "{what}: Šidák level {} vs {level}",
+                r.statistic_alpha
+            );
+            // In the mean gate the zero-mean tests are diagnostics at α.
+            let mean_level = if means.is_nan() { 0.05 } else { level / means };
+            assert!(
+                (r.mean_alpha - mean_level).abs() <= 1e-12 * mean_level,
+                "{what}: zero-mean level {} vs {mean_level}",
+                r.mean_alpha
+            );
+            assert_eq!(r.nees.is_some(), use_nees, "{what}: NEES summary");
+            assert_eq!(r.state_components.len(), if use_nees { 3 } else { 0 });
+            assert_eq!(r.measurement_components.len(), 3);
+            assert_eq!(
+                r.whiteness_tests.len(),
+                1,
+                "{what}: whiteness tested where there are pairs"
+            );
+        }
+    }
+
+    #[test]
+    fn a_full_gate_without_zero_mean_tests_gives_every_test_an_equal_share() {
+        // No signed samples and no measurement samples: ANIS, ANEES, 2 state second moments
+        // and 1 whiteness test, k = 5 with no slot for means (there are none).
+        let mut acc = sums();
+        acc.state_mean_samples = vec![0.0; 3];
+        acc.meas_comp_samples = vec![0.0; 3];
+        let r = report(&acc, GateMode::Full, true);
+        assert_eq!(r.tests, 5);
+        let level = 0.010206218313011495;
+        assert!((r.statistic_alpha - level).abs() <= 1e-12 * level);
+        assert!(
+            (r.mean_alpha - level).abs() <= 1e-12 * level,
+            "no mean tests: their level is the statistics' level"
+        );
+    }
+
+    /// Two-sided 95% points of χ² from a printed table (NIST/SEMATECH e-Handbook,
+    /// §1.3.6.7.4), to its three decimals: `(dof, χ²₀.₀₂₅, χ²₀.₉₇₅)`.
+    const CHI2_TABLE: [(f64, f64, f64); 3] = [
+        (1.0, 0.000982, 5.024),
+        (50.0, 32.357, 71.420),
+        (100.0, 74.222, 129.561),
+    ];
+    /// Half a unit in the table's last place (the quantiles are divided by the count
+    /// before the comparison, which scales this too).
+    const TABLE_TOL: f64 = 5e-4;
+
+    fn table(dof: f64) -> (f64, f64) {
+        let &(_, lo, hi) = CHI2_TABLE.iter().find(|t| t.0 == dof).expect("tabulated");
+        (lo, hi)
+    }
+
+    fn assert_interval(iv: &Interval, dof: f64, count: f64, what: &str) {
+        let (lo, hi) = table(dof);
+        let tol = TABLE_TOL / count;
+        assert!(
+            (iv.lower - lo / count).abs() <= tol && (iv.upper - hi / count).abs() <= tol,
+            "{what}: interval [{}, {}] vs the table's [{lo}, {hi}] / {count}",
+            iv.lower,
+            iv.upper
+        );
+    }
+
+    #[test]
+    fn nis_summary_steps_time_average_and_interval_against_the_table() {
+        // Mean gate without truth: one test, at α = 0.05. Three steps with data (a step
+        // without a measurement between): 100 runs at n_z = 1 with average 0.9 (inside
+        // [74.222, 129.561]/100), 100 at n_z = 1 with 1.5 (above), then 50 runs at n_z = 1
+        // with average 0.8: per step [32.357, 71.420]/50, inside. Time average 280/250 =
+        // 1.12, inside the 250-dof interval (about [0.83, 1.18]; not tabulated).
+        let mut acc = Accumulator::new(4, 0, 1, 0);
+        acc.runs = 100;
+        (acc.nis_sum, acc.nis_dof, acc.nis_count) = (
+            vec![90.0, 150.0, 0.0, 40.0],
+            vec![100.0, 100.0, 0.0, 50.0],
+            vec![100.0, 100.0, 0.0, 50.0],
+        );
+        let r = report(&acc, GateMode::Mean, false);
+        let s = &r.nis;
+        assert_eq!(s.per_step, vec![Some(0.9), Some(1.5), None, Some(0.8)]);
+        assert_eq!(
+            s.per_step_target,
+            vec![Some(1.0), Some(1.0), None, Some(1.0)]
+        );
+        assert_eq!(s.steps_with_data, 3, "steps with data");
+        let bounds = |k: usize| Interval {
+            lower: s.per_step_lower[k].unwrap(),
+            upper: s.per_step_upper[k].unwrap(),
+        };
+        assert_interval(&bounds(0), 100.0, 100.0, "step 1");
+        assert_interval(&bounds(1), 100.0, 100.0, "step 2");
+        assert_interval(&bounds(3), 50.0, 50.0, "step 4");
+        assert_eq!((s.per_step_lower[2], s.per_step_upper[2]), (None, None));
+        assert!(
+            (s.fraction_in_bounds - 2.0 / 3.0).abs() < 1e-15,
+            "steps inside: 2 of 3, {}",
+            s.fraction_in_bounds
+        );
+        assert!((s.time_average - 1.12).abs() < 1e-12, "{}", s.time_average);
+        assert_eq!((s.target, s.naive_dof), (1.0, 250.0));
+        assert!(s.per_step_has_power && s.has_power);
+        assert_eq!(
+            s.verdict,
+            Verdict::Consistent,
+            "1.12 inside the 250-dof interval"
+        );
+        assert_eq!(r.verdict, Verdict::Consistent);
+    }
+
+    #[test]
+    fn a_single_scalar_innovation_is_tested_against_chi2_of_one_degree_of_freedom() {
+        // One run, one step, one scalar measurement: the NIS and the measurement component
+        // are χ²(1) (variance 2), interval [0.000982, 5.024] at α = 0.05; one degree of
+        // freedom has no power, so the verdicts are inconclusive.
+        let mut acc = Accumulator::new(1, 0, 1, 0);
+        acc.runs = 1;
+        (acc.nis_sum, acc.nis_dof, acc.nis_count) = (vec![2.0], vec![1.0], vec![1.0]);
+        (acc.meas_comp_total, acc.meas_comp_samples) = (vec![2.0], vec![1.0]);
+        let r = report(&acc, GateMode::Mean, false);
+        assert_interval(&r.nis.interval, 1.0, 1.0, "NIS time average");
+        assert_interval(&r.nis.naive_interval, 1.0, 1.0, "NIS naive interval");
+        assert!(
+            (r.nis.effective_dof - 1.0).abs() < 1e-12,
+            "{}",
+            r.nis.effective_dof
+        );
+        let c = &r.measurement_components[0];
+        assert_interval(&c.interval, 1.0, 1.0, "measurement component");
+        assert_eq!(r.nis.verdict, Verdict::Inconclusive, "no power at 1 dof");
+    }
+
+    /// Sums of 100 samples per component with the filters' predicted variances (white: 2 per
+    /// sample for the squares, 1 for the signed values): state 0 consistent, state 1 twice
+    /// its variance with a mean of 0.5 σ, measurement 0 at 0.6 with a mean of −0.3 σ,
+    /// measurement 1 at 1.49 with a mean of 0.7 σ (1.49 − 0.7² = 1: a bias alone).
+    fn component_sums() -> Accumulator {
+        let mut acc = Accumulator::new(1, 2, 2, 0);
+        acc.runs = 1;
+        acc.comp_null_var_runs = 1;
+        acc.state_comp_total = vec![100.0, 200.0];
+        acc.state_comp_samples = vec![100.0, 100.0];
+        acc.state_comp_null_var = vec![200.0, 200.0];
+        acc.state_mean_total = vec![10.0, 50.0];
+        acc.state_mean_samples = vec![100.0, 100.0];
+        acc.state_mean_null_var = vec![100.0, 100.0];
+        acc.meas_comp_total = vec![60.0, 149.0];
+        acc.meas_comp_samples = vec![100.0, 100.0];
+        acc.meas_mean_total = vec![-30.0, 70.0];
+        acc
+    }
+
+    #[test]
+    fn component_values_intervals_and_zero_mean_tests_by_hand() {
+        // Mean gate: the components are diagnostics at α = 0.05, so each interval is the
+        // table's [74.222, 129.561]/100, and each zero-mean test is two-sided normal at
+        // 1.96 on z = T / √(V · max(1, c − m²)) (c the second moment, m the mean):
+        // state 0: z = 10/√100 = 1; state 1: 50/√(100 · 1.75) = 3.780; measurement 0:
+        // −30/√100 = −3; measurement 1: 70/√(100 · 1) = 7. Tolerance 1e-12.
+        let r = report(&component_sums(), GateMode::Mean, true);
+        let want = [
+            (
+                "state 0",
+                1.0,
+                Verdict::Consistent,
+                0.1,
+                1.0,
+                Verdict::Consistent,
+                false,
+            ),
+            (
+                "state 1",
+                2.0,
+                Verdict::Overconfident,
+                0.5,
+                50.0 / 175f64.sqrt(),
+                Verdict::Biased,
+                false,
+            ),
+            (
+                "measurement 0",
+                0.6,
+                Verdict::Underconfident,
+                -0.3,
+                -3.0,
+                Verdict::Biased,
+                false,
+            ),
+            (
+                "measurement 1",
+                1.49,
+                Verdict::Overconfident,
+                0.7,
+                7.0,
+                Verdict::Biased,
+                true,
+            ),
+        ];
+        let comps: Vec<&ComponentStat> = r
+            .state_components
+            .iter()
+            .chain(&r.measurement_components)
+            .collect();
+        assert_eq!(comps.len(), 4);
+        for (c, (what, value, verdict, mean, z, mean_verdict, bias)) in comps.iter().zip(want) {
+            assert!((c.value - value).abs() < 1e-12, "{what}: value {}", c.value);
+            assert_interval(&c.interval, 100.0, 100.0, what);
+            assert_eq!(c.verdict, verdict, "{what}: second moment");
+            assert!((c.mean - mean).abs() < 1e-12, "{what}: mean {}", c.mean);
+            assert!(
+                (c.mean_z - z).abs() < 1e-12,
+                "{what}: zero-mean z {} vs {z}",
+                c.mean_z
+            );
+            assert_eq!(c.mean_verdict, mean_verdict, "{what}: zero-mean verdict");
+            assert_eq!(c.bias_explains(), bias, "{what}: the bias explains it");
+        }
+        // The worst first by |ln value|: state 1 (ln 2), measurement 0 (ln 0.6), then
+        // measurement 1 (ln 1.49); state 0 (ln 1 = 0) last.
+        let worst: Vec<&str> = r
+            .worst_components(3)
+            .iter()
+            .map(|c| c.name.as_str())
+            .collect();
+        assert_eq!(worst, vec!["x1", "z0", "z1"], "worst components");
+    }
+
+    /// Sums at their targets: 50 runs of 4 steps, 2 states and 2 measurements, NEES and NIS
+    /// averages 2, each component's squares averaging 1 with zero mean, white innovations
+    /// at lag 1, and the filters' predicted variances of white terms.
+    fn consistent() -> Accumulator {
+        let (runs, steps) = (50.0, 4);
+        let mut acc = Accumulator::new(steps, 2, 2, 1);
+        acc.runs = 50;
+        for k in 0..steps {
+            acc.nees_sum[k] = 2.0 * runs;
+            acc.nees_dof[k] = 2.0 * runs;
+            acc.nees_count[k] = runs;
+            acc.nis_sum[k] = 2.0 * runs;
+            acc.nis_dof[k] = 2.0 * runs;
+            acc.nis_count[k] = runs;
+        }
+        (acc.null_var_runs, acc.nees_null_var) = (50, 50.0 * 2.0 * 2.0 * 4.0);
+        acc.comp_null_var_runs = 50;
+        let n = runs * steps as f64;
+        acc.state_comp_total = vec![n; 2];
+        acc.state_comp_samples = vec![n; 2];
+        acc.state_comp_null_var = vec![2.0 * n; 2];
+        acc.state_mean_samples = vec![n; 2];
+        acc.state_mean_null_var = vec![n; 2];
+        acc.meas_comp_total = vec![n; 2];
+        acc.meas_comp_samples = vec![n; 2];
+        for j in 0..2 {
+            acc.white_pairs[j] = runs * 3.0;
+            acc.white_a2[j] = runs * 3.0;
+            acc.white_b2[j] = runs * 3.0;
+        }
+        acc
+    }
+
+    #[test]
+    fn the_gate_combines_every_test_and_names_a_bias_that_explains_every_failure() {
+        let full = |acc: &Accumulator| report(acc, GateMode::Full, true);
+        let r = full(&consistent());
+        assert_eq!(
+            r.verdict,
+            Verdict::Consistent,
+            "at the targets: {:?}",
+            r.verdict
+        );
+        assert!(r.diagnosis.findings.is_empty() && r.diagnosis.suspect.is_none());
+
+        // A bias on measurement 0 (mean 0.7 σ, squares 1.49 = 1 + 0.7²): its second moment
+        // fails because of the bias alone, so the verdict is the bias.
+        let mut biased = consistent();
+        biased.meas_mean_total[0] = 0.7 * 200.0;
+        biased.meas_comp_total[0] = 1.49 * 200.0;
+        let r = full(&biased);
+        assert_eq!(
+            r.measurement_components[0].verdict,
+            Verdict::Overconfident,
+            "the second moment fails"
+        );
+        assert_eq!(
+            r.verdict,
+            Verdict::Biased,
+            "a bias that explains every failure"
+        );
+        assert!(
+            !r.diagnosis.findings.is_empty(),
+            "a failing gate is diagnosed"
+        );
+
+        // And state 1 twice its variance without a bias: the bias no longer explains every
+        // failure, so the second moments decide.
+        biased.state_comp_total[1] = 2.0 * 200.0;
+        let r = full(&biased);
+        assert_eq!(r.verdict, Verdict::Overconfident, "{:?}", r.verdict);
+
+        // A component without samples is no test: it does not make the gate inconclusive.
+        let mut acc = Accumulator::new(4, 3, 2, 1);
+        let c = consistent();
+        acc.merge(&Accumulator {
+            state_comp_total: vec![c.state_comp_total[0], c.state_comp_total[1], 0.0],
+            state_comp_samples: vec![c.state_comp_samples[0], c.state_comp_samples[1], 0.0],
+            state_comp_run_sum: vec![0.0; 3],
+            state_comp_run_sq: vec![0.0; 3],
+            state_comp_null_var: vec![c.state_comp_null_var[0], c.state_comp_null_var[1], 0.0],
+            state_mean_total: vec![0.0; 3],
+            state_mean_samples: vec![c.state_mean_samples[0], c.state_mean_samples[1], 0.0],
+            state_mean_run_sq: vec![0.0; 3],
+            state_mean_null_var: vec![c.state_mean_null_var[0], c.state_mean_null_var[1], 0.0],
+            ..c
+        });
+        let r = report(&acc, GateMode::Full, true);
+        assert_eq!(
+            r.tests,
+            2 + 2 + 2 + 4 + 2,
+            "the empty component brings no test"
+        );
+        assert_eq!(r.state_components[2].verdict, Verdict::Inconclusive);
+        assert_eq!(r.verdict, Verdict::Consistent, "{:?}", r.verdict);
+
+        // Runs that stopped early decide the verdict, and leave nothing to diagnose.
+        let mut stopped = consistent();
+        stopped.state_comp_total[1] = 2.0 * 200.0;
+        stopped.record_divergence(3, 2, "P lost definiteness".into());
+        let r = full(&stopped);
+        assert_eq!(r.verdict, Verdict::Diverged);
+        assert!(
+            r.diagnosis.findings.is_empty(),
+            "no diagnosis on runs that stopped: {:?}",
+            r.diagnosis.findings
+        );
+    }
+}

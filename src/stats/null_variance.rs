@@ -226,4 +226,107 @@ mod tests {
         let white: f64 = t as f64;
         assert!((cv.mean_variances()[0] - white).abs() > 1.0);
     }
+
+    /// A time-varying error map `A_k` and covariance `P_k` (3 × 3, symmetric positive
+    /// definite at every step): `P_k` changes by tens of percent from step to step, so a
+    /// recursion that reads the current step's P where the previous one belongs is off by
+    /// as much.
+    fn varying(t: usize) -> (Vec<DMatrix<f64>>, Vec<DMatrix<f64>>) {
+        let maps = (0..t)
+            .map(|k| {
+                let s = (k as f64 * 0.7).sin();
+                DMatrix::from_row_slice(
+                    3,
+                    3,
+                    &[
+                        0.9 - 0.1 * s,
+                        0.2,
+                        0.0,
+                        -0.1,
+                        0.7 + 0.1 * s,
+                        0.1,
+                        0.05,
+                        0.1 * s,
+                        0.8,
+                    ],
+                )
+            })
+            .collect();
+        let covs = (0..t)
+            .map(|k| {
+                let s = 1.0 + 0.5 * (k as f64 * 1.3).cos();
+                let c = 0.3 * (k as f64 * 0.4).sin();
+                DMatrix::from_row_slice(3, 3, &[2.0 * s, c, -0.2, c, 1.0 / s, 0.1, -0.2, 0.1, s])
+            })
+            .collect();
+        (maps, covs)
+    }
+
+    /// `Φ_kl = A_k A_{k−1} ⋯ A_{l+1}` (the identity for k = l), by plain products.
+    fn transition(maps: &[DMatrix<f64>], k: usize, l: usize) -> DMatrix<f64> {
+        let n = maps[0].nrows();
+        (l + 1..=k).fold(DMatrix::identity(n, n), |phi, i| &maps[i] * phi)
+    }
+
+    #[test]
+    fn nees_null_variance_with_a_time_varying_p_matches_brute_force_double_sum() {
+        // Var(Σ_k ε_k) = Σ_k Σ_l Cov(ε_k, ε_l), Cov(ε_k, ε_l) = 2 tr(P_k⁻¹ Φ_kl P_l Φ_kl')
+        // for k ≥ l (Isserlis; 2 n on the diagonal), summed term by term. Tolerance 1e-10
+        // relative: a few hundred rounded products on either side.
+        let t = 15;
+        let (maps, covs) = varying(t);
+        let mut nv = NeesNullVariance::new(3);
+        for (a, p) in maps.iter().zip(&covs) {
+            nv.step(a, p, &Cholesky::new(p.clone()).unwrap());
+        }
+        let mut want = 0.0;
+        for k in 0..t {
+            for l in 0..t {
+                let (hi, lo) = (k.max(l), k.min(l));
+                let phi = transition(&maps, hi, lo);
+                let cross = &phi * &covs[lo] * phi.transpose();
+                want += 2.0 * (covs[hi].clone().try_inverse().unwrap() * cross).trace();
+            }
+        }
+        assert_relative_eq!(nv.variance(), want, max_relative = 1e-10);
+    }
+
+    #[test]
+    fn component_null_variance_pairs_each_step_with_the_previous_p() {
+        // Var(Σ_k x_k), x_k = e_jk²/P_jj,k: Cov(x_k, x_l) = 2 (Φ_kl P_l)_jj² / (P_jj,k P_jj,l)
+        // for k ≥ l, summed term by term with the map and the covariance changing every
+        // step (a constant P cannot tell P_{k−1} from P_k). The same for the first moment,
+        // Cov(y_k, y_l) = (Φ_kl P_l)_jj / √(P_jj,k P_jj,l). Tolerance 1e-10 relative, as
+        // above; reading P_k for P_{k−1} moves these sums by percents.
+        let t = 15;
+        let (maps, covs) = varying(t);
+        let mut cv = ComponentNullVariance::new(3);
+        for (a, p) in maps.iter().zip(&covs) {
+            cv.step(a, p);
+        }
+        for j in 0..3 {
+            let (mut second, mut first) = (0.0, 0.0);
+            for k in 0..t {
+                for l in 0..t {
+                    let (hi, lo) = (k.max(l), k.min(l));
+                    let c = (transition(&maps, hi, lo) * &covs[lo])[(j, j)];
+                    let (pk, pl) = (covs[k][(j, j)], covs[l][(j, j)]);
+                    second += 2.0 * c * c / (pk * pl);
+                    first += c / (pk * pl).sqrt();
+                }
+            }
+            let got = cv.variances()[j];
+            assert!(
+                (got - second).abs() <= 1e-10 * second,
+                "component {j}: second-moment null variance {got} vs brute force {second}: \
+                 the recursion must pair step k with the previous step's P (P_{{k−1}})"
+            );
+            let got = cv.mean_variances()[j];
+            assert!(
+                (got - first).abs() <= 1e-10 * first,
+                "component {j}: first-moment null variance {got} vs brute force {first}: \
+                 the recursion must pair step k with the previous step's P (P_{{k−1}})"
+            );
+        }
+    }
 }

@@ -137,3 +137,106 @@ impl RunRecorder {
         acc.runs += 1;
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A deterministic innovation of component j at step k (1-based) of run `run`, NaN
+    /// where the component is not measured (component 1 misses steps 4 and 9).
+    fn u(run: usize, k: usize, j: usize) -> f64 {
+        if j == 1 && (k == 4 || k == 9) {
+            f64::NAN
+        } else {
+            ((k * 7 + j * 3 + run * 11) as f64 * 0.37).sin() * 1.5
+        }
+    }
+
+    #[test]
+    fn lagged_products_match_a_brute_force_sum_over_every_lag_up_to_l() {
+        // Two runs of T = 12 steps, two components, L = 3 lags: the recorder's sums of
+        // u_k u_{k−l}, u_k², u_{k−l}² and the pair counts against plain loops over the
+        // sequences (pairs where both ends are measured). Tolerance 1e-12: a few dozen
+        // rounded products.
+        let (t, m, lags) = (12, 2, 3);
+        let mut acc = Accumulator::new(t, 0, m, lags);
+        let mut rec = RunRecorder::new(0, m, lags);
+        for run in 0..2 {
+            rec.reset();
+            for k in 1..=t {
+                for j in 0..m {
+                    if u(run, k, j).is_finite() {
+                        rec.innovation(j, u(run, k, j));
+                    }
+                }
+                rec.end_step(&mut acc, k);
+            }
+            rec.end_run(&mut acc);
+        }
+        for lag in 1..=lags {
+            for j in 0..m {
+                let (mut ab, mut a2, mut b2, mut pairs) = (0.0, 0.0, 0.0, 0.0);
+                for run in 0..2 {
+                    for k in lag + 1..=t {
+                        let (a, b) = (u(run, k, j), u(run, k - lag, j));
+                        if a.is_finite() && b.is_finite() {
+                            ab += a * b;
+                            a2 += a * a;
+                            b2 += b * b;
+                            pairs += 1.0;
+                        }
+                    }
+                }
+                let idx = (lag - 1) * m + j;
+                let what = format!("lag {lag} of {lags}, component {j}");
+                assert_eq!(acc.white_pairs[idx], pairs, "{what}: pairs");
+                assert!(
+                    (acc.white_ab[idx] - ab).abs() < 1e-12,
+                    "{what}: Σ u_k u_k−l"
+                );
+                assert!((acc.white_a2[idx] - a2).abs() < 1e-12, "{what}: Σ u_k²");
+                assert!((acc.white_b2[idx] - b2).abs() < 1e-12, "{what}: Σ u_k−l²");
+            }
+        }
+        // Component 1 is measured at 10 of the 12 steps of each run.
+        assert_eq!(acc.meas_comp_samples, vec![24.0, 20.0]);
+        assert_eq!(acc.meas_comp_runs, vec![2, 2]);
+        assert_eq!(acc.runs, 2);
+    }
+
+    #[test]
+    fn component_sums_and_per_run_averages_match_the_sequences() {
+        // One state component over two runs of three steps: e/√P = (1, −2, 3) and
+        // (0.5, 0.5, −1); one measurement component measured at steps 1 and 3 only.
+        let mut acc = Accumulator::new(3, 1, 1, 0);
+        let mut rec = RunRecorder::new(1, 1, 0);
+        let runs = [[1.0, -2.0, 3.0], [0.5, 0.5, -1.0]];
+        for ys in runs {
+            rec.reset();
+            for (k, y) in ys.iter().enumerate() {
+                rec.state_step(&mut acc, std::iter::once(*y));
+                if k != 1 {
+                    rec.innovation(0, 2.0 * y);
+                }
+                rec.end_step(&mut acc, k + 1);
+            }
+            rec.end_run(&mut acc);
+        }
+        // Squares: run 1 sums 14 (average 14/3), run 2 sums 1.5 (average 0.5).
+        assert_eq!(acc.state_comp_total, vec![15.5]);
+        assert_eq!(acc.state_comp_samples, vec![6.0]);
+        assert_eq!(acc.state_mean_total, vec![2.0]);
+        assert_eq!(acc.state_mean_samples, vec![6.0]);
+        assert!((acc.state_comp_run_sum[0] - (14.0 / 3.0 + 0.5)).abs() < 1e-12);
+        assert!((acc.state_comp_run_sq[0] - ((14.0f64 / 3.0).powi(2) + 0.25)).abs() < 1e-12);
+        // Per-run sums of e/√P: 2 and 0.
+        assert_eq!(acc.state_mean_run_sq, vec![4.0]);
+        // Innovations 2y at steps 1 and 3: (2, 6) and (1, −2).
+        assert_eq!(acc.meas_mean_total, vec![7.0]);
+        assert_eq!(acc.meas_comp_total, vec![45.0]);
+        assert_eq!(acc.meas_comp_samples, vec![4.0]);
+        assert!((acc.meas_comp_run_sum[0] - (20.0 + 2.5)).abs() < 1e-12);
+        assert!((acc.meas_comp_run_sq[0] - (400.0 + 6.25)).abs() < 1e-12);
+        assert_eq!((acc.meas_comp_runs[0], acc.runs), (2, 2));
+    }
+}

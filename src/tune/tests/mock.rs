@@ -12,10 +12,19 @@
 //! ```
 //!
 //! a quadratic in log space with its minimum 0 at y* (a flat direction where A is singular).
+//!
+//! Variants: [`Mock::measuring`] puts the components in the measurements instead (no states,
+//! no ground truth), [`Mock::without_exact_sums`] offers only Monte Carlo sums, and
+//! [`Mock::with_blocks`] declares decoupled blocks.
+//!
+//! [`Mock::bent`] adds a quadratic term to each component's log, `ln c_j = Σ_i A_ji d_i +
+//! Σ_i B_ji d_i²` with `d = y* − y`, so that J can have two basins (see
+//! [`super::two_basins`]).
 
+use std::sync::Mutex;
 use std::sync::atomic::{AtomicUsize, Ordering};
 
-use crate::experiment::{Definition, Experiment, ExperimentError, Info, RunOptions, Source};
+use crate::experiment::{Block, Definition, Experiment, ExperimentError, Info, RunOptions, Source};
 use crate::montecarlo::McConfig;
 use crate::params::{ParamDef, ParamSpace, Target};
 use crate::stats::Accumulator;
@@ -29,12 +38,24 @@ pub(crate) struct Mock {
     pub truth: Vec<f64>,
     /// `A`, one row per state component.
     exponents: Vec<Vec<f64>>,
+    /// `B`, one row per state component, when the mock is bent ([`Mock::bent`]).
+    bend: Option<Vec<Vec<f64>>>,
     /// A candidate diverges when parameter `.0` exceeds `.1`.
     diverge_above: Option<(usize, f64)>,
     /// Calls of `expected` and `monte_carlo_with`.
     pub calls: AtomicUsize,
     /// Those calls that returned diverged sums.
     pub diverged_calls: AtomicUsize,
+    /// The parameter values of every call, in call order.
+    pub points: Mutex<Vec<Vec<f64>>>,
+    /// The run count asked of every Monte Carlo call, in call order.
+    pub runs: Mutex<Vec<usize>>,
+    /// The components are measurement components (no states).
+    measuring: bool,
+    /// `expected` gives exact sums.
+    exact: bool,
+    /// The decoupled blocks, if declared.
+    blocks: Option<Vec<Block>>,
 }
 
 impl Mock {
@@ -61,10 +82,60 @@ impl Mock {
             },
             truth: truth.to_vec(),
             exponents: exponents.iter().map(|r| r.to_vec()).collect(),
+            bend: None,
             diverge_above: None,
             calls: AtomicUsize::new(0),
             diverged_calls: AtomicUsize::new(0),
+            points: Mutex::new(Vec::new()),
+            runs: Mutex::new(Vec::new()),
+            measuring: false,
+            exact: true,
+            blocks: None,
         }
+    }
+
+    /// The mock with its components in the measurements, `ν_j²/S_jj` averaging `c_j`, and
+    /// no states (an experiment without ground truth): J is the same formula.
+    pub(crate) fn measuring(mut self) -> Mock {
+        self.measuring = true;
+        self.definition.measurement_names = std::mem::take(&mut self.definition.state_names)
+            .into_iter()
+            .map(|s| s.replace('s', "z"))
+            .collect();
+        self
+    }
+
+    /// The mock without exact sums: every evaluation is a (mock) Monte Carlo run.
+    pub(crate) fn without_exact_sums(mut self) -> Mock {
+        self.exact = false;
+        self
+    }
+
+    /// The mock declaring `blocks` decoupled.
+    pub(crate) fn with_blocks(mut self, blocks: Vec<Block>) -> Mock {
+        self.blocks = Some(blocks);
+        self
+    }
+
+    /// The mock with `ln c_j = Σ_i A_ji d_i + Σ_i B_ji d_i²` (`d = y* − y`), `B` given one
+    /// row per state component. Each parameter's targets stay where A is not zero.
+    pub(crate) fn bent(mut self, quadratic: &[&[f64]]) -> Mock {
+        assert_eq!(
+            quadratic.len(),
+            self.exponents.len(),
+            "one row of B per component"
+        );
+        self.bend = Some(quadratic.iter().map(|r| r.to_vec()).collect());
+        self
+    }
+
+    /// The log-points of every call so far, in call order.
+    pub(crate) fn log_points(&self) -> Vec<Vec<f64>> {
+        let points = self.points.lock().unwrap();
+        points
+            .iter()
+            .map(|t| t.iter().map(|v| v.ln()).collect())
+            .collect()
     }
 
     /// Candidates whose parameter `i` exceeds `limit` diverge.
@@ -85,6 +156,22 @@ impl Mock {
     }
 
     fn components(&self, theta: &[f64]) -> Vec<f64> {
+        if let Some(bend) = &self.bend {
+            let d: Vec<f64> = theta
+                .iter()
+                .zip(&self.truth)
+                .map(|(t, s)| (s / t).ln())
+                .collect();
+            return self
+                .exponents
+                .iter()
+                .zip(bend)
+                .map(|(a, b)| {
+                    let ln_c: f64 = (0..d.len()).map(|i| a[i] * d[i] + b[i] * d[i] * d[i]).sum();
+                    ln_c.exp()
+                })
+                .collect();
+        }
         self.exponents
             .iter()
             .map(|row| {
@@ -101,10 +188,14 @@ impl Mock {
     /// scoring see bit-identical sums.
     fn sums(&self, theta: &[f64]) -> Accumulator {
         self.calls.fetch_add(1, Ordering::SeqCst);
+        self.points.lock().unwrap().push(theta.to_vec());
         let c = self.components(theta);
-        let (n_x, n_z) = (c.len(), 1);
         let (runs, steps) = (self.mc().runs(), self.mc().steps());
         let (r, t) = (runs as f64, steps as f64);
+        if self.measuring {
+            return self.measurement_sums(theta, &c, runs, steps);
+        }
+        let (n_x, n_z) = (c.len(), 1);
         let mut acc = Accumulator::new(steps, n_x, n_z, 0);
         acc.runs = runs;
         let nees: f64 = c.iter().sum();
@@ -141,6 +232,37 @@ impl Mock {
         }
         acc
     }
+
+    /// [`Mock::sums`] of the measuring mock: component j's `ν_j²/S_jj` averages `c_j`, the
+    /// NIS is their sum, and no state is estimated.
+    fn measurement_sums(&self, theta: &[f64], c: &[f64], runs: usize, steps: usize) -> Accumulator {
+        let n_z = c.len();
+        let (r, t) = (runs as f64, steps as f64);
+        let mut acc = Accumulator::new(steps, 0, n_z, 0);
+        acc.runs = runs;
+        let nis: f64 = c.iter().sum();
+        for k in 0..steps {
+            acc.nis_sum[k] = r * nis;
+            acc.nis_sq[k] = r * nis * nis;
+            acc.nis_dof[k] = r * n_z as f64;
+            acc.nis_count[k] = r;
+        }
+        for (j, cj) in c.iter().enumerate() {
+            acc.meas_comp_total[j] = cj * r * t;
+            acc.meas_comp_samples[j] = r * t;
+            acc.meas_comp_run_sum[j] = r * cj;
+            acc.meas_comp_run_sq[j] = r * cj * cj;
+            acc.meas_comp_runs[j] = runs;
+        }
+        if self
+            .diverge_above
+            .is_some_and(|(i, limit)| theta[i] > limit)
+        {
+            acc.diverged_runs = runs;
+            self.diverged_calls.fetch_add(1, Ordering::SeqCst);
+        }
+        acc
+    }
 }
 
 impl Experiment for Mock {
@@ -151,21 +273,30 @@ impl Experiment for Mock {
     fn monte_carlo_with(
         &self,
         theta: &[f64],
-        _mc: &McConfig,
+        mc: &McConfig,
         _o: RunOptions<'_>,
     ) -> Result<Accumulator, ExperimentError> {
+        self.runs.lock().unwrap().push(mc.runs());
         Ok(self.sums(theta))
     }
 
     fn expected(&self, theta: &[f64], _mc: &McConfig) -> Option<Accumulator> {
-        Some(self.sums(theta))
+        self.exact.then(|| self.sums(theta))
+    }
+
+    fn blocks(&self) -> Option<Vec<Block>> {
+        self.blocks.clone()
     }
 
     fn target(&self, i: usize) -> Option<Target> {
         let comps: Vec<usize> = (0..self.exponents.len())
             .filter(|&j| self.exponents[j][i] != 0.0)
             .collect();
-        Some(Target::process(&comps))
+        Some(if self.measuring {
+            Target::measurement(&comps)
+        } else {
+            Target::process(&comps)
+        })
     }
 }
 

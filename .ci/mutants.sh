@@ -39,11 +39,11 @@ trap 'rm -rf "$work"' EXIT
 # changed lines, so nothing changed goes untested; it costs more mutants).
 select=()
 if git rev-parse -q --verify "$commit^{commit}" >/dev/null 2>&1; then
-  git diff --no-ext-diff --no-color "$commit" -- "${paths[@]}" >"$work/change.diff"
+  git diff --no-ext-diff --no-color "$commit" -- "${paths[@]}" | python3 .ci/unmoved.py >"$work/change.diff"
   if [ -s "$work/change.diff" ]; then
     select=(--in-diff "$work/change.diff")
   fi
-  what="the lines of ${paths[*]} changed since $commit"
+  what="the lines of ${paths[*]} changed since $commit (moved lines aside: .ci/unmoved.py)"
 else
   while IFS= read -r f; do
     want=$(awk -v p="$f" '$1 == "blob" && $3 == p {print $2}' "$base_file")

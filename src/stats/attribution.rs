@@ -185,10 +185,28 @@ pub fn blame(lv: i32, g: i32) -> (Suspect, &'static str) {
 /// Read `report`'s components and whiteness for which of Q and R is off (see the module
 /// documentation for the reasoning).
 pub fn diagnose(report: &ConsistencyReport) -> Diagnosis {
+    diagnose_components(&Evidence {
+        states: &report.state_components,
+        measurements: &report.measurement_components,
+        whiteness: &report.whiteness_tests,
+    })
+}
+
+/// What [`diagnose`] reads of a report.
+struct Evidence<'a> {
+    /// The state components (empty without truth).
+    states: &'a [ComponentStat],
+    /// The measurement components.
+    measurements: &'a [ComponentStat],
+    /// The measurement components' whiteness tests.
+    whiteness: &'a [WhitenessTest],
+}
+
+fn diagnose_components(report: &Evidence) -> Diagnosis {
     let mut findings: Vec<Finding> = report
-        .measurement_components
+        .measurements
         .iter()
-        .chain(&report.state_components)
+        .chain(report.states)
         .filter_map(bias_finding)
         .collect();
     let bias_findings = findings.len();
@@ -197,13 +215,13 @@ pub fn diagnose(report: &ConsistencyReport) -> Diagnosis {
     // A state component off the way R's blame explains (a too-small R makes P too small as
     // well) leaves no room for Q; one off the other way, or off while the innovations
     // blame Q or both, does.
-    let states_off_too = state_findings(report, innovations_fit, r_direction, &mut findings);
+    let states_off_too = state_findings(report.states, innovations_fit, r_direction, &mut findings);
     // A mean off zero that does not explain its component's second moment: context, not
     // the cause (a lag under too small a Q biases a nonlinear filter's errors).
     for c in report
-        .measurement_components
+        .measurements
         .iter()
-        .chain(&report.state_components)
+        .chain(report.states)
         .filter(|c| c.mean_verdict == Verdict::Biased && !c.bias_explains())
     {
         let what = if c.kind == "state" {
@@ -241,19 +259,13 @@ pub fn diagnose(report: &ConsistencyReport) -> Diagnosis {
 /// The measurement components a bias does not explain, each blamed on Q or R from its
 /// level and its innovations' whiteness (on R outright where the state errors fit P); the
 /// direction in which they blame R (+1: R too small, −1: too large, 0: they do not).
-fn measurement_findings(report: &ConsistencyReport, findings: &mut Vec<Finding>) -> i32 {
+fn measurement_findings(report: &Evidence, findings: &mut Vec<Finding>) -> i32 {
     let biased = |c: &ComponentStat| c.bias_explains();
-    let states_fit = report
-        .state_components
-        .iter()
-        .all(|c| level(c) == 0 || biased(c));
-    let has_truth = !report.state_components.is_empty();
+    let states_fit = report.states.iter().all(|c| level(c) == 0 || biased(c));
+    let has_truth = !report.states.is_empty();
     let mut r_direction = 0;
-    for c in report.measurement_components.iter().filter(|c| !biased(c)) {
-        let w = report
-            .whiteness_tests
-            .iter()
-            .find(|w| w.component == c.name);
+    for c in report.measurements.iter().filter(|c| !biased(c)) {
+        let w = report.whiteness.iter().find(|w| w.component == c.name);
         let (lv, g) = (level(c), gain(w));
         if lv == 0 && g == 0 {
             continue;
@@ -287,17 +299,13 @@ fn measurement_findings(report: &ConsistencyReport, findings: &mut Vec<Finding>)
 /// where the innovations fit, else their variance in P. Whether one of them is off while
 /// the innovations blame something else and not the way their blame of R explains.
 fn state_findings(
-    report: &ConsistencyReport,
+    states: &[ComponentStat],
     innovations_fit: bool,
     r_direction: i32,
     findings: &mut Vec<Finding>,
 ) -> bool {
     let mut unexplained_state = false;
-    for c in report
-        .state_components
-        .iter()
-        .filter(|c| !c.bias_explains())
-    {
+    for c in states.iter().filter(|c| !c.bias_explains()) {
         let lv = level(c);
         if lv == 0 {
             continue;
@@ -325,4 +333,139 @@ fn state_findings(
         });
     }
     unexplained_state
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::Interval;
+    use super::*;
+
+    /// A component whose second moment `value` is judged against [0.9, 1.1] and whose mean
+    /// is zero.
+    fn component(name: &str, kind: &'static str, value: f64) -> ComponentStat {
+        let verdict = match value {
+            v if v > 1.1 => Verdict::Overconfident,
+            v if v < 0.9 => Verdict::Underconfident,
+            _ => Verdict::Consistent,
+        };
+        ComponentStat {
+            name: name.to_string(),
+            kind,
+            value,
+            interval: Interval {
+                lower: 0.9,
+                upper: 1.1,
+            },
+            samples: 1000.0,
+            verdict,
+            mean: 0.0,
+            mean_z: 0.0,
+            mean_verdict: Verdict::Consistent,
+        }
+    }
+
+    /// A failed whiteness test of `component` with lag-1 autocorrelation `rho1`.
+    fn not_white(component: &str, rho1: f64) -> WhitenessTest {
+        WhitenessTest {
+            component: component.to_string(),
+            statistic: 50.0,
+            dof: 5,
+            threshold: 11.07,
+            rho1,
+            verdict: Verdict::NotWhite,
+        }
+    }
+
+    fn diagnosis(
+        states: &[ComponentStat],
+        measurements: &[ComponentStat],
+        whiteness: &[WhitenessTest],
+    ) -> Diagnosis {
+        diagnose_components(&Evidence {
+            states,
+            measurements,
+            whiteness,
+        })
+    }
+
+    fn actions(d: &Diagnosis) -> Vec<(&str, &str)> {
+        d.findings
+            .iter()
+            .map(|f| (f.component.as_str(), f.action.as_str()))
+            .collect()
+    }
+
+    #[test]
+    fn a_state_off_the_way_the_blame_of_r_explains_leaves_no_room_for_q() {
+        // ν²/S high with alternating innovations: R too small, which makes P too small too,
+        // so a state error above P is R's doing.
+        let d = diagnosis(
+            &[component("x", "state", 1.5)],
+            &[component("z", "measurement", 1.4)],
+            &[not_white("z", -0.3)],
+        );
+        assert_eq!(d.suspect, Some(Suspect::R));
+        assert_eq!(actions(&d)[0], ("z", "increase R"));
+        assert!(!d.states_off_too, "a too-small R explains e²/P above 1");
+        assert_eq!(
+            d.headline().unwrap(),
+            "the evidence points to R (measurement noise)"
+        );
+        // And mirrored: ν²/S low with persistent innovations, R too large, P too large.
+        let d = diagnosis(
+            &[component("x", "state", 0.6)],
+            &[component("z", "measurement", 0.7)],
+            &[not_white("z", 0.3)],
+        );
+        assert_eq!(actions(&d)[0], ("z", "decrease R"));
+        assert!(!d.states_off_too, "a too-large R explains e²/P below 1");
+    }
+
+    #[test]
+    fn a_state_off_against_the_blame_of_r_says_q_may_be_off_as_well() {
+        for (state, meas, rho1) in [(0.6, 1.4, -0.3), (1.5, 0.7, 0.3)] {
+            let d = diagnosis(
+                &[component("x", "state", state)],
+                &[component("z", "measurement", meas)],
+                &[not_white("z", rho1)],
+            );
+            assert_eq!(d.suspect, Some(Suspect::R), "{state} {meas}");
+            assert!(d.states_off_too, "{state} {meas}");
+            assert!(
+                d.headline().unwrap().ends_with("so Q may be off as well"),
+                "{:?}",
+                d.headline()
+            );
+            assert_eq!(d.findings[1].suspect, None, "the state is context");
+        }
+    }
+
+    #[test]
+    fn states_that_fit_put_a_white_innovation_misfit_on_r_and_without_truth_on_both() {
+        let meas = [component("z", "measurement", 1.4)];
+        let d = diagnosis(&[component("x", "state", 1.0)], &meas, &[]);
+        assert_eq!(actions(&d), [("z", "increase R")]);
+        assert_eq!(d.suspect, Some(Suspect::R));
+        let d = diagnosis(&[], &meas, &[]);
+        assert_eq!(actions(&d), [("z", "increase Q and R in proportion")]);
+        assert_eq!(d.suspect, Some(Suspect::QAndR));
+    }
+
+    #[test]
+    fn innovations_that_fit_put_a_state_misfit_on_q() {
+        let d = diagnosis(
+            &[component("x", "state", 1.5), component("v", "state", 0.5)],
+            &[component("z", "measurement", 1.0)],
+            &[],
+        );
+        assert_eq!(
+            actions(&d),
+            [
+                ("x", "increase Q acting on it (or its initial variance)"),
+                ("v", "decrease Q acting on it (or its initial variance)")
+            ]
+        );
+        assert_eq!(d.suspect, Some(Suspect::Q));
+        assert!(!d.states_off_too);
+    }
 }

@@ -468,4 +468,32 @@ mod tests {
         assert_eq!(d.suspect, Some(Suspect::Q));
         assert!(!d.states_off_too);
     }
+
+    #[test]
+    fn a_state_whose_bias_explains_it_is_the_bias_finding_alone() {
+        // e/√P averages 0.7σ: E[u²] = 1 + 0.7² explains e²/P = 1.5, so there is nothing left
+        // for Q (1.5 − 0.49 is inside the interval).
+        let mut biased = component("x", "state", 1.5);
+        biased.mean = 0.7;
+        biased.mean_z = 20.0;
+        biased.mean_verdict = Verdict::Biased;
+        assert!(biased.bias_explains());
+        let d = diagnosis(
+            &[biased, component("v", "state", 1.5)],
+            &[component("z", "measurement", 1.0)],
+            &[],
+        );
+        let found: Vec<_> = d
+            .findings
+            .iter()
+            .map(|f| (f.component.as_str(), f.suspect))
+            .collect();
+        assert_eq!(
+            found,
+            [("x", Some(Suspect::Bias)), ("v", Some(Suspect::Q))],
+            "{:?}",
+            actions(&d)
+        );
+        assert_eq!(d.suspect, Some(Suspect::Bias));
+    }
 }

@@ -40,7 +40,8 @@ trap 'rm -rf "$work"' EXIT
 select=()
 if git rev-parse -q --verify "$commit^{commit}" >/dev/null 2>&1; then
   git diff --no-ext-diff --no-color "$commit" -- "${paths[@]}" | python3 .ci/unmoved.py >"$work/change.diff"
-  if [ -s "$work/change.diff" ]; then
+  # Only context left (the change moved lines, or touched nothing here): nothing is new.
+  if grep -q '^+[^+]' "$work/change.diff"; then
     select=(--in-diff "$work/change.diff")
   fi
   what="the lines of ${paths[*]} changed since $commit (moved lines aside: .ci/unmoved.py)"

@@ -136,3 +136,121 @@ fn the_scanner_sees_plain_and_grouped_paths_and_skips_comments_and_tests() {
         .collect();
     assert_eq!(got, want);
 }
+
+/// The names a `pub use` (or `pub type`) at the top level of `text` makes public, outside
+/// the `internals` module.
+fn reexported_names(text: &str) -> BTreeSet<String> {
+    let code = code(text);
+    let mut names = BTreeSet::new();
+    let mut rest = code.as_str();
+    while let Some(at) = rest.find("pub use ") {
+        let tail = &rest[at + "pub use ".len()..];
+        let end = tail.find(';').expect("a `pub use` ends with `;`");
+        let item = &tail[..end];
+        let list = match item.find('{') {
+            Some(open) => &item[open + 1..item.rfind('}').unwrap()],
+            None => item.rsplit("::").next().unwrap(),
+        };
+        for name in list.split(',').map(str::trim).filter(|n| !n.is_empty()) {
+            let name = name.rsplit(" as ").next().unwrap();
+            if name != "*" {
+                names.insert(name.to_string());
+            }
+        }
+        rest = &tail[end..];
+    }
+    for line in code.lines() {
+        if let Some(t) = line.trim().strip_prefix("pub type ") {
+            names.insert(
+                t.split(|c: char| !c.is_alphanumeric() && c != '_')
+                    .next()
+                    .unwrap()
+                    .to_string(),
+            );
+        }
+    }
+    names
+}
+
+/// The backticked names in the rows of docs/ARCHITECTURE.md's "Public API" table whose first
+/// cell starts with `row`, notes in parentheses aside.
+fn documented_names(row: &str) -> BTreeSet<String> {
+    let doc = std::fs::read_to_string("docs/ARCHITECTURE.md").unwrap();
+    let table = doc
+        .split("## Public API")
+        .nth(1)
+        .expect("docs/ARCHITECTURE.md has a Public API section");
+    let table = table.split("\n## ").next().unwrap();
+    let mut names = BTreeSet::new();
+    for line in table.lines() {
+        let cells: Vec<&str> = line.split('|').map(str::trim).collect();
+        if cells.len() < 3 || !cells[1].starts_with(row) {
+            continue;
+        }
+        let mut what = String::new();
+        let mut depth = 0;
+        for c in cells[2].chars() {
+            match c {
+                '(' => depth += 1,
+                ')' => depth -= 1,
+                _ if depth == 0 => what.push(c),
+                _ => {}
+            }
+        }
+        names.extend(
+            what.split('`')
+                .skip(1)
+                .step_by(2)
+                .filter(|n| n.chars().all(|c| c.is_alphanumeric() || c == '_'))
+                .map(str::to_string),
+        );
+    }
+    names
+}
+
+#[test]
+fn the_documented_public_api_is_the_crate_roots_and_the_preludes() {
+    let lib = std::fs::read_to_string("src/lib.rs").unwrap();
+    // The internals module re-exports every private module for the crate's own tests; it
+    // is not the public API (the `internals` feature turns it on).
+    let (public, internals) = lib.split_once("pub mod internals {").unwrap();
+    let after_internals = &internals[internals.find("\n}\n").unwrap()..];
+    let root = reexported_names(&format!("{public}{after_internals}"));
+    let documented = documented_names("crate root");
+    assert_eq!(
+        root.difference(&documented).collect::<Vec<_>>(),
+        Vec::<&String>::new(),
+        "exported at the crate root (src/lib.rs) but missing from docs/ARCHITECTURE.md's Public API table"
+    );
+    assert_eq!(
+        documented.difference(&root).collect::<Vec<_>>(),
+        Vec::<&String>::new(),
+        "in docs/ARCHITECTURE.md's Public API table but not exported at the crate root"
+    );
+    let prelude = reexported_names(&std::fs::read_to_string("src/prelude.rs").unwrap());
+    let mut documented = documented_names("`prelude`");
+    documented.remove("prelude");
+    assert_eq!(
+        prelude, documented,
+        "the prelude and its row in docs/ARCHITECTURE.md"
+    );
+    // Nothing else is public at the top: the modules the table names and `internals`.
+    let modules: BTreeSet<&str> = public
+        .lines()
+        .chain(after_internals.lines())
+        .filter_map(|l| l.strip_prefix("pub mod "))
+        .map(|m| m.trim_end_matches(';'))
+        .collect();
+    assert_eq!(
+        modules,
+        BTreeSet::from(["app", "commands", "prelude", "report"]),
+        "public modules of src/lib.rs"
+    );
+    let doc = std::fs::read_to_string("docs/ARCHITECTURE.md").unwrap();
+    for m in &modules {
+        assert!(
+            doc.contains(&format!("\n| `{m}` |")),
+            "the public module {m} has no row in docs/ARCHITECTURE.md's Public API table"
+        );
+    }
+}

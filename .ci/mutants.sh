@@ -69,9 +69,9 @@ if [ "${1:-}" = "--list" ]; then
 fi
 
 echo "mutants: $what"
-# Each mutant is built as Cargo.toml's `mutants` profile builds it (release code, rebuilt
-# incrementally, no debug info for this crate), but under the name `release` with those two
-# settings overridden for this crate alone: the dependencies are then release's own, and
+# Each mutant is built as Cargo.toml's `mutants` profile builds it (release settings; this
+# crate unoptimized, rebuilt incrementally, no debug info), but under the name `release` with
+# those three settings overridden for this crate alone: the dependencies are then release's own, and
 # copied from the release build that .ci/run has just made (or that a developer has) into
 # cargo-mutants' own target directory they are up to date there. A new profile would build
 # them all again first (about 7 CPU-minutes); cargo's fingerprints name the profile's
@@ -93,6 +93,7 @@ CARGO_TARGET_DIR=$target cargo mutants --jobs 1 --colors never --output "$target
   --profile release \
   --cargo-arg=--config=profile.release.incremental=true \
   --cargo-arg=--config=profile.release.package.autotune.debug=false \
+  --cargo-arg=--config=profile.release.package.autotune.opt-level=0 \
   "${select[@]}" || code=$?
 # cargo-mutants exits 3 when a test timed out even if it also missed mutants, so the lists
 # decide: any missed mutant fails.

@@ -519,4 +519,78 @@ mod tests {
         assert!((wrong.terms.whiteness - 0.25).abs() < 1e-12, "{wrong:?}");
         assert_eq!(wrong.terms.interval + wrong.terms.per_step, 0.0);
     }
+
+    /// Two steps of two runs: NIS sums 6 and 10 on 4 degrees of freedom a step (ANIS = 4 per
+    /// sample against a target of 2, ratio 2), NEES sums 12 and 12 on 8 (ANEES = 6 against 4,
+    /// ratio 1.5); the NEES's spread over the runs 16 at step 1 and 8 at step 2 against the
+    /// χ² spread 2 · 8 / 2 = 8 (ratios 2 and 1).
+    fn averages() -> Accumulator {
+        let mut acc = Accumulator::new(2, 2, 2, 1);
+        acc.runs = 2;
+        acc.nis_sum = vec![6.0, 10.0];
+        acc.nis_dof = vec![4.0, 4.0];
+        acc.nis_count = vec![2.0, 2.0];
+        acc.nees_sum = vec![12.0, 12.0];
+        acc.nees_dof = vec![8.0, 8.0];
+        acc.nees_count = vec![2.0, 2.0];
+        // Var = sq/c − mean²: 52 − 36 = 16 and 44 − 36 = 8.
+        acc.nees_sq = vec![104.0, 88.0];
+        acc
+    }
+
+    fn only(term: &str) -> Weights {
+        let mut w = Weights::ZERO;
+        w.set(term, 1.0).unwrap();
+        w
+    }
+
+    #[test]
+    fn the_mean_term_is_each_time_averages_squared_log_ratio_to_its_dof_target() {
+        let acc = averages();
+        let l2 = 2f64.ln().powi(2);
+        let full = Objective::new(only("mean"), false, 0.05).evaluate(&acc);
+        let want = l2 + 1.5f64.ln().powi(2);
+        assert!((full.total - want).abs() < 1e-12, "{full:?}, want {want}");
+        let nis = Objective::new(only("mean"), true, 0.05).evaluate(&acc);
+        assert!(
+            (nis.total - l2).abs() < 1e-12,
+            "NIS only: {nis:?}, want {l2}"
+        );
+        // The residuals are J's square roots, term by term.
+        let r = Objective::new(only("mean"), false, 0.05)
+            .residuals(&acc)
+            .unwrap();
+        assert_eq!(r.len(), 2);
+        assert!((r[0] - 2f64.ln()).abs() < 1e-12 && (r[1] - 1.5f64.ln()).abs() < 1e-12);
+    }
+
+    #[test]
+    fn the_shape_term_is_the_mean_squared_log_ratio_of_the_nees_spread_to_chi2s() {
+        let t = Objective::new(only("shape"), false, 0.05).evaluate(&averages());
+        let want = 2f64.ln().powi(2) / 2.0;
+        assert!((t.terms.shape - want).abs() < 1e-12, "{t:?}, want {want}");
+        assert_eq!(t.total, t.terms.shape);
+        // A step of one run has no spread, and NIS-only scoring has no NEES.
+        let mut one = averages();
+        one.nees_count = vec![2.0, 1.0];
+        let t = Objective::new(only("shape"), false, 0.05).evaluate(&one);
+        assert!((t.terms.shape - 2f64.ln().powi(2)).abs() < 1e-12, "{t:?}");
+        let t = Objective::new(only("shape"), true, 0.05).evaluate(&averages());
+        assert_eq!(t.total, 0.0);
+    }
+
+    #[test]
+    fn a_nees_variance_that_is_not_finite_scores_infinity() {
+        // The filters' own predicted variance of the NEES sum overflowed: no interval can be
+        // drawn around ANEES, so no candidate with it can be ranked.
+        let mut acc = averages();
+        acc.null_var_runs = 2;
+        acc.nees_null_var = f64::INFINITY;
+        let o = Objective::new(Weights::default(), false, 0.05);
+        assert_eq!(o.evaluate(&acc).total, f64::INFINITY);
+        assert_eq!(o.residuals(&acc), None);
+        // NIS-only scoring does not read the NEES.
+        let t = Objective::new(Weights::default(), true, 0.05).evaluate(&acc);
+        assert!(t.total.is_finite(), "{t:?}");
+    }
 }

@@ -183,11 +183,10 @@ impl<'a> Tuning<'a> {
 
     /// A converged search that ends on a bound has not shown that no value fits: the data
     /// may want the parameter beyond it. Widen once and search again before any status.
+    /// (A search the experiment failed in has not converged: the failure scores +∞ and
+    /// stops it.)
     pub(super) fn widen(&mut self, found: &mut Found, observer: &dyn Observer) {
-        if found.searched.found.is_none()
-            || !found.best.cost.is_finite()
-            || self.cost.failure().is_some()
-        {
+        if found.searched.found.is_none() || !found.best.cost.is_finite() {
             return;
         }
         let (w, y) = separable::widen_once(

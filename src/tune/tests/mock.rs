@@ -56,6 +56,8 @@ pub(crate) struct Mock {
     exact: bool,
     /// The decoupled blocks, if declared.
     blocks: Option<Vec<Block>>,
+    /// A Monte Carlo call fails (as a broken worker does) when parameter `.0` exceeds `.1`.
+    fail_above: Option<(usize, f64)>,
 }
 
 impl Mock {
@@ -91,6 +93,7 @@ impl Mock {
             measuring: false,
             exact: true,
             blocks: None,
+            fail_above: None,
         }
     }
 
@@ -108,6 +111,13 @@ impl Mock {
     /// The mock without exact sums: every evaluation is a (mock) Monte Carlo run.
     pub(crate) fn without_exact_sums(mut self) -> Mock {
         self.exact = false;
+        self
+    }
+
+    /// The mock whose Monte Carlo calls fail where parameter `i` exceeds `value`, as an
+    /// external worker that breaks the protocol on some candidates.
+    pub(crate) fn failing_above(mut self, i: usize, value: f64) -> Mock {
+        self.fail_above = Some((i, value));
         self
     }
 
@@ -277,6 +287,16 @@ impl Experiment for Mock {
         _o: RunOptions<'_>,
     ) -> Result<Accumulator, ExperimentError> {
         self.runs.lock().unwrap().push(mc.runs());
+        if let Some((i, v)) = self.fail_above
+            && theta[i] > v
+        {
+            self.calls.fetch_add(1, Ordering::SeqCst);
+            return Err(ExperimentError::RecordsDiffer {
+                source_label: format!("p{i} = {}", theta[i]),
+                held: (0, 0, 0),
+                asked: (mc.runs(), mc.steps(), mc.lags()),
+            });
+        }
         Ok(self.sums(theta))
     }
 

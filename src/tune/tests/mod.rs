@@ -528,3 +528,58 @@ fn blocks_are_refined_on_monte_carlo_runs_only_after_a_converged_search() {
         "no refinement after a budget ran out"
     );
 }
+
+/// The phases an observer was told of, in order.
+#[derive(Default)]
+struct Phases(std::sync::Mutex<Vec<String>>);
+
+impl Observer for Phases {
+    fn phase(&self, name: &str) {
+        self.0.lock().unwrap().push(name.to_string());
+    }
+}
+
+#[test]
+fn an_experiment_that_failed_ends_the_tune_with_its_error_and_widens_nothing() {
+    // p0 wants to go beyond its bound (truth 1e5, bound 1e4), and every candidate with
+    // p1 > 1e3 fails as a broken worker does: the global stage's points reach there, the
+    // search still converges on the points that answer, and the tune must then stop with
+    // the failure instead of widening p0's bound and searching on.
+    let mock = beyond_the_bound()
+        .without_exact_sums()
+        .failing_above(1, 1e3);
+    let start = mock.params().values();
+    let phases = Phases::default();
+    let r = tune(
+        &mock,
+        &start,
+        &[false, false],
+        mock.mc(),
+        &settings(Scoring::MonteCarlo),
+        &phases,
+    );
+    match r {
+        Err(TuneError::Experiment(ExperimentError::RecordsDiffer { source_label, .. })) => {
+            assert!(source_label.starts_with("p1 = "), "{source_label}")
+        }
+        other => panic!("expected the experiment's failure, got {other:?}"),
+    }
+    let phases = phases.0.into_inner().unwrap();
+    assert!(
+        !phases.iter().any(|p| p == "widen"),
+        "widened after the experiment failed: {phases:?}"
+    );
+    // Without the failure the same search widens p0's bound: the failure is what stops it.
+    let mock = beyond_the_bound().without_exact_sums();
+    let phases = Phases::default();
+    tune(
+        &mock,
+        &start,
+        &[false, false],
+        mock.mc(),
+        &settings(Scoring::MonteCarlo),
+        &phases,
+    )
+    .unwrap();
+    assert!(phases.0.into_inner().unwrap().iter().any(|p| p == "widen"));
+}

@@ -294,6 +294,7 @@ impl<'a> Tuning<'a> {
     /// gate where its start passes, has not found the best fit: the start is kept (often
     /// an estimate from the same record), rather than the conclusion that no value fits.
     pub(super) fn confirm(&self, refined: &Refined, observer: &dyn Observer) -> Confirmed {
+        observer.phase("confirm");
         let (cost, start) = (&self.cost, self.start);
         let mut tuned = if refined.point.is_empty() {
             start.to_vec()
@@ -301,7 +302,6 @@ impl<'a> Tuning<'a> {
             cost.theta(&refined.point)
         };
         let mut objective_final = cost.objective.evaluate(&cost.accumulate(&tuned));
-        observer.phase("confirm");
         let gate = self.gate();
         let confirm_seed = self
             .settings

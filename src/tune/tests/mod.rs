@@ -583,3 +583,88 @@ fn an_experiment_that_failed_ends_the_tune_with_its_error_and_widens_nothing() {
     .unwrap();
     assert!(phases.0.into_inner().unwrap().iter().any(|p| p == "widen"));
 }
+
+/// The mock's call count at each phase the observer is told of.
+struct CallsAtPhases<'m> {
+    mock: &'m Mock,
+    seen: std::sync::Mutex<Vec<(String, usize)>>,
+}
+
+impl Observer for CallsAtPhases<'_> {
+    fn phase(&self, name: &str) {
+        let calls = self.mock.calls.load(Ordering::SeqCst);
+        self.seen.lock().unwrap().push((name.to_string(), calls));
+    }
+}
+
+/// `mock` tuned under Monte Carlo scoring; the result, the Monte Carlo calls made between
+/// the first "refine" phase and "confirm", and the run counts they asked for.
+fn refined(mock: &Mock) -> (TuneResult, usize, Vec<usize>) {
+    let start = mock.params().values();
+    let fixed = vec![false; start.len()];
+    let seen = CallsAtPhases {
+        mock,
+        seen: Default::default(),
+    };
+    let r = tune(
+        mock,
+        &start,
+        &fixed,
+        mock.mc(),
+        &settings(Scoring::MonteCarlo),
+        &seen,
+    )
+    .unwrap();
+    let seen = seen.seen.into_inner().unwrap();
+    let at = |phase: &str| seen.iter().find(|(p, _)| p == phase).map(|s| s.1).unwrap();
+    let (from, to) = (at("refine"), at("confirm"));
+    let runs = mock.runs.lock().unwrap()[from..to].to_vec();
+    (r, to - from, runs)
+}
+
+#[test]
+fn the_refinement_books_every_call_it_makes() {
+    // Pooled: the sensitivity at the optimum (3 calls on the search's runs: the point and one
+    // step per parameter), then Levenberg–Marquardt on 4× those runs. By blocks: the same
+    // for each block's one parameter (2 calls each), then the pooled sensitivity (3) for the
+    // resolution, with no pooled steps.
+    let blocks: Vec<crate::experiment::Block> = (0..2)
+        .map(|i| crate::experiment::Block {
+            params: vec![i],
+            states: vec![i],
+            measurements: vec![],
+        })
+        .collect();
+    let decoupled = || Mock::new(&[0.3, 20.0], &[&[4.0, 0.0], &[0.0, 8.0]]).without_exact_sums();
+    let search = 4 * decoupled().mc().runs();
+    for (mock, sensitivity_calls) in [
+        (decoupled(), 3),
+        (decoupled().with_blocks(blocks), 2 + 2 + 3),
+    ] {
+        let (r, calls, runs) = refined(&mock);
+        assert_eq!(r.status, TuneStatus::Consistent);
+        assert_eq!(r.refine_evaluations, calls, "booked vs made");
+        let on_search_runs = runs.iter().filter(|&&n| n == search).count();
+        assert_eq!(on_search_runs, sensitivity_calls, "{runs:?}");
+        let on_refine_runs = runs.iter().filter(|&&n| n == 4 * search).count();
+        assert_eq!(on_search_runs + on_refine_runs, calls, "{runs:?}");
+        // The search ends at the optimum, where the first Gauss–Newton step is below 10⁻³:
+        // each Levenberg–Marquardt run spends only its evaluation at the start.
+        let lm_runs = if r.separable { 2 } else { 1 };
+        assert_eq!(on_refine_runs, lm_runs, "{runs:?}");
+    }
+}
+
+#[test]
+fn a_search_stopped_before_its_first_evaluation_has_exhausted_its_budget() {
+    // A deadline already past when the search starts: no candidate was scored, so the best
+    // J booked is +∞, which must not read as a filter that diverged: the status is the
+    // budget's.
+    let mock = quadratic();
+    let r = run(
+        &mock,
+        &settings(Scoring::Exact).with_max_seconds(1e-9).unwrap(),
+    );
+    assert_eq!((r.status, r.evaluations), (TuneStatus::BudgetExhausted, 0));
+    assert_eq!(r.tuned, mock.params().values(), "the start is kept");
+}

@@ -58,6 +58,8 @@ pub(crate) struct Mock {
     blocks: Option<Vec<Block>>,
     /// A Monte Carlo call fails (as a broken worker does) when parameter `.0` exceeds `.1`.
     fail_above: Option<(usize, f64)>,
+    /// The sums are the same for every seed (a filter over one recorded data set).
+    recorded: bool,
 }
 
 impl Mock {
@@ -94,6 +96,7 @@ impl Mock {
             exact: true,
             blocks: None,
             fail_above: None,
+            recorded: false,
         }
     }
 
@@ -118,6 +121,13 @@ impl Mock {
     /// external worker that breaks the protocol on some candidates.
     pub(crate) fn failing_above(mut self, i: usize, value: f64) -> Mock {
         self.fail_above = Some((i, value));
+        self
+    }
+
+    /// The mock as a filter over one recorded data set ([`Experiment::seed_free`]): its
+    /// sums were always the same for every seed; now it says so.
+    pub(crate) fn recorded(mut self) -> Mock {
+        self.recorded = true;
         self
     }
 
@@ -306,6 +316,10 @@ impl Experiment for Mock {
 
     fn blocks(&self) -> Option<Vec<Block>> {
         self.blocks.clone()
+    }
+
+    fn seed_free(&self) -> bool {
+        self.recorded
     }
 
     fn target(&self, i: usize) -> Option<Target> {

@@ -668,3 +668,43 @@ fn a_search_stopped_before_its_first_evaluation_has_exhausted_its_budget() {
     assert_eq!((r.status, r.evaluations), (TuneStatus::BudgetExhausted, 0));
     assert_eq!(r.tuned, mock.params().values(), "the start is kept");
 }
+
+#[test]
+fn one_record_is_confirmed_once_and_its_resolution_is_the_bounds_alone() {
+    // The mock's sums never depended on the seed; recorded, it says so. The search improves
+    // on the start, so the tuned values are kept (not the start), the confirmation is the
+    // record once, and with no seed-to-seed spread only the bounds are assessed.
+    let mock = quadratic().recorded();
+    let r = run(&mock, &settings(Scoring::Exact));
+    assert_converged(&mock, &r, LocalSearch::Simplex, QUADRATIC_SIMPLEX_TOL);
+    assert!(r.confirmation.recorded && r.confirmation.seeds == 1);
+    let unbounded = Resolution {
+        factor: None,
+        identifiable: true,
+        at_bound: false,
+    };
+    assert_eq!(r.resolution, Some(vec![unbounded; 2]));
+    // With every parameter fixed there is nothing to assess on one record.
+    let fixed = [true, true];
+    let start = mock.params().values();
+    let r = tune(
+        &mock,
+        &start,
+        &fixed,
+        mock.mc(),
+        &settings(Scoring::Exact),
+        &Silent,
+    )
+    .unwrap();
+    assert_eq!(r.resolution, None);
+}
+
+#[test]
+fn a_search_on_which_every_candidate_diverged_is_not_assessed() {
+    // Every candidate diverges and the budget runs out: no resolution, not the "fixed"
+    // one a search without free parameters gets.
+    let mock = quadratic().diverging_above(0, 0.0);
+    let r = run(&mock, &settings(Scoring::Exact).with_max_evals(20).unwrap());
+    assert_eq!(r.status, TuneStatus::Diverged);
+    assert_eq!(r.resolution, None);
+}

@@ -725,8 +725,8 @@ fn ctrl_c_ends_a_follow_with_its_summary() {
         "time,sensor,nu_1,S_1_1\n0.1,baro,0.3,1.0\n0.2,baro,-0.5,1.0\n0.3,baro,0.2,1.0",
     )
     .unwrap();
-    let child = std::process::Command::cargo_bin("autotune")
-        .unwrap()
+    let mut cmd = std::process::Command::cargo_bin("autotune").unwrap();
+    let child = common::with_default_signals(&mut cmd)
         .args(["nis", "--follow", path.to_str().unwrap(), "--for", "60"])
         .stdout(std::process::Stdio::piped())
         .stderr(std::process::Stdio::piped())

@@ -396,6 +396,7 @@ fn issue11_interrupt_removes_temporary_files() {
             .env("AUTOTUNE_TEST_HOLD_TEMPORARY_MS", "60000")
             .stdout(Stdio::null())
             .stderr(Stdio::piped());
+        common::with_default_signals(&mut c);
         if cmd == "check" {
             c.args(["--junit", "j.xml"]);
         } else {

@@ -65,7 +65,7 @@ fn issue21_an_interrupt_between_two_renames_leaves_no_mix_of_runs() {
             std::fs::write(&p, OLD).unwrap();
         }
         // The second rename (the process makes none but the commit's) is delayed 3 s.
-        let mut strace = Command::new("strace")
+        let mut strace = common::with_default_signals(&mut Command::new("strace"))
             .current_dir(dir.path())
             .args(["-f", "-qq", "-o", "/dev/null"])
             .args(["-e", "trace=rename,renameat,renameat2"])

@@ -5,6 +5,8 @@
 //! check catches runs all seeded alike and a worker whose answers depend on its state. With
 //! the scripted pure Python worker `tests/data/workers/fake_worker.py`.
 
+mod common;
+
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
@@ -278,7 +280,8 @@ fn issue21_an_interrupt_stops_worker_groups_and_removes_scratch_dirs() {
         // Workers that ignore SIGTERM and the closing of their stdin, each with a child
         // that ignores SIGTERM too, both busy answering.
         let p = problem(dir.path(), "stubborn", 2, 200, 60.0);
-        let mut child = check(&p, &tmp, &log)
+        let mut cmd = check(&p, &tmp, &log);
+        let mut child = common::with_default_signals(&mut cmd)
             .stdout(Stdio::null())
             .stderr(Stdio::piped())
             .spawn()

@@ -80,3 +80,21 @@ pub fn autotune(args: &[&str]) -> (Option<i32>, String, String) {
         String::from_utf8_lossy(&out.stderr).into_owned(),
     )
 }
+
+/// `cmd` with SIGINT, SIGTERM and SIGHUP at their default disposition in the child, for the
+/// tests that interrupt it: a shell starts a background job with SIGINT ignored, autotune
+/// leaves an ignored signal ignored (the user asked for it to be survived), and the test
+/// would then wait out the command instead of testing its interrupt.
+pub fn with_default_signals(cmd: &mut std::process::Command) -> &mut std::process::Command {
+    use std::os::unix::process::CommandExt;
+    // SAFETY: between fork and exec the closure calls only signal(2), which is
+    // async-signal-safe, and allocates nothing.
+    unsafe {
+        cmd.pre_exec(|| {
+            for s in [libc::SIGINT, libc::SIGTERM, libc::SIGHUP] {
+                libc::signal(s, libc::SIG_DFL);
+            }
+            Ok(())
+        })
+    }
+}

@@ -666,23 +666,11 @@ fn verdict_of(sensors: &[SensorReport]) -> Verdict {
 /// What the sensors' findings blame together: a bias first, then Q or R where all that
 /// blame one blame the same, Q and R otherwise.
 fn suspect_of(sensors: &[SensorReport]) -> Option<Suspect> {
-    let blames = |x: Suspect| {
+    Suspect::overall(|x| {
         sensors
             .iter()
             .any(|s| s.finding.as_ref().is_some_and(|f| f.suspect == Some(x)))
-    };
-    match (
-        blames(Suspect::Bias),
-        blames(Suspect::Q),
-        blames(Suspect::R),
-        blames(Suspect::QAndR),
-    ) {
-        (true, ..) => Some(Suspect::Bias),
-        (false, false, false, false) => None,
-        (false, true, false, false) => Some(Suspect::Q),
-        (false, false, true, false) => Some(Suspect::R),
-        _ => Some(Suspect::QAndR),
-    }
+    })
 }
 
 /// The factor by which strongly correlated innovations inflate the variance of the NIS

@@ -49,6 +49,24 @@ pub enum Suspect {
 }
 
 impl Suspect {
+    /// What findings blame together, given whether any of them `blames` each suspect: a
+    /// bias first (it explains the second moments too), then Q or R where every blame is on
+    /// the same one, both otherwise; `None` when nothing is blamed.
+    pub fn overall(blames: impl Fn(Suspect) -> bool) -> Option<Suspect> {
+        match (
+            blames(Suspect::Bias),
+            blames(Suspect::Q),
+            blames(Suspect::R),
+            blames(Suspect::QAndR),
+        ) {
+            (true, ..) => Some(Suspect::Bias),
+            (false, false, false, false) => None,
+            (false, true, false, false) => Some(Suspect::Q),
+            (false, false, true, false) => Some(Suspect::R),
+            _ => Some(Suspect::QAndR),
+        }
+    }
+
     /// The noise model in words, e.g. "Q (process noise)".
     pub fn words(self) -> &'static str {
         match self {
@@ -236,19 +254,7 @@ fn diagnose_components(report: &Evidence) -> Diagnosis {
             evidence: format!("mean {what} = {} (z = {})", signed(c.mean), signed(c.mean_z)),
         });
     }
-    let blames = |s: Suspect| findings.iter().any(|f| f.suspect == Some(s));
-    let suspect = match (
-        blames(Suspect::Bias),
-        blames(Suspect::Q),
-        blames(Suspect::R),
-        blames(Suspect::QAndR),
-    ) {
-        (true, ..) => Some(Suspect::Bias),
-        (false, false, false, false) => None,
-        (false, true, false, false) => Some(Suspect::Q),
-        (false, false, true, false) => Some(Suspect::R),
-        _ => Some(Suspect::QAndR),
-    };
+    let suspect = Suspect::overall(|s| findings.iter().any(|f| f.suspect == Some(s)));
     Diagnosis {
         findings,
         suspect,

@@ -437,17 +437,23 @@ fn with_every_parameter_fixed_nothing_is_searched() {
     assert_eq!(r.status, TuneStatus::Consistent);
 }
 
-#[test]
-fn declared_blocks_are_searched_one_by_one() {
-    // A diagonal quadratic (each parameter drives its own component) declared as two
-    // blocks: the search runs block by block and lands on the same minimum.
-    let blocks: Vec<crate::experiment::Block> = (0..2)
+/// Two blocks, each of one parameter driving its own state component (for a diagonal
+/// quadratic such as `A = diag(4, 8)`).
+fn one_block_per_parameter() -> Vec<crate::experiment::Block> {
+    (0..2)
         .map(|i| crate::experiment::Block {
             params: vec![i],
             states: vec![i],
             measurements: vec![],
         })
-        .collect();
+        .collect()
+}
+
+#[test]
+fn declared_blocks_are_searched_one_by_one() {
+    // A diagonal quadratic (each parameter drives its own component) declared as two
+    // blocks: the search runs block by block and lands on the same minimum.
+    let blocks = one_block_per_parameter();
     for local in [LocalSearch::Simplex, LocalSearch::GaussNewton] {
         let mock = Mock::new(&[0.3, 20.0], &[&[4.0, 0.0], &[0.0, 8.0]]).with_blocks(blocks.clone());
         let r = run(&mock, &settings(Scoring::Exact).with_local(local));
@@ -505,13 +511,7 @@ fn a_search_that_ran_out_of_budget_on_a_bound_is_not_widened() {
 
 #[test]
 fn blocks_are_refined_on_monte_carlo_runs_only_after_a_converged_search() {
-    let blocks: Vec<crate::experiment::Block> = (0..2)
-        .map(|i| crate::experiment::Block {
-            params: vec![i],
-            states: vec![i],
-            measurements: vec![],
-        })
-        .collect();
+    let blocks = one_block_per_parameter();
     let mock = || Mock::new(&[0.3, 20.0], &[&[4.0, 0.0], &[0.0, 8.0]]).with_blocks(blocks.clone());
     let s = settings(Scoring::MonteCarlo);
     let r = run(&mock(), &s);
@@ -628,13 +628,7 @@ fn the_refinement_books_every_call_it_makes() {
     // step per parameter), then Levenberg–Marquardt on 4× those runs. By blocks: the same
     // for each block's one parameter (2 calls each), then the pooled sensitivity (3) for the
     // resolution, with no pooled steps.
-    let blocks: Vec<crate::experiment::Block> = (0..2)
-        .map(|i| crate::experiment::Block {
-            params: vec![i],
-            states: vec![i],
-            measurements: vec![],
-        })
-        .collect();
+    let blocks = one_block_per_parameter();
     let decoupled = || Mock::new(&[0.3, 20.0], &[&[4.0, 0.0], &[0.0, 8.0]]).without_exact_sums();
     let search = 4 * decoupled().mc().runs();
     for (mock, sensitivity_calls) in [

@@ -2,7 +2,7 @@
 
 use super::{Definition, Experiment, ExperimentError, RunOptions};
 use crate::catalog::{CatalogEntry, CatalogModel};
-use crate::montecarlo::{self, McConfig};
+use crate::montecarlo::{self, McConfig, TruthCache};
 use crate::params::Target;
 use crate::stats::Accumulator;
 
@@ -17,6 +17,9 @@ pub struct CatalogExperiment {
     pub entry: CatalogEntry,
     /// The model built from the file's `[model]` table.
     pub model: Box<dyn CatalogModel>,
+    /// The truth of seed sets evaluated more than once (a catalog truth does not depend on
+    /// θ: the parameters are the filter's).
+    pub truth_cache: TruthCache,
 }
 
 impl Experiment for CatalogExperiment {
@@ -30,11 +33,12 @@ impl Experiment for CatalogExperiment {
         mc: &McConfig,
         run: RunOptions<'_>,
     ) -> Result<Accumulator, ExperimentError> {
-        Ok(montecarlo::run_generic_with_progress(
+        Ok(montecarlo::run_generic_cached(
             self.model.truth(),
             &self.model.filter(theta),
             mc,
             run.progress,
+            &self.truth_cache,
         ))
     }
 

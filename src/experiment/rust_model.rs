@@ -4,7 +4,7 @@ use super::{Covariances, Definition, Experiment, ExperimentError, Info, RunOptio
 use crate::filter::Filter;
 use crate::input::SettingError;
 use crate::model::TruthModel;
-use crate::montecarlo::{self, McConfig};
+use crate::montecarlo::{self, McConfig, TruthCache};
 use crate::params::{ParamDef, ParamSpace, Target};
 use crate::stats::Accumulator;
 
@@ -54,6 +54,8 @@ pub struct RustModel<T, B> {
     targets: Vec<Target>,
     covariances: Option<CovarianceFn>,
     truth_values: Option<Vec<f64>>,
+    /// The truth does not depend on θ (the builder makes the filter only).
+    truth_cache: TruthCache,
 }
 
 /// Collects a [`RustModel`] experiment's parts; [`RustModelBuilder::build`] checks them.
@@ -245,6 +247,7 @@ where
             targets,
             covariances: self.covariances,
             truth_values: self.truth_values,
+            truth_cache: TruthCache::default(),
         })
     }
 }
@@ -265,11 +268,12 @@ where
         mc: &McConfig,
         run: RunOptions<'_>,
     ) -> Result<Accumulator, ExperimentError> {
-        Ok(montecarlo::run_generic_with_progress(
+        Ok(montecarlo::run_generic_cached(
             &self.truth,
             &(self.build)(theta),
             mc,
             run.progress,
+            &self.truth_cache,
         ))
     }
 

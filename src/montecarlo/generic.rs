@@ -8,7 +8,8 @@
 
 use nalgebra::{Cholesky, DVector, Dyn};
 
-use super::{McConfig, Progress, record_divergence, run_chunked, run_rng};
+use super::tape::{Live, Replay, TruthCache, TruthSource, TruthTape};
+use super::{McConfig, Progress, record_divergence, run_chunked};
 use crate::filter::conditioning::{MAX_CONDITION, check_conditioned};
 use crate::filter::{Estimate, Filter, FilterError, check_measurement};
 use crate::linalg::cholesky;
@@ -126,26 +127,69 @@ where
     M: TruthModel + ?Sized,
     F: Filter + ?Sized,
 {
+    run_with_tape(truth, filter, mc, progress, None)
+}
+
+/// [`run_generic_with_progress`] for a truth that does not depend on the filter's
+/// parameters: a seed set evaluated before is replayed from `cache` rather than simulated
+/// again (the sums are bit-identical; see [`TruthCache`]).
+pub fn run_generic_cached<M, F>(
+    truth: &M,
+    filter: &F,
+    mc: &McConfig,
+    progress: Progress<'_>,
+    cache: &TruthCache,
+) -> Accumulator
+where
+    M: TruthModel + ?Sized,
+    F: Filter + ?Sized,
+{
+    let tape = cache.tape(truth, mc);
+    run_with_tape(truth, filter, mc, progress, tape.as_deref())
+}
+
+/// The generic engine on `tape`'s runs where given (it must cover `mc`), else simulating.
+fn run_with_tape<M, F>(
+    truth: &M,
+    filter: &F,
+    mc: &McConfig,
+    progress: Progress<'_>,
+    tape: Option<&TruthTape>,
+) -> Accumulator
+where
+    M: TruthModel + ?Sized,
+    F: Filter + ?Sized,
+{
+    debug_assert!(tape.is_none_or(|t| t.covers(mc)));
     let n_x = filter.n_x();
     let dims = filter.sensor_dims();
     let offsets = sensor_offsets(&dims);
     let n_z: usize = dims.iter().sum();
+    let shape = Shape {
+        offsets: &offsets,
+        dims: &dims,
+    };
     run_chunked(mc, n_x, n_z, progress, |range, acc| {
         let mut scratch = RunRecorder::new(n_x, n_z, mc.lags());
         let mut meas: Vec<Measurement> = Vec::new();
         for run in range {
             scratch.reset();
-            if let Err(e) = one_run(
-                truth,
-                filter,
-                mc,
-                run,
-                &offsets,
-                &dims,
-                acc,
-                &mut scratch,
-                &mut meas,
-            ) {
+            let done = match tape {
+                Some(t) => one_run(
+                    Replay::new(t.run(run)),
+                    filter,
+                    mc,
+                    run,
+                    shape,
+                    acc,
+                    &mut scratch,
+                ),
+                None => {
+                    let live = Live::new(truth, mc.seed(), run, &mut meas);
+                    one_run(live, filter, mc, run, shape, acc, &mut scratch)
+                }
+            };
+            if let Err(e) = done {
                 match e {
                     Stop::Filter(e) => record_divergence(acc, run, &e),
                     Stop::Fault(f, step) => acc.record_stop(run, step, f.cause(), f.reason(step)),
@@ -158,44 +202,42 @@ where
     })
 }
 
-#[allow(clippy::too_many_arguments)]
-fn one_run<M, F>(
-    truth: &M,
+/// The filter's sensors: each one's dimension and first component's offset.
+#[derive(Clone, Copy)]
+struct Shape<'a> {
+    offsets: &'a [usize],
+    dims: &'a [usize],
+}
+
+fn one_run<S, F>(
+    mut truth: S,
     filter: &F,
     mc: &McConfig,
     run: usize,
-    offsets: &[usize],
-    dims: &[usize],
+    shape: Shape<'_>,
     acc: &mut Accumulator,
     scratch: &mut RunRecorder,
-    meas: &mut Vec<Measurement>,
 ) -> Result<(), Stop>
 where
-    M: TruthModel + ?Sized,
+    S: TruthSource,
     F: Filter + ?Sized,
 {
     let n_x = filter.n_x();
-    let mut rng = run_rng(mc.seed(), run);
-    let mut x = truth.initial_state(&mut rng);
     let mut est = filter.initial();
     let mut null_var = RunNullVariance::new(n_x, mc, run);
     let mut run_nees = 0.0;
     for k in 1..=mc.steps() {
         let i = k - 1;
-        x = truth.propagate(k, &x, &mut rng);
-        if x.iter().any(|v| !v.is_finite()) {
+        if !truth.advance(k) {
             return Err(Stop::Fault(Fault::TruthOverflow, k));
         }
-        let input = truth.input(k, &x, &mut rng);
-        meas.clear();
-        truth.measure(k, &x, &mut rng, meas);
-        match &input {
+        match truth.input() {
             Some(u) => filter.predict_with_input(k, &mut est, u)?,
             None => filter.predict(k, &mut est)?,
         }
-        let (nis, dof) = update_all(filter, k, &mut est, meas, dims, offsets, scratch)?;
+        let (nis, dof) = update_all(filter, k, &mut est, truth.measurements(), shape, scratch)?;
 
-        let e: DVector<f64> = filter.state_error(&x, &est.x);
+        let e: DVector<f64> = filter.state_error(truth.state(), &est.x);
         let chol = cholesky(&est.P).ok_or(FilterError::NotPositiveDefinite {
             which: "P",
             step: k,
@@ -236,10 +278,10 @@ fn update_all<F: Filter + ?Sized>(
     k: usize,
     est: &mut Estimate,
     meas: &[Measurement],
-    dims: &[usize],
-    offsets: &[usize],
+    shape: Shape<'_>,
     scratch: &mut RunRecorder,
 ) -> Result<(f64, usize), Stop> {
+    let Shape { offsets, dims } = shape;
     let (mut nis, mut dof) = (0.0, 0usize);
     for m in meas {
         check_measurement(dims.get(m.sensor).copied(), m)?;

@@ -11,11 +11,13 @@ mod config;
 mod expected;
 mod generic;
 mod linear;
+mod tape;
 
 pub use config::{DEFAULT_ALPHA, DEFAULT_LAGS, MAX_RUNS, MAX_STEPS, McConfig};
 pub use expected::{expected_accumulator, models_match};
-pub use generic::{NULL_VAR_STRIDE, run_generic, run_generic_with_progress};
+pub use generic::{NULL_VAR_STRIDE, run_generic, run_generic_cached, run_generic_with_progress};
 pub use linear::{run_linear, run_linear_with_progress};
+pub use tape::{TruthCache, TruthTape};
 
 use std::ops::Range;
 

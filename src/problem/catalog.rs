@@ -108,6 +108,7 @@ impl Validator<'_> {
             },
             entry,
             model,
+            truth_cache: Default::default(),
         })
     }
 }

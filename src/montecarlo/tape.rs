@@ -1,0 +1,329 @@
+//! Truth tapes: a seed set's truth trajectories, inputs and measurements, simulated once and
+//! replayed to every filter evaluated on that seed set.
+//!
+//! Under common random numbers a tuner evaluates every candidate θ on the same seeds. When θ
+//! enters only the filter (its Q and R), the truth a run simulates does not depend on θ: the
+//! filter draws no random numbers, so run `i`'s stream `(seed, i)` gives the same states
+//! and measurements to every candidate. A [`TruthCache`] keeps those runs after the second
+//! evaluation of a seed set and hands them to the generic engine, which replays them
+//! instead of simulating; the sums are bit-identical to simulating (the tests compare).
+//!
+//! Memory is one tape per seed set in use: N × T × (n_x + n_u + n_z) numbers and a small
+//! per-vector overhead, a few MB for the catalog's search runs. The cache holds at most
+//! [`TruthCache::DEFAULT_LIMIT`] bytes (the least recently used tape goes first) and
+//! simulates, as before, a seed set whose tape would not fit.
+
+use std::sync::{Arc, Mutex, PoisonError};
+
+use nalgebra::DVector;
+use rayon::prelude::*;
+
+use super::{McConfig, run_rng};
+use crate::SimRng;
+use crate::measurement::Measurement;
+use crate::model::TruthModel;
+
+/// What one step of a run's truth gives the filter: the true state, the control input, the
+/// measurements. The engine advances it step by step, simulating or replaying.
+pub(super) trait TruthSource {
+    /// Move to step `k` (1-based, in order); `false` if the truth state stopped being
+    /// finite there (the run ends).
+    fn advance(&mut self, k: usize) -> bool;
+    /// The true state at the current step.
+    fn state(&self) -> &DVector<f64>;
+    /// The control input of the prediction into the current step.
+    fn input(&self) -> Option<&DVector<f64>>;
+    /// The measurements of the current step.
+    fn measurements(&self) -> &[Measurement];
+}
+
+/// A run's truth simulated as the engine goes, from the run's own random stream.
+pub(super) struct Live<'a, M: ?Sized> {
+    truth: &'a M,
+    rng: SimRng,
+    x: DVector<f64>,
+    input: Option<DVector<f64>>,
+    meas: &'a mut Vec<Measurement>,
+}
+
+impl<'a, M: TruthModel + ?Sized> Live<'a, M> {
+    /// Run `run` of seed set `seed`, its initial state drawn; `meas` is reused storage.
+    pub(super) fn new(truth: &'a M, seed: u64, run: usize, meas: &'a mut Vec<Measurement>) -> Self {
+        let mut rng = run_rng(seed, run);
+        let x = truth.initial_state(&mut rng);
+        meas.clear();
+        Live {
+            truth,
+            rng,
+            x,
+            input: None,
+            meas,
+        }
+    }
+}
+
+impl<M: TruthModel + ?Sized> TruthSource for Live<'_, M> {
+    #[inline]
+    fn advance(&mut self, k: usize) -> bool {
+        self.x = self.truth.propagate(k, &self.x, &mut self.rng);
+        if self.x.iter().any(|v| !v.is_finite()) {
+            return false;
+        }
+        self.input = self.truth.input(k, &self.x, &mut self.rng);
+        self.meas.clear();
+        self.truth.measure(k, &self.x, &mut self.rng, self.meas);
+        true
+    }
+
+    fn state(&self) -> &DVector<f64> {
+        &self.x
+    }
+
+    fn input(&self) -> Option<&DVector<f64>> {
+        self.input.as_ref()
+    }
+
+    fn measurements(&self) -> &[Measurement] {
+        self.meas
+    }
+}
+
+/// One run's truth as simulated: the states and inputs of steps 1..=len and every step's
+/// measurements; `len` is short of T when the truth overflowed at step `len + 1`.
+#[derive(Debug)]
+pub(super) struct RunTape {
+    states: Vec<DVector<f64>>,
+    inputs: Vec<Option<DVector<f64>>>,
+    meas: Vec<Measurement>,
+    /// Step k's measurements are `meas[ends[k − 1]..ends[k]]` (`ends[0] = 0`).
+    ends: Vec<usize>,
+}
+
+impl RunTape {
+    fn record<M: TruthModel + ?Sized>(truth: &M, seed: u64, run: usize, steps: usize) -> Self {
+        let mut scratch = Vec::new();
+        let mut live = Live::new(truth, seed, run, &mut scratch);
+        let mut tape = RunTape {
+            states: Vec::with_capacity(steps),
+            inputs: Vec::with_capacity(steps),
+            meas: Vec::new(),
+            ends: Vec::with_capacity(steps + 1),
+        };
+        tape.ends.push(0);
+        for k in 1..=steps {
+            if !live.advance(k) {
+                break;
+            }
+            tape.states.push(live.x.clone());
+            tape.inputs.push(live.input.take());
+            tape.meas.append(live.meas);
+            tape.ends.push(tape.meas.len());
+        }
+        tape
+    }
+
+    /// Heap bytes held, counting each vector's allocation overhead.
+    fn bytes(&self) -> usize {
+        const VEC: usize = 48;
+        let v = |x: &DVector<f64>| 8 * x.len() + VEC;
+        self.states.iter().map(v).sum::<usize>()
+            + self.inputs.iter().flatten().map(v).sum::<usize>()
+            + self.meas.iter().map(|m| v(&m.z)).sum::<usize>()
+            + 8 * self.ends.len()
+            + 3 * VEC
+    }
+}
+
+/// A run replayed from its tape.
+pub(super) struct Replay<'a> {
+    tape: &'a RunTape,
+    step: usize,
+}
+
+impl<'a> Replay<'a> {
+    pub(super) fn new(tape: &'a RunTape) -> Self {
+        Replay { tape, step: 0 }
+    }
+}
+
+impl TruthSource for Replay<'_> {
+    #[inline]
+    fn advance(&mut self, k: usize) -> bool {
+        self.step = k;
+        k <= self.tape.states.len()
+    }
+
+    fn state(&self) -> &DVector<f64> {
+        &self.tape.states[self.step - 1]
+    }
+
+    fn input(&self) -> Option<&DVector<f64>> {
+        self.tape.inputs[self.step - 1].as_ref()
+    }
+
+    fn measurements(&self) -> &[Measurement] {
+        &self.tape.meas[self.tape.ends[self.step - 1]..self.tape.ends[self.step]]
+    }
+}
+
+/// The truth of runs `0..runs.len()` of one seed set over `steps` steps.
+#[derive(Debug)]
+pub struct TruthTape {
+    seed: u64,
+    steps: usize,
+    runs: Vec<RunTape>,
+    bytes: usize,
+}
+
+impl TruthTape {
+    /// Simulate runs `0..runs` of seed set `seed` over `steps` steps (in parallel; each
+    /// run from its own stream, so the tape does not depend on the thread count).
+    pub fn record<M: TruthModel + ?Sized>(truth: &M, seed: u64, steps: usize, runs: usize) -> Self {
+        let mut tape = TruthTape {
+            seed,
+            steps,
+            runs: Vec::new(),
+            bytes: 0,
+        };
+        tape.extend(truth, runs);
+        tape
+    }
+
+    /// Simulate the runs from `self.runs()` up to `runs`.
+    fn extend<M: TruthModel + ?Sized>(&mut self, truth: &M, runs: usize) {
+        let (seed, steps) = (self.seed, self.steps);
+        let more: Vec<RunTape> = (self.runs.len()..runs)
+            .into_par_iter()
+            .map(|run| RunTape::record(truth, seed, run, steps))
+            .collect();
+        self.bytes += more.iter().map(RunTape::bytes).sum::<usize>();
+        self.runs.extend(more);
+    }
+
+    /// Runs held.
+    pub fn runs(&self) -> usize {
+        self.runs.len()
+    }
+
+    /// Heap bytes held (an estimate that counts each vector's allocation overhead).
+    pub fn bytes(&self) -> usize {
+        self.bytes
+    }
+
+    /// Whether this tape replays `mc`'s runs.
+    pub fn covers(&self, mc: &McConfig) -> bool {
+        self.seed == mc.seed() && self.steps == mc.steps() && self.runs.len() >= mc.runs()
+    }
+
+    pub(super) fn run(&self, run: usize) -> &RunTape {
+        &self.runs[run]
+    }
+}
+
+/// The truth tapes of the seed sets an experiment is evaluated on more than once, for an
+/// experiment whose truth does not depend on θ ([`super::run_generic_cached`]).
+#[derive(Debug)]
+pub struct TruthCache {
+    limit: usize,
+    state: Mutex<CacheState>,
+}
+
+#[derive(Debug, Default)]
+struct CacheState {
+    /// Least recently used first.
+    tapes: Vec<Arc<TruthTape>>,
+    /// Seed sets `(seed, steps, runs)` evaluated once: the next evaluation records.
+    seen: Vec<(u64, usize, usize)>,
+    /// Seed sets `(seed, steps)` whose tape was found too large for the limit.
+    too_large: Vec<(u64, usize)>,
+}
+
+/// Seed sets remembered as seen once; a tuner uses a handful.
+const SEEN: usize = 64;
+
+impl Default for TruthCache {
+    fn default() -> Self {
+        TruthCache::with_limit(TruthCache::DEFAULT_LIMIT)
+    }
+}
+
+impl TruthCache {
+    /// Bytes of tapes a cache holds by default: 512 MiB.
+    pub const DEFAULT_LIMIT: usize = 512 << 20;
+
+    /// A cache holding at most `limit` bytes of tapes (0: never records).
+    pub fn with_limit(limit: usize) -> Self {
+        TruthCache {
+            limit,
+            state: Mutex::new(CacheState::default()),
+        }
+    }
+
+    fn lock(&self) -> std::sync::MutexGuard<'_, CacheState> {
+        // A panic while the lock was held leaves nothing half-done that a reader could
+        // see: tapes are inserted whole.
+        self.state.lock().unwrap_or_else(PoisonError::into_inner)
+    }
+
+    /// Bytes of tapes held now.
+    pub fn bytes(&self) -> usize {
+        self.lock().tapes.iter().map(|t| t.bytes).sum()
+    }
+
+    /// The tape of `mc`'s runs if this seed set was evaluated before and its tape fits the
+    /// limit, recording (or extending) it now; `None`: simulate as usual.
+    pub fn tape<M: TruthModel + ?Sized>(&self, truth: &M, mc: &McConfig) -> Option<Arc<TruthTape>> {
+        let key = (mc.seed(), mc.steps());
+        let shorter = {
+            let mut s = self.lock();
+            if let Some(i) = s.tapes.iter().position(|t| t.covers(mc)) {
+                let t = s.tapes.remove(i);
+                s.tapes.push(Arc::clone(&t));
+                return Some(t);
+            }
+            if s.too_large.contains(&key) {
+                return None;
+            }
+            let shorter = s
+                .tapes
+                .iter()
+                .position(|t| (t.seed, t.steps) == key)
+                .map(|i| s.tapes.remove(i));
+            let full = (mc.seed(), mc.steps(), mc.runs());
+            if shorter.is_none() && !s.seen.contains(&full) {
+                if s.seen.len() == SEEN {
+                    s.seen.remove(0);
+                }
+                s.seen.push(full);
+                return None;
+            }
+            shorter
+        };
+        // Recorded without the lock: an evaluation running beside this one (the engine is
+        // parallel inside) must not wait on it, and a duplicate recording is only work.
+        let mut tape = match shorter {
+            Some(t) => Arc::try_unwrap(t).unwrap_or_else(|t| TruthTape {
+                seed: t.seed,
+                steps: t.steps,
+                runs: Vec::new(),
+                bytes: 0,
+            }),
+            None => TruthTape::record(truth, mc.seed(), mc.steps(), 1.min(mc.runs())),
+        };
+        let per_run = tape.bytes.div_ceil(tape.runs().max(1)).max(1);
+        if per_run.saturating_mul(mc.runs()) > self.limit {
+            self.lock().too_large.push(key);
+            return None;
+        }
+        tape.extend(truth, mc.runs());
+        let tape = Arc::new(tape);
+        let mut s = self.lock();
+        s.tapes.retain(|t| (t.seed, t.steps) != key);
+        let mut held: usize = s.tapes.iter().map(|t| t.bytes).sum();
+        while held + tape.bytes > self.limit && !s.tapes.is_empty() {
+            held -= s.tapes.remove(0).bytes;
+        }
+        s.tapes.push(Arc::clone(&tape));
+        Some(tape)
+    }
+}

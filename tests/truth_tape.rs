@@ -1,0 +1,172 @@
+//! Truth tapes (issue 25): a seed set's truth simulated once and replayed to every filter
+//! gives the same sums, bit for bit, as simulating it at every evaluation: for each catalog
+//! model (a UKF with a changing sensor schedule, an EKF on an RK4 orbit, an error-state INS
+//! whose truth hands the filter IMU inputs), for runs the truth ends early (overflow) and
+//! runs a filter ends early (divergence), and past the cache's memory limit (no tape).
+
+use autotune::SimRng;
+use autotune::internals::catalog::{self, CatalogModel, ModelContext};
+use autotune::internals::filter::{Filter, KalmanFilter};
+use autotune::internals::measurement::Measurement;
+use autotune::internals::model::TruthModel;
+use autotune::internals::montecarlo::{
+    McConfig, TruthCache, TruthTape, run_generic, run_generic_cached,
+};
+use autotune::internals::stats::Accumulator;
+use nalgebra::{DMatrix, DVector};
+
+/// The shipped catalog problem `name`'s model and Monte Carlo test.
+fn shipped(name: &str) -> (Box<dyn CatalogModel>, McConfig) {
+    let path = format!("{}/problems/{name}.toml", env!("CARGO_MANIFEST_DIR"));
+    let file: toml::Table = toml::from_str(&std::fs::read_to_string(path).unwrap()).unwrap();
+    let mut table = file["model"].as_table().unwrap().clone();
+    let entry = catalog::find(table.remove("name").unwrap().as_str().unwrap()).unwrap();
+    let mc = file["montecarlo"].as_table().unwrap();
+    let steps = mc["steps"].as_integer().unwrap() as usize;
+    let context = ModelContext {
+        dt: file["dt"].as_float().unwrap(),
+        steps,
+    };
+    let model = (entry.build)(&table, &context).unwrap();
+    let mc = McConfig::new(1, steps)
+        .unwrap()
+        .with_seed(mc["seed"].as_integer().unwrap() as u64);
+    (model, mc)
+}
+
+/// Sums compared field by field, so a failure names what differs.
+fn assert_same(a: &Accumulator, b: &Accumulator, what: &str) {
+    assert_eq!(a.runs(), b.runs(), "{what}: runs");
+    assert_eq!(a, b, "{what}: the sums differ");
+}
+
+#[test]
+fn replayed_catalog_truth_gives_the_simulated_sums_bit_for_bit() {
+    for name in ["ctrv", "orbit2d", "ins_gnss"] {
+        let (model, mc) = shipped(name);
+        // Two chunks, the second partial; a shorter horizon for the INS's 900 steps.
+        let mc = mc.with_runs(70).unwrap();
+        let mc = mc.with_steps(mc.steps().min(300)).unwrap();
+        let truth = model.truth_values();
+        let other: Vec<f64> = truth.iter().map(|v| v * 3.0).collect();
+        let cache = TruthCache::default();
+        for (k, theta) in [&truth, &truth, &other, &truth].into_iter().enumerate() {
+            let filter = model.filter(theta);
+            let simulated = run_generic(model.truth(), &filter, &mc);
+            let cached = run_generic_cached(model.truth(), &filter, &mc, None, &cache);
+            assert_same(&simulated, &cached, &format!("{name}, evaluation {k}"));
+            // The first evaluation of a seed set simulates; the second records the tape.
+            assert_eq!(
+                cache.bytes() > 0,
+                k > 0,
+                "{name}, evaluation {k}: tape held"
+            );
+        }
+        // Fewer runs replay from the same tape; more runs extend it.
+        for runs in [10, 140] {
+            let mc = mc.with_runs(runs).unwrap();
+            let filter = model.filter(&other);
+            let simulated = run_generic(model.truth(), &filter, &mc);
+            let cached = run_generic_cached(model.truth(), &filter, &mc, None, &cache);
+            assert_same(&simulated, &cached, &format!("{name}, {runs} runs"));
+        }
+        let tape = TruthTape::record(model.truth(), mc.seed(), mc.steps(), 140);
+        assert!(tape.covers(&mc.with_runs(140).unwrap()));
+        assert!(!tape.covers(&mc.with_runs(141).unwrap()));
+        assert!(!tape.covers(&mc.with_seed(mc.seed() + 1).with_runs(10).unwrap()));
+        // The tape holds at least its numbers: T × (n_x + measurement components).
+        assert!(tape.bytes() >= 140 * mc.steps() * 8 * model.truth().n_x());
+    }
+}
+
+/// A scalar random walk that overflows to +∞ at step `stop` in the runs whose state is
+/// then above 0.5.
+struct Blowup {
+    stop: usize,
+}
+
+impl TruthModel for Blowup {
+    fn n_x(&self) -> usize {
+        1
+    }
+    fn initial_state(&self, rng: &mut SimRng) -> DVector<f64> {
+        DVector::from_element(
+            1,
+            rand_distr::Distribution::sample(&rand_distr::StandardNormal, rng),
+        )
+    }
+    fn propagate(&self, k: usize, x: &DVector<f64>, rng: &mut SimRng) -> DVector<f64> {
+        let w: f64 = rand_distr::Distribution::sample(&rand_distr::StandardNormal, rng);
+        // A rule on the state keeps the overflow a property of the run's stream, as a real
+        // one is.
+        if k == self.stop && x[0] > 0.5 {
+            return DVector::from_element(1, f64::INFINITY);
+        }
+        DVector::from_element(1, x[0] + w)
+    }
+    fn measure(&self, _k: usize, x: &DVector<f64>, rng: &mut SimRng, out: &mut Vec<Measurement>) {
+        let v: f64 = rand_distr::Distribution::sample(&rand_distr::StandardNormal, rng);
+        out.push(Measurement {
+            sensor: 0,
+            z: DVector::from_element(1, x[0] + v),
+        });
+    }
+}
+
+/// A scalar Kalman filter for [`Blowup`] with process noise `q` and measurement noise `r`.
+#[allow(non_snake_case)]
+fn walk_filter(q: f64, r: f64) -> impl Filter {
+    let one = DMatrix::from_element(1, 1, 1.0);
+    KalmanFilter {
+        F: one.clone(),
+        H: one.clone(),
+        Q: DMatrix::from_element(1, 1, q),
+        R: DMatrix::from_element(1, 1, r),
+        x0: DVector::zeros(1),
+        P0: one,
+    }
+}
+
+#[test]
+fn runs_the_truth_or_the_filter_ends_replay_as_they_simulate() {
+    let truth = Blowup { stop: 17 };
+    let mc = McConfig::new(100, 40).unwrap().with_seed(5);
+    let cache = TruthCache::default();
+    // q = -1 makes P indefinite after the first prediction: every run's filter fails.
+    for (q, r) in [(1.0, 1.0), (0.3, 2.0), (-1.0, 1.0), (1.0, 1.0)] {
+        let f = walk_filter(q, r);
+        let simulated = run_generic(&truth, &f, &mc);
+        let cached = run_generic_cached(&truth, &f, &mc, None, &cache);
+        assert_same(&simulated, &cached, &format!("q = {q}, r = {r}"));
+        if q > 0.0 {
+            // x₁₆ ~ N(0, 17): P(x₁₆ > 0.5) = 0.45, so 45 of 100 runs expected (binomial sd 5).
+            let overflowed = simulated.truth_overflow_runs();
+            assert!(
+                (30..=60).contains(&overflowed),
+                "q = {q}: {overflowed} of 100 runs overflowed at step 17"
+            );
+        }
+    }
+    assert!(cache.bytes() > 0);
+}
+
+#[test]
+fn a_tape_beyond_the_memory_limit_is_never_recorded() {
+    let truth = Blowup { stop: usize::MAX };
+    let mc = McConfig::new(200, 50).unwrap().with_seed(9);
+    // One run's tape is 50 states and 50 one-number measurements: well over 1 kB.
+    let cache = TruthCache::with_limit(1000);
+    let f = walk_filter(1.0, 1.0);
+    for _ in 0..3 {
+        let cached = run_generic_cached(&truth, &f, &mc, None, &cache);
+        assert_same(&run_generic(&truth, &f, &mc), &cached, "over the limit");
+        assert_eq!(cache.bytes(), 0);
+    }
+    // A limit that holds one seed set's tape evicts the older one for the newer.
+    let one = TruthTape::record(&truth, 9, 50, 200).bytes();
+    let cache = TruthCache::with_limit(one + one / 2);
+    for seed in [9, 9, 10, 10] {
+        run_generic_cached(&truth, &f, &mc.with_seed(seed), None, &cache);
+    }
+    assert_eq!(cache.bytes(), one, "one tape held, the newest");
+}

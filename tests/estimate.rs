@@ -386,9 +386,12 @@ fn als_refuses_gaps_short_records_and_unstable_filters() {
 /// `tune --init ml` (and `als`) start from the estimate on a record simulated from the
 /// truth: the search skips its global stage and needs fewer than half the evaluations from
 /// the file's start to reach the same tuned config (to 1e-4 relative). Measured on cv2d:
-/// exact scoring 572 (ml) and 565 (als) against 1 391; Monte Carlo scoring 198 (ml) against
-/// 637, the two tuned configs within 4e-5 of each other (common random numbers: the same
-/// optimum of the same noisy objective).
+/// exact scoring 572 (ml) and 565 (als) against 1 391. Under Monte Carlo scoring the
+/// default search is Gauss–Newton, which itself skips the global stage once the moment
+/// equations solved from the file's start score as consistent (issue 25): 21 (ml) against
+/// 30, so there the estimate saves evaluations but not half; the two tuned configs within
+/// 4e-5 of each other (common random numbers: the same optimum of the same noisy
+/// objective).
 #[test]
 fn tune_from_an_estimate_needs_fewer_evaluations() {
     let dir = tempfile::tempdir().unwrap();
@@ -415,10 +418,11 @@ fn tune_from_an_estimate_needs_fewer_evaluations() {
             default["evaluations"].as_u64().unwrap(),
             init["evaluations"].as_u64().unwrap(),
         );
-        assert!(
-            e1 * 2 < e0,
-            "{method}, {scoring}: {e1} evaluations against {e0}"
-        );
+        let fewer = match scoring {
+            "exact" => e1 * 2 < e0,
+            _ => e1 < e0,
+        };
+        assert!(fewer, "{method}, {scoring}: {e1} evaluations against {e0}");
         for (a, b) in default["tuned"]
             .as_array()
             .unwrap()

@@ -158,23 +158,29 @@ fn issue21_default_tune_of_a_slow_experiment_chooses_gauss_newton_and_converges(
     }
 }
 
-/// The plan is a pure function of the measured cost: cheap evaluations keep the simplex,
-/// expensive ones with targets take Gauss–Newton, a set `local` is kept, and a plan that
-/// cannot fit the budget says so with the setting to change.
+/// The plan follows the problem (issue 25): Monte Carlo scoring with targets takes
+/// Gauss–Newton whatever an evaluation costs, exact scoring and a problem without targets
+/// keep the simplex, a set `local` is kept, and a plan that cannot fit the budget says so
+/// with the setting to change.
 #[test]
-fn issue21_the_search_plan_follows_the_measured_cost_and_says_when_the_budget_is_short() {
+fn issue21_the_search_plan_follows_the_problem_and_says_when_the_budget_is_short() {
     let s = TuneSettings::default();
-    let cheap = s.plan(2, true, false, 0.001);
-    assert_eq!(cheap.local, LocalSearch::Simplex);
-    assert!(cheap.notes.is_empty(), "{:?}", cheap.notes);
-    let slow = s.plan(2, true, false, 0.3);
-    assert_eq!(slow.local, LocalSearch::GaussNewton);
-    assert_eq!(slow.notes.len(), 1, "{:?}", slow.notes);
-    assert!(slow.notes[0].contains("Gauss–Newton"), "{:?}", slow.notes);
-    // Exact scoring is cheap and parallel: never switched.
-    assert_eq!(s.plan(2, true, true, 0.3).local, LocalSearch::Simplex);
+    for seconds in [0.001, 0.3] {
+        let plan = s.plan(2, true, false, false, seconds);
+        assert_eq!(plan.local, LocalSearch::GaussNewton, "{seconds} s");
+        assert!(plan.notes.is_empty(), "{seconds} s: {:?}", plan.notes);
+    }
+    // Exact scoring, and one record, are noise-free and cheap: the simplex.
+    assert_eq!(
+        s.plan(2, true, true, false, 0.3).local,
+        LocalSearch::Simplex
+    );
+    assert_eq!(
+        s.plan(2, true, false, true, 0.3).local,
+        LocalSearch::Simplex
+    );
     // No targets: the simplex stays, and its 120 s budget cannot hold ~430 × 0.3 s.
-    let no_targets = s.plan(2, false, false, 0.3);
+    let no_targets = s.plan(2, false, false, false, 0.3);
     assert_eq!(no_targets.local, LocalSearch::Simplex);
     assert!(
         no_targets.notes.iter().any(|n| n.contains("--max-seconds")),
@@ -183,9 +189,12 @@ fn issue21_the_search_plan_follows_the_measured_cost_and_says_when_the_budget_is
     );
     // A chosen method is kept.
     let set = s.clone().with_local(LocalSearch::Simplex);
-    assert_eq!(set.plan(2, true, false, 0.3).local, LocalSearch::Simplex);
+    assert_eq!(
+        set.plan(2, true, false, false, 0.3).local,
+        LocalSearch::Simplex
+    );
     // Even Gauss–Newton cannot do ~140 evaluations of 5 s in 120 s.
-    let too_slow = s.plan(2, true, false, 5.0);
+    let too_slow = s.plan(2, true, false, false, 5.0);
     assert!(
         too_slow
             .notes

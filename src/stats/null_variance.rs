@@ -1,6 +1,6 @@
 //! The variance of one run's NEES sum that a consistent filter predicts for itself.
 
-use nalgebra::{Cholesky, DMatrix, DVector, Dyn};
+use nalgebra::{Cholesky, DMatrix, Dyn};
 
 /// Streaming computation of the variance of one run's NEES sum `Σ_k ε_k` that a filter
 /// predicts for itself if it is consistent.
@@ -69,10 +69,22 @@ impl NeesNullVariance {
 /// the sum over `l < k` is `(h_k)_j / √P_jj,k` with the vector recursion
 /// `h_k = A_k (h_{k−1} + p_{k−1}/√P_jj,k−1)`, `h_1 = 0` (because `Φ_kl = A_k Φ_{k−1,l}`), so
 /// `Var(Σ_k y_k) = Σ_k [1 + 2 (h_k)_j / √P_jj,k]`: O(n²) per component and step.
+///
+/// The n recursions run side by side as single products (`A [G_1 … G_n]` and `A [h_1 …
+/// h_n]`), in buffers allocated once: the same 2n⁴ operations a step, in two large
+/// products instead of 2n small ones and their temporaries.
 #[derive(Debug, Clone)]
 pub struct ComponentNullVariance {
-    g: Vec<DMatrix<f64>>,
-    h: Vec<DVector<f64>>,
+    /// `[G_1 … G_n]`, n × n².
+    g: DMatrix<f64>,
+    /// `[h_1 … h_n]`, n × n.
+    h: DMatrix<f64>,
+    /// Scratch for `A [G_1 … G_n]` and its blocks transposed, n × n² each, and for
+    /// `A [h_1 … h_n]`, n × n.
+    ag: DMatrix<f64>,
+    ag_t: DMatrix<f64>,
+    ah: DMatrix<f64>,
+    /// `P_{k−1}` once a step was added.
     p_prev: Option<DMatrix<f64>>,
     var: Vec<f64>,
     mean_var: Vec<f64>,
@@ -82,8 +94,11 @@ impl ComponentNullVariance {
     /// Start a run with state dimension `n`.
     pub fn new(n: usize) -> Self {
         ComponentNullVariance {
-            g: vec![DMatrix::zeros(n, n); n],
-            h: vec![DVector::zeros(n); n],
+            g: DMatrix::zeros(n, n * n),
+            h: DMatrix::zeros(n, n),
+            ag: DMatrix::zeros(n, n * n),
+            ag_t: DMatrix::zeros(n, n * n),
+            ah: DMatrix::zeros(n, n),
             p_prev: None,
             var: vec![0.0; n],
             mean_var: vec![0.0; n],
@@ -96,21 +111,41 @@ impl ComponentNullVariance {
     /// ([`Self::mean_variances`]), so a caller can tell a steady state from one vector.
     pub fn step(&mut self, a: &DMatrix<f64>, p: &DMatrix<f64>) -> Vec<f64> {
         let n = p.nrows();
-        if let Some(pp) = &self.p_prev {
-            for (j, (g, h)) in self.g.iter_mut().zip(&mut self.h).enumerate() {
+        let ComponentNullVariance {
+            g,
+            h,
+            ag,
+            ag_t,
+            ah,
+            p_prev,
+            ..
+        } = self;
+        if let Some(pp) = p_prev.as_ref() {
+            for j in 0..n {
                 let col = pp.column(j);
-                let inner = &*g + col * col.transpose() / pp[(j, j)];
-                *g = a * inner * a.transpose();
-                let inner_h = &*h + col / pp[(j, j)].sqrt();
-                *h = a * inner_h;
+                g.columns_mut(j * n, n)
+                    .ger(1.0 / pp[(j, j)], &col, &col, 1.0);
+                h.column_mut(j).axpy(1.0 / pp[(j, j)].sqrt(), &col, 1.0);
             }
+            ag.gemm(1.0, a, g, 0.0);
+            // G_j is symmetric, so (A G_j)' = G_j A' and A (A G_j)' = A G_j A'.
+            for j in 0..n {
+                ag_t.columns_mut(j * n, n)
+                    .tr_copy_from(&ag.columns(j * n, n));
+            }
+            g.gemm(1.0, a, ag_t, 0.0);
+            ah.gemm(1.0, a, h, 0.0);
+            std::mem::swap(h, ah);
         }
         let mut inc: Vec<f64> = (0..n)
-            .map(|j| 2.0 + 4.0 * self.g[j][(j, j)] / p[(j, j)])
+            .map(|j| 2.0 + 4.0 * self.g[(j, j * n + j)] / p[(j, j)])
             .collect();
-        inc.extend((0..n).map(|j| 1.0 + 2.0 * self.h[j][j] / p[(j, j)].sqrt()));
+        inc.extend((0..n).map(|j| 1.0 + 2.0 * self.h[(j, j)] / p[(j, j)].sqrt()));
         self.add(&inc, 1);
-        self.p_prev = Some(p.clone());
+        match &mut self.p_prev {
+            Some(pp) => pp.copy_from(p),
+            None => self.p_prev = Some(p.clone()),
+        }
         inc
     }
 

@@ -92,13 +92,19 @@ fn sum_sq(r: &[f64]) -> f64 {
 
 /// Levenberg–Marquardt on `equations` from `y0`. Returns the point where it stopped with
 /// the sum of squares of `equations` there (+∞ if `y0` diverges).
+///
+/// The Jacobian is a forward difference at the start; after each accepted step it takes
+/// Broyden's rank-one update from the step and the residuals' change (one evaluation an
+/// iteration instead of d + 1: the residuals are close to linear in the log-parameters, so
+/// the updated Jacobian stays close to the true one). Only when the updated Jacobian gives
+/// no step that lowers the sum is it differenced afresh; a fresh Jacobian that gives none
+/// ends the search.
 pub(super) fn levenberg_marquardt(
     budget: &mut Budget<'_>,
     y0: &[f64],
     equations: Equations<'_>,
 ) -> Result<Candidate, Exhausted> {
     let cost = budget.cost();
-    let d = y0.len();
     let mut y = cost.clamp(y0);
     let Some(mut r) = residuals(budget, &y, equations)? else {
         return Ok(Candidate {
@@ -107,71 +113,24 @@ pub(super) fn levenberg_marquardt(
         });
     };
     let mut j = sum_sq(&r);
-    let m = r.len();
     let mut lambda = 1e-3;
+    let mut jac = difference(budget, &y, &r, equations)?;
+    let mut fresh = true;
     for _ in 0..MAX_ITERS {
-        let mut jac = DMatrix::<f64>::zeros(m, d);
-        for k in 0..d {
-            let mut neighbour = |step: f64| {
-                let mut v = y.clone();
-                v[k] += step;
-                residuals(budget, &v, equations)
-            };
-            let step = if y[k] + H > cost.hi[k] { -H } else { H };
-            let (col, step) = match neighbour(step)? {
-                Some(rk) => (rk, step),
-                // A diverging neighbour: difference on the other side.
-                None => match neighbour(-step)? {
-                    Some(rk) => (rk, -step),
-                    None => continue,
-                },
-            };
-            if col.len() == m {
-                for i in 0..m {
-                    jac[(i, k)] = (col[i] - r[i]) / step;
-                }
+        let before = lambda;
+        let Some((trial, rt)) = damped_step(budget, &jac, &y, &r, &mut lambda, equations)? else {
+            if fresh {
+                break;
             }
-        }
-        let rv = DVector::from_column_slice(&r);
-        let g = jac.tr_mul(&rv);
-        let a = jac.tr_mul(&jac);
-        let diag_max = (0..d).map(|k| a[(k, k)]).fold(0.0_f64, f64::max);
-        if diag_max <= 0.0 {
-            break;
-        }
-        let mut accepted = None;
-        for _ in 0..MAX_TRIALS {
-            let mut lhs = a.clone();
-            for k in 0..d {
-                lhs[(k, k)] += lambda * a[(k, k)].max(1e-9 * diag_max);
-            }
-            let Some(chol) = lhs.cholesky() else {
-                lambda *= 4.0;
-                continue;
-            };
-            let mut delta = chol.solve(&(-&g));
-            let big = delta.amax();
-            if big > MAX_STEP {
-                delta *= MAX_STEP / big;
-            }
-            let trial = cost.clamp(
-                &y.iter()
-                    .zip(delta.iter())
-                    .map(|(a, b)| a + b)
-                    .collect::<Vec<_>>(),
-            );
-            match residuals(budget, &trial, equations)? {
-                Some(rt) if rt.len() == m && sum_sq(&rt) < j => {
-                    accepted = Some((trial, rt));
-                    lambda = (lambda / 3.0).max(1e-9);
-                    break;
-                }
-                _ => lambda *= 4.0,
-            }
-        }
-        let Some((trial, rt)) = accepted else {
-            break;
+            // The damping rose for the stale Jacobian's sake; the fresh one starts where
+            // the last accepted step left it.
+            lambda = before;
+            jac = difference(budget, &y, &r, equations)?;
+            fresh = true;
+            continue;
         };
+        broyden(&mut jac, &trial, &y, &rt, &r);
+        fresh = false;
         let moved = max_abs_diff(&trial, &y);
         let j_new = sum_sq(&rt);
         let gain = j - j_new;
@@ -183,6 +142,108 @@ pub(super) fn levenberg_marquardt(
         }
     }
     Ok(Candidate { point: y, cost: j })
+}
+
+/// The forward-difference Jacobian of `equations` at `y` (residuals `r`), m × d; a column
+/// whose neighbours both diverge stays zero.
+fn difference(
+    budget: &mut Budget<'_>,
+    y: &[f64],
+    r: &[f64],
+    equations: Equations<'_>,
+) -> Result<DMatrix<f64>, Exhausted> {
+    let (m, d) = (r.len(), y.len());
+    let hi = budget.cost().hi.clone();
+    let mut jac = DMatrix::<f64>::zeros(m, d);
+    for k in 0..d {
+        let mut neighbour = |step: f64| {
+            let mut v = y.to_vec();
+            v[k] += step;
+            residuals(budget, &v, equations)
+        };
+        let step = if y[k] + H > hi[k] { -H } else { H };
+        let (col, step) = match neighbour(step)? {
+            Some(rk) => (rk, step),
+            // A diverging neighbour: difference on the other side.
+            None => match neighbour(-step)? {
+                Some(rk) => (rk, -step),
+                None => continue,
+            },
+        };
+        if col.len() == m {
+            for i in 0..m {
+                jac[(i, k)] = (col[i] - r[i]) / step;
+            }
+        }
+    }
+    Ok(jac)
+}
+
+/// Broyden's rank-one update of `jac` after the step from `y` (residuals `r`) to `trial`
+/// (residuals `rt`): the least change that makes `jac` map the step onto the change.
+fn broyden(jac: &mut DMatrix<f64>, trial: &[f64], y: &[f64], rt: &[f64], r: &[f64]) {
+    let s = DVector::from_iterator(y.len(), trial.iter().zip(y).map(|(a, b)| a - b));
+    let ss = s.norm_squared();
+    if ss == 0.0 {
+        return;
+    }
+    let dr = DVector::from_iterator(r.len(), rt.iter().zip(r).map(|(a, b)| a - b));
+    let miss = dr - &*jac * &s;
+    *jac += miss * s.transpose() / ss;
+}
+
+/// An accepted step: the new point and its residuals.
+type Step = (Vec<f64>, Vec<f64>);
+
+/// A damped Gauss–Newton step from `y` on `jac` that lowers the sum of squares, raising
+/// the damping `lambda` until one does (at most [`MAX_TRIALS`] times) and lowering it after;
+/// `None` when none does.
+fn damped_step(
+    budget: &mut Budget<'_>,
+    jac: &DMatrix<f64>,
+    y: &[f64],
+    r: &[f64],
+    lambda: &mut f64,
+    equations: Equations<'_>,
+) -> Result<Option<Step>, Exhausted> {
+    let d = y.len();
+    let rv = DVector::from_column_slice(r);
+    let g = jac.tr_mul(&rv);
+    let a = jac.tr_mul(jac);
+    let diag_max = (0..d).map(|k| a[(k, k)]).fold(0.0_f64, f64::max);
+    if diag_max <= 0.0 {
+        return Ok(None);
+    }
+    let j = sum_sq(r);
+    for _ in 0..MAX_TRIALS {
+        let mut lhs = a.clone();
+        for k in 0..d {
+            lhs[(k, k)] += *lambda * a[(k, k)].max(1e-9 * diag_max);
+        }
+        let Some(chol) = lhs.cholesky() else {
+            *lambda *= 4.0;
+            continue;
+        };
+        let mut delta = chol.solve(&(-&g));
+        let big = delta.amax();
+        if big > MAX_STEP {
+            delta *= MAX_STEP / big;
+        }
+        let trial = budget.cost().clamp(
+            &y.iter()
+                .zip(delta.iter())
+                .map(|(a, b)| a + b)
+                .collect::<Vec<_>>(),
+        );
+        match residuals(budget, &trial, equations)? {
+            Some(rt) if rt.len() == r.len() && sum_sq(&rt) < j => {
+                *lambda = (*lambda / 3.0).max(1e-9);
+                return Ok(Some((trial, rt)));
+            }
+            _ => *lambda *= 4.0,
+        }
+    }
+    Ok(None)
 }
 
 #[cfg(test)]

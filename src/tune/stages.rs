@@ -105,7 +105,13 @@ impl<'a> Tuning<'a> {
         let seconds_per_eval = t_start.elapsed().as_secs_f64();
         cost.objective.prepare(&acc0);
         let objective_initial = cost.objective.evaluate(&acc0);
-        let plan = settings.plan(cost.dim(), cost.targets.is_some(), exact, seconds_per_eval);
+        let plan = settings.plan(
+            cost.dim(),
+            cost.targets.is_some(),
+            exact,
+            model.seed_free(),
+            seconds_per_eval,
+        );
         for note in &plan.notes {
             observer.note(note);
         }

@@ -192,6 +192,12 @@ fn broyden(jac: &mut DMatrix<f64>, trial: &[f64], y: &[f64], rt: &[f64], r: &[f6
     *jac += miss * s.transpose() / ss;
 }
 
+/// Marquardt's scale of the damping in parameter k: JᵀJ's own diagonal entry, floored at
+/// 1e-9 of the largest so that a parameter the residuals barely see is still damped.
+fn marquardt_scale(a_kk: f64, diag_max: f64) -> f64 {
+    a_kk.max(1e-9 * diag_max)
+}
+
 /// An accepted step: the new point and its residuals.
 type Step = (Vec<f64>, Vec<f64>);
 
@@ -218,11 +224,12 @@ fn damped_step(
     for _ in 0..MAX_TRIALS {
         let mut lhs = a.clone();
         for k in 0..d {
-            lhs[(k, k)] += *lambda * a[(k, k)].max(1e-9 * diag_max);
+            lhs[(k, k)] += *lambda * marquardt_scale(a[(k, k)], diag_max);
         }
+        // JᵀJ plus a positive diagonal is positive definite: a factorization that fails
+        // anyway has lost its digits, and no step from it can be trusted.
         let Some(chol) = lhs.cholesky() else {
-            *lambda *= 4.0;
-            continue;
+            return Ok(None);
         };
         let mut delta = chol.solve(&(-&g));
         let big = delta.amax();
@@ -274,6 +281,90 @@ mod tests {
         for (k, (got, want)) in m.iter().zip(want).enumerate() {
             assert!((got - want).abs() < 1e-12, "equation {k}: {got} vs {want}");
         }
+    }
+
+    fn quadratic_budget_test(check: impl Fn(&mut Budget<'_>, &Mock)) {
+        let mock = Mock::new(&[0.3, 20.0], &[&[4.0, 2.0], &[0.0, 8.0]]);
+        let cost = cost(&mock, &[false; 2]);
+        let deadline = Instant::now() + Duration::from_secs(3600);
+        let mut b = Budget::new(&cost, 1000, deadline, &Silent);
+        check(&mut b, &mock);
+    }
+
+    #[test]
+    fn a_damped_step_is_marquardts_and_one_that_raises_the_sum_is_refused() {
+        quadratic_budget_test(|b, _| {
+            let y = vec![0.5, -0.5];
+            let r = residuals(b, &y, Equations::Objective).unwrap().unwrap();
+            let jac = difference(b, &y, &r, Equations::Objective).unwrap();
+            // δ = −(A + λ diag A)⁻¹ Jᵀ r with A = JᵀJ, by hand.
+            let lambda0 = 10.0;
+            let a = jac.tr_mul(&jac);
+            let mut lhs = a.clone();
+            for k in 0..2 {
+                lhs[(k, k)] += lambda0 * a[(k, k)];
+            }
+            let g = jac.tr_mul(&DVector::from_column_slice(&r));
+            let delta = lhs.cholesky().unwrap().solve(&(-g));
+            let mut lambda = lambda0;
+            let (trial, rt) = damped_step(b, &jac, &y, &r, &mut lambda, Equations::Objective)
+                .unwrap()
+                .expect("a short step down a linear residual lowers the sum");
+            for k in 0..2 {
+                assert!(
+                    (trial[k] - (y[k] + delta[k])).abs() < 1e-12,
+                    "{trial:?} vs {delta}"
+                );
+            }
+            assert!(sum_sq(&rt) < sum_sq(&r));
+            assert_eq!(lambda, lambda0 / 3.0, "an accepted step lowers the damping");
+            // With the Jacobian's sign flipped every damped step climbs: none is taken,
+            // after MAX_TRIALS raises of the damping by 4.
+            let mut lambda = 1e-3;
+            let wrong = -jac;
+            let before = b.evaluations();
+            let got = damped_step(b, &wrong, &y, &r, &mut lambda, Equations::Objective).unwrap();
+            assert!(got.is_none(), "{got:?}");
+            assert_eq!(b.evaluations() - before, MAX_TRIALS);
+            let want = 1e-3 * 4f64.powi(MAX_TRIALS as i32);
+            assert!((lambda / want - 1.0).abs() < 1e-12, "{lambda} vs {want}");
+        });
+    }
+
+    #[test]
+    fn the_jacobian_steps_inwards_at_the_upper_bound() {
+        // From p0 at its upper bound (1e4) a step outwards would be clamped back: a zero
+        // column, and p0 could never move. Differenced inwards, the search converges.
+        quadratic_budget_test(|b, mock| {
+            let y0 = vec![b.cost().hi[0], 0.0];
+            let found = levenberg_marquardt(b, &y0, Equations::Objective).unwrap();
+            let err = max_abs_diff(&found.point, &mock.y_star());
+            assert!(err < 1e-6, "{err:.2e} from {y0:?}");
+        });
+    }
+
+    #[test]
+    fn broydens_update_maps_the_step_onto_the_change_and_leaves_other_directions() {
+        // J = [[1, 2], [3, 4], [5, 6]]; the step s = (0.5, −1) and the residuals' change
+        // Δr = (1, 0, −2) (J s = (−1.5, −2.5, −3.5)). After the update J s = Δr (the
+        // secant condition), and J v is unchanged for v ⟂ s, v = (2, 1): (4, 10, 16).
+        let mut jac = DMatrix::from_row_slice(3, 2, &[1.0, 2.0, 3.0, 4.0, 5.0, 6.0]);
+        let (y, trial) = ([1.0, 1.0], [1.5, 0.0]);
+        let (r, rt) = ([0.0, 1.0, 2.0], [1.0, 1.0, 0.0]);
+        broyden(&mut jac, &trial, &y, &rt, &r);
+        let s = DVector::from_column_slice(&[0.5, -1.0]);
+        let v = DVector::from_column_slice(&[2.0, 1.0]);
+        let (js, jv) = (&jac * s, &jac * v);
+        for (got, want) in js.iter().zip([1.0, 0.0, -2.0]) {
+            assert!((got - want).abs() < 1e-12, "J s = {js}");
+        }
+        for (got, want) in jv.iter().zip([4.0, 10.0, 16.0]) {
+            assert!((got - want).abs() < 1e-12, "J v = {jv}");
+        }
+        // A zero step changes nothing.
+        let before = jac.clone();
+        broyden(&mut jac, &y, &y, &rt, &r);
+        assert_eq!(jac, before);
     }
 
     #[test]

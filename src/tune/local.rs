@@ -96,15 +96,24 @@ fn moment_matched(
         Ok(m) => m,
         Err(e) => return Some(Err(e)),
     };
-    // A diverged start scores +∞ (never ≤), so it falls through to the global stage.
-    let solved = moments.cost <= MATCHED * MATCHED;
-    if !solved {
+    if !solved(moments.cost) {
         return None;
     }
     match levenberg_marquardt(budget, &moments.point, Equations::Objective) {
-        Ok(lm) if lm.cost.is_nan() || lm.cost > CONSISTENT_J => None,
+        Ok(lm) if !consistent(lm.cost) => None,
         found => Some(found),
     }
+}
+
+/// Whether moment equations whose residuals' sum of squares is `sum_sq` are solved (a
+/// diverged start's +∞ and a NaN are not).
+fn solved(sum_sq: f64) -> bool {
+    sum_sq <= MATCHED * MATCHED
+}
+
+/// Whether J scores as a consistent filter does (+∞ and NaN do not).
+fn consistent(j: f64) -> bool {
+    j <= CONSISTENT_J
 }
 
 /// One local search from `y0`. Simplex: Nelder–Mead, then a restart with a small simplex
@@ -140,4 +149,20 @@ pub(super) fn local_search(
     } else {
         first
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_moment_equations_are_solved_within_five_percent_and_j_is_consistent_to_a_hundredth() {
+        // The norm of the moment residuals: 0.05 solves, 0.0501 does not.
+        assert!(solved(0.0));
+        assert!(solved(0.05 * 0.05));
+        assert!(!solved(0.0501 * 0.0501));
+        assert!(!solved(f64::INFINITY) && !solved(f64::NAN));
+        assert!(consistent(0.0) && consistent(CONSISTENT_J));
+        assert!(!consistent(0.0101) && !consistent(f64::INFINITY) && !consistent(f64::NAN));
+    }
 }

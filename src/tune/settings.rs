@@ -497,6 +497,75 @@ mod tests {
     use super::*;
 
     #[test]
+    fn the_plan_is_gauss_newton_on_noisy_scoring_with_targets_and_the_simplex_otherwise() {
+        let s = TuneSettings::default();
+        // (dim, targets, exact, seed_free): only Monte Carlo scoring on seeds, with targets
+        // and something to search, takes Gauss–Newton; an evaluation's cost does not matter.
+        for seconds in [1e-4, 0.01] {
+            assert_eq!(
+                s.plan(2, true, false, false, seconds).local,
+                LocalSearch::GaussNewton
+            );
+        }
+        for (dim, targets, exact, seed_free) in [
+            (2, true, true, false),
+            (2, true, false, true),
+            (2, false, false, false),
+            (0, true, false, false),
+        ] {
+            let plan = s.plan(dim, targets, exact, seed_free, 1e-4);
+            assert_eq!(
+                plan.local,
+                LocalSearch::Simplex,
+                "{dim} {targets} {exact} {seed_free}"
+            );
+        }
+        // A method set is kept, whichever.
+        let set = s.clone().with_local(LocalSearch::Simplex);
+        assert_eq!(
+            set.plan(2, true, false, false, 1e-4).local,
+            LocalSearch::Simplex
+        );
+        let set = s.clone().with_local(LocalSearch::GaussNewton);
+        assert_eq!(
+            set.plan(2, true, true, false, 1e-4).local,
+            LocalSearch::GaussNewton
+        );
+    }
+
+    #[test]
+    fn a_plan_past_the_time_budget_says_so_with_the_budget_to_set() {
+        let s = TuneSettings::default();
+        // Gauss–Newton in 2-D: 1 + 16 · 2 global points and 3 starts of 12 · 3: 141
+        // evaluations. At 0.1 ms each (14 ms) no note; at 1 s each 141 s > 120 s, and twice
+        // that rounded up to a minute is 300 s.
+        let cheap = s.plan(2, true, false, false, 1e-4);
+        assert_eq!(cheap.projected, 141);
+        assert!(cheap.notes.is_empty(), "{:?}", cheap.notes);
+        let slow = s.plan(2, true, false, false, 1.0);
+        assert_eq!(
+            slow.notes,
+            [
+                "each evaluation takes 1.00 s: the search needs ~141 evaluations (~141 s), more \
+              than max_seconds = 120; set --max-seconds 300 (or [tune] max_seconds)"
+            ]
+        );
+        // The simplex, set, in 2-D: 33 + 4 · 100 = 433 evaluations; with targets the note
+        // names the faster method too. Exact scoring is never timed against the budget.
+        let simplex = s.clone().with_local(LocalSearch::Simplex);
+        let plan = simplex.plan(2, true, false, false, 1.0);
+        assert_eq!(plan.projected, 433);
+        assert!(
+            plan.notes[0].ends_with(
+                "set --max-seconds 900 (or [tune] max_seconds), or --local gauss_newton"
+            ),
+            "{:?}",
+            plan.notes
+        );
+        assert!(simplex.plan(2, true, true, false, 1.0).notes.is_empty());
+    }
+
+    #[test]
     fn setters_accept_valid_and_refuse_invalid_values() {
         let s = TuneSettings::default();
         assert_eq!(s.clone().with_max_evals(7).unwrap().max_evals(), 7);

@@ -15,6 +15,7 @@ mod common;
 use assert_cmd::Command;
 use autotune::internals::experiment::Experiment;
 use autotune::internals::params::NoiseKind;
+use rayon::prelude::*;
 use statrs::distribution::{Binomial, DiscreteCDF};
 
 const CATALOG: [&str; 3] = ["ctrv", "orbit2d", "ins_gnss"];
@@ -120,7 +121,9 @@ fn catalog_problems_load_with_model_names_and_parameters_in_model_order() {
 fn false_alarms(name: &str, seeds: u64) -> u64 {
     let p = common::load(name);
     let truth = p.truth_values().expect("a catalog problem knows its truth");
+    // Seeds side by side: one seed's N = 60 runs are one chunk, one core.
     (0..seeds)
+        .into_par_iter()
         .filter(|s| {
             let mc = p.mc().with_seed(7000 + s);
             !autotune::internals::check::check(&p, &truth, &mc, true)

@@ -14,6 +14,7 @@ use autotune::internals::experiment::Experiment;
 use autotune::internals::explain::{Cause, Explanation, explain};
 use autotune::internals::problem::Problem;
 use autotune::internals::tune::{Silent, TuneResult, TuneStatus, tune};
+use rayon::prelude::*;
 
 fn misfit(name: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR"))
@@ -41,34 +42,40 @@ fn first_is(file: &str, cause: Cause, tried: bool) -> (usize, String) {
 
 /// [`first_is`] over `seeds` seeds.
 fn first_of(file: &str, cause: Cause, tried: bool, seeds: u64) -> (usize, String) {
-    let mut hits = 0;
-    let mut story = String::new();
-    for seed in 0..seeds {
-        let (_, r, e) = explained(file, 1000 + seed);
-        // A run needs explaining when it found no consistent value, or needed a bound widened.
-        let ok = r.status != TuneStatus::Consistent || !r.widened.is_empty();
-        let first = e.first();
-        let good = ok
-            && first.is_some_and(|x| {
-                x.cause == cause
-                    && if tried {
-                        x.trial.as_ref().is_some_and(|t| t.consistent())
-                    } else {
-                        x.trial.is_none()
-                    }
-            });
-        if good {
-            hits += 1;
-        } else if story.is_empty() {
-            story = format!(
+    // Seeds side by side (a misfit's 50 runs are one chunk, one core); their verdicts and
+    // stories in seed order.
+    let judged: Vec<(bool, String)> = (0..seeds)
+        .into_par_iter()
+        .map(|seed| {
+            let (_, r, e) = explained(file, 1000 + seed);
+            // A run needs explaining when it found no consistent value, or needed a bound
+            // widened.
+            let ok = r.status != TuneStatus::Consistent || !r.widened.is_empty();
+            let good = ok
+                && e.first().is_some_and(|x| {
+                    x.cause == cause
+                        && if tried {
+                            x.trial.as_ref().is_some_and(|t| t.consistent())
+                        } else {
+                            x.trial.is_none()
+                        }
+                });
+            let story = format!(
                 "seed {}: status {:?}, tuned {:?}\n{}",
                 1000 + seed,
                 r.status,
                 r.tuned,
                 e.iter().map(|x| x.line()).collect::<Vec<_>>().join("\n")
             );
-        }
-    }
+            (good, story)
+        })
+        .collect();
+    let hits = judged.iter().filter(|(good, _)| *good).count();
+    let story = judged
+        .into_iter()
+        .find(|(good, _)| !good)
+        .map(|(_, s)| s)
+        .unwrap_or_default();
     eprintln!("{file}: first explanation {cause:?} on {hits} of {seeds} seeds");
     (hits, story)
 }

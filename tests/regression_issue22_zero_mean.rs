@@ -18,6 +18,7 @@ use autotune::internals::stats::{ConsistencyReport, Suspect, Verdict, gate_alpha
 use common::{load, scaled, truth_values};
 use rand::SeedableRng;
 use rand_distr::{Distribution, StandardNormal};
+use rayon::prelude::*;
 use statrs::distribution::{Binomial, DiscreteCDF};
 
 const SHIPPED: [&str; 6] = ["cv1d", "cv2d", "dcmotor", "ctrv", "orbit2d", "ins_gnss"];
@@ -71,15 +72,21 @@ fn issue22_zero_mean_tests_keep_false_alarms_in_the_binomial_band_on_every_shipp
         let truth = truth_of(&p);
         let catalog = !matches!(name, "cv1d" | "cv2d" | "dcmotor");
         let (mut gate_fails, mut mean_fails, mut rate) = (0u64, 0u64, 0.0);
-        for s in 0..seeds {
-            let mut mc = p.mc().with_seed(220_000 + s);
-            if catalog {
-                mc = mc.with_runs(50).unwrap();
-            }
-            let r = check(&p, &truth, &mc, true).unwrap();
+        // Seeds side by side: a catalog problem's 50 runs are one chunk, one core.
+        let reports: Vec<ConsistencyReport> = (0..seeds)
+            .into_par_iter()
+            .map(|s| {
+                let mut mc = p.mc().with_seed(220_000 + s);
+                if catalog {
+                    mc = mc.with_runs(50).unwrap();
+                }
+                check(&p, &truth, &mc, true).unwrap()
+            })
+            .collect();
+        for r in &reports {
             gate_fails += u64::from(!r.verdict.passes());
-            mean_fails += u64::from(any_mean_fails(&r));
-            let m = mean_tests(&r);
+            mean_fails += u64::from(any_mean_fails(r));
+            let m = mean_tests(r);
             assert!(m > 0, "{name}: no zero-mean test applied");
             rate = 1.0 - (1.0 - gate_alpha(r.alpha, r.tests)).powi(m as i32);
         }

@@ -7,6 +7,7 @@ use autotune::internals::check::check;
 use autotune::internals::experiment::Experiment;
 use autotune::report::tune::tuned::TunedConfig;
 use common::{load, problem_path};
+use rayon::prelude::*;
 
 /// Passes of `autotune check PROBLEM --config tuned/NAME.toml --seed S` for S = 3001…3100
 /// (the seeds), through the library.
@@ -15,7 +16,9 @@ fn passes(name: &str) -> usize {
     let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
     let theta = TunedConfig::load_values(&root.join(format!("tuned/{name}.toml")), &p).unwrap();
     assert!(problem_path(name).exists());
+    // Seeds side by side: a catalog problem's N runs are one or two chunks, one core each.
     (3001..=3100)
+        .into_par_iter()
         .filter(|&s| {
             check(&p, &theta, &p.mc().with_seed(s), true)
                 .unwrap()

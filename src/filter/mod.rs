@@ -121,6 +121,32 @@ pub struct Innovation {
     pub nis: f64,
 }
 
+impl Innovation {
+    /// An innovation of no dimension: storage for [`Filter::update_into`] to fill.
+    pub fn empty() -> Self {
+        Innovation {
+            nu: DVector::zeros(0),
+            S: DMatrix::zeros(0, 0),
+            nis: 0.0,
+        }
+    }
+
+    /// Set from a fixed-size innovation ν (M, measurement units), its covariance S (M × M)
+    /// and its NIS, in the existing storage when it has that shape.
+    #[allow(non_snake_case)]
+    #[inline]
+    pub fn set_fixed<const M: usize>(
+        &mut self,
+        nu: &SVector<f64, M>,
+        S: &SMatrix<f64, M, M>,
+        nis: f64,
+    ) {
+        store(&mut self.nu, nu);
+        store(&mut self.S, S);
+        self.nis = nis;
+    }
+}
+
 /// What a prediction returns.
 pub type PredictResult = Result<(), FilterError>;
 
@@ -295,6 +321,32 @@ pub trait Filter: Sync {
     fn state_error(&self, truth: &DVector<f64>, estimate: &DVector<f64>) -> DVector<f64> {
         truth - estimate
     }
+
+    /// [`Filter::update`] with the innovation written into `out`, whose storage the Monte
+    /// Carlo engine keeps from step to step. The default calls `update`; a filter that
+    /// computes on fixed-size matrices overrides it to allocate nothing per step
+    /// ([`Innovation::set_fixed`]). Both must give the same numbers.
+    fn update_into(
+        &self,
+        k: usize,
+        est: &mut Estimate,
+        meas: &Measurement,
+        out: &mut Innovation,
+    ) -> Result<(), FilterError> {
+        *out = self.update(k, est, meas)?;
+        Ok(())
+    }
+
+    /// [`Filter::state_error`] written into `out` (n_x), whose storage the engine keeps
+    /// from step to step; the default calls `state_error`. Both must give the same numbers.
+    fn state_error_into(
+        &self,
+        truth: &DVector<f64>,
+        estimate: &DVector<f64>,
+        out: &mut DVector<f64>,
+    ) {
+        *out = self.state_error(truth, estimate);
+    }
 }
 
 /// A boxed filter is a filter (catalog models hand out `Box<dyn Filter>`).
@@ -325,5 +377,24 @@ impl<F: Filter + ?Sized> Filter for Box<F> {
 
     fn state_error(&self, truth: &DVector<f64>, estimate: &DVector<f64>) -> DVector<f64> {
         (**self).state_error(truth, estimate)
+    }
+
+    fn update_into(
+        &self,
+        k: usize,
+        est: &mut Estimate,
+        meas: &Measurement,
+        out: &mut Innovation,
+    ) -> Result<(), FilterError> {
+        (**self).update_into(k, est, meas, out)
+    }
+
+    fn state_error_into(
+        &self,
+        truth: &DVector<f64>,
+        estimate: &DVector<f64>,
+        out: &mut DVector<f64>,
+    ) {
+        (**self).state_error_into(truth, estimate, out)
     }
 }

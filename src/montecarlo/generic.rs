@@ -6,13 +6,12 @@
 //! meaning anything ([`Fault`]): the truth state overflows, the state outgrows double
 //! precision relative to the filter's standard deviation, or the NEES or NIS overflows.
 
-use nalgebra::{Cholesky, DVector, Dyn};
+use nalgebra::{Cholesky, DMatrix, DVector, Dyn};
 
 use super::tape::{Live, Replay, TruthCache, TruthSource, TruthTape};
 use super::{McConfig, Progress, record_divergence, run_chunked};
 use crate::filter::conditioning::{MAX_CONDITION, check_conditioned};
-use crate::filter::{Estimate, Filter, FilterError, check_measurement};
-use crate::linalg::cholesky;
+use crate::filter::{Estimate, Filter, FilterError, Innovation, check_measurement};
 use crate::measurement::{Measurement, sensor_offsets};
 use crate::model::TruthModel;
 use crate::stats::{
@@ -170,10 +169,15 @@ where
         dims: &dims,
     };
     run_chunked(mc, n_x, n_z, progress, |range, acc| {
-        let mut scratch = RunRecorder::new(n_x, n_z, mc.lags());
+        let mut work = Work {
+            recorder: RunRecorder::new(n_x, n_z, mc.lags()),
+            bufs: StepBuffers::default(),
+            error: DVector::zeros(n_x),
+            innovation: Innovation::empty(),
+        };
         let mut meas: Vec<Measurement> = Vec::new();
         for run in range {
-            scratch.reset();
+            work.recorder.reset();
             let done = match tape {
                 Some(t) => one_run(
                     Replay::new(t.run(run)),
@@ -182,11 +186,11 @@ where
                     run,
                     shape,
                     acc,
-                    &mut scratch,
+                    &mut work,
                 ),
                 None => {
                     let live = Live::new(truth, mc.seed(), run, &mut meas);
-                    one_run(live, filter, mc, run, shape, acc, &mut scratch)
+                    one_run(live, filter, mc, run, shape, acc, &mut work)
                 }
             };
             if let Err(e) = done {
@@ -196,7 +200,7 @@ where
                 }
                 acc.runs += 1;
             } else {
-                scratch.end_run(acc);
+                work.recorder.end_run(acc);
             }
         }
     })
@@ -216,12 +220,18 @@ fn one_run<S, F>(
     run: usize,
     shape: Shape<'_>,
     acc: &mut Accumulator,
-    scratch: &mut RunRecorder,
+    work: &mut Work,
 ) -> Result<(), Stop>
 where
     S: TruthSource,
     F: Filter + ?Sized,
 {
+    let Work {
+        recorder: scratch,
+        bufs,
+        error,
+        innovation,
+    } = work;
     let n_x = filter.n_x();
     let mut est = filter.initial();
     let mut null_var = RunNullVariance::new(n_x, mc, run);
@@ -235,13 +245,23 @@ where
             Some(u) => filter.predict_with_input(k, &mut est, u)?,
             None => filter.predict(k, &mut est)?,
         }
-        let (nis, dof) = update_all(filter, k, &mut est, truth.measurements(), shape, scratch)?;
+        let step = Step {
+            filter,
+            k,
+            shape,
+            scratch: &mut *scratch,
+            out: &mut *innovation,
+        };
+        let (nis, dof) = update_all(step, &mut est, truth.measurements())?;
 
-        let e: DVector<f64> = filter.state_error(truth.state(), &est.x);
-        let chol = cholesky(&est.P).ok_or(FilterError::NotPositiveDefinite {
-            which: "P",
-            step: k,
-        })?;
+        filter.state_error_into(truth.state(), &est.x, error);
+        let e = &*error;
+        let chol = bufs
+            .factor(&est.P)
+            .ok_or(FilterError::NotPositiveDefinite {
+                which: "P",
+                step: k,
+            })?;
         check_conditioned("P", &est.P, &chol, k)?;
         // The estimate's magnitude is comparable with P only when it is laid out as the
         // error state (an error-state filter's nominal state is not).
@@ -252,7 +272,7 @@ where
         {
             return Err(Stop::Fault(f, k));
         }
-        let nees = crate::linalg::mahalanobis_sq(&chol, &e);
+        let nees = bufs.mahalanobis_sq(&chol, e);
         if !nees.is_finite() || !nis.is_finite() {
             return Err(Stop::Fault(Fault::Overflow, k));
         }
@@ -264,32 +284,102 @@ where
         run_nees += nees;
         scratch.state_step(acc, (0..n_x).map(|j| e[j] / est.P[(j, j)].sqrt()));
         null_var.step(&est, &chol);
+        bufs.keep(chol);
     }
     acc.add_run_nees_total(run_nees);
     null_var.add_to(acc);
     Ok(())
 }
 
+/// A chunk's storage, reused from run to run: the run's recorder, the step's buffers, the
+/// state error (n_x) and the last update's innovation.
+struct Work {
+    recorder: RunRecorder,
+    bufs: StepBuffers,
+    error: DVector<f64>,
+    innovation: Innovation,
+}
+
+/// Storage a step's NEES reuses from step to step, so that factoring P and whitening the
+/// error allocate nothing; the arithmetic is [`crate::linalg::cholesky`]'s and
+/// [`crate::linalg::mahalanobis_sq`]'s.
+#[derive(Default)]
+struct StepBuffers {
+    /// The last factor's storage, n_x × n_x, while no factor is in use.
+    factor: Option<DMatrix<f64>>,
+    /// `L⁻¹ e`, n_x.
+    whitened: DVector<f64>,
+}
+
+impl StepBuffers {
+    /// P's Cholesky factor in the kept storage; `None` when P has a non-finite entry or is
+    /// not positive definite.
+    #[inline]
+    fn factor(&mut self, p: &DMatrix<f64>) -> Option<Cholesky<f64, Dyn>> {
+        if p.iter().any(|v| !v.is_finite()) {
+            return None;
+        }
+        let mut m = match self.factor.take() {
+            Some(m) if m.shape() == p.shape() => m,
+            _ => DMatrix::zeros(p.nrows(), p.ncols()),
+        };
+        m.copy_from(p);
+        Cholesky::new(m)
+    }
+
+    /// Give a factor's storage back for the next step.
+    #[inline]
+    fn keep(&mut self, chol: Cholesky<f64, Dyn>) {
+        self.factor = Some(chol.unpack_dirty());
+    }
+
+    /// `e' P⁻¹ e = |L⁻¹ e|²` from P's factor.
+    #[inline]
+    fn mahalanobis_sq(&mut self, chol: &Cholesky<f64, Dyn>, e: &DVector<f64>) -> f64 {
+        if self.whitened.len() != e.len() {
+            self.whitened = DVector::zeros(e.len());
+        }
+        self.whitened.copy_from(e);
+        // A Cholesky factor's diagonal is positive, so the solve always succeeds.
+        chol.l_dirty()
+            .solve_lower_triangular_mut(&mut self.whitened);
+        self.whitened.norm_squared()
+    }
+}
+
+/// What updating a step needs besides the estimate and the measurements: the filter, the
+/// step `k`, the sensors' layout, the run's recorder and the innovation's storage.
+struct Step<'a, F: ?Sized> {
+    filter: &'a F,
+    k: usize,
+    shape: Shape<'a>,
+    scratch: &'a mut RunRecorder,
+    out: &'a mut Innovation,
+}
+
 /// Update the filter with every measurement of step `k`: the step's NIS and its degrees
-/// of freedom, and each component's normalized innovation into `scratch`.
+/// of freedom, and each component's normalized innovation into the recorder.
 #[inline]
 fn update_all<F: Filter + ?Sized>(
-    filter: &F,
-    k: usize,
+    step: Step<'_, F>,
     est: &mut Estimate,
     meas: &[Measurement],
-    shape: Shape<'_>,
-    scratch: &mut RunRecorder,
 ) -> Result<(f64, usize), Stop> {
-    let Shape { offsets, dims } = shape;
+    let Step {
+        filter,
+        k,
+        shape: Shape { offsets, dims },
+        scratch,
+        out,
+    } = step;
     let (mut nis, mut dof) = (0.0, 0usize);
     for m in meas {
         check_measurement(dims.get(m.sensor).copied(), m)?;
-        let inn = filter.update(k, est, m)?;
-        nis += inn.nis;
+        filter.update_into(k, est, m, out)?;
+        nis += out.nis;
         dof += m.z.len();
         for j in 0..m.z.len() {
-            scratch.innovation(offsets[m.sensor] + j, inn.nu[j] / inn.S[(j, j)].sqrt());
+            scratch.innovation(offsets[m.sensor] + j, out.nu[j] / out.S[(j, j)].sqrt());
         }
     }
     Ok((nis, dof))

@@ -98,12 +98,17 @@ impl RunRecorder {
             acc.meas_comp_total[j] += v;
             acc.meas_comp_samples[j] += 1.0;
         }
-        self.pending.clear();
         let (m, lags) = (self.n_z, self.lags);
         if lags > 0 {
             for lag in 1..=lags.min(k - 1) {
                 let slot = ((k - lag) % lags) * m;
-                for j in 0..m {
+                // Only this step's components can pair (the others are NaN in `u`): a
+                // sensor with dozens of components, a few measured a step, costs those few.
+                // A component measured twice in the step pairs once, with its last value.
+                for (p, &(j, _)) in self.pending.iter().enumerate() {
+                    if self.pending[p + 1..].iter().any(|&(i, _)| i == j) {
+                        continue;
+                    }
                     let (a, b) = (self.u[j], self.ring[slot + j]);
                     if a.is_finite() && b.is_finite() {
                         let idx = (lag - 1) * m + j;
@@ -117,7 +122,10 @@ impl RunRecorder {
             let slot = (k % lags) * m;
             self.ring[slot..slot + m].copy_from_slice(&self.u);
         }
-        self.u.fill(f64::NAN);
+        for &(j, _) in &self.pending {
+            self.u[j] = f64::NAN;
+        }
+        self.pending.clear();
     }
 
     /// Close the run: fold its per-run component averages into the accumulator.
@@ -202,6 +210,62 @@ mod tests {
         assert_eq!(acc.meas_comp_samples, vec![24.0, 20.0]);
         assert_eq!(acc.meas_comp_runs, vec![2, 2]);
         assert_eq!(acc.runs, 2);
+    }
+
+    // The step and component indices are the sums' own subscripts.
+    #[allow(clippy::needless_range_loop)]
+    #[test]
+    fn a_step_pairs_only_its_own_components_and_a_repeated_one_once_with_its_last_value() {
+        // Four components, two lags, eight steps; each step measures a few of them, and
+        // component 2 twice at steps 3 and 6 (values v, then v + 1). The lagged sums must be
+        // those of the sequence of each step's last values (NaN where unmeasured), and the
+        // second-moment sums must count both values. Exact: each sum adds the same products
+        // in the same order.
+        let (t, m, lags) = (8, 4, 2);
+        let measured = |k: usize, j: usize| (k + j) % 3 != 0 || j == 2;
+        let value = |k: usize, j: usize| (k * 5 + j) as f64 * 0.25 - 2.0;
+        let mut acc = Accumulator::new(t, 0, m, lags);
+        let mut rec = RunRecorder::new(0, m, lags);
+        rec.reset();
+        let mut last = vec![vec![f64::NAN; m]; t + 1];
+        let mut samples = vec![0.0; m];
+        for k in 1..=t {
+            for j in (0..m).rev() {
+                if measured(k, j) {
+                    rec.innovation(j, value(k, j));
+                    last[k][j] = value(k, j);
+                    samples[j] += 1.0;
+                }
+            }
+            if k == 3 || k == 6 {
+                rec.innovation(2, value(k, 2) + 1.0);
+                last[k][2] = value(k, 2) + 1.0;
+                samples[2] += 1.0;
+            }
+            rec.end_step(&mut acc, k);
+        }
+        for lag in 1..=lags {
+            for j in 0..m {
+                let (mut ab, mut a2, mut b2, mut pairs) = (0.0, 0.0, 0.0, 0.0);
+                for k in lag + 1..=t {
+                    let (a, b) = (last[k][j], last[k - lag][j]);
+                    if a.is_finite() && b.is_finite() {
+                        ab += a * b;
+                        a2 += a * a;
+                        b2 += b * b;
+                        pairs += 1.0;
+                    }
+                }
+                let idx = (lag - 1) * m + j;
+                let what = format!("lag {lag}, component {j}");
+                assert_eq!(acc.white_pairs[idx], pairs, "{what}: pairs");
+                assert_eq!(acc.white_ab[idx], ab, "{what}: Σ u_k u_k−l");
+                assert_eq!(acc.white_a2[idx], a2, "{what}: Σ u_k²");
+                assert_eq!(acc.white_b2[idx], b2, "{what}: Σ u_k−l²");
+            }
+        }
+        assert_eq!(acc.meas_comp_samples, samples);
+        assert_eq!(samples[2], 10.0);
     }
 
     #[test]

@@ -9,15 +9,18 @@
 
 #![allow(non_snake_case)]
 
-use nalgebra::{DVector, Matrix2, Matrix3, Matrix5, SMatrix, SVector, Vector2, Vector3, Vector5};
+use nalgebra::{
+    Const, DVector, Matrix2, Matrix3, Matrix5, SMatrix, SVector, U2, U3, U5, Vector2, Vector3,
+    Vector5,
+};
 
 use super::system::{BEARING, CtrvSystem, radar_of};
 use super::{LIDAR, RADAR};
-use crate::filter::unscented::{self, SigmaMeasurement, SigmaWeights};
+use crate::filter::unscented::{self, SigmaMeasurement, SigmaUpdate, SigmaWeights};
 use crate::filter::{
     Estimate, Filter, FilterError, Innovation, PredictResult, UpdateResult, check_measurement,
 };
-use crate::linalg::{to_dynamic, wrap_angle};
+use crate::linalg::wrap_angle;
 use crate::measurement::Measurement;
 
 /// The UKF over [`CtrvSystem`] on fixed-size matrices, with the yaw error wrapped to
@@ -45,8 +48,9 @@ pub struct CtrvFilter {
     pub scaling: (f64, f64, f64),
 }
 
-/// A prediction: mean, covariance, and the statistically linearized transition `F`.
-type Predicted = (Vector5<f64>, Matrix5<f64>, Matrix5<f64>);
+/// A prediction: mean (5), covariance (5 × 5), and the statistically linearized
+/// transition `F` (5 × 5).
+pub type Predicted = (Vector5<f64>, Matrix5<f64>, Matrix5<f64>);
 
 impl CtrvFilter {
     fn weights(&self, n: usize) -> SigmaWeights {
@@ -54,7 +58,9 @@ impl CtrvFilter {
         SigmaWeights::new(n, alpha, beta, kappa)
     }
 
-    fn predict_fixed(
+    /// The prediction from step k − 1 to k on fixed-size state (eleven transitions of the
+    /// augmented sigma points); [`Filter::predict`] is this on the estimate.
+    pub fn predict_fixed(
         &self,
         k: usize,
         x: &Vector5<f64>,
@@ -96,21 +102,47 @@ impl CtrvFilter {
         Ok((m.mean, m.cov, F))
     }
 
-    /// The update by sensor measurement `z` with noise `R` and measurement function `h`;
-    /// `angle` is the index of a bearing component, averaged on the circle and wrapped in
-    /// the residual.
-    fn update_fixed<const M: usize>(
+    /// Lidar's update at step `k` with its position fix `z` (m, 2) on fixed-size state:
+    /// the posterior, the innovation and its NIS ([`unscented::update`]).
+    pub fn update_lidar(
         &self,
         k: usize,
-        est: &mut Estimate,
+        x: &Vector5<f64>,
+        P: &Matrix5<f64>,
+        z: &Vector2<f64>,
+    ) -> Result<SigmaUpdate<U5, U2>, FilterError> {
+        let h = |x: &Vector5<f64>| Vector2::new(x[0], x[1]);
+        self.sigma_update(k, x, P, z, &self.R_lidar, h, None)
+    }
+
+    /// The radar's update at step `k` with its measurement `z` (range m, bearing rad,
+    /// range rate m/s) on fixed-size state, the bearing's mean and residual taken on the
+    /// circle.
+    pub fn update_radar(
+        &self,
+        k: usize,
+        x: &Vector5<f64>,
+        P: &Matrix5<f64>,
+        z: &Vector3<f64>,
+    ) -> Result<SigmaUpdate<U5, U3>, FilterError> {
+        let h = |x: &Vector5<f64>| Vector3::from(radar_of(x.as_slice()));
+        self.sigma_update(k, x, P, z, &self.R_radar, h, Some(BEARING))
+    }
+
+    /// The unscented update through `h`, with component `angle` (if any) an angle.
+    #[allow(clippy::too_many_arguments)]
+    fn sigma_update<const M: usize>(
+        &self,
+        k: usize,
+        x: &Vector5<f64>,
+        P: &Matrix5<f64>,
         z: &SVector<f64, M>,
         R: &SMatrix<f64, M, M>,
         h: impl Fn(&Vector5<f64>) -> SVector<f64, M>,
         angle: Option<usize>,
-    ) -> Result<Innovation, FilterError> {
-        let (x, P) = est.fixed::<5>()?;
+    ) -> Result<SigmaUpdate<U5, Const<M>>, FilterError> {
         let w = self.weights(5);
-        let L = unscented::sigma_factor(&P, w.spread).ok_or(FilterError::NotPositiveDefinite {
+        let L = unscented::sigma_factor(P, w.spread).ok_or(FilterError::NotPositiveDefinite {
             which: "P",
             step: k,
         })?;
@@ -134,14 +166,7 @@ impl CtrvFilter {
             }
             d
         };
-        let u = unscented::update(&x, &P, &sm, z, R, residual, k)?;
-        est.set_fixed(&u.x, &u.P);
-        est.compose_error_map_fixed(&u.IKH);
-        Ok(Innovation {
-            nu: DVector::from_column_slice(u.nu.as_slice()),
-            S: to_dynamic(&u.S),
-            nis: u.nis,
-        })
+        unscented::update(x, P, &sm, z, R, residual, k)
     }
 }
 
@@ -167,6 +192,18 @@ impl Filter for CtrvFilter {
     }
 
     fn update(&self, k: usize, est: &mut Estimate, meas: &Measurement) -> UpdateResult {
+        let mut out = Innovation::empty();
+        self.update_into(k, est, meas, &mut out)?;
+        Ok(out)
+    }
+
+    fn update_into(
+        &self,
+        k: usize,
+        est: &mut Estimate,
+        meas: &Measurement,
+        out: &mut Innovation,
+    ) -> Result<(), FilterError> {
         let dim = match meas.sensor {
             LIDAR => Some(2),
             RADAR => Some(3),
@@ -178,18 +215,18 @@ impl Filter for CtrvFilter {
                 what: "an error map of the filter's dimension",
             });
         }
+        let (x, P) = est.fixed::<5>()?;
         match meas.sensor {
             LIDAR => {
                 let z = Vector2::from_column_slice(meas.z.as_slice());
-                let h = |x: &Vector5<f64>| Vector2::new(x[0], x[1]);
-                self.update_fixed(k, est, &z, &self.R_lidar, h, None)
+                into_estimate(est, self.update_lidar(k, &x, &P, &z)?, out);
             }
             _ => {
                 let z = Vector3::from_column_slice(meas.z.as_slice());
-                let h = |x: &Vector5<f64>| Vector3::from(radar_of(x.as_slice()));
-                self.update_fixed(k, est, &z, &self.R_radar, h, Some(BEARING))
+                into_estimate(est, self.update_radar(k, &x, &P, &z)?, out);
             }
         }
+        Ok(())
     }
 
     fn state_error(&self, truth: &DVector<f64>, estimate: &DVector<f64>) -> DVector<f64> {
@@ -199,4 +236,30 @@ impl Filter for CtrvFilter {
         }
         e
     }
+
+    fn state_error_into(
+        &self,
+        truth: &DVector<f64>,
+        estimate: &DVector<f64>,
+        out: &mut DVector<f64>,
+    ) {
+        if out.len() == 5 && truth.len() == 5 && estimate.len() == 5 {
+            out.zip_zip_apply(truth, estimate, |e, t, x| *e = t - x);
+            out[3] = wrap_angle(out[3]);
+        } else {
+            *out = self.state_error(truth, estimate);
+        }
+    }
+}
+
+/// Write an update's posterior into the estimate (and compose its error map), and its
+/// innovation into `out`.
+fn into_estimate<const M: usize>(
+    est: &mut Estimate,
+    u: SigmaUpdate<U5, Const<M>>,
+    out: &mut Innovation,
+) {
+    est.set_fixed(&u.x, &u.P);
+    est.compose_error_map_fixed(&u.IKH);
+    out.set_fixed(&u.nu, &u.S, u.nis);
 }

@@ -15,18 +15,22 @@
 
 #![allow(non_snake_case)]
 
-use nalgebra::{DVector, Matrix3, SMatrix, Vector3};
+use nalgebra::{DVector, Matrix3, SMatrix, U3, U15, Vector3};
 
 use super::nav::{
     ImuSample, Mat15, N_ERR, N_NOM, NoiseDensities, Nominal, Transition, Vec15, mechanize,
     process_noise,
 };
 use crate::filter::{
-    Estimate, Filter, FilterError, Innovation, PredictResult, UpdateResult, check_measurement,
-    joseph_update,
+    CovarianceUpdate, Estimate, Filter, FilterError, Innovation, PredictResult, UpdateResult,
+    check_measurement, joseph_update,
 };
-use crate::linalg::{symmetrize, to_dynamic, to_fixed};
+use crate::linalg::{store, symmetrize, to_dynamic, to_fixed};
 use crate::measurement::Measurement;
+
+/// A GNSS update: the nominal state with the error injected, the Joseph update (posterior
+/// covariance, gain, S, `I − K H`), the innovation (m) and its NIS.
+pub type GnssUpdate = (Nominal, CovarianceUpdate<U15, U3>, Vector3<f64>, f64);
 
 /// The ESKF: noise densities, GNSS noise, initial state and covariance.
 #[derive(Debug, Clone)]
@@ -68,6 +72,26 @@ impl Eskf {
         *P = sandwich(&F, P) + Q;
         symmetrize(P);
         F
+    }
+
+    /// A GNSS fix `z` (m, NED) at step `k` on fixed-size state: the nominal state with the
+    /// error injected, the Joseph update (posterior covariance, gain, S, `I − K H`), the
+    /// innovation (m) and its NIS. [`Filter::update`] is this on the estimate.
+    pub fn update_fixed(
+        &self,
+        k: usize,
+        nom: &Nominal,
+        P: &Mat15,
+        z: &Vector3<f64>,
+    ) -> Result<GnssUpdate, FilterError> {
+        // H = [I₃ 0]: the products with its zeros and ones are exact, so this gives the
+        // numbers the block-sparse form (S = P_pp + R, K from P's first rows) gives.
+        let H = SMatrix::<f64, 3, N_ERR>::identity();
+        let cu = joseph_update(P, &H, &self.R, k)?;
+        let nu = z - nom.p;
+        let dx: Vec15 = cu.K * nu;
+        let nis = nu.dot(&cu.chol.solve(&nu));
+        Ok((nom.inject(&dx), cu, nu, nis))
     }
 }
 
@@ -133,6 +157,18 @@ impl Filter for Eskf {
     }
 
     fn update(&self, k: usize, est: &mut Estimate, meas: &Measurement) -> UpdateResult {
+        let mut out = Innovation::empty();
+        self.update_into(k, est, meas, &mut out)?;
+        Ok(out)
+    }
+
+    fn update_into(
+        &self,
+        k: usize,
+        est: &mut Estimate,
+        meas: &Measurement,
+        out: &mut Innovation,
+    ) -> Result<(), FilterError> {
         check_measurement((meas.sensor == 0).then_some(3), meas)?;
         let badp = FilterError::NotPositiveDefinite {
             which: "P",
@@ -140,22 +176,13 @@ impl Filter for Eskf {
         };
         let nom = Nominal::from_slice(est.x.as_slice()).ok_or(badp.clone())?;
         let P: Mat15 = to_fixed(&est.P).ok_or(badp)?;
-        // H = [I₃ 0]: the products with its zeros and ones are exact, so this gives the
-        // numbers the block-sparse form (S = P_pp + R, K from P's first rows) gives.
-        let H = SMatrix::<f64, 3, N_ERR>::identity();
-        let cu = joseph_update(&P, &H, &self.R, k)?;
         let z = Vector3::new(meas.z[0], meas.z[1], meas.z[2]);
-        let nu = z - nom.p;
-        let dx: Vec15 = cu.K * nu;
-        nom.inject(&dx).write(est.x.as_mut_slice());
+        let (nom, cu, nu, nis) = self.update_fixed(k, &nom, &P, &z)?;
+        nom.write(est.x.as_mut_slice());
         est.P.copy_from_slice(cu.P.as_slice());
         est.compose_error_map_fixed(&cu.IKH);
-        let nis = nu.dot(&cu.chol.solve(&nu));
-        Ok(Innovation {
-            nu: DVector::from_column_slice(nu.as_slice()),
-            S: to_dynamic(&cu.S),
-            nis,
-        })
+        out.set_fixed(&nu, &cu.S, nis);
+        Ok(())
     }
 
     /// The 15-vector error of the truth's navigation state (its first 16 entries, see
@@ -167,6 +194,21 @@ impl Filter for Eskf {
         ) {
             (Some(t), Some(e)) => DVector::from_column_slice(e.error_to(&t).as_slice()),
             _ => DVector::from_element(N_ERR, f64::NAN),
+        }
+    }
+
+    fn state_error_into(
+        &self,
+        truth: &DVector<f64>,
+        estimate: &DVector<f64>,
+        out: &mut DVector<f64>,
+    ) {
+        match (
+            Nominal::from_slice(truth.as_slice()),
+            Nominal::from_slice(estimate.as_slice()),
+        ) {
+            (Some(t), Some(e)) => store(out, &e.error_to(&t)),
+            _ => *out = DVector::from_element(N_ERR, f64::NAN),
         }
     }
 }

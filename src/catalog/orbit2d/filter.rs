@@ -4,15 +4,22 @@
 
 #![allow(non_snake_case)]
 
-use nalgebra::{DVector, Matrix3, Matrix4, Vector3, Vector4};
+use nalgebra::{DVector, Matrix3, Matrix4, U3, U4, Vector3, Vector4};
 
 use super::system::{OrbitSystem, frame};
 use crate::filter::{
-    Estimate, Filter, FilterError, Innovation, PredictResult, UpdateResult, check_measurement,
-    joseph_update,
+    CovarianceUpdate, Estimate, Filter, FilterError, Innovation, PredictResult, UpdateResult,
+    check_measurement, joseph_update,
 };
-use crate::linalg::{symmetrize, to_dynamic, wrap_angle};
+use crate::linalg::{symmetrize, wrap_angle};
 use crate::measurement::Measurement;
+
+/// A prediction: mean (km, km/s), covariance (4 × 4) and the transition F (4 × 4).
+pub type Predicted = (Vector4<f64>, Matrix4<f64>, Matrix4<f64>);
+
+/// A station's update: the posterior mean, the Joseph update (posterior covariance, gain,
+/// S, `I − K H`), the innovation (3) and its NIS.
+pub type Updated = (Vector4<f64>, CovarianceUpdate<U4, U3>, Vector3<f64>, f64);
 
 /// The catalog's EKF for `orbit2d`, with fixed-size matrices inside and process noise
 /// in the rotating radial/along-track frame (which a constant-Q [`crate::filter::Ekf`]
@@ -52,6 +59,47 @@ impl OrbitEkf {
         Q.fixed_view_mut::<2, 2>(2, 2).copy_from(&(qa * dt));
         Q
     }
+
+    /// The prediction from step k − 1 to k on fixed-size state: the predicted mean (km,
+    /// km/s), its covariance (4 × 4) and the transition F (4 × 4), or a covariance that
+    /// stopped being finite. [`Filter::predict`] is this on the estimate.
+    pub fn predict_fixed(
+        &self,
+        k: usize,
+        x: &Vector4<f64>,
+        P: &Matrix4<f64>,
+    ) -> Result<Predicted, FilterError> {
+        let (x1, F) = self.system.flow(x);
+        let mut P1 = F * P * F.transpose() + self.process_noise(x, &x1);
+        symmetrize(&mut P1);
+        if !P1.iter().all(|v| v.is_finite()) {
+            return Err(FilterError::NotPositiveDefinite {
+                which: "P",
+                step: k,
+            });
+        }
+        Ok((x1, P1, F))
+    }
+
+    /// Station `station`'s update at step `k` with its measurement `z` (range km, range
+    /// rate km/s, bearing rad) on fixed-size state: the posterior mean, the Joseph update
+    /// (posterior covariance, gain, S, `I − K H`), the innovation (bearing wrapped to
+    /// (−π, π]) and its NIS. [`Filter::update`] is this on the estimate.
+    pub fn update_fixed(
+        &self,
+        k: usize,
+        station: usize,
+        x: &Vector4<f64>,
+        P: &Matrix4<f64>,
+        z: &Vector3<f64>,
+    ) -> Result<Updated, FilterError> {
+        let (z_hat, H) = self.system.stations.measure(k, station, x);
+        let mut nu = z - z_hat;
+        nu[2] = wrap_angle(nu[2]);
+        let cu = joseph_update(P, &H, &self.R, k)?;
+        let nis = nu.dot(&cu.chol.solve(&nu));
+        Ok((x + cu.K * nu, cu, nu, nis))
+    }
 }
 
 impl Filter for OrbitEkf {
@@ -69,35 +117,46 @@ impl Filter for OrbitEkf {
 
     fn predict(&self, k: usize, est: &mut Estimate) -> PredictResult {
         let (x, P) = est.fixed::<4>()?;
-        let (x1, F) = self.system.flow(&x);
-        let mut P1 = F * P * F.transpose() + self.process_noise(&x, &x1);
-        symmetrize(&mut P1);
-        if !P1.iter().all(|v| v.is_finite()) {
-            return Err(FilterError::NotPositiveDefinite {
-                which: "P",
-                step: k,
-            });
-        }
+        let (x1, P1, F) = self.predict_fixed(k, &x, &P)?;
         est.set_fixed(&x1, &P1);
         est.set_error_map(&F);
         Ok(())
     }
 
     fn update(&self, k: usize, est: &mut Estimate, meas: &Measurement) -> UpdateResult {
+        let mut out = Innovation::empty();
+        self.update_into(k, est, meas, &mut out)?;
+        Ok(out)
+    }
+
+    fn update_into(
+        &self,
+        k: usize,
+        est: &mut Estimate,
+        meas: &Measurement,
+        out: &mut Innovation,
+    ) -> Result<(), FilterError> {
         let count = self.system.stations.count;
         check_measurement((meas.sensor < count).then_some(3), meas)?;
         let (x, P) = est.fixed::<4>()?;
-        let (z_hat, H) = self.system.stations.measure(k, meas.sensor, &x);
-        let mut nu = Vector3::new(meas.z[0], meas.z[1], meas.z[2]) - z_hat;
-        nu[2] = wrap_angle(nu[2]);
-        let cu = joseph_update(&P, &H, &self.R, k)?;
-        let nis = nu.dot(&cu.chol.solve(&nu));
-        est.set_fixed(&(x + cu.K * nu), &cu.P);
+        let z = Vector3::new(meas.z[0], meas.z[1], meas.z[2]);
+        let (x1, cu, nu, nis) = self.update_fixed(k, meas.sensor, &x, &P, &z)?;
+        est.set_fixed(&x1, &cu.P);
         est.compose_error_map_fixed(&cu.IKH);
-        Ok(Innovation {
-            nu: DVector::from_column_slice(nu.as_slice()),
-            S: to_dynamic(&cu.S),
-            nis,
-        })
+        out.set_fixed(&nu, &cu.S, nis);
+        Ok(())
+    }
+
+    fn state_error_into(
+        &self,
+        truth: &DVector<f64>,
+        estimate: &DVector<f64>,
+        out: &mut DVector<f64>,
+    ) {
+        if out.len() == truth.len() && truth.len() == estimate.len() {
+            out.zip_zip_apply(truth, estimate, |e, t, x| *e = t - x);
+        } else {
+            *out = self.state_error(truth, estimate);
+        }
     }
 }

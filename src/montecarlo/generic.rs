@@ -400,10 +400,14 @@ struct RunNullVariance {
 
 impl RunNullVariance {
     fn new(n_x: usize, mc: &McConfig, run: usize) -> Self {
+        let sample = run % NULL_VAR_STRIDE == 0;
+        // An unsampled run never steps its recursions: no storage for them (the component
+        // one is 3 n³ numbers).
         RunNullVariance {
-            sample: run % NULL_VAR_STRIDE == 0,
-            nees: NeesNullVariance::new(n_x),
-            components: (mc.gate() == GateMode::Full).then(|| ComponentNullVariance::new(n_x)),
+            sample,
+            nees: NeesNullVariance::new(if sample { n_x } else { 0 }),
+            components: (sample && mc.gate() == GateMode::Full)
+                .then(|| ComponentNullVariance::new(n_x)),
             map_missing: false,
         }
     }

@@ -28,7 +28,7 @@ use autotune::internals::catalog::ctrv::{CtrvModel, LIDAR};
 use autotune::internals::catalog::ins_gnss::InsGnss;
 use autotune::internals::catalog::ins_gnss::truth::truth_nominal;
 use autotune::internals::catalog::orbit2d::Orbit2d;
-use autotune::internals::catalog::{CatalogModel, ModelContext};
+use autotune::internals::catalog::{CatalogModel, ModelContext, ModelError};
 use autotune::internals::linalg::{mahalanobis_sq, wrap_angle};
 use autotune::internals::measurement::Measurement;
 use autotune::internals::model::TruthModel;
@@ -421,20 +421,22 @@ fn ins_gnss_by_hand(
     })
 }
 
-/// One catalog model: its truth, filter, and hand-written loop.
-struct Case<'a> {
-    name: &'static str,
-    model: &'a dyn CatalogModel,
-    by_hand: &'a (dyn Fn(&McConfig, Option<&[RunTape]>) -> Sums + Sync),
-}
+/// A hand-written loop of one model: the model, θ, the Monte Carlo settings and the
+/// recorded truth (or `None` to simulate it).
+type ByHand<M> = fn(&M, &[f64], &McConfig, Option<&[RunTape]>) -> Sums;
 
-fn compare(c: &mut Criterion, case: &Case<'_>, steps: usize) {
-    let Case {
-        name,
-        model,
-        by_hand,
-    } = case;
+/// Bench one shipped catalog problem, built by `build`, against its hand-written loop.
+fn compare<M: CatalogModel>(
+    c: &mut Criterion,
+    name: &'static str,
+    build: fn(&toml::Table, &ModelContext) -> Result<M, ModelError>,
+    hand: ByHand<M>,
+) {
+    let (table, ctx) = shipped(name);
+    let model = build(&table, &ctx).expect("the shipped problem builds");
+    let steps = ctx.steps;
     let theta = model.truth_values();
+    let by_hand = |mc: &McConfig, t: Option<&[RunTape]>| hand(&model, &theta, mc, t);
     let filter = model.filter(&theta);
     let truth = model.truth();
     let n_x = filter.n_x();
@@ -487,38 +489,9 @@ fn compare(c: &mut Criterion, case: &Case<'_>, steps: usize) {
 }
 
 fn speed_of_light(c: &mut Criterion) {
-    let (table, ctx) = shipped("ctrv");
-    let ctrv = CtrvModel::from_table(&table, &ctx).expect("ctrv");
-    let theta = ctrv.truth_values();
-    let hand = |mc: &McConfig, t: Option<&[RunTape]>| ctrv_by_hand(&ctrv, &theta, mc, t);
-    let case = Case {
-        name: "ctrv",
-        model: &ctrv,
-        by_hand: &hand,
-    };
-    compare(c, &case, ctx.steps);
-
-    let (table, ctx) = shipped("orbit2d");
-    let orbit = Orbit2d::from_table(&table, &ctx).expect("orbit2d");
-    let theta = orbit.truth_values();
-    let hand = |mc: &McConfig, t: Option<&[RunTape]>| orbit2d_by_hand(&orbit, &theta, mc, t);
-    let case = Case {
-        name: "orbit2d",
-        model: &orbit,
-        by_hand: &hand,
-    };
-    compare(c, &case, ctx.steps);
-
-    let (table, ctx) = shipped("ins_gnss");
-    let ins = InsGnss::new(&table, &ctx).expect("ins_gnss");
-    let theta = ins.truth_values();
-    let hand = |mc: &McConfig, t: Option<&[RunTape]>| ins_gnss_by_hand(&ins, &theta, mc, t);
-    let case = Case {
-        name: "ins_gnss",
-        model: &ins,
-        by_hand: &hand,
-    };
-    compare(c, &case, ctx.steps);
+    compare(c, "ctrv", CtrvModel::from_table, ctrv_by_hand);
+    compare(c, "orbit2d", Orbit2d::from_table, orbit2d_by_hand);
+    compare(c, "ins_gnss", InsGnss::new, ins_gnss_by_hand);
 }
 
 criterion_group!(benches, speed_of_light);

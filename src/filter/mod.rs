@@ -147,6 +147,19 @@ impl Innovation {
     }
 }
 
+/// [`Filter::update`] for a filter that implements [`Filter::update_into`]: the innovation
+/// in new storage. A filter's `update` is then this one call.
+pub fn update_by_into<F: Filter + ?Sized>(
+    filter: &F,
+    k: usize,
+    est: &mut Estimate,
+    meas: &Measurement,
+) -> UpdateResult {
+    let mut out = Innovation::empty();
+    filter.update_into(k, est, meas, &mut out)?;
+    Ok(out)
+}
+
 /// What a prediction returns.
 pub type PredictResult = Result<(), FilterError>;
 

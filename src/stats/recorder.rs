@@ -160,6 +160,25 @@ mod tests {
         }
     }
 
+    /// By plain loops over `runs` runs of `t` steps of one component's sequence `u(run, k)`
+    /// (NaN where unmeasured): `[Σ u_k u_k−lag, Σ u_k², Σ u_k−lag², pairs]` over the pairs
+    /// whose both ends are measured, in step order.
+    fn lagged_sums(runs: usize, t: usize, lag: usize, u: impl Fn(usize, usize) -> f64) -> [f64; 4] {
+        let mut sums = [0.0; 4];
+        for run in 0..runs {
+            for k in lag + 1..=t {
+                let (a, b) = (u(run, k), u(run, k - lag));
+                if a.is_finite() && b.is_finite() {
+                    sums[0] += a * b;
+                    sums[1] += a * a;
+                    sums[2] += b * b;
+                    sums[3] += 1.0;
+                }
+            }
+        }
+        sums
+    }
+
     #[test]
     fn lagged_products_match_a_brute_force_sum_over_every_lag_up_to_l() {
         // Two runs of T = 12 steps, two components, L = 3 lags: the recorder's sums of
@@ -183,18 +202,7 @@ mod tests {
         }
         for lag in 1..=lags {
             for j in 0..m {
-                let (mut ab, mut a2, mut b2, mut pairs) = (0.0, 0.0, 0.0, 0.0);
-                for run in 0..2 {
-                    for k in lag + 1..=t {
-                        let (a, b) = (u(run, k, j), u(run, k - lag, j));
-                        if a.is_finite() && b.is_finite() {
-                            ab += a * b;
-                            a2 += a * a;
-                            b2 += b * b;
-                            pairs += 1.0;
-                        }
-                    }
-                }
+                let [ab, a2, b2, pairs] = lagged_sums(2, t, lag, |run, k| u(run, k, j));
                 let idx = (lag - 1) * m + j;
                 let what = format!("lag {lag} of {lags}, component {j}");
                 assert_eq!(acc.white_pairs[idx], pairs, "{what}: pairs");
@@ -246,16 +254,7 @@ mod tests {
         }
         for lag in 1..=lags {
             for j in 0..m {
-                let (mut ab, mut a2, mut b2, mut pairs) = (0.0, 0.0, 0.0, 0.0);
-                for k in lag + 1..=t {
-                    let (a, b) = (last[k][j], last[k - lag][j]);
-                    if a.is_finite() && b.is_finite() {
-                        ab += a * b;
-                        a2 += a * a;
-                        b2 += b * b;
-                        pairs += 1.0;
-                    }
-                }
+                let [ab, a2, b2, pairs] = lagged_sums(1, t, lag, |_, k| last[k][j]);
                 let idx = (lag - 1) * m + j;
                 let what = format!("lag {lag}, component {j}");
                 assert_eq!(acc.white_pairs[idx], pairs, "{what}: pairs");

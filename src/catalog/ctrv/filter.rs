@@ -19,6 +19,7 @@ use super::{LIDAR, RADAR};
 use crate::filter::unscented::{self, SigmaMeasurement, SigmaUpdate, SigmaWeights};
 use crate::filter::{
     Estimate, Filter, FilterError, Innovation, PredictResult, UpdateResult, check_measurement,
+    update_by_into,
 };
 use crate::linalg::wrap_angle;
 use crate::measurement::Measurement;
@@ -192,9 +193,7 @@ impl Filter for CtrvFilter {
     }
 
     fn update(&self, k: usize, est: &mut Estimate, meas: &Measurement) -> UpdateResult {
-        let mut out = Innovation::empty();
-        self.update_into(k, est, meas, &mut out)?;
-        Ok(out)
+        update_by_into(self, k, est, meas)
     }
 
     fn update_into(

@@ -23,7 +23,7 @@ use super::nav::{
 };
 use crate::filter::{
     CovarianceUpdate, Estimate, Filter, FilterError, Innovation, PredictResult, UpdateResult,
-    check_measurement, joseph_update,
+    check_measurement, joseph_update, update_by_into,
 };
 use crate::linalg::{store, symmetrize, to_dynamic, to_fixed};
 use crate::measurement::Measurement;
@@ -157,9 +157,7 @@ impl Filter for Eskf {
     }
 
     fn update(&self, k: usize, est: &mut Estimate, meas: &Measurement) -> UpdateResult {
-        let mut out = Innovation::empty();
-        self.update_into(k, est, meas, &mut out)?;
-        Ok(out)
+        update_by_into(self, k, est, meas)
     }
 
     fn update_into(

@@ -9,7 +9,7 @@ use nalgebra::{DVector, Matrix3, Matrix4, U3, U4, Vector3, Vector4};
 use super::system::{OrbitSystem, frame};
 use crate::filter::{
     CovarianceUpdate, Estimate, Filter, FilterError, Innovation, PredictResult, UpdateResult,
-    check_measurement, joseph_update,
+    check_measurement, joseph_update, update_by_into,
 };
 use crate::linalg::{symmetrize, wrap_angle};
 use crate::measurement::Measurement;
@@ -124,9 +124,7 @@ impl Filter for OrbitEkf {
     }
 
     fn update(&self, k: usize, est: &mut Estimate, meas: &Measurement) -> UpdateResult {
-        let mut out = Innovation::empty();
-        self.update_into(k, est, meas, &mut out)?;
-        Ok(out)
+        update_by_into(self, k, est, meas)
     }
 
     fn update_into(

@@ -56,6 +56,7 @@ pub mod report;
 
 // The modules below the public API: private, their names re-exported below where a Rust
 // user needs them.
+mod capi;
 mod catalog;
 mod check;
 mod estimate;
@@ -98,6 +99,9 @@ pub mod internals {
     }
     pub mod explain {
         pub use crate::explain::*;
+    }
+    pub mod capi {
+        pub use crate::capi::*;
     }
     pub mod external {
         pub use crate::external::*;
@@ -186,6 +190,10 @@ pub use fieldlog::{
     MonitorError, MonitorStatus, NisMonitor, NisReport, NisSettings, SensorStatus, Window,
     WindowStatus,
 };
+
+// A worker program that sums its own records (the C ABI and the Python package wrap it).
+pub use external::{ChunkError, WorkerChunk};
+pub use records::{Layout, SensorLayout, SensorRecord, StateLayout, StateRecord, StepRecord};
 
 // Errors of bad input.
 pub use input::{FileError, SettingError};

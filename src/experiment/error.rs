@@ -187,8 +187,11 @@ pub enum WorkerFailure {
     /// The records file it named is malformed.
     #[error("its records file {0}")]
     RecordsFile(FileError),
+    /// Its sums answer is malformed, or does not fit the request.
+    #[error("its sums answer: {0}")]
+    Sums(crate::records::WireError),
     /// An answer that is none of the protocol's.
-    #[error("answered {0}: expected \"file\", \"done\" or \"error\"")]
+    #[error("answered {0}: expected \"file\", \"sums\", \"done\" or \"error\"")]
     Unexpected(String),
     /// Its records, together, cannot be summed (a run missing, steps out of order).
     #[error(transparent)]

@@ -16,13 +16,15 @@
 //! removed and stopped on every exit path, an interrupt included
 //! ([`stop_workers_and_remove_scratch`]).
 
+mod answer;
 mod scratch;
 mod worker;
+
+pub use answer::{ChunkError, WorkerChunk};
 
 pub use scratch::stop_workers_and_remove_scratch;
 
 use std::collections::BTreeMap;
-use std::hash::{DefaultHasher, Hash, Hasher};
 use std::path::PathBuf;
 use std::sync::Mutex;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
@@ -34,9 +36,7 @@ use crate::experiment::{
 };
 use crate::montecarlo::{CHUNK, McConfig};
 use crate::params::Target;
-use crate::records::{
-    Layout, RecordError, RecordSink, SensorRecord, StateRecord, StepRecord, StepSink,
-};
+use crate::records::{Layout, RecordError, RecordSink, StepRecord, StepSink, WireError};
 use crate::stats::Accumulator;
 use worker::{Request, Worker};
 
@@ -194,15 +194,19 @@ impl ExternalExperiment {
         runs: std::ops::Range<usize>,
         prints: Option<&mut Fingerprints>,
     ) -> Result<Accumulator, ExperimentError> {
+        let sums_fields = answer::request_fields(&self.layout, mc.lags());
         let req = Request {
             id: self.next_id.fetch_add(1, Ordering::Relaxed),
             theta,
             seed: mc.seed(),
             runs: runs.clone(),
             steps: mc.steps(),
+            lags: mc.lags(),
+            sums_fields: &sums_fields,
         };
-        let mut sink = self.sink(mc, runs);
-        let asked = match prints {
+        let mut sink = self.sink(mc, runs.clone());
+        let mut prints = prints;
+        let asked = match prints.as_deref_mut() {
             Some(prints) => {
                 let mut tee = Fingerprinting {
                     sink: &mut sink,
@@ -212,9 +216,19 @@ impl ExternalExperiment {
             }
             None => w.request(&req, &self.layout, &mut sink, self.command.timeout),
         };
-        asked
-            .and_then(|()| sink.finish().map_err(WorkerFailure::from))
-            .map_err(|failure| self.error(w, &req, failure))
+        let summed = match asked {
+            Ok(None) => sink.finish().map_err(WorkerFailure::from),
+            // Inline records and then sums would count runs twice.
+            Ok(Some(_)) if sink.runs() > 0 => Err(WorkerFailure::Sums(WireError::AfterRecords)),
+            Ok(Some(chunk)) => {
+                if let Some(prints) = prints {
+                    prints.0.extend(runs.zip(chunk.prints));
+                }
+                Ok(chunk.sums)
+            }
+            Err(e) => Err(e),
+        };
+        summed.map_err(|failure| self.error(w, &req, failure))
     }
 
     fn run(
@@ -388,52 +402,10 @@ impl StepSink for Fingerprinting<'_> {
     type Error = RecordError;
 
     fn push(&mut self, r: StepRecord) -> Result<(), RecordError> {
-        let mut h = DefaultHasher::new();
-        self.prints.0.get(&r.run).hash(&mut h);
-        hash_record(&r, &mut h);
-        self.prints.0.insert(r.run, h.finish());
+        let print = crate::records::fingerprint(self.prints.0.get(&r.run).copied(), &r);
+        self.prints.0.insert(r.run, print);
         self.sink.push(r)
     }
-}
-
-/// Feed a record's step and numbers (by their bits) into `h`.
-fn hash_record(r: &StepRecord, h: &mut impl Hasher) {
-    let floats = |h: &mut dyn Hasher, v: &[f64]| {
-        h.write_usize(v.len());
-        for x in v {
-            h.write_u64(x.to_bits());
-        }
-    };
-    h.write_usize(r.step);
-    match &r.state {
-        None => h.write_u8(0),
-        Some(StateRecord::Raw { e, p }) => {
-            h.write_u8(1);
-            floats(h, e);
-            floats(h, p);
-        }
-        Some(StateRecord::Normalized { nees, dof, e2p }) => {
-            h.write_u8(2);
-            floats(h, &[*nees, *dof]);
-            floats(h, e2p.as_deref().unwrap_or(&[]));
-        }
-    }
-    for (k, s) in &r.sensors {
-        h.write_usize(*k);
-        match s {
-            SensorRecord::Raw { nu, s } => {
-                h.write_u8(1);
-                floats(h, nu);
-                floats(h, s);
-            }
-            SensorRecord::Normalized { nis, dof, u } => {
-                h.write_u8(2);
-                floats(h, &[*nis, *dof]);
-                floats(h, u.as_deref().unwrap_or(&[]));
-            }
-        }
-    }
-    r.diverged.hash(h);
 }
 
 /// Stop every worker of `pool`, together.

@@ -14,7 +14,10 @@ use serde_json::Value;
 
 use super::scratch::{self, ScratchDir};
 use crate::experiment::{Ended, StartFailure, WorkerFailure};
-use crate::records::{Layout, RecordError, StepSink, feed_file, parse_record_line};
+use crate::records::{
+    ChunkShape, ChunkSums, Layout, RecordError, StepSink, WireError, decode_sums, feed_file,
+    parse_record_line,
+};
 
 /// Lines of a worker's stderr kept for error messages.
 const STDERR_LINES: usize = 3;
@@ -34,6 +37,10 @@ pub(super) struct Request<'a> {
     pub seed: u64,
     pub runs: std::ops::Range<usize>,
     pub steps: usize,
+    /// Whiteness lags, which a worker summing its own records needs.
+    pub lags: usize,
+    /// `"lags":…,"layout":…`, for a worker that sums its own records.
+    pub sums_fields: &'a str,
 }
 
 /// How long a request may still wait for lines.
@@ -44,11 +51,14 @@ struct Wait {
     exited: Option<(Ended, Instant)>,
 }
 
-/// Whether an answer goes on after a line.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+/// Whether an answer goes on after a line, and what it ended with.
+#[derive(Debug, Clone, PartialEq)]
 enum Answer {
     More,
+    /// The records went to the sink.
     Done,
+    /// The worker summed its own records.
+    Sums(Box<ChunkSums>),
 }
 
 /// A running worker.
@@ -230,14 +240,15 @@ impl Worker {
     }
 
     /// Ask for the records of `req` and stream them into `sink` (an experiment of
-    /// `layout`), within `timeout`. The error says what went wrong, in words.
+    /// `layout`), within `timeout`; a worker that summed its records itself answers their
+    /// sums instead (`Some`). The error says what went wrong, in words.
     pub(super) fn request(
         &mut self,
         req: &Request<'_>,
         layout: &Layout,
         sink: &mut dyn StepSink<Error = RecordError>,
         timeout: Duration,
-    ) -> Result<(), WorkerFailure> {
+    ) -> Result<Option<ChunkSums>, WorkerFailure> {
         self.send(req)?;
         let mut wait = Wait {
             deadline: Instant::now() + timeout,
@@ -250,8 +261,10 @@ impl Worker {
             if trimmed.is_empty() {
                 continue;
             }
-            if self.answer(trimmed, req, layout, sink)? == Answer::Done {
-                return Ok(());
+            match self.answer(trimmed, req, layout, sink)? {
+                Answer::More => {}
+                Answer::Done => return Ok(None),
+                Answer::Sums(sums) => return Ok(Some(*sums)),
             }
         }
     }
@@ -259,13 +272,14 @@ impl Worker {
     /// Write the request line to the worker's stdin.
     fn send(&mut self, req: &Request<'_>) -> Result<(), WorkerFailure> {
         let line = format!(
-            "{{\"id\":{},\"theta\":{},\"seed\":{},\"runs\":[{},{}],\"steps\":{},\"dir\":{}}}\n",
+            "{{\"id\":{},\"theta\":{},\"seed\":{},\"runs\":[{},{}],\"steps\":{},{},\"dir\":{}}}\n",
             req.id,
             req.theta,
             req.seed,
             req.runs.start,
             req.runs.end,
             req.steps,
+            req.sums_fields,
             serde_json::to_string(&self.scratch.path().to_string_lossy())
                 .expect("a string serializes")
         );
@@ -354,6 +368,22 @@ impl Worker {
             };
             self.read_file(file, req, layout, sink)?;
             return Ok(Answer::Done);
+        }
+        if let Some(sums) = obj.get("sums") {
+            let Some(text) = sums.as_str() else {
+                return Err(WorkerFailure::Sums(WireError::Base64(
+                    "not a string".into(),
+                )));
+            };
+            let shape = ChunkShape {
+                runs: req.runs.clone(),
+                steps: req.steps,
+                lags: req.lags,
+                n_x: layout.n_x(),
+                n_z: layout.n_z(),
+            };
+            let sums = decode_sums(text, &shape).map_err(WorkerFailure::Sums)?;
+            return Ok(Answer::Sums(Box::new(sums)));
         }
         Err(WorkerFailure::Unexpected(quote(line)))
     }

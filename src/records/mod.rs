@@ -11,18 +11,22 @@
 mod csv;
 mod error;
 mod files;
+mod fingerprint;
 mod json;
 mod names;
 mod npy;
 mod sink;
+mod wire;
 
 pub use error::{Breakdown, LayoutError, RecordError, SensorShapeError, ShapeError};
 pub use files::{Recorded, feed_file, feed_files, read_files, scan_files, shown_up_to};
+pub(crate) use fingerprint::chain as fingerprint;
 pub(crate) use json::object as json_object;
 pub use json::parse_record_line;
 pub use names::{Quantity, experiment_name, valid_sensor};
-pub(crate) use npy::read_raw as read_numpy_arrays;
+pub(crate) use npy::{read_numpy_records, read_raw as read_numpy_arrays};
 pub use sink::{NormalizedSensor, RecordSink, StepSink, normalize_sensor, shown_number};
+pub use wire::{ChunkShape, ChunkSums, WireError, decode as decode_sums, encode as encode_sums};
 
 /// Largest number of steps per run records may have. The sums take memory proportional to
 /// T, allocated before the first record is read, so T is checked first; this is the

@@ -417,6 +417,19 @@ impl Shaped {
     }
 }
 
+/// Arrays given in memory (`raw`, called `file` in errors) read as records of `layout`
+/// into `sink`, run r of the arrays being run `first_run + r`: as from an `.npz` file.
+pub(crate) fn read_numpy_records<E: std::error::Error>(
+    file: &Path,
+    raw: Vec<RawArray>,
+    layout: &Layout,
+    steps: usize,
+    first_run: usize,
+    sink: &mut dyn StepSink<Error = E>,
+) -> Result<(), FileError> {
+    Arrays::validate(file.to_path_buf(), raw)?.feed(layout, steps, first_run, sink)
+}
+
 impl Arrays {
     /// Read an `.npz` archive, or a set of `.npy` files.
     pub(crate) fn read(paths: &[PathBuf]) -> Result<Arrays, FileError> {

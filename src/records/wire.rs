@@ -1,0 +1,352 @@
+//! A chunk's sums on the wire: what a worker that computes the statistics in its own process
+//! (through this library, its C ABI or its Python package) answers instead of records.
+//!
+//! The sums are the [`Accumulator`] the records path would have built from the same records,
+//! with each run's fingerprint for the seed-contract check; every number travels as its IEEE
+//! bits (little-endian, base64 in the JSON answer), so autotune merges exactly what the
+//! worker summed and the statistics equal the records path's bit for bit. A sums answer is
+//! an untrusted input like a records file: [`decode`] checks its shapes against the
+//! request, and that its numbers could have come from records (finite, counts whole and
+//! within the runs asked for), before autotune merges it.
+
+use base64::Engine;
+use base64::engine::general_purpose::STANDARD;
+
+use crate::stats::{Accumulator, Divergence, StopCause};
+
+/// The first bytes of an encoded chunk: the format and its version.
+const MAGIC: &[u8; 8] = b"ATSUMS1\0";
+
+/// Longest divergence reason carried, in bytes (the records path keeps a worker's words
+/// whole, but a reason is shown on one line of a report).
+const MAX_REASON: usize = 1000;
+
+/// What a sums answer must match: the request it answers.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct ChunkShape {
+    /// The runs asked for, [a, b).
+    pub runs: std::ops::Range<usize>,
+    /// T.
+    pub steps: usize,
+    /// Whiteness lags.
+    pub lags: usize,
+    /// State components the sums keep.
+    pub n_x: usize,
+    /// Measurement components the sums keep.
+    pub n_z: usize,
+}
+
+/// A chunk's sums and its runs' fingerprints (run a + i at index i).
+#[derive(Debug, Clone, PartialEq)]
+pub struct ChunkSums {
+    /// The sums, as the records path builds them.
+    pub sums: Accumulator,
+    /// Each run's fingerprint, in run order.
+    pub prints: Vec<u64>,
+}
+
+/// Why a sums answer is refused.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum WireError {
+    /// Not base64.
+    #[error("'sums' is not base64: {0}")]
+    Base64(String),
+    /// Not this format, or another version of it.
+    #[error("'sums' is not autotune's sums format (version 1): another autotune's worker library?")]
+    Magic,
+    /// It ended early.
+    #[error("'sums' ends early, at byte {0}")]
+    Truncated(usize),
+    /// Sums after inline records of the same request.
+    #[error("'sums' after inline records: answer one or the other")]
+    AfterRecords,
+    /// Bytes after its end.
+    #[error("'sums' has {0} bytes after its end")]
+    Trailing(usize),
+    /// A size differs from the request's.
+    #[error("'sums' {what} is {got}, the request's {want}")]
+    Shape {
+        /// The size.
+        what: &'static str,
+        /// The answer's.
+        got: usize,
+        /// The request's.
+        want: usize,
+    },
+    /// A number no records could give.
+    #[error("'sums' {what} is {value}, which no records give")]
+    Impossible {
+        /// Which sum.
+        what: &'static str,
+        /// Its value, as shown.
+        value: String,
+    },
+    /// A divergence that does not fit the request.
+    #[error(
+        "'sums' divergence {0} is malformed (run outside the request, step outside 1..=T, unknown cause or reason not UTF-8)"
+    )]
+    Divergence(usize),
+}
+
+/// The per-step, component and whiteness vectors, in wire order, with their names (for
+/// errors) and whether they count samples (whole numbers).
+fn vectors(a: &mut Accumulator) -> [(&'static str, bool, &mut Vec<f64>); 26] {
+    [
+        ("nees_sum", false, &mut a.nees_sum),
+        ("nees_sq", false, &mut a.nees_sq),
+        ("nees_dof", false, &mut a.nees_dof),
+        ("nees_count", true, &mut a.nees_count),
+        ("nis_sum", false, &mut a.nis_sum),
+        ("nis_sq", false, &mut a.nis_sq),
+        ("nis_dof", false, &mut a.nis_dof),
+        ("nis_count", true, &mut a.nis_count),
+        ("state_comp_total", false, &mut a.state_comp_total),
+        ("state_comp_samples", true, &mut a.state_comp_samples),
+        ("state_comp_run_sum", false, &mut a.state_comp_run_sum),
+        ("state_comp_run_sq", false, &mut a.state_comp_run_sq),
+        ("state_comp_null_var", false, &mut a.state_comp_null_var),
+        ("state_mean_total", false, &mut a.state_mean_total),
+        ("state_mean_samples", true, &mut a.state_mean_samples),
+        ("state_mean_run_sq", false, &mut a.state_mean_run_sq),
+        ("state_mean_null_var", false, &mut a.state_mean_null_var),
+        ("meas_mean_total", false, &mut a.meas_mean_total),
+        ("meas_comp_total", false, &mut a.meas_comp_total),
+        ("meas_comp_samples", true, &mut a.meas_comp_samples),
+        ("meas_comp_run_sum", false, &mut a.meas_comp_run_sum),
+        ("meas_comp_run_sq", false, &mut a.meas_comp_run_sq),
+        ("white_ab", false, &mut a.white_ab),
+        ("white_a2", false, &mut a.white_a2),
+        ("white_b2", false, &mut a.white_b2),
+        ("white_pairs", true, &mut a.white_pairs),
+    ]
+}
+
+/// The scalar sums, in wire order.
+fn scalars(a: &mut Accumulator) -> [(&'static str, &mut f64); 3] {
+    [
+        ("nees_null_var", &mut a.nees_null_var),
+        ("nees_run_total", &mut a.nees_run_total),
+        ("nees_run_total_sq", &mut a.nees_run_total_sq),
+    ]
+}
+
+/// The counts of runs, in wire order (`runs` first).
+fn counts(a: &mut Accumulator) -> [(&'static str, &mut usize); 8] {
+    [
+        ("runs", &mut a.runs),
+        ("null_var_runs", &mut a.null_var_runs),
+        ("error_map_missing", &mut a.error_map_missing),
+        ("nees_total_runs", &mut a.nees_total_runs),
+        ("comp_null_var_runs", &mut a.comp_null_var_runs),
+        ("diverged_runs", &mut a.diverged_runs),
+        ("ill_conditioned_runs", &mut a.ill_conditioned_runs),
+        ("truth_overflow_runs", &mut a.truth_overflow_runs),
+    ]
+}
+
+fn cause_byte(c: StopCause) -> u8 {
+    match c {
+        StopCause::Diverged => 0,
+        StopCause::IllConditioned => 1,
+        StopCause::TruthOverflow => 2,
+    }
+}
+
+fn cause_of(b: u8) -> Option<StopCause> {
+    match b {
+        0 => Some(StopCause::Diverged),
+        1 => Some(StopCause::IllConditioned),
+        2 => Some(StopCause::TruthOverflow),
+        _ => None,
+    }
+}
+
+/// `chunk` of the runs `shape.runs` as the base64 text of a sums answer.
+pub fn encode(chunk: &ChunkSums, shape: &ChunkShape) -> String {
+    let mut a = chunk.sums.clone();
+    let mut out = Vec::new();
+    let u = |out: &mut Vec<u8>, x: usize| out.extend_from_slice(&(x as u64).to_le_bytes());
+    out.extend_from_slice(MAGIC);
+    for x in [
+        shape.runs.start,
+        shape.runs.end,
+        shape.steps,
+        shape.lags,
+        shape.n_x,
+        shape.n_z,
+    ] {
+        u(&mut out, x);
+    }
+    for (_, _, v) in vectors(&mut a) {
+        for x in v.iter() {
+            out.extend_from_slice(&x.to_bits().to_le_bytes());
+        }
+    }
+    for (_, x) in scalars(&mut a) {
+        out.extend_from_slice(&x.to_bits().to_le_bytes());
+    }
+    for (_, x) in counts(&mut a) {
+        u(&mut out, *x);
+    }
+    for x in &a.meas_comp_runs {
+        u(&mut out, *x);
+    }
+    u(&mut out, a.divergences.len());
+    for d in &a.divergences {
+        u(&mut out, d.run);
+        u(&mut out, d.step);
+        out.push(cause_byte(d.cause));
+        let reason = &d.reason.as_bytes()[..floor_char(&d.reason, MAX_REASON)];
+        u(&mut out, reason.len());
+        out.extend_from_slice(reason);
+    }
+    for p in &chunk.prints {
+        out.extend_from_slice(&p.to_le_bytes());
+    }
+    STANDARD.encode(out)
+}
+
+/// The largest index ≤ `at` on a character boundary of `s`.
+fn floor_char(s: &str, at: usize) -> usize {
+    (0..=at.min(s.len()))
+        .rev()
+        .find(|&i| s.is_char_boundary(i))
+        .unwrap_or(0)
+}
+
+/// Reads the encoded bytes in order, every read checked.
+struct Reader<'a> {
+    bytes: &'a [u8],
+    at: usize,
+}
+
+impl Reader<'_> {
+    fn take(&mut self, n: usize) -> Result<&[u8], WireError> {
+        let end = self
+            .at
+            .checked_add(n)
+            .filter(|&e| e <= self.bytes.len())
+            .ok_or(WireError::Truncated(self.bytes.len()))?;
+        let s = &self.bytes[self.at..end];
+        self.at = end;
+        Ok(s)
+    }
+
+    fn u64(&mut self) -> Result<u64, WireError> {
+        let b = self.take(8)?;
+        Ok(u64::from_le_bytes(b.try_into().expect("8 bytes")))
+    }
+
+    fn f64(&mut self) -> Result<f64, WireError> {
+        self.u64().map(f64::from_bits)
+    }
+
+    /// A size or count: anything above `limit` is refused as `what`.
+    fn size(&mut self, what: &'static str, limit: usize) -> Result<usize, WireError> {
+        let x = self.u64()?;
+        usize::try_from(x)
+            .ok()
+            .filter(|&x| x <= limit)
+            .ok_or(WireError::Impossible {
+                what,
+                value: x.to_string(),
+            })
+    }
+}
+
+/// The sums of a base64 sums answer, checked against `want` (the request it answers).
+pub fn decode(text: &str, want: &ChunkShape) -> Result<ChunkSums, WireError> {
+    let bytes = STANDARD
+        .decode(text)
+        .map_err(|e| WireError::Base64(e.to_string()))?;
+    let mut r = Reader {
+        bytes: &bytes,
+        at: 0,
+    };
+    if r.take(MAGIC.len()).map_err(|_| WireError::Magic)? != MAGIC {
+        return Err(WireError::Magic);
+    }
+    let header = [
+        ("first run", want.runs.start),
+        ("run end", want.runs.end),
+        ("steps", want.steps),
+        ("lags", want.lags),
+        ("state components", want.n_x),
+        ("measurement components", want.n_z),
+    ];
+    for (what, expected) in header {
+        let got = r.u64()?;
+        if got != expected as u64 {
+            return Err(WireError::Shape {
+                what,
+                got: usize::try_from(got).unwrap_or(usize::MAX),
+                want: expected,
+            });
+        }
+    }
+    let runs = want.runs.len();
+    // Whole counts of samples are at most one per run and step (per lag for whiteness).
+    let most = (runs as f64) * (want.steps as f64);
+    let mut a = Accumulator::new(want.steps, want.n_x, want.n_z, want.lags);
+    for (what, whole, v) in vectors(&mut a) {
+        for x in v.iter_mut() {
+            *x = r.f64()?;
+            let possible =
+                x.is_finite() && (!whole || (x.fract() == 0.0 && (0.0..=most).contains(x)));
+            if !possible {
+                return Err(WireError::Impossible {
+                    what,
+                    value: x.to_string(),
+                });
+            }
+        }
+    }
+    for (what, x) in scalars(&mut a) {
+        *x = r.f64()?;
+        if !x.is_finite() {
+            return Err(WireError::Impossible {
+                what,
+                value: x.to_string(),
+            });
+        }
+    }
+    for (what, x) in counts(&mut a) {
+        *x = r.size(what, runs)?;
+    }
+    if a.runs != runs {
+        return Err(WireError::Shape {
+            what: "runs summed",
+            got: a.runs,
+            want: runs,
+        });
+    }
+    for x in a.meas_comp_runs.iter_mut() {
+        *x = r.size("meas_comp_runs", runs)?;
+    }
+    let kept = r.size("divergences kept", a.diverged_runs)?;
+    for i in 0..kept {
+        let run = r.size("divergence run", usize::MAX)?;
+        let step = r.size("divergence step", usize::MAX)?;
+        let cause = cause_of(r.take(1)?[0]);
+        let len = r.size("divergence reason length", MAX_REASON)?;
+        let reason = std::str::from_utf8(r.take(len)?).ok().map(str::to_string);
+        match (cause, reason) {
+            (Some(cause), Some(reason))
+                if want.runs.contains(&run) && (1..=want.steps).contains(&step) =>
+            {
+                a.divergences.push(Divergence {
+                    run,
+                    step,
+                    cause,
+                    reason,
+                });
+            }
+            _ => return Err(WireError::Divergence(i)),
+        }
+    }
+    let prints = (0..runs).map(|_| r.u64()).collect::<Result<Vec<_>, _>>()?;
+    if r.at != bytes.len() {
+        return Err(WireError::Trailing(bytes.len() - r.at));
+    }
+    Ok(ChunkSums { sums: a, prints })
+}

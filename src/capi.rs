@@ -14,14 +14,11 @@ use std::ffi::{CStr, CString, c_char, c_int};
 use std::panic::{AssertUnwindSafe, catch_unwind};
 
 use crate::external::WorkerChunk;
-use crate::records::{SensorRecord, StateRecord, StepRecord};
 
 /// One request's runs being summed (opaque to C).
 pub struct AutotuneChunk {
     chunk: WorkerChunk,
-    /// The step being given: its record, pushed when another step begins.
-    pending: Option<StepRecord>,
-    /// The first failure: the answer is refused with it.
+    /// The first failure: later calls and the answer are refused with it.
     failed: Option<String>,
 }
 
@@ -78,45 +75,22 @@ unsafe fn numbers(p: *const f64, len: usize, what: &str) -> Result<Vec<f64>, Str
 }
 
 impl AutotuneChunk {
-    /// The record of (run, step), starting it (and pushing the one before) when new.
-    fn record(&mut self, run: usize, step: usize) -> Result<&mut StepRecord, String> {
-        if let Some(why) = &self.failed {
-            return Err(format!("an earlier call failed: {why}"));
-        }
-        if self
-            .pending
-            .as_ref()
-            .is_some_and(|p| (p.run, p.step) != (run, step))
-        {
-            self.flush()?;
-        }
-        Ok(self
-            .pending
-            .get_or_insert_with(|| StepRecord::new(run, step)))
-    }
-
-    fn flush(&mut self) -> Result<(), String> {
-        if let Some(mut r) = self.pending.take() {
-            // In layout order, as a records file's columns give them: the sums then add a
-            // step's sensors in the same order as the records path, bit for bit.
-            r.sensors.sort_by_key(|(k, _)| *k);
-            self.chunk.push(r).map_err(|e| self.fail(e.to_string()))?;
-        }
-        Ok(())
-    }
-
-    /// Keep the first failure, and give it back.
-    fn fail(&mut self, why: String) -> String {
-        self.failed.get_or_insert(why).clone()
-    }
-
     /// The chunk behind a C pointer.
     ///
     /// # Safety
     /// `c` is NULL or from [`autotune_chunk_new`], not yet freed.
     unsafe fn from_ptr<'a>(c: *mut AutotuneChunk) -> Result<&'a mut AutotuneChunk, String> {
         // SAFETY: the caller passes a live chunk or NULL.
-        unsafe { c.as_mut() }.ok_or_else(|| "the chunk is NULL".to_string())
+        let c = unsafe { c.as_mut() }.ok_or_else(|| "the chunk is NULL".to_string())?;
+        match &c.failed {
+            Some(why) => Err(format!("an earlier call failed: {why}")),
+            None => Ok(c),
+        }
+    }
+
+    /// Keep the first failure of the chunk's records, and give it back.
+    fn fail(&mut self, why: impl ToString) -> String {
+        self.failed.get_or_insert(why.to_string()).clone()
     }
 }
 
@@ -134,7 +108,6 @@ pub unsafe extern "C" fn autotune_chunk_new(request: *const c_char) -> *mut Auto
         let chunk = WorkerChunk::from_request(line).map_err(|e| e.to_string())?;
         Ok(Box::into_raw(Box::new(AutotuneChunk {
             chunk,
-            pending: None,
             failed: None,
         })))
     })
@@ -187,12 +160,10 @@ pub unsafe extern "C" fn autotune_chunk_state(
     guarded(-1, || {
         // SAFETY: forwarded from the caller.
         let c = unsafe { AutotuneChunk::from_ptr(c) }?;
-        let n = c.chunk.layout().state.map(|s| s.dim).ok_or_else(|| {
-            "the problem has no state_names: its records carry no ground truth".to_string()
-        })?;
+        let n = c.chunk.state_dim();
         // SAFETY: forwarded from the caller (n and n² doubles).
         let (e, p) = unsafe { (numbers(e, n, "e")?, numbers(p, n * n, "P")?) };
-        c.record(run, step)?.state = Some(StateRecord::Raw { e, p });
+        c.chunk.state(run, step, e, p).map_err(|e| c.fail(e))?;
         Ok(0)
     })
 }
@@ -218,19 +189,15 @@ pub unsafe extern "C" fn autotune_chunk_sensor(
         let c = unsafe { AutotuneChunk::from_ptr(c) }?;
         // SAFETY: forwarded from the caller.
         let name = unsafe { text(sensor, "sensor") }?;
-        let layout = c.chunk.layout();
-        let k = layout
-            .sensor(name)
+        let m = c
+            .chunk
+            .sensor_dim(name)
             .ok_or_else(|| format!("no sensor {name:?} in the request's layout"))?;
-        let m = layout.sensors[k].dim;
         // SAFETY: forwarded from the caller (m and m² doubles).
         let (nu, s) = unsafe { (numbers(nu, m, "nu")?, numbers(s, m * m, "S")?) };
-        let r = c.record(run, step)?;
-        if r.sensors.iter().any(|(j, _)| *j == k) {
-            let why = format!("run {run}, step {step}: sensor {name:?} given twice");
-            return Err(c.fail(why));
-        }
-        r.sensors.push((k, SensorRecord::Raw { nu, s }));
+        c.chunk
+            .sensor(run, step, name, nu, s)
+            .map_err(|e| c.fail(e))?;
         Ok(0)
     })
 }
@@ -251,11 +218,8 @@ pub unsafe extern "C" fn autotune_chunk_diverged(
         // SAFETY: forwarded from the caller.
         let c = unsafe { AutotuneChunk::from_ptr(c) }?;
         // SAFETY: forwarded from the caller.
-        let why = unsafe { text(reason, "reason") }?.to_string();
-        let r = c.record(run, step)?;
-        r.state = None;
-        r.sensors.clear();
-        r.diverged = Some(why);
+        let why = unsafe { text(reason, "reason") }?;
+        c.chunk.diverged(run, step, why).map_err(|e| c.fail(e))?;
         Ok(0)
     })
 }
@@ -285,10 +249,12 @@ pub unsafe extern "C" fn autotune_chunk_array(
                 "array {name}: {ndim} axes (at most 4), or shape NULL"
             ));
         }
-        // SAFETY: `ndim` sizes, as the caller promises.
-        let shape = (ndim > 0)
-            .then(|| unsafe { std::slice::from_raw_parts(shape, ndim) }.to_vec())
-            .unwrap_or_default();
+        let shape = if ndim == 0 {
+            Vec::new()
+        } else {
+            // SAFETY: `ndim` sizes, as the caller promises.
+            unsafe { std::slice::from_raw_parts(shape, ndim) }.to_vec()
+        };
         let len = shape
             .iter()
             .try_fold(1usize, |a, &d| a.checked_mul(d))
@@ -297,7 +263,7 @@ pub unsafe extern "C" fn autotune_chunk_array(
         let data = unsafe { numbers(data, len, name) }?;
         c.chunk
             .add_array(name, shape, data)
-            .map_err(|e| c.fail(e.to_string()))?;
+            .map_err(|e| c.fail(e))?;
         Ok(0)
     })
 }
@@ -317,8 +283,7 @@ pub unsafe extern "C" fn autotune_chunk_answer(c: *mut AutotuneChunk) -> *mut c_
             return Err("the chunk is NULL".into());
         }
         // SAFETY: a live chunk from autotune_chunk_new, given up by the caller.
-        let mut c = unsafe { Box::from_raw(c) };
-        c.flush()?;
+        let c = unsafe { Box::from_raw(c) };
         if let Some(why) = c.failed {
             return Err(why);
         }

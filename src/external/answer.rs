@@ -12,8 +12,8 @@ use serde::Deserialize;
 use crate::input::FileError;
 use crate::records::{ChunkShape, ChunkSums, encode_sums, fingerprint};
 use crate::records::{
-    Layout, MAX_COMPONENTS, MAX_STEPS, RecordError, RecordSink, SensorLayout, StateLayout,
-    StepRecord, StepSink, read_numpy_records, valid_sensor,
+    Layout, MAX_COMPONENTS, MAX_STEPS, RecordError, RecordSink, SensorLayout, SensorRecord,
+    StateLayout, StateRecord, StepRecord, StepSink, read_numpy_records, valid_sensor,
 };
 
 /// Most runs one request may ask for: autotune asks for chunks of 64.
@@ -32,6 +32,9 @@ pub enum ChunkError {
     /// The arrays were refused (which array, and why).
     #[error("{0}")]
     Arrays(#[from] FileError),
+    /// A quantity given that the request's layout does not have, or given twice.
+    #[error("{0}")]
+    Given(String),
     /// Records given both step by step and as arrays.
     #[error("records given both step by step and as arrays: use one or the other per request")]
     Mixed,
@@ -91,6 +94,9 @@ pub struct WorkerChunk {
     sink: Fingerprinted,
     arrays: Vec<(String, Vec<usize>, Vec<f64>)>,
     stepped: bool,
+    /// The step being given quantity by quantity ([`WorkerChunk::state`] and
+    /// [`WorkerChunk::sensor`]): its record, pushed when another step begins.
+    pending: Option<StepRecord>,
 }
 
 /// The sums of the records so far, and each run's fingerprint.
@@ -191,6 +197,7 @@ impl WorkerChunk {
             shape,
             arrays: Vec::new(),
             stepped: false,
+            pending: None,
         })
     }
 
@@ -217,11 +224,103 @@ impl WorkerChunk {
     /// Add the next record: runs in any order, each run's steps 1..=T in order (a run may
     /// end early at a record marked diverged).
     pub fn push(&mut self, r: StepRecord) -> Result<(), ChunkError> {
+        self.flush()?;
+        self.push_now(r)
+    }
+
+    fn push_now(&mut self, r: StepRecord) -> Result<(), ChunkError> {
         if !self.arrays.is_empty() {
             return Err(ChunkError::Mixed);
         }
         self.stepped = true;
         Ok(self.sink.push(r)?)
+    }
+
+    /// Push the step given quantity by quantity, if any.
+    fn flush(&mut self) -> Result<(), ChunkError> {
+        match self.pending.take() {
+            Some(mut r) => {
+                // In layout order, as a records file's columns give them: the sums then add
+                // a step's sensors in the records path's order, bit for bit.
+                r.sensors.sort_by_key(|(k, _)| *k);
+                self.push_now(r)
+            }
+            None => Ok(()),
+        }
+    }
+
+    /// The record of (run, step), begun (and the one before pushed) when new.
+    fn pending(&mut self, run: usize, step: usize) -> Result<&mut StepRecord, ChunkError> {
+        if self
+            .pending
+            .as_ref()
+            .is_some_and(|p| (p.run, p.step) != (run, step))
+        {
+            self.flush()?;
+        }
+        Ok(self
+            .pending
+            .get_or_insert_with(|| StepRecord::new(run, step)))
+    }
+
+    /// Run `run`'s estimation error `e` = x − x̂ (n) and covariance `p` (n × n, row-major)
+    /// after step `step` (1-based).
+    pub fn state(
+        &mut self,
+        run: usize,
+        step: usize,
+        e: Vec<f64>,
+        p: Vec<f64>,
+    ) -> Result<(), ChunkError> {
+        if self.layout.state.is_none() {
+            return Err(ChunkError::Given(
+                "the problem has no state_names: its records carry no ground truth".into(),
+            ));
+        }
+        self.pending(run, step)?.state = Some(StateRecord::Raw { e, p });
+        Ok(())
+    }
+
+    /// Run `run`'s innovation `nu` (m) and its covariance `s` (m × m, row-major) from sensor
+    /// `sensor` at step `step`; a sensor that did not measure is not given.
+    pub fn sensor(
+        &mut self,
+        run: usize,
+        step: usize,
+        sensor: &str,
+        nu: Vec<f64>,
+        s: Vec<f64>,
+    ) -> Result<(), ChunkError> {
+        let k = self.layout.sensor(sensor).ok_or_else(|| {
+            ChunkError::Given(format!("no sensor {sensor:?} in the request's layout"))
+        })?;
+        let r = self.pending(run, step)?;
+        if r.sensors.iter().any(|(j, _)| *j == k) {
+            return Err(ChunkError::Given(format!(
+                "run {run}, step {step}: sensor {sensor:?} given twice"
+            )));
+        }
+        r.sensors.push((k, SensorRecord::Raw { nu, s }));
+        Ok(())
+    }
+
+    /// Run `run`'s filter broke down at step `step`, for `reason`: the run ends there.
+    pub fn diverged(&mut self, run: usize, step: usize, reason: &str) -> Result<(), ChunkError> {
+        let r = self.pending(run, step)?;
+        r.state = None;
+        r.sensors.clear();
+        r.diverged = Some(reason.to_string());
+        Ok(())
+    }
+
+    /// The dimension of sensor `name`, if the request's layout has it.
+    pub fn sensor_dim(&self, name: &str) -> Option<usize> {
+        self.layout.sensor(name).map(|k| self.layout.sensors[k].dim)
+    }
+
+    /// n, the state dimension (0 without ground truth).
+    pub fn state_dim(&self) -> usize {
+        self.layout.state.map_or(0, |s| s.dim)
     }
 
     /// Add one array of the NumPy layout (`e` (runs, T, n), `P` (runs, T, n, n) or (T, n, n),
@@ -234,7 +333,7 @@ impl WorkerChunk {
         shape: Vec<usize>,
         data: Vec<f64>,
     ) -> Result<(), ChunkError> {
-        if self.stepped {
+        if self.stepped || self.pending.is_some() {
             return Err(ChunkError::Mixed);
         }
         let elements = shape
@@ -256,7 +355,8 @@ impl WorkerChunk {
     /// The answer line (`{"id":…,"sums":"…"}`, no newline): the sums of every run asked
     /// for. A missing run, a step out of order or an array of the wrong shape is an error
     /// naming it, as it would be in a records file.
-    pub fn answer(self) -> Result<String, ChunkError> {
+    pub fn answer(mut self) -> Result<String, ChunkError> {
+        self.flush()?;
         let WorkerChunk {
             id,
             layout,

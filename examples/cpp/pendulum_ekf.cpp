@@ -1,5 +1,6 @@
 // A pendulum tracked by an extended Kalman filter, served to autotune as a worker
-// (docs/external.md). Plain C++17, no libraries beyond the standard one.
+// (docs/external.md). Plain C++17, no libraries beyond the standard one (and, for
+// `--format sums` alone, autotune's worker library).
 //
 // State x = (theta, omega): angle from the vertical (rad) and angular rate (rad/s).
 // Truth, per step of dt:   theta' = theta + omega dt
@@ -18,17 +19,36 @@
 // or `--format jsonl` writes the same records as CSV or JSON Lines instead (for comparing
 // the formats' speed).
 //
+// Sums: built with -DAUTOTUNE_SUMS against autotune's C library (include/autotune.h,
+// libautotune.so from `cargo rustc --release --lib --crate-type cdylib`), `--format sums`
+// keeps no records: each step's e, P, nu_bob and S_bob go to the library as they are
+// computed, and the answer is the line it makes, {"id": .., "sums": ".."}: the sums of
+// exactly the numbers the .npz would hold, so autotune's statistics are the same bit for
+// bit. `--self-time sums|none N T [LAGS]` times the worker's own work on runs [0, N) in
+// chunks of 64, with no protocol (theta and seed of pendulum.toml's start): the filter
+// alone (none), or the filter feeding the library and making each chunk's answer (sums).
+//
 // Build: g++ -O2 -std=c++17 -o pendulum_ekf pendulum_ekf.cpp
+// With sums, from the repository root, the library in target/release (examples/cpp/ci.sh):
+//   g++ -O2 -std=c++17 -DAUTOTUNE_SUMS -I include -o pendulum_ekf examples/cpp/pendulum_ekf.cpp
+//       -L target/release -lautotune -Wl,-rpath,$PWD/target/release
 
+#include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <cstdint>
 #include <cstdio>
 #include <cstring>
 #include <iostream>
 #include <map>
+#include <memory>
 #include <stdexcept>
 #include <string>
 #include <vector>
+
+#ifdef AUTOTUNE_SUMS
+#include "autotune.h"
+#endif
 
 namespace {
 
@@ -257,19 +277,15 @@ std::string json_string(const std::string& s) {
 
 // ---------------------------------------------------------------- the experiment
 
-// Records of runs [a, b): each array flat in C order with leading axes (b - a, steps).
-struct Records {
-    size_t runs, steps;
-    std::vector<double> e, P, nu, S;  // (.., 2), (.., 2, 2), (.., 2), (.., 2, 2)
+// One step of one run: what the records hold (P and S row-major).
+struct Step {
+    double e[2], P[4], nu[2], S[4];
 };
 
-Records simulate(double q, double r, uint64_t seed, uint64_t a, uint64_t b, size_t steps) {
-    Records out{size_t(b - a), steps, {}, {}, {}, {}};
-    size_t cells = out.runs * steps;
-    out.e.resize(cells * 2);
-    out.P.resize(cells * 4);
-    out.nu.resize(cells * 2);
-    out.S.resize(cells * 4);
+// Runs [a, b) of `steps` steps each, calling put(run, step, const Step&) after each step
+// (step 1-based, runs in order, each run's steps in order).
+template <class Put>
+void simulate(double q, double r, uint64_t seed, uint64_t a, uint64_t b, size_t steps, Put&& put) {
     const double dt = DT;
     // Qd = [dt^3/3, dt^2/2; dt^2/2, dt] and its Cholesky factor, for the truth's noise.
     const double qd11 = dt * dt * dt / 3, qd12 = dt * dt / 2, qd22 = dt;
@@ -334,18 +350,41 @@ Records simulate(double q, double r, uint64_t seed, uint64_t a, uint64_t b, size
             double sym = 0.5 * (P[0][1] + P[1][0]);
             P[0][1] = P[1][0] = sym;
 
-            size_t cell = (run - a) * steps + k;
-            out.e[cell * 2 + 0] = th - xh[0];
-            out.e[cell * 2 + 1] = om - xh[1];
-            out.nu[cell * 2 + 0] = nu[0];
-            out.nu[cell * 2 + 1] = nu[1];
+            Step out;
+            out.e[0] = th - xh[0];
+            out.e[1] = om - xh[1];
+            out.nu[0] = nu[0];
+            out.nu[1] = nu[1];
             for (int i = 0; i < 2; i++)
                 for (int j = 0; j < 2; j++) {
-                    out.P[cell * 4 + i * 2 + j] = P[i][j];
-                    out.S[cell * 4 + i * 2 + j] = S[i][j];
+                    out.P[i * 2 + j] = P[i][j];
+                    out.S[i * 2 + j] = S[i][j];
                 }
+            put(run, k + 1, out);
         }
     }
+}
+
+// Records of runs [a, b): each array flat in C order with leading axes (b - a, steps).
+struct Records {
+    size_t runs, steps;
+    std::vector<double> e, P, nu, S;  // (.., 2), (.., 2, 2), (.., 2), (.., 2, 2)
+};
+
+Records records(double q, double r, uint64_t seed, uint64_t a, uint64_t b, size_t steps) {
+    Records out{size_t(b - a), steps, {}, {}, {}, {}};
+    size_t cells = out.runs * steps;
+    out.e.resize(cells * 2);
+    out.P.resize(cells * 4);
+    out.nu.resize(cells * 2);
+    out.S.resize(cells * 4);
+    simulate(q, r, seed, a, b, steps, [&](uint64_t run, size_t step, const Step& s) {
+        size_t cell = (run - a) * steps + (step - 1);
+        std::copy(s.e, s.e + 2, &out.e[cell * 2]);
+        std::copy(s.P, s.P + 4, &out.P[cell * 4]);
+        std::copy(s.nu, s.nu + 2, &out.nu[cell * 2]);
+        std::copy(s.S, s.S + 4, &out.S[cell * 4]);
+    });
     return out;
 }
 
@@ -490,6 +529,41 @@ void write_text(const std::string& path, const Records& rec, uint64_t a, bool cs
     if (std::fclose(f) != 0) throw std::runtime_error("cannot write " + path);
 }
 
+// ---------------------------------------------------------------- sums in the worker
+
+#ifdef AUTOTUNE_SUMS
+// The library's last failure, as an exception naming the call.
+[[noreturn]] void library_failed(const char* call) {
+    throw std::runtime_error(std::string(call) + ": " + autotune_last_error());
+}
+
+// The answer line to `request` for runs [a, b): each step given to the library as it is
+// computed, no records kept. It sums exactly what autotune would read from the .npz: e and
+// P at every step; nu_bob and S_bob where nu_bob is not all NaN (autotune reads an all-NaN
+// nu as "no measurement at this step"; this filter measures at every step, so that is only
+// a filter gone NaN, which the .npz holds as NaN too); no run marked diverged (the .npz has
+// no `diverged` array; a run gone NaN is stopped by autotune, from either answer, at the
+// same step).
+std::string sums_answer(const std::string& request, double q, double r, uint64_t seed, uint64_t a,
+                        uint64_t b, size_t steps) {
+    using Chunk = std::unique_ptr<AutotuneChunk, void (*)(AutotuneChunk*)>;
+    Chunk chunk(autotune_chunk_new(request.c_str()), autotune_chunk_free);
+    if (!chunk) library_failed("autotune_chunk_new");
+    simulate(q, r, seed, a, b, steps, [&](uint64_t run, size_t step, const Step& s) {
+        if (autotune_chunk_state(chunk.get(), run, step, s.e, s.P) != 0)
+            library_failed("autotune_chunk_state");
+        bool measured = !(std::isnan(s.nu[0]) && std::isnan(s.nu[1]));
+        if (measured && autotune_chunk_sensor(chunk.get(), run, step, "bob", s.nu, s.S) != 0)
+            library_failed("autotune_chunk_sensor");
+    });
+    char* line = autotune_chunk_answer(chunk.release());  // frees the chunk
+    if (!line) library_failed("autotune_chunk_answer");
+    std::string answer(line);
+    autotune_string_free(line);
+    return answer;
+}
+#endif
+
 // ---------------------------------------------------------------- the worker loop
 
 std::string serve(const std::string& line, const std::string& format) {
@@ -504,8 +578,11 @@ std::string serve(const std::string& line, const std::string& format) {
         if (runs.items.size() != 2) throw std::runtime_error("runs is not [a, b]");
         uint64_t a = runs.items[0].u64(), b = runs.items[1].u64();
         size_t steps = req.at("steps").u64();
+#ifdef AUTOTUNE_SUMS
+        if (format == "sums") return sums_answer(line, q, r, seed, a, b, steps);
+#endif
         const std::string& dir = req.at("dir").text;
-        Records rec = simulate(q, r, seed, a, b, steps);
+        Records rec = records(q, r, seed, a, b, steps);
         std::string path = dir + "/" + id + "." + format;
         if (format == "npz") {
             std::vector<size_t> vec{rec.runs, rec.steps, 2}, mat{rec.runs, rec.steps, 2, 2};
@@ -522,13 +599,88 @@ std::string serve(const std::string& line, const std::string& format) {
     }
 }
 
+// The worker's own work on runs [0, n) in chunks of 64, as autotune asks for them, with no
+// protocol: `none` simulates and filters (a checksum keeps the results alive), `sums` also
+// feeds the library and makes each chunk's answer line. One chunk first, untimed (as a
+// worker serving autotune is warm). Prints the wall time in ms, then what was timed.
+int self_time(const std::string& mode, size_t n, size_t steps, size_t lags) {
+    const double q = 2.0, r = 0.1;  // pendulum.toml's start
+    const uint64_t seed = 7;
+    double checksum = 0.0;
+    size_t answered = 0;
+    auto chunk = [&](size_t a, size_t b) {
+        if (mode == "none") {
+            simulate(q, r, seed, a, b, steps, [&](uint64_t, size_t, const Step& s) {
+                checksum += s.e[0] + s.e[1] + s.P[0] + s.nu[0] + s.nu[1] + s.S[0];
+            });
+            return;
+        }
+#ifdef AUTOTUNE_SUMS
+        // The request autotune would send (its fields a sums answer reads).
+        std::string request = "{\"id\":" + std::to_string(a / 64) + ",\"theta\":{\"q\":" + num(q) +
+                              ",\"r\":" + num(r) + "},\"seed\":" + std::to_string(seed) +
+                              ",\"runs\":[" + std::to_string(a) + "," + std::to_string(b) +
+                              "],\"steps\":" + std::to_string(steps) + ",\"dir\":\"\",\"lags\":" +
+                              std::to_string(lags) +
+                              ",\"layout\":{\"state\":2,\"sensors\":[{\"name\":\"bob\",\"dim\":2}]}}";
+        answered += sums_answer(request, q, r, seed, a, b, steps).size();
+#else
+        (void)lags;
+#endif
+    };
+    chunk(0, std::min<size_t>(n, 64));
+    checksum = 0.0;
+    answered = 0;
+    auto t0 = std::chrono::steady_clock::now();
+    for (size_t a = 0; a < n; a += 64) chunk(a, std::min(n, a + 64));
+    std::chrono::duration<double, std::milli> ms = std::chrono::steady_clock::now() - t0;
+    std::printf("%.3f ms: --self-time %s, %zu runs x %zu steps in chunks of 64 (", ms.count(),
+                mode.c_str(), n, steps);
+    if (mode == "none")
+        std::printf("checksum %.6g)\n", checksum);
+    else
+        std::printf("%zu answer bytes)\n", answered);
+    return 0;
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
+#ifdef AUTOTUNE_SUMS
+    const char* usage =
+        "usage: pendulum_ekf [--format npz|csv|jsonl|sums]\n"
+        "       pendulum_ekf --self-time sums|none N T [LAGS]\n";
+    const std::vector<std::string> formats{"npz", "csv", "jsonl", "sums"}, modes{"sums", "none"};
+#else
+    const char* usage =
+        "usage: pendulum_ekf [--format npz|csv|jsonl]\n"
+        "       pendulum_ekf --self-time none N T\n"
+        "(--format sums and --self-time sums need a build with -DAUTOTUNE_SUMS)\n";
+    const std::vector<std::string> formats{"npz", "csv", "jsonl"}, modes{"none"};
+#endif
+    auto one_of = [](const std::vector<std::string>& set, const std::string& v) {
+        return std::find(set.begin(), set.end(), v) != set.end();
+    };
+    if (argc >= 2 && std::string(argv[1]) == "--self-time") {
+        try {
+            if (argc != 5 && argc != 6) throw std::invalid_argument("arguments");
+            std::string mode = argv[2];
+            size_t n = std::stoull(argv[3]), steps = std::stoull(argv[4]);
+            if (!one_of(modes, mode) || n == 0 || steps == 0) throw std::invalid_argument("bad value");
+            size_t lags = argc == 6 ? std::stoull(argv[5]) : std::min<size_t>(5, steps - 1);
+            return self_time(mode, n, steps, lags);
+        } catch (const std::logic_error&) {
+            std::cerr << usage;
+            return 2;
+        } catch (const std::exception& ex) {
+            std::cerr << "pendulum_ekf: " << ex.what() << "\n";
+            return 1;
+        }
+    }
     std::string format = "npz";
     if (argc == 3 && std::string(argv[1]) == "--format") format = argv[2];
-    if (format != "npz" && format != "csv" && format != "jsonl") {
-        std::cerr << "usage: pendulum_ekf [--format npz|csv|jsonl]\n";
+    if (!one_of(formats, format)) {
+        std::cerr << usage;
         return 2;
     }
     std::string line;

@@ -350,3 +350,141 @@ pub fn decode(text: &str, want: &ChunkShape) -> Result<ChunkSums, WireError> {
     }
     Ok(ChunkSums { sums: a, prints })
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn shape() -> ChunkShape {
+        ChunkShape {
+            runs: 64..128,
+            steps: 5,
+            lags: 2,
+            n_x: 3,
+            n_z: 2,
+        }
+    }
+
+    /// Sums with every field set to something of its own, and two divergences.
+    fn filled() -> ChunkSums {
+        let s = shape();
+        let mut a = Accumulator::new(s.steps, s.n_x, s.n_z, s.lags);
+        let mut x: f64 = 0.25;
+        for (_, whole, v) in vectors(&mut a) {
+            for y in v.iter_mut() {
+                x += 1.0;
+                *y = if whole { x.floor() } else { x * 1.000_000_1 };
+            }
+        }
+        for (i, (_, y)) in scalars(&mut a).into_iter().enumerate() {
+            *y = -1.5 - i as f64;
+        }
+        for (_, y) in counts(&mut a) {
+            *y = 2;
+        }
+        a.runs = 64;
+        a.meas_comp_runs = vec![64, 7];
+        a.record_stop(70, 3, StopCause::IllConditioned, "P ill-conditioned".into());
+        a.record_stop(99, 5, StopCause::Diverged, "ν is NaN".into());
+        ChunkSums {
+            sums: a,
+            prints: (0..64)
+                .map(|i| 0x9e37_79b9_7f4a_7c15u64.wrapping_mul(i + 1))
+                .collect(),
+        }
+    }
+
+    #[test]
+    fn a_chunk_comes_back_bit_for_bit() {
+        let c = filled();
+        let back = decode(&encode(&c, &shape()), &shape()).unwrap();
+        assert_eq!(format!("{back:?}"), format!("{c:?}"));
+    }
+
+    #[test]
+    fn a_chunk_for_another_request_is_refused_with_the_size_named() {
+        let text = encode(&filled(), &shape());
+        for (other, what) in [
+            (
+                ChunkShape {
+                    runs: 0..64,
+                    ..shape()
+                },
+                "first run",
+            ),
+            (
+                ChunkShape {
+                    steps: 6,
+                    ..shape()
+                },
+                "steps",
+            ),
+            (ChunkShape { lags: 3, ..shape() }, "lags"),
+            (ChunkShape { n_z: 1, ..shape() }, "measurement components"),
+        ] {
+            let e = decode(&text, &other).unwrap_err();
+            assert!(
+                matches!(e, WireError::Shape { what: w, .. } if w == what),
+                "{e}"
+            );
+        }
+    }
+
+    /// Every byte changed, and every length cut, gives an error or sums that pass the checks,
+    /// never a panic; the counts a byte flip makes impossible are refused by name.
+    #[test]
+    fn damaged_bytes_are_refused_never_a_panic() {
+        let text = encode(&filled(), &shape());
+        let bytes = STANDARD.decode(&text).unwrap();
+        for cut in 0..bytes.len() {
+            let e = decode(&STANDARD.encode(&bytes[..cut]), &shape()).unwrap_err();
+            assert!(
+                matches!(e, WireError::Truncated(_) | WireError::Magic),
+                "cut at {cut}: {e}"
+            );
+        }
+        let mut refused = 0;
+        for at in 0..bytes.len() {
+            for flip in [0x01u8, 0x80, 0xff] {
+                let mut b = bytes.clone();
+                b[at] ^= flip;
+                refused += usize::from(decode(&STANDARD.encode(&b), &shape()).is_err());
+            }
+        }
+        // Most flips land in sums whose value any records could give; the header, counts,
+        // divergences and the top bits of whole counts are checked.
+        assert!(
+            refused > bytes.len() / 4,
+            "{refused} of {} refused",
+            3 * bytes.len()
+        );
+        let mut b = bytes.clone();
+        b.extend_from_slice(&[0; 3]);
+        assert_eq!(
+            decode(&STANDARD.encode(&b), &shape()).unwrap_err(),
+            WireError::Trailing(3)
+        );
+    }
+
+    #[test]
+    fn impossible_numbers_are_refused_by_name() {
+        let spoil = |f: &dyn Fn(&mut Accumulator)| {
+            let mut c = filled();
+            f(&mut c.sums);
+            decode(&encode(&c, &shape()), &shape())
+                .unwrap_err()
+                .to_string()
+        };
+        assert!(spoil(&|a| a.nis_sum[2] = f64::NAN).contains("nis_sum is NaN"));
+        assert!(spoil(&|a| a.nees_count[0] = 0.5).contains("nees_count is 0.5"));
+        assert!(spoil(&|a| a.white_pairs[1] = -1.0).contains("white_pairs is -1"));
+        assert!(spoil(&|a| a.white_pairs[1] = 321.0).contains("white_pairs is 321"));
+        assert!(spoil(&|a| a.nees_run_total = f64::INFINITY).contains("nees_run_total"));
+        assert!(spoil(&|a| a.diverged_runs = 65).contains("diverged_runs is 65"));
+        assert!(spoil(&|a| a.runs = 63).contains("runs summed is 63"));
+        assert!(spoil(&|a| a.meas_comp_runs[1] = 65).contains("meas_comp_runs is 65"));
+        assert!(spoil(&|a| a.divergences[0].run = 3).contains("divergence 0"));
+        assert!(spoil(&|a| a.divergences[1].step = 0).contains("divergence 1"));
+        assert!(spoil(&|a| a.diverged_runs = 1).contains("divergences kept is 2"));
+    }
+}

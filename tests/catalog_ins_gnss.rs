@@ -132,7 +132,7 @@ fn sample_transition_matches_finite_differences() {
         let imu = random_imu(&mut rng);
         let dt = 0.01;
         let mut n2 = nom;
-        let analytic = to_d(&mechanize(&mut n2, &imu, dt).phi.to_matrix());
+        let analytic = to_d(&mechanize(&mut n2, &imu, dt).phi.matrix());
         let fd = numerical_jacobian(
             |dx| propagated_error(&nom, dx, &[imu], dt),
             &DVector::zeros(15),
@@ -213,7 +213,7 @@ fn continuous_f_matches_finite_differences_of_the_error_dynamics() {
         // difference (Φ − I)/h − F is below h · |F|² · |f| ≈ 1e-3.
         let h = 1e-5;
         let mut n2 = nom;
-        let phi = to_d(&mechanize(&mut n2, &imu, h).phi.to_matrix());
+        let phi = to_d(&mechanize(&mut n2, &imu, h).phi.matrix());
         let approx = (phi - DMatrix::identity(15, 15)) / h;
         let d = (&approx - &analytic).abs().max();
         assert!(d < 1e-3, "(Φ(h) − I)/h differs from F by {d:e}");

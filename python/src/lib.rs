@@ -108,14 +108,14 @@ impl Chunk {
     /// its first axis the runs asked for: `shape`, and `data` its float64 numbers in C
     /// order, little-endian (`numpy.ascontiguousarray(a, "<f8").tobytes()`).
     fn array(&mut self, name: &str, shape: Vec<usize>, data: &[u8]) -> PyResult<()> {
-        if data.len() % 8 != 0 {
+        let words = data.chunks_exact(8);
+        if !words.remainder().is_empty() {
             return Err(value_error(format!(
                 "array {name}: {} bytes is not a whole number of float64",
                 data.len()
             )));
         }
-        let numbers = data
-            .chunks_exact(8)
+        let numbers = words
             .map(|b| f64::from_le_bytes(b.try_into().expect("8 bytes")))
             .collect();
         self.live()?

@@ -68,7 +68,7 @@ impl Eskf {
         }
         let n = self.n_imu as f64;
         let Q = process_noise(&(qv / n), &(r_sum / n), &(y_sum / n), &self.noise, self.dt);
-        let F = phi.to_matrix();
+        let F = phi.matrix();
         *P = sandwich(&F, P) + Q;
         symmetrize(P);
         F

@@ -244,7 +244,7 @@ impl Transition {
     }
 
     /// The full 15 × 15 matrix.
-    pub fn to_matrix(&self) -> Mat15 {
+    pub fn matrix(&self) -> Mat15 {
         let mut m = Mat15::identity();
         let mut set = |r: usize, c: usize, b: &Matrix3<f64>| {
             m.fixed_view_mut::<3, 3>(r, c).copy_from(b);

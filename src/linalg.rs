@@ -132,6 +132,18 @@ where
     Cholesky::new(m.clone())
 }
 
+/// [`cholesky`] of a matrix the caller gives up: factored in its own storage, without the
+/// copy (a records reader factors a fresh P and S at every step).
+pub fn cholesky_owned<D: Dim>(m: OMatrix<f64, D, D>) -> Option<Cholesky<f64, D>>
+where
+    DefaultAllocator: Allocator<D, D>,
+{
+    if m.iter().any(|v| !v.is_finite()) {
+        return None;
+    }
+    Cholesky::new(m)
+}
+
 /// `v' M^{-1} v` from the Cholesky factor `L` of `M`, by one triangular solve:
 /// `|L^{-1} v|²`.
 pub fn mahalanobis_sq<D: Dim>(chol: &Cholesky<f64, D>, v: &OVector<f64, D>) -> f64

@@ -8,7 +8,7 @@ use nalgebra::{DMatrix, DVector};
 
 use super::error::{Breakdown, RecordError, SensorShapeError, ShapeError};
 use super::{Layout, SensorRecord, StateRecord, StepRecord};
-use crate::linalg::{cholesky, mahalanobis_sq};
+use crate::linalg::{cholesky_owned, mahalanobis_sq};
 use crate::stats::{Accumulator, RunRecorder, StopCause};
 
 /// Most degrees of freedom one record's NEES or NIS may claim (and at least 1): they count
@@ -62,15 +62,14 @@ pub fn normalize_sensor(
             if nu.iter().chain(sm).any(|v| !v.is_finite()) {
                 return Ok(Err(Breakdown::NotFinite("nu or S")));
             }
-            let smat = DMatrix::from_row_slice(m, m, sm);
-            let Some(chol) = cholesky(&smat) else {
+            let Some(chol) = cholesky_owned(DMatrix::from_row_slice(m, m, sm)) else {
                 return Ok(Err(Breakdown::NotPositiveDefinite("S")));
             };
             let nis = mahalanobis_sq(&chol, &DVector::from_column_slice(nu));
             if !nis.is_finite() {
                 return Ok(Err(Breakdown::Overflowed("NIS")));
             }
-            let u = components.then(|| (0..m).map(|j| nu[j] / smat[(j, j)].sqrt()).collect());
+            let u = components.then(|| (0..m).map(|j| nu[j] / sm[j * m + j].sqrt()).collect());
             Ok(Ok(NormalizedSensor {
                 nis,
                 dof: m as f64,
@@ -128,15 +127,14 @@ fn normalize_state(
             if e.iter().chain(p).any(|v| !v.is_finite()) {
                 return Ok(Err(Breakdown::NotFinite("e or P")));
             }
-            let pm = DMatrix::from_row_slice(n, n, p);
-            let Some(chol) = cholesky(&pm) else {
+            let Some(chol) = cholesky_owned(DMatrix::from_row_slice(n, n, p)) else {
                 return Ok(Err(Breakdown::NotPositiveDefinite("P")));
             };
             let nees = mahalanobis_sq(&chol, &DVector::from_column_slice(e));
             if !nees.is_finite() {
                 return Ok(Err(Breakdown::Overflowed("NEES")));
             }
-            let ep = components.then(|| (0..n).map(|j| e[j] / pm[(j, j)].sqrt()).collect());
+            let ep = components.then(|| (0..n).map(|j| e[j] / p[j * n + j].sqrt()).collect());
             Ok(Ok(((nees, n as f64), None, ep)))
         }
         StateRecord::Normalized { nees, dof, e2p } => {

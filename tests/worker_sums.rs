@@ -366,6 +366,20 @@ fn the_c_abi_refuses_what_a_records_file_would_not_hold() {
     assert!(last().contains("no sensor \"radar\""), "{}", last());
     unsafe { capi::autotune_chunk_free(c) };
     assert!(unsafe { capi::autotune_chunk_new(std::ptr::null()) }.is_null());
+    // An array given twice, or of the wrong size for its shape.
+    let c = unsafe { capi::autotune_chunk_new(req.as_ptr()) };
+    let (name, shape, data) = (
+        CString::new("e").unwrap(),
+        [4usize, STEPS, 2],
+        vec![0.0; 4 * STEPS * 2],
+    );
+    let add = |c| unsafe {
+        capi::autotune_chunk_array(c, name.as_ptr(), shape.as_ptr(), 3, data.as_ptr())
+    };
+    assert_eq!(add(c), 0);
+    assert_eq!(add(c), -1);
+    assert!(last().contains("array e: given twice"), "{}", last());
+    unsafe { capi::autotune_chunk_free(c) };
     let old = CString::new(r#"{"id":1,"runs":[0,4],"steps":30}"#).unwrap();
     assert!(unsafe { capi::autotune_chunk_new(old.as_ptr()) }.is_null());
     assert!(last().contains("older"), "{}", last());

@@ -340,13 +340,16 @@ impl WorkerChunk {
             .iter()
             .try_fold(1usize, |acc, &d| acc.checked_mul(d))
             .filter(|&n| n == data.len());
+        let refuse = |why: String| FileError::new(Path::new(ARRAYS), format!("array {name}"), why);
         if elements.is_none() {
-            return Err(FileError::new(
-                Path::new(ARRAYS),
-                format!("array {name}"),
-                format!("shape {shape:?} does not hold its {} numbers", data.len()),
-            )
+            return Err(refuse(format!(
+                "shape {shape:?} does not hold its {} numbers",
+                data.len()
+            ))
             .into());
+        }
+        if self.arrays.iter().any(|(n, _, _)| n == name) {
+            return Err(refuse("given twice".into()).into());
         }
         self.arrays.push((name.to_string(), shape, data));
         Ok(())

@@ -170,3 +170,46 @@ fn a_tape_beyond_the_memory_limit_is_never_recorded() {
     }
     assert_eq!(cache.bytes(), one, "one tape held, the newest");
 }
+
+/// `f` in a pool of `threads` threads.
+fn on_threads<T: Send>(threads: usize, f: impl FnOnce() -> T + Send) -> T {
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()
+        .unwrap()
+        .install(f)
+}
+
+#[test]
+fn runs_summed_side_by_side_give_the_sums_of_runs_one_after_the_other() {
+    // An evaluation of fewer chunks than threads computes a chunk's runs side by side and
+    // adds their sums in run order; on one thread they run one after the other. 60 runs
+    // are one chunk (side by side from 2 threads on), 130 are three (from 4 on). The
+    // walk's runs end early (truth overflow at step 17, and a filter that fails at once),
+    // so a stopped run's partial sums take the same path.
+    for name in ["ctrv", "ins_gnss"] {
+        let (model, mc) = shipped(name);
+        let filter = model.filter(&model.truth_values());
+        for runs in [60, 130] {
+            let mc = mc.with_runs(runs).unwrap().with_steps(80).unwrap();
+            let one = on_threads(1, || run_generic(model.truth(), &filter, &mc));
+            for threads in [2, 3, 8] {
+                let many = on_threads(threads, || run_generic(model.truth(), &filter, &mc));
+                assert_same(
+                    &one,
+                    &many,
+                    &format!("{name}, {runs} runs, {threads} threads"),
+                );
+            }
+        }
+    }
+    let truth = Blowup { stop: 17 };
+    for (q, r) in [(1.0, 1.0), (-1.0, 1.0)] {
+        let f = walk_filter(q, r);
+        let mc = McConfig::new(60, 40).unwrap().with_seed(5);
+        let one = on_threads(1, || run_generic(&truth, &f, &mc));
+        assert!(one.diverged_runs() > 0);
+        let many = on_threads(4, || run_generic(&truth, &f, &mc));
+        assert_same(&one, &many, &format!("walk, q = {q}"));
+    }
+}

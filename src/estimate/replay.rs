@@ -89,6 +89,7 @@ impl Experiment for ReplayExperiment {
                 let Rr = R.select_rows(&rows).select_columns(&rows);
                 let S = &Hr * &P * Hr.transpose() + &Rr;
                 let Some(chol) = cholesky(&S) else {
+                    rec.stop_run(&mut acc);
                     acc.record_stop(
                         i,
                         step,

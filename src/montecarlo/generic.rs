@@ -7,6 +7,7 @@
 //! precision relative to the filter's standard deviation, or the NEES or NIS overflows.
 
 use nalgebra::{Cholesky, DMatrix, DVector, Dyn};
+use rayon::prelude::*;
 
 use super::tape::{Live, Replay, TruthCache, TruthSource, TruthTape};
 use super::{McConfig, Progress, record_divergence, run_chunked};
@@ -168,42 +169,89 @@ where
         offsets: &offsets,
         dims: &dims,
     };
-    run_chunked(mc, n_x, n_z, progress, |range, acc| {
-        let mut work = Work {
-            recorder: RunRecorder::new(n_x, n_z, mc.lags()),
-            bufs: StepBuffers::default(),
-            error: DVector::zeros(n_x),
-            innovation: Innovation::empty(),
+    let side_by_side = runs_side_by_side(mc, n_x, n_z);
+    let new_work = || Work {
+        recorder: RunRecorder::new(n_x, n_z, mc.lags()),
+        bufs: StepBuffers::default(),
+        error: DVector::zeros(n_x),
+        innovation: Innovation::empty(),
+        meas: Vec::new(),
+    };
+    let run = |run: usize, acc: &mut Accumulator, work: &mut Work| {
+        work.recorder.reset();
+        let done = match tape {
+            Some(t) => one_run(Replay::new(t.run(run)), filter, mc, run, shape, acc, work),
+            None => {
+                let mut meas = std::mem::take(&mut work.meas);
+                let live = Live::new(truth, mc.seed(), run, &mut meas);
+                let done = one_run(live, filter, mc, run, shape, acc, work);
+                work.meas = meas;
+                done
+            }
         };
-        let mut meas: Vec<Measurement> = Vec::new();
-        for run in range {
-            work.recorder.reset();
-            let done = match tape {
-                Some(t) => one_run(
-                    Replay::new(t.run(run)),
-                    filter,
-                    mc,
-                    run,
-                    shape,
-                    acc,
-                    &mut work,
-                ),
-                None => {
-                    let live = Live::new(truth, mc.seed(), run, &mut meas);
-                    one_run(live, filter, mc, run, shape, acc, &mut work)
-                }
-            };
-            if let Err(e) = done {
+        match done {
+            Ok(()) => work.recorder.end_run(acc),
+            Err(e) => {
+                work.recorder.stop_run(acc);
                 match e {
                     Stop::Filter(e) => record_divergence(acc, run, &e),
                     Stop::Fault(f, step) => acc.record_stop(run, step, f.cause(), f.reason(step)),
                 }
                 acc.runs += 1;
-            } else {
-                work.recorder.end_run(acc);
+            }
+        }
+    };
+    run_chunked(mc, n_x, n_z, progress, |range, acc| {
+        if side_by_side <= 1 {
+            let mut work = new_work();
+            for r in range {
+                run(r, acc, &mut work);
+            }
+            return;
+        }
+        // Each run adds to every sum of the accumulator at most once (the recorder sums a
+        // run's own steps first), so runs summed apart and added in run order give what
+        // summing them one after the other gives, bit for bit.
+        let (start, end) = (range.start, range.end);
+        for first in (start..end).step_by(side_by_side) {
+            let parts: Vec<Accumulator> = (first..end.min(first + side_by_side))
+                .into_par_iter()
+                .map_init(new_work, |work, r| {
+                    let mut own = Accumulator::new(mc.steps(), n_x, n_z, mc.lags());
+                    run(r, &mut own, work);
+                    own
+                })
+                .collect();
+            for p in &parts {
+                acc.merge(p);
             }
         }
     })
+}
+
+/// Bytes a run's sums take, beyond its filter's own storage.
+fn run_bytes(mc: &McConfig, n_x: usize, n_z: usize) -> usize {
+    let per_step = 8;
+    let numbers = per_step * mc.steps() + 12 * n_x + 10 * n_z + 4 * mc.lags() * n_z;
+    numbers.saturating_mul(std::mem::size_of::<f64>())
+}
+
+/// At most this much memory holds runs summed apart.
+const SIDE_BY_SIDE_BYTES: usize = 256 << 20;
+
+/// How many runs of a chunk to compute side by side (1: one after the other). A chunk is
+/// the unit of parallel work, so an evaluation of fewer chunks than threads (60 runs are
+/// one chunk) would leave threads idle; its runs then go to the threads a few at a time,
+/// each into sums of its own, added in run order. Otherwise, and when so many runs' sums
+/// would not fit in [`SIDE_BY_SIDE_BYTES`], one after the other.
+fn runs_side_by_side(mc: &McConfig, n_x: usize, n_z: usize) -> usize {
+    let threads = rayon::current_num_threads();
+    let chunks = mc.runs().div_ceil(super::CHUNK);
+    if threads <= 1 || chunks >= threads {
+        return 1;
+    }
+    let fit = SIDE_BY_SIDE_BYTES / (chunks * run_bytes(mc, n_x, n_z)).max(1);
+    (2 * threads).min(fit).min(super::CHUNK)
 }
 
 /// The filter's sensors: each one's dimension and first component's offset.
@@ -231,6 +279,7 @@ where
         bufs,
         error,
         innovation,
+        ..
     } = work;
     let n_x = filter.n_x();
     let mut est = filter.initial();
@@ -291,13 +340,15 @@ where
     Ok(())
 }
 
-/// A chunk's storage, reused from run to run: the run's recorder, the step's buffers, the
-/// state error (n_x) and the last update's innovation.
+/// A thread's storage, reused from run to run: the run's recorder, the step's buffers, the
+/// state error (n_x), the last update's innovation and a live truth's measurements.
 struct Work {
     recorder: RunRecorder,
     bufs: StepBuffers,
     error: DVector<f64>,
     innovation: Innovation,
+    /// A live truth's measurements of the step.
+    meas: Vec<Measurement>,
 }
 
 /// Storage a step's NEES reuses from step to step, so that factoring P and whitening the

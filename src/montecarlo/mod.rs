@@ -4,7 +4,10 @@
 //! Reproducibility: run `i` draws from its own stream seeded by `(seed, i)`; runs are
 //! grouped into fixed chunks of [`CHUNK`] runs whatever the thread count, each chunk sums
 //! its runs in order, and chunk sums are merged in chunk order. The result is therefore
-//! bit-identical on any number of threads. Memory is O(T·(n + m)) per chunk in flight and
+//! bit-identical on any number of threads. An evaluation of fewer chunks than threads (60
+//! runs are one chunk) computes a chunk's runs side by side, each into sums of its own,
+//! added in run order: a run adds to each sum at most once (`crate::stats::RunRecorder`
+//! sums a run's own steps first), so that too is the sequential result, bit for bit. Memory is O(T·(n + m)) per chunk in flight and
 //! does not grow with N.
 
 mod config;

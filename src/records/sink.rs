@@ -370,6 +370,7 @@ impl RecordSink {
     }
 
     fn stop(&mut self, run: usize, k: usize, reason: String) {
+        self.recorder.stop_run(&mut self.acc);
         self.acc.record_stop(run, k, StopCause::Diverged, reason);
         self.acc.runs += 1;
         if let Some(c) = self.current.as_mut() {

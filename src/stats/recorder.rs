@@ -2,19 +2,33 @@
 
 use super::Accumulator;
 
-/// One run's working state for the component and whiteness statistics, which need the
-/// run's own sums before they are folded into an [`Accumulator`]: both the generic engine
-/// and recorded runs ([`crate::records`]) go through it, so they sum alike.
+/// One run's working state for the component and whiteness statistics: both the generic
+/// engine and recorded runs ([`crate::records`]) go through it, so they sum alike.
+///
+/// Every sum that a run adds to more than once (a component's squares over the steps, the
+/// lagged products) is summed over the run here first and joins the [`Accumulator`] once,
+/// when the run ends or stops. Each of the accumulator's sums then takes one addend per
+/// run, so runs computed side by side and added in run order give the very numbers that
+/// runs computed one after the other give (see `crate::montecarlo`).
 pub struct RunRecorder {
     n_x: usize,
     n_z: usize,
     lags: usize,
+    /// The run's own sums of `e_j²/P_jj`.
     comp_x: Vec<f64>,
     /// The run's own sums of `e_j/√P_jj`.
     mean_x: Vec<f64>,
     comp_x_n: f64,
+    /// The run's own sums of `ν_j²/S_jj`.
     comp_z: Vec<f64>,
+    /// The run's own sums of `ν_j/√S_jj`.
+    mean_z: Vec<f64>,
     comp_z_n: Vec<f64>,
+    /// The run's own lagged sums `Σ u_k u_{k−l}`, `Σ u_k²`, `Σ u_{k−l}²`, lag-major as the
+    /// accumulator's.
+    white_ab: Vec<f64>,
+    white_a2: Vec<f64>,
+    white_b2: Vec<f64>,
     /// The last `lags` normalized innovation vectors (NaN where not measured), ring-indexed
     /// by step.
     ring: Vec<f64>,
@@ -35,7 +49,11 @@ impl RunRecorder {
             mean_x: vec![0.0; n_x],
             comp_x_n: 0.0,
             comp_z: vec![0.0; n_z],
+            mean_z: vec![0.0; n_z],
             comp_z_n: vec![0.0; n_z],
+            white_ab: vec![0.0; lags * n_z],
+            white_a2: vec![0.0; lags * n_z],
+            white_b2: vec![0.0; lags * n_z],
             ring: vec![f64::NAN; lags.max(1) * n_z],
             u: vec![f64::NAN; n_z],
             pending: Vec::new(),
@@ -48,7 +66,11 @@ impl RunRecorder {
         self.mean_x.fill(0.0);
         self.comp_x_n = 0.0;
         self.comp_z.fill(0.0);
+        self.mean_z.fill(0.0);
         self.comp_z_n.fill(0.0);
+        self.white_ab.fill(0.0);
+        self.white_a2.fill(0.0);
+        self.white_b2.fill(0.0);
         self.ring.fill(f64::NAN);
         self.u.fill(f64::NAN);
         self.pending.clear();
@@ -59,7 +81,6 @@ impl RunRecorder {
     pub fn state_step(&mut self, acc: &mut Accumulator, scaled: impl Iterator<Item = f64>) {
         for (j, y) in scaled.enumerate() {
             self.mean_x[j] += y;
-            acc.state_mean_total[j] += y;
             acc.state_mean_samples[j] += 1.0;
             self.add_square(acc, j, y * y);
         }
@@ -77,7 +98,6 @@ impl RunRecorder {
 
     fn add_square(&mut self, acc: &mut Accumulator, j: usize, v: f64) {
         self.comp_x[j] += v;
-        acc.state_comp_total[j] += v;
         acc.state_comp_samples[j] += 1.0;
     }
 
@@ -91,11 +111,9 @@ impl RunRecorder {
     /// earlier steps' and store them for later lags.
     pub fn end_step(&mut self, acc: &mut Accumulator, k: usize) {
         for &(j, u) in &self.pending {
-            let v = u * u;
-            acc.meas_mean_total[j] += u;
-            self.comp_z[j] += v;
+            self.mean_z[j] += u;
+            self.comp_z[j] += u * u;
             self.comp_z_n[j] += 1.0;
-            acc.meas_comp_total[j] += v;
             acc.meas_comp_samples[j] += 1.0;
         }
         let (m, lags) = (self.n_z, self.lags);
@@ -112,9 +130,9 @@ impl RunRecorder {
                     let (a, b) = (self.u[j], self.ring[slot + j]);
                     if a.is_finite() && b.is_finite() {
                         let idx = (lag - 1) * m + j;
-                        acc.white_ab[idx] += a * b;
-                        acc.white_a2[idx] += a * a;
-                        acc.white_b2[idx] += b * b;
+                        self.white_ab[idx] += a * b;
+                        self.white_a2[idx] += a * a;
+                        self.white_b2[idx] += b * b;
                         acc.white_pairs[idx] += 1.0;
                     }
                 }
@@ -128,8 +146,26 @@ impl RunRecorder {
         self.pending.clear();
     }
 
-    /// Close the run: fold its per-run component averages into the accumulator.
+    /// Add the run's own sums to the accumulator's, once per run.
+    fn flush(&self, acc: &mut Accumulator) {
+        fn add(to: &mut [f64], from: &[f64]) {
+            for (a, b) in to.iter_mut().zip(from) {
+                *a += b;
+            }
+        }
+        add(&mut acc.state_comp_total, &self.comp_x);
+        add(&mut acc.state_mean_total, &self.mean_x);
+        add(&mut acc.meas_comp_total, &self.comp_z);
+        add(&mut acc.meas_mean_total, &self.mean_z);
+        add(&mut acc.white_ab, &self.white_ab);
+        add(&mut acc.white_a2, &self.white_a2);
+        add(&mut acc.white_b2, &self.white_b2);
+    }
+
+    /// Close the run: add its sums and fold its per-run component averages into the
+    /// accumulator.
     pub fn end_run(&self, acc: &mut Accumulator) {
+        self.flush(acc);
         if self.comp_x_n > 0.0 {
             for j in 0..self.n_x {
                 acc.add_run_component(true, j, self.comp_x[j] / self.comp_x_n);
@@ -143,6 +179,12 @@ impl RunRecorder {
             }
         }
         acc.runs += 1;
+    }
+
+    /// A run that stopped early: the steps it finished still join the sums, but it gives no
+    /// per-run averages (the caller records the stop and counts the run).
+    pub fn stop_run(&self, acc: &mut Accumulator) {
+        self.flush(acc);
     }
 }
 
@@ -252,6 +294,7 @@ mod tests {
             }
             rec.end_step(&mut acc, k);
         }
+        rec.end_run(&mut acc);
         for lag in 1..=lags {
             for j in 0..m {
                 let [ab, a2, b2, pairs] = lagged_sums(1, t, lag, |_, k| last[k][j]);

@@ -430,10 +430,13 @@ fn tune_from_an_estimate_needs_fewer_evaluations() {
             .zip(init["tuned"].as_array().unwrap())
         {
             let (a, b) = (a.as_f64().unwrap(), b.as_f64().unwrap());
-            assert!(
-                (a / b - 1.0).abs() < 1e-4,
-                "{method}, {scoring}: {a} vs {b}"
-            );
+            // Exact scoring converges to rounding from either start. Under Monte Carlo
+            // scoring the search stops at its noise floor and the refinement skips moves
+            // below a quarter of the gate's standard deviation, so two starts agree to that
+            // resolution: 3e-4 measured, against a Monte Carlo spread of the tuned value of
+            // several percent.
+            let tol = if scoring == "exact" { 1e-4 } else { 1e-3 };
+            assert!((a / b - 1.0).abs() < tol, "{method}, {scoring}: {a} vs {b}");
         }
     }
 }

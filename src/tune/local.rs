@@ -4,7 +4,7 @@
 use super::budget::{Budget, Exhausted};
 use super::cost::Candidate;
 use super::global;
-use super::levenberg_marquardt::{Equations, levenberg_marquardt};
+use super::levenberg_marquardt::{CONSISTENT_J, Equations, MATCHED, levenberg_marquardt};
 use super::result::Observer;
 use super::settings::{LocalSearch, TuneSettings};
 use super::simplex::nelder_mead;
@@ -62,25 +62,16 @@ pub(super) fn search(
     Some(best)
 }
 
-/// Largest norm of the moment residuals (each a mean log-ratio of e²/P or ν²/S over a
-/// parameter's own components) at which the moment equations count as solved: 5%, many
-/// times their Monte Carlo noise at the catalog's search runs and far below any misfit
-/// worth a global scan.
-const MATCHED: f64 = 0.05;
-
-/// J at or below which a moment-matched point scores as a consistent filter does, so that
-/// no other basin can score meaningfully better: the catalog's consistent optima score
-/// 3e-4 to 3e-3 at their search runs, the two-basin mock's shallow basin 0.08.
-const CONSISTENT_J: f64 = 0.01;
-
-/// Gauss–Newton with every parameter's components known: the
-/// moment equations solved from the start, and where they are solved (every parameter
-/// matched its own components' average), Levenberg–Marquardt on J from that point; if J
-/// ends at most [`CONSISTENT_J`], that is the search's answer and the global stage's
-/// 1 + points · d evaluations are saved (each a full Monte Carlo run). `None` when this
-/// does not apply, the equations stay unsolved (a parameter pinned at its bound, a model
-/// that cannot match) or J stays above: the global stage runs as before, and its starts
-/// may find a deeper basin the start's side of a ridge hides.
+/// Gauss–Newton with every parameter's components known: the moment equations solved from
+/// the start, and where they are solved (every parameter matched its own components'
+/// average), Levenberg–Marquardt on J from that point; if J ends at most [`CONSISTENT_J`],
+/// that is the search's answer and the global stage's 1 + points · d evaluations are saved
+/// (each a full Monte Carlo run). A moment-matched point whose J is already at most
+/// [`CONSISTENT_J`] scores as a consistent filter does: J's own equations would fit the
+/// search runs' noise, so it is the answer as it stands (the refinement follows on more
+/// runs). `None` when this does not apply, the equations stay unsolved (a parameter pinned
+/// at its bound, a model that cannot match) or J stays above: the global stage runs as
+/// before, and its starts may find a deeper basin the start's side of a ridge hides.
 fn moment_matched(
     budget: &mut Budget<'_>,
     settings: &TuneSettings,
@@ -92,16 +83,24 @@ fn moment_matched(
     }
     let targets = budget.cost().targets.clone()?;
     observer.phase("local");
-    let moments = match levenberg_marquardt(budget, y0, Equations::Moments(&targets)) {
+    let moments = match levenberg_marquardt(budget, y0, None, Equations::Moments(&targets)) {
         Ok(m) => m,
         Err(e) => return Some(Err(e)),
     };
-    if !solved(moments.cost) {
+    if !solved(moments.found.cost) {
         return None;
     }
-    match levenberg_marquardt(budget, &moments.point, Equations::Objective) {
-        Ok(lm) if !consistent(lm.cost) => None,
-        found => Some(found),
+    if consistent(moments.j()) {
+        let j = moments.j();
+        return Some(Ok(Candidate {
+            point: moments.found.point,
+            cost: j,
+        }));
+    }
+    let known = moments.objective.as_deref();
+    match levenberg_marquardt(budget, &moments.found.point, known, Equations::Objective) {
+        Ok(lm) if !consistent(lm.found.cost) => None,
+        found => Some(found.map(|lm| lm.found)),
     }
 }
 
@@ -129,15 +128,18 @@ pub(super) fn local_search(
     let first = match method {
         LocalSearch::GaussNewton => {
             let mut from = y0.to_vec();
+            let mut known = None;
             if let Some(targets) = budget.cost().targets.as_deref() {
-                let moments = levenberg_marquardt(budget, &from, Equations::Moments(targets))?;
-                if moments.cost.is_finite() {
-                    from = moments.point;
+                let moments =
+                    levenberg_marquardt(budget, &from, None, Equations::Moments(targets))?;
+                if moments.found.cost.is_finite() {
+                    from = moments.found.point;
+                    known = moments.objective;
                 }
             }
-            let lm = levenberg_marquardt(budget, &from, Equations::Objective)?;
-            if lm.cost.is_finite() {
-                return Ok(lm);
+            let lm = levenberg_marquardt(budget, &from, known.as_deref(), Equations::Objective)?;
+            if lm.found.cost.is_finite() {
+                return Ok(lm.found);
             }
             nelder_mead(budget, &from, step)?
         }

@@ -13,7 +13,9 @@
 //!   grows as the square root of the runs, so `D` scales to any run count by `√(R/R_D)`.
 //! - **Refinement** (Monte Carlo scoring): Levenberg–Marquardt steps on `|z|²` evaluated on
 //!   four times the search's runs (same seed: the search's runs and more), with `D` scaled
-//!   to them; each step costs one evaluation. Its error in z units is half the search's.
+//!   to them; each step costs one evaluation, and one that would move the deviates at N by
+//!   less than a quarter of their standard deviation ([`MIN_MOVE`]) is not taken. Its error
+//!   in z units is half the search's.
 //! - **Confirmation**: the gate at the problem's N on K fresh seeds, reported as a count
 //!   against the binomial band of a consistent filter (which passes each with probability
 //!   at least 1 − α).
@@ -41,6 +43,9 @@ const STEP: f64 = 0.05;
 const MAX_FACTOR: f64 = 2.0;
 /// Levenberg–Marquardt steps of the refinement.
 const REFINE_STEPS: usize = 4;
+/// A refinement step that would move the gate's deviates at its N by less than this (the
+/// norm of the predicted change, in the deviates' standard deviations) is not taken.
+const MIN_MOVE: f64 = 0.25;
 /// The confirmation's band: a consistent filter's pass count falls below it with
 /// probability at most this.
 const BAND: f64 = 0.01;
@@ -205,7 +210,11 @@ pub(super) fn refine(
         let Some(step) = m.cholesky().map(|c| -c.solve(&g)) else {
             break;
         };
-        if step.amax() < 1e-3 {
+        // What the step would move the deviates by at the gate's N, in their standard
+        // deviations: below a quarter, no outcome of the gate on fresh seeds changes
+        // enough to pay for an evaluation on the refinement's runs.
+        let at_n = (d * &step).norm() / (runs as f64 / gate.mc.runs() as f64).sqrt();
+        if step.amax() < 1e-3 || at_n < MIN_MOVE {
             break;
         }
         let trial = cost.clamp(

@@ -307,17 +307,25 @@ impl<'a> Tuning<'a> {
         } else {
             cost.theta(&refined.point)
         };
-        let mut objective_final = cost.objective.evaluate(&cost.accumulate(&tuned));
         let gate = self.gate();
         let confirm_seed = self
             .settings
             .confirm_seed()
             .unwrap_or_else(|| default_confirm_seed(self.mc.seed()));
-        let before = gate.report(start, self.mc.runs(), confirm_seed);
         let recorded = self.model.seed_free();
         let seeds = self.settings.confirm_seeds();
-        let (mut confirmation, mut after, mut deviates) =
-            refine::confirm(&gate, &tuned, confirm_seed, seeds, recorded);
+        // Side by side: the final score on the search's runs and the start's report take
+        // a thread each while the seeds' reports share the rest.
+        let ((mut objective_final, before), (mut confirmation, mut after, mut deviates)) =
+            rayon::join(
+                || {
+                    rayon::join(
+                        || cost.objective.evaluate(&cost.accumulate(&tuned)),
+                        || gate.report(start, self.mc.runs(), confirm_seed),
+                    )
+                },
+                || refine::confirm(&gate, &tuned, confirm_seed, seeds, recorded),
+            );
         let mut kept_start = false;
         if recorded
             && tuned != start

@@ -144,6 +144,39 @@ where
     Cholesky::new(m)
 }
 
+/// Factor a symmetric positive-definite `m` (n × n) in place into its lower Cholesky
+/// factor L (the strict upper triangle is left as it was): the arithmetic of
+/// [`Cholesky::new`], operation for operation and so bit for bit, without its generic
+/// views, which at the sizes of a filter's state (4 to 15) cost as much as the arithmetic.
+/// `false` (and `m` partly overwritten) when a pivot is zero, negative or not a number.
+pub fn cholesky_in_place(m: &mut DMatrix<f64>) -> bool {
+    let n = m.nrows();
+    debug_assert_eq!(n, m.ncols());
+    let a = m.as_mut_slice();
+    for j in 0..n {
+        let (left, right) = a.split_at_mut(j * n);
+        let col_j = &mut right[..n];
+        for k in 0..j {
+            let col_k = &left[k * n..k * n + n];
+            let factor = -col_k[j];
+            // nalgebra's axpy: y = a·x·1 + 1·y, two roundings, no fused multiply-add.
+            for (y, x) in col_j[j..].iter_mut().zip(&col_k[j..]) {
+                *y = factor * *x + *y;
+            }
+        }
+        let diag = col_j[j];
+        if diag == 0.0 || !(diag >= 0.0) {
+            return false;
+        }
+        let denom = diag.sqrt();
+        col_j[j] = denom;
+        for y in &mut col_j[j + 1..] {
+            *y /= denom;
+        }
+    }
+    true
+}
+
 /// `v' M^{-1} v` from the Cholesky factor `L` of `M`, by one triangular solve:
 /// `|L^{-1} v|²`.
 pub fn mahalanobis_sq<D: Dim>(chol: &Cholesky<f64, D>, v: &OVector<f64, D>) -> f64
@@ -294,6 +327,43 @@ pub fn wrap_angle(a: f64) -> f64 {
 
 #[cfg(test)]
 mod tests {
+    use nalgebra::{Cholesky, DMatrix};
+
+    #[test]
+    fn cholesky_in_place_is_nalgebras_factor_bit_for_bit() {
+        // Covariances of every size from 1 to 16, from B B' + εI with B's entries spread
+        // over six decades (so rounding is exercised), and matrices nalgebra refuses: the
+        // factor must be nalgebra's in every bit, and the refusals the same.
+        let mut state = 0x9E37_79B9_7F4A_7C15_u64;
+        let mut next = move || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            (state >> 11) as f64 / (1u64 << 53) as f64 - 0.5
+        };
+        for n in 1..=16 {
+            for trial in 0..20 {
+                let b = DMatrix::from_fn(n, n, |_, _| next() * 10f64.powf(6.0 * next()));
+                let mut m = &b * b.transpose() + DMatrix::identity(n, n) * 1e-9;
+                if trial % 5 == 4 {
+                    m[(n - 1, n - 1)] = -m[(n - 1, n - 1)];
+                }
+                let want = Cholesky::new(m.clone()).map(|c| c.unpack_dirty());
+                let mut got = m.clone();
+                let ok = super::cholesky_in_place(&mut got);
+                match want {
+                    Some(w) => {
+                        assert!(ok, "n = {n}, trial {trial}: refused");
+                        let bits =
+                            |x: &DMatrix<f64>| x.iter().map(|v| v.to_bits()).collect::<Vec<_>>();
+                        assert_eq!(bits(&got), bits(&w), "n = {n}, trial {trial}");
+                    }
+                    None => assert!(!ok, "n = {n}, trial {trial}: nalgebra refuses"),
+                }
+            }
+        }
+    }
+
     #[test]
     fn logm_inverts_expm_and_powers_a_constant_velocity_transition() {
         // A constant-velocity F over 1 s: its log is the nilpotent [[0, 1], [0, 0]], and

@@ -64,8 +64,18 @@ pub fn check_conditioned(
     chol: &Cholesky<f64, Dyn>,
     step: usize,
 ) -> Result<(), FilterError> {
-    let L = chol.l_dirty();
-    let bound = (0..m.nrows()).fold(0.0_f64, |a, i| a.max(m[(i, i)] / (L[(i, i)] * L[(i, i)])));
+    check_conditioned_factor(which, m, chol.l_dirty(), step)
+}
+
+/// [`check_conditioned`] from the lower Cholesky factor `l` of `m` in a plain matrix (its
+/// lower triangle is read; [`crate::linalg::cholesky_in_place`] gives it).
+pub fn check_conditioned_factor(
+    which: &'static str,
+    m: &DMatrix<f64>,
+    l: &DMatrix<f64>,
+    step: usize,
+) -> Result<(), FilterError> {
+    let bound = (0..m.nrows()).fold(0.0_f64, |a, i| a.max(m[(i, i)] / (l[(i, i)] * l[(i, i)])));
     if bound <= SCREEN {
         return Ok(());
     }

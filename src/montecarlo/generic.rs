@@ -6,13 +6,14 @@
 //! meaning anything ([`Fault`]): the truth state overflows, the state outgrows double
 //! precision relative to the filter's standard deviation, or the NEES or NIS overflows.
 
-use nalgebra::{Cholesky, DMatrix, DVector, Dyn};
+use nalgebra::{DMatrix, DVector};
 use rayon::prelude::*;
 
 use super::tape::{Live, Replay, TruthCache, TruthSource, TruthTape};
 use super::{McConfig, Progress, record_divergence, run_chunked};
-use crate::filter::conditioning::{MAX_CONDITION, check_conditioned};
+use crate::filter::conditioning::{MAX_CONDITION, check_conditioned_factor};
 use crate::filter::{Estimate, Filter, FilterError, Innovation, check_measurement};
+use crate::linalg::cholesky_in_place;
 use crate::measurement::{Measurement, sensor_offsets};
 use crate::model::TruthModel;
 use crate::stats::{
@@ -305,13 +306,17 @@ where
 
         filter.state_error_into(truth.state(), &est.x, error);
         let e = &*error;
-        let chol = bufs
-            .factor(&est.P)
-            .ok_or(FilterError::NotPositiveDefinite {
+        if !bufs.factor(&est.P) {
+            return Err(Stop::Filter(FilterError::NotPositiveDefinite {
                 which: "P",
                 step: k,
-            })?;
-        check_conditioned("P", &est.P, &chol, k)?;
+            }));
+        }
+        let StepBuffers {
+            factor: l,
+            whitened,
+        } = &mut *bufs;
+        check_conditioned_factor("P", &est.P, l, k)?;
         // The estimate's magnitude is comparable with P only when it is laid out as the
         // error state (an error-state filter's nominal state is not).
         if est.x.len() == n_x
@@ -321,7 +326,7 @@ where
         {
             return Err(Stop::Fault(f, k));
         }
-        let nees = bufs.mahalanobis_sq(&chol, e);
+        let nees = mahalanobis_sq(l, whitened, e);
         if !nees.is_finite() || !nis.is_finite() {
             return Err(Stop::Fault(Fault::Overflow, k));
         }
@@ -332,8 +337,7 @@ where
         acc.add_nees(i, nees, n_x as f64);
         run_nees += nees;
         scratch.state_step(acc, (0..n_x).map(|j| e[j] / est.P[(j, j)].sqrt()));
-        null_var.step(&est, &chol);
-        bufs.keep(chol);
+        null_var.step(&est, l);
     }
     acc.add_run_nees_total(run_nees);
     null_var.add_to(acc);
@@ -353,49 +357,41 @@ struct Work {
 
 /// Storage a step's NEES reuses from step to step, so that factoring P and whitening the
 /// error allocate nothing; the arithmetic is [`crate::linalg::cholesky`]'s and
-/// [`crate::linalg::mahalanobis_sq`]'s.
+/// [`crate::linalg::mahalanobis_sq`]'s, bit for bit ([`cholesky_in_place`]).
 #[derive(Default)]
 struct StepBuffers {
-    /// The last factor's storage, n_x × n_x, while no factor is in use.
-    factor: Option<DMatrix<f64>>,
+    /// P's lower Cholesky factor, n_x × n_x (the strict upper triangle is P's).
+    factor: DMatrix<f64>,
     /// `L⁻¹ e`, n_x.
     whitened: DVector<f64>,
 }
 
 impl StepBuffers {
-    /// P's Cholesky factor in the kept storage; `None` when P has a non-finite entry or is
-    /// not positive definite.
+    /// Factor P into the kept storage; `false` when P has a non-finite entry or is not
+    /// positive definite.
     #[inline]
-    fn factor(&mut self, p: &DMatrix<f64>) -> Option<Cholesky<f64, Dyn>> {
+    fn factor(&mut self, p: &DMatrix<f64>) -> bool {
         if p.iter().any(|v| !v.is_finite()) {
-            return None;
+            return false;
         }
-        let mut m = match self.factor.take() {
-            Some(m) if m.shape() == p.shape() => m,
-            _ => DMatrix::zeros(p.nrows(), p.ncols()),
-        };
-        m.copy_from(p);
-        Cholesky::new(m)
-    }
-
-    /// Give a factor's storage back for the next step.
-    #[inline]
-    fn keep(&mut self, chol: Cholesky<f64, Dyn>) {
-        self.factor = Some(chol.unpack_dirty());
-    }
-
-    /// `e' P⁻¹ e = |L⁻¹ e|²` from P's factor.
-    #[inline]
-    fn mahalanobis_sq(&mut self, chol: &Cholesky<f64, Dyn>, e: &DVector<f64>) -> f64 {
-        if self.whitened.len() != e.len() {
-            self.whitened = DVector::zeros(e.len());
+        if self.factor.shape() != p.shape() {
+            self.factor = DMatrix::zeros(p.nrows(), p.ncols());
         }
-        self.whitened.copy_from(e);
-        // A Cholesky factor's diagonal is positive, so the solve always succeeds.
-        chol.l_dirty()
-            .solve_lower_triangular_mut(&mut self.whitened);
-        self.whitened.norm_squared()
+        self.factor.copy_from(p);
+        cholesky_in_place(&mut self.factor)
     }
+}
+
+/// `e' P⁻¹ e = |L⁻¹ e|²` from P's lower factor `l`, whitening into `whitened`.
+#[inline]
+fn mahalanobis_sq(l: &DMatrix<f64>, whitened: &mut DVector<f64>, e: &DVector<f64>) -> f64 {
+    if whitened.len() != e.len() {
+        *whitened = DVector::zeros(e.len());
+    }
+    whitened.copy_from(e);
+    // A Cholesky factor's diagonal is positive, so the solve always succeeds.
+    l.solve_lower_triangular_mut(whitened);
+    whitened.norm_squared()
 }
 
 /// What updating a step needs besides the estimate and the measurements: the filter, the
@@ -463,16 +459,16 @@ impl RunNullVariance {
         }
     }
 
-    /// Step with the estimate's error map (`chol` is P's Cholesky factor).
+    /// Step with the estimate's error map (`l` is P's lower Cholesky factor).
     #[inline]
-    fn step(&mut self, est: &Estimate, chol: &Cholesky<f64, Dyn>) {
+    fn step(&mut self, est: &Estimate, l: &DMatrix<f64>) {
         if !self.sample || self.map_missing {
             return;
         }
         let n_x = est.P.nrows();
         match &est.error_map {
             Some(a) if a.shape() == (n_x, n_x) => {
-                self.nees.step(a, &est.P, chol);
+                self.nees.step_factored(a, &est.P, l);
                 if let Some(cv) = &mut self.components {
                     cv.step(a, &est.P);
                 }

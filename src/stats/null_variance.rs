@@ -15,6 +15,12 @@ pub struct NeesNullVariance {
     n: usize,
     g: DMatrix<f64>,
     p_prev: Option<DMatrix<f64>>,
+    /// Scratch, n × n each: `G + P_{k−1}`, `A (G + P_{k−1})`, `A'` and `P_k⁻¹ G`, so that a
+    /// step allocates nothing (the products are those `a * s * a'` computes, in its order).
+    sum: DMatrix<f64>,
+    left: DMatrix<f64>,
+    a_t: DMatrix<f64>,
+    solved: DMatrix<f64>,
     var: f64,
 }
 
@@ -25,6 +31,10 @@ impl NeesNullVariance {
             n,
             g: DMatrix::zeros(n, n),
             p_prev: None,
+            sum: DMatrix::zeros(n, n),
+            left: DMatrix::zeros(n, n),
+            a_t: DMatrix::zeros(n, n),
+            solved: DMatrix::zeros(n, n),
             var: 0.0,
         }
     }
@@ -33,13 +43,29 @@ impl NeesNullVariance {
     /// Cholesky factor of `P_k`.
     /// Returns this step's contribution to the variance.
     pub fn step(&mut self, a: &DMatrix<f64>, p: &DMatrix<f64>, chol: &Cholesky<f64, Dyn>) -> f64 {
+        self.step_factored(a, p, chol.l_dirty())
+    }
+
+    /// [`Self::step`] with `P_k`'s lower Cholesky factor `l` in a plain matrix (its lower
+    /// triangle is read); the same arithmetic as the factor's `solve`.
+    pub fn step_factored(&mut self, a: &DMatrix<f64>, p: &DMatrix<f64>, l: &DMatrix<f64>) -> f64 {
         if let Some(pp) = &self.p_prev {
-            self.g = a * (&self.g + pp) * a.transpose();
+            self.sum.copy_from(&self.g);
+            self.sum += pp;
+            self.left.gemm(1.0, a, &self.sum, 0.0);
+            a.transpose_to(&mut self.a_t);
+            self.g.gemm(1.0, &self.left, &self.a_t, 0.0);
         }
-        let cross = chol.solve(&self.g).trace();
+        self.solved.copy_from(&self.g);
+        l.solve_lower_triangular_unchecked_mut(&mut self.solved);
+        l.ad_solve_lower_triangular_unchecked_mut(&mut self.solved);
+        let cross = self.solved.trace();
         let inc = 2.0 * self.n as f64 + 4.0 * cross;
         self.var += inc;
-        self.p_prev = Some(p.clone());
+        match &mut self.p_prev {
+            Some(pp) => pp.copy_from(p),
+            None => self.p_prev = Some(p.clone()),
+        }
         inc
     }
 

@@ -69,6 +69,20 @@ impl OrbitEkf {
         x: &Vector4<f64>,
         P: &Matrix4<f64>,
     ) -> Result<Predicted, FilterError> {
+        self.predict_inline(k, x, P)
+    }
+
+    /// [`Self::predict_fixed`]'s body, inlined into the [`Filter`] wrapper so that its
+    /// result is built in place there rather than returned through memory (5% of an
+    /// evaluation); the public function stays one compiled call, which its callers' own
+    /// loops run faster than an inlined copy (the speed-of-light bench's, by 9%).
+    #[inline(always)]
+    fn predict_inline(
+        &self,
+        k: usize,
+        x: &Vector4<f64>,
+        P: &Matrix4<f64>,
+    ) -> Result<Predicted, FilterError> {
         let (x1, F) = self.system.flow(x);
         let mut P1 = F * P * F.transpose() + self.process_noise(x, &x1);
         symmetrize(&mut P1);
@@ -86,6 +100,20 @@ impl OrbitEkf {
     /// (posterior covariance, gain, S, `I − K H`), the innovation (bearing wrapped to
     /// (−π, π]) and its NIS. [`Filter::update`] is this on the estimate.
     pub fn update_fixed(
+        &self,
+        k: usize,
+        station: usize,
+        x: &Vector4<f64>,
+        P: &Matrix4<f64>,
+        z: &Vector3<f64>,
+    ) -> Result<Updated, FilterError> {
+        self.update_inline(k, station, x, P, z)
+    }
+
+    /// [`Self::update_fixed`]'s body, inlined into the [`Filter`] wrapper (see
+    /// [`Self::predict_inline`]).
+    #[inline(always)]
+    fn update_inline(
         &self,
         k: usize,
         station: usize,
@@ -117,7 +145,7 @@ impl Filter for OrbitEkf {
 
     fn predict(&self, k: usize, est: &mut Estimate) -> PredictResult {
         let (x, P) = est.fixed::<4>()?;
-        let (x1, P1, F) = self.predict_fixed(k, &x, &P)?;
+        let (x1, P1, F) = self.predict_inline(k, &x, &P)?;
         est.set_fixed(&x1, &P1);
         est.set_error_map(&F);
         Ok(())
@@ -138,7 +166,7 @@ impl Filter for OrbitEkf {
         check_measurement((meas.sensor < count).then_some(3), meas)?;
         let (x, P) = est.fixed::<4>()?;
         let z = Vector3::new(meas.z[0], meas.z[1], meas.z[2]);
-        let (x1, cu, nu, nis) = self.update_fixed(k, meas.sensor, &x, &P, &z)?;
+        let (x1, cu, nu, nis) = self.update_inline(k, meas.sensor, &x, &P, &z)?;
         est.set_fixed(&x1, &cu.P);
         est.compose_error_map_fixed(&cu.IKH);
         out.set_fixed(&nu, &cu.S, nis);

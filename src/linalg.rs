@@ -161,11 +161,11 @@ pub fn cholesky_in_place(m: &mut DMatrix<f64>) -> bool {
             let factor = -col_k[j];
             // nalgebra's axpy: y = a·x·1 + 1·y, two roundings, no fused multiply-add.
             for (y, x) in col_j[j..].iter_mut().zip(&col_k[j..]) {
-                *y = factor * *x + *y;
+                *y += factor * *x;
             }
         }
         let diag = col_j[j];
-        if diag == 0.0 || !(diag >= 0.0) {
+        if diag.is_nan() || diag <= 0.0 {
             return false;
         }
         let denom = diag.sqrt();

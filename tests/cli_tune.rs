@@ -311,3 +311,87 @@ fn unsafe_names_and_runaway_dynamics_are_input_errors() {
     let a = autotune().arg("check").arg(&file).assert().code(2);
     assert!(String::from_utf8_lossy(&a.get_output().stderr).contains("truth.A"));
 }
+
+/// The tune says where each evaluation's truth came from (issue 25): a catalog problem's
+/// truth, which the parameters do not enter, is taped and replayed; a linear problem under
+/// Monte Carlo scoring simulates it with the filter in its batched engine; a record has
+/// none. The line is printed under Monte Carlo scoring only (exact scoring simulates
+/// nothing).
+#[test]
+fn the_tune_says_where_each_evaluations_truth_came_from() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("t.toml");
+    let run = |args: &[&str]| -> (serde_json::Value, String) {
+        let mut json_args = args.to_vec();
+        json_args.extend(["--json", "--out", out.to_str().unwrap()]);
+        let (code, stdout, err) = common::autotune(&json_args);
+        assert!(matches!(code, Some(0) | Some(1)), "{err}");
+        let v: serde_json::Value = serde_json::from_str(&stdout).unwrap();
+        let mut text_args = args.to_vec();
+        text_args.extend(["--out", out.to_str().unwrap()]);
+        let (_, text, _) = common::autotune(&text_args);
+        (v["result"].clone(), text)
+    };
+    let ctrv = problem_path("ctrv");
+    let (r, text) = run(&["tune", ctrv.to_str().unwrap()]);
+    let t = &r["truth"];
+    assert_eq!(t["kind"], "taped", "{t}");
+    let (replayed, simulated) = (
+        t["replayed"].as_u64().unwrap(),
+        t["simulated"].as_u64().unwrap(),
+    );
+    // Every search evaluation after the first two replays; each of the 20 confirmation
+    // seeds is a fresh seed set, simulated.
+    let evals = r["evaluations"].as_u64().unwrap();
+    assert!(
+        replayed >= evals.saturating_sub(1),
+        "{t}, {evals} evaluations"
+    );
+    assert!(simulated >= 20, "{t}");
+    assert_eq!(t["too_large"], false);
+    assert!(
+        text.contains(&format!(
+            "  truth: replayed from tapes at {replayed} of {}",
+            replayed + simulated
+        )),
+        "{text}"
+    );
+
+    let cv2d = problem_path("cv2d");
+    let (r, text) = run(&["tune", cv2d.to_str().unwrap(), "--scoring", "monte_carlo"]);
+    assert_eq!(r["truth"]["kind"], "simulated");
+    assert!(
+        r["truth"]["why"]
+            .as_str()
+            .unwrap()
+            .contains("linear problem's engine")
+    );
+    assert!(
+        text.contains("  truth: simulated at every evaluation: a linear problem's engine"),
+        "{text}"
+    );
+    let (_, text) = run(&["tune", cv2d.to_str().unwrap()]);
+    assert!(!text.contains("truth:"), "exact scoring: {text}");
+
+    let rec = dir.path().join("rec.csv");
+    let (code, _, err) = common::autotune(&[
+        "simulate",
+        cv2d.to_str().unwrap(),
+        "--out",
+        rec.to_str().unwrap(),
+        "--runs",
+        "5",
+        "--steps",
+        "200",
+        "--seed",
+        "4",
+    ]);
+    assert_eq!(code, Some(0), "{err}");
+    let (r, _) = run(&[
+        "tune",
+        cv2d.to_str().unwrap(),
+        "--measurements",
+        rec.to_str().unwrap(),
+    ]);
+    assert_eq!(r["truth"]["kind"], "recorded");
+}

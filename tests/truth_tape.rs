@@ -213,3 +213,45 @@ fn runs_summed_side_by_side_give_the_sums_of_runs_one_after_the_other() {
         assert_same(&one, &many, &format!("walk, q = {q}"));
     }
 }
+
+#[test]
+fn the_cache_counts_what_it_replayed_and_what_it_simulated() {
+    // One seed set evaluated four times: the first two simulate (the second tapes), the
+    // last two replay. A cache too small for the tape simulates all four and says why.
+    use autotune::internals::experiment::TruthReuse;
+    let truth = Blowup { stop: usize::MAX };
+    let f = walk_filter(1.0, 1.0);
+    let mc = McConfig::new(50, 30).unwrap().with_seed(3);
+    for (limit, replayed, too_large) in [(TruthCache::DEFAULT_LIMIT, 2, false), (1000, 0, true)] {
+        let cache = TruthCache::with_limit(limit);
+        let before = cache.usage();
+        for _ in 0..4 {
+            run_generic_cached(&truth, &f, &mc, None, &cache);
+        }
+        let usage = cache.usage();
+        assert_eq!(usage.replayed, replayed, "limit {limit}");
+        assert_eq!(usage.simulated, 4 - replayed, "limit {limit}");
+        assert_eq!(usage.too_large, too_large, "limit {limit}");
+        match TruthReuse::taped(&cache, before) {
+            TruthReuse::Taped {
+                replayed: r,
+                simulated: s,
+                too_large: t,
+                limit: l,
+            } => assert_eq!((r, s, t, l), (replayed, 4 - replayed, too_large, limit)),
+            other => panic!("{other:?}"),
+        }
+        // Counted from a later point, only what came after.
+        let mid = cache.usage();
+        run_generic_cached(&truth, &f, &mc, None, &cache);
+        let TruthReuse::Taped {
+            replayed,
+            simulated,
+            ..
+        } = TruthReuse::taped(&cache, mid)
+        else {
+            unreachable!()
+        };
+        assert_eq!(replayed + simulated, 1);
+    }
+}

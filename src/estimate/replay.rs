@@ -53,6 +53,10 @@ impl Experiment for ReplayExperiment {
         &self.definition
     }
 
+    fn truth_reuse(&self, _since: crate::montecarlo::TapeUsage) -> crate::experiment::TruthReuse {
+        crate::experiment::TruthReuse::Recorded
+    }
+
     /// The filter at `theta` over every recorded sequence (the seed and the number of runs
     /// of `mc` do not apply: the data are what they are); steps beyond `mc`'s are not read.
     fn monte_carlo_with(

@@ -118,6 +118,14 @@ impl Experiment for TimeScaled {
         &self.definition
     }
 
+    fn truth_reuse(&self, since: crate::montecarlo::TapeUsage) -> super::TruthReuse {
+        self.base.truth_reuse(since)
+    }
+
+    fn tape_usage(&self) -> crate::montecarlo::TapeUsage {
+        self.base.tape_usage()
+    }
+
     fn monte_carlo_with(
         &self,
         theta: &[f64],

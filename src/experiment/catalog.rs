@@ -49,6 +49,14 @@ impl Experiment for CatalogExperiment {
         })
     }
 
+    fn truth_reuse(&self, since: crate::montecarlo::TapeUsage) -> super::TruthReuse {
+        super::TruthReuse::taped(&self.truth_cache, since)
+    }
+
+    fn tape_usage(&self) -> crate::montecarlo::TapeUsage {
+        self.truth_cache.usage()
+    }
+
     fn truth_values(&self) -> Option<Vec<f64>> {
         Some(self.model.truth_values())
     }

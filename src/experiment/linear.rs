@@ -69,6 +69,12 @@ impl Experiment for LinearExperiment {
         &self.definition
     }
 
+    fn truth_reuse(&self, _since: crate::montecarlo::TapeUsage) -> super::TruthReuse {
+        super::TruthReuse::Simulated {
+            why: "a linear problem's engine simulates the truth with the filter, the runs batched, which costs less than a replay would".to_string(),
+        }
+    }
+
     fn linear(&self) -> Option<&LinearExperiment> {
         Some(self)
     }

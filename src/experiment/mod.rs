@@ -170,6 +170,79 @@ pub struct RunOptions<'a> {
     pub progress: Progress<'a>,
 }
 
+/// Where an experiment's truth comes from at each evaluation, for the tune's report: a
+/// truth the parameters do not enter can be simulated once per seed set and replayed to
+/// every candidate, one that they may enter cannot.
+#[derive(Debug, Clone, PartialEq, Eq, serde::Serialize)]
+#[serde(tag = "kind", rename_all = "snake_case")]
+pub enum TruthReuse {
+    /// θ enters only the filter: a seed set's truth is taped on its second evaluation and
+    /// replayed to later ones ([`crate::montecarlo::TruthCache`]).
+    Taped {
+        /// Evaluations that replayed a tape.
+        replayed: usize,
+        /// Evaluations that simulated their truth.
+        simulated: usize,
+        /// A seed set's tape would have exceeded the cache's limit, so its truth was
+        /// simulated at each of its evaluations.
+        too_large: bool,
+        /// The cache's limit, bytes.
+        limit: usize,
+    },
+    /// Simulated at every evaluation, for the reason given.
+    Simulated {
+        /// Why, in words.
+        why: String,
+    },
+    /// No truth is simulated: the filter runs over recorded measurements.
+    Recorded,
+}
+
+impl TruthReuse {
+    /// [`TruthReuse::Taped`] from a cache's usage, counted from `before` (its usage when
+    /// the evaluations of interest began).
+    pub fn taped(
+        cache: &crate::montecarlo::TruthCache,
+        before: crate::montecarlo::TapeUsage,
+    ) -> Self {
+        let now = cache.usage();
+        TruthReuse::Taped {
+            replayed: now.replayed - before.replayed,
+            simulated: now.simulated - before.simulated,
+            too_large: now.too_large,
+            limit: cache.limit(),
+        }
+    }
+
+    /// One line for a report: "replayed from tapes at 10 of 34 evaluations (…)".
+    pub fn text(&self) -> String {
+        match self {
+            TruthReuse::Taped {
+                replayed,
+                simulated,
+                too_large,
+                limit,
+            } => {
+                let mut t = format!(
+                    "replayed from tapes at {replayed} of {} evaluations (the parameters enter only the filter: a seed set's truth is simulated at its first two evaluations, the second taping it, and replayed at the rest; each fresh confirmation seed is evaluated once)",
+                    replayed + simulated
+                );
+                if *too_large {
+                    t.push_str(&format!(
+                        "; a seed set whose tape would exceed {} MiB was simulated at every evaluation",
+                        limit >> 20
+                    ));
+                }
+                t
+            }
+            TruthReuse::Simulated { why } => format!("simulated at every evaluation: {why}"),
+            TruthReuse::Recorded => {
+                "none simulated: the filter runs over recorded measurements".to_string()
+            }
+        }
+    }
+}
+
 /// A filter family and the truth it is tested against, seen through what the statistics
 /// need: named parameters θ, component names, and the Monte Carlo sums at θ.
 ///
@@ -277,5 +350,20 @@ pub trait Experiment: Sync {
     /// on fresh seeds, and reports no seed-to-seed resolution (it would be zero).
     fn seed_free(&self) -> bool {
         false
+    }
+
+    /// Where the truth of an evaluation has come from since `since` (a usage read before
+    /// the evaluations of interest, from [`Experiment::tape_usage`]). The default: the
+    /// experiment simulates its own truth at every evaluation.
+    fn truth_reuse(&self, _since: crate::montecarlo::TapeUsage) -> TruthReuse {
+        TruthReuse::Simulated {
+            why: "the experiment simulates its own truth".to_string(),
+        }
+    }
+
+    /// The truth cache's usage now, for [`Experiment::truth_reuse`]; the default (no
+    /// cache) is empty.
+    fn tape_usage(&self) -> crate::montecarlo::TapeUsage {
+        crate::montecarlo::TapeUsage::default()
     }
 }

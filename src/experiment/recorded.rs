@@ -57,6 +57,10 @@ impl Experiment for RecordsExperiment {
         &self.definition
     }
 
+    fn truth_reuse(&self, _since: crate::montecarlo::TapeUsage) -> super::TruthReuse {
+        super::TruthReuse::Recorded
+    }
+
     fn monte_carlo_with(
         &self,
         _theta: &[f64],

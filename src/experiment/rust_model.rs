@@ -285,6 +285,14 @@ where
         self.covariances.as_ref().map(|f| f(theta))
     }
 
+    fn truth_reuse(&self, since: crate::montecarlo::TapeUsage) -> super::TruthReuse {
+        super::TruthReuse::taped(&self.truth_cache, since)
+    }
+
+    fn tape_usage(&self) -> crate::montecarlo::TapeUsage {
+        self.truth_cache.usage()
+    }
+
     fn truth_values(&self) -> Option<Vec<f64>> {
         self.truth_values.clone()
     }

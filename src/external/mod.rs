@@ -427,6 +427,12 @@ impl Experiment for ExternalExperiment {
         &self.definition
     }
 
+    fn truth_reuse(&self, _since: crate::montecarlo::TapeUsage) -> crate::experiment::TruthReuse {
+        crate::experiment::TruthReuse::Simulated {
+            why: "the worker simulates its own truth, and autotune cannot tell whether the parameters it is sent enter it".to_string(),
+        }
+    }
+
     fn monte_carlo_with(
         &self,
         theta: &[f64],

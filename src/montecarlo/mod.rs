@@ -20,7 +20,7 @@ pub use config::{DEFAULT_ALPHA, DEFAULT_LAGS, MAX_RUNS, MAX_STEPS, McConfig};
 pub use expected::{expected_accumulator, models_match};
 pub use generic::{NULL_VAR_STRIDE, run_generic, run_generic_cached, run_generic_with_progress};
 pub use linear::{run_linear, run_linear_with_progress};
-pub use tape::{TruthCache, TruthTape};
+pub use tape::{TapeUsage, TruthCache, TruthTape};
 
 use std::ops::Range;
 

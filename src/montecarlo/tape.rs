@@ -228,6 +228,20 @@ pub struct TruthCache {
     state: Mutex<CacheState>,
 }
 
+/// What a [`TruthCache`] has served so far: evaluations that replayed a tape, evaluations
+/// that simulated their truth (a seed set's first and second evaluations, the second
+/// recording its tape, and every evaluation of one whose tape is too large), and whether any
+/// seed set's tape was too large for the limit.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct TapeUsage {
+    /// Evaluations whose truth was replayed from a tape.
+    pub replayed: usize,
+    /// Evaluations whose truth was simulated.
+    pub simulated: usize,
+    /// A seed set's tape would have exceeded the cache's limit.
+    pub too_large: bool,
+}
+
 #[derive(Debug, Default)]
 struct CacheState {
     /// Least recently used first.
@@ -236,6 +250,8 @@ struct CacheState {
     seen: Vec<(u64, usize, usize)>,
     /// Seed sets `(seed, steps)` whose tape was found too large for the limit.
     too_large: Vec<(u64, usize)>,
+    /// What the cache has served.
+    usage: TapeUsage,
 }
 
 /// Seed sets remembered as seen once; a tuner uses a handful.
@@ -270,19 +286,47 @@ impl TruthCache {
         self.lock().tapes.iter().map(|t| t.bytes).sum()
     }
 
-    /// The tape of `mc`'s runs if this seed set was evaluated before and its tape fits the
-    /// limit, recording (or extending) it now; `None`: simulate as usual.
+    /// The limit, bytes.
+    pub fn limit(&self) -> usize {
+        self.limit
+    }
+
+    /// What the cache has served so far.
+    pub fn usage(&self) -> TapeUsage {
+        self.lock().usage
+    }
+
+    /// [`Self::tape`], counted in [`Self::usage`].
     pub fn tape<M: TruthModel + ?Sized>(&self, truth: &M, mc: &McConfig) -> Option<Arc<TruthTape>> {
+        let (tape, replayed) = self.find_or_record(truth, mc);
+        let mut s = self.lock();
+        if replayed {
+            s.usage.replayed += 1;
+        } else {
+            s.usage.simulated += 1;
+        }
+        s.usage.too_large |= !s.too_large.is_empty();
+        tape
+    }
+
+    /// The tape of `mc`'s runs if this seed set was evaluated before and its tape fits the
+    /// limit, recording (or extending) it now; `None`: simulate as usual. With it, whether
+    /// the tape was there already (the truth is replayed, not simulated).
+    fn find_or_record<M: TruthModel + ?Sized>(
+        &self,
+        truth: &M,
+        mc: &McConfig,
+    ) -> (Option<Arc<TruthTape>>, bool) {
         let key = (mc.seed(), mc.steps());
         let shorter = {
             let mut s = self.lock();
             if let Some(i) = s.tapes.iter().position(|t| t.covers(mc)) {
                 let t = s.tapes.remove(i);
                 s.tapes.push(Arc::clone(&t));
-                return Some(t);
+                return (Some(t), true);
             }
             if s.too_large.contains(&key) {
-                return None;
+                return (None, false);
             }
             let shorter = s
                 .tapes
@@ -295,7 +339,7 @@ impl TruthCache {
                     s.seen.remove(0);
                 }
                 s.seen.push(full);
-                return None;
+                return (None, false);
             }
             shorter
         };
@@ -313,7 +357,7 @@ impl TruthCache {
         let per_run = tape.bytes.div_ceil(tape.runs().max(1)).max(1);
         if per_run.saturating_mul(mc.runs()) > self.limit {
             self.lock().too_large.push(key);
-            return None;
+            return (None, false);
         }
         tape.extend(truth, mc.runs());
         let tape = Arc::new(tape);
@@ -324,6 +368,6 @@ impl TruthCache {
             held -= s.tapes.remove(0).bytes;
         }
         s.tapes.push(Arc::clone(&tape));
-        Some(tape)
+        (Some(tape), false)
     }
 }

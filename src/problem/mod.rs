@@ -165,6 +165,14 @@ impl Experiment for Problem {
         self.experiment().seed_free()
     }
 
+    fn truth_reuse(&self, since: crate::montecarlo::TapeUsage) -> crate::experiment::TruthReuse {
+        self.experiment().truth_reuse(since)
+    }
+
+    fn tape_usage(&self) -> crate::montecarlo::TapeUsage {
+        self.experiment().tape_usage()
+    }
+
     fn alter(&self, change: &crate::experiment::Alteration) -> Option<Box<dyn Experiment>> {
         self.experiment().alter(change)
     }

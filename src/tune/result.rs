@@ -140,6 +140,9 @@ pub struct TuneResult {
     pub after: ConsistencyReport,
     /// How the run ended.
     pub status: TuneStatus,
+    /// Where the truth of each evaluation came from: replayed from tapes, or simulated at
+    /// every one and why.
+    pub truth: crate::experiment::TruthReuse,
     /// Wall time of the search and confirmation, s. Not serialized: a report of the same
     /// run must be the same file every time (the command line prints it on stdout).
     #[serde(skip_serializing)]

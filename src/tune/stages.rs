@@ -16,7 +16,7 @@ use super::{
     TuneStatus, Widening, bound_flags, default_confirm_seed, exact_scoring, local,
 };
 use crate::experiment::Experiment;
-use crate::montecarlo::McConfig;
+use crate::montecarlo::{McConfig, TapeUsage};
 use crate::stats::{Accumulator, ConsistencyReport, GateMode};
 
 /// A tuning run's fixed parts, set up before the search: the experiment, the start, the
@@ -37,6 +37,8 @@ pub(super) struct Tuning<'a> {
     parts: Option<Vec<Part>>,
     t0: Instant,
     deadline: Instant,
+    /// The experiment's truth cache before the first evaluation.
+    tapes_before: TapeUsage,
 }
 
 /// What the search found: its bookkeeping, the best point, the bounds it widened.
@@ -79,6 +81,7 @@ impl<'a> Tuning<'a> {
         observer: &dyn Observer,
     ) -> Result<Self, TuneError> {
         let t0 = Instant::now();
+        let tapes_before = model.tape_usage();
         let params = &model.params().params;
         if start.len() != params.len() || fixed.len() != params.len() {
             return Err(TuneError::Shape {
@@ -138,6 +141,7 @@ impl<'a> Tuning<'a> {
             parts,
             t0,
             deadline,
+            tapes_before,
         })
     }
 
@@ -440,6 +444,7 @@ impl<'a> Tuning<'a> {
             before: confirmed.before,
             after: confirmed.after,
             status,
+            truth: self.model.truth_reuse(self.tapes_before),
             seconds: self.t0.elapsed().as_secs_f64(),
         }
     }

@@ -266,6 +266,9 @@ pub fn tune_summary(
         "autotune tune {}: {} evaluations ({scoring}) in {:.2} s, {} diverged",
         problem, result.evaluations, result.seconds, result.diverged_evaluations
     );
+    if result.scoring == crate::tune::Scoring::MonteCarlo && !result.confirmation.recorded {
+        let _ = writeln!(o, "  truth: {}", result.truth.text());
+    }
     if result.status == TuneStatus::BudgetExhausted {
         let _ = writeln!(
             o,

@@ -345,4 +345,36 @@ mod tests {
         assert!((acc.meas_comp_run_sq[0] - (400.0 + 6.25)).abs() < 1e-12);
         assert_eq!((acc.meas_comp_runs[0], acc.runs), (2, 2));
     }
+
+    #[test]
+    fn a_stopped_runs_finished_steps_join_the_sums_without_its_averages() {
+        // Two steps of e/√P = 1, −2 and ν/√S = 3, then the run stops: the sums hold those
+        // steps (once), and the per-run averages and run counts do not (the caller counts a
+        // stopped run). A finished run after it adds to them as usual.
+        let mut acc = Accumulator::new(4, 1, 1, 1);
+        let mut rec = RunRecorder::new(1, 1, 1);
+        rec.reset();
+        for (k, y) in [(1, 1.0), (2, -2.0)] {
+            rec.innovation(0, 3.0 * y);
+            rec.end_step(&mut acc, k);
+            rec.state_step(&mut acc, std::iter::once(y));
+        }
+        rec.stop_run(&mut acc);
+        assert_eq!(acc.state_comp_total, vec![5.0]);
+        assert_eq!(acc.state_mean_total, vec![-1.0]);
+        assert_eq!(acc.meas_comp_total, vec![45.0]);
+        assert_eq!(acc.meas_mean_total, vec![-3.0]);
+        assert_eq!(acc.white_ab, vec![-18.0]);
+        assert_eq!((acc.white_a2[0], acc.white_b2[0]), (36.0, 9.0));
+        assert_eq!(acc.state_comp_run_sum, vec![0.0]);
+        assert_eq!(acc.meas_comp_runs, vec![0]);
+        assert_eq!(acc.runs, 0);
+        rec.reset();
+        rec.state_step(&mut acc, std::iter::once(2.0));
+        rec.end_step(&mut acc, 1);
+        rec.end_run(&mut acc);
+        assert_eq!(acc.state_comp_total, vec![9.0]);
+        assert_eq!(acc.state_comp_run_sum, vec![4.0]);
+        assert_eq!(acc.runs, 1);
+    }
 }

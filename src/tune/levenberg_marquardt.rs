@@ -225,7 +225,10 @@ pub(super) fn levenberg_marquardt(
         let trials = if settle.settled(j) { 1 } else { MAX_TRIALS };
         let step = damped_step(budget, &jac, &y, &r, &mut lambda, trials, equations)?;
         let Some((trial, rt, ot)) = step else {
-            if fresh || settle.settled(j) {
+            if fresh {
+                break;
+            }
+            if settle.settled(j) {
                 break;
             }
             // The damping rose for the stale Jacobian's sake; the fresh one starts where
@@ -244,7 +247,10 @@ pub(super) fn levenberg_marquardt(
         r = rt;
         objective = ot;
         j = j_new;
-        if moved < 1e-3 || gain < 1e-4 * j + 1e-12 || settle.done(j, gain) {
+        if moved < 1e-3 || gain < 1e-4 * j + 1e-12 {
+            break;
+        }
+        if settle.done(j, gain) {
             break;
         }
     }
@@ -556,5 +562,44 @@ mod tests {
         let again = levenberg_marquardt(&mut b, &near, Some(&r), Equations::Objective).unwrap();
         assert_eq!(b.evaluations(), before);
         assert_eq!(again.found.point, near);
+        // Residuals known at a point outside the box are not the clamped point's: they are
+        // evaluated afresh (here the known ones, all zero, would end the search at once).
+        let outside = vec![b.cost().hi[0] + 1.0, 0.0];
+        let zeros = vec![0.0; r.len()];
+        let before = b.evaluations();
+        let from_outside =
+            levenberg_marquardt(&mut b, &outside, Some(&zeros), Equations::Objective).unwrap();
+        assert!(b.evaluations() > before);
+        assert!(
+            from_outside.found.cost > 0.0 || from_outside.found.point != b.cost().clamp(&outside)
+        );
+    }
+
+    #[test]
+    fn the_noise_floor_is_a_consistent_filters_j_and_five_percent_moment_residuals() {
+        // J's floor is CONSISTENT_J; the moment equations' is a residual norm of MATCHED
+        // (5%), i.e. a sum of squares of 0.0025: settled on it, done at a tenth of it, and
+        // neither below it under exact scoring.
+        let targets = [Target::process(&[0])];
+        for (equations, floor) in [
+            (Equations::Objective, CONSISTENT_J),
+            (Equations::Moments(&targets), MATCHED * MATCHED),
+        ] {
+            let s = Settle::new(false, equations);
+            assert!(
+                s.settled(0.99 * floor) && !s.settled(1.01 * floor),
+                "{equations:?}"
+            );
+            assert!(s.done(0.099 * floor, f64::INFINITY) && !s.done(0.101 * floor, f64::INFINITY));
+            // On the floor, a gain below a tenth of it ends the search; above, it goes on.
+            assert!(s.done(0.5 * floor, 0.099 * floor) && !s.done(0.5 * floor, 0.101 * floor));
+            assert!(
+                !s.done(0.5 * floor, 0.1 * floor),
+                "a gain of a tenth exactly goes on"
+            );
+            assert!(!s.done(1.01 * floor, 0.0), "{equations:?}: above the floor");
+            let exact = Settle::new(true, equations);
+            assert!(!exact.settled(0.5 * floor) && !exact.done(1e-30, 0.0));
+        }
     }
 }

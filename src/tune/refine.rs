@@ -210,11 +210,10 @@ pub(super) fn refine(
         let Some(step) = m.cholesky().map(|c| -c.solve(&g)) else {
             break;
         };
-        // What the step would move the deviates by at the gate's N, in their standard
-        // deviations: below a quarter, no outcome of the gate on fresh seeds changes
-        // enough to pay for an evaluation on the refinement's runs.
-        let at_n = (d * &step).norm() / (runs as f64 / gate.mc.runs() as f64).sqrt();
-        if step.amax() < 1e-3 || at_n < MIN_MOVE {
+        if step.amax() < 1e-3 {
+            break;
+        }
+        if too_small_a_step(d, &step, runs, gate.mc.runs()) {
             break;
         }
         let trial = cost.clamp(
@@ -235,6 +234,15 @@ pub(super) fn refine(
         }
     }
     (best, evals)
+}
+
+/// Whether `step` would move the gate's deviates at its N (`gate_runs`) by less than
+/// [`MIN_MOVE`] of their standard deviations (the norm of the predicted change), by the
+/// sensitivity `d` scaled to the refinement's `runs`: then no outcome of the gate on fresh
+/// seeds changes enough to pay for an evaluation on the refinement's runs.
+fn too_small_a_step(d: &DMatrix<f64>, step: &DVector<f64>, runs: usize, gate_runs: usize) -> bool {
+    let at_n = (d * step).norm() / (runs as f64 / gate_runs as f64).sqrt();
+    at_n < MIN_MOVE
 }
 
 /// How the tuned filter fared on fresh seeds.

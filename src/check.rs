@@ -75,6 +75,7 @@ pub fn accumulate(
         RunOptions {
             engine,
             progress: None,
+            share: None,
         },
     )
 }

@@ -59,6 +59,7 @@ pub mod report;
 mod capi;
 mod catalog;
 mod check;
+pub mod cluster;
 mod estimate;
 mod experiment;
 mod explain;

@@ -97,25 +97,31 @@ pub fn length(path: &Path, file: &File) -> Result<u64, FileError> {
 
 /// Read `path` whole as UTF-8 text, at most [`MAX_TEXT`] bytes; the error names the file.
 pub fn read_text(path: &Path) -> Result<String, FileError> {
+    read_text_at_most(path, MAX_TEXT)
+}
+
+/// [`read_text`] with a limit of `limit` bytes (a shard file's sums can outgrow a problem
+/// file's limit).
+pub fn read_text_at_most(path: &Path, limit: u64) -> Result<String, FileError> {
     let file = open(path)?;
     let len = length(path, &file)?;
     let too_large = || {
         FileError::new(
             path,
             "",
-            format!("larger than the limit of {}", size_text(MAX_TEXT)),
+            format!("larger than the limit of {}", size_text(limit)),
         )
     };
-    if len > MAX_TEXT {
+    if len > limit {
         return Err(too_large());
     }
     let mut bytes = Vec::with_capacity(len as usize);
     // A file still growing may be longer than its length was: read one byte past the limit
     // to tell.
-    file.take(MAX_TEXT + 1)
+    file.take(limit.saturating_add(1))
         .read_to_end(&mut bytes)
         .map_err(|e| cannot_read(path, &e))?;
-    if bytes.len() as u64 > MAX_TEXT {
+    if bytes.len() as u64 > limit {
         return Err(too_large());
     }
     String::from_utf8(bytes).map_err(|_| FileError::new(path, "", "not UTF-8 text"))

@@ -10,6 +10,15 @@ pub(crate) static FOLLOWING: std::sync::atomic::AtomicBool =
 pub(crate) static STOP_FOLLOWING: std::sync::atomic::AtomicBool =
     std::sync::atomic::AtomicBool::new(false);
 
+/// This process's rank and the job's size, in an MPI job of more than one rank.
+static RANK: std::sync::OnceLock<(usize, usize)> = std::sync::OnceLock::new();
+
+/// From now on a signal ends this rank of an MPI job with exit code 2 and a line naming it.
+#[cfg(feature = "mpi")]
+pub(super) fn set_rank(rank: usize, size: usize) {
+    let _ = RANK.set((rank, size));
+}
+
 /// On SIGINT, SIGTERM or SIGHUP: stop the external workers (their whole process groups,
 /// with a grace period) and remove their scratch directories, remove the temporary files of
 /// any write in progress, so no `.NAME.tmp.PID` file outlives the process, and exit with
@@ -44,6 +53,12 @@ pub(super) fn install() {
                 }
                 crate::external::stop_workers_and_remove_scratch();
                 crate::output::remove_temporary_files();
+                // A rank of an MPI job fails the job as a failed evaluation does, naming
+                // itself: the job's exit code is the first rank's to fail.
+                if let Some((rank, size)) = RANK.get() {
+                    eprintln!("error: rank {rank} of {size}: stopped by signal {signal}");
+                    std::process::exit(2);
+                }
                 std::process::exit(128 + signal);
             }
         });

@@ -19,6 +19,8 @@
 
 mod completions;
 mod interrupt;
+#[cfg(feature = "mpi")]
+mod mpi;
 mod nis;
 
 pub use crate::commands::check::CheckOptions;
@@ -104,6 +106,10 @@ enum Command {
     /// Search the free Q/R parameters for a consistent filter; write a tuned config and a
     /// report; exit 0 if the tuned filter passes the confirmation, 1 if not.
     Tune(ProblemTune),
+    /// Merge the sums files of every shard of a check (`check --shard I/N --sums-out FILE`)
+    /// and judge them as one check: the same verdict, exit code, JSON and reports; exit 2 if
+    /// the shards are not all there or not of one problem and settings.
+    Merge(MergeArgs),
     /// Judge a filter's recorded innovations (a field log: PX4 ULog, CSV, JSON Lines) without
     /// ground truth: NIS per sensor against its chi-square interval, outliers, whiteness;
     /// exit 0 if consistent, 1 if not, 2 on bad input.
@@ -137,8 +143,46 @@ struct ProblemCheck {
     /// judged by its innovations alone. Linear problems.
     #[arg(long, value_name = "FILE", requires = "problem", conflicts_with_all = ["runs", "steps", "seed", "engine"])]
     measurements: Option<PathBuf>,
+    /// Compute only shard I of N of the Monte Carlo (0-based: 0/3, 1/3 and 2/3 are the
+    /// three shards of three; chunk c of 64 runs is shard c mod N's) and write its sums to
+    /// --sums-out, for `autotune merge` to judge with the others (docs/src/cluster.md).
+    #[arg(long, value_name = "I/N", value_parser = parse_share, requires = "sums_out", conflicts_with_all = ["records", "measurements", "report", "junit", "json"])]
+    shard: Option<crate::montecarlo::Share>,
+    /// The shard's sums file (JSON; format: docs/src/cluster.md).
+    #[arg(long, value_name = "FILE", requires = "shard")]
+    sums_out: Option<PathBuf>,
     #[command(flatten)]
     options: CheckOptions,
+}
+
+/// `I/N` as a share: 0 ≤ I < N.
+fn parse_share(s: &str) -> Result<crate::montecarlo::Share, String> {
+    let bad = || format!("'{s}' is not I/N with 0 <= I < N (e.g. 0/3, 1/3, 2/3)");
+    let (i, n) = s.split_once('/').ok_or_else(bad)?;
+    let (i, n) = (
+        i.trim().parse().map_err(|_| bad())?,
+        n.trim().parse().map_err(|_| bad())?,
+    );
+    crate::montecarlo::Share::new(i, n).map_err(|_| bad())
+}
+
+#[derive(Debug, clap::Args)]
+struct MergeArgs {
+    /// Every shard's sums file, in any order.
+    #[arg(required = true, value_name = "FILE")]
+    shards: Vec<PathBuf>,
+    /// Print the full statistics as JSON on stdout instead of the summary.
+    #[arg(long)]
+    json: bool,
+    /// Write report.html, report.md and report.json into this directory.
+    #[arg(long, value_name = "DIR")]
+    report: Option<PathBuf>,
+    /// Also write a JUnit XML report to this file.
+    #[arg(long, value_name = "FILE")]
+    junit: Option<PathBuf>,
+    /// Print nothing; the exit code is the answer.
+    #[arg(long, short, conflicts_with = "json")]
+    quiet: bool,
 }
 
 #[derive(Debug, clap::Args)]
@@ -189,6 +233,11 @@ enum ModelCommand {
 /// number (130, 143, 129).
 pub fn main() -> ExitCode {
     interrupt::install();
+    // Under an MPI launcher the ranks share the work (the cargo feature `mpi`).
+    #[cfg(feature = "mpi")]
+    if crate::cluster::mpi::launched() {
+        return mpi::main(std::env::args_os());
+    }
     finish(run(std::env::args_os()))
 }
 
@@ -209,10 +258,14 @@ where
                 let measured = measured_experiment(&problem, &p, f)?;
                 check(&measured, a.options.with_nis_only())
             }
-            (Some(p), None) => check(&Problem::load(&p)?, a.options),
+            (Some(p), None) => match (a.shard, &a.sums_out) {
+                (Some(share), Some(out)) => shard(&Problem::load(&p)?, &a.options, share, out),
+                _ => check(&Problem::load(&p)?, a.options),
+            },
             (None, _) => check(&RecordsExperiment::read(&a.records)?, a.options),
         },
         Command::Tune(a) => tune_problem(a),
+        Command::Merge(a) => merge(a),
         Command::Nis(a) => nis::run(a),
         Command::Simulate(a) => {
             let text = commands::simulate::simulate(&a)?;
@@ -238,8 +291,18 @@ where
 /// over the record.
 fn tune_problem(a: ProblemTune) -> Result<ExitCode, AppError> {
     let p = Problem::load(&a.problem)?;
+    tune_problem_over(a, &p, &p)
+}
+
+/// [`tune_problem`] of the loaded problem `p`, its truth-model tune run on `over` (`p`
+/// itself, or `p` shared among MPI ranks).
+fn tune_problem_over(
+    a: ProblemTune,
+    p: &Problem,
+    over: &dyn Experiment,
+) -> Result<ExitCode, AppError> {
     let start = |record: Option<&std::path::Path>, method: &str| {
-        initial(&p, &a.problem, record, method).map(|s| {
+        initial(p, &a.problem, record, method).map(|s| {
             eprintln!("{}", s.note);
             s.theta
         })
@@ -263,9 +326,9 @@ fn tune_problem(a: ProblemTune) -> Result<ExitCode, AppError> {
         }
     };
     match &a.measurements {
-        None => tune(&p, &p.tune, a.options, init),
+        None => tune(over, &p.tune, a.options, init),
         Some(f) => {
-            let measured = measured_experiment(&p, &a.problem, f)?;
+            let measured = measured_experiment(p, &a.problem, f)?;
             let settings = p.tune.clone().with_nis_only(true);
             tune(&measured, &settings, a.options, init)
         }
@@ -280,13 +343,22 @@ fn check(experiment: &dyn Experiment, o: CheckOptions) -> Result<ExitCode, AppEr
     } else {
         commands::check::check(experiment, &o, &())?
     };
+    print_check(experiment, &o, &run)
+}
+
+/// A check's summary or JSON on stdout, and its exit code.
+fn print_check(
+    experiment: &dyn Experiment,
+    o: &CheckOptions,
+    run: &commands::check::CheckRun,
+) -> Result<ExitCode, AppError> {
     print_stdout(|stdout| {
         if o.json {
             stdout.write_all(run.json.as_bytes())?;
             writeln!(stdout)?;
         } else if !o.quiet {
             let name = &experiment.info().name;
-            let text = check_summary(name, &run.params, &run.report, run.no_states, o.nis_only);
+            let text = check_summary(name, &run.params, &run.report, run.no_states, run.nis_only);
             write_painted(stdout, &text, run.passes())?;
         }
         Ok(())
@@ -295,6 +367,40 @@ fn check(experiment: &dyn Experiment, o: CheckOptions) -> Result<ExitCode, AppEr
         return Err(commands::check::truth_overflow(experiment, &run.report).into());
     }
     Ok(exit_code(run.passes()))
+}
+
+/// One shard of `check`: its chunks' sums written to `out`, a line on stdout.
+fn shard(
+    experiment: &dyn Experiment,
+    o: &CheckOptions,
+    share: crate::montecarlo::Share,
+    out: &std::path::Path,
+) -> Result<ExitCode, AppError> {
+    let run = if !o.quiet && std::io::stderr().is_terminal() {
+        commands::check::check_shard(experiment, o, share, out, &CheckBar::new())?
+    } else {
+        commands::check::check_shard(experiment, o, share, out, &())?
+    };
+    if !o.quiet {
+        print_stdout(|stdout| writeln!(stdout, "{}", run.summary(&experiment.info().name)))?;
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+/// `merge`: the shards judged as one check, printed as `check` prints.
+fn merge(a: MergeArgs) -> Result<ExitCode, AppError> {
+    let o = CheckOptions {
+        config: None,
+        mc: Default::default(),
+        nis_only: false,
+        json: a.json,
+        report: a.report,
+        junit: a.junit,
+        engine: Default::default(),
+        quiet: a.quiet,
+    };
+    let (problem, run) = commands::check::merge(&a.shards, &o)?;
+    print_check(&problem, &o, &run)
 }
 
 /// Run `tune` on `experiment` from `defaults` and print its summary (or JSON): exit 0 if

@@ -1,17 +1,19 @@
 //! `check`: the Monte Carlo consistency gate on any experiment.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use super::{CommandError, McOverrides, OneOf};
-use crate::check::{CheckProgress, check_with};
+use crate::check::{CheckProgress, judge};
+use crate::cluster::shard::{self, CheckSetup, ShardFile};
+use crate::cluster::share_sums;
 use crate::experiment::{Experiment, RunOptions, Source};
 use crate::input::FileError;
-use crate::montecarlo::{Engine, McConfig};
-use crate::output::{Outputs, check_output_file, check_report_dir};
+use crate::montecarlo::{Engine, McConfig, Share};
+use crate::output::{Outputs, check_output_file, check_report_dir, write_file};
 use crate::report::check::html::{check_html, check_markdown};
 use crate::report::tune::tuned::TunedConfig;
 use crate::report::{CheckOutput, junit_xml};
-use crate::stats::{ConsistencyReport, Verdict};
+use crate::stats::{Accumulator, ConsistencyReport, Verdict};
 
 /// The options of `check`.
 #[derive(Debug, Clone, clap::Args)]
@@ -64,6 +66,9 @@ pub struct CheckRun {
     /// Judged by the innovations alone because the experiment has no states (records or a
     /// worker without ground truth), not because `--nis-only` asked for it.
     pub no_states: bool,
+    /// Judged by NIS alone because `--nis-only` asked for it (or the merged shards' check
+    /// did).
+    pub nis_only: bool,
 }
 
 impl CheckRun {
@@ -82,8 +87,26 @@ pub fn check(
     options: &CheckOptions,
     progress: &dyn CheckProgress,
 ) -> Result<CheckRun, CommandError> {
+    let (theta, mc) = prepare(experiment, options)?;
+    progress.start(mc.runs(), mc.steps(), experiment.supports(Engine::Linear));
+    let on_runs = |done: usize| progress.runs_done(done);
+    let run = RunOptions {
+        engine: options.engine,
+        progress: Some(&on_runs),
+        share: None,
+    };
+    let sums = experiment.monte_carlo_with(&theta, &mc, run);
+    progress.finish();
+    conclude(experiment, options, &theta, &mc, &sums?)
+}
+
+/// The parameter values and Monte Carlo settings `options` ask for on `experiment`, once
+/// the engine and every output location are found usable: a bad one costs no run.
+fn prepare(
+    experiment: &dyn Experiment,
+    options: &CheckOptions,
+) -> Result<(Vec<f64>, McConfig), CommandError> {
     let a = options;
-    let info = experiment.info();
     let mut theta = match &a.config {
         Some(c) => TunedConfig::load_values(c, experiment)?,
         None => experiment.params().values(),
@@ -95,34 +118,39 @@ pub fn check(
             "--engine linear",
             format!(
                 "{} has no linear fast path (its filter is nonlinear); use auto or generic",
-                info.source.label()
+                experiment.info().source.label()
             ),
         ));
     }
-    // Every output location is checked before the work, so a bad one costs no run.
     if let Some(path) = &a.junit {
         check_output_file(path)?;
     }
     if let Some(dir) = &a.report {
         check_report_dir(dir)?;
     }
-    progress.start(mc.runs(), mc.steps(), experiment.supports(Engine::Linear));
-    let on_runs = |done: usize| progress.runs_done(done);
-    let run = RunOptions {
-        engine: a.engine,
-        progress: Some(&on_runs),
-    };
+    Ok((theta, mc))
+}
+
+/// The gate on `sums` (the Monte Carlo sums of `experiment` at `theta` under `mc`), and
+/// the JUnit and report files `options` ask for, written together.
+fn conclude(
+    experiment: &dyn Experiment,
+    options: &CheckOptions,
+    theta: &[f64],
+    mc: &McConfig,
+    sums: &Accumulator,
+) -> Result<CheckRun, CommandError> {
+    let a = options;
+    let info = experiment.info();
     // Records or a worker without states (no ground truth) are judged by their innovations
     // alone, as documented, rather than found inconclusive for want of a NEES.
     let no_states = experiment.state_names().is_empty();
-    let report = check_with(experiment, &theta, &mc, run, !a.nis_only && !no_states);
-    progress.finish();
-    let report = report?;
+    let report = judge(experiment, sums, mc, !a.nis_only && !no_states);
     let params: Vec<(String, f64)> = experiment
         .params()
         .params
         .iter()
-        .zip(&theta)
+        .zip(theta)
         .map(|(p, &v)| (p.name.clone(), v))
         .collect();
     let out = CheckOutput {
@@ -152,10 +180,157 @@ pub fn check(
     Ok(CheckRun {
         report,
         params,
-        mc,
+        mc: *mc,
         json,
         no_states,
+        nis_only: a.nis_only,
     })
+}
+
+/// What a shard of a check computed and where its sums went.
+#[derive(Debug, Clone)]
+pub struct ShardRun {
+    /// The share computed.
+    pub share: Share,
+    /// Its chunks.
+    pub chunks: Vec<usize>,
+    /// Runs in them.
+    pub runs: usize,
+    /// Runs of the whole check.
+    pub of_runs: usize,
+    /// The file written.
+    pub sums_out: PathBuf,
+}
+
+impl ShardRun {
+    /// One line for the terminal.
+    pub fn summary(&self, name: &str) -> String {
+        let chunks = match self.chunks.as_slice() {
+            [] => "no chunks".to_string(),
+            [one] => format!("chunk {one}"),
+            many => format!(
+                "chunks {}",
+                many.iter()
+                    .map(|c| c.to_string())
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            ),
+        };
+        format!(
+            "{name}: shard {}/{}: {chunks} ({} of {} runs); sums in {} (merge every shard's file with `autotune merge`)",
+            self.share.index(),
+            self.share.count(),
+            self.runs,
+            self.of_runs,
+            self.sums_out.display()
+        )
+    }
+}
+
+/// Run one shard of `check` on `experiment` (a problem file's): only `share`'s chunks of
+/// the Monte Carlo, their sums written to `sums_out` with the settings that made them, for
+/// `autotune merge` to judge with every other shard's.
+pub fn check_shard(
+    experiment: &dyn Experiment,
+    options: &CheckOptions,
+    share: Share,
+    sums_out: &Path,
+    progress: &dyn CheckProgress,
+) -> Result<ShardRun, CommandError> {
+    let (theta, mc) = prepare(experiment, options)?;
+    let setup = CheckSetup {
+        experiment,
+        theta: &theta,
+        mc: &mc,
+        engine: options.engine,
+        nis_only: options.nis_only,
+    };
+    let Some(settings) = setup.settings() else {
+        return Err(CommandError::option(
+            "--shard",
+            format!(
+                "{}: only a problem file's check runs in shards (merge reads the file again)",
+                experiment.info().source.label()
+            ),
+        ));
+    };
+    check_output_file(sums_out).map_err(CommandError::from)?;
+    progress.start(
+        share.runs_of(mc.runs()),
+        mc.steps(),
+        experiment.supports(Engine::Linear),
+    );
+    let on_runs = |done: usize| progress.runs_done(done);
+    let run = RunOptions {
+        engine: options.engine,
+        progress: Some(&on_runs),
+        share: None,
+    };
+    let parts = share_sums(experiment, &theta, &mc, run, share);
+    progress.finish();
+    let parts = parts?;
+    let file = ShardFile::new(settings, share, &parts);
+    write_file(sums_out, file.to_json().as_bytes())?;
+    Ok(ShardRun {
+        share,
+        chunks: parts.iter().map(|(c, _)| *c).collect(),
+        runs: share.runs_of(mc.runs()),
+        of_runs: mc.runs(),
+        sums_out: sums_out.to_path_buf(),
+    })
+}
+
+/// `autotune merge`: the shard files' sums merged in chunk order and judged as `check`
+/// judges, with the problem file the shards name read again (its SHA-256 must be theirs).
+/// `options` gives the outputs (`--json`, `--report`, `--junit`); the settings come from
+/// the shards. Returns the experiment (for the summary) with the run.
+pub fn merge(
+    files: &[PathBuf],
+    options: &CheckOptions,
+) -> Result<(crate::Problem, CheckRun), CommandError> {
+    let mut shards = Vec::with_capacity(files.len());
+    for f in files {
+        let text = crate::userfile::read_text_at_most(f, shard::MAX_FILE)?;
+        let shard = ShardFile::parse(&text).map_err(|why| FileError::new(f, "format", why))?;
+        shards.push((f.clone(), shard));
+    }
+    let merged = shard::merge(&shards).map_err(|r| FileError::new(&r.file, "shard", r.why))?;
+    let s = &merged.settings;
+    let problem = crate::Problem::load(&s.file)?;
+    if problem.info().source.sha256() != Some(s.sha256.as_str()) {
+        return Err(FileError::new(
+            &s.file,
+            "sha256",
+            "the problem file changed since the shards were computed (its SHA-256 is not theirs)",
+        )
+        .into());
+    }
+    let names: Vec<&str> = problem
+        .params()
+        .params
+        .iter()
+        .map(|p| p.name.as_str())
+        .collect();
+    if !names
+        .iter()
+        .copied()
+        .eq(s.params.iter().map(|(n, _)| n.as_str()))
+    {
+        return Err(FileError::new(&s.file, "params", "its parameters are not the shards'").into());
+    }
+    let options = CheckOptions {
+        nis_only: s.nis_only,
+        engine: merged.engine,
+        ..options.clone()
+    };
+    if let Some(path) = &options.junit {
+        check_output_file(path)?;
+    }
+    if let Some(dir) = &options.report {
+        check_report_dir(dir)?;
+    }
+    let run = conclude(&problem, &options, &merged.theta, &merged.mc, &merged.sums)?;
+    Ok((problem, run))
 }
 
 /// A truth that overflowed over the horizon (the report's verdict

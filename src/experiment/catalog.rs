@@ -37,7 +37,7 @@ impl Experiment for CatalogExperiment {
             self.model.truth(),
             &self.model.filter(theta),
             mc,
-            run.progress,
+            run,
             &self.truth_cache,
         ))
     }

@@ -53,6 +53,26 @@ pub enum ExperimentError {
         /// What showed it.
         violation: SeedContractViolation,
     },
+    /// An evaluation asked for in shares (shards, MPI ranks) of an experiment that does not
+    /// split into them: recorded sums, or an implementation that ignores the share.
+    #[error(
+        "{source_label}: its evaluations do not split into shares of their chunks (records and recorded measurements are judged in one process)"
+    )]
+    Unsplit {
+        /// The experiment's source, as reports name it.
+        source_label: String,
+    },
+    /// Another process of a distributed evaluation failed (an MPI rank: its worker, its
+    /// input, a signal).
+    #[error("rank {rank} of {ranks}: {message}")]
+    Rank {
+        /// The failed rank, 0-based.
+        rank: usize,
+        /// Ranks in the job.
+        ranks: usize,
+        /// What it said.
+        message: String,
+    },
 }
 
 /// A worker's failed request: which worker, the request, how it failed, and the end of

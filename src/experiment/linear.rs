@@ -89,17 +89,12 @@ impl Experiment for LinearExperiment {
         let map = self.filter.map.as_ref();
         Ok(match (run.engine, map) {
             (Engine::Auto | Engine::Linear, _) => {
-                montecarlo::run_linear_with_progress(&self.truth, &kf, map, mc, run.progress)
+                montecarlo::run_linear_with(&self.truth, &kf, map, mc, run)
             }
-            (Engine::Generic, None) => {
-                montecarlo::run_generic_with_progress(&self.truth, &kf, mc, run.progress)
+            (Engine::Generic, None) => montecarlo::run_generic_with(&self.truth, &kf, mc, run),
+            (Engine::Generic, Some(map)) => {
+                montecarlo::run_generic_with(&self.truth, &Mapped { kf: &kf, map }, mc, run)
             }
-            (Engine::Generic, Some(map)) => montecarlo::run_generic_with_progress(
-                &self.truth,
-                &Mapped { kf: &kf, map },
-                mc,
-                run.progress,
-            ),
         })
     }
 

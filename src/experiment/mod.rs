@@ -33,7 +33,8 @@ use std::path::PathBuf;
 
 use nalgebra::DMatrix;
 
-use crate::montecarlo::{Engine, McConfig, Progress};
+pub use crate::montecarlo::RunOptions;
+use crate::montecarlo::{Engine, McConfig};
 use crate::params::{ParamSpace, Target};
 use crate::stats::Accumulator;
 
@@ -160,16 +161,6 @@ pub enum Alteration {
     MeasurementOffset(Vec<f64>),
 }
 
-/// How one Monte Carlo evaluation runs: the engine path and a progress callback.
-#[derive(Clone, Copy, Default)]
-pub struct RunOptions<'a> {
-    /// The engine path; an experiment without a linear fast path runs its generic one for
-    /// [`Engine::Auto`] and [`Engine::Linear`] alike (see [`Experiment::supports`]).
-    pub engine: Engine,
-    /// Told the number of runs completed after each parallel wave.
-    pub progress: Progress<'a>,
-}
-
 /// Where an experiment's truth comes from at each evaluation, for the tune's report: a
 /// truth the parameters do not enter can be simulated once per seed set and replayed to
 /// every candidate, one that they may enter cannot.
@@ -283,6 +274,10 @@ pub trait Experiment: Sync {
     /// in [`Experiment::params`] order) against the truth, under `mc`. Fails only when the
     /// experiment cannot run at all (an external worker broke the protocol); the built-in
     /// experiments never fail.
+    ///
+    /// With a share in `options` ([`RunOptions::share`]), only that share's chunks are
+    /// computed and each chunk's sums go to its sink; an experiment that cannot split its
+    /// evaluation ([`Experiment::splits`] is false) may ignore the share.
     fn monte_carlo_with(
         &self,
         theta: &[f64],
@@ -343,6 +338,13 @@ pub trait Experiment: Sync {
     /// work on the filter's matrices). `None`, the default, for every other experiment.
     fn linear(&self) -> Option<&LinearExperiment> {
         None
+    }
+
+    /// Whether an evaluation splits into shares of its chunks ([`RunOptions::share`]), which
+    /// the shards and the MPI ranks compute apart: true for every simulated experiment, false
+    /// for sums that were recorded whole.
+    fn splits(&self) -> bool {
+        !self.seed_free()
     }
 
     /// Whether the sums are the same for every seed: a filter run over one recorded data

@@ -272,7 +272,7 @@ where
             &self.truth,
             &(self.build)(theta),
             mc,
-            run.progress,
+            run,
             &self.truth_cache,
         ))
     }

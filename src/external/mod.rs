@@ -34,7 +34,7 @@ use crate::experiment::{
     Definition, Experiment, ExperimentError, RequestInfo, RunOptions, SeedContractViolation,
     StartFailure, WorkerError, WorkerFailure, WorkerRole,
 };
-use crate::montecarlo::{CHUNK, McConfig};
+use crate::montecarlo::{CHUNK, McConfig, Share};
 use crate::params::Target;
 use crate::records::{Layout, RecordError, RecordSink, StepRecord, StepSink, WireError};
 use crate::stats::Accumulator;
@@ -247,7 +247,9 @@ impl ExternalExperiment {
         }
         let theta_json = self.theta_json(theta);
         let runs = mc.runs();
-        let chunks = runs.div_ceil(CHUNK);
+        // This process's chunks, in order: all of them, or a share's (a shard, an MPI rank).
+        let share = options.share.map_or(Share::WHOLE, |s| s.share);
+        let own: Vec<usize> = share.chunks(runs.div_ceil(CHUNK)).collect();
         let range = |c: usize| c * CHUNK..(c * CHUNK + CHUNK).min(runs);
         let n_workers = pool.len();
         let mut total =
@@ -255,30 +257,27 @@ impl ExternalExperiment {
         // The first chunk's runs, fingerprinted for the seed-contract check.
         let checking = self.command.check_seed_contract
             && !self.contract_checked.load(Ordering::Relaxed)
-            && runs > 0;
+            && runs > 0
+            && share.owns_chunk(0);
         let first_prints: Mutex<Option<Fingerprints>> =
             Mutex::new(checking.then(Fingerprints::new));
         // Waves of a few chunks per worker, merged in chunk order as they complete: memory
         // holds one wave's sums whatever N.
         let wave = 4 * n_workers;
-        for wave_start in (0..chunks).step_by(wave) {
-            let wave_chunks = wave_start..chunks.min(wave_start + wave);
+        let mut done = 0;
+        for wave_chunks in own.chunks(wave) {
             let slots: Vec<Mutex<Option<Accumulator>>> =
-                wave_chunks.clone().map(|_| Mutex::new(None)).collect();
+                wave_chunks.iter().map(|_| Mutex::new(None)).collect();
             let failure: Mutex<Option<ExperimentError>> = Mutex::new(None);
             std::thread::scope(|scope| {
                 // Chunk c always goes to worker c mod W: a worker that caches its truth per
                 // run (it does not depend on θ) then finds it at every evaluation.
                 for (k, w) in pool.iter_mut().enumerate() {
-                    let (slots, failure, theta_json, wave_chunks, first_prints) = (
-                        &slots,
-                        &failure,
-                        &theta_json,
-                        wave_chunks.clone(),
-                        &first_prints,
-                    );
+                    let (slots, failure, theta_json, first_prints) =
+                        (&slots, &failure, &theta_json, &first_prints);
                     scope.spawn(move || {
-                        for c in wave_chunks.filter(|c| c % n_workers == k) {
+                        let mine = wave_chunks.iter().enumerate();
+                        for (slot, &c) in mine.filter(|(_, c)| *c % n_workers == k) {
                             if failure.lock().unwrap_or_else(|p| p.into_inner()).is_some() {
                                 return;
                             }
@@ -292,9 +291,8 @@ impl ExternalExperiment {
                             };
                             match asked {
                                 Ok(acc) => {
-                                    *slots[c - wave_start]
-                                        .lock()
-                                        .unwrap_or_else(|p| p.into_inner()) = Some(acc);
+                                    *slots[slot].lock().unwrap_or_else(|p| p.into_inner()) =
+                                        Some(acc);
                                 }
                                 Err(e) => {
                                     failure
@@ -311,13 +309,17 @@ impl ExternalExperiment {
             if let Some(e) = failure.into_inner().unwrap_or_else(|p| p.into_inner()) {
                 return Err(e);
             }
-            for s in slots {
+            for (s, &c) in slots.into_iter().zip(wave_chunks) {
                 let part = s.into_inner().unwrap_or_else(|p| p.into_inner());
                 let part = part.expect("every chunk of the wave answered");
-                total.merge(&part);
+                done += part.runs;
+                match options.share {
+                    Some(to) => (to.sink)(c, part),
+                    None => total.merge(&part),
+                }
             }
             if let Some(report) = options.progress {
-                report(total.runs);
+                report(done);
             }
         }
         if !self.contract_checked.swap(true, Ordering::Relaxed)

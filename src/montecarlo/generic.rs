@@ -10,7 +10,7 @@ use nalgebra::{DMatrix, DVector};
 use rayon::prelude::*;
 
 use super::tape::{Live, Replay, TruthCache, TruthSource, TruthTape};
-use super::{McConfig, Progress, record_divergence, run_chunked};
+use super::{McConfig, RunOptions, record_divergence, run_chunked};
 use crate::filter::conditioning::{MAX_CONDITION, check_conditioned_factor};
 use crate::filter::{Estimate, Filter, FilterError, Innovation, check_measurement};
 use crate::linalg::cholesky_in_place;
@@ -114,39 +114,41 @@ where
     M: TruthModel + ?Sized,
     F: Filter + ?Sized,
 {
-    run_generic_with_progress(truth, filter, mc, None)
+    run_generic_with(truth, filter, mc, RunOptions::default())
 }
 
-/// [`run_generic`], reporting the runs completed after each parallel wave.
-pub fn run_generic_with_progress<M, F>(
+/// [`run_generic`] with options: progress after each parallel wave, and a share of the
+/// chunks (the engine path in the options is not read: this is the generic one).
+pub fn run_generic_with<M, F>(
     truth: &M,
     filter: &F,
     mc: &McConfig,
-    progress: Progress<'_>,
+    options: RunOptions<'_>,
 ) -> Accumulator
 where
     M: TruthModel + ?Sized,
     F: Filter + ?Sized,
 {
-    run_with_tape(truth, filter, mc, progress, None)
+    run_with_tape(truth, filter, mc, options, None)
 }
 
-/// [`run_generic_with_progress`] for a truth that does not depend on the filter's
+/// [`run_generic_with`] for a truth that does not depend on the filter's
 /// parameters: a seed set evaluated before is replayed from `cache` rather than simulated
 /// again (the sums are bit-identical; see [`TruthCache`]).
 pub fn run_generic_cached<M, F>(
     truth: &M,
     filter: &F,
     mc: &McConfig,
-    progress: Progress<'_>,
+    options: RunOptions<'_>,
     cache: &TruthCache,
 ) -> Accumulator
 where
     M: TruthModel + ?Sized,
     F: Filter + ?Sized,
 {
-    let tape = cache.tape(truth, mc);
-    run_with_tape(truth, filter, mc, progress, tape.as_deref())
+    let share = options.share.map_or(super::Share::WHOLE, |s| s.share);
+    let tape = cache.tape(truth, mc, share);
+    run_with_tape(truth, filter, mc, options, tape.as_deref())
 }
 
 /// The generic engine on `tape`'s runs where given (it must cover `mc`), else simulating.
@@ -154,14 +156,15 @@ fn run_with_tape<M, F>(
     truth: &M,
     filter: &F,
     mc: &McConfig,
-    progress: Progress<'_>,
+    options: RunOptions<'_>,
     tape: Option<&TruthTape>,
 ) -> Accumulator
 where
     M: TruthModel + ?Sized,
     F: Filter + ?Sized,
 {
-    debug_assert!(tape.is_none_or(|t| t.covers(mc)));
+    let share = options.share.map_or(super::Share::WHOLE, |s| s.share);
+    debug_assert!(tape.is_none_or(|t| t.covers(mc, share)));
     let n_x = filter.n_x();
     let dims = filter.sensor_dims();
     let offsets = sensor_offsets(&dims);
@@ -202,7 +205,7 @@ where
             }
         }
     };
-    run_chunked(mc, n_x, n_z, progress, |range, acc| {
+    run_chunked(mc, n_x, n_z, options, |range, acc| {
         if side_by_side <= 1 {
             let mut work = new_work();
             for r in range {

@@ -13,7 +13,7 @@ use rand::RngExt;
 use rand_distr::StandardNormal;
 
 use super::generic::{Fault, MAX_RATIO_SQ};
-use super::{McConfig, run_chunked, run_rng};
+use super::{McConfig, RunOptions, run_chunked, run_rng};
 use crate::filter::conditioning::check_conditioned;
 use crate::filter::{Filter, FilterError, KalmanFilter};
 use crate::linalg::{cholesky, inverse_cholesky_factor};
@@ -159,26 +159,27 @@ pub fn run_linear(
     filter: &KalmanFilter,
     mc: &McConfig,
 ) -> Accumulator {
-    run_linear_with_progress(truth, filter, None, mc, None)
+    run_linear_with(truth, filter, None, mc, RunOptions::default())
 }
 
 /// [`run_linear`] for a filter whose state is `map · x_true` (n_f × n_t; `None`: the
-/// truth's state), the NEES taken on `map · x_true − x̂`, reporting the runs completed after
-/// each parallel wave. A run whose numbers stop meaning anything (the truth overflows, the
+/// truth's state), the NEES taken on `map · x_true − x̂`, with options: progress after each
+/// parallel wave, and a share of the chunks (the engine path in the options is not read).
+/// A run whose numbers stop meaning anything (the truth overflows, the
 /// state outgrows double precision, the NEES or NIS overflows) stops there as a divergence,
 /// as on the generic path.
-pub fn run_linear_with_progress(
+pub fn run_linear_with(
     truth: &LinearGaussianModel,
     filter: &KalmanFilter,
     map: Option<&DMatrix<f64>>,
     mc: &McConfig,
-    progress: super::Progress<'_>,
+    options: RunOptions<'_>,
 ) -> Accumulator {
     let n = filter.n_x();
     let m = filter.H.nrows();
     let map_t = map.map(|m| m.transpose());
     match Schedule::compute(filter, mc.steps(), mc.gate() == GateMode::Full) {
-        Ok(sched) => run_chunked(mc, n, m, progress, |range, acc| {
+        Ok(sched) => run_chunked(mc, n, m, options, |range, acc| {
             let job = Job {
                 truth,
                 f: filter,
@@ -190,7 +191,7 @@ pub fn run_linear_with_progress(
         }),
         // The covariance recursion is the same in every run, so every run stops at the same
         // step.
-        Err(e) => super::all_stopped(mc, n, m, &e),
+        Err(e) => super::all_stopped_with(mc, n, m, &e, options),
     }
 }
 

@@ -14,12 +14,14 @@ mod config;
 mod expected;
 mod generic;
 mod linear;
+mod share;
 mod tape;
 
 pub use config::{DEFAULT_ALPHA, DEFAULT_LAGS, MAX_RUNS, MAX_STEPS, McConfig};
 pub use expected::{expected_accumulator, models_match};
-pub use generic::{NULL_VAR_STRIDE, run_generic, run_generic_cached, run_generic_with_progress};
-pub use linear::{run_linear, run_linear_with_progress};
+pub use generic::{NULL_VAR_STRIDE, run_generic, run_generic_cached, run_generic_with};
+pub use linear::{run_linear, run_linear_with};
+pub use share::{ChunkSink, MergeError, Share, ShareOf};
 pub use tape::{TapeUsage, TruthCache, TruthTape};
 
 use std::ops::Range;
@@ -67,11 +69,17 @@ pub fn run_rng(seed: u64, run: usize) -> SimRng {
 /// The chunks are generated wave by wave, never listed: memory holds one wave's
 /// accumulators (two chunks per thread) whatever N, so a test of 10¹⁰ runs takes time, not
 /// memory. Chunk `c` covers runs `64 c .. min(64 c + 64, N)`.
+///
+/// With a share ([`RunOptions::share`]) only the share's chunks are evaluated, and each
+/// chunk's own sums go to the share's sink, in chunk order, instead of being merged: the
+/// whole evaluation's sums are those chunks merged in chunk order with every other share's
+/// ([`Share::merge`]), which is the merge below, bit for bit. The returned sums are then
+/// empty.
 fn run_chunked<G>(
     mc: &McConfig,
     n_x: usize,
     n_z: usize,
-    progress: Progress<'_>,
+    options: RunOptions<'_>,
     chunk: G,
 ) -> Accumulator
 where
@@ -80,23 +88,31 @@ where
     let runs = mc.runs();
     let chunks = runs.div_ceil(CHUNK);
     let range = |c: usize| c * CHUNK..(c * CHUNK).saturating_add(CHUNK).min(runs);
+    let share = options.share.map_or(Share::WHOLE, |s| s.share);
     let mut total = Accumulator::new(mc.steps(), n_x, n_z, mc.lags());
+    let mut done = 0;
     // Only the merge order matters for the result, so the wave size may follow the pool.
     let wave = 2 * rayon::current_num_threads().max(1);
-    for first in (0..chunks).step_by(wave) {
-        let parts: Vec<Accumulator> = (first..chunks.min(first.saturating_add(wave)))
-            .into_par_iter()
-            .map(|c| {
+    let mut own = share.chunks(chunks).peekable();
+    while own.peek().is_some() {
+        let ids: Vec<usize> = own.by_ref().take(wave).collect();
+        let parts: Vec<Accumulator> = ids
+            .par_iter()
+            .map(|&c| {
                 let mut acc = Accumulator::new(mc.steps(), n_x, n_z, mc.lags());
                 chunk(range(c), &mut acc);
                 acc
             })
             .collect();
-        for p in &parts {
-            total.merge(p);
+        for (c, p) in ids.into_iter().zip(parts) {
+            done += p.runs;
+            match options.share {
+                Some(s) => (s.sink)(c, p),
+                None => total.merge(&p),
+            }
         }
-        if let Some(report) = progress {
-            report(total.runs);
+        if let Some(report) = options.progress {
+            report(done);
         }
     }
     total
@@ -104,6 +120,22 @@ where
 
 /// An optional callback told the number of runs completed so far (for progress bars).
 pub type Progress<'a> = Option<&'a (dyn Fn(usize) + Sync)>;
+
+/// How one Monte Carlo evaluation runs: the engine path, a progress callback, and which of
+/// its chunks this process computes.
+#[derive(Clone, Copy, Default)]
+pub struct RunOptions<'a> {
+    /// The engine path; an experiment without a linear fast path runs its generic one for
+    /// [`Engine::Auto`] and [`Engine::Linear`] alike.
+    pub engine: Engine,
+    /// Told the number of runs completed (of this process's chunks) after each parallel
+    /// wave.
+    pub progress: Progress<'a>,
+    /// `None`: every chunk, merged into the returned sums. Some share: only its chunks, each
+    /// chunk's sums handed to its sink (the returned sums are then empty); what the shards
+    /// of `autotune check --shard` and the ranks of an MPI job compute.
+    pub share: Option<ShareOf<'a>>,
+}
 
 /// Record that run `run` stopped on `err`.
 fn record_divergence(acc: &mut Accumulator, run: usize, err: &FilterError) {
@@ -121,10 +153,21 @@ fn record_divergence(acc: &mut Accumulator, run: usize, err: &FilterError) {
 /// data-independent covariance recursion (the linear fast path's, the exact path's) fails
 /// at the same step in every run.
 pub fn all_stopped(mc: &McConfig, n_x: usize, n_z: usize, err: &FilterError) -> Accumulator {
-    let mut acc = Accumulator::new(mc.steps(), n_x, n_z, mc.lags());
-    for run in 0..mc.runs() {
-        record_divergence(&mut acc, run, err);
-    }
-    acc.runs = mc.runs();
-    acc
+    all_stopped_with(mc, n_x, n_z, err, RunOptions::default())
+}
+
+/// [`all_stopped`] by chunks, for a share of them.
+fn all_stopped_with(
+    mc: &McConfig,
+    n_x: usize,
+    n_z: usize,
+    err: &FilterError,
+    options: RunOptions<'_>,
+) -> Accumulator {
+    run_chunked(mc, n_x, n_z, options, |range, acc| {
+        for run in range {
+            record_divergence(acc, run, err);
+            acc.runs += 1;
+        }
+    })
 }

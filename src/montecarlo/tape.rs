@@ -18,7 +18,7 @@ use std::sync::{Arc, Mutex, PoisonError};
 use nalgebra::DVector;
 use rayon::prelude::*;
 
-use super::{McConfig, run_rng};
+use super::{McConfig, Share, run_rng};
 use crate::SimRng;
 use crate::measurement::Measurement;
 use crate::model::TruthModel;
@@ -166,12 +166,15 @@ impl TruthSource for Replay<'_> {
     }
 }
 
-/// The truth of runs `0..runs.len()` of one seed set over `steps` steps.
+/// The truth of runs `0..runs.len()` of one seed set over `steps` steps, those of one share
+/// of the chunks ([`Share`]: the whole, but for a shard or an MPI rank).
 #[derive(Debug)]
 pub struct TruthTape {
     seed: u64,
     steps: usize,
-    runs: Vec<RunTape>,
+    share: Share,
+    /// Run i's tape at index i; `None` for the runs of other shares.
+    runs: Vec<Option<RunTape>>,
     bytes: usize,
 }
 
@@ -179,9 +182,21 @@ impl TruthTape {
     /// Simulate runs `0..runs` of seed set `seed` over `steps` steps (in parallel; each
     /// run from its own stream, so the tape does not depend on the thread count).
     pub fn record<M: TruthModel + ?Sized>(truth: &M, seed: u64, steps: usize, runs: usize) -> Self {
+        Self::record_share(truth, seed, steps, runs, Share::WHOLE)
+    }
+
+    /// [`Self::record`] of the runs of `0..runs` in `share`'s chunks only.
+    pub fn record_share<M: TruthModel + ?Sized>(
+        truth: &M,
+        seed: u64,
+        steps: usize,
+        runs: usize,
+        share: Share,
+    ) -> Self {
         let mut tape = TruthTape {
             seed,
             steps,
+            share,
             runs: Vec::new(),
             bytes: 0,
         };
@@ -189,14 +204,18 @@ impl TruthTape {
         tape
     }
 
-    /// Simulate the runs from `self.runs()` up to `runs`.
+    /// Simulate the share's runs from `self.runs()` up to `runs`.
     fn extend<M: TruthModel + ?Sized>(&mut self, truth: &M, runs: usize) {
-        let (seed, steps) = (self.seed, self.steps);
-        let more: Vec<RunTape> = (self.runs.len()..runs)
+        let (seed, steps, share) = (self.seed, self.steps, self.share);
+        let more: Vec<Option<RunTape>> = (self.runs.len()..runs)
             .into_par_iter()
-            .map(|run| RunTape::record(truth, seed, run, steps))
+            .map(|run| {
+                share
+                    .owns_run(run)
+                    .then(|| RunTape::record(truth, seed, run, steps))
+            })
             .collect();
-        self.bytes += more.iter().map(RunTape::bytes).sum::<usize>();
+        self.bytes += more.iter().flatten().map(RunTape::bytes).sum::<usize>();
         self.runs.extend(more);
     }
 
@@ -210,13 +229,19 @@ impl TruthTape {
         self.bytes
     }
 
-    /// Whether this tape replays `mc`'s runs.
-    pub fn covers(&self, mc: &McConfig) -> bool {
-        self.seed == mc.seed() && self.steps == mc.steps() && self.runs.len() >= mc.runs()
+    /// Whether this tape replays `mc`'s runs of `share`'s chunks.
+    pub fn covers(&self, mc: &McConfig, share: Share) -> bool {
+        self.seed == mc.seed()
+            && self.steps == mc.steps()
+            && self.share == share
+            && self.runs.len() >= mc.runs()
     }
 
+    /// Run `run`'s tape: one of the share's runs below [`Self::runs`].
     pub(super) fn run(&self, run: usize) -> &RunTape {
-        &self.runs[run]
+        self.runs[run]
+            .as_ref()
+            .expect("the engine replays only the runs of the tape's share")
     }
 }
 
@@ -247,9 +272,9 @@ struct CacheState {
     /// Least recently used first.
     tapes: Vec<Arc<TruthTape>>,
     /// Seed sets `(seed, steps, runs)` evaluated once: the next evaluation records.
-    seen: Vec<(u64, usize, usize)>,
+    seen: Vec<(u64, usize, usize, Share)>,
     /// Seed sets `(seed, steps)` whose tape was found too large for the limit.
-    too_large: Vec<(u64, usize)>,
+    too_large: Vec<(u64, usize, Share)>,
     /// What the cache has served.
     usage: TapeUsage,
 }
@@ -296,9 +321,14 @@ impl TruthCache {
         self.lock().usage
     }
 
-    /// [`Self::tape`], counted in [`Self::usage`].
-    pub fn tape<M: TruthModel + ?Sized>(&self, truth: &M, mc: &McConfig) -> Option<Arc<TruthTape>> {
-        let (tape, replayed) = self.find_or_record(truth, mc);
+    /// [`Self::tape`], counted in [`Self::usage`]: the tape of `mc`'s runs in `share`'s chunks.
+    pub fn tape<M: TruthModel + ?Sized>(
+        &self,
+        truth: &M,
+        mc: &McConfig,
+        share: Share,
+    ) -> Option<Arc<TruthTape>> {
+        let (tape, replayed) = self.find_or_record(truth, mc, share);
         let mut s = self.lock();
         if replayed {
             s.usage.replayed += 1;
@@ -316,11 +346,12 @@ impl TruthCache {
         &self,
         truth: &M,
         mc: &McConfig,
+        share: Share,
     ) -> (Option<Arc<TruthTape>>, bool) {
-        let key = (mc.seed(), mc.steps());
+        let key = (mc.seed(), mc.steps(), share);
         let shorter = {
             let mut s = self.lock();
-            if let Some(i) = s.tapes.iter().position(|t| t.covers(mc)) {
+            if let Some(i) = s.tapes.iter().position(|t| t.covers(mc, share)) {
                 let t = s.tapes.remove(i);
                 s.tapes.push(Arc::clone(&t));
                 return (Some(t), true);
@@ -331,9 +362,9 @@ impl TruthCache {
             let shorter = s
                 .tapes
                 .iter()
-                .position(|t| (t.seed, t.steps) == key)
+                .position(|t| (t.seed, t.steps, t.share) == key)
                 .map(|i| s.tapes.remove(i));
-            let full = (mc.seed(), mc.steps(), mc.runs());
+            let full = (mc.seed(), mc.steps(), mc.runs(), share);
             if shorter.is_none() && !s.seen.contains(&full) {
                 if s.seen.len() == SEEN {
                     s.seen.remove(0);
@@ -349,20 +380,26 @@ impl TruthCache {
             Some(t) => Arc::try_unwrap(t).unwrap_or_else(|t| TruthTape {
                 seed: t.seed,
                 steps: t.steps,
+                share: t.share,
                 runs: Vec::new(),
                 bytes: 0,
             }),
-            None => TruthTape::record(truth, mc.seed(), mc.steps(), 1.min(mc.runs())),
+            // The share's first run tells its size.
+            None => {
+                let first = (share.index() * super::CHUNK + 1).min(mc.runs());
+                TruthTape::record_share(truth, mc.seed(), mc.steps(), first, share)
+            }
         };
-        let per_run = tape.bytes.div_ceil(tape.runs().max(1)).max(1);
-        if per_run.saturating_mul(mc.runs()) > self.limit {
+        let held = tape.runs.iter().flatten().count();
+        let per_run = tape.bytes.div_ceil(held.max(1)).max(1);
+        if per_run.saturating_mul(share.runs_of(mc.runs())) > self.limit {
             self.lock().too_large.push(key);
             return (None, false);
         }
         tape.extend(truth, mc.runs());
         let tape = Arc::new(tape);
         let mut s = self.lock();
-        s.tapes.retain(|t| (t.seed, t.steps) != key);
+        s.tapes.retain(|t| (t.seed, t.steps, t.share) != key);
         let mut held: usize = s.tapes.iter().map(|t| t.bytes).sum();
         while held + tape.bytes > self.limit && !s.tapes.is_empty() {
             held -= s.tapes.remove(0).bytes;

@@ -26,7 +26,10 @@ pub use json::parse_record_line;
 pub use names::{Quantity, experiment_name, valid_sensor};
 pub(crate) use npy::{read_numpy_records, read_raw as read_numpy_arrays};
 pub use sink::{NormalizedSensor, RecordSink, StepSink, normalize_sensor, shown_number};
-pub use wire::{ChunkShape, ChunkSums, WireError, decode as decode_sums, encode as encode_sums};
+pub use wire::{
+    ChunkShape, ChunkSums, WireError, decode as decode_sums, decode_bytes as decode_sums_bytes,
+    encode as encode_sums, encode_bytes as encode_sums_bytes,
+};
 
 /// Largest number of steps per run records may have. The sums take memory proportional to
 /// T, allocated before the first record is read, so T is checked first; this is the

@@ -163,6 +163,11 @@ fn cause_of(b: u8) -> Option<StopCause> {
 
 /// `chunk` of the runs `shape.runs` as the base64 text of a sums answer.
 pub fn encode(chunk: &ChunkSums, shape: &ChunkShape) -> String {
+    STANDARD.encode(encode_bytes(chunk, shape))
+}
+
+/// [`encode`] before base64: the bytes an MPI rank sends.
+pub fn encode_bytes(chunk: &ChunkSums, shape: &ChunkShape) -> Vec<u8> {
     let mut a = chunk.sums.clone();
     let mut out = Vec::new();
     let u = |out: &mut Vec<u8>, x: usize| out.extend_from_slice(&(x as u64).to_le_bytes());
@@ -203,7 +208,7 @@ pub fn encode(chunk: &ChunkSums, shape: &ChunkShape) -> String {
     for p in &chunk.prints {
         out.extend_from_slice(&p.to_le_bytes());
     }
-    STANDARD.encode(out)
+    out
 }
 
 /// The largest index ≤ `at` on a character boundary of `s`.
@@ -259,10 +264,12 @@ pub fn decode(text: &str, want: &ChunkShape) -> Result<ChunkSums, WireError> {
     let bytes = STANDARD
         .decode(text)
         .map_err(|e| WireError::Base64(e.to_string()))?;
-    let mut r = Reader {
-        bytes: &bytes,
-        at: 0,
-    };
+    decode_bytes(&bytes, want)
+}
+
+/// [`decode`] after base64.
+pub fn decode_bytes(bytes: &[u8], want: &ChunkShape) -> Result<ChunkSums, WireError> {
+    let mut r = Reader { bytes, at: 0 };
     if r.take(MAGIC.len()).map_err(|_| WireError::Magic)? != MAGIC {
         return Err(WireError::Magic);
     }

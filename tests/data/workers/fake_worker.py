@@ -18,6 +18,10 @@ import sys
 import time
 
 MODE = sys.argv[1] if len(sys.argv) > 1 else "good"
+# "ranked": the mode FAKE_FAIL on the MPI rank FAKE_FAIL_RANK, "good" on the others.
+if MODE == "ranked":
+    failing = os.environ.get("OMPI_COMM_WORLD_RANK") == os.environ.get("FAKE_FAIL_RANK")
+    MODE = os.environ.get("FAKE_FAIL", "good") if failing else "good"
 Q_TRUE, R_TRUE = 0.5, 2.0
 shared = random.Random(12345)  # for "unseeded": noise that depends on the request order
 # "cached_truth": each run's true trajectory drawn once per process from a generator seeded by
@@ -123,6 +127,8 @@ def main():
             continue
         if MODE == "timeout":
             time.sleep(30)
+        if MODE == "slow":
+            time.sleep(0.5)
         if MODE == "error":
             print(json.dumps({"id": req["id"], "error": "theta out of range"}), flush=True)
             continue

@@ -451,7 +451,7 @@ fn compare<M: CatalogModel>(
     let cache = TruthCache::default();
     for _ in 0..2 {
         // The cache records a seed set on its second request.
-        run_generic_cached(truth, &filter, &mc, None, &cache);
+        run_generic_cached(truth, &filter, &mc, Default::default(), &cache);
     }
 
     // The same work: the hand loop's statistics are the engine's.
@@ -483,7 +483,7 @@ fn compare<M: CatalogModel>(
         b.iter(|| by_hand(black_box(&mc), Some(&tapes)))
     });
     g.bench_function("tape/engine_mean", |b| {
-        b.iter(|| run_generic_cached(truth, &filter, black_box(&mc), None, &cache))
+        b.iter(|| run_generic_cached(truth, &filter, black_box(&mc), Default::default(), &cache))
     });
     g.finish();
 }

@@ -33,6 +33,7 @@ fn check_on(
         RunOptions {
             engine,
             progress: None,
+            share: None,
         },
         true,
     )
@@ -51,6 +52,7 @@ fn cv1d_verdict(p: &Problem, q: f64, engine: Engine, runs: usize) -> Consistency
         RunOptions {
             engine,
             progress: None,
+            share: None,
         },
         true,
     )
@@ -238,6 +240,7 @@ fn a_truth_state_that_overflows_to_infinity_is_a_truth_overflow_not_inconclusive
             RunOptions {
                 engine,
                 progress: None,
+                share: None,
             },
             true,
         )

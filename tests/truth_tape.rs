@@ -10,7 +10,7 @@ use autotune::internals::filter::{Filter, KalmanFilter};
 use autotune::internals::measurement::Measurement;
 use autotune::internals::model::TruthModel;
 use autotune::internals::montecarlo::{
-    McConfig, TruthCache, TruthTape, run_generic, run_generic_cached,
+    McConfig, RunOptions, Share, ShareOf, TruthCache, TruthTape, run_generic, run_generic_cached,
 };
 use autotune::internals::stats::Accumulator;
 use nalgebra::{DMatrix, DVector};
@@ -40,6 +40,46 @@ fn assert_same(a: &Accumulator, b: &Accumulator, what: &str) {
     assert_eq!(a, b, "{what}: the sums differ");
 }
 
+/// Issue 26: each share of three (a shard, an MPI rank) with its own cache, evaluated
+/// three times (simulating, taping its runs, replaying them): its chunks merged with the
+/// other shares' are the one-process sums, bit for bit, and its tape holds its runs alone.
+#[test]
+fn shares_tape_their_own_runs_and_merge_to_the_whole() {
+    let (model, mc) = shipped("ctrv");
+    let mc = mc.with_runs(64 * 4 + 7).unwrap();
+    let filter = model.filter(&model.truth_values());
+    let whole = run_generic(model.truth(), &filter, &mc);
+    let caches: Vec<TruthCache> = (0..3).map(|_| TruthCache::default()).collect();
+    for evaluation in 0..3 {
+        let parts = std::sync::Mutex::new(Vec::new());
+        let sink = |c: usize, sums: Accumulator| parts.lock().unwrap().push((c, sums));
+        for (i, cache) in caches.iter().enumerate() {
+            let share = Share::new(i, 3).unwrap();
+            let options = RunOptions {
+                share: Some(ShareOf { share, sink: &sink }),
+                ..RunOptions::default()
+            };
+            let rest = run_generic_cached(model.truth(), &filter, &mc, options, cache);
+            assert_eq!(rest.runs(), 0, "a share's own sums go to its sink");
+        }
+        let parts = parts.into_inner().unwrap();
+        let chunks: Vec<usize> = parts.iter().map(|(c, _)| *c).collect();
+        assert_eq!(chunks.len(), 5, "{chunks:?}");
+        let empty = Accumulator::new(mc.steps(), 5, 5, mc.lags());
+        let merged = Share::merge(mc.runs(), empty, parts).unwrap();
+        assert_same(
+            &whole,
+            &merged,
+            &format!("shares merged, evaluation {evaluation}"),
+        );
+    }
+    // The first share holds chunks 0 and 3 (128 runs), the third chunk 2 (64).
+    let (first, third) = (caches[0].bytes(), caches[2].bytes());
+    assert!(first > 0 && third > 0);
+    let ratio = first as f64 / third as f64;
+    assert!((ratio - 2.0).abs() < 0.1, "{first} vs {third} bytes");
+}
+
 #[test]
 fn replayed_catalog_truth_gives_the_simulated_sums_bit_for_bit() {
     for name in ["ctrv", "orbit2d", "ins_gnss"] {
@@ -53,7 +93,8 @@ fn replayed_catalog_truth_gives_the_simulated_sums_bit_for_bit() {
         for (k, theta) in [&truth, &truth, &other, &truth].into_iter().enumerate() {
             let filter = model.filter(theta);
             let simulated = run_generic(model.truth(), &filter, &mc);
-            let cached = run_generic_cached(model.truth(), &filter, &mc, None, &cache);
+            let cached =
+                run_generic_cached(model.truth(), &filter, &mc, Default::default(), &cache);
             assert_same(&simulated, &cached, &format!("{name}, evaluation {k}"));
             // The first evaluation of a seed set simulates; the second records the tape.
             assert_eq!(
@@ -67,13 +108,17 @@ fn replayed_catalog_truth_gives_the_simulated_sums_bit_for_bit() {
             let mc = mc.with_runs(runs).unwrap();
             let filter = model.filter(&other);
             let simulated = run_generic(model.truth(), &filter, &mc);
-            let cached = run_generic_cached(model.truth(), &filter, &mc, None, &cache);
+            let cached =
+                run_generic_cached(model.truth(), &filter, &mc, Default::default(), &cache);
             assert_same(&simulated, &cached, &format!("{name}, {runs} runs"));
         }
         let tape = TruthTape::record(model.truth(), mc.seed(), mc.steps(), 140);
-        assert!(tape.covers(&mc.with_runs(140).unwrap()));
-        assert!(!tape.covers(&mc.with_runs(141).unwrap()));
-        assert!(!tape.covers(&mc.with_seed(mc.seed() + 1).with_runs(10).unwrap()));
+        assert!(tape.covers(&mc.with_runs(140).unwrap(), Share::WHOLE));
+        assert!(!tape.covers(&mc.with_runs(141).unwrap(), Share::WHOLE));
+        assert!(!tape.covers(
+            &mc.with_seed(mc.seed() + 1).with_runs(10).unwrap(),
+            Share::WHOLE
+        ));
         // The tape holds at least its numbers: T × (n_x + measurement components).
         assert!(tape.bytes() >= 140 * mc.steps() * 8 * model.truth().n_x());
     }
@@ -136,7 +181,7 @@ fn runs_the_truth_or_the_filter_ends_replay_as_they_simulate() {
     for (q, r) in [(1.0, 1.0), (0.3, 2.0), (-1.0, 1.0), (1.0, 1.0)] {
         let f = walk_filter(q, r);
         let simulated = run_generic(&truth, &f, &mc);
-        let cached = run_generic_cached(&truth, &f, &mc, None, &cache);
+        let cached = run_generic_cached(&truth, &f, &mc, Default::default(), &cache);
         assert_same(&simulated, &cached, &format!("q = {q}, r = {r}"));
         if q > 0.0 {
             // x₁₆ ~ N(0, 17): P(x₁₆ > 0.5) = 0.45, so 45 of 100 runs expected (binomial sd 5).
@@ -158,7 +203,7 @@ fn a_tape_beyond_the_memory_limit_is_never_recorded() {
     let cache = TruthCache::with_limit(1000);
     let f = walk_filter(1.0, 1.0);
     for _ in 0..3 {
-        let cached = run_generic_cached(&truth, &f, &mc, None, &cache);
+        let cached = run_generic_cached(&truth, &f, &mc, Default::default(), &cache);
         assert_same(&run_generic(&truth, &f, &mc), &cached, "over the limit");
         assert_eq!(cache.bytes(), 0);
     }
@@ -166,7 +211,7 @@ fn a_tape_beyond_the_memory_limit_is_never_recorded() {
     let one = TruthTape::record(&truth, 9, 50, 200).bytes();
     let cache = TruthCache::with_limit(one + one / 2);
     for seed in [9, 9, 10, 10] {
-        run_generic_cached(&truth, &f, &mc.with_seed(seed), None, &cache);
+        run_generic_cached(&truth, &f, &mc.with_seed(seed), Default::default(), &cache);
     }
     assert_eq!(cache.bytes(), one, "one tape held, the newest");
 }
@@ -226,7 +271,7 @@ fn the_cache_counts_what_it_replayed_and_what_it_simulated() {
         let cache = TruthCache::with_limit(limit);
         let before = cache.usage();
         for _ in 0..4 {
-            run_generic_cached(&truth, &f, &mc, None, &cache);
+            run_generic_cached(&truth, &f, &mc, Default::default(), &cache);
         }
         let usage = cache.usage();
         assert_eq!(usage.replayed, replayed, "limit {limit}");
@@ -243,7 +288,7 @@ fn the_cache_counts_what_it_replayed_and_what_it_simulated() {
         }
         // Counted from a later point, only what came after.
         let mid = cache.usage();
-        run_generic_cached(&truth, &f, &mc, None, &cache);
+        run_generic_cached(&truth, &f, &mc, Default::default(), &cache);
         let TruthReuse::Taped {
             replayed,
             simulated,

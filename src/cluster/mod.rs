@@ -16,10 +16,12 @@
 pub mod mpi;
 pub mod shard;
 
+pub use crate::montecarlo::{ChunkSink, MergeError, Share, ShareOf};
+
 use std::sync::{Mutex, PoisonError};
 
 use crate::experiment::{Experiment, ExperimentError};
-use crate::montecarlo::{McConfig, RunOptions, Share, ShareOf};
+use crate::montecarlo::{McConfig, RunOptions};
 use crate::stats::Accumulator;
 
 /// The sums of `share`'s chunks of `experiment`'s evaluation at `theta` under `mc` (with

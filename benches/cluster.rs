@@ -23,7 +23,13 @@ fn repo(path: &str) -> PathBuf {
 /// `mpirun -np ranks` of `bin args` in `dir`, one thread a rank; panics unless it exits 0.
 fn job(bin: &Path, ranks: usize, dir: &Path, args: &[&str]) {
     let status = Command::new("mpirun")
-        .args(["-np", &ranks.to_string(), "--oversubscribe", "-x", "RAYON_NUM_THREADS=1"])
+        .args([
+            "-np",
+            &ranks.to_string(),
+            "--oversubscribe",
+            "-x",
+            "RAYON_NUM_THREADS=1",
+        ])
         .arg(bin)
         .args(args)
         .current_dir(dir)

@@ -598,3 +598,37 @@ fn a_rank_killed_outright_ends_the_job_without_a_hang() {
     assert_eq!(out.code, Some(137), "{}", out.stderr);
     assert!(out.stderr.contains("rank 2"), "{}", out.stderr);
 }
+
+#[test]
+fn each_ranks_workers_share_its_chunks() {
+    let Some(bin) = mpi_bin() else { return };
+    if !common_python() {
+        return;
+    }
+    // 8 chunks on 2 ranks of 2 workers: each rank's chunks are every other one, and each
+    // of its workers must get some (dealt by c mod 2, one worker of each rank would get
+    // them all).
+    let dir = tempfile::tempdir().unwrap();
+    let p = walk(dir.path(), "good", 64 * 8);
+    let text = std::fs::read_to_string(&p)
+        .unwrap()
+        .replace("workers = 1", "workers = 2");
+    std::fs::write(&p, text).unwrap();
+    let log = dir.path().join("requests.jsonl");
+    let env = [("FAKE_WORKER_LOG", log.to_str().unwrap())];
+    let out = output(&mut mpirun(
+        &bin,
+        2,
+        dir.path(),
+        &["check", p.to_str().unwrap()],
+        &env,
+    ));
+    assert!(matches!(out.code, Some(0 | 1)), "{}", out.stderr);
+    let mut requests = std::collections::BTreeMap::<u64, usize>::new();
+    for line in std::fs::read_to_string(&log).unwrap().lines() {
+        let v: serde_json::Value = serde_json::from_str(line).unwrap();
+        *requests.entry(v["pid"].as_u64().unwrap()).or_default() += 1;
+    }
+    assert_eq!(requests.len(), 4, "four workers answered: {requests:?}");
+    assert!(requests.values().all(|&n| n >= 2), "{requests:?}");
+}

@@ -271,13 +271,16 @@ impl ExternalExperiment {
             let failure: Mutex<Option<ExperimentError>> = Mutex::new(None);
             std::thread::scope(|scope| {
                 // Chunk c always goes to worker c mod W: a worker that caches its truth per
-                // run (it does not depend on θ) then finds it at every evaluation.
+                // run (it does not depend on θ) then finds it at every evaluation. A share's
+                // chunks are every n-th (c = i + n j): worker j mod W, or with n a multiple
+                // of W every chunk would go to one worker.
+                let stride = share.count();
                 for (k, w) in pool.iter_mut().enumerate() {
                     let (slots, failure, theta_json, first_prints) =
                         (&slots, &failure, &theta_json, &first_prints);
                     scope.spawn(move || {
                         let mine = wave_chunks.iter().enumerate();
-                        for (slot, &c) in mine.filter(|(_, c)| *c % n_workers == k) {
+                        for (slot, &c) in mine.filter(|(_, c)| (*c / stride) % n_workers == k) {
                             if failure.lock().unwrap_or_else(|p| p.into_inner()).is_some() {
                                 return;
                             }

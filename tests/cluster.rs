@@ -632,3 +632,32 @@ fn each_ranks_workers_share_its_chunks() {
     assert_eq!(requests.len(), 4, "four workers answered: {requests:?}");
     assert!(requests.values().all(|&n| n >= 2), "{requests:?}");
 }
+
+#[test]
+fn a_build_without_the_mpi_feature_refuses_to_run_as_one_of_several_ranks() {
+    // Each rank would run the whole check and print it.
+    let dir = tempfile::tempdir().unwrap();
+    let out = output(
+        Command::cargo_bin("autotune")
+            .unwrap()
+            .args(["check", &repo("problems/cv1d.toml"), "--quiet"])
+            .current_dir(dir.path())
+            .env("OMPI_COMM_WORLD_SIZE", "3"),
+    );
+    assert_eq!(out.code, Some(2), "{}", out.stderr);
+    assert_eq!(out.stderr.lines().count(), 1, "{}", out.stderr);
+    assert!(
+        out.stderr.contains("without the `mpi` feature"),
+        "{}",
+        out.stderr
+    );
+    // One rank (`srun` of a single task) is a plain run.
+    let one_rank = output(
+        Command::cargo_bin("autotune")
+            .unwrap()
+            .args(["check", &repo("problems/cv1d.toml"), "--quiet"])
+            .current_dir(dir.path())
+            .env("OMPI_COMM_WORLD_SIZE", "1"),
+    );
+    assert!(matches!(one_rank.code, Some(0 | 1)), "{}", one_rank.stderr);
+}

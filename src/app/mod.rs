@@ -238,7 +238,24 @@ pub fn main() -> ExitCode {
     if crate::cluster::mpi::launched() {
         return mpi::main(std::env::args_os());
     }
+    // Without the feature every rank would run the whole command and print it.
+    #[cfg(not(feature = "mpi"))]
+    if let Some(ranks) = launcher_ranks() {
+        return finish(Err(AppError::Usage(format!(
+            "started as one of {ranks} MPI ranks, but this autotune was built without the `mpi` feature (cargo build --release --features mpi; docs/src/cluster.md)"
+        ))));
+    }
     finish(run(std::env::args_os()))
+}
+
+/// The job's size when an MPI launcher started this process as one of several ranks (Open
+/// MPI's and MPICH's variables).
+#[cfg(not(feature = "mpi"))]
+fn launcher_ranks() -> Option<usize> {
+    ["OMPI_COMM_WORLD_SIZE", "PMI_SIZE"]
+        .iter()
+        .filter_map(|v| std::env::var(v).ok()?.parse::<usize>().ok())
+        .find(|&n| n > 1)
 }
 
 /// `autotune` with these arguments (the first is the program name).

@@ -250,8 +250,6 @@ impl ExternalExperiment {
         // This process's chunks, in order: all of them, or a share's (a shard, an MPI rank).
         let share = options.share.map_or(Share::WHOLE, |s| s.share);
         let own: Vec<usize> = share.chunks(runs.div_ceil(CHUNK)).collect();
-        let range = |c: usize| c * CHUNK..(c * CHUNK + CHUNK).min(runs);
-        let n_workers = pool.len();
         let mut total =
             Accumulator::new(mc.steps(), self.layout.n_x(), self.layout.n_z(), mc.lags());
         // The first chunk's runs, fingerprinted for the seed-contract check.
@@ -263,58 +261,17 @@ impl ExternalExperiment {
             Mutex::new(checking.then(Fingerprints::new));
         // Waves of a few chunks per worker, merged in chunk order as they complete: memory
         // holds one wave's sums whatever N.
-        let wave = 4 * n_workers;
+        let wave = 4 * pool.len();
         let mut done = 0;
         for wave_chunks in own.chunks(wave) {
-            let slots: Vec<Mutex<Option<Accumulator>>> =
-                wave_chunks.iter().map(|_| Mutex::new(None)).collect();
-            let failure: Mutex<Option<ExperimentError>> = Mutex::new(None);
-            std::thread::scope(|scope| {
-                // Chunk c always goes to worker c mod W: a worker that caches its truth per
-                // run (it does not depend on θ) then finds it at every evaluation. A share's
-                // chunks are every n-th (c = i + n j): worker j mod W, or with n a multiple
-                // of W every chunk would go to one worker.
-                let stride = share.count();
-                for (k, w) in pool.iter_mut().enumerate() {
-                    let (slots, failure, theta_json, first_prints) =
-                        (&slots, &failure, &theta_json, &first_prints);
-                    scope.spawn(move || {
-                        let mine = wave_chunks.iter().enumerate();
-                        for (slot, &c) in mine.filter(|(_, c)| (*c / stride) % n_workers == k) {
-                            if failure.lock().unwrap_or_else(|p| p.into_inner()).is_some() {
-                                return;
-                            }
-                            let asked = if c == 0 {
-                                // Only chunk 0's worker takes this lock.
-                                let mut prints =
-                                    first_prints.lock().unwrap_or_else(|p| p.into_inner());
-                                self.ask(w, theta_json, mc, range(c), prints.as_mut())
-                            } else {
-                                self.ask(w, theta_json, mc, range(c), None)
-                            };
-                            match asked {
-                                Ok(acc) => {
-                                    *slots[slot].lock().unwrap_or_else(|p| p.into_inner()) =
-                                        Some(acc);
-                                }
-                                Err(e) => {
-                                    failure
-                                        .lock()
-                                        .unwrap_or_else(|p| p.into_inner())
-                                        .get_or_insert(e);
-                                    return;
-                                }
-                            }
-                        }
-                    });
-                }
-            });
-            if let Some(e) = failure.into_inner().unwrap_or_else(|p| p.into_inner()) {
-                return Err(e);
-            }
-            for (s, &c) in slots.into_iter().zip(wave_chunks) {
-                let part = s.into_inner().unwrap_or_else(|p| p.into_inner());
-                let part = part.expect("every chunk of the wave answered");
+            let asked = Asked {
+                theta: &theta_json,
+                mc,
+                stride: share.count(),
+                first_prints: &first_prints,
+            };
+            let parts = self.ask_wave(&mut pool, wave_chunks, &asked)?;
+            for (part, &c) in parts.into_iter().zip(wave_chunks) {
                 done += part.runs;
                 match options.share {
                     Some(to) => (to.sink)(c, part),
@@ -331,6 +288,68 @@ impl ExternalExperiment {
             self.check_contract(&mut pool, &theta_json, mc, &first)?;
         }
         Ok(total)
+    }
+
+    /// The sums of `chunks` (one wave), in their order, each asked of its worker: the
+    /// workers answer side by side, and the first failure stops the wave.
+    fn ask_wave(
+        &self,
+        pool: &mut [Worker],
+        chunks: &[usize],
+        asked: &Asked<'_>,
+    ) -> Result<Vec<Accumulator>, ExperimentError> {
+        let (mc, n_workers) = (asked.mc, pool.len());
+        let range = |c: usize| c * CHUNK..(c * CHUNK + CHUNK).min(mc.runs());
+        let slots: Vec<Mutex<Option<Accumulator>>> =
+            chunks.iter().map(|_| Mutex::new(None)).collect();
+        let failure: Mutex<Option<ExperimentError>> = Mutex::new(None);
+        std::thread::scope(|scope| {
+            // Chunk c always goes to worker c mod W: a worker that caches its truth per run
+            // (it does not depend on θ) then finds it at every evaluation. A share's chunks
+            // are every n-th (c = i + n j): worker j mod W, or with n a multiple of W every
+            // chunk would go to one worker.
+            for (k, w) in pool.iter_mut().enumerate() {
+                let (slots, failure) = (&slots, &failure);
+                scope.spawn(move || {
+                    let mine = chunks.iter().enumerate();
+                    for (slot, &c) in mine.filter(|(_, c)| (*c / asked.stride) % n_workers == k) {
+                        if failure.lock().unwrap_or_else(|p| p.into_inner()).is_some() {
+                            return;
+                        }
+                        let answer = if c == 0 {
+                            // Only chunk 0's worker takes this lock.
+                            let mut prints =
+                                asked.first_prints.lock().unwrap_or_else(|p| p.into_inner());
+                            self.ask(w, asked.theta, mc, range(c), prints.as_mut())
+                        } else {
+                            self.ask(w, asked.theta, mc, range(c), None)
+                        };
+                        match answer {
+                            Ok(acc) => {
+                                *slots[slot].lock().unwrap_or_else(|p| p.into_inner()) = Some(acc);
+                            }
+                            Err(e) => {
+                                failure
+                                    .lock()
+                                    .unwrap_or_else(|p| p.into_inner())
+                                    .get_or_insert(e);
+                                return;
+                            }
+                        }
+                    }
+                });
+            }
+        });
+        if let Some(e) = failure.into_inner().unwrap_or_else(|p| p.into_inner()) {
+            return Err(e);
+        }
+        Ok(slots
+            .into_iter()
+            .map(|s| {
+                let part = s.into_inner().unwrap_or_else(|p| p.into_inner());
+                part.expect("every chunk of the wave answered")
+            })
+            .collect())
     }
 
     /// The seed contract on the first chunk, whose runs' fingerprints are `whole`: the
@@ -385,6 +404,18 @@ impl ExternalExperiment {
         }
         Ok(())
     }
+}
+
+/// What every request of an evaluation's wave shares.
+struct Asked<'a> {
+    /// θ as the requests carry it.
+    theta: &'a str,
+    /// The evaluation's settings.
+    mc: &'a McConfig,
+    /// The share's chunk stride: 1, or the number of shares.
+    stride: usize,
+    /// Chunk 0's runs' fingerprints, when the seed contract is being checked.
+    first_prints: &'a Mutex<Option<Fingerprints>>,
 }
 
 /// Fingerprints of runs' records, by run: equal records give equal fingerprints.

@@ -313,6 +313,10 @@ fn linear_catalog_and_worker_tunes_are_the_same_on_ranks() {
         let p = walk(dir.path(), "good", 200);
         tune_one_and_ranks(p.to_str().unwrap(), "walk");
     }
+    // The Python example: each rank starts its own NumPy workers.
+    if numpy() {
+        tune_one_and_ranks(&repo("examples/python/cv2d_numpy.toml"), "cv2d_numpy");
+    }
 }
 
 fn common_python() -> bool {

@@ -196,24 +196,34 @@ fn a_catalog_check_is_the_same_in_shards_and_on_ranks() {
     check_on_ranks(&p, &extra, &single);
 }
 
-/// Whether python3 with NumPy runs (the Python example); required where
-/// AUTOTUNE_REQUIRE_PYTHON is set, as in CI.
-fn numpy() -> bool {
+/// Whether `python3` runs and imports `modules` (the scripted worker needs none, the
+/// Python example NumPy); required where AUTOTUNE_REQUIRE_PYTHON is set, as in CI.
+fn python(modules: &str) -> bool {
     let ok = Command::new("python3")
-        .args(["-c", "import numpy"])
+        .args(["-c", &format!("import sys{modules}")])
         .stderr(Stdio::null())
         .status()
         .is_ok_and(|s| s.success());
     if !ok && std::env::var_os("AUTOTUNE_REQUIRE_PYTHON").is_some() {
-        panic!("python3 with NumPy is required (AUTOTUNE_REQUIRE_PYTHON is set)");
+        panic!("python3 (importing sys{modules}) is required (AUTOTUNE_REQUIRE_PYTHON is set)");
+    }
+    if !ok {
+        eprintln!("skipped: python3 (importing sys{modules}) is not available");
     }
     ok
+}
+
+fn numpy() -> bool {
+    python(", numpy")
+}
+
+fn common_python() -> bool {
+    python("")
 }
 
 #[test]
 fn a_python_worker_check_is_the_same_in_shards_and_on_ranks() {
     if !numpy() {
-        eprintln!("skipped: python3 with NumPy is not available");
         return;
     }
     let p = repo("examples/python/cv2d_numpy.toml");
@@ -317,18 +327,6 @@ fn linear_catalog_and_worker_tunes_are_the_same_on_ranks() {
     if numpy() {
         tune_one_and_ranks(&repo("examples/python/cv2d_numpy.toml"), "cv2d_numpy");
     }
-}
-
-fn common_python() -> bool {
-    let ok = Command::new("python3")
-        .arg("--version")
-        .stdout(Stdio::null())
-        .status()
-        .is_ok_and(|s| s.success());
-    if !ok && std::env::var_os("AUTOTUNE_REQUIRE_PYTHON").is_some() {
-        panic!("python3 is required (AUTOTUNE_REQUIRE_PYTHON is set)");
-    }
-    ok
 }
 
 /// Shards of `args_a` and `args_b` (three each, in their own directories): the first shard

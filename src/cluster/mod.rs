@@ -21,7 +21,8 @@ pub use crate::montecarlo::{ChunkSink, MergeError, Share, ShareOf};
 use std::sync::{Mutex, PoisonError};
 
 use crate::experiment::{Experiment, ExperimentError};
-use crate::montecarlo::{McConfig, RunOptions};
+use crate::montecarlo::{CHUNK, McConfig, RunOptions};
+use crate::records::{ChunkShape, ChunkSums, WireError, decode_sums_bytes, encode_sums_bytes};
 use crate::stats::Accumulator;
 
 /// The sums of `share`'s chunks of `experiment`'s evaluation at `theta` under `mc` (with
@@ -68,10 +69,63 @@ pub fn share_sums(
 
 /// Fresh sums of the shape of `experiment`'s evaluations under `mc`, to merge chunks into.
 pub fn empty_sums(experiment: &dyn Experiment, mc: &McConfig) -> Accumulator {
-    Accumulator::new(
-        mc.steps(),
-        experiment.state_names().len(),
-        experiment.measurement_names().len(),
-        mc.lags(),
-    )
+    SumsShape::of(experiment, mc).empty()
+}
+
+/// The shape of an evaluation's sums, which each chunk's bytes are checked against when they
+/// come back from another process (a shard file, a rank's answer).
+#[derive(Debug, Clone, Copy)]
+struct SumsShape {
+    runs: usize,
+    steps: usize,
+    lags: usize,
+    n_x: usize,
+    n_z: usize,
+}
+
+impl SumsShape {
+    fn of(experiment: &dyn Experiment, mc: &McConfig) -> Self {
+        SumsShape {
+            runs: mc.runs(),
+            steps: mc.steps(),
+            lags: mc.lags(),
+            n_x: experiment.state_names().len(),
+            n_z: experiment.measurement_names().len(),
+        }
+    }
+
+    fn empty(&self) -> Accumulator {
+        Accumulator::new(self.steps, self.n_x, self.n_z, self.lags)
+    }
+
+    /// Chunks of the evaluation.
+    fn chunks(&self) -> usize {
+        self.runs.div_ceil(CHUNK)
+    }
+
+    fn chunk(&self, c: usize) -> ChunkShape {
+        ChunkShape {
+            runs: c * CHUNK..(c * CHUNK + CHUNK).min(self.runs),
+            steps: self.steps,
+            lags: self.lags,
+            n_x: self.n_x,
+            n_z: self.n_z,
+        }
+    }
+
+    /// Chunk `c`'s sums in the sums format (the runs' fingerprints, which only a worker's
+    /// seed-contract check reads, as zeros).
+    fn encode(&self, c: usize, sums: &Accumulator) -> Vec<u8> {
+        let shape = self.chunk(c);
+        let chunk = ChunkSums {
+            sums: sums.clone(),
+            prints: vec![0; shape.runs.len()],
+        };
+        encode_sums_bytes(&chunk, &shape)
+    }
+
+    /// Chunk `c`'s sums from the sums format, checked against its shape.
+    fn decode(&self, c: usize, bytes: &[u8]) -> Result<Accumulator, WireError> {
+        decode_sums_bytes(bytes, &self.chunk(c)).map(|chunk| chunk.sums)
+    }
 }

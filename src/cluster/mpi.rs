@@ -21,14 +21,13 @@ use std::time::Instant;
 use mpi::topology::SimpleCommunicator;
 use mpi::traits::{Communicator, Destination, Source};
 
-use super::{empty_sums, share_sums};
+use super::{SumsShape, empty_sums, share_sums};
 use crate::experiment::{
     Alteration, Block, Covariances, Definition, Experiment, ExperimentError, LinearExperiment,
     TruthReuse,
 };
-use crate::montecarlo::{CHUNK, Engine, McConfig, RunOptions, Share, TapeUsage};
+use crate::montecarlo::{Engine, McConfig, RunOptions, Share, TapeUsage};
 use crate::params::Target;
-use crate::records::{ChunkShape, ChunkSums, decode_sums_bytes, encode_sums_bytes};
 use crate::stats::{Accumulator, GateMode};
 
 /// Requests from rank 0 travel with this tag; answers with the request's own.
@@ -305,26 +304,12 @@ impl Request {
     }
 }
 
-fn shape(mc: &McConfig, experiment: &dyn Experiment, chunk: usize) -> ChunkShape {
-    ChunkShape {
-        runs: chunk * CHUNK..(chunk * CHUNK + CHUNK).min(mc.runs()),
-        steps: mc.steps(),
-        lags: mc.lags(),
-        n_x: experiment.state_names().len(),
-        n_z: experiment.measurement_names().len(),
-    }
-}
-
 /// A rank's chunk sums: the count, then each chunk's index, length and sums format bytes.
 fn encode_answer(parts: &[(usize, Accumulator)], mc: &McConfig, e: &dyn Experiment) -> Vec<u8> {
+    let shape = SumsShape::of(e, mc);
     let mut out = (parts.len() as u64).to_le_bytes().to_vec();
     for (c, sums) in parts {
-        let shape = shape(mc, e, *c);
-        let chunk = ChunkSums {
-            sums: sums.clone(),
-            prints: vec![0; shape.runs.len()],
-        };
-        let bytes = encode_sums_bytes(&chunk, &shape);
+        let bytes = shape.encode(*c, sums);
         out.extend_from_slice(&(*c as u64).to_le_bytes());
         out.extend_from_slice(&(bytes.len() as u64).to_le_bytes());
         out.extend_from_slice(&bytes);
@@ -344,6 +329,7 @@ fn decode_answer(
         usize::try_from(u64::from_le_bytes(b.try_into().expect("8 bytes")))
             .map_err(|_| "a count out of range".to_string())
     }
+    let shape = SumsShape::of(e, mc);
     let n = word(bytes, &mut at)?;
     let mut parts = Vec::with_capacity(n.min(1 << 16));
     for _ in 0..n {
@@ -353,11 +339,10 @@ fn decode_answer(
             .get(at..at.saturating_add(len))
             .ok_or("it ends early")?;
         at += len;
-        if c >= mc.runs().div_ceil(CHUNK) {
+        if c >= shape.chunks() {
             return Err(format!("chunk {c} is beyond the evaluation's runs"));
         }
-        let sums = decode_sums_bytes(body, &shape(mc, e, c)).map_err(|e| e.to_string())?;
-        parts.push((c, sums.sums));
+        parts.push((c, shape.decode(c, body).map_err(|e| e.to_string())?));
     }
     Ok(parts)
 }

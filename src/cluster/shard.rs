@@ -14,10 +14,10 @@ use base64::Engine as _;
 use base64::engine::general_purpose::STANDARD;
 use serde::{Deserialize, Serialize};
 
+use super::SumsShape;
 use crate::experiment::Experiment;
 use crate::input::SettingError;
-use crate::montecarlo::{CHUNK, Engine, McConfig, Share};
-use crate::records::{ChunkShape, ChunkSums, decode_sums_bytes, encode_sums_bytes};
+use crate::montecarlo::{Engine, McConfig, Share};
 use crate::stats::{Accumulator, GateMode};
 
 /// The `format` field of a shard file.
@@ -170,31 +170,27 @@ fn value_name<V: clap::ValueEnum>(v: V) -> String {
         .unwrap_or_default()
 }
 
-fn shape(s: &ShardSettings, chunk: usize) -> ChunkShape {
-    ChunkShape {
-        runs: chunk * CHUNK..(chunk * CHUNK + CHUNK).min(s.runs),
-        steps: s.steps,
-        lags: s.lags,
-        n_x: s.n_x,
-        n_z: s.n_z,
+impl ShardSettings {
+    fn shape(&self) -> SumsShape {
+        SumsShape {
+            runs: self.runs,
+            steps: self.steps,
+            lags: self.lags,
+            n_x: self.n_x,
+            n_z: self.n_z,
+        }
     }
 }
 
 impl ShardFile {
     /// The file of `share`'s chunk sums `parts` under `settings`.
     pub fn new(settings: ShardSettings, share: Share, parts: &[(usize, Accumulator)]) -> Self {
+        let shape = settings.shape();
         let chunks = parts
             .iter()
-            .map(|(c, sums)| {
-                let shape = shape(&settings, *c);
-                let chunk = ChunkSums {
-                    sums: sums.clone(),
-                    prints: vec![0; shape.runs.len()],
-                };
-                ShardChunk {
-                    chunk: *c,
-                    sums: STANDARD.encode(encode_sums_bytes(&chunk, &shape)),
-                }
+            .map(|(c, sums)| ShardChunk {
+                chunk: *c,
+                sums: STANDARD.encode(shape.encode(*c, sums)),
             })
             .collect();
         ShardFile {
@@ -321,11 +317,12 @@ pub fn merge(files: &[(PathBuf, ShardFile)]) -> Result<Merged, MergeRefusal> {
         ));
     }
     let (theta, mc, engine) = setup(s).map_err(|why| refuse(first_path, why))?;
+    let shape = s.shape();
     let mut parts = Vec::new();
     for (path, f) in files {
         let share = Share::new(f.shard.index, count).map_err(|e| refuse(path, e.to_string()))?;
         for c in &f.chunks {
-            if !share.owns_chunk(c.chunk) || c.chunk >= s.runs.div_ceil(CHUNK) {
+            if !share.owns_chunk(c.chunk) || c.chunk >= shape.chunks() {
                 return Err(refuse(
                     path,
                     format!("chunk {} is not shard {}/{count}'s", c.chunk, f.shard.index),
@@ -334,13 +331,14 @@ pub fn merge(files: &[(PathBuf, ShardFile)]) -> Result<Merged, MergeRefusal> {
             let bytes = STANDARD
                 .decode(&c.sums)
                 .map_err(|e| refuse(path, format!("chunk {}: not base64: {e}", c.chunk)))?;
-            let sums = decode_sums_bytes(&bytes, &shape(s, c.chunk))
+            let sums = shape
+                .decode(c.chunk, &bytes)
                 .map_err(|e| refuse(path, format!("chunk {}: {e}", c.chunk)))?;
-            parts.push((c.chunk, sums.sums));
+            parts.push((c.chunk, sums));
         }
     }
-    let empty = Accumulator::new(s.steps, s.n_x, s.n_z, s.lags);
-    let sums = Share::merge(s.runs, empty, parts).map_err(|e| refuse(first_path, e.to_string()))?;
+    let sums = Share::merge(s.runs, shape.empty(), parts)
+        .map_err(|e| refuse(first_path, e.to_string()))?;
     Ok(Merged {
         settings: s.clone(),
         theta,

@@ -268,6 +268,12 @@ fn px4_logs_agree_with_the_pyulog_reference() {
             assert_eq!(s["dropped"]["repeats"], c["repeats"], "{}", at("repeats"));
             assert_eq!(s["dropped"]["idle"], c["idle"], "{}", at("idle"));
             assert_eq!(s["dropped"]["invalid"], c["invalid"], "{}", at("invalid"));
+            assert_eq!(
+                s["dropped"]["zero_innovation"],
+                c["zero_innovation"],
+                "{}",
+                at("zero innovation")
+            );
             assert_eq!(s["outliers"], c["outliers"], "{}", at("outliers"));
             if let Some(m) = c["nis_mean"].as_f64() {
                 close(s["nis"]["mean"].as_f64().unwrap(), m, 1e-9, &at("nis mean"));
@@ -345,6 +351,20 @@ fn px4_logs_agree_with_the_pyulog_reference() {
                 let l = listed.iter().find(|n| n["name"] == name.as_str()).unwrap();
                 assert_eq!(l["dropped"]["idle"], c["idle"], "{key} {name}");
                 assert_eq!(l["dropped"]["invalid"], c["invalid"], "{key} {name}");
+            }
+        }
+        // Channels with updates that cannot be judged (the vertical gravity component; the
+        // horizontal ones when every update came at rest) are listed as not judged.
+        if let Some(nj) = expected.get("_not_judged").and_then(Value::as_array) {
+            let listed: Vec<&str> = v["sources"][0]["px4"]["not_judged"]
+                .as_array()
+                .unwrap()
+                .iter()
+                .filter_map(|n| n["name"].as_str())
+                .collect();
+            for name in nj {
+                let name = name.as_str().unwrap();
+                assert!(listed.contains(&name), "{key}: {name} not in {listed:?}");
             }
         }
         // The pairing of the two topics, per instance, is in the notes.

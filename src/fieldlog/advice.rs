@@ -104,6 +104,9 @@ struct Tally {
     /// Per estimator: its sensors, how many sit at each level, and the pooled lag-1
     /// correlation.
     groups: HashMap<String, (usize, HashMap<i32, usize>, Pooled)>,
+    /// Per estimator: how many of its sensors pass (a sensor at its level but inconclusive,
+    /// not white or biased does not fit, and says nothing for or against a shared Q).
+    fits: HashMap<String, usize>,
     /// The axes of one sensor (`ekf1.gnss_pos[0]`, `ekf1.gnss_pos[1]`) share its R: off
     /// together while the other sensors fit, they blame that sensor, not the estimator.
     families: Families,
@@ -115,7 +118,11 @@ impl Tally {
     fn of(sensors: &[SensorReport]) -> Tally {
         let mut groups: HashMap<String, (usize, HashMap<i32, usize>, Pooled)> = HashMap::new();
         let mut families: Families = HashMap::new();
+        let mut fits: HashMap<String, usize> = HashMap::new();
         for s in sensors {
+            if s.verdict.passes() {
+                *fits.entry(s.group.clone()).or_default() += 1;
+            }
             let g = groups.entry(s.group.clone()).or_default();
             g.0 += 1;
             *g.1.entry(s.level()).or_default() += 1;
@@ -135,6 +142,7 @@ impl Tally {
             .collect();
         Tally {
             groups,
+            fits,
             families,
             devs,
         }
@@ -332,13 +340,14 @@ fn components_disagree(components_off: &[(String, i32)]) -> (Option<Suspect>, St
 /// all off the same way (the pooled lag-1 correlation tells Q from every R), this one off
 /// alone (its R), or neither (the table of [`blame`]).
 fn among_peers(s: &SensorReport, lv: i32, tally: &Tally, z: f64) -> (Option<Suspect>, String) {
-    // The other sensors of its estimator: how many, and how many at its level and at 0.
-    let (peers, at_own, at_zero, pooled) = match tally.groups.get(&s.group) {
+    // The other sensors of its estimator: how many, how many at its level, and how many
+    // fit (pass: a level of 0 alone may be an inconclusive or biased sensor).
+    let (peers, at_own, fit, pooled) = match tally.groups.get(&s.group) {
         Some((n, by_level, pooled)) => {
-            let count = |l: i32| by_level.get(&l).copied().unwrap_or(0);
-            let own = count(lv).saturating_sub(1);
-            let zero = count(0).saturating_sub(usize::from(lv == 0));
-            (n.saturating_sub(1), own, zero, *pooled)
+            let own = by_level.get(&lv).copied().unwrap_or(0).saturating_sub(1);
+            let fit = tally.fits.get(&s.group).copied().unwrap_or(0);
+            let fit = fit.saturating_sub(usize::from(s.verdict.passes()));
+            (n.saturating_sub(1), own, fit, *pooled)
         }
         None => (0, 0, 0, Pooled::default()),
     };
@@ -377,7 +386,7 @@ fn among_peers(s: &SensorReport, lv: i32, tally: &Tally, z: f64) -> (Option<Susp
                 ),
             )
         }
-    } else if off_alone(s, lv, peers, at_zero, &tally.families, &tally.devs) {
+    } else if off_alone(s, lv, peers, fit, &tally.families, &tally.devs) {
         (
             Some(Suspect::R),
             format!("{dir} this sensor's R (the other sensors of this estimator fit)"),
@@ -395,16 +404,16 @@ const WANDER_SHARE: f64 = 0.25;
 /// Per (estimator, sensor family): how many sensors, and how many at each level.
 type Families = HashMap<(String, String), (usize, HashMap<i32, usize>)>;
 
-/// Whether sensor `s` (at level `lv`, with `peers` others in its estimator of which
-/// `at_zero` fit) is off alone: no other sensor (its own axes aside) off the same way by
-/// more than a third of its log-ratio, and most of them fit. A Q they share would move them
-/// too, so its own R is blamed; one other sensor failing slightly (1 in 20 do at α) does
-/// not make it shared.
+/// Whether sensor `s` (at level `lv`, with `peers` others in its estimator of which `fit`
+/// pass) is off alone: no other sensor (its own axes aside) off the same way by more than a
+/// third of its log-ratio, and most of them fit. A Q they share would move them too, so its
+/// own R is blamed; one other sensor failing slightly (1 in 20 do at α) does not make it
+/// shared. Sensors that are inconclusive or fail otherwise do not count as fitting.
 fn off_alone(
     s: &SensorReport,
     lv: i32,
     peers: usize,
-    at_zero: usize,
+    fit: usize,
     families: &Families,
     devs: &[(String, String, i32, f64)],
 ) -> bool {
@@ -418,7 +427,7 @@ fn off_alone(
         .iter()
         .filter(|(g, f, l, d)| *g == s.group && *f != fam && *l == lv && *d > dev / 3.0)
         .count();
-    others > 0 && alike == 0 && at_zero * 2 >= others && at_zero > 0
+    others > 0 && alike == 0 && fit * 2 >= others && fit > 0
 }
 
 /// How far a sensor's gated NIS average is from its target, `|ln(mean / target)|` (0 when

@@ -111,6 +111,9 @@ pub struct Dropped {
     pub invalid: usize,
     /// Rows outside the in-air time, when restricted to it.
     pub on_ground: usize,
+    /// Rows whose innovation is exactly 0 beside a positive variance: no draw of `N(0, S)`
+    /// is exactly 0, so such a row is a placeholder, not a fusion (PX4 logs).
+    pub zero_innovation: usize,
 }
 
 /// Quantiles and truncated moments of `χ²(m)` for one m.
@@ -338,6 +341,7 @@ impl NisAnalyzer {
         s.idle += d.idle;
         s.invalid += d.invalid;
         s.on_ground += d.on_ground;
+        s.zero_innovation += d.zero_innovation;
     }
 
     /// A new sequence starts (another file, run or estimator reset): whiteness pairs and the

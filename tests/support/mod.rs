@@ -1,5 +1,6 @@
-//! Test support for issue 23: a ULog writer and PX4 fixtures with known truth.
+//! Test support for issues 23 and 37: a ULog writer and PX4 fixtures with known truth.
 #![allow(dead_code)]
 
 pub mod px4_fixtures;
+pub mod px4_fixtures_issue37;
 pub mod ulog;

@@ -119,7 +119,7 @@ pub struct Truth {
 }
 
 impl Truth {
-    fn new(name: &'static str, ver: u32) -> Self {
+    pub fn new(name: &'static str, ver: u32) -> Self {
         Truth {
             name,
             ver_sw_release: ver,
@@ -147,11 +147,11 @@ impl Truth {
     }
 }
 
-fn rng(seed: u64) -> Xoshiro256PlusPlus {
+pub fn rng(seed: u64) -> Xoshiro256PlusPlus {
     Xoshiro256PlusPlus::seed_from_u64(seed)
 }
 
-fn normal(r: &mut Xoshiro256PlusPlus) -> f64 {
+pub fn normal(r: &mut Xoshiro256PlusPlus) -> f64 {
     r.sample(StandardNormal)
 }
 
@@ -161,10 +161,10 @@ fn flying(t: f64) -> bool {
 
 /// A row under construction: field name → elements.
 #[derive(Default)]
-struct Row(BTreeMap<&'static str, Vec<f64>>);
+pub struct Row(BTreeMap<&'static str, Vec<f64>>);
 
 impl Row {
-    fn set(&mut self, field: &'static str, idx: usize, v: f64) -> &mut Self {
+    pub fn set(&mut self, field: &'static str, idx: usize, v: f64) -> &mut Self {
         let e = self.0.entry(field).or_default();
         if e.len() <= idx {
             e.resize(idx + 1, 0.0);
@@ -172,14 +172,14 @@ impl Row {
         e[idx] = v;
         self
     }
-    fn times(&mut self, t_us: u64, sample_us: Option<u64>) -> &mut Self {
+    pub fn times(&mut self, t_us: u64, sample_us: Option<u64>) -> &mut Self {
         self.set("timestamp", 0, t_us as f64);
         if let Some(s) = sample_us {
             self.set("timestamp_sample", 0, s as f64);
         }
         self
     }
-    fn write(&self, w: &mut ULogWriter, topic: &str, multi: u8) {
+    pub fn write(&self, w: &mut ULogWriter, topic: &str, multi: u8) {
         let v: Vec<(&str, &[f64])> = self.0.iter().map(|(k, v)| (*k, v.as_slice())).collect();
         w.data(topic, multi, &v);
     }
@@ -197,21 +197,21 @@ fn split(field: &'static str) -> (&'static str, usize) {
     }
 }
 
-const INNOV_V111: &str = "uint64_t timestamp;float[2] gps_hvel;float gps_vvel;float[2] gps_hpos;float gps_vpos;float[2] ev_hvel;float ev_vvel;float[2] ev_hpos;float ev_vpos;float rng_vpos;float baro_vpos;float[2] aux_hvel;float aux_vvel;float[2] flow;float heading;float[3] mag_field;float[2] drag;float airspeed;float beta;float hagl;";
+pub const INNOV_V111: &str = "uint64_t timestamp;float[2] gps_hvel;float gps_vvel;float[2] gps_hpos;float gps_vpos;float[2] ev_hvel;float ev_vvel;float[2] ev_hpos;float ev_vpos;float rng_vpos;float baro_vpos;float[2] aux_hvel;float aux_vvel;float[2] flow;float heading;float[3] mag_field;float[2] drag;float airspeed;float beta;float hagl;";
 const INNOV_V113: &str = "uint64_t timestamp;uint64_t timestamp_sample;float[2] gps_hvel;float gps_vvel;float[2] gps_hpos;float gps_vpos;float[2] ev_hvel;float ev_vvel;float[2] ev_hpos;float ev_vpos;float rng_vpos;float baro_vpos;float[2] aux_hvel;float aux_vvel;float[2] flow;float heading;float[3] mag_field;float[2] drag;float airspeed;float beta;float hagl;float hagl_rate;uint8_t[4] _padding0;";
 const INNOV_TOPICS: [&str; 3] = [
     "estimator_innovations",
     "estimator_innovation_variances",
     "estimator_innovation_test_ratios",
 ];
-const STATUS_V111: &str = "uint64_t timestamp;float[24] states;float[3] vibe;float[24] covariances;float[3] output_tracking_error;uint32_t control_mode_flags;uint32_t filter_fault_flags;float pos_horiz_accuracy;float pos_vert_accuracy;float mag_test_ratio;float vel_test_ratio;float pos_test_ratio;float hgt_test_ratio;float tas_test_ratio;float hagl_test_ratio;float beta_test_ratio;float time_slip;uint16_t gps_check_fail_flags;uint16_t innovation_check_flags;uint16_t solution_status_flags;uint8_t n_states;uint8_t health_flags;uint8_t timeout_flags;bool pre_flt_fail_innov_heading;bool pre_flt_fail_innov_vel_horiz;bool pre_flt_fail_innov_vel_vert;bool pre_flt_fail_innov_height;bool pre_flt_fail_mag_field_disturbed;uint8_t[4] _padding0;";
+pub const STATUS_V111: &str = "uint64_t timestamp;float[24] states;float[3] vibe;float[24] covariances;float[3] output_tracking_error;uint32_t control_mode_flags;uint32_t filter_fault_flags;float pos_horiz_accuracy;float pos_vert_accuracy;float mag_test_ratio;float vel_test_ratio;float pos_test_ratio;float hgt_test_ratio;float tas_test_ratio;float hagl_test_ratio;float beta_test_ratio;float time_slip;uint16_t gps_check_fail_flags;uint16_t innovation_check_flags;uint16_t solution_status_flags;uint8_t n_states;uint8_t health_flags;uint8_t timeout_flags;bool pre_flt_fail_innov_heading;bool pre_flt_fail_innov_vel_horiz;bool pre_flt_fail_innov_vel_vert;bool pre_flt_fail_innov_height;bool pre_flt_fail_mag_field_disturbed;uint8_t[4] _padding0;";
 const STATUS_FLAGS_V113: &str = "uint64_t timestamp;uint64_t timestamp_sample;uint32_t control_status_changes;uint32_t fault_status_changes;uint32_t innovation_fault_status_changes;bool cs_tilt_align;bool cs_yaw_align;bool cs_gps;bool cs_opt_flow;bool cs_mag_hdg;bool cs_mag_3d;bool cs_mag_dec;bool cs_in_air;bool cs_wind;bool cs_baro_hgt;bool cs_rng_hgt;bool cs_gps_hgt;bool cs_ev_pos;bool cs_ev_yaw;bool cs_ev_hgt;bool cs_fuse_beta;bool cs_mag_field_disturbed;bool cs_fixed_wing;bool cs_mag_fault;bool cs_fuse_aspd;bool cs_gnd_effect;bool cs_rng_stuck;bool cs_gps_yaw;bool cs_mag_aligned_in_flight;bool cs_ev_vel;bool cs_synthetic_mag_z;bool cs_vehicle_at_rest;bool cs_gps_yaw_fault;bool cs_rng_fault;bool cs_inertial_dead_reckoning;bool cs_wind_dead_reckoning;bool cs_rng_kin_consistent;bool fs_bad_mag_x;bool fs_bad_mag_y;bool fs_bad_mag_z;bool fs_bad_hdg;bool fs_bad_mag_decl;bool fs_bad_airspeed;bool fs_bad_sideslip;bool fs_bad_optflow_x;bool fs_bad_optflow_y;bool fs_bad_vel_n;bool fs_bad_vel_e;bool fs_bad_vel_d;bool fs_bad_pos_n;bool fs_bad_pos_e;bool fs_bad_pos_d;bool fs_bad_acc_bias;bool fs_bad_acc_vertical;bool fs_bad_acc_clipping;bool reject_hor_vel;bool reject_ver_vel;bool reject_hor_pos;bool reject_ver_pos;bool reject_mag_x;bool reject_mag_y;bool reject_mag_z;bool reject_yaw;bool reject_airspeed;bool reject_sideslip;bool reject_hagl;bool reject_optflow_x;bool reject_optflow_y;uint8_t[5] _padding0;";
 const STATUS_FLAGS_V115: &str = "uint64_t timestamp;uint64_t timestamp_sample;uint32_t control_status_changes;uint32_t fault_status_changes;uint32_t innovation_fault_status_changes;bool cs_tilt_align;bool cs_yaw_align;bool cs_gps;bool cs_opt_flow;bool cs_mag_hdg;bool cs_mag_3d;bool cs_mag_dec;bool cs_in_air;bool cs_wind;bool cs_baro_hgt;bool cs_rng_hgt;bool cs_gps_hgt;bool cs_ev_pos;bool cs_ev_yaw;bool cs_ev_hgt;bool cs_fuse_beta;bool cs_mag_field_disturbed;bool cs_fixed_wing;bool cs_mag_fault;bool cs_fuse_aspd;bool cs_gnd_effect;bool cs_rng_stuck;bool cs_gps_yaw;bool cs_mag_aligned_in_flight;bool cs_ev_vel;bool cs_synthetic_mag_z;bool cs_vehicle_at_rest;bool cs_gps_yaw_fault;bool cs_rng_fault;bool cs_inertial_dead_reckoning;bool cs_wind_dead_reckoning;bool cs_rng_kin_consistent;bool cs_fake_pos;bool cs_fake_hgt;bool cs_gravity_vector;bool cs_mag;bool cs_ev_yaw_fault;bool cs_mag_heading_consistent;bool cs_aux_gpos;bool fs_bad_mag_x;bool fs_bad_mag_y;bool fs_bad_mag_z;bool fs_bad_hdg;bool fs_bad_mag_decl;bool fs_bad_airspeed;bool fs_bad_sideslip;bool fs_bad_optflow_x;bool fs_bad_optflow_y;bool fs_bad_vel_n;bool fs_bad_vel_e;bool fs_bad_vel_d;bool fs_bad_pos_n;bool fs_bad_pos_e;bool fs_bad_pos_d;bool fs_bad_acc_bias;bool fs_bad_acc_vertical;bool fs_bad_acc_clipping;bool reject_hor_vel;bool reject_ver_vel;bool reject_hor_pos;bool reject_ver_pos;bool reject_yaw;bool reject_airspeed;bool reject_sideslip;bool reject_hagl;bool reject_optflow_x;bool reject_optflow_y;uint8_t _padding0;";
 const SELECTOR_V113: &str = "uint64_t timestamp;uint64_t last_instance_change;uint32_t instance_changed_count;uint32_t accel_device_id;uint32_t baro_device_id;uint32_t gyro_device_id;uint32_t mag_device_id;float[9] combined_test_ratio;float[9] relative_test_ratio;float[4] accumulated_gyro_error;float[4] accumulated_accel_error;uint8_t primary_instance;uint8_t instances_available;bool[9] healthy;bool gyro_fault_detected;bool accel_fault_detected;uint8_t[7] _padding0;";
-const LAND_V111: &str = "uint64_t timestamp;float alt_max;bool freefall;bool ground_contact;bool maybe_landed;bool landed;bool in_ground_effect;uint8_t[3] _padding0;";
+pub const LAND_V111: &str = "uint64_t timestamp;float alt_max;bool freefall;bool ground_contact;bool maybe_landed;bool landed;bool in_ground_effect;uint8_t[3] _padding0;";
 const LAND_V113: &str = "uint64_t timestamp;bool freefall;bool ground_contact;bool maybe_landed;bool landed;bool in_ground_effect;bool in_descend;bool has_low_throttle;bool vertical_movement;bool horizontal_movement;bool close_to_ground_or_skipped_check;bool at_rest;uint8_t[5] _padding0;";
 const LAND_V115: &str = "uint64_t timestamp;bool freefall;bool ground_contact;bool maybe_landed;bool landed;bool in_ground_effect;bool in_descend;bool has_low_throttle;bool vertical_movement;bool horizontal_movement;bool rotational_movement;bool close_to_ground_or_skipped_check;bool at_rest;uint8_t[4] _padding0;";
-const AIR_DATA_V111: &str = "uint64_t timestamp;uint32_t baro_device_id;float baro_alt_meter;float baro_temp_celcius;float baro_pressure_pa;float rho;uint8_t[4] _padding0;";
+pub const AIR_DATA_V111: &str = "uint64_t timestamp;uint32_t baro_device_id;float baro_alt_meter;float baro_temp_celcius;float baro_pressure_pa;float rho;uint8_t[4] _padding0;";
 const LEGACY_INNOV: &str = "uint64_t timestamp;float[6] vel_pos_innov;float[3] mag_innov;float heading_innov;float airspeed_innov;float beta_innov;float[2] flow_innov;float hagl_innov;float[6] vel_pos_innov_var;float[3] mag_innov_var;float heading_innov_var;float airspeed_innov_var;float beta_innov_var;float[2] flow_innov_var;float hagl_innov_var;";
 const AID_1D: &str = "uint64_t timestamp;uint64_t timestamp_sample;uint64_t time_last_fuse;uint32_t device_id;float observation;float observation_variance;float innovation;float innovation_variance;float test_ratio;uint8_t estimator_instance;bool innovation_rejected;bool fused;uint8_t[5] _padding0;";
 const AID_2D: &str = "uint64_t timestamp;uint64_t timestamp_sample;uint64_t time_last_fuse;uint32_t device_id;float[2] observation;float[2] observation_variance;float[2] innovation;float[2] innovation_variance;float[2] test_ratio;uint8_t estimator_instance;bool innovation_rejected;bool fused;uint8_t _padding0;";
@@ -236,7 +236,7 @@ const EKF2_PARAMS: [(&str, f64); 14] = [
 ];
 
 /// The header, info and parameters of an EKF2 log; `over` replaces defaults.
-fn ekf2_log(truth: &mut Truth, est_group: i32, over: &[(&str, f64)]) -> ULogWriter {
+pub fn ekf2_log(truth: &mut Truth, est_group: i32, over: &[(&str, f64)]) -> ULogWriter {
     let mut w = ULogWriter::new(T0_US - 500_000);
     w.info_str("sys_name", "PX4")
         .info_str("ver_hw", "AUTOTUNE_FIXTURE")

@@ -3,8 +3,9 @@
 
 use std::path::Path;
 
+use super::channel::{ChannelId, Row, Shape, judge_channel, sort_rows};
 use super::read::{AID_SRC, Topic};
-use super::{Ctx, NotJudged, Px4Info, Row, estimator, judge_channel, sort_rows};
+use super::{Ctx, NotJudged, Px4Info, estimator};
 use crate::fieldlog::LogSource;
 use crate::fieldlog::analysis::NisAnalyzer;
 use crate::input::FileError;
@@ -117,20 +118,20 @@ fn read_axis(
         })
         .collect();
     let source = estimator::Source::Always(aid_words(src));
-    let sorted = sort_rows(ctx, &rows, &source, None);
-    let base = src.to_string();
-    judge_channel(
-        ctx,
-        path,
-        an,
-        info,
+    // The flags still say when the vehicle was at rest (gravity's updates there say nothing
+    // about its noise); an aid-source row says itself whether it was fused.
+    let flags = estimator::Flags::of(ctx.read, inst);
+    let shape = Shape::of(src, axis);
+    let sorted = sort_rows(ctx, &rows, &source, flags.as_ref(), shape);
+    let id = ChannelId {
         inst,
-        &name,
-        &base,
-        &source,
-        topic.rate_hz(),
-        sorted,
-    )
+        name: &name,
+        base: src,
+        source: &source,
+        shape,
+        logged_hz: topic.rate_hz(),
+    };
+    judge_channel(ctx, path, an, info, &id, sorted)
 }
 
 fn aid_words(src: &str) -> &'static str {

@@ -54,9 +54,7 @@ fn advise(s: &SensorReport, info: &Px4Info) -> Vec<ParamAdvice> {
             let Some(param) = ch.noise_param.clone() else {
                 return Vec::new();
             };
-            let unit = ekf2::noise_param(s.name.split_once('.').map_or(&s.name, |x| x.1), None)
-                .map_or("", |x| x.1)
-                .to_string();
+            let unit = ch.unit.clone().unwrap_or_default();
             let value = info.params.get(&param).copied();
             let dir = if ratio > 1.0 { "increase" } else { "decrease" };
             let suggested =
@@ -110,6 +108,13 @@ fn advise(s: &SensorReport, info: &Px4Info) -> Vec<ParamAdvice> {
 /// Attach each PX4 channel's EKF view to its sensor, and give a finding on R or Q its EKF2
 /// parameters.
 pub(in crate::fieldlog) fn annotate(report: &mut NisReport) {
+    let warnings: Vec<String> = report
+        .sources
+        .iter()
+        .filter_map(|s| s.px4.as_ref())
+        .flat_map(|p| p.warnings.iter().cloned())
+        .collect();
+    report.warnings.extend(warnings);
     let infos: Vec<&Px4Info> = report
         .sources
         .iter()

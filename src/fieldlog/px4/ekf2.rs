@@ -11,7 +11,11 @@
 //! the mean observation variance the EKF logged (aid-source topics) or else the parameter
 //! squared. When `R + (r − 1) S̄ ≤ 0`, no R gives the change: the suggestion is withheld.
 
+use std::collections::BTreeMap;
+
 use serde::Serialize;
+
+use super::estimator::{self, Source};
 
 /// A parameter to change, with the log's value and the suggested one.
 #[derive(Debug, Clone, PartialEq, Serialize)]
@@ -29,13 +33,16 @@ pub struct ParamAdvice {
 }
 
 /// The measurement-noise parameter of a channel (the name after `ekfN.`), and its unit.
-/// `active` says which aiding sources are fused while the channel updates, for the channels
-/// several sources share (heading: magnetometer, external vision or GNSS yaw).
-pub fn noise_param(
-    channel: &str,
-    heading_source: Option<&str>,
-) -> Option<(&'static str, &'static str)> {
+/// `fused` says which aiding source was fused while the channel updated (see
+/// [`fused_source`]: `baro`, `gps`, `rng`, `ev`, `gnss`), for the channels several sources
+/// share: heading (magnetometer, vision or GNSS yaw) and the legacy `vel_pos` (velocity and
+/// position from GPS or vision, height from baro, GPS, range finder or vision), which has
+/// no parameter when the source is not known.
+pub fn noise_param(channel: &str, fused: Option<&str>) -> Option<(&'static str, &'static str)> {
     let base = channel.split('[').next().unwrap_or(channel);
+    let idx: Option<usize> = channel
+        .split_once('[')
+        .and_then(|(_, i)| i.trim_end_matches(']').parse().ok());
     Some(match base {
         "gps_hpos" | "gps_vpos" | "gnss_pos" | "gnss_hgt" => ("EKF2_GPS_P_NOISE", "m"),
         "gps_hvel" | "gps_vvel" | "gnss_vel" => ("EKF2_GPS_V_NOISE", "m/s"),
@@ -45,10 +52,19 @@ pub fn noise_param(
         "ev_hvel" | "ev_vvel" | "ev_vel" => ("EKF2_EVV_NOISE", "m/s"),
         "ev_yaw" => ("EKF2_EVA_NOISE", "rad"),
         "mag_field" | "mag" => ("EKF2_MAG_NOISE", "gauss"),
-        "heading" | "mag_heading" => match heading_source {
+        "heading" | "mag_heading" => match fused {
             Some("ev") => ("EKF2_EVA_NOISE", "rad"),
             Some("gnss") => return None,
             _ => ("EKF2_HEAD_NOISE", "rad"),
+        },
+        "vel_pos" => match (idx?, fused?) {
+            (0..=2, "gps") => ("EKF2_GPS_V_NOISE", "m/s"),
+            (0..=2, "ev") => ("EKF2_EVV_NOISE", "m/s"),
+            (3..=5, "gps") => ("EKF2_GPS_P_NOISE", "m"),
+            (3..=5, "ev") => ("EKF2_EVP_NOISE", "m"),
+            (5, "baro") => ("EKF2_BARO_NOISE", "m"),
+            (5, "rng") => ("EKF2_RNG_NOISE", "m"),
+            _ => return None,
         },
         "airspeed" => ("EKF2_EAS_NOISE", "m/s"),
         "beta" | "sideslip" => ("EKF2_BETA_NOISE", "rad"),
@@ -57,6 +73,57 @@ pub fn noise_param(
         "flow" | "optical_flow" => ("EKF2_OF_N_MIN", "rad/s"),
         _ => return None,
     })
+}
+
+/// The flags that fuse a shared channel's candidate sources, and each one's key for
+/// [`noise_param`].
+const SOURCE_KEYS: [(&str, &str); 10] = [
+    ("baro_hgt", "baro"),
+    ("gps_hgt", "gps"),
+    ("rng_hgt", "rng"),
+    ("ev_hgt", "ev"),
+    ("gps", "gps"),
+    ("ev_vel", "ev"),
+    ("ev_pos", "ev"),
+    ("mag_hdg", "mag"),
+    ("ev_yaw", "ev"),
+    ("gps_yaw", "gnss"),
+];
+
+/// Which of a channel's sources was fused (a key of [`SOURCE_KEYS`]): the one candidate flag
+/// set on every judged update (`all`: the flags set on all of them), or else, for a height
+/// channel, the primary height source `EKF2_HGT_MODE` names (0 baro, 1 GPS, 2 range finder,
+/// 3 vision); None when neither says.
+pub(super) fn fused_source(
+    source: &Source,
+    all: Option<u64>,
+    params: &BTreeMap<String, f64>,
+) -> Option<&'static str> {
+    let candidates = match source {
+        Source::Sensor { flags, .. } | Source::HorizontalPosition { flags, .. } => flags,
+        Source::Always(_) => return None,
+    };
+    let keys: Vec<&str> = SOURCE_KEYS
+        .iter()
+        .filter(|(flag, _)| candidates.contains(flag))
+        .filter(|(flag, _)| all.is_some_and(|f| estimator::has(f, flag)))
+        .map(|(_, key)| *key)
+        .collect();
+    match keys.as_slice() {
+        [one] => return Some(one),
+        [first, rest @ ..] if rest.iter().all(|k| k == first) => return Some(first),
+        _ => {}
+    }
+    if !candidates.contains(&"baro_hgt") {
+        return None;
+    }
+    match params.get("EKF2_HGT_MODE").map(|v| *v as i64) {
+        Some(0) => Some("baro"),
+        Some(1) => Some("gps"),
+        Some(2) => Some("rng"),
+        Some(3) => Some("ev"),
+        _ => None,
+    }
 }
 
 /// The process-noise parameters every channel of an estimator shares, with units.
@@ -118,6 +185,16 @@ mod tests {
             Some(("EKF2_EVA_NOISE", "rad"))
         );
         assert_eq!(noise_param("aux_hvel[0]", None), None);
+        // The legacy vel_pos has a parameter only once its source is known.
+        assert_eq!(noise_param("vel_pos[5]", None), None);
+        assert_eq!(
+            noise_param("vel_pos[5]", Some("baro")),
+            Some(("EKF2_BARO_NOISE", "m"))
+        );
+        assert_eq!(
+            noise_param("vel_pos[4]", Some("gps")),
+            Some(("EKF2_GPS_P_NOISE", "m"))
+        );
         assert_eq!(sig3(2.4375), "2.44");
         assert_eq!(sig3(0.0123456), "0.0123");
     }

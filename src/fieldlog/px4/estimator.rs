@@ -55,6 +55,11 @@ fn bit(name: &str) -> Option<u64> {
     FLAGS.iter().position(|f| *f == name).map(|i| 1u64 << i)
 }
 
+/// Whether flag `name` is set in `flags` (bits of [`FLAGS`]).
+pub(super) fn has(flags: u64, name: &str) -> bool {
+    bit(name).is_some_and(|b| flags & b != 0)
+}
+
 /// One instance's control-status flags over time.
 #[derive(Debug, Default)]
 pub(super) struct Flags {

@@ -32,6 +32,9 @@ pub struct Px4Info {
     pub not_judged: Vec<NotJudged>,
     /// What the EKF itself says about each judged channel.
     pub channels: Vec<Px4Channel>,
+    /// What the rows themselves put in doubt (innovations of exactly 0 beside a positive
+    /// variance, ...), one line each; the report lists them with its own warnings.
+    pub warnings: Vec<String>,
 }
 
 /// One estimator instance of the log.
@@ -99,6 +102,9 @@ pub struct Px4Channel {
     pub inactive: usize,
     /// Updates dropped as fake-position fusion (no horizontal aiding at their time).
     pub fake: usize,
+    /// Gravity updates set aside because the vehicle was at rest (on the ground, or EKF2's
+    /// `vehicle_at_rest`): there the accelerometer measures gravity alone.
+    pub at_rest: usize,
     /// The EKF's own test ratio `ν²/(gate² S)`, averaged over the judged updates.
     pub test_ratio_mean: Option<f64>,
     /// The innovation gate the test ratios imply, `√(ν²/(S · ratio))` (median), in σ.

@@ -113,7 +113,9 @@ def channels(log):
 
 
 def classify(nu32, s32, exact):
-    """Per-row class: 'idle', 'invalid', 'repeat' or 'update'. Repeats compare
+    """Per-row class: 'idle', 'invalid', 'zero', 'repeat' or 'update'. An
+    innovation of exactly 0 (either sign) beside a positive variance is 'zero':
+    no draw of N(0, S) is exactly 0. Repeats compare
     the float32 bit patterns with the previous paired row, whatever its class:
     innovation and variance for a row paired exactly, the innovation alone for a
     row paired with the nearest variances row (its variance is from another
@@ -126,6 +128,8 @@ def classify(nu32, s32, exact):
             out.append("idle")
         elif not (np.isfinite(nu[k]) and np.isfinite(s[k])) or s[k] <= 0:
             out.append("invalid")
+        elif nu[k] == 0:
+            out.append("zero")
         elif k > 0 and nu_bits[k] == nu_bits[k - 1] and (s_bits[k] == s_bits[k - 1] or not exact[k]):
             out.append("repeat")
         else:
@@ -183,7 +187,7 @@ def stats(cls, nu32, s32, times, keep_update=None):
     wins = [gated[i - WINDOW + 1:i + 1].mean() for i in range(WINDOW - 1, len(gated))]
     out = {
         "idle": cls.count("idle"), "invalid": cls.count("invalid"),
-        "repeats": cls.count("repeat"), "updates": len(upd), "fused": len(upd) > 0,
+        "zero_innovation": cls.count("zero"), "repeats": cls.count("repeat"), "updates": len(upd), "fused": len(upd) > 0,
         "outliers": int(outlier.sum()), "gated": len(gated),
         "nis_mean": num(gated.mean()) if len(gated) else None,
         "nis_mean_all": num(nis.mean()) if len(nis) else None,
@@ -212,15 +216,44 @@ def in_air_filter(log):
     return keep
 
 
+def landed_at(log):
+    """Whether the land detector says landed at t (no row yet: landed); None when the
+    log has no land detector."""
+    land = topics(log).get(("vehicle_land_detected", 0))
+    if land is None:
+        return None
+    ts, landed = land.data["timestamp"].astype(np.int64), land.data["landed"]
+
+    def at(t):
+        i = np.searchsorted(ts, t, side="right") - 1
+        return i < 0 or bool(landed[i])
+    return at
+
+
 def analyse(log, keep_update=None):
+    """Every channel's numbers. The vertical gravity component (second order in the
+    tilt error) is never judged; the horizontal ones only away from rest (these logs
+    carry no status flags, so rest is the land detector's landed)."""
     pairing, chans = channels(log)
-    result, not_fused = {}, {}
+    result, not_fused, not_judged = {}, {}, []
+    landed = landed_at(log)
     for inst, name, times, nu, s, exact in chans:
-        st = result[name] = stats(classify(nu, s, exact), nu, s, times, keep_update)
-        if not st["fused"]:
+        keep = keep_update
+        if name.endswith(".gravity[0]") or name.endswith(".gravity[1]"):
+            if landed is not None:
+                keep = (lambda t, k=keep_update: not landed(t) and (k is None or k(t)))
+        st = result[name] = stats(classify(nu, s, exact), nu, s, times, keep)
+        if name.endswith(".gravity[2]") and st["fused"]:
+            st["fused"] = False
+            not_judged.append(name)
+        elif name.endswith((".gravity[0]", ".gravity[1]")) and not st["fused"]:
+            if stats(classify(nu, s, exact), nu, s, times, keep_update)["fused"]:
+                not_judged.append(name)    # updates only at rest
+        elif not st["fused"]:
             not_fused[name] = {"idle": st["idle"], "invalid": st["invalid"]}
     result["_pairing"] = {f"ekf{i}": c for i, c in pairing.items()}
     result["_not_fused"] = not_fused
+    result["_not_judged"] = not_judged
     return result
 
 

@@ -215,3 +215,49 @@ impl<E: ValueEnum + Clone + Send + Sync + 'static> TypedValueParser for OneOf<E>
         ))
     }
 }
+
+/// The files this process read as inputs (a problem file, records, measurements, a tuned
+/// config, shard files, field logs, the files a worker's command names), by identity: the
+/// device and inode of the file a path resolves to. An output must never be one of them
+/// (`output` asks [`input_at`] before any work and again before it writes), however the
+/// two paths are spelt: `x.toml`, `./x.toml`, a symbolic link or a hard link to it.
+///
+/// Noted where a user's file is opened as an input, and by the command line for every path
+/// its input flags name before any work starts, so that an input read late (a field log
+/// being followed, records streamed during the Monte Carlo) is known from the start.
+static INPUTS: std::sync::Mutex<Vec<InputFile>> = std::sync::Mutex::new(Vec::new());
+
+#[derive(Debug)]
+struct InputFile {
+    dev: u64,
+    ino: u64,
+    path: PathBuf,
+}
+
+/// Note `path` as an input of this process, if it names an existing file (following
+/// links). A path that does not exist (yet) is not noted: no output can be it and survive
+/// the check that it is missing or replaceable.
+pub fn note_input(path: &Path) {
+    use std::os::unix::fs::MetadataExt;
+    if let Ok(m) = std::fs::metadata(path) {
+        let mut inputs = INPUTS.lock().unwrap_or_else(|e| e.into_inner());
+        if !inputs.iter().any(|f| f.dev == m.dev() && f.ino == m.ino()) {
+            inputs.push(InputFile {
+                dev: m.dev(),
+                ino: m.ino(),
+                path: path.to_path_buf(),
+            });
+        }
+    }
+}
+
+/// The input (as it was named) that `path` resolves to the same file as, if any.
+pub fn input_at(path: &Path) -> Option<PathBuf> {
+    use std::os::unix::fs::MetadataExt;
+    let m = std::fs::metadata(path).ok()?;
+    let inputs = INPUTS.lock().unwrap_or_else(|e| e.into_inner());
+    inputs
+        .iter()
+        .find(|f| f.dev == m.dev() && f.ino == m.ino())
+        .map(|f| f.path.clone())
+}

@@ -51,7 +51,7 @@ pub const NOT_REGULAR: &str = "not a regular file (a directory, FIFO, socket or 
 /// `bytes` as a short size (`16 MiB`, `3.2 GB`) for messages.
 pub fn size_text(bytes: u64) -> String {
     const MIB: u64 = 1 << 20;
-    if bytes >= MIB && bytes % MIB == 0 {
+    if bytes >= MIB && bytes.is_multiple_of(MIB) {
         format!("{} MiB", bytes / MIB)
     } else if bytes >= 1_000_000 {
         format!("{:.1} MB", bytes as f64 / 1e6)
@@ -104,6 +104,8 @@ pub fn read_text(path: &Path) -> Result<String, FileError> {
 /// file's limit).
 pub fn read_text_at_most(path: &Path, limit: u64) -> Result<String, FileError> {
     let file = open(path)?;
+    // A text file read whole is a user's input (a problem file, a config, a shard file).
+    crate::input::note_input(path);
     let len = length(path, &file)?;
     let too_large = || {
         FileError::new(

@@ -395,3 +395,32 @@ fn the_tune_says_where_each_evaluations_truth_came_from() {
     ]);
     assert_eq!(r["truth"]["kind"], "recorded");
 }
+
+/// An error about the start names the flag that asked for it (issue 37, item 13): the
+/// default start from `--measurements`, not `--init`, which was not given.
+#[test]
+fn an_error_about_the_start_names_the_flag_given() {
+    let dir = tempfile::tempdir().unwrap();
+    let z = dir.path().join("z.csv");
+    std::fs::write(&z, "step,z_1\n1,0.5\n2,0.7\n").unwrap();
+    let out = dir.path().join("t.toml");
+    for (extra, named, not_named) in [
+        (&[][..], "--measurements", "--init"),
+        (&["--init", "ml"][..], "--init", "--measurements"),
+    ] {
+        let assert = autotune()
+            .arg("tune")
+            .arg(problem_path("ctrv"))
+            .arg("--measurements")
+            .arg(&z)
+            .args(extra)
+            .arg("--out")
+            .arg(&out)
+            .assert()
+            .code(2);
+        let stderr = String::from_utf8(assert.get_output().stderr.clone()).unwrap();
+        assert_eq!(stderr.lines().count(), 1, "{stderr}");
+        assert!(stderr.contains(named), "{extra:?}: {stderr}");
+        assert!(!stderr.contains(not_named), "{extra:?}: {stderr}");
+    }
+}

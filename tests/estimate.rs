@@ -608,6 +608,8 @@ fn check_on_a_record_judges_by_innovations_and_plots_blocks() {
             "5000",
             "--seed",
             &seed.to_string(),
+            // The record of the previous seed, replaced: a record carries no mark.
+            "--force",
         ]);
         assert_eq!(code, Some(0), "{err}");
         let (code, _, err) = common::autotune(&[

@@ -158,7 +158,13 @@ fn monitor_report_is_the_autotune_nis_report_of_its_rows() {
         "nis", p, "--json", "--alpha", "0.01", "--gate", "1e-6", "--window", "40", "--lags", "8",
     ]);
     assert_eq!(code, Some(1), "inconsistent rows: exit 1; stderr: {stderr}");
-    let (cli, cli_sources) = split(serde_json::from_str(&stdout).unwrap());
+    let mut cli: Value = serde_json::from_str(&stdout).unwrap();
+    // What the command prints carries autotune's mark; the monitor's report is the value.
+    assert_eq!(
+        cli.as_object_mut().unwrap().remove("written_by"),
+        Some(Value::from("autotune 0.1.0"))
+    );
+    let (cli, cli_sources) = split(cli);
     let (live, live_sources) = split(serde_json::to_value(monitor.report()).unwrap());
     assert_eq!(
         first_difference(&live, &cli, "report"),

@@ -8,11 +8,48 @@ use std::path::Path;
 
 use clap::CommandFactory;
 
-/// The pages the code renders: `autotune.1` and one per subcommand (`autotune-check.1`, …).
+/// The pages the code renders: `autotune.1` and one per subcommand (`autotune-check.1`, …),
+/// each SYNOPSIS with the value every option takes (clap_mangen lists `[--runs]` alone).
 fn rendered() -> BTreeMap<String, String> {
     let dir = tempfile::tempdir().unwrap();
-    clap_mangen::generate_to(autotune::app::Cli::command(), dir.path()).unwrap();
-    read_pages(dir.path())
+    let cli = autotune::app::Cli::command();
+    clap_mangen::generate_to(cli.clone(), dir.path()).unwrap();
+    let mut pages = read_pages(dir.path());
+    for sub in cli.get_subcommands() {
+        if let Some(page) = pages.get_mut(&format!("autotune-{}.1", sub.get_name())) {
+            *page = with_values(page, sub);
+        }
+    }
+    pages
+}
+
+/// `page` with each option of its SYNOPSIS followed by its value, as its OPTIONS section
+/// shows it: `[\fB\-\-runs\fR \fI<RUNS>\fR]`, `[\fB\-\-set\fR \fI<NAME=VALUE>\fR...]`.
+fn with_values(page: &str, cmd: &clap::Command) -> String {
+    let mut lines: Vec<String> = page.lines().map(str::to_string).collect();
+    let Some(at) = lines.iter().position(|l| l == ".SH SYNOPSIS") else {
+        return page.to_string();
+    };
+    let mut synopsis = lines[at + 1].clone();
+    for arg in cmd.get_arguments() {
+        let (Some(long), true) = (arg.get_long(), arg.get_action().takes_values()) else {
+            continue;
+        };
+        let flag = format!("\\fB\\-\\-{}\\fR", long.replace('-', "\\-"));
+        let value = arg
+            .get_value_names()
+            .and_then(|v| v.first())
+            .map(|v| v.to_string())
+            .unwrap_or_else(|| arg.get_id().as_str().to_uppercase());
+        let many = arg.get_num_args().is_some_and(|n| n.max_values() > 1);
+        let dots = if many { "..." } else { "" };
+        let with = format!("{flag} \\fI<{value}>\\fR{dots}");
+        synopsis = synopsis.replace(&format!("{flag}]"), &format!("{with}]"));
+    }
+    lines[at + 1] = synopsis;
+    let mut out = lines.join("\n");
+    out.push('\n');
+    out
 }
 
 fn read_pages(dir: &Path) -> BTreeMap<String, String> {
@@ -77,4 +114,19 @@ fn the_check_page_documents_its_flags() {
         assert!(check.contains(flag), "autotune-check.1 lacks {flag}");
     }
     assert!(pages["autotune.1"].contains("autotune\\-check(1)"));
+    // The SYNOPSIS names each option's value (issue 37, item 13).
+    let synopsis = check
+        .lines()
+        .skip_while(|l| *l != ".SH SYNOPSIS")
+        .nth(1)
+        .unwrap();
+    for shown in [
+        "[\\fB\\-\\-records\\fR \\fI<FILE>\\fR...]",
+        "[\\fB\\-\\-runs\\fR \\fI<RUNS>\\fR]",
+        "[\\fB\\-\\-set\\fR \\fI<NAME=VALUE>\\fR]",
+        "[\\fB\\-\\-junit\\fR \\fI<FILE>\\fR]",
+        "[\\fB\\-\\-json\\fR]",
+    ] {
+        assert!(synopsis.contains(shown), "{shown} not in {synopsis}");
+    }
 }

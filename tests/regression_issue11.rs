@@ -98,6 +98,11 @@ fn cv1d_with(dir: &Path, name: &str, extra: &str) -> PathBuf {
     p
 }
 
+/// Whether a file name is that of an output's temporary file (`.NAME.XXXXXXXX.tmp`).
+fn is_temporary(name: &str) -> bool {
+    name.starts_with('.') && name.ends_with(".tmp")
+}
+
 /// Files under `dir` (recursively) whose name marks a temporary file.
 fn temporary_files(dir: &Path) -> Vec<PathBuf> {
     let mut found = Vec::new();
@@ -108,7 +113,7 @@ fn temporary_files(dir: &Path) -> Vec<PathBuf> {
             let p = e.path();
             if e.file_type().unwrap().is_dir() {
                 stack.push(p);
-            } else if p.file_name().unwrap().to_string_lossy().contains(".tmp.") {
+            } else if is_temporary(&p.file_name().unwrap().to_string_lossy()) {
                 found.push(p);
             }
         }
@@ -301,14 +306,16 @@ fn issue11_unwritable_report_dir_leaves_the_tuned_config_alone() {
     let dir = tempfile::tempdir().unwrap();
     std::fs::create_dir(dir.path().join("tuned")).unwrap();
     let tuned = dir.path().join("tuned/cv1d.toml");
-    std::fs::write(&tuned, "old").unwrap();
+    // A config an earlier run wrote (it carries autotune's mark, so it may be replaced).
+    let old = "# Tuned by autotune 0.0.1: old\n";
+    std::fs::write(&tuned, old).unwrap();
     std::fs::write(dir.path().join("blocker"), "a file, not a directory").unwrap();
     let mut c = autotune_in(dir.path());
     c.arg("tune")
         .arg(problem_path("cv1d"))
         .args(["--report", "blocker/report"]);
     let out = run(c);
-    assert_eq!(std::fs::read_to_string(&tuned).unwrap(), "old");
+    assert_eq!(std::fs::read_to_string(&tuned).unwrap(), old);
     assert!(!dir.path().join("tuned/cv1d.rejected.toml").exists());
     assert_one_line_error(&out, &["blocker", "not a directory"]);
     assert_eq!(temporary_files(dir.path()), Vec::<PathBuf>::new());
@@ -388,7 +395,11 @@ fn issue11_interrupt_removes_temporary_files() {
         ("HUP", "check", 129),
     ] {
         let dir = tempfile::tempdir().unwrap();
-        std::fs::write(dir.path().join("j.xml"), "old").unwrap();
+        std::fs::write(
+            dir.path().join("j.xml"),
+            "<!-- written by autotune 0.0.1 -->old",
+        )
+        .unwrap();
         let mut c = autotune_in(dir.path());
         c.arg(cmd)
             .arg(problem_path("cv1d"))
@@ -419,7 +430,7 @@ fn issue11_interrupt_removes_temporary_files() {
         assert_eq!(temporary_files(dir.path()), Vec::<PathBuf>::new());
         assert_eq!(
             std::fs::read_to_string(dir.path().join("j.xml")).unwrap(),
-            "old"
+            "<!-- written by autotune 0.0.1 -->old"
         );
         assert!(
             !dir.path().join("rep").exists(),
@@ -724,7 +735,11 @@ fn issue11_successful_tune_removes_a_stale_rejected_config() {
     let dir = tempfile::tempdir().unwrap();
     std::fs::create_dir(dir.path().join("tuned")).unwrap();
     let rejected = dir.path().join("tuned/cv1d.rejected.toml");
-    std::fs::write(&rejected, "from a failed run").unwrap();
+    std::fs::write(
+        &rejected,
+        "# REJECTED by autotune 0.0.1: from a failed run\n",
+    )
+    .unwrap();
     let mut c = autotune_in(dir.path());
     c.arg("tune").arg(problem_path("cv1d")).arg("--quiet");
     let out = run(c);

@@ -212,6 +212,8 @@ fn issue21_simulate_refuses_the_same_file_twice() {
                 other,
                 "--steps",
                 "10",
+                // Past the refusal of an existing record without autotune's mark.
+                "--force",
             ]);
             assert_eq!(code, Some(2), "{other}: {stdout}{err}");
             assert!(err.contains("--truth"), "{err}");

@@ -183,6 +183,10 @@ struct MergeArgs {
     /// Print nothing; the exit code is the answer.
     #[arg(long, short, conflicts_with = "json")]
     quiet: bool,
+    /// Replace output files autotune did not write (by default only its own files, which
+    /// carry its mark, are replaced; an input is never replaced).
+    #[arg(long)]
+    force: bool,
 }
 
 #[derive(Debug, clap::Args)]
@@ -264,7 +268,11 @@ where
     I: IntoIterator<Item = T>,
     T: Into<OsString> + Clone,
 {
-    let cli = match Cli::try_parse_from(args) {
+    let parsed = Cli::command().try_get_matches_from(args).and_then(|m| {
+        note_inputs(&m);
+        Cli::from_arg_matches(&m)
+    });
+    let cli = match parsed {
         Ok(c) => c,
         Err(e) => return usage_error(e, "autotune"),
     };
@@ -318,8 +326,16 @@ fn tune_problem_over(
     p: &Problem,
     over: &dyn Experiment,
 ) -> Result<ExitCode, AppError> {
+    commands::tune::check_outputs(p, &a.options)?;
+    // The flag that asked for the start, for errors: --init, or --measurements (whose
+    // record gives the default start).
+    let asked_by = if a.init.is_some() {
+        "--init"
+    } else {
+        "--measurements"
+    };
     let start = |record: Option<&std::path::Path>, method: &str| {
-        initial(p, &a.problem, record, method).map(|s| {
+        initial(p, &a.problem, record, method, asked_by).map(|s| {
             eprintln!("{}", s.note);
             s.theta
         })
@@ -415,6 +431,7 @@ fn merge(a: MergeArgs) -> Result<ExitCode, AppError> {
         junit: a.junit,
         engine: Default::default(),
         quiet: a.quiet,
+        force: a.force,
     };
     let (problem, run) = commands::check::merge(&a.shards, &o)?;
     print_check(&problem, &o, &run)
@@ -511,9 +528,10 @@ where
     let cmd = ModelCli::command()
         .name(program.clone())
         .bin_name(program.clone());
-    let parsed = cmd
-        .try_get_matches_from(args)
-        .and_then(|m| ModelCli::from_arg_matches(&m));
+    let parsed = cmd.try_get_matches_from(args).and_then(|m| {
+        note_inputs(&m);
+        ModelCli::from_arg_matches(&m)
+    });
     let cli = match parsed {
         Ok(c) => c,
         Err(e) => return usage_error(e, &program),
@@ -521,6 +539,29 @@ where
     match cli.command {
         ModelCommand::Check(o) => check(experiment, o),
         ModelCommand::Tune(o) => self::tune(experiment, tune, o, None),
+    }
+}
+
+/// The arguments (by their ids) whose values are files or directories a command writes:
+/// `--out`, `--truth`, `--junit`, `--report`, `--sums-out`. Every other argument whose
+/// value is a path names an input (`tests/outputs.rs` holds every command's path arguments
+/// to this: each is an output here or an input, and no output may name an input).
+pub const OUTPUT_ARGS: [&str; 5] = ["out", "truth", "junit", "report", "sums_out"];
+
+/// Note the file every input argument names (a path-valued argument not in
+/// [`OUTPUT_ARGS`]) as an input of this process, before any work: no output may replace
+/// it, however named ([`crate::input::note_input`]).
+fn note_inputs(m: &clap::ArgMatches) {
+    if let Some((_, sub)) = m.subcommand() {
+        note_inputs(sub);
+    }
+    for id in m.ids() {
+        if OUTPUT_ARGS.contains(&id.as_str()) {
+            continue;
+        }
+        if let Ok(Some(paths)) = m.try_get_many::<PathBuf>(id.as_str()) {
+            paths.for_each(|p| crate::input::note_input(p));
+        }
     }
 }
 

@@ -74,6 +74,10 @@ pub struct NisArgs {
     /// Print nothing; the exit code is the answer.
     #[arg(long, short, conflicts_with = "json")]
     quiet: bool,
+    /// Replace output files autotune did not write (by default only its own files, which
+    /// carry its mark, are replaced; an input is never replaced).
+    #[arg(long)]
+    force: bool,
 }
 
 impl NisArgs {
@@ -122,10 +126,10 @@ pub fn run(a: NisArgs) -> Result<ExitCode, AppError> {
     let limit = seconds("--for", a.for_seconds)?;
     let idle = seconds("--idle", a.idle)?;
     if let Some(path) = &a.junit {
-        check_output_file(path)?;
+        check_output_file(path, a.force).map_err(|e| e.of_flag("--junit"))?;
     }
     if let Some(dir) = &a.report {
-        check_report_dir(dir)?;
+        check_report_dir(dir, a.force).map_err(|e| e.of_flag("--report"))?;
     }
     let report = match &a.follow {
         Some(path) => follow(path, settings, &a, limit, idle)?,
@@ -175,8 +179,8 @@ fn follow(
 }
 
 fn finish(a: &NisArgs, report: &NisReport) -> Result<ExitCode, AppError> {
-    let json = serde_json::to_string_pretty(report).expect("the report serializes");
-    let mut outputs = Outputs::new();
+    let json = crate::output::marked_json(report);
+    let mut outputs = Outputs::replacing(a.force);
     if let Some(path) = &a.junit {
         outputs.file(path, nis_junit_xml(report));
     }

@@ -19,7 +19,7 @@ use crate::stats::{Accumulator, ConsistencyReport, Verdict};
 #[derive(Debug, Clone, clap::Args)]
 pub struct CheckOptions {
     /// Tuned config whose parameter values replace the problem file's.
-    #[arg(long)]
+    #[arg(long, value_name = "FILE")]
     pub config: Option<PathBuf>,
     /// Monte Carlo settings and parameter values in place of the experiment's.
     #[command(flatten)]
@@ -42,6 +42,10 @@ pub struct CheckOptions {
     /// Print nothing; the exit code is the answer.
     #[arg(long, short, conflicts_with = "json")]
     pub quiet: bool,
+    /// Replace output files autotune did not write (by default only its own files, which
+    /// carry its mark, are replaced; an input is never replaced).
+    #[arg(long)]
+    pub force: bool,
 }
 
 impl CheckOptions {
@@ -122,13 +126,19 @@ fn prepare(
             ),
         ));
     }
+    check_outputs(a)?;
+    Ok((theta, mc))
+}
+
+/// Check the files `--junit` and `--report` name, before any work.
+fn check_outputs(a: &CheckOptions) -> Result<(), CommandError> {
     if let Some(path) = &a.junit {
-        check_output_file(path)?;
+        check_output_file(path, a.force).map_err(|e| e.of_flag("--junit"))?;
     }
     if let Some(dir) = &a.report {
-        check_report_dir(dir)?;
+        check_report_dir(dir, a.force).map_err(|e| e.of_flag("--report"))?;
     }
-    Ok((theta, mc))
+    Ok(())
 }
 
 /// The gate on `sums` (the Monte Carlo sums of `experiment` at `theta` under `mc`), and
@@ -162,9 +172,9 @@ fn conclude(
         report: &report,
         version: env!("CARGO_PKG_VERSION"),
     };
-    let json = serde_json::to_string_pretty(&out).expect("the report serializes");
+    let json = crate::output::marked_json(&out);
     // The files are written together: all of them, or none.
-    let mut outputs = Outputs::new();
+    let mut outputs = Outputs::replacing(a.force);
     if let Some(path) = &a.junit {
         outputs.file(path, junit_xml(&info.name, &report));
     }
@@ -254,7 +264,7 @@ pub fn check_shard(
             ),
         ));
     };
-    check_output_file(sums_out).map_err(CommandError::from)?;
+    check_output_file(sums_out, options.force).map_err(|e| e.of_flag("--sums-out"))?;
     progress.start(
         share.runs_of(mc.runs()),
         mc.steps(),
@@ -270,7 +280,8 @@ pub fn check_shard(
     progress.finish();
     let parts = parts?;
     let file = ShardFile::new(settings, share, &parts);
-    write_file(sums_out, file.to_json().as_bytes())?;
+    write_file(sums_out, file.to_json().as_bytes(), options.force)
+        .map_err(|e| e.of_flag("--sums-out"))?;
     Ok(ShardRun {
         share,
         chunks: parts.iter().map(|(c, _)| *c).collect(),
@@ -288,15 +299,22 @@ pub fn merge(
     files: &[PathBuf],
     options: &CheckOptions,
 ) -> Result<(crate::Problem, CheckRun), CommandError> {
-    let mut shards = Vec::with_capacity(files.len());
-    for f in files {
-        let text = crate::userfile::read_text_at_most(f, shard::MAX_FILE)?;
-        let shard = ShardFile::parse(&text).map_err(|why| FileError::new(f, "format", why))?;
-        shards.push((f.clone(), shard));
-    }
-    let merged = shard::merge(&shards).map_err(|r| FileError::new(&r.file, "shard", r.why))?;
-    let s = &merged.settings;
-    let problem = crate::Problem::load(&s.file)?;
+    let refused = |r: shard::MergeRefusal| FileError::new(&r.file, "shard", r.why);
+    let heads = files
+        .iter()
+        .map(|f| shard::read_head(f))
+        .collect::<Result<Vec<_>, _>>()
+        .map_err(refused)?;
+    let ordered = shard::plan(&heads).map_err(refused)?;
+    let s = &heads[0].settings;
+    // The problem the shards name: an error about it says which shard file named it.
+    let problem = crate::Problem::load(&s.file).map_err(|e| {
+        FileError::new(
+            &heads[0].path,
+            "settings.file",
+            format!("the problem file it names: {e}"),
+        )
+    })?;
     if problem.info().source.sha256() != Some(s.sha256.as_str()) {
         return Err(FileError::new(
             &s.file,
@@ -305,31 +323,17 @@ pub fn merge(
         )
         .into());
     }
-    let names: Vec<&str> = problem
-        .params()
-        .params
-        .iter()
-        .map(|p| p.name.as_str())
-        .collect();
-    if !names
-        .iter()
-        .copied()
-        .eq(s.params.iter().map(|(n, _)| n.as_str()))
-    {
-        return Err(FileError::new(&s.file, "params", "its parameters are not the shards'").into());
-    }
+    let setup = s
+        .setup(&problem)
+        .map_err(|why| FileError::new(&heads[0].path, "settings", why))?;
     let options = CheckOptions {
         nis_only: s.nis_only,
-        engine: merged.engine,
+        engine: setup.engine,
         ..options.clone()
     };
-    if let Some(path) = &options.junit {
-        check_output_file(path)?;
-    }
-    if let Some(dir) = &options.report {
-        check_report_dir(dir)?;
-    }
-    let run = conclude(&problem, &options, &merged.theta, &merged.mc, &merged.sums)?;
+    check_outputs(&options)?;
+    let sums = shard::merge_stream(&ordered, s).map_err(refused)?;
+    let run = conclude(&problem, &options, &setup.theta, &setup.mc, &sums)?;
     Ok((problem, run))
 }
 

@@ -52,6 +52,10 @@ pub struct EstimateOptions {
     /// Print the estimate as JSON on stdout.
     #[arg(long)]
     pub json: bool,
+    /// Replace an --out file autotune did not write (by default only its own files, which
+    /// carry its mark, are replaced; an input is never replaced).
+    #[arg(long)]
+    pub force: bool,
 }
 
 /// What an estimate printed: a table, or JSON with `--json`.
@@ -69,15 +73,16 @@ fn write_config(
     method: &str,
     record: &Path,
     score: (&str, f64),
+    force: bool,
 ) -> Result<(), CommandError> {
     let mut prov = toml::Table::new();
     prov.insert("autotune_version".into(), env!("CARGO_PKG_VERSION").into());
     prov.insert("method".into(), method.into());
     prov.insert("measurements".into(), record.display().to_string().into());
     prov.insert(score.0.into(), score.1.into());
-    let mut outputs = Outputs::new();
+    let mut outputs = Outputs::replacing(force);
     outputs.file(out, estimated_config_toml(p, theta, prov));
-    outputs.commit()?;
+    outputs.commit().map_err(|e| e.of_flag("--out"))?;
     Ok(())
 }
 
@@ -178,13 +183,16 @@ pub struct Start {
 /// The start `tune --init METHOD` searches from: the estimate of `method` ("ml" or "als")
 /// on `record`, or on a record simulated from `p`'s truth (its Monte Carlo runs × steps,
 /// with another seed than the search's so that the start does not fit the search's noise).
+/// `asked_by` is the flag that asked for it (`--init`, or `--measurements` for the
+/// default start on a record), which an error names.
 pub fn initial(
     p: &Problem,
     path: &Path,
     record: Option<&Path>,
     method: &str,
+    asked_by: &str,
 ) -> Result<Start, CommandError> {
-    let lin = linear(p, path, "--init")?;
+    let lin = linear(p, path, asked_by)?;
     let (data, origin) = match record {
         Some(f) => {
             let d = read_record(p, lin, f)?;
@@ -210,7 +218,7 @@ pub fn initial(
     let fixed: Vec<bool> = params.params.iter().map(|d| d.fixed).collect();
     let t0 = Instant::now();
     let failed = |e: EstimateError| CommandError::Estimate {
-        subject: format!("--init {method} on {origin}"),
+        subject: format!("the start ({method} on {origin}, asked by {asked_by})"),
         source: e,
     };
     let theta = if method == "als" {
@@ -267,7 +275,7 @@ pub fn estimate(a: &EstimateOptions) -> Result<EstimateRun, CommandError> {
     let data = read_record(&p, lin, &a.measurements)?;
     estimable(&a.measurements, &data)?;
     if let Some(out) = &a.out {
-        check_output_file(out)?;
+        check_output_file(out, a.force).map_err(|e| e.of_flag("--out"))?;
     }
     let params = p.params();
     let mut start = params.values();
@@ -303,7 +311,7 @@ pub fn estimate(a: &EstimateOptions) -> Result<EstimateRun, CommandError> {
         summary.seconds = t0.elapsed().as_secs_f64();
         if let Some(out) = &a.out {
             let score = ("residual", est.residual);
-            write_config(&p, out, &est.theta, "als", &a.measurements, score)?;
+            write_config(&p, out, &est.theta, "als", &a.measurements, score, a.force)?;
         }
         let output = if a.json {
             estimate_json(&summary, "als", &est, serde_json::Map::new())
@@ -317,7 +325,7 @@ pub fn estimate(a: &EstimateOptions) -> Result<EstimateRun, CommandError> {
     summary.seconds = t0.elapsed().as_secs_f64();
     if let Some(out) = &a.out {
         let score = ("neg_log_likelihood", est.neg_log_likelihood);
-        write_config(&p, out, &est.theta, "ml", &a.measurements, score)?;
+        write_config(&p, out, &est.theta, "ml", &a.measurements, score, a.force)?;
     }
     let output = if a.json {
         estimate_json(&summary, "ml", &est, serde_json::Map::new())

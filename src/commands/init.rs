@@ -110,10 +110,11 @@ pub fn init(a: &InitOptions) -> Result<String, CommandError> {
     }
     if a.external {
         let text = EXTERNAL_TEMPLATE.replace(NAME_PLACEHOLDER, &a.name);
-        write_file(&path, text.as_bytes())?;
+        write_file(&path, text.as_bytes(), a.force).map_err(|e| e.of_flag("--out"))?;
         return Ok(init_text(&path, None));
     }
-    write_file(&path, a.model.starter(&a.name).as_bytes())?;
+    write_file(&path, a.model.starter(&a.name).as_bytes(), a.force)
+        .map_err(|e| e.of_flag("--out"))?;
     let model = a
         .model
         .to_possible_value()

@@ -1,13 +1,13 @@
 //! `simulate`: measurements (and the true states) drawn from a linear problem's truth, to
 //! try `estimate` on data whose answer is known.
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 use super::CommandError;
 use super::estimate::linear;
 use crate::estimate::{record_bytes, simulate as draw};
 use crate::experiment::Experiment;
-use crate::output::{Outputs, check_output_file};
+use crate::output::{Outputs, check_output_file, same_place};
 use crate::problem::Problem;
 use crate::report::estimate::simulate_text;
 
@@ -32,27 +32,10 @@ pub struct SimulateOptions {
     /// run i of a Monte Carlo check.
     #[arg(long)]
     pub seed: Option<u64>,
-}
-
-/// Whether two output paths name the same file, however spelt (`x.csv`, `./x.csv`,
-/// `d/../x.csv`, a symlinked directory): the canonical path where the file exists, else its
-/// directory's canonical path and its name.
-fn same_place(a: &Path, b: &Path) -> bool {
-    fn resolve(p: &Path) -> PathBuf {
-        if let Ok(c) = std::fs::canonicalize(p) {
-            return c;
-        }
-        let parent = match p.parent() {
-            Some(d) if !d.as_os_str().is_empty() => d,
-            _ => Path::new("."),
-        };
-        let dir = std::fs::canonicalize(parent).unwrap_or_else(|_| parent.to_path_buf());
-        match p.file_name() {
-            Some(n) => dir.join(n),
-            None => dir,
-        }
-    }
-    a == b || resolve(a) == resolve(b)
+    /// Replace existing --out and --truth files (a record has no room for autotune's mark,
+    /// so an existing one is replaced only with --force; an input is never replaced).
+    #[arg(long)]
+    pub force: bool,
 }
 
 /// Run `simulate`: draw the measurements (and the true states where asked) from problem's
@@ -77,9 +60,9 @@ pub fn simulate(a: &SimulateOptions) -> Result<String, CommandError> {
         ));
     }
     let seed = a.seed.unwrap_or(p.mc().seed());
-    check_output_file(&a.out)?;
+    check_output_file(&a.out, a.force).map_err(|e| e.of_flag("--out"))?;
     if let Some(t) = &a.truth {
-        check_output_file(t)?;
+        check_output_file(t, a.force).map_err(|e| e.of_flag("--truth"))?;
         if same_place(&a.out, t) {
             return Err(CommandError::option(
                 "--truth",
@@ -98,7 +81,7 @@ pub fn simulate(a: &SimulateOptions) -> Result<String, CommandError> {
         .iter()
         .map(|s| s.z.as_slice())
         .collect();
-    let mut outputs = Outputs::new();
+    let mut outputs = Outputs::replacing(a.force);
     outputs.file(&a.out, record_bytes(&a.out, "z", m, &z)?);
     if let Some(t) = &a.truth {
         let x: Vec<&[f64]> = sim.states.iter().map(Vec::as_slice).collect();

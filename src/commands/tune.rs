@@ -45,6 +45,10 @@ pub struct TuneOptions {
     /// Print nothing; the exit code is the answer.
     #[arg(long, short, conflicts_with = "json")]
     pub quiet: bool,
+    /// Replace output files autotune did not write (by default only its own files, which
+    /// carry its mark, are replaced; an input is never replaced).
+    #[arg(long)]
+    pub force: bool,
 }
 
 impl TuneOptions {
@@ -140,6 +144,29 @@ fn config_paths(experiment: &dyn Experiment) -> (PathBuf, PathBuf) {
     (tuned, rejected)
 }
 
+/// Check every output location `options` name (or imply: without `--out`, the config goes
+/// to one of two places, decided by the confirmation), so that a bad one costs no work:
+/// call it before anything else is computed (the command line does, before an estimate of
+/// the start).
+pub fn check_outputs(
+    experiment: &dyn Experiment,
+    options: &TuneOptions,
+) -> Result<(), CommandError> {
+    let a = options;
+    match &a.out {
+        Some(out) => check_output_file(out, a.force).map_err(|e| e.of_flag("--out"))?,
+        None => {
+            let (tuned_path, rejected_path) = config_paths(experiment);
+            check_output_file(&tuned_path, a.force)?;
+            check_output_file(&rejected_path, a.force)?;
+        }
+    }
+    if let Some(dir) = &a.report {
+        check_report_dir(dir, a.force).map_err(|e| e.of_flag("--report"))?;
+    }
+    Ok(())
+}
+
 /// Run `tune` on `experiment` from the settings `defaults` (a problem file's `[tune]`) with
 /// `options` on top, starting from `init` (one value per parameter) where given instead of
 /// the parameters' configured values. A misfit is explained before anything is written;
@@ -161,24 +188,13 @@ pub fn tune(
         .search_runs_for(mc.runs())
         .map_err(|e| runs_error(e, experiment, a.mc.runs_given()))?;
     let (tuned_path, rejected_path) = config_paths(experiment);
-    // Every output location is checked before the search, so a bad one costs no work;
-    // without --out the config goes to one of two places, decided by the confirmation.
-    match &a.out {
-        Some(out) => check_output_file(out)?,
-        None => {
-            check_output_file(&tuned_path)?;
-            check_output_file(&rejected_path)?;
-        }
-    }
-    if let Some(dir) = &a.report {
-        check_report_dir(dir)?;
-    }
+    check_outputs(experiment, a)?;
     let (result, explanations) =
         search_and_explain(experiment, &start, &fixed, &mc, &settings, a, observer)?;
     let consistent = result.status == TuneStatus::Consistent;
     // A run that did not confirm never replaces the config CI gates on; it goes beside it,
     // and a rejected config a later run supersedes is removed.
-    let mut outputs = Outputs::new();
+    let mut outputs = Outputs::replacing(a.force);
     let out = match &a.out {
         Some(out) => out.clone(),
         None if consistent => {
@@ -206,7 +222,7 @@ pub fn tune(
         recommendations: &recs,
         explanations: &explanations,
     };
-    let json = serde_json::to_string_pretty(&report).expect("the report serializes");
+    let json = crate::output::marked_json(&report);
     if let Some(dir) = &a.report {
         outputs.report_dir(
             dir,

@@ -126,6 +126,7 @@ fn index(text: &str, what: &str) -> Result<usize, (String, String)> {
 
 /// Read a measurement record (by extension: `.csv`, `.jsonl`, `.npy`, `.npz`).
 pub fn read_measurements(path: &Path) -> Result<MeasurementRecord, FileError> {
+    crate::input::note_input(path);
     let ext = path
         .extension()
         .and_then(|e| e.to_str())

@@ -87,6 +87,8 @@ impl Follower {
             Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(0),
             Err(e) => return Err(FileError::new(&self.path, "", format!("cannot read: {e}"))),
         };
+        // A log that appears after the start is an input from then on.
+        crate::input::note_input(&self.path);
         let len = file
             .metadata()
             .map_err(|e| FileError::new(&self.path, "", format!("cannot read: {e}")))?

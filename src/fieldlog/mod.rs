@@ -137,6 +137,7 @@ pub fn read_logs(
     if paths.is_empty() {
         return Err(FileError::new(Path::new("LOG"), "", "no log files given"));
     }
+    paths.iter().for_each(|p| crate::input::note_input(p));
     let mut sources = Vec::new();
     let mut npy: Vec<PathBuf> = Vec::new();
     for p in paths {

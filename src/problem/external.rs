@@ -79,6 +79,14 @@ impl Validator<'_> {
         if let Some(hint) = bare_command_hint(&e.command[0], &dir) {
             return self.err("external.command", hint);
         }
+        // The worker's program and the files its arguments name (worker.py) are inputs of
+        // every command on this problem: no output may replace them.
+        for arg in &e.command {
+            let p = dir.join(arg);
+            if p.is_file() {
+                crate::input::note_input(&p);
+            }
+        }
         let command = WorkerCommand {
             command: e.command.clone(),
             dir,

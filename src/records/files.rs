@@ -425,6 +425,7 @@ pub(super) fn format_of(path: &Path) -> Result<Format, FileError> {
 /// whole, and twice (once for its layout and length, once for its numbers), before any sum
 /// is returned; an error names the file, the row or array, and the field.
 pub fn read_files(paths: &[PathBuf], lags: &dyn Fn(usize) -> usize) -> Result<Recorded, FileError> {
+    paths.iter().for_each(|p| crate::input::note_input(p));
     let (layout, steps) = scan_files(paths)?;
     let mut sink = RecordSink::new(&layout, steps, lags(steps));
     feed_files(paths, &layout, steps, &mut sink)?;

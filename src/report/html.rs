@@ -33,7 +33,8 @@ pub(crate) fn head(o: &mut String, title: &str) {
 pub(crate) fn head_styled(o: &mut String, title: &str, extra: &str) {
     let _ = write!(
         o,
-        "<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\"><title>{}</title><style>{STYLE}{extra}</style></head><body>\n",
+        "<!DOCTYPE html>\n{}\n<html lang=\"en\"><head><meta charset=\"utf-8\"><title>{}</title><style>{STYLE}{extra}</style></head><body>\n",
+        crate::output::mark_comment(),
         escape(title)
     );
 }

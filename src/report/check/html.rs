@@ -356,6 +356,7 @@ pub fn check_markdown(
 ) -> String {
     let mut o = String::new();
     let name = &experiment.info().name;
+    let _ = writeln!(o, "{}", crate::output::mark_comment());
     let _ = writeln!(o, "# autotune check: {name}\n");
     let _ = writeln!(o, "**Verdict: {}**\n", r.verdict.describe());
     let _ = writeln!(o, "```\n{}```", super::summary_text(name, params, r));

@@ -127,6 +127,8 @@ pub fn junit_xml(problem: &str, report: &ConsistencyReport) -> String {
     let failures = cases.matches("<failure").count();
     let mut out = String::new();
     out.push_str("<?xml version=\"1.0\" encoding=\"UTF-8\"?>\n");
+    out.push_str(&crate::output::mark_comment());
+    out.push('\n');
     let _ = writeln!(
         out,
         "<testsuites name=\"autotune\" tests=\"{tests}\" failures=\"{failures}\" errors=\"0\">"

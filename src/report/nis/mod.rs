@@ -65,6 +65,9 @@ pub(super) fn dropped(s: &SensorReport) -> String {
     if d.on_ground > 0 {
         parts.push(format!("{} on ground", d.on_ground));
     }
+    if d.zero_innovation > 0 {
+        parts.push(format!("{} zero ν", d.zero_innovation));
+    }
     if parts.is_empty() {
         "–".into()
     } else {
@@ -360,6 +363,9 @@ fn px4_channels_text(o: &mut String, r: &NisReport) {
         if p.inactive > 0 {
             skipped.push(format!("{} source off", p.inactive));
         }
+        if p.at_rest > 0 {
+            skipped.push(format!("{} at rest", p.at_rest));
+        }
         let _ = writeln!(
             o,
             "{:<width$}  {:<24}  {:>10}  {:>6}  {:>8}  {:>9}  {:>9}  {}{}",
@@ -458,14 +464,16 @@ pub fn nis_junit_xml(r: &NisReport) -> String {
     }
     let tests = r.sensors.len().max(1);
     format!(
-        "<?xml version=\"1.0\" encoding=\"UTF-8\"?>\n<testsuites>\n  <testsuite name=\"autotune nis\" tests=\"{tests}\" failures=\"{failures}\">\n{cases}  </testsuite>\n</testsuites>\n"
+        "<?xml version=\"1.0\" encoding=\"UTF-8\"?>\n{}\n<testsuites>\n  <testsuite name=\"autotune nis\" tests=\"{tests}\" failures=\"{failures}\">\n{cases}  </testsuite>\n</testsuites>\n",
+        crate::output::mark_comment()
     )
 }
 
 /// The summary as Markdown (the text table in a code block).
 pub fn nis_markdown(r: &NisReport) -> String {
     format!(
-        "# autotune nis\n\n**{}**\n\n```text\n{}```\n",
+        "{}\n# autotune nis\n\n**{}**\n\n```text\n{}```\n",
+        crate::output::mark_comment(),
         nis_verdict_line(r).trim_start_matches("verdict: "),
         nis_summary_text(r)
     )

@@ -71,6 +71,7 @@ pub fn tune_markdown(
 ) -> String {
     let info = experiment.info();
     let mut o = String::new();
+    let _ = writeln!(o, "{}", crate::output::mark_comment());
     let _ = writeln!(o, "# autotune: {}\n", info.name);
     if !info.description.is_empty() {
         let _ = writeln!(o, "{}\n", info.description);

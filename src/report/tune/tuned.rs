@@ -184,8 +184,9 @@ pub fn rejected_config_toml(
     result: &TuneResult,
     explanations: &[crate::explain::Explanation],
 ) -> String {
-    let mut head = String::from(
-        "# REJECTED: this tuning did not make the filter consistent; do not apply these values.\n",
+    let mut head = format!(
+        "# REJECTED by autotune {}: this tuning did not make the filter consistent; do not apply these values.\n",
+        env!("CARGO_PKG_VERSION")
     );
     let lines =
         crate::report::check::advice::family_finding(result, explanations).unwrap_or_else(|| {

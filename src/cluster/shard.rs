@@ -210,31 +210,22 @@ impl ShardFile {
     pub fn to_json(&self) -> String {
         serde_json::to_string_pretty(self).expect("a shard serializes")
     }
-
-    /// A shard file's text, checked for its format and version; `Err` says why in words.
-    pub fn parse(text: &str) -> Result<ShardFile, String> {
-        #[derive(Deserialize)]
-        struct Head {
-            format: Option<String>,
-            version: Option<u32>,
-        }
-        let head: Head = serde_json::from_str(text).map_err(|e| format!("not JSON: {e}"))?;
-        if head.format.as_deref() != Some(FORMAT) {
-            return Err(format!(
-                "not a shard file (its 'format' is not \"{FORMAT}\")"
-            ));
-        }
-        if head.version != Some(VERSION) {
-            return Err(format!(
-                "shard format version {} (this autotune reads version {VERSION})",
-                head.version.map_or("none".to_string(), |v| v.to_string())
-            ));
-        }
-        serde_json::from_str(text).map_err(|e| e.to_string())
-    }
 }
 
-/// Why shard files do not merge: the file and the reason, one line.
+/// A shard file's head: everything but its chunks, read in one streaming pass that skips
+/// the chunks' sums without holding them ([`read_head`]).
+#[derive(Debug, Clone)]
+pub struct ShardHead {
+    /// The file.
+    pub path: PathBuf,
+    /// What makes the sums.
+    pub settings: ShardSettings,
+    /// Which share.
+    pub shard: ShardIndex,
+}
+
+/// Why a shard file is refused or shard files do not merge: the file and the reason, one
+/// line.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 #[error("{}: {why}", .file.display())]
 pub struct MergeRefusal {
@@ -244,108 +235,400 @@ pub struct MergeRefusal {
     pub why: String,
 }
 
-/// The settings and merged sums of a check's shards, as they came from `files` (path and
-/// parsed contents): the one-process sums, bit for bit.
-pub struct Merged {
-    /// What made the sums.
-    pub settings: ShardSettings,
-    /// The parameter values.
-    pub theta: Vec<f64>,
-    /// The Monte Carlo settings.
-    pub mc: McConfig,
-    /// The engine path asked for.
-    pub engine: Engine,
-    /// The sums of every chunk, merged in chunk order.
-    pub sums: Accumulator,
+impl MergeRefusal {
+    fn new(file: &Path, why: impl Into<String>) -> Self {
+        MergeRefusal {
+            file: file.to_path_buf(),
+            why: why.into(),
+        }
+    }
 }
 
-/// Merge shard files: every setting the same as the first file's, each share of the count
-/// once, each chunk once.
-pub fn merge(files: &[(PathBuf, ShardFile)]) -> Result<Merged, MergeRefusal> {
-    let refuse = |file: &Path, why: String| MergeRefusal {
-        file: file.to_path_buf(),
-        why,
+/// Open a shard file to read: a regular file of at most [`MAX_FILE`] bytes (checked on the
+/// opened descriptor), noted as an input of this process.
+fn open(path: &Path) -> Result<(std::fs::File, u64), MergeRefusal> {
+    let file = crate::userfile::open(path).map_err(|e| MergeRefusal::new(path, e.message))?;
+    crate::input::note_input(path);
+    let len = file
+        .metadata()
+        .map_err(|e| MergeRefusal::new(path, format!("cannot read: {e}")))?
+        .len();
+    if len > MAX_FILE {
+        return Err(MergeRefusal::new(
+            path,
+            format!(
+                "larger than the limit of {}",
+                crate::userfile::size_text(MAX_FILE)
+            ),
+        ));
+    }
+    Ok((file, len))
+}
+
+/// A shard file's head, its format and version checked. The file is streamed: the chunks'
+/// sums are skipped without being held, so memory stays small whatever the file holds.
+pub fn read_head(path: &Path) -> Result<ShardHead, MergeRefusal> {
+    #[derive(Deserialize)]
+    struct Head {
+        format: Option<String>,
+        version: Option<u32>,
+        settings: Option<ShardSettings>,
+        shard: Option<ShardIndex>,
+    }
+    let (file, _) = open(path)?;
+    let reader = std::io::BufReader::with_capacity(1 << 16, file);
+    let head: Head = serde_json::from_reader(reader)
+        .map_err(|e| MergeRefusal::new(path, format!("not a shard file: {e}")))?;
+    if head.format.as_deref() != Some(FORMAT) {
+        return Err(MergeRefusal::new(
+            path,
+            format!("not a shard file (its 'format' is not \"{FORMAT}\")"),
+        ));
+    }
+    if head.version != Some(VERSION) {
+        return Err(MergeRefusal::new(
+            path,
+            format!(
+                "shard format version {} (this autotune reads version {VERSION})",
+                head.version.map_or("none".to_string(), |v| v.to_string())
+            ),
+        ));
+    }
+    let (Some(settings), Some(shard)) = (head.settings, head.shard) else {
+        return Err(MergeRefusal::new(
+            path,
+            "not a shard file: it has no 'settings' or no 'shard'",
+        ));
     };
-    let Some((first_path, first)) = files.first() else {
-        return Err(refuse(Path::new("autotune merge"), "no shard files".into()));
+    Ok(ShardHead {
+        path: path.to_path_buf(),
+        settings,
+        shard,
+    })
+}
+
+/// Check that `heads` are the shards of one check, every share of the count once, and
+/// return them ordered by share. The count is bounded by the files given before anything
+/// is sized by it.
+pub fn plan(heads: &[ShardHead]) -> Result<Vec<&ShardHead>, MergeRefusal> {
+    let Some(first) = heads.first() else {
+        return Err(MergeRefusal::new(
+            Path::new("autotune merge"),
+            "no shard files",
+        ));
     };
     let s = &first.settings;
     let count = first.shard.count;
-    let mut seen = vec![None::<&Path>; count];
-    for (path, f) in files {
-        if let Some(field) = first_difference(s, &f.settings) {
-            return Err(refuse(
-                path,
+    for h in heads {
+        if let Some(field) = first_difference(s, &h.settings) {
+            return Err(MergeRefusal::new(
+                &h.path,
                 format!(
                     "its {field} differs from {}'s: shards of different problems or settings do not merge",
-                    first_path.display()
+                    first.path.display()
                 ),
             ));
         }
-        if f.shard.count != count {
-            return Err(refuse(
-                path,
+        if h.shard.count != count {
+            return Err(MergeRefusal::new(
+                &h.path,
                 format!(
                     "shard {}/{} cannot merge with {}'s shards of {count}",
-                    f.shard.index,
-                    f.shard.count,
-                    first_path.display()
+                    h.shard.index,
+                    h.shard.count,
+                    first.path.display()
                 ),
             ));
         }
-        let slot = seen.get_mut(f.shard.index).ok_or_else(|| {
-            refuse(
-                path,
-                format!("shard {}/{count} is not a shard of {count}", f.shard.index),
-            )
-        })?;
-        if let Some(other) = slot.replace(path) {
-            return Err(refuse(
-                path,
+        if h.shard.index >= count {
+            return Err(MergeRefusal::new(
+                &h.path,
+                format!("shard {}/{count} is not a shard of {count}", h.shard.index),
+            ));
+        }
+    }
+    // Each share once: the count cannot exceed the files given, or some share is missing.
+    let mut ordered: Vec<&ShardHead> = heads.iter().collect();
+    ordered.sort_by_key(|h| h.shard.index);
+    for w in ordered.windows(2) {
+        if w[0].shard.index == w[1].shard.index {
+            return Err(MergeRefusal::new(
+                &w[1].path,
                 format!(
                     "shard {}/{count} is also {}",
-                    f.shard.index,
-                    other.display()
+                    w[1].shard.index,
+                    w[0].path.display()
                 ),
             ));
         }
     }
-    if let Some(missing) = seen.iter().position(Option::is_none) {
-        return Err(refuse(
-            first_path,
+    if let Some(missing) = (0..count).find(|&i| ordered.get(i).is_none_or(|h| h.shard.index != i)) {
+        return Err(MergeRefusal::new(
+            &first.path,
             format!("shard {missing}/{count} is missing: give every shard's file"),
         ));
     }
-    let (theta, mc, engine) = setup(s).map_err(|why| refuse(first_path, why))?;
-    let shape = s.shape();
-    let mut parts = Vec::new();
-    for (path, f) in files {
-        let share = Share::new(f.shard.index, count).map_err(|e| refuse(path, e.to_string()))?;
-        for c in &f.chunks {
-            if !share.owns_chunk(c.chunk) || c.chunk >= shape.chunks() {
-                return Err(refuse(
-                    path,
-                    format!("chunk {} is not shard {}/{count}'s", c.chunk, f.shard.index),
-                ));
+    Ok(ordered)
+}
+
+/// What one shard file's reader hands on: chunk `c`'s sums, or the end of the file with
+/// the number of chunks it held, or why it stopped.
+enum Read {
+    Chunk(usize, Box<Accumulator>),
+    End,
+    Refused(MergeRefusal),
+}
+
+/// The merged sums of the shards `ordered` (one per share, in share order, as [`plan`]
+/// returns them), whose settings give `shape`: chunk c from share c mod n, merged in chunk
+/// order into fresh sums, which is what one process computes, bit for bit.
+///
+/// Each file is streamed by a reader thread of its own that decodes one chunk at a time
+/// and hands it on through a channel of one: memory stays at about one chunk per file (a
+/// wave), whatever the files hold. A chunk's text is read only up to the longest its shape
+/// can encode to, and decoded only when its shape's bytes are there, so nothing is sized by
+/// a number the file declares but does not back. The merged sums are allocated once the
+/// first chunk has shown that its shape is real.
+pub fn merge_stream(
+    ordered: &[&ShardHead],
+    shape_of: &ShardSettings,
+) -> Result<Accumulator, MergeRefusal> {
+    let shape = shape_of.shape();
+    let count = ordered.len();
+    std::thread::scope(|scope| {
+        let mut readers = Vec::with_capacity(count);
+        for h in ordered {
+            let (tx, rx) = std::sync::mpsc::sync_channel::<Read>(1);
+            let share = Share::new(h.shard.index, count)
+                .map_err(|e| MergeRefusal::new(&h.path, e.to_string()))?;
+            let shape = &shape;
+            std::thread::Builder::new()
+                .stack_size(1 << 20)
+                .spawn_scoped(scope, move || stream_chunks(h, share, shape, &tx))
+                .map_err(|e| MergeRefusal::new(&h.path, format!("cannot start its reader: {e}")))?;
+            readers.push((h, rx));
+        }
+        let mut merged: Option<Accumulator> = None;
+        let chunks = shape.chunks();
+        for c in 0..chunks {
+            let (h, rx) = &readers[c % count];
+            match rx.recv() {
+                Ok(Read::Chunk(got, sums)) if got == c => {
+                    merged.get_or_insert_with(|| shape.empty()).merge(&sums);
+                }
+                Ok(Read::Chunk(got, _)) => {
+                    return Err(MergeRefusal::new(
+                        &h.path,
+                        format!("chunk {got} comes where chunk {c} belongs"),
+                    ));
+                }
+                Ok(Read::End) | Err(_) => {
+                    return Err(MergeRefusal::new(
+                        &h.path,
+                        format!("chunk {c} is missing: the file ends before it"),
+                    ));
+                }
+                Ok(Read::Refused(r)) => return Err(r),
             }
-            let bytes = STANDARD
-                .decode(&c.sums)
-                .map_err(|e| refuse(path, format!("chunk {}: not base64: {e}", c.chunk)))?;
-            let sums = shape
-                .decode(c.chunk, &bytes)
-                .map_err(|e| refuse(path, format!("chunk {}: {e}", c.chunk)))?;
-            parts.push((c.chunk, sums));
+        }
+        for (h, rx) in &readers {
+            match rx.recv() {
+                Ok(Read::End) => {}
+                Ok(Read::Refused(r)) => return Err(r),
+                Ok(Read::Chunk(c, _)) => {
+                    return Err(MergeRefusal::new(
+                        &h.path,
+                        format!("chunk {c} is not one of the check's {chunks} chunks"),
+                    ));
+                }
+                Err(_) => {
+                    return Err(MergeRefusal::new(&h.path, "its reader stopped"));
+                }
+            }
+        }
+        merged.ok_or_else(|| MergeRefusal::new(&ordered[0].path, "no chunks to merge"))
+    })
+}
+
+/// A reader that counts what is read through it against a budget the caller resets: the
+/// longest text one chunk may take.
+struct Budget<R> {
+    inner: R,
+    left: std::rc::Rc<std::cell::Cell<u64>>,
+}
+
+impl<R: std::io::Read> std::io::Read for Budget<R> {
+    fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+        let left = self.left.get();
+        if left == 0 {
+            return Err(std::io::Error::other(
+                "a chunk's sums are longer than its shape allows",
+            ));
+        }
+        let n = buf.len().min(usize::try_from(left).unwrap_or(usize::MAX));
+        let got = self.inner.read(&mut buf[..n])?;
+        self.left.set(left - got as u64);
+        Ok(got)
+    }
+}
+
+/// The longest base64 text chunk `c` of `shape` can take (every divergence kept, with its
+/// longest reason), with room for the JSON around it; `None` where it overflows.
+fn longest_chunk_text(shape: &SumsShape, c: usize) -> Option<u64> {
+    let least = crate::records::min_sums_len(&shape.chunk(c))?;
+    // Each of at most 64 kept divergences: run, step, cause, reason length, reason.
+    let most = least.checked_add(64 * (8 + 8 + 1 + 8 + 1000))?;
+    (most.checked_add(2)? / 3)
+        .checked_mul(4)?
+        .checked_add(4096)
+        .map(|x| x as u64)
+}
+
+/// Stream `h`'s chunks into `tx`: each checked to be the share's next chunk of the check,
+/// its text bounded by its shape's longest, decoded against its shape.
+fn stream_chunks(
+    h: &ShardHead,
+    share: Share,
+    shape: &SumsShape,
+    tx: &std::sync::mpsc::SyncSender<Read>,
+) {
+    use serde::de::{self, DeserializeSeed, MapAccess, SeqAccess, Visitor};
+    let refuse = |why: String| {
+        let _ = tx.send(Read::Refused(MergeRefusal::new(&h.path, why)));
+    };
+    let file = match open(&h.path) {
+        Ok((f, _)) => f,
+        Err(r) => return drop(tx.send(Read::Refused(r))),
+    };
+    // The head was read before: the budget covers it until the chunks start.
+    let left = std::rc::Rc::new(std::cell::Cell::new(MAX_FILE));
+    let reader = Budget {
+        inner: std::io::BufReader::with_capacity(1 << 16, file),
+        left: left.clone(),
+    };
+
+    struct Ctx<'a> {
+        h: &'a ShardHead,
+        share: Share,
+        shape: &'a SumsShape,
+        tx: &'a std::sync::mpsc::SyncSender<Read>,
+        left: std::rc::Rc<std::cell::Cell<u64>>,
+    }
+    struct File<'a>(&'a Ctx<'a>);
+    struct Chunks<'a>(&'a Ctx<'a>);
+    #[derive(Deserialize)]
+    #[serde(deny_unknown_fields)]
+    struct Chunk {
+        chunk: usize,
+        sums: String,
+    }
+    impl<'de> Visitor<'de> for File<'_> {
+        type Value = ();
+        fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+            f.write_str("a shard file")
+        }
+        fn visit_map<A: MapAccess<'de>>(self, mut map: A) -> Result<(), A::Error> {
+            let (mut settings, mut shard) = (None::<ShardSettings>, None::<ShardIndex>);
+            while let Some(key) = map.next_key::<String>()? {
+                match key.as_str() {
+                    "chunks" => map.next_value_seed(Chunks(self.0))?,
+                    "settings" => settings = Some(map.next_value()?),
+                    "shard" => shard = Some(map.next_value()?),
+                    _ => {
+                        map.next_value::<de::IgnoredAny>()?;
+                    }
+                }
+            }
+            // The file must still be the one whose head was read.
+            if settings.as_ref() != Some(&self.0.h.settings) || shard != Some(self.0.h.shard) {
+                return Err(de::Error::custom("the file changed while it was merged"));
+            }
+            Ok(())
         }
     }
-    let sums = Share::merge(s.runs, shape.empty(), parts)
-        .map_err(|e| refuse(first_path, e.to_string()))?;
-    Ok(Merged {
-        settings: s.clone(),
-        theta,
-        mc,
-        engine,
-        sums,
-    })
+    impl<'de> DeserializeSeed<'de> for File<'_> {
+        type Value = ();
+        fn deserialize<D: de::Deserializer<'de>>(self, d: D) -> Result<(), D::Error> {
+            d.deserialize_map(self)
+        }
+    }
+    impl<'de> DeserializeSeed<'de> for Chunks<'_> {
+        type Value = ();
+        fn deserialize<D: de::Deserializer<'de>>(self, d: D) -> Result<(), D::Error> {
+            d.deserialize_seq(self)
+        }
+    }
+    impl<'de> Visitor<'de> for Chunks<'_> {
+        type Value = ();
+        fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+            f.write_str("a list of chunks")
+        }
+        fn visit_seq<A: SeqAccess<'de>>(self, mut seq: A) -> Result<(), A::Error> {
+            let cx = self.0;
+            let count = cx.share.count();
+            // The share's chunks, ascending: index, index + n, …
+            let mut next = cx.share.index();
+            loop {
+                let budget =
+                    longest_chunk_text(cx.shape, next.min(cx.shape.chunks().saturating_sub(1)))
+                        .unwrap_or(0);
+                cx.left.set(budget);
+                let Some(chunk) = seq.next_element::<Chunk>()? else {
+                    break;
+                };
+                if chunk.chunk != next {
+                    return Err(de::Error::custom(
+                        if cx.share.owns_chunk(chunk.chunk) && chunk.chunk < cx.shape.chunks() {
+                            format!(
+                                "chunk {} comes where chunk {next} belongs (chunks ascend, each once)",
+                                chunk.chunk
+                            )
+                        } else {
+                            format!(
+                                "chunk {} is not shard {}/{count}'s",
+                                chunk.chunk,
+                                cx.share.index()
+                            )
+                        },
+                    ));
+                }
+                if chunk.chunk >= cx.shape.chunks() {
+                    return Err(de::Error::custom(format!(
+                        "chunk {} is not one of the check's {} chunks",
+                        chunk.chunk,
+                        cx.shape.chunks()
+                    )));
+                }
+                let bytes = STANDARD.decode(&chunk.sums).map_err(|e| {
+                    de::Error::custom(format!("chunk {}: not base64: {e}", chunk.chunk))
+                })?;
+                drop(chunk.sums);
+                let sums = cx
+                    .shape
+                    .decode(next, &bytes)
+                    .map_err(|e| de::Error::custom(format!("chunk {next}: {e}")))?;
+                if cx.tx.send(Read::Chunk(next, Box::new(sums))).is_err() {
+                    return Err(de::Error::custom("stopped"));
+                }
+                next += count;
+            }
+            cx.left.set(MAX_FILE);
+            Ok(())
+        }
+    }
+
+    let cx = Ctx {
+        h,
+        share,
+        shape,
+        tx,
+        left,
+    };
+    let mut de = serde_json::Deserializer::from_reader(reader);
+    match File(&cx).deserialize(&mut de).and_then(|()| de.end()) {
+        Ok(()) => drop(tx.send(Read::End)),
+        Err(e) => refuse(e.to_string()),
+    }
 }
 
 /// The first setting in which `b` differs from `a`, by the name the file gives it.
@@ -370,24 +653,67 @@ fn first_difference(a: &ShardSettings, b: &ShardSettings) -> Option<&'static str
     fields.iter().find(|(_, same)| !same).map(|(f, _)| *f)
 }
 
-/// The parameter values, Monte Carlo settings and engine a shard's settings describe.
-fn setup(s: &ShardSettings) -> Result<(Vec<f64>, McConfig, Engine), String> {
-    let bad = |field: &str| format!("its settings' {field} is not valid");
-    let theta = s
-        .params
-        .iter()
-        .map(|(name, v)| v.get().ok_or_else(|| bad(&format!("params.{name}"))))
-        .collect::<Result<Vec<f64>, String>>()?;
-    let setting = |e: SettingError| format!("its settings: {e}");
-    let alpha = s.alpha.get().ok_or_else(|| bad("alpha"))?;
-    let gate = <GateMode as clap::ValueEnum>::from_str(&s.gate, false).map_err(|_| bad("gate"))?;
-    let engine =
-        <Engine as clap::ValueEnum>::from_str(&s.engine, false).map_err(|_| bad("engine"))?;
-    let mc = McConfig::new(s.runs, s.steps)
-        .and_then(|mc| mc.with_alpha(alpha))
-        .and_then(|mc| mc.with_lags(s.lags))
-        .map_err(setting)?
-        .with_seed(s.seed)
-        .with_gate(gate);
-    Ok((theta, mc, engine))
+/// A check as its shards' settings describe it, checked against the problem it names (its
+/// parameters, and the components of its sums) before anything is sized by them.
+#[derive(Debug, Clone)]
+pub struct Setup {
+    /// The parameter values, every one finite.
+    pub theta: Vec<f64>,
+    /// The Monte Carlo settings (validated as `check` validates them).
+    pub mc: McConfig,
+    /// The engine path asked for.
+    pub engine: Engine,
+}
+
+impl ShardSettings {
+    /// The check these settings describe, on `experiment` (the problem they name, read
+    /// again): the parameters must be its parameters and finite, the sums' components its
+    /// components, the Monte Carlo settings valid. `Err` says why in words.
+    pub fn setup(&self, experiment: &dyn Experiment) -> Result<Setup, String> {
+        let s = self;
+        let bad = |field: &str| format!("its settings' {field} is not valid");
+        let names = experiment.params().names();
+        if !names
+            .iter()
+            .copied()
+            .eq(s.params.iter().map(|(n, _)| n.as_str()))
+        {
+            return Err(format!(
+                "its parameters are not the problem's ({})",
+                names.join(", ")
+            ));
+        }
+        let theta = s
+            .params
+            .iter()
+            .map(|(name, v)| {
+                v.get()
+                    .filter(|x| x.is_finite())
+                    .ok_or_else(|| format!("its settings' params.{name} is not a finite number"))
+            })
+            .collect::<Result<Vec<f64>, String>>()?;
+        for (field, declared, actual) in [
+            ("n_x", s.n_x, experiment.state_names().len()),
+            ("n_z", s.n_z, experiment.measurement_names().len()),
+        ] {
+            if declared != actual {
+                return Err(format!(
+                    "its settings' {field} is {declared}, but the problem's sums have {actual}"
+                ));
+            }
+        }
+        let setting = |e: SettingError| format!("its settings: {e}");
+        let alpha = s.alpha.get().ok_or_else(|| bad("alpha"))?;
+        let gate =
+            <GateMode as clap::ValueEnum>::from_str(&s.gate, false).map_err(|_| bad("gate"))?;
+        let engine =
+            <Engine as clap::ValueEnum>::from_str(&s.engine, false).map_err(|_| bad("engine"))?;
+        let mc = McConfig::new(s.runs, s.steps)
+            .and_then(|mc| mc.with_alpha(alpha))
+            .and_then(|mc| mc.with_lags(s.lags))
+            .map_err(setting)?
+            .with_seed(s.seed)
+            .with_gate(gate);
+        Ok(Setup { theta, mc, engine })
+    }
 }

@@ -28,7 +28,7 @@ pub(crate) use npy::{read_numpy_records, read_raw as read_numpy_arrays};
 pub use sink::{NormalizedSensor, RecordSink, StepSink, normalize_sensor, shown_number};
 pub use wire::{
     ChunkShape, ChunkSums, WireError, decode as decode_sums, decode_bytes as decode_sums_bytes,
-    encode as encode_sums, encode_bytes as encode_sums_bytes,
+    encode as encode_sums, encode_bytes as encode_sums_bytes, min_len as min_sums_len,
 };
 
 /// Largest number of steps per run records may have. The sums take memory proportional to

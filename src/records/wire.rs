@@ -267,7 +267,25 @@ pub fn decode(text: &str, want: &ChunkShape) -> Result<ChunkSums, WireError> {
     decode_bytes(&bytes, want)
 }
 
-/// [`decode`] after base64.
+/// The fewest bytes an encoded chunk of shape `want` can have (no divergence kept), `None`
+/// where that overflows: the magic and header, the 26 vectors (T each for the 8 per-step
+/// sums, n_x for 9, n_z for 5, L n_z for 4 whiteness sums), 3 scalars, 8 counts, n_z
+/// per-component run counts, the count of divergences kept and a fingerprint per run.
+pub fn min_len(want: &ChunkShape) -> Option<usize> {
+    let words = [
+        8usize.checked_mul(want.steps)?,
+        9usize.checked_mul(want.n_x)?,
+        6usize.checked_mul(want.n_z)?,
+        want.lags.checked_mul(want.n_z)?.checked_mul(4)?,
+        6 + 3 + 8 + 1,
+        want.runs.len(),
+    ];
+    let words = words.iter().try_fold(0usize, |a, &w| a.checked_add(w))?;
+    words.checked_mul(8)?.checked_add(MAGIC.len())
+}
+
+/// [`decode`] after base64. Nothing is allocated by a size the bytes do not back: they are
+/// first checked to be at least [`min_len`] of the shape asked for.
 pub fn decode_bytes(bytes: &[u8], want: &ChunkShape) -> Result<ChunkSums, WireError> {
     let mut r = Reader { bytes, at: 0 };
     if r.take(MAGIC.len()).map_err(|_| WireError::Magic)? != MAGIC {
@@ -290,6 +308,9 @@ pub fn decode_bytes(bytes: &[u8], want: &ChunkShape) -> Result<ChunkSums, WireEr
                 want: expected,
             });
         }
+    }
+    if min_len(want).is_none_or(|least| bytes.len() < least) {
+        return Err(WireError::Truncated(bytes.len()));
     }
     let runs = want.runs.len();
     // Whole counts of samples are at most one per run and step (per lag for whiteness).

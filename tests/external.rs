@@ -406,3 +406,51 @@ value = 1.0
         String::from_utf8_lossy(&left.stdout)
     );
 }
+
+/// A check of 10¹² runs (the documented maximum) on a worker holds memory to one wave of
+/// chunks, not N (issue 37, item 4: it allocated 125 GB for the chunk list and aborted,
+/// leaving its scratch directory), and an interrupt then stops it cleanly: exit 130, no
+/// scratch directory left.
+#[test]
+fn a_check_of_a_trillion_runs_stays_small_and_stops_cleanly() {
+    use std::process::{Command, Stdio};
+    let dir = tempfile::tempdir().unwrap();
+    let p = problem(dir.path(), "good", 2, 1_000_000_000_000, "");
+    let tmp = dir.path().join("tmp");
+    std::fs::create_dir(&tmp).unwrap();
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_autotune"));
+    cmd.args(["check", p.to_str().unwrap(), "--quiet"])
+        .env("TMPDIR", &tmp)
+        .stdin(Stdio::null())
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped());
+    let mut child = common::with_default_signals(&mut cmd).spawn().unwrap();
+    let pid = child.id();
+    let mut hwm_kb = 0u64;
+    let start = std::time::Instant::now();
+    // Three seconds of chunks (hundreds of requests), sampling the peak memory.
+    while start.elapsed().as_secs_f64() < 3.0 {
+        if let Ok(status) = std::fs::read_to_string(format!("/proc/{pid}/status"))
+            && let Some(kb) = status
+                .lines()
+                .find(|l| l.starts_with("VmHWM:"))
+                .and_then(|l| l.split_whitespace().nth(1)?.parse().ok())
+        {
+            hwm_kb = hwm_kb.max(kb);
+        }
+        assert!(child.try_wait().unwrap().is_none(), "it ended early");
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    // SAFETY: pid is our running child.
+    unsafe { libc::kill(pid as libc::pid_t, libc::SIGINT) };
+    let out = child.wait_with_output().unwrap();
+    assert_eq!(
+        out.status.code(),
+        Some(130),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(hwm_kb > 0 && hwm_kb < 500 << 10, "peak {hwm_kb} kB");
+    let left: Vec<_> = std::fs::read_dir(&tmp).unwrap().collect();
+    assert!(left.is_empty(), "left behind: {left:?}");
+}

@@ -5,7 +5,8 @@
 //! 0. Hand-made hostile inputs, always first: a symlink `x.csv` → `/dev/zero` and a FIFO
 //!    `x.csv` given to `check --records`, `check --measurements` and `estimate
 //!    --measurements`; a JSON Lines line of 300 MB; `.npz` archives of about 1.6 MB
-//!    declaring arrays of gigabytes, and a compressed bomb; a CSV header of 90,000 and
+//!    declaring arrays of gigabytes, a compressed bomb, and a sparse `.npy` whose 16 GiB
+//!    length backs its declared shape (holes); a CSV header of 90,000 and
 //!    100,000 columns; and every behaviour of the hostile worker once.
 //! 1. Records files (`autotune check --records FILE [FILE]`, docs/external.md): CSV, JSON
 //!    Lines, `.npy` sets and `.npz` archives of a small linear filter's Monte Carlo runs
@@ -44,15 +45,18 @@
 //! ```
 
 use std::collections::BTreeMap;
-use std::ffi::{OsStr, OsString};
+use std::ffi::OsString;
 use std::io::Write as _;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
+#[path = "common/fuzz_runner.rs"]
+mod fuzz_runner;
 #[path = "common/fuzzing.rs"]
 mod fuzzing;
-use fuzzing::{Npy, Rng, mutate_bytes, number_spans, proc_status_kb, settings, spawn_limited};
+use fuzz_runner::{Case, Failed, Outcome, Tally, failed, merge, run};
+use fuzzing::{Npy, Rng, mutate_bytes, number_spans, settings};
 
 /// How long a run on a records or measurements file may take: the fuzzed inputs are a few
 /// kilobytes, the hand-made ones are refused or read in seconds.
@@ -64,303 +68,9 @@ const WORKER_TIMEOUT: u64 = 2;
 /// How long a worker run may take: a check asks one request and the seed-contract check
 /// one more, each within the timeout; a tune of two evaluations a few more.
 const WORKER_LIMIT: Duration = Duration::from_secs(20);
-/// The address space a run may map: beyond, an allocation fails and the process aborts
-/// (a failure), instead of the machine swapping.
-const ADDRESS_SPACE: u64 = 4 << 30;
-/// The resident memory a run may reach on any of these inputs (issue #21: bounded memory
-/// whatever the input); a run is stopped as soon as it passes it.
-const RSS_LIMIT_MB: u64 = 500;
-/// Failing inputs kept on disk.
-const SAVED_FAILURES: usize = 40;
-
 // ---------------------------------------------------------------------------------------
 // Shared: running the binary, the tally (the random numbers and the settings:
 // common/fuzzing.rs).
-
-/// One binary run to make.
-struct Case {
-    /// What kind of input, for grouping failures (`records/npz`, `worker/fifo`, …).
-    kind: String,
-    args: Vec<OsString>,
-    /// The directory it runs in; its `tmp/` is the run's `TMPDIR`.
-    dir: PathBuf,
-    limit: Duration,
-    json: bool,
-    /// An exit-2 error must contain one of these (the input's file names, the command).
-    names: Vec<String>,
-    /// The input files, saved when the run fails.
-    files: Vec<PathBuf>,
-}
-
-/// How a run ended.
-struct Outcome {
-    code: usize,
-    /// The error line of an exit 2.
-    error: String,
-    seconds: f64,
-    rss_mb: u64,
-}
-
-/// A failed run: its symptom in a few words (for grouping) and the whole story.
-struct Failed {
-    symptom: String,
-    detail: String,
-}
-
-fn failed(symptom: &str, detail: String) -> Failed {
-    Failed {
-        symptom: symptom.into(),
-        detail,
-    }
-}
-
-/// Run `case` under the address-space limit, sampling its peak resident memory; check what
-/// every run must satisfy.
-// The child is reaped by `waitpid` (which `Child` cannot see), on every path.
-#[allow(clippy::zombie_processes)]
-fn run(case: &Case, env: &[(&str, &OsStr)]) -> Result<Outcome, Failed> {
-    let tmp = case.dir.join("tmp");
-    std::fs::create_dir_all(&tmp).unwrap();
-    let mut cmd = Command::new(env!("CARGO_BIN_EXE_autotune"));
-    cmd.current_dir(&case.dir)
-        .args(&case.args)
-        .env("NO_COLOR", "1")
-        .env("TMPDIR", &tmp)
-        .stdin(Stdio::null())
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped());
-    for (k, v) in env {
-        cmd.env(k, v);
-    }
-    let (mut child, out, err) = spawn_limited(&mut cmd, ADDRESS_SPACE);
-    let start = Instant::now();
-    let pid = child.id() as libc::pid_t;
-    let mut status = 0;
-    // The child's peak memory, read while it runs (its ru_maxrss would count this
-    // process's, which it was forked from).
-    let mut hwm_kb = 0;
-    let mut stopped = None;
-    loop {
-        if let Some(kb) = proc_status_kb(pid, "VmHWM:") {
-            hwm_kb = hwm_kb.max(kb);
-        }
-        // SAFETY: pid is our child, not yet reaped; status is valid.
-        let r = unsafe { libc::waitpid(pid, &mut status, libc::WNOHANG) };
-        if r == pid {
-            break;
-        }
-        assert!(r == 0, "waitpid failed");
-        // A run past either bound is stopped at once: waiting for the limit of the
-        // address space (or forever) tells nothing more.
-        if hwm_kb / 1024 > RSS_LIMIT_MB {
-            stopped = Some(failed(
-                "memory over the limit",
-                format!(
-                    "more than {RSS_LIMIT_MB} MB of memory after {:.1} s (stopped)",
-                    start.elapsed().as_secs_f64()
-                ),
-            ));
-        } else if start.elapsed() > case.limit {
-            stopped = Some(failed(
-                "hang",
-                format!("still running after {:?} (stopped)", case.limit),
-            ));
-        }
-        if stopped.is_some() {
-            let _ = child.kill();
-            // SAFETY: as above, blocking until the killed child is reaped.
-            unsafe { libc::waitpid(pid, &mut status, 0) };
-            break;
-        }
-        std::thread::sleep(Duration::from_millis(2));
-    }
-    let seconds = start.elapsed().as_secs_f64();
-    // A worker the run left behind may hold the pipes: do not wait for it.
-    let join = |h: std::thread::JoinHandle<Vec<u8>>| {
-        let until = Instant::now() + Duration::from_secs(10);
-        while !h.is_finished() && Instant::now() < until {
-            std::thread::sleep(Duration::from_millis(5));
-        }
-        if h.is_finished() {
-            h.join().unwrap()
-        } else {
-            b"<the pipe stayed open: a process the run started still holds it>".to_vec()
-        }
-    };
-    let stdout = join(out);
-    let stderr = String::from_utf8_lossy(&join(err)).into_owned();
-    if let Some(f) = stopped {
-        return Err(f);
-    }
-    let code = libc::WIFEXITED(status).then(|| libc::WEXITSTATUS(status));
-    let rss_mb = hwm_kb / 1024;
-    let shown = |s: &str| s.chars().take(600).collect::<String>();
-    if stderr.contains("panicked") {
-        return Err(failed(
-            "panic",
-            format!("exit {code:?}: {}", shown(&stderr)),
-        ));
-    }
-    if !matches!(code, Some(0..=2)) {
-        let signal = libc::WIFSIGNALED(status).then(|| libc::WTERMSIG(status));
-        let symptom = match signal {
-            Some(libc::SIGABRT) => "aborted (SIGABRT)".to_string(),
-            Some(s) => format!("killed by signal {s}"),
-            None => format!("exit {code:?}"),
-        };
-        return Err(failed(
-            &symptom,
-            format!("{symptom} at {rss_mb} MB: {}", shown(stderr.trim_end())),
-        ));
-    }
-    if code == Some(2) {
-        if stderr.lines().count() != 1 || !stderr.starts_with("error: ") {
-            return Err(failed(
-                "exit 2 without a one-line error",
-                format!("exit 2, stderr {:?}", shown(&stderr)),
-            ));
-        }
-        if !case.names.iter().any(|n| stderr.contains(n.as_str())) {
-            return Err(failed(
-                "error does not name the input",
-                format!(
-                    "the error names none of {:?}: {}",
-                    case.names,
-                    shown(&stderr)
-                ),
-            ));
-        }
-    }
-    if code != Some(2) && case.json && serde_json::from_slice::<serde_json::Value>(&stdout).is_err()
-    {
-        return Err(failed(
-            "--json output is not JSON",
-            format!(
-                "exit {code:?} with --json, stdout {:?}",
-                String::from_utf8_lossy(&stdout[..stdout.len().min(300)])
-            ),
-        ));
-    }
-    if rss_mb > RSS_LIMIT_MB {
-        return Err(failed(
-            "memory over the limit",
-            format!("{rss_mb} MB of memory (more than {RSS_LIMIT_MB} MB)"),
-        ));
-    }
-    Ok(Outcome {
-        code: code.unwrap_or(2) as usize,
-        error: if code == Some(2) {
-            stderr.trim_end().to_string()
-        } else {
-            String::new()
-        },
-        seconds,
-        rss_mb,
-    })
-}
-
-/// What the runs gave: counts, extremes, and the failures grouped by kind and symptom.
-#[derive(Default)]
-struct Tally {
-    runs: usize,
-    exits: [usize; 3],
-    slowest: (f64, String),
-    max_rss: (u64, String),
-    /// (kind, symptom) → count and the first failure.
-    classes: BTreeMap<(String, String), (usize, String)>,
-    failures: usize,
-}
-
-impl Tally {
-    fn ok(&mut self, case: &Case, o: &Outcome) {
-        self.runs += 1;
-        self.exits[o.code] += 1;
-        if o.seconds > self.slowest.0 {
-            self.slowest = (o.seconds, case.kind.clone());
-        }
-        if o.rss_mb > self.max_rss.0 {
-            self.max_rss = (o.rss_mb, case.kind.clone());
-        }
-    }
-
-    /// Count a failure; the first [`SAVED_FAILURES`] have their inputs saved.
-    fn fail(&mut self, case: &Case, f: Failed, failures_dir: &Path, note: &str) {
-        self.runs += 1;
-        self.failures += 1;
-        // Numbered across the parts, so that the saved inputs do not overwrite each other.
-        static SAVED: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
-        let n = SAVED.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-        let mut args: Vec<String> = case
-            .args
-            .iter()
-            .map(|a| a.to_string_lossy().into_owned())
-            .collect();
-        if n < SAVED_FAILURES {
-            let saved = failures_dir.join(format!("{n:04}"));
-            std::fs::create_dir_all(&saved).unwrap();
-            for f in &case.files {
-                let to = saved.join(f.file_name().unwrap());
-                let meta = std::fs::symlink_metadata(f);
-                // A symlink, a FIFO or a file of hundreds of megabytes is described, not
-                // copied.
-                match meta {
-                    Ok(m) if m.file_type().is_file() && m.len() < 64 << 20 => {
-                        let _ = std::fs::copy(f, &to);
-                    }
-                    Ok(m) => {
-                        let what = match std::fs::read_link(f) {
-                            Ok(t) => format!("a symlink to {}\n", t.display()),
-                            Err(_) => format!("{:?}, {} bytes\n", m.file_type(), m.len()),
-                        };
-                        let _ = std::fs::write(to.with_extension("txt"), what);
-                    }
-                    Err(_) => {}
-                }
-                for a in &mut args {
-                    if Path::new(a.as_str()) == f.as_path() {
-                        *a = to.display().to_string();
-                    }
-                }
-            }
-        }
-        let what = format!(
-            "[{}] autotune {}{note}: {}",
-            case.kind,
-            args.join(" "),
-            f.detail
-        );
-        let e = self
-            .classes
-            .entry((case.kind.clone(), f.symptom))
-            .or_insert((0, what));
-        e.0 += 1;
-    }
-
-    fn summary(&self, part: &str, seed: u64, seconds: f64, elapsed: f64, inputs: usize) {
-        eprintln!(
-            "fuzz inputs {part} (seed {seed}, {seconds:.1} s): {inputs} inputs in {elapsed:.1} s ({:.1}/s), {} binary runs (exit 0/1/2: {}/{}/{}); slowest run {:.2} s ({}); most memory {} MB ({}); {} failures",
-            inputs as f64 / elapsed.max(1e-9),
-            self.runs,
-            self.exits[0],
-            self.exits[1],
-            self.exits[2],
-            self.slowest.0,
-            self.slowest.1,
-            self.max_rss.0,
-            self.max_rss.1,
-            self.failures
-        );
-    }
-
-    /// The failures, one line per (kind, symptom) with its count and first example.
-    fn report(&self) -> String {
-        let mut s = String::new();
-        for ((kind, symptom), (n, first)) in &self.classes {
-            s += &format!("\n{kind} → {symptom} (×{n})\n    {first}");
-        }
-        s
-    }
-}
 
 /// An emptied directory.
 fn fresh(dir: &Path) -> PathBuf {
@@ -1763,6 +1473,22 @@ fn hand_made(dir: &Path, failures_dir: &Path, tally: &mut Tally) {
         false,
         PROCESS_LIMIT,
     );
+    // A sparse e.npy whose length backs its declared 16 GiB (issue 37, item 4): every
+    // check on the file passes, and the array must still not abort the process.
+    let sparse = d.join("sparse").join("e.npy");
+    std::fs::create_dir_all(sparse.parent().unwrap()).unwrap();
+    let header = Npy::new("e", &[1 << 30, 1, 2], Vec::new()).header();
+    let f = std::fs::File::create(&sparse).unwrap();
+    std::io::Write::write_all(&mut &f, &header).unwrap();
+    f.set_len(header.len() as u64 + (16 << 30)).unwrap();
+    drop(f);
+    go(
+        "a sparse e.npy of 16 GiB (holes), its shape backed by its length",
+        &sparse,
+        true,
+        false,
+        PROCESS_LIMIT,
+    );
     let bomb = d.join("bomb.npz");
     let mut bomb_entries = vec![bomb_entry("e", &[1, 1 << 25, 2])];
     for (name, shape) in [
@@ -1974,23 +1700,4 @@ fn fuzz_records_measurements_and_workers_with_hostile_inputs() {
         failures_dir.display(),
         all.report()
     );
-}
-
-/// Add `t`'s counts to `all`.
-fn merge(all: &mut Tally, t: Tally) {
-    all.runs += t.runs;
-    for i in 0..3 {
-        all.exits[i] += t.exits[i];
-    }
-    if t.slowest.0 > all.slowest.0 {
-        all.slowest = t.slowest;
-    }
-    if t.max_rss.0 > all.max_rss.0 {
-        all.max_rss = t.max_rss;
-    }
-    all.failures += t.failures;
-    for (k, (n, first)) in t.classes {
-        let e = all.classes.entry(k).or_insert((0, first));
-        e.0 += n;
-    }
 }

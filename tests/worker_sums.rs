@@ -351,6 +351,44 @@ fn the_c_abi_refuses_what_a_records_file_would_not_hold() {
     let s = unsafe { capi::autotune_chunk_answer(c) };
     assert!(s.is_null());
     assert!(last().contains("step"), "{}", last());
+    // A run outside the request or a step outside 1..=T is refused at the call (-1, the
+    // argument named), by every call that takes them (issue 37, item 5).
+    let why = CString::new("x").unwrap();
+    let sensor = CString::new(layout.sensors[0].name.as_str()).unwrap();
+    let m = layout.sensors[0].dim;
+    let (nu, s) = (vec![0.1; m], {
+        let mut s = vec![0.0; m * m];
+        (0..m).for_each(|i| s[i * m + i] = 1.0);
+        s
+    });
+    for (run, step, what) in [
+        (4, 1, "run 4 is not one the request asks for (0..4)"),
+        (usize::MAX, 1, "is not one the request asks for"),
+        (0, 0, "step 0 is outside the request's steps 1..=30"),
+        (0, STEPS + 1, "step 31 is outside"),
+        (0, usize::MAX, "is outside the request's steps"),
+    ] {
+        for call in 0..3 {
+            let c = unsafe { capi::autotune_chunk_new(req.as_ptr()) };
+            let code = match call {
+                0 => unsafe { capi::autotune_chunk_state(c, run, step, e.as_ptr(), p.as_ptr()) },
+                1 => unsafe {
+                    capi::autotune_chunk_sensor(
+                        c,
+                        run,
+                        step,
+                        sensor.as_ptr(),
+                        nu.as_ptr(),
+                        s.as_ptr(),
+                    )
+                },
+                _ => unsafe { capi::autotune_chunk_diverged(c, run, step, why.as_ptr()) },
+            };
+            assert_eq!(code, -1, "call {call}, run {run}, step {step}");
+            assert!(last().contains(what), "call {call}: {}", last());
+            unsafe { capi::autotune_chunk_free(c) };
+        }
+    }
     // NULL pointers, an unknown sensor, a request from before sums.
     let c = unsafe { capi::autotune_chunk_new(req.as_ptr()) };
     assert_eq!(

@@ -251,6 +251,21 @@ impl WorkerChunk {
 
     /// The record of (run, step), begun (and the one before pushed) when new.
     fn pending(&mut self, run: usize, step: usize) -> Result<&mut StepRecord, ChunkError> {
+        // Refused at the call that gives them, naming the argument, rather than at the
+        // answer (where a step 0 would read as a run given twice).
+        let runs = self.runs();
+        if !runs.contains(&run) {
+            return Err(ChunkError::Given(format!(
+                "run {run} is not one the request asks for ({}..{})",
+                runs.start, runs.end
+            )));
+        }
+        if !(1..=self.steps()).contains(&step) {
+            return Err(ChunkError::Given(format!(
+                "run {run}: step {step} is outside the request's steps 1..={}",
+                self.steps()
+            )));
+        }
         if self
             .pending
             .as_ref()

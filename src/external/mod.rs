@@ -249,7 +249,8 @@ impl ExternalExperiment {
         let runs = mc.runs();
         // This process's chunks, in order: all of them, or a share's (a shard, an MPI rank).
         let share = options.share.map_or(Share::WHOLE, |s| s.share);
-        let own: Vec<usize> = share.chunks(runs.div_ceil(CHUNK)).collect();
+        // Taken a wave at a time: nothing is sized by N (up to 10¹² runs), only by a wave.
+        let mut own = share.chunks(runs.div_ceil(CHUNK)).peekable();
         let mut total =
             Accumulator::new(mc.steps(), self.layout.n_x(), self.layout.n_z(), mc.lags());
         // The first chunk's runs, fingerprinted for the seed-contract check.
@@ -263,7 +264,8 @@ impl ExternalExperiment {
         // holds one wave's sums whatever N.
         let wave = 4 * pool.len();
         let mut done = 0;
-        for wave_chunks in own.chunks(wave) {
+        while own.peek().is_some() {
+            let wave_chunks: &[usize] = &own.by_ref().take(wave).collect::<Vec<_>>();
             let asked = Asked {
                 theta: &theta_json,
                 mc,

@@ -157,7 +157,7 @@ fn read_array<R: Read>(
     // element by element, the zip reader's checksum and the buffering cost more than them.
     if dtype == "'<f8'" || (dtype == "'=f8'" && cfg!(target_endian = "little")) {
         let data = read_le_f64(npy.into_inner(), len, &err)?;
-        return Ok((shape.clone(), c_order(&shape, order, data)));
+        return Ok((shape.clone(), c_order(&shape, order, data, &err)?));
     }
     macro_rules! try_types {
         ($npy:expr, $($t:ty),*) => {{
@@ -165,11 +165,11 @@ fn read_array<R: Read>(
             $(
                 let npy = match npy.try_data::<$t>() {
                     Ok(reader) => {
-                        let mut out = Vec::with_capacity(len);
+                        let mut out = numbers_for(len, &err)?;
                         for v in reader {
                             out.push(v.map_err(|e| err(format!("cannot read: {}", one_line(&e))))? as f64);
                         }
-                        return Ok((shape.clone(), c_order(&shape, order, out)));
+                        return Ok((shape.clone(), c_order(&shape, order, out, &err)?));
                     }
                     Err(npy) => npy,
                 };
@@ -190,7 +190,7 @@ fn read_le_f64(
     len: usize,
     err: &dyn Fn(String) -> FileError,
 ) -> Result<Vec<f64>, FileError> {
-    let mut data = Vec::with_capacity(len);
+    let mut data = numbers_for(len, err)?;
     let mut reader = reader.take(len as u64 * 8);
     let mut block = vec![0u8; 1 << 16];
     let mut filled = 0;
@@ -220,6 +220,20 @@ fn read_le_f64(
     Ok(data)
 }
 
+/// Room for `len` numbers, reserved fallibly: an array that passes every check on its file
+/// (a sparse file's holes count as data) may still not fit in this machine's memory, which
+/// is refused in one line rather than aborting the process.
+fn numbers_for(len: usize, err: &dyn Fn(String) -> FileError) -> Result<Vec<f64>, FileError> {
+    let mut v = Vec::new();
+    v.try_reserve_exact(len).map_err(|_| {
+        err(format!(
+            "{} as float64 do not fit in memory",
+            userfile::size_text((len as u64).saturating_mul(8))
+        ))
+    })?;
+    Ok(v)
+}
+
 /// An error of the NumPy or zip reader on one line: a header the Python-literal parser
 /// refuses comes with a drawing of where (`--> 1:17`, the header, a caret, `= expected
 /// value`), of which the position and the expectation are kept.
@@ -240,11 +254,17 @@ fn one_line(e: &impl std::fmt::Display) -> String {
 }
 
 /// `data` in C order, given in `order`.
-fn c_order(shape: &[usize], order: npyz::Order, data: Vec<f64>) -> Vec<f64> {
+fn c_order(
+    shape: &[usize],
+    order: npyz::Order,
+    data: Vec<f64>,
+    err: &dyn Fn(String) -> FileError,
+) -> Result<Vec<f64>, FileError> {
     if order == npyz::Order::C || shape.len() < 2 {
-        return data;
+        return Ok(data);
     }
-    let mut out = vec![0.0; data.len()];
+    let mut out = numbers_for(data.len(), err)?;
+    out.resize(data.len(), 0.0);
     let mut idx = vec![0usize; shape.len()];
     for v in out.iter_mut() {
         // Fortran offset of the current C-order multi-index.
@@ -263,7 +283,7 @@ fn c_order(shape: &[usize], order: npyz::Order, data: Vec<f64>) -> Vec<f64> {
             idx[a] = 0;
         }
     }
-    out
+    Ok(out)
 }
 
 /// A NumPy array as read: its name, shape and data (f64, C order).

@@ -320,7 +320,7 @@ fn close_step<const N: usize>(
 }
 
 fn sampled<const N: usize>(run: usize) -> Option<NullVar<N>> {
-    (run % NULL_VAR_STRIDE == 0).then(NullVar::new)
+    run.is_multiple_of(NULL_VAR_STRIDE).then(NullVar::new)
 }
 
 fn ctrv_by_hand(

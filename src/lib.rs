@@ -38,10 +38,6 @@
 //! ```
 
 #![warn(missing_docs)]
-// Without `internals` the modules below the API are crate-private: what they export for the
-// crate's own tests and benches is then unused by the library itself. The `internals`
-// build (every test, bench, example and lint run) still reports unused code.
-#![cfg_attr(not(feature = "internals"), allow(unused_imports, dead_code))]
 
 // The BLAS and LAPACK that clarabel's semidefinite cone calls (the `sdp` feature): the
 // system's shared OpenBLAS (Debian: libopenblas-dev).
@@ -81,9 +77,9 @@ mod tune;
 mod userfile;
 
 /// Every module below the public API, whole: for the crate's own tests, benches and
-/// examples (the `internals` feature, which the package's dev-dependency on itself turns
-/// on). Not part of the API.
-#[cfg(feature = "internals")]
+/// examples. Hidden from the documentation and not part of the API: it may change in any
+/// release. (Always compiled, rather than behind a feature, so that the binary and the
+/// tests are one build.)
 #[doc(hidden)]
 pub mod internals {
     pub mod catalog {

@@ -212,7 +212,7 @@ fn documented_names(row: &str) -> BTreeSet<String> {
 fn the_documented_public_api_is_the_crate_roots_and_the_preludes() {
     let lib = std::fs::read_to_string("src/lib.rs").unwrap();
     // The internals module re-exports every private module for the crate's own tests; it
-    // is not the public API (the `internals` feature turns it on).
+    // is not the public API (hidden from the documentation).
     let (public, internals) = lib.split_once("pub mod internals {").unwrap();
     let after_internals = &internals[internals.find("\n}\n").unwrap()..];
     let root = reexported_names(&format!("{public}{after_internals}"));

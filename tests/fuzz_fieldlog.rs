@@ -1795,10 +1795,10 @@ fn mutate_ulog(u: &mut Ulog, rng: &mut Rng) {
         }
         3 => {
             let a = of_type(u, b'A');
-            if let Some(&k) = a.get(rng.below(a.len().max(1))) {
-                if let Some(b) = u.msgs[k].payload.first_mut() {
-                    *b = *rng.pick(&[0, 1, 2, 9, 255]);
-                }
+            if let Some(&k) = a.get(rng.below(a.len().max(1)))
+                && let Some(b) = u.msgs[k].payload.first_mut()
+            {
+                *b = *rng.pick(&[0, 1, 2, 9, 255]);
             }
         }
         4 | 5 => {

@@ -509,7 +509,7 @@ fn absurd_sizes_and_headers_are_one_line_errors() {
     // error is a drawing over several lines).
     let npy = |name: &str, header: &str, data: &[u8]| -> PathBuf {
         let mut h = header.to_string();
-        while (10 + h.len() + 1) % 64 != 0 {
+        while !(10 + h.len() + 1).is_multiple_of(64) {
             h.push(' ');
         }
         h.push('\n');
@@ -562,7 +562,7 @@ fn absurd_sizes_and_headers_are_one_line_errors() {
     let own_p = d.join("zero/P.npy");
     let mut h =
         "{'descr': '<f8', 'fortran_order': False, 'shape': (1000000000000, 4, 0, 0), }".to_string();
-    while (10 + h.len() + 1) % 64 != 0 {
+    while !(10 + h.len() + 1).is_multiple_of(64) {
         h.push(' ');
     }
     h.push('\n');

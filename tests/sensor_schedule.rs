@@ -15,10 +15,10 @@ const DT: f64 = 1.0;
 /// step, nothing when neither.
 fn sensors_at(k: usize) -> Vec<usize> {
     let mut s = Vec::new();
-    if k % 2 == 0 {
+    if k.is_multiple_of(2) {
         s.push(0);
     }
-    if k % 3 == 0 {
+    if k.is_multiple_of(3) {
         s.push(1);
     }
     s

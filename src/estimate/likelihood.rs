@@ -741,10 +741,10 @@ mod tests {
                     .map(|i| ((i as f64 + s as f64) * 0.7).sin() * 3.0)
                     .collect();
                 for (k, zk) in z.chunks_mut(m).enumerate() {
-                    if (k as u64 + s) % 37 == 0 {
+                    if (k as u64 + s).is_multiple_of(37) {
                         zk[k % m] = f64::NAN;
                     }
-                    if (k as u64 + s) % 53 == 0 {
+                    if (k as u64 + s).is_multiple_of(53) {
                         zk[(k + 1) % m] = f64::NAN;
                     }
                     if s == 1 && (k == 0 || (200..205).contains(&k)) {

@@ -450,7 +450,7 @@ struct RunNullVariance {
 
 impl RunNullVariance {
     fn new(n_x: usize, mc: &McConfig, run: usize) -> Self {
-        let sample = run % NULL_VAR_STRIDE == 0;
+        let sample = run.is_multiple_of(NULL_VAR_STRIDE);
         // An unsampled run never steps its recursions: no storage for them (the component
         // one is 3 n³ numbers).
         RunNullVariance {

@@ -272,7 +272,7 @@ mod tests {
         // second-moment sums must count both values. Exact: each sum adds the same products
         // in the same order.
         let (t, m, lags) = (8, 4, 2);
-        let measured = |k: usize, j: usize| (k + j) % 3 != 0 || j == 2;
+        let measured = |k: usize, j: usize| !(k + j).is_multiple_of(3) || j == 2;
         let value = |k: usize, j: usize| (k * 5 + j) as f64 * 0.25 - 2.0;
         let mut acc = Accumulator::new(t, 0, m, lags);
         let mut rec = RunRecorder::new(0, m, lags);

@@ -228,14 +228,15 @@ impl InsTruth {
     /// put a whole number of IMU samples in each (5 at dt = 0.1 s, 100 Hz).
     pub fn rk4_steps(&self) -> usize {
         (1..=self.n_imu)
-            .find(|&n| self.n_imu % n == 0 && self.dt / n as f64 <= 0.02 + 1e-12)
+            .find(|&n| self.n_imu.is_multiple_of(n) && self.dt / n as f64 <= 0.02 + 1e-12)
             .unwrap_or(self.n_imu)
     }
 
     /// Whether a GNSS fix is taken at step `k`.
     pub fn gnss_at(&self, k: usize) -> bool {
         let t = k as f64 * self.dt;
-        k % self.gnss_every == 0 && !(t >= self.outage.0 - 1e-9 && t < self.outage.1 - 1e-9)
+        k.is_multiple_of(self.gnss_every)
+            && !(t >= self.outage.0 - 1e-9 && t < self.outage.1 - 1e-9)
     }
 
     fn attitude(&self, k: &Kin, t: f64, off: Offsets) -> Attitude {

@@ -8,7 +8,7 @@ use super::{Block, Covariances, Definition, Experiment, ExperimentError, RunOpti
 use crate::filter::{Estimate, Filter, KalmanFilter, PredictResult, UpdateResult};
 use crate::measurement::Measurement;
 use crate::model::LinearGaussianModel;
-use crate::montecarlo::{self, Engine, McConfig, expected_accumulator, models_match};
+use crate::montecarlo::{self, Engine, McConfig, expected_accumulator_mapped};
 use crate::params::{Coef, CovModel, NoiseKind, Target};
 use crate::stats::Accumulator;
 
@@ -104,11 +104,9 @@ impl Experiment for LinearExperiment {
 
     fn expected(&self, theta: &[f64], mc: &McConfig) -> Option<Accumulator> {
         let kf = self.filter_at(theta);
-        if self.filter.map.is_some() || !models_match(&self.truth, &kf) {
-            return None;
-        }
+        let map = self.filter.map.as_ref();
         Some(
-            expected_accumulator(&self.truth, &kf, mc)
+            expected_accumulator_mapped(&self.truth, &kf, map, mc)
                 .unwrap_or_else(|e| montecarlo::all_stopped(mc, kf.F.nrows(), kf.H.nrows(), &e)),
         )
     }

@@ -1,6 +1,6 @@
-//! Exact expected Monte Carlo sums for a linear filter whose model matches the truth's
-//! (same F and H; Q, R, P0 and x0 may differ).
+//! Exact expected Monte Carlo sums for a linear filter on a linear-Gaussian truth.
 //!
+//! Where the filter's model matches the truth's (same F and H; Q, R, P0 and x0 may differ):
 //! With matched models the estimation error obeys its own recursion, driven by the truth's
 //! noise and the filter's gain (DESIGN.md, "Theory in one page"):
 //! `e⁻_k = F e_{k−1} + w_k`, `ν_k = H e⁻_k + v_k`, `e_k = (I − K_k H) e⁻_k − K_k v_k`, so its
@@ -9,6 +9,14 @@
 //! `E[ν_k ν_j'] = H F Φ_{k−1,j} E[e_j ν_j']`. These are the sums N Monte Carlo runs would
 //! produce on average, with no sampling noise: the tuner's objective becomes a deterministic,
 //! smooth function of the parameters, and a Monte Carlo run still confirms the result.
+//!
+//! Where it does not (another F or H, other states than the truth's through a map M, as a
+//! misfit explanation's hypotheses give): the truth's state and the filter's estimate
+//! propagate together, `s = [x; x̂]`, a linear system driven by the truth's noise and the
+//! filter's (data-independent) gains: `s⁻ = Φ s + [w; 0]` with `Φ = diag(F_t, F_f)`,
+//! `ν = C s⁻ + v` with `C = [H_t, −H_f]`, `s = B s⁻ + [0; K] v` with
+//! `B = [[I, 0], [K H_t, I − K H_f]]`, and the error is `e = D s` with `D = [M, −I]`. The
+//! same expected values follow from the joint mean and covariance ([`JointMoments`]).
 
 #![allow(non_snake_case)]
 
@@ -34,14 +42,33 @@ const STEADY_RTOL: f64 = 1e-12;
 const STEADY_STEPS: usize = 3;
 
 /// The expected value of the sums [`super::run_linear`] accumulates over `mc.runs()`
-/// runs, computed exactly. Requires [`models_match`]. Per-run component spreads are
-/// not defined here (they are set as if every run equalled the mean).
+/// runs, computed exactly, for a filter whose model matches the truth's ([`models_match`]):
+/// [`expected_accumulator_mapped`] without a map. Per-run component spreads are not defined
+/// here (they are set as if every run equalled the mean).
 pub fn expected_accumulator(
     truth: &LinearGaussianModel,
     f: &KalmanFilter,
     mc: &McConfig,
 ) -> Result<Accumulator, FilterError> {
-    debug_assert!(models_match(truth, f));
+    expected_accumulator_mapped(truth, f, None, mc)
+}
+
+/// The error moments of either kind.
+enum Moments {
+    Matched(ErrorMoments),
+    Joint(JointMoments),
+}
+
+/// The expected value of the sums [`super::run_linear`] accumulates over `mc.runs()` runs
+/// of `f` on `truth`, the NEES taken on `map · x − x̂` (`None`: the identity), computed
+/// exactly for any linear filter: through the error's own recursion where the models match
+/// and there is no map, through the joint moments of truth and estimate otherwise.
+pub fn expected_accumulator_mapped(
+    truth: &LinearGaussianModel,
+    f: &KalmanFilter,
+    map: Option<&DMatrix<f64>>,
+    mc: &McConfig,
+) -> Result<Accumulator, FilterError> {
     let n = f.n_x();
     let m = f.H.nrows();
     let lags = mc.lags();
@@ -49,7 +76,11 @@ pub fn expected_accumulator(
     let mut acc = Accumulator::new(mc.steps(), n, m, lags);
 
     let mut P = f.P0.clone();
-    let mut moments = ErrorMoments::new(truth, f, lags);
+    let mut moments = if map.is_none() && models_match(truth, f) {
+        Moments::Matched(ErrorMoments::new(truth, f, lags))
+    } else {
+        Moments::Joint(JointMoments::new(truth, f, map, lags))
+    };
     let mut null_var = NeesNullVariance::new(n);
     // The component variances (second and first moment) cost n times the NEES one; only
     // the full gate reads them, as on the Monte Carlo paths.
@@ -67,7 +98,7 @@ pub fn expected_accumulator(
     // that overflows or outgrows double precision relative to the filter's P ([`Fault`]).
     // The error moments above stay bounded for a truth-matched filter on an unstable model,
     // so without this the exact path would grade a test no run can carry out.
-    let mut truth_m2 = TruthMoment::new(truth);
+    let mut truth_m2 = TruthMoment::new(truth, map);
 
     for k in 1..=mc.steps() {
         let i = k - 1;
@@ -98,7 +129,10 @@ pub fn expected_accumulator(
         if let Some(cv) = &mut comp_var {
             cv.step(&A, &cu.P);
         }
-        let values = moments.step(truth, f, &cu, &chol_p, &A);
+        let values = match &mut moments {
+            Moments::Matched(e) => e.step(truth, f, &cu, &chol_p, &A),
+            Moments::Joint(j) => j.step(truth, f, &cu, &chol_p),
+        };
         last_null = Some((A, cu.P.clone(), chol_p));
         if let Some(fault) = truth_m2.step(truth, &cu.P, &values.comp_x) {
             return Ok(stop_all(acc, mc, k, fault));
@@ -281,12 +315,15 @@ impl ErrorMoments {
 }
 
 /// The truth's second moment `E[x_k x_k']`, propagated until it settles (a stable truth)
-/// or stops the test (an unstable one).
-struct TruthMoment(Option<DMatrix<f64>>);
+/// or stops the test (an unstable one), and the map to the filter's states.
+struct TruthMoment(Option<DMatrix<f64>>, Option<DMatrix<f64>>);
 
 impl TruthMoment {
-    fn new(truth: &LinearGaussianModel) -> Self {
-        TruthMoment(Some(&truth.P0 + &truth.x0 * truth.x0.transpose()))
+    fn new(truth: &LinearGaussianModel, map: Option<&DMatrix<f64>>) -> Self {
+        TruthMoment(
+            Some(&truth.P0 + &truth.x0 * truth.x0.transpose()),
+            map.cloned(),
+        )
     }
 
     /// Advance to the next step, whose filter covariance is `P` and expected normalized
@@ -305,8 +342,13 @@ impl TruthMoment {
         if next.iter().any(|v| !v.is_finite()) {
             return Some(Fault::TruthOverflow);
         }
+        // The truth's moment on the filter's states.
+        let seen = match &self.1 {
+            Some(m) => m * &next * m.transpose(),
+            None => next.clone(),
+        };
         if let Some(fault) = Fault::resolution(P.nrows(), |j| {
-            next[(j, j)] / (P[(j, j)] * comp_x[j].max(1.0))
+            seen[(j, j)] / (P[(j, j)] * comp_x[j].max(1.0))
         }) {
             return Some(fault);
         }
@@ -315,6 +357,147 @@ impl TruthMoment {
         });
         self.0 = (!settled).then_some(next);
         None
+    }
+}
+
+/// The joint mean and second moments of the truth's state and the filter's estimate,
+/// `s = [x; x̂]`, and the innovation cross-moments the whiteness sums need, propagated step
+/// by step (the module's second case).
+struct JointMoments {
+    mu: DVector<f64>,
+    sigma: DMatrix<f64>,
+    /// `D = [M, −I]`: the error from the joint state.
+    d: DMatrix<f64>,
+    n_t: usize,
+    lags: usize,
+    /// `window[l − 1] = E[s_{k−1} ν_{k−l}']`, most recent first.
+    window: Vec<DMatrix<f64>>,
+    s_diag_hist: Vec<DVector<f64>>,
+    comp_z_hist: Vec<Vec<f64>>,
+}
+
+impl JointMoments {
+    fn new(
+        truth: &LinearGaussianModel,
+        f: &KalmanFilter,
+        map: Option<&DMatrix<f64>>,
+        lags: usize,
+    ) -> Self {
+        let (n_t, n_f) = (truth.F.nrows(), f.F.nrows());
+        let mut mu = DVector::zeros(n_t + n_f);
+        mu.rows_mut(0, n_t).copy_from(&truth.x0);
+        mu.rows_mut(n_t, n_f).copy_from(&f.x0);
+        let mut sigma = DMatrix::zeros(n_t + n_f, n_t + n_f);
+        sigma.view_mut((0, 0), (n_t, n_t)).copy_from(&truth.P0);
+        let mut d = DMatrix::zeros(n_f, n_t + n_f);
+        match map {
+            Some(m) => d.view_mut((0, 0), (n_f, n_t)).copy_from(m),
+            None => d.view_mut((0, 0), (n_f, n_t)).fill_with_identity(),
+        }
+        d.view_mut((0, n_t), (n_f, n_f))
+            .copy_from(&(-DMatrix::<f64>::identity(n_f, n_f)));
+        JointMoments {
+            mu,
+            sigma,
+            d,
+            n_t,
+            lags,
+            window: Vec::with_capacity(lags),
+            s_diag_hist: Vec::with_capacity(lags),
+            comp_z_hist: Vec::with_capacity(lags),
+        }
+    }
+
+    /// Through one step of the filter (its covariance update `cu`, `P`'s Cholesky factor
+    /// `chol_p`): the step's expected values.
+    fn step(
+        &mut self,
+        truth: &LinearGaussianModel,
+        f: &KalmanFilter,
+        cu: &CovarianceUpdate,
+        chol_p: &Cholesky<f64, Dyn>,
+    ) -> StepValues {
+        let n_t = self.n_t;
+        let (n_f, m) = (f.F.nrows(), f.H.nrows());
+        let dim = n_t + n_f;
+        let mut phi = DMatrix::zeros(dim, dim);
+        phi.view_mut((0, 0), (n_t, n_t)).copy_from(&truth.F);
+        phi.view_mut((n_t, n_t), (n_f, n_f)).copy_from(&f.F);
+        let mut c = DMatrix::zeros(m, dim);
+        c.view_mut((0, 0), (m, n_t)).copy_from(&truth.H);
+        c.view_mut((0, n_t), (m, n_f)).copy_from(&(-&f.H));
+        let K = &cu.K;
+        let mut b = DMatrix::identity(dim, dim);
+        b.view_mut((n_t, 0), (n_f, n_t)).copy_from(&(K * &truth.H));
+        b.view_mut((n_t, n_t), (n_f, n_f)).copy_from(&cu.IKH);
+        let mut gamma = DMatrix::zeros(dim, m);
+        gamma.view_mut((n_t, 0), (n_f, m)).copy_from(K);
+
+        let mu_p = &phi * &self.mu;
+        let mut sig_p = &phi * &self.sigma * phi.transpose();
+        {
+            let mut q = sig_p.view_mut((0, 0), (n_t, n_t));
+            q += &truth.Q;
+        }
+        crate::linalg::symmetrize(&mut sig_p);
+        let m2_p = &sig_p + &mu_p * mu_p.transpose();
+        let ct = c.transpose();
+        let nu_mean = &c * &mu_p;
+        let nu_m2 = &c * &m2_p * &ct + &truth.R;
+        let mut sig = &b * &sig_p * b.transpose() + &gamma * &truth.R * gamma.transpose();
+        crate::linalg::symmetrize(&mut sig);
+        let mu_new = &b * &mu_p;
+        let e_mean = &self.d * &mu_new;
+        let mut e_cov = &self.d * &sig * self.d.transpose();
+        crate::linalg::symmetrize(&mut e_cov);
+        let e_m2 = &e_cov + &e_mean * e_mean.transpose();
+
+        let nees = chol_p.solve(&e_m2).trace();
+        let nees_sq = gaussian_quadratic_second_moment(chol_p, &e_cov, &e_mean);
+        let nis = cu.chol.solve(&nu_m2).trace();
+        let nu_cov = &nu_m2 - &nu_mean * nu_mean.transpose();
+        let nis_sq = gaussian_quadratic_second_moment(&cu.chol, &nu_cov, &nu_mean);
+        let s_diag = cu.S.diagonal();
+        let cross: Vec<DVector<f64>> = self
+            .window
+            .iter()
+            .map(|y| (&c * &phi * y).diagonal())
+            .collect();
+        let comp_z_now: Vec<f64> = (0..m).map(|j| nu_m2[(j, j)] / s_diag[j]).collect();
+        let values = StepValues {
+            nees,
+            nees_sq,
+            nis,
+            nis_sq,
+            comp_x: (0..n_f).map(|j| e_m2[(j, j)] / cu.P[(j, j)]).collect(),
+            comp_z: comp_z_now.clone(),
+            mean_x: (0..n_f).map(|j| e_mean[j] / cu.P[(j, j)].sqrt()).collect(),
+            mean_z: (0..m).map(|j| nu_mean[j] / s_diag[j].sqrt()).collect(),
+            white: cross
+                .iter()
+                .zip(&self.s_diag_hist)
+                .map(|(x, sd)| (0..m).map(|j| x[j] / (s_diag[j] * sd[j]).sqrt()).collect())
+                .collect(),
+            lagged_b2: self.comp_z_hist.clone(),
+        };
+        // E[s_k ν_k'] and the older cross-moments through B Φ.
+        let a = &b * &phi;
+        let now = &b * &m2_p * &ct + &gamma * &truth.R;
+        let mut next = Vec::with_capacity(self.lags);
+        if self.lags > 0 {
+            next.push(now);
+            for y in self.window.iter().take(self.lags - 1) {
+                next.push(&a * y);
+            }
+        }
+        self.window = next;
+        self.s_diag_hist.insert(0, s_diag.clone_owned());
+        self.s_diag_hist.truncate(self.lags);
+        self.comp_z_hist.insert(0, comp_z_now);
+        self.comp_z_hist.truncate(self.lags);
+        self.sigma = sig;
+        self.mu = mu_new;
+        values
     }
 }
 

@@ -152,8 +152,8 @@ pub mod internals {
 
 // The seam, and a problem file as one implementation of it.
 pub use experiment::{
-    Alteration, Block, Covariances, Definition, Experiment, ExperimentError, Info,
-    LinearExperiment, RunOptions, Source,
+    Block, Covariances, Definition, Experiment, ExperimentError, Info, LinearExperiment,
+    RunOptions, Source,
 };
 pub use problem::{Problem, ProblemKind};
 

@@ -4,7 +4,6 @@ mod common;
 
 use autotune::internals::check::accumulate;
 use autotune::internals::experiment::Experiment;
-use autotune::internals::experiment::LinearExperiment;
 use autotune::internals::montecarlo::Engine;
 use autotune::internals::montecarlo::{expected_accumulator, models_match};
 use common::{load, scaled, truth_values};
@@ -12,7 +11,7 @@ use common::{load, scaled, truth_values};
 /// The exact sums of `l` at `theta` against a Monte Carlo run of 20 000 runs × 40 steps
 /// (lags 3) through the linear engine: each per-step mean within 5 standard deviations, the
 /// second moments, component sums and lag autocorrelations within their stated tolerances.
-fn exact_agrees_with_monte_carlo(name: &str, l: &LinearExperiment, theta: &[f64]) {
+fn exact_agrees_with_monte_carlo(name: &str, l: &dyn Experiment, theta: &[f64]) {
     let mut mc = *l.mc();
     mc = mc.with_runs(20_000).unwrap();
     mc = mc.with_steps(40).unwrap();
@@ -162,6 +161,24 @@ fn expected_sums_match_large_monte_carlo_for_filters_unlike_the_truth() {
         &[1.0, 0.0, 0.0, 0.0, 1.0, 0.0],
     ));
     exact_agrees_with_monte_carlo("cv1d, a bias per run", &biased, &truth_values(&p1));
+    // Filters with states the truth lacks, judged on their own (the map's rows): a bias
+    // state and a Gauss–Markov sensor state on that truth, lagged copies on cv2d.
+    use autotune::internals::experiment::{Hypothesis, Hypothesized};
+    for (h, extra) in [
+        (Hypothesis::SensorBias, vec![1.3, 2.0]),
+        (Hypothesis::ColouredNoise, vec![0.8, 0.5]),
+    ] {
+        let e = Hypothesized::new(&biased, h, &truth_values(&p1)).unwrap();
+        let mut theta = truth_values(&p1);
+        theta.extend(extra);
+        exact_agrees_with_monte_carlo(&format!("cv1d, {h:?}"), &e, &theta);
+    }
+    let e = Hypothesized::new(&base, Hypothesis::Delay(1), &theta).unwrap();
+    exact_agrees_with_monte_carlo("cv2d, Delay(1)", &e, &theta);
+    let e = Hypothesized::new(&base, Hypothesis::MotionState, &theta).unwrap();
+    let mut with = theta.clone();
+    with.extend([0.05, 0.4, 0.1, 0.2]);
+    exact_agrees_with_monte_carlo("cv2d, MotionState", &e, &with);
 }
 
 #[test]

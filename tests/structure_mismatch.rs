@@ -48,13 +48,19 @@ fn failures_at_best_point(file: &str) -> (usize, Vec<f64>) {
     assert_eq!(r.status, TuneStatus::Inconsistent, "{file}: {:?}", r.tuned);
     // And says so plainly (issue 11, item 3): no consistent value, what stays off, and a
     // richer model, not a confident number or "increase Q"; the richer model is the first
-    // explanation, after the expressible changes were tried and failed (issue 22).
+    // explanation, and its trial (a Gauss–Markov acceleration fitted) fits (issue 38).
     let explanations =
         autotune::internals::explain::explain(&p, &r, p.mc(), &TuneSettings::default()).unwrap();
     assert_eq!(
-        explanations.first().map(|e| e.cause),
-        Some(autotune::internals::explain::Cause::MissingState),
-        "{file}: {explanations:#?}"
+        explanations.first().map(|e| (e.cause, e.fits())),
+        Some((
+            autotune::internals::explain::Cause::Model(
+                autotune::internals::experiment::Hypothesis::MotionState
+            ),
+            true
+        )),
+        "{file}: {:#?}",
+        explanations.iter().map(|e| e.line()).collect::<Vec<_>>()
     );
     let finding = autotune::report::check::advice::family_finding(&r, &explanations)
         .expect("an inconsistent family is reported")

@@ -23,8 +23,7 @@ use mpi::traits::{Communicator, Destination, Source};
 
 use super::{SumsShape, empty_sums, share_sums};
 use crate::experiment::{
-    Alteration, Block, Covariances, Definition, Experiment, ExperimentError, LinearExperiment,
-    TruthReuse,
+    Block, Covariances, Definition, Experiment, ExperimentError, LinearExperiment, TruthReuse,
 };
 use crate::montecarlo::{Engine, McConfig, RunOptions, Share, TapeUsage};
 use crate::params::Target;
@@ -388,10 +387,6 @@ impl Experiment for Ranked<'_> {
 
     fn truth_values(&self) -> Option<Vec<f64>> {
         self.inner.truth_values()
-    }
-
-    fn alter(&self, change: &Alteration) -> Option<Box<dyn Experiment>> {
-        self.inner.alter(change)
     }
 
     fn linear(&self) -> Option<&LinearExperiment> {

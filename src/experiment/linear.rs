@@ -125,10 +125,6 @@ impl Experiment for LinearExperiment {
         })
     }
 
-    fn alter(&self, change: &super::Alteration) -> Option<Box<dyn Experiment>> {
-        self.altered(change)
-    }
-
     fn blocks(&self) -> Option<Vec<Block>> {
         let blocks = self.decoupled_blocks();
         (blocks.len() > 1).then_some(blocks)

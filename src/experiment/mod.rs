@@ -12,20 +12,22 @@
 //! [`crate::check`], [`crate::tune`], [`crate::report`] and [`crate::app`] take
 //! `&dyn Experiment` and nothing more concrete.
 
-mod altered;
 mod catalog;
 mod error;
+mod hypotheses;
 mod linear;
+mod rebounded;
 mod recorded;
 mod rust_model;
 
-pub use altered::{DT_SCALE, TimeScaled};
 pub use catalog::CatalogExperiment;
 pub use error::{
     Ended, ExperimentError, RequestInfo, SeedContractViolation, StartFailure, Uncontained,
     WorkerError, WorkerFailure, WorkerRole,
 };
+pub use hypotheses::{Added, Hypothesis, Hypothesized};
 pub use linear::{FilterModel, LinearExperiment};
+pub use rebounded::Rebounded;
 pub use recorded::RecordsExperiment;
 pub use rust_model::{RustModel, RustModelBuilder};
 
@@ -148,17 +150,6 @@ pub struct Block {
     pub states: Vec<usize>,
     /// Measurement component indices ([`Experiment::measurement_names`] order), ascending.
     pub measurements: Vec<usize>,
-}
-
-/// A change to a filter that an explanation of a misfit tries ([`Experiment::alter`]).
-#[derive(Debug, Clone, PartialEq)]
-pub enum Alteration {
-    /// The filter's time step becomes one more parameter, `DT_SCALE`, appended to θ: the
-    /// filter predicts over `s` times the step its transition was built for.
-    TimeScale,
-    /// The filter takes a constant offset off each measurement component before using it
-    /// (measurement units, all sensors' components in sensor order).
-    MeasurementOffset(Vec<f64>),
 }
 
 /// Where an experiment's truth comes from at each evaluation, for the tune's report: a
@@ -323,13 +314,6 @@ pub trait Experiment: Sync {
 
     /// The parameter values equal to the truth's noise, where the experiment knows them.
     fn truth_values(&self) -> Option<Vec<f64>> {
-        None
-    }
-
-    /// This experiment with its filter changed as `change` says, for a trial of a misfit
-    /// explanation; `None` when the filter cannot express the change (the default: only
-    /// linear problems, whose model autotune holds as matrices, can).
-    fn alter(&self, _change: &Alteration) -> Option<Box<dyn Experiment>> {
         None
     }
 

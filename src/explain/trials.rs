@@ -1,89 +1,88 @@
-//! The trials: each candidate change run as a search through [`tune`].
+//! The trials: each candidate change fitted by the same search as the noise parameters.
 
-use super::{Explanation, FIT_RUNS, Trial, fit_offsets};
-use crate::experiment::{Alteration, DT_SCALE, Experiment};
+use super::remedy::{fmt_value, read};
+use super::{Cause, Explanation, Trial};
+use crate::experiment::{Experiment, Hypothesis, Hypothesized, Rebounded};
 use crate::montecarlo::McConfig;
 use crate::tune::{LocalSearch, Silent, TuneError, TuneResult, TuneSettings, tune};
 
-/// An explanation before its trial, and the trial it calls for.
-pub(super) struct Candidate {
-    pub(super) explanation: Explanation,
-    pub(super) trial: Option<TrialKind>,
-}
-
-pub(super) enum TrialKind {
-    Offsets,
-    Free(usize),
-    TimeScale,
-}
-
-impl TrialKind {
-    pub(super) fn inexpressible(&self) -> &'static str {
-        match self {
-            TrialKind::Offsets | TrialKind::TimeScale => {
-                "this filter's model is not one autotune can change (only a problem file's linear [truth]/[filter] can be)"
-            }
-            TrialKind::Free(_) => "the search could not run with it freed",
-        }
-    }
-
-    /// The remedy once the trial has run: specific numbers where it fit, the generic
-    /// remedy otherwise.
-    pub(super) fn remedy(
-        &self,
-        t: &Trial,
-        generic: &str,
-        experiment: &dyn Experiment,
-        result: &TuneResult,
-    ) -> String {
-        if !t.consistent() {
-            return generic.to_string();
-        }
-        match self {
-            TrialKind::Offsets => {
-                let offs: Vec<String> = t
-                    .values
-                    .iter()
-                    .filter(|(n, _)| n.starts_with("offset_"))
-                    .map(|(n, v)| format!("{} {:+.3}", &n["offset_".len()..], v))
-                    .collect();
+/// The bounds the tuner widened: the widening was the trial.
+pub(super) fn bounds(experiment: &dyn Experiment, result: &TuneResult) -> Vec<Explanation> {
+    let params = &experiment.params().params;
+    result
+        .widened
+        .iter()
+        .map(|w| {
+            let p = &params[w.param];
+            let side = if w.to.0 < w.from.0 { "lower" } else { "upper" };
+            let still = result.at_bound.get(w.param).copied().unwrap_or(false);
+            let t = Trial {
+                change: format!(
+                    "widening its {side} bound once, to [{}, {}]",
+                    fmt_value(w.to.0),
+                    fmt_value(w.to.1)
+                ),
+                status: result.status,
+                passed: result.confirmation.passed,
+                seeds: result.confirmation.seeds,
+                band_low: result.confirmation.band_low,
+                values: vec![(p.name.clone(), result.tuned[w.param])],
+                evaluations: 0,
+                score: result.objective_final.total,
+                neutral: false,
+                nis_only: false,
+            };
+            let remedy = if still {
                 format!(
-                    "model the bias (a bias state, or calibrate the sensor): the fitted offsets are {}",
-                    offs.join(", ")
+                    "{} is at its bound even after widening: the data want it further still",
+                    p.name
                 )
-            }
-            TrialKind::Free(i) => {
-                let p = &experiment.params().params[*i];
+            } else {
                 format!(
-                    "set {} to about {} {} (it was fixed at {})",
+                    "widen {}'s bounds in the problem file (the fit is {} {})",
                     p.name,
-                    fmt_value(t.value(&p.name).unwrap_or(f64::NAN)),
-                    p.unit,
-                    fmt_value(result.initial[*i])
+                    fmt_value(result.tuned[w.param]),
+                    p.unit
                 )
+            };
+            Explanation {
+                cause: Cause::SearchBounds,
+                subject: p.name.clone(),
+                evidence: format!(
+                    "{} stopped at its {side} bound {} of [{}, {}]",
+                    p.name,
+                    fmt_value(if side == "lower" { w.from.0 } else { w.from.1 }),
+                    fmt_value(w.from.0),
+                    fmt_value(w.from.1)
+                ),
+                remedy,
+                trial: Some(t),
+                untried: None,
+                added: 0,
             }
-            TrialKind::TimeScale => {
-                let s = t.value(DT_SCALE).unwrap_or(f64::NAN);
-                format!(
-                    "build the filter's F for the truth's step: it advances {} of it (the trial's F is F^{})",
-                    fmt_value(1.0 / s),
-                    fmt_value(s)
-                )
-            }
-        }
-    }
+        })
+        .collect()
 }
 
-pub(super) fn fmt_value(v: f64) -> String {
-    if v.abs() >= 100.0 || (v != 0.0 && v.abs() < 0.01) {
-        format!("{v:.3e}")
-    } else {
-        format!("{v:.3}")
-    }
-}
+/// The score below which a trial's search has found a fit and stops: its statistics then
+/// sit within a few percent of their targets, and the confirmation judges the rest.
+const TRIAL_FIT: f64 = 1e-5;
 
-/// The trials' shared settings: every trial is a [`tune`] of the (altered) experiment from
-/// the designer's values, with the run's own settings and Monte Carlo test.
+/// The evaluations of a trial's first look.
+const LOOK_EVALS: usize = 300;
+
+/// The evaluations of a first look per free parameter, where that gives more.
+const LOOK_PER_PARAM: usize = 50;
+
+/// How far below the unchanged filter's best score a first look must come for the change
+/// to be searched in full.
+const LOOK_GAIN: f64 = 0.5;
+
+/// The evaluations a trial's search may spend.
+const TRIAL_EVALS: usize = 1500;
+
+/// The trials' shared settings: every trial is a [`tune`] of the changed experiment from
+/// the run's best fit, with the run's own settings and Monte Carlo test.
 pub(super) struct Trials<'a> {
     pub(super) experiment: &'a dyn Experiment,
     pub(super) result: &'a TuneResult,
@@ -92,118 +91,221 @@ pub(super) struct Trials<'a> {
 }
 
 impl Trials<'_> {
-    /// The settings of a trial on `e` with the parameters `fixed` held: the run's, with its
-    /// confirmation seed, and unless the user chose a local search, Gauss–Newton on the
-    /// moment equations where every free parameter's components are known. A trial starts
-    /// from the designer's values, which the misfit may have left far from the fit, and the
-    /// simplex from a global stage of a few points can settle in a compromise valley (it did
-    /// for 2 of 20 seeds of a freed r four times off); the moment equations start from the
-    /// start itself and are solved by each parameter's own components.
-    fn settings_for(&self, e: &dyn Experiment, fixed: &[bool]) -> TuneSettings {
+    /// The settings of a trial: the run's, with its confirmation seed, no certification of
+    /// its own, judged by the innovations alone where asked, and Levenberg–Marquardt
+    /// (unless the user chose a local search).
+    fn settings_for(&self, e: &dyn Experiment, fixed: &[bool], nis_only: bool) -> TuneSettings {
+        // A trial's question is whether a consistent filter exists with the change, which
+        // its confirmation answers; a few hundred evaluations find the fit where one exists.
+        let evals = self.settings.max_evals().min(TRIAL_EVALS);
         let s = self
             .settings
             .clone()
-            .with_confirm_seed(Some(self.result.confirm_seed));
-        let targets = (0..fixed.len())
-            .filter(|&i| !fixed[i])
-            .all(|i| e.target(i).is_some_and(|t| !t.components.is_empty()));
-        if targets && !self.settings.local_is_set() {
-            s.with_local(LocalSearch::GaussNewton)
-        } else {
+            .with_max_evals(evals)
+            .expect("a budget of at least one evaluation")
+            .with_stop_below(TRIAL_FIT)
+            // No scan of the box: the trial starts where the evidence is (the best fit, the
+            // designer's values) with the change at its neutral value, which a scan of a box
+            // of a dozen dimensions only leads away from.
+            .with_from_estimate(true)
+            .with_certify(false)
+            .with_confirm_seed(Some(self.result.confirm_seed))
+            .with_nis_only(self.settings.nis_only() || nis_only);
+        // The simplex: a change's own parameters have no components of their own for the
+        // moment equations, and Levenberg–Marquardt from a best fit that moved the noise
+        // parameters to make up for the change stays in that basin (measured: a sensor gain
+        // of 1.32 fit from the designer's values by the simplex, not by it).
+        let _ = (e, fixed);
+        if self.settings.local_is_set() {
             s
+        } else {
+            s.with_local(LocalSearch::Simplex)
         }
     }
 
-    /// Run the trial; `None` when the experiment cannot express it.
-    pub(super) fn run(&self, kind: &TrialKind) -> Result<Option<Trial>, TuneError> {
+    /// The search box of the base parameters: the certificate's widened one where the run
+    /// has one, else the problem's.
+    fn base_bounds(&self) -> Vec<(f64, f64)> {
+        match &self.result.certificate {
+            Some(c) => c.bounds.clone(),
+            None => self
+                .experiment
+                .params()
+                .params
+                .iter()
+                .map(|p| (p.lower, p.upper))
+                .collect(),
+        }
+    }
+
+    /// Each fixed parameter freed.
+    pub(super) fn free_fixed(&self) -> Result<Vec<Explanation>, TuneError> {
         let r = self.result;
-        match kind {
-            TrialKind::Free(i) => {
-                let mut fixed = r.fixed.clone();
-                fixed[*i] = false;
-                let name = &self.experiment.params().params[*i].name;
-                let quiet = self.settings_for(self.experiment, &fixed);
-                let t = tune(
-                    self.experiment,
-                    &r.initial,
-                    &fixed,
-                    self.mc,
-                    &quiet,
-                    &Silent,
-                )?;
-                Ok(Some(trial(
-                    format!("freeing {name}"),
-                    self.experiment,
-                    &t,
-                    &[],
-                )))
+        let bounds = self.base_bounds();
+        let wide = Rebounded::new(self.experiment, &bounds);
+        let mut out = Vec::new();
+        for (i, p) in self.experiment.params().params.iter().enumerate() {
+            if !r.fixed[i] {
+                continue;
             }
-            TrialKind::TimeScale => {
-                let Some(e) = self.experiment.alter(&Alteration::TimeScale) else {
-                    return Ok(None);
-                };
-                let mut start = r.initial.clone();
-                start.push(1.0);
-                let mut fixed = r.fixed.clone();
-                fixed.push(false);
-                let quiet = self.settings_for(e.as_ref(), &fixed);
-                let t = tune(e.as_ref(), &start, &fixed, self.mc, &quiet, &Silent)?;
-                Ok(Some(trial(
-                    format!("making the filter's time step a parameter ({DT_SCALE})"),
-                    e.as_ref(),
-                    &t,
-                    &[],
-                )))
+            let mut fixed = r.fixed.clone();
+            fixed[i] = false;
+            let s = self.settings_for(&wide, &fixed, false);
+            let t = tune(&wide, &r.tuned, &fixed, self.mc, &s, &Silent)?;
+            let mut trial = trial(format!("freeing {}", p.name), &wide, &t, false);
+            trial.neutral = (t.tuned[i] / r.tuned[i]).ln().abs() <= 0.02;
+            out.push(Explanation {
+                cause: Cause::FixedParameter,
+                subject: p.name.clone(),
+                evidence: format!(
+                    "fitted {} = {} (fixed at {})",
+                    p.name,
+                    fmt_value(t.tuned[i]),
+                    fmt_value(r.tuned[i])
+                ),
+                remedy: format!(
+                    "set {} to about {} {} (it was fixed at {})",
+                    p.name,
+                    fmt_value(t.tuned[i]),
+                    p.unit,
+                    fmt_value(r.tuned[i])
+                ),
+                trial: Some(trial),
+                untried: None,
+                added: 1,
+            });
+        }
+        Ok(out)
+    }
+
+    /// Each hypothesis about the filter's model, where the experiment holds its model as
+    /// matrices (a linear problem); not tried, and said so, elsewhere.
+    pub(super) fn hypotheses(&self) -> Result<Vec<Explanation>, TuneError> {
+        let Some(lin) = self.experiment.linear() else {
+            return Ok(Hypothesis::ALL
+                .iter()
+                .map(|&h| untried(h, "autotune holds this filter's model as code, not as matrices it can change (only a linear problem's filter can be changed)"))
+                .collect());
+        };
+        // The trials do not depend on each other: side by side, booked in their order.
+        use rayon::prelude::*;
+        Hypothesis::ALL
+            .par_iter()
+            .map(|&h| match Hypothesized::new(lin, h, &self.result.tuned) {
+                Some(e) => self.run(&e),
+                None => Ok(untried(h, inexpressible(h))),
+            })
+            .collect()
+    }
+
+    /// The trial of hypothesis experiment `e`, from the run's best fit and the change's
+    /// own starting values.
+    fn run(&self, e: &Hypothesized) -> Result<Explanation, TuneError> {
+        let r = self.result;
+        let h = e.hypothesis();
+        let mut bounds = self.base_bounds();
+        bounds.extend(e.added().iter().map(|a| (a.def.lower, a.def.upper)));
+        let wide = Rebounded::new(e, &bounds);
+        let mut fixed = r.fixed.clone();
+        fixed.extend(e.added().iter().map(|_| false));
+        let s = self.settings_for(&wide, &fixed, false);
+        // A first look from the designer's values on a small budget; a change whose score
+        // does not fall well below the unchanged filter's best stops there. One that does
+        // is searched in full from where the look ended and from the run's best fit (the
+        // unchanged filter's best fit may have moved a parameter far to make up for the
+        // change, out of the basin where the change fits).
+        let mut look_start = r.initial.clone();
+        look_start.extend(e.added().iter().map(|a| a.def.value));
+        let look = tune(
+            &wide,
+            &look_start,
+            &fixed,
+            self.mc,
+            &s.clone()
+                .with_max_evals(
+                    LOOK_EVALS.max(LOOK_PER_PARAM * fixed.iter().filter(|f| !**f).count()),
+                )
+                .expect("a budget of at least one evaluation"),
+            &Silent,
+        )?;
+        let promising = look.confirmation.holds()
+            || look.objective_final.total < LOOK_GAIN * r.objective_final.total;
+        let mut starts: Vec<Vec<f64>> = Vec::new();
+        if promising && !look.confirmation.holds() {
+            starts.push(look.tuned.clone());
+            let mut from_fit = r.tuned.clone();
+            from_fit.extend(e.added().iter().map(|a| a.def.value));
+            starts.push(from_fit);
+        }
+        let mut best: Option<TuneResult> = Some(look);
+        for start in &starts {
+            let t = tune(&wide, start, &fixed, self.mc, &s, &Silent)?;
+            let holds = t.confirmation.holds();
+            let better = best.as_ref().is_none_or(|b| {
+                (holds && !b.confirmation.holds())
+                    || (holds == b.confirmation.holds()
+                        && t.objective_final.total < b.objective_final.total)
+            });
+            if better {
+                best = Some(t);
             }
-            TrialKind::Offsets => {
-                let use_states = !r.after.state_components.is_empty();
-                // The fitted offsets are then confirmed on fresh seeds, where their own
-                // estimation error adds to the fresh noise: fitted on 16 N runs, that error
-                // adds 1/16 to the variance of the zero-mean tests instead of doubling it.
-                let runs = self.mc.runs().saturating_mul(FIT_RUNS);
-                let Some(d) = self
-                    .mc
-                    .with_runs(runs)
-                    .ok()
-                    .and_then(|mc| fit_offsets(self.experiment, &r.tuned, &mc, use_states))
-                else {
-                    return Ok(None);
-                };
-                let Some(e) = self
-                    .experiment
-                    .alter(&Alteration::MeasurementOffset(d.clone()))
-                else {
-                    return Ok(None);
-                };
-                let quiet = self.settings_for(e.as_ref(), &r.fixed);
-                let t = tune(e.as_ref(), &r.initial, &r.fixed, self.mc, &quiet, &Silent)?;
-                let extra: Vec<(String, f64)> = self
-                    .experiment
-                    .measurement_names()
-                    .iter()
-                    .zip(&d)
-                    .map(|(n, v)| (format!("offset_{n}"), *v))
-                    .collect();
-                Ok(Some(trial(
-                    "taking a fitted constant offset off each sensor reading".to_string(),
-                    e.as_ref(),
-                    &t,
-                    &extra,
-                )))
+            if holds {
+                break;
             }
         }
+        let t = best.expect("a trial ran");
+        let mut tr = trial(format!("fitting {}", h.words()), &wide, &t, false);
+        tr.neutral = e.at_neutral(&t.tuned);
+        let (subject, evidence, remedy) = read(e, &tr);
+        Ok(Explanation {
+            cause: Cause::Model(h),
+            subject,
+            evidence,
+            remedy,
+            trial: Some(tr),
+            untried: None,
+            added: e.added().len(),
+        })
     }
 }
 
-fn trial(change: String, e: &dyn Experiment, t: &TuneResult, extra: &[(String, f64)]) -> Trial {
-    let mut values: Vec<(String, f64)> = e
+/// Why a filter cannot express `h` ([`Hypothesized::new`] gave none).
+fn inexpressible(h: Hypothesis) -> &'static str {
+    match h {
+        Hypothesis::TimeStep | Hypothesis::NoiseKind => {
+            "this filter's F has no real logarithm, so no other step can be built from it"
+        }
+        Hypothesis::MotionState => {
+            "this filter's F has no real logarithm, or no process-noise parameter drives an input"
+        }
+        Hypothesis::MeasurementMatrix | Hypothesis::FullR => {
+            "this filter has one measurement component: nothing to mix or correlate"
+        }
+        _ => "this filter cannot express it",
+    }
+}
+
+/// A hypothesis not tried, and why.
+fn untried(h: Hypothesis, why: &str) -> Explanation {
+    Explanation {
+        cause: Cause::Model(h),
+        subject: h.place().to_string(),
+        evidence: String::new(),
+        remedy: String::new(),
+        trial: None,
+        untried: Some(why.to_string()),
+        added: 0,
+    }
+}
+
+fn trial(change: String, e: &dyn Experiment, t: &TuneResult, nis_only: bool) -> Trial {
+    let values: Vec<(String, f64)> = e
         .params()
         .params
         .iter()
         .zip(&t.tuned)
         .map(|(p, v)| (p.name.clone(), *v))
         .collect();
-    values.extend_from_slice(extra);
     Trial {
         change,
         status: t.status,
@@ -212,5 +314,8 @@ fn trial(change: String, e: &dyn Experiment, t: &TuneResult, extra: &[(String, f
         band_low: t.confirmation.band_low,
         values,
         evaluations: t.evaluations + t.refine_evaluations,
+        score: t.objective_final.total,
+        neutral: false,
+        nis_only,
     }
 }

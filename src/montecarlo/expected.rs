@@ -69,7 +69,10 @@ pub fn expected_accumulator_mapped(
     map: Option<&DMatrix<f64>>,
     mc: &McConfig,
 ) -> Result<Accumulator, FilterError> {
-    let n = f.n_x();
+    // The judged states: the map's rows (a filter with states the truth lacks is judged on
+    // its first ones), or all of them.
+    let n_f = f.n_x();
+    let n = map.map_or(n_f, |m| m.nrows());
     let m = f.H.nrows();
     let lags = mc.lags();
     let runs = mc.runs() as f64;
@@ -81,10 +84,10 @@ pub fn expected_accumulator_mapped(
     } else {
         Moments::Joint(JointMoments::new(truth, f, map, lags))
     };
-    let mut null_var = NeesNullVariance::new(n);
+    let mut null_var = NeesNullVariance::judged(n_f, n);
     // The component variances (second and first moment) cost n times the NEES one; only
     // the full gate reads them, as on the Monte Carlo paths.
-    let mut comp_var = (mc.gate() == GateMode::Full).then(|| ComponentNullVariance::new(n));
+    let mut comp_var = (mc.gate() == GateMode::Full).then(|| ComponentNullVariance::new(n_f));
     // Σ_k E[e_j]/√P_jj: every run's expected first-moment sum.
     let mut mean_x = vec![0.0; n];
     let mut comp_x = vec![0.0; n];
@@ -111,7 +114,7 @@ pub fn expected_accumulator_mapped(
                 *s += y;
             }
             if let Some((a, p, c)) = &last_null {
-                null_var.step(a, p, c);
+                null_var.step_judged(a, p, c);
                 if let Some(cv) = &mut comp_var {
                     cv.step(a, p);
                 }
@@ -120,12 +123,13 @@ pub fn expected_accumulator_mapped(
         }
         let Pp = f.predict_covariance(&P);
         let cu = f.update_covariance(&Pp, k)?;
-        let chol_p = cholesky(&cu.P).ok_or(FilterError::NotPositiveDefinite {
+        let judged_p = cu.P.view((0, 0), (n, n)).clone_owned();
+        let chol_p = cholesky(&judged_p).ok_or(FilterError::NotPositiveDefinite {
             which: "P",
             step: k,
         })?;
         let A = &cu.IKH * &f.F;
-        null_var.step(&A, &cu.P, &chol_p);
+        null_var.step_judged(&A, &cu.P, &chol_p);
         if let Some(cv) = &mut comp_var {
             cv.step(&A, &cu.P);
         }
@@ -347,7 +351,7 @@ impl TruthMoment {
             Some(m) => m * &next * m.transpose(),
             None => next.clone(),
         };
-        if let Some(fault) = Fault::resolution(P.nrows(), |j| {
+        if let Some(fault) = Fault::resolution(comp_x.len(), |j| {
             seen[(j, j)] / (P[(j, j)] * comp_x[j].max(1.0))
         }) {
             return Some(fault);
@@ -389,13 +393,14 @@ impl JointMoments {
         mu.rows_mut(n_t, n_f).copy_from(&f.x0);
         let mut sigma = DMatrix::zeros(n_t + n_f, n_t + n_f);
         sigma.view_mut((0, 0), (n_t, n_t)).copy_from(&truth.P0);
-        let mut d = DMatrix::zeros(n_f, n_t + n_f);
+        let ne = map.map_or(n_f, |m| m.nrows());
+        let mut d = DMatrix::zeros(ne, n_t + n_f);
         match map {
-            Some(m) => d.view_mut((0, 0), (n_f, n_t)).copy_from(m),
-            None => d.view_mut((0, 0), (n_f, n_t)).fill_with_identity(),
+            Some(m) => d.view_mut((0, 0), (ne, n_t)).copy_from(m),
+            None => d.view_mut((0, 0), (ne, n_t)).fill_with_identity(),
         }
-        d.view_mut((0, n_t), (n_f, n_f))
-            .copy_from(&(-DMatrix::<f64>::identity(n_f, n_f)));
+        d.view_mut((0, n_t), (ne, n_f))
+            .copy_from(&(-DMatrix::<f64>::identity(ne, n_f)));
         JointMoments {
             mu,
             sigma,
@@ -419,6 +424,7 @@ impl JointMoments {
     ) -> StepValues {
         let n_t = self.n_t;
         let (n_f, m) = (f.F.nrows(), f.H.nrows());
+        let ne = self.d.nrows();
         let dim = n_t + n_f;
         let mut phi = DMatrix::zeros(dim, dim);
         phi.view_mut((0, 0), (n_t, n_t)).copy_from(&truth.F);
@@ -469,9 +475,9 @@ impl JointMoments {
             nees_sq,
             nis,
             nis_sq,
-            comp_x: (0..n_f).map(|j| e_m2[(j, j)] / cu.P[(j, j)]).collect(),
+            comp_x: (0..ne).map(|j| e_m2[(j, j)] / cu.P[(j, j)]).collect(),
             comp_z: comp_z_now.clone(),
-            mean_x: (0..n_f).map(|j| e_mean[j] / cu.P[(j, j)].sqrt()).collect(),
+            mean_x: (0..ne).map(|j| e_mean[j] / cu.P[(j, j)].sqrt()).collect(),
             mean_z: (0..m).map(|j| nu_mean[j] / s_diag[j].sqrt()).collect(),
             white: cross
                 .iter()

@@ -68,7 +68,14 @@ impl Schedule {
         i.min(self.Kt.len() - 1)
     }
 
-    fn compute(f: &KalmanFilter, steps: usize, components: bool) -> Result<Self, FilterError> {
+    /// The schedule of `f` over `steps` steps, the NEES and the state components taken on
+    /// its first `judged` states (all n but for a filter with states the truth lacks).
+    fn compute(
+        f: &KalmanFilter,
+        steps: usize,
+        components: bool,
+        judged: usize,
+    ) -> Result<Self, FilterError> {
         let n = f.n_x();
         let mut s = Schedule {
             Kt: Vec::with_capacity(steps),
@@ -82,7 +89,7 @@ impl Schedule {
             p_inv_sqrt_diag: Vec::with_capacity(steps),
         };
         let mut P = f.P0.clone();
-        let mut nv = NeesNullVariance::new(n);
+        let mut nv = NeesNullVariance::judged(n, judged);
         let mut cv = components.then(|| ComponentNullVariance::new(n));
         let mut last_cinc: Vec<f64> = Vec::new();
         // A time-invariant filter's covariance converges; once P and the null-variance
@@ -105,8 +112,18 @@ impl Schedule {
                 step: k,
             })?;
             check_conditioned("P", &cu.P, &chol, k)?;
+            let chol = if judged == n {
+                chol
+            } else {
+                cholesky(&cu.P.view((0, 0), (judged, judged)).clone_owned()).ok_or(
+                    FilterError::NotPositiveDefinite {
+                        which: "P",
+                        step: k,
+                    },
+                )?
+            };
             let map = &cu.IKH * &f.F;
-            let inc = nv.step(&map, &cu.P, &chol);
+            let inc = nv.step_judged(&map, &cu.P, &chol);
             let cinc = cv
                 .as_mut()
                 .map(|cv| cv.step(&map, &cu.P))
@@ -132,9 +149,9 @@ impl Schedule {
                 p_steady = quiet_p >= STEADY_STEPS;
                 s.Wt.push(inverse_cholesky_factor(&chol).transpose());
                 s.Vt.push(inverse_cholesky_factor(&cu.chol).transpose());
-                s.p_inv_diag.push(cu.P.diagonal().map(|v| 1.0 / v));
-                s.p_inv_sqrt_diag
-                    .push(cu.P.diagonal().map(|v| 1.0 / v.sqrt()));
+                let judged_diag = cu.P.diagonal().rows(0, judged).clone_owned();
+                s.p_inv_diag.push(judged_diag.map(|v| 1.0 / v));
+                s.p_inv_sqrt_diag.push(judged_diag.map(|v| 1.0 / v.sqrt()));
                 s.s_inv_sqrt_diag
                     .push(cu.S.diagonal().map(|v| 1.0 / v.sqrt()));
                 s.Kt.push(cu.K.transpose());
@@ -143,8 +160,8 @@ impl Schedule {
         }
         s.null_var = nv.variance();
         if let Some(cv) = &cv {
-            s.comp_null_var = cv.variances().to_vec();
-            s.mean_null_var = cv.mean_variances().to_vec();
+            s.comp_null_var = cv.variances()[..judged].to_vec();
+            s.mean_null_var = cv.mean_variances()[..judged].to_vec();
         }
         Ok(s)
     }
@@ -175,10 +192,11 @@ pub fn run_linear_with(
     mc: &McConfig,
     options: RunOptions<'_>,
 ) -> Accumulator {
-    let n = filter.n_x();
+    // A map with fewer rows than the filter has states judges its first ones only.
+    let n = map.map_or(filter.n_x(), |m| m.nrows());
     let m = filter.H.nrows();
     let map_t = map.map(|m| m.transpose());
-    match Schedule::compute(filter, mc.steps(), mc.gate() == GateMode::Full) {
+    match Schedule::compute(filter, mc.steps(), mc.gate() == GateMode::Full, n) {
         Ok(sched) => run_chunked(mc, n, m, options, |range, acc| {
             let job = Job {
                 truth,
@@ -397,6 +415,8 @@ impl Chunk {
     fn new(job: &Job<'_>, range: Range<usize>) -> Chunk {
         let (truth, f, mc) = (job.truth, job.f, job.mc);
         let (n, nt, m, b) = (f.n_x(), truth.F.nrows(), f.H.nrows(), range.len());
+        // The judged states: the map's rows, or all of them.
+        let ne = job.map_t.map_or(n, |mt| mt.ncols());
         let lags = mc.lags();
         let t = Transposed {
             lq: truth.factors.q.transpose(),
@@ -423,19 +443,19 @@ impl Chunk {
             xh: DMatrix::from_fn(b, n, |_, j| f.x0[j]),
             tmp_t: DMatrix::zeros(b, nt),
             tmp: DMatrix::zeros(b, n),
-            mx: DMatrix::zeros(if job.map_t.is_some() { b } else { 0 }, n),
+            mx: DMatrix::zeros(if job.map_t.is_some() { b } else { 0 }, ne),
             wq: DMatrix::zeros(b, rq),
             wr: DMatrix::zeros(b, rr),
             z: DMatrix::zeros(b, m),
             nu: DMatrix::zeros(b, m),
-            e: DMatrix::zeros(b, n),
-            we: DMatrix::zeros(b, n),
+            e: DMatrix::zeros(b, ne),
+            we: DMatrix::zeros(b, ne),
             vn: DMatrix::zeros(b, m),
             sq_x: vec![0.0; b],
             sq_z: vec![0.0; b],
             run_nees: vec![0.0; b],
-            run_x: DMatrix::zeros(b, n),
-            run_mx: DMatrix::zeros(b, n),
+            run_x: DMatrix::zeros(b, ne),
+            run_mx: DMatrix::zeros(b, ne),
             run_z: DMatrix::zeros(b, m),
             u: DMatrix::zeros(b, m),
             ring: (0..lags).map(|_| DMatrix::zeros(b, m)).collect(),
@@ -575,7 +595,7 @@ impl Chunk {
         tot_z: f64,
     ) {
         let i = k - 1;
-        let (n, m, live) = (job.f.n_x(), job.f.H.nrows(), self.live);
+        let (n, m, live) = (self.e.ncols(), job.f.H.nrows(), self.live);
         acc.nees_sum[i] += tot_x;
         acc.nees_sq[i] += dot(&self.sq_x, &self.sq_x);
         acc.nis_sum[i] += tot_z;
@@ -731,7 +751,7 @@ mod tests {
             .with_seed(7)
             .with_lags(3)
             .unwrap();
-        let sched = Schedule::compute(&kf, mc.steps(), true).unwrap();
+        let sched = Schedule::compute(&kf, mc.steps(), true, kf.n_x()).unwrap();
         let mut base = Accumulator::new(50, 2, 1, 3);
         let job = Job {
             truth: &truth,

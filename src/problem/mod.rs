@@ -173,10 +173,6 @@ impl Experiment for Problem {
         self.experiment().tape_usage()
     }
 
-    fn alter(&self, change: &crate::experiment::Alteration) -> Option<Box<dyn Experiment>> {
-        self.experiment().alter(change)
-    }
-
     fn linear(&self) -> Option<&LinearExperiment> {
         self.experiment().linear()
     }

@@ -2,6 +2,10 @@
 
 use nalgebra::{Cholesky, DMatrix, Dyn};
 
+fn cholesky_of(m: &DMatrix<f64>) -> Option<Cholesky<f64, Dyn>> {
+    Cholesky::new(m.clone())
+}
+
 /// Streaming computation of the variance of one run's NEES sum `Σ_k ε_k` that a filter
 /// predicts for itself if it is consistent.
 ///
@@ -10,9 +14,17 @@ use nalgebra::{Cholesky, DMatrix, Dyn};
 /// `Cov(ε_j, ε_k) = 2 tr(P_k⁻¹ Φ_kj P_j Φ_kj')`. Summing over `j < k` gives
 /// `2 tr(P_k⁻¹ G_k)` with `G_k = A_k (G_{k−1} + P_{k−1}) A_k'`, `G_1 = 0`, hence
 /// `Var(Σ_k ε_k) = Σ_k [2 n_x + 4 tr(P_k⁻¹ G_k)]`, in O(n³) per step.
+///
+/// A NEES taken on the first `n_e` of the n states only (a filter with states the truth has
+/// nothing to compare with: [`NeesNullVariance::judged`]), `ε = e₁' P₁₁⁻¹ e₁` with
+/// `e₁ = S e`, is the quadratic form of `M = S' P₁₁⁻¹ S`: the same argument gives
+/// `Cov(ε_j, ε_k) = 2 tr(M_k Φ_kj P_j M_j P_j Φ_kj')`, so `G_k = A_k (G_{k−1} + P_{k−1}
+/// M_{k−1} P_{k−1}) A_k'` and the step adds `2 n_e + 4 tr(P₁₁,k⁻¹ (G_k)₁₁)`.
 #[derive(Debug, Clone)]
 pub struct NeesNullVariance {
     n: usize,
+    /// The states the NEES is taken on, the first ones (n for all).
+    judged: usize,
     g: DMatrix<f64>,
     p_prev: Option<DMatrix<f64>>,
     /// Scratch, n × n each: `G + P_{k−1}`, `A (G + P_{k−1})`, `A'` and `P_k⁻¹ G`, so that a
@@ -29,6 +41,7 @@ impl NeesNullVariance {
     pub fn new(n: usize) -> Self {
         NeesNullVariance {
             n,
+            judged: n,
             g: DMatrix::zeros(n, n),
             p_prev: None,
             sum: DMatrix::zeros(n, n),
@@ -37,6 +50,48 @@ impl NeesNullVariance {
             solved: DMatrix::zeros(n, n),
             var: 0.0,
         }
+    }
+
+    /// Start a run with state dimension `n` whose NEES is taken on its first `judged`
+    /// states only.
+    pub fn judged(n: usize, judged: usize) -> Self {
+        NeesNullVariance {
+            judged: judged.min(n),
+            ..NeesNullVariance::new(n)
+        }
+    }
+
+    /// Add a step of a NEES on the first `judged` states: its error map `A_k`, posterior
+    /// covariance `P_k` (n × n) and the Cholesky factor of its leading `judged × judged`
+    /// block. Returns this step's contribution to the variance.
+    pub fn step_judged(
+        &mut self,
+        a: &DMatrix<f64>,
+        p: &DMatrix<f64>,
+        chol11: &Cholesky<f64, Dyn>,
+    ) -> f64 {
+        if self.judged == self.n {
+            return self.step(a, p, chol11);
+        }
+        let ne = self.judged;
+        if let Some(pp) = &self.p_prev {
+            // P M P = P[:, :ne] P₁₁⁻¹ P[:ne, :] of the previous step.
+            let left = pp.columns(0, ne).clone_owned();
+            let p11 = pp.view((0, 0), (ne, ne)).clone_owned();
+            let solved = cholesky_of(&p11).map(|c| c.solve(&left.transpose()));
+            let pmp = match solved {
+                Some(s) => &left * s,
+                None => DMatrix::zeros(self.n, self.n),
+            };
+            let sum = &self.g + pmp;
+            self.g = a * sum * a.transpose();
+        }
+        let g11 = self.g.view((0, 0), (ne, ne)).clone_owned();
+        let cross = chol11.solve(&g11).trace();
+        let inc = 2.0 * ne as f64 + 4.0 * cross;
+        self.var += inc;
+        self.p_prev = Some(p.clone());
+        inc
     }
 
     /// Add step k: its error map `A_k` (n × n), posterior covariance `P_k` and the
@@ -223,6 +278,32 @@ mod tests {
         for j in 0..t {
             for k in 0..t {
                 want += 2.0 * a.powi(2 * (j as i32 - k as i32).abs());
+            }
+        }
+        assert_relative_eq!(nv.variance(), want, max_relative = 1e-12);
+    }
+
+    #[test]
+    fn nees_null_variance_on_the_first_states_matches_brute_force_double_sum() {
+        // A NEES on state 0 of two: ε_k = e_0k²/P_00, Cov(ε_k, ε_l) = 2 (A^{|k−l|} P)_00² /
+        // P_00², as for a component.
+        let a = DMatrix::from_row_slice(2, 2, &[0.9, 0.2, -0.1, 0.7]);
+        let p = DMatrix::from_row_slice(2, 2, &[2.0, 0.3, 0.3, 1.0]);
+        let chol11 = Cholesky::new(DMatrix::from_element(1, 1, 2.0)).unwrap();
+        let t = 20;
+        let mut nv = NeesNullVariance::judged(2, 1);
+        for _ in 0..t {
+            nv.step_judged(&a, &p, &chol11);
+        }
+        let mut powers = vec![DMatrix::identity(2, 2)];
+        for i in 1..t {
+            powers.push(&a * &powers[i - 1]);
+        }
+        let mut want = 0.0;
+        for k in 0..t {
+            for l in 0..t {
+                let c = (&powers[k.abs_diff(l)] * &p)[(0, 0)];
+                want += 2.0 * c * c / 4.0;
             }
         }
         assert_relative_eq!(nv.variance(), want, max_relative = 1e-12);

@@ -85,6 +85,7 @@ impl<'a> Budget<'a> {
         f: impl FnOnce(&Cost<'a>, &[f64]) -> Evaluation<T>,
     ) -> Result<T, Exhausted> {
         if self.exhausted
+            || self.best_j() < self.cost.stop_below
             || self.booked.len() >= self.max_evals
             || Instant::now() > self.deadline
             || self.cost.failure().is_some()

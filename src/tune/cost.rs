@@ -36,6 +36,9 @@ pub(super) struct Cost<'a> {
     pub(super) hi: Vec<f64>,
     /// Per free parameter, the components it drives (all known, or `None`).
     pub(super) targets: Option<Vec<Target>>,
+    /// A score below which the search has found what it was asked for and stops (0: never;
+    /// an explanation's trial asks only whether some value fits).
+    pub(super) stop_below: f64,
     /// The first failure of the experiment itself (an external worker that broke the
     /// protocol), not of a candidate's filter: once set, the budget refuses every further
     /// evaluation and [`super::tune`] returns it.
@@ -68,6 +71,7 @@ impl<'a> Cost<'a> {
                 .map(|&i| model.target(i).filter(|t| !t.components.is_empty()))
                 .collect(),
             free,
+            stop_below: 0.0,
             failure: Mutex::new(None),
         }
     }

@@ -37,6 +37,7 @@
 //! history do not depend on the thread count.
 
 mod budget;
+pub mod certify;
 mod cost;
 mod global;
 mod levenberg_marquardt;
@@ -52,6 +53,7 @@ mod stages;
 #[cfg(test)]
 mod tests;
 
+pub use certify::{Certificate, CertifiedStart};
 pub use objective::{Objective, Terms, Weights};
 pub use refine::{Confirmation, band_low, seed_at};
 pub use result::{Observer, Resolution, Silent, TuneResult, TuneStatus, Widening};
@@ -107,7 +109,7 @@ fn exact_scoring(
         Scoring::Auto => Ok(available),
         Scoring::Exact if !available => Err(SettingError::new(
             "scoring",
-            "exact scoring needs a linear filter with the truth's states that uses its F and H",
+            "exact scoring needs a linear problem (its truth's and filter's matrices)",
         )
         .into()),
         Scoring::Exact => Ok(true),
@@ -133,7 +135,13 @@ pub fn tune(
     let confirmed = run.confirm(&refined, observer);
     let resolution = run.resolution(&found, &refined, &confirmed);
     run.failed()?;
-    Ok(run.result(found, refined, confirmed, resolution))
+    let result = run.result(found, refined, confirmed, resolution);
+    // One record is one deterministic test: restarts would search the same data again.
+    if settings.certify() && !model.seed_free() && certify::needed(&result) {
+        observer.phase("certify");
+        return certify::certify(model, fixed, mc, settings, result);
+    }
+    Ok(result)
 }
 
 /// Per parameter (problem order), whether `theta`'s value lies within 0.05 log units (5%)

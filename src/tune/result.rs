@@ -23,6 +23,11 @@ pub enum TuneStatus {
     BudgetExhausted,
     /// No candidate gave a filter that stayed positive definite.
     Diverged,
+    /// The tuned filter fails its confirmation, but the evidence does not establish that
+    /// no value fits: the searches from several starts in a widened box disagree on the
+    /// best score, or the best point passes the gate on more runs (an effect at the limit
+    /// of N runs). See the run's certificate.
+    Undecided,
 }
 
 /// How precisely the data pin down one parameter.
@@ -140,6 +145,10 @@ pub struct TuneResult {
     pub after: ConsistencyReport,
     /// How the run ended.
     pub status: TuneStatus,
+    /// The certification of a misfit (searches from several starts in a widened box, the
+    /// best point rechecked on more runs), where the run needed one; absent otherwise.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub certificate: Option<super::certify::Certificate>,
     /// Where the truth of each evaluation came from: replayed from tapes, or simulated at
     /// every one and why.
     pub truth: crate::experiment::TruthReuse,

@@ -115,6 +115,7 @@ impl Part {
         for (k, &i) in full.free().iter().enumerate() {
             c.set_bounds(i, full.lo[k], full.hi[k]);
         }
+        c.stop_below = full.stop_below;
         c
     }
 }

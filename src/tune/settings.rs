@@ -114,6 +114,8 @@ pub struct TuneSettings {
     confirm_seeds: usize,
     refine_runs: Option<usize>,
     from_estimate: bool,
+    certify: bool,
+    stop_below: f64,
 }
 
 impl Default for TuneSettings {
@@ -133,6 +135,8 @@ impl Default for TuneSettings {
             confirm_seeds: 20,
             refine_runs: None,
             from_estimate: false,
+            certify: true,
+            stop_below: 0.0,
         }
     }
 }
@@ -356,6 +360,33 @@ fn fmt_seconds(s: f64) -> String {
 }
 
 impl TuneSettings {
+    /// Whether a run whose tuned filter fails its confirmation certifies the misfit before
+    /// claiming it (the default): searches from several starts in a widened box, the best
+    /// point rechecked on more runs (`tune::certify`). Off for the searches inside a
+    /// certification and inside an explanation's trials.
+    pub fn with_certify(mut self, certify: bool) -> Self {
+        self.certify = certify;
+        self
+    }
+
+    /// Stop the search once its score is below `j` (0, the default: search until it
+    /// converges): for a search that only asks whether some value fits, as an explanation's
+    /// trial does. Values that are not finite or are negative are taken as 0.
+    pub fn with_stop_below(mut self, j: f64) -> Self {
+        self.stop_below = if j.is_finite() && j > 0.0 { j } else { 0.0 };
+        self
+    }
+
+    /// The score below which the search stops ([`TuneSettings::with_stop_below`]).
+    pub fn stop_below(&self) -> f64 {
+        self.stop_below
+    }
+
+    /// Whether misfits are certified ([`TuneSettings::with_certify`]).
+    pub fn certify(&self) -> bool {
+        self.certify
+    }
+
     /// Seed of the confirmation runs (`None`: derived from the search seed, never equal).
     pub fn with_confirm_seed(mut self, seed: Option<u64>) -> Self {
         self.confirm_seed = seed;

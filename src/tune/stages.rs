@@ -103,6 +103,7 @@ impl<'a> Tuning<'a> {
         let nis_only = settings.nis_only() || model.state_names().is_empty();
         let objective = Objective::new(settings.weights(), nis_only, mc.alpha());
         let mut cost = Cost::new(model, search_mc, exact, objective, start, fixed);
+        cost.stop_below = settings.stop_below();
         let t_start = Instant::now();
         let acc0 = cost.accumulate(start);
         let seconds_per_eval = t_start.elapsed().as_secs_f64();
@@ -444,6 +445,7 @@ impl<'a> Tuning<'a> {
             before: confirmed.before,
             after: confirmed.after,
             status,
+            certificate: None,
             truth: self.model.truth_reuse(self.tapes_before),
             seconds: self.t0.elapsed().as_secs_f64(),
         }

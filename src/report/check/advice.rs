@@ -301,11 +301,15 @@ pub fn amend_for_explanation(recs: &mut [Recommendation], explanations: &[Explan
         } else {
             "about right as it was".to_string()
         };
+        // A fitted hypothesis's change is its name; other trials say what they did.
+        let how = match e.cause {
+            crate::explain::Cause::Model(_) => "fitted".to_string(),
+            _ => format!("addressed ({})", t.change),
+        };
         r.advice = format!(
-            "{}; with {} addressed ({}), it is {} ({moved})",
+            "{}; with {} {how}, it is {} ({moved})",
             r.advice,
             e.cause.words(),
-            t.change,
             crate::report::fmt_g(*v)
         );
     }
@@ -330,45 +334,93 @@ impl Recommendation {
 }
 
 /// What a tuning run that needed explaining (`crate::explain::needed`) says about it, in
-/// lines of text: when no value of the free parameters makes the filter consistent (the
-/// search converged and the tuned filter still fails the gate on fresh seeds more often
-/// than a consistent one), the best achievable statistics and what stays off; then the
-/// ranked explanations with their evidence and trials. `None` when there is nothing to
-/// explain.
+/// lines of text: whether "no value fits" is proven (its certificate) or undecided, the best
+/// achievable statistics and what stays off; then the explanations: the changes whose
+/// trial made the filter consistent (the simplest first; when several fit, the data do not
+/// decide between them), or that none of the tried changes does; what was tried and did
+/// not fit; and what could not be tried. `None` when there is nothing to explain.
 pub fn family_finding(result: &TuneResult, explanations: &[Explanation]) -> Option<Vec<String>> {
-    let mut lines = if result.status == TuneStatus::Inconsistent {
-        best_achievable(result)
-    } else if explanations.is_empty() {
-        return None;
-    } else {
-        vec!["the search needed more room than its bounds gave".to_string()]
+    let mut lines = match result.status {
+        TuneStatus::Inconsistent | TuneStatus::Undecided => best_achievable(result),
+        _ if explanations.is_empty() => return None,
+        _ => vec!["the search needed more room than its bounds gave".to_string()],
     };
-    if !explanations.is_empty() {
-        let header = if explanations.iter().any(|e| e.trial.is_some()) {
-            "why, most likely first (a cause whose trial reached consistency comes first):"
-        } else {
-            "what could be wrong (none of these could be tried on this filter, so the order follows the evidence alone and the data do not decide between them):"
-        };
-        lines.push(header.to_string());
-        for (k, e) in explanations.iter().enumerate() {
-            lines.push(format!("{}. {}", k + 1, e.line()));
-        }
+    let fitted: Vec<&Explanation> = explanations.iter().filter(|e| e.fits()).collect();
+    let tried: Vec<&Explanation> = explanations
+        .iter()
+        .filter(|e| e.trial.is_some() && !e.fits())
+        .collect();
+    let untried: Vec<&Explanation> = explanations.iter().filter(|e| e.trial.is_none()).collect();
+    match fitted.len() {
+        0 if !tried.is_empty() => lines.push(
+            "none of the tried changes makes it consistent: autotune names no cause (what stays off is above)".to_string(),
+        ),
+        0 => {}
+        1 => lines.push("why: one change makes the filter consistent:".to_string()),
+        n => lines.push(format!(
+            "why: {n} changes each make the filter consistent, and the data do not decide between them (the simplest first: judged by the full gate before by the innovations alone, then with the fewest added parameters):"
+        )),
+    }
+    for (k, e) in fitted.iter().enumerate() {
+        lines.push(format!("{}. {}", k + 1, e.line()));
+    }
+    if !tried.is_empty() {
+        lines.push("tried, and not making it consistent:".to_string());
+        lines.extend(tried.iter().map(|e| format!("- {}", e.line())));
+    }
+    if !untried.is_empty() {
+        let what: Vec<String> = untried.iter().map(|e| e.cause.words()).collect();
+        let why = untried[0].untried.clone().unwrap_or_default();
+        lines.push(format!("not tried ({why}): {}", what.join("; ")));
     }
     Some(lines)
+}
+
+/// Why a failed confirmation is not a proven misfit.
+fn undecided(result: &TuneResult) -> String {
+    let c = &result.confirmation;
+    let head = format!(
+        "the tuned filter fails its confirmation ({} of {} fresh seeds pass; a consistent filter passes at least {}), but that no value fits is not proven",
+        c.passed, c.seeds, c.band_low
+    );
+    match &result.certificate {
+        Some(cert) if cert.recheck_passed == Some(true) => format!(
+            "{head}: the best fit passes the gate on {} runs, so the effect is at the limit of what {} runs can see (check with --runs {} or more to decide)",
+            cert.recheck_runs, result.runs, cert.recheck_runs
+        ),
+        Some(cert) => format!(
+            "{head}: the searches from {} starts in a box widened ×{} do not agree on the best score ({} of them do), so the search cannot tell whether a better fit exists",
+            cert.starts.len(),
+            crate::tune::certify::WIDEN,
+            cert.agreeing
+        ),
+        None => head,
+    }
 }
 
 /// The best achievable statistics of a family that does not fit, and what stays off.
 fn best_achievable(result: &TuneResult) -> Vec<String> {
     let a = &result.after;
     let c = &result.confirmation;
-    let mut lines = vec![if c.recorded {
+    let mut lines = vec![if result.status == TuneStatus::Undecided {
+        undecided(result)
+    } else if c.recorded {
         format!(
             "no value of the free parameters makes this filter consistent with the recorded measurements: at the best fit they fail the gate (which a consistent filter does on a fraction α = {} of records, so look at what stays off below)",
             result.alpha
         )
     } else {
+        let proof = result.certificate.as_ref().map_or(String::new(), |cert| {
+            format!(
+                " (proven: {} of {} searches from starts spread over a box widened ×{} agree on the best score, and the best fit fails the gate again on {} runs)",
+                cert.agreeing,
+                cert.starts.len(),
+                crate::tune::certify::WIDEN,
+                cert.recheck_runs
+            )
+        });
         format!(
-            "no value of the free parameters makes this filter consistent: at the best fit {} of {} fresh seeds pass the gate (a consistent filter passes at least {}); the values below are a best fit of a model that does not fit, not a tuning to apply",
+            "no value of the free parameters makes this filter consistent{proof}: at the best fit {} of {} fresh seeds pass the gate (a consistent filter passes at least {}); the values below are a best fit of a model that does not fit, not a tuning to apply",
             c.passed, c.seeds, c.band_low
         )
     }];

@@ -238,6 +238,8 @@ pub(crate) fn after_heading(r: &TuneResult) -> &'static str {
 pub(super) fn misfit_heading(r: &TuneResult) -> &'static str {
     if r.status == TuneStatus::Inconsistent {
         "No consistent value in this family, and why"
+    } else if r.status == TuneStatus::Undecided {
+        "Not consistent at the best fit, and not proven that no value fits"
     } else {
         "A search bound was in the way"
     }

@@ -258,9 +258,12 @@ fn two_basins_a_local_search_from_the_start_ends_in_the_shallow_basin() {
     // stops on the shallow side of the ridge with J near 0.08, far above the deep basin's 0.
     for local in [LocalSearch::Simplex, LocalSearch::GaussNewton] {
         let mock = two_basins();
+        // Without the certification, which would search the widened box from spread starts
+        // (tests/explain.rs tests that it does).
         let s = settings(Scoring::Exact)
             .with_local(local)
-            .with_from_estimate(true);
+            .with_from_estimate(true)
+            .with_certify(false);
         let r = run(&mock, &s);
         let y0 = r.tuned[0].ln();
         assert!(
@@ -269,6 +272,24 @@ fn two_basins_a_local_search_from_the_start_ends_in_the_shallow_basin() {
             r.objective_final.total
         );
     }
+}
+
+/// A search that stopped in the shallow basin does not claim a misfit: the certification's
+/// searches from spread starts find the deep basin, and that is the result.
+#[test]
+fn two_basins_the_certification_finds_the_deep_basin_a_local_search_missed() {
+    let mock = two_basins();
+    let s = settings(Scoring::Exact)
+        .with_local(LocalSearch::Simplex)
+        .with_from_estimate(true);
+    let r = run(&mock, &s);
+    let cert = r
+        .certificate
+        .as_ref()
+        .expect("the failed search was certified");
+    assert_eq!(r.status, TuneStatus::Consistent, "{cert:#?}");
+    assert!(r.tuned[0].ln() < TWO_BASINS_RIDGE, "{:?}", r.tuned);
+    assert!(!cert.proven);
 }
 
 #[test]

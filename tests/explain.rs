@@ -4,8 +4,8 @@
 //! stated ranges, and each draw is tuned and explained as `autotune tune` does.
 //!
 //! On every draw of every kind, a cause that does not name the fault is never stated as
-//! proven (an explanation whose trial fits); on the kinds no hypothesis covers, no cause is
-//! named at all. `families_sample` runs a fixed sample in the suite; `families` (ignored;
+//! proven (the one explanation whose trial fits; where several fit, the result says the data
+//! do not decide); on the kinds no hypothesis covers, no cause is named at all. `families_sample` runs a fixed sample in the suite; `families` (ignored;
 //! `cargo test --release --test explain -- --ignored families`) runs 30 draws per kind and
 //! prints each kind's rate of a right first explanation, which docs/src/tune.md states.
 
@@ -37,12 +37,17 @@ impl Outcome {
         }
     }
 
-    /// A cause that does not name the fault is stated as proven.
+    /// A cause that does not name the fault is stated as proven: it is the one change that
+    /// fits. (Where several fit, the result says that the data do not decide between them
+    /// and states none as proven; a wrong one first among them counts against the rate of
+    /// a right first explanation instead.)
     fn wrong_proven(&self, kind: Kind) -> Option<&str> {
-        self.fitted
-            .iter()
-            .find(|c| !kind.right(c))
-            .map(String::as_str)
+        match self.fitted.as_slice() {
+            // An uncovered kind must end with none named.
+            [first, ..] if kind.uncovered() => Some(first),
+            [only] if !kind.right(only) => Some(only),
+            _ => None,
+        }
     }
 }
 

@@ -78,6 +78,11 @@ pub struct Trial {
     /// Whether the trial was judged by the innovations alone (the change adds states the
     /// truth has nothing to compare with).
     pub nis_only: bool,
+    /// The simpler hypothesis this fit is a case of, when that one fits too (coloured noise
+    /// whose correlation outlasts the run is a bias; a measurement matrix without a
+    /// rotation is a gain): not separate evidence.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub same_as: Option<Hypothesis>,
 }
 
 impl Trial {
@@ -91,7 +96,7 @@ impl Trial {
     /// Whether the trial is evidence for its cause: it fit, and its change changed
     /// something.
     pub fn fits(&self) -> bool {
-        self.consistent() && !self.neutral
+        self.consistent() && !self.neutral && self.same_as.is_none()
     }
 
     fn value(&self, name: &str) -> Option<f64> {
@@ -104,7 +109,14 @@ impl Trial {
         } else {
             ""
         };
-        if self.consistent() && self.neutral {
+        if let (true, Some(h)) = (self.consistent(), self.same_as) {
+            format!(
+                "fits, as a case of {} (which fits too): not separate evidence ({} of {} fresh seeds pass){by}",
+                h.words(),
+                self.passed,
+                self.seeds
+            )
+        } else if self.consistent() && self.neutral {
             format!(
                 "fits, but with its own parameters at their neutral values: it changed nothing ({} of {} fresh seeds pass){by}",
                 self.passed, self.seeds
@@ -181,6 +193,45 @@ impl Explanation {
     }
 }
 
+/// Mark the fits that are cases of a simpler hypothesis that fits too: coloured sensor noise
+/// whose every fitted correlation outlasts the run (a per-step correlation above
+/// `1 − 1/steps`) is a bias; a measurement matrix where the gains alone fit is a gain.
+fn mark_nested(out: &mut [Explanation], steps: usize) {
+    let fits = |out: &[Explanation], h: Hypothesis| {
+        out.iter()
+            .any(|e| e.cause == Cause::Model(h) && e.trial.as_ref().is_some_and(Trial::fits))
+    };
+    let all = |t: &Trial, prefix: &str, keep: &dyn Fn(f64) -> bool| {
+        let v: Vec<f64> = t
+            .values
+            .iter()
+            .filter(|(n, _)| n.starts_with(prefix))
+            .map(|(_, v)| *v)
+            .collect();
+        !v.is_empty() && v.iter().all(|&x| keep(x))
+    };
+    let bias = fits(out, Hypothesis::SensorBias);
+    let gain = fits(out, Hypothesis::SensorGain);
+    let slow = 1.0 - 1.0 / steps.max(1) as f64;
+    for e in out.iter_mut() {
+        let Some(t) = e.trial.as_mut() else { continue };
+        if !t.fits() {
+            continue;
+        }
+        t.same_as = match e.cause {
+            Cause::Model(Hypothesis::ColouredNoise)
+                if bias && all(t, "gm_corr_", &|c| c >= slow) =>
+            {
+                Some(Hypothesis::SensorBias)
+            }
+            // The gains are the measurement matrix without its rotations: where they fit,
+            // the rotations are not needed.
+            Cause::Model(Hypothesis::MeasurementMatrix) if gain => Some(Hypothesis::SensorGain),
+            _ => None,
+        };
+    }
+}
+
 /// Whether a tuning run needs explaining: its tuned filter failed the confirmation, or it
 /// had to widen a search bound to find one that passes.
 pub fn needed(result: &TuneResult) -> bool {
@@ -214,6 +265,7 @@ pub fn explain(
     };
     out.extend(t.free_fixed()?);
     out.extend(t.hypotheses()?);
+    mark_nested(&mut out, mc.steps());
     // Stable: within a rank, the order of the trials.
     out.sort_by(|a, b| {
         a.rank()

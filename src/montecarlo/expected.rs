@@ -90,6 +90,8 @@ pub fn expected_accumulator_mapped(
     let mut comp_var = (mc.gate() == GateMode::Full).then(|| ComponentNullVariance::new(n_f));
     // Σ_k E[e_j]/√P_jj: every run's expected first-moment sum.
     let mut mean_x = vec![0.0; n];
+    // Σ_k E[ν_j]/√S_jj: every run's expected first-moment sum of the innovations.
+    let mut mean_z = vec![0.0; m];
     let mut comp_x = vec![0.0; n];
     let mut comp_z = vec![0.0; m];
     let mut steady: Option<StepValues> = None;
@@ -111,6 +113,9 @@ pub fn expected_accumulator_mapped(
             }
             v.add(&mut acc, i, runs, n, m, &mut comp_x, &mut comp_z, lags, k);
             for (s, y) in mean_x.iter_mut().zip(&v.mean_x) {
+                *s += y;
+            }
+            for (s, y) in mean_z.iter_mut().zip(&v.mean_z) {
                 *s += y;
             }
             if let Some((a, p, c)) = &last_null {
@@ -145,6 +150,9 @@ pub fn expected_accumulator_mapped(
         for (s, y) in mean_x.iter_mut().zip(&values.mean_x) {
             *s += y;
         }
+        for (s, y) in mean_z.iter_mut().zip(&values.mean_z) {
+            *s += y;
+        }
         // Steady state is judged on the per-step expected values themselves, each relative
         // to its own size, so that a state with a tiny variance converging slowly is not
         // hidden behind one with a large variance (a whole-matrix norm would be unit-bound).
@@ -165,6 +173,7 @@ pub fn expected_accumulator_mapped(
         comp_x: &comp_x,
         comp_z: &comp_z,
         mean_x: &mean_x,
+        mean_z: &mean_z,
     };
     runs_sums.add(&mut acc, mc, &null_var, comp_var.as_ref());
     Ok(acc)
@@ -178,6 +187,8 @@ struct RunSums<'a> {
     comp_z: &'a [f64],
     /// Σ_k E[e_j]/√P_jj.
     mean_x: &'a [f64],
+    /// Σ_k E[ν_j]/√S_jj.
+    mean_z: &'a [f64],
 }
 
 impl RunSums<'_> {
@@ -201,8 +212,17 @@ impl RunSums<'_> {
             acc.meas_comp_run_sq[j] = runs * (c / t).powi(2);
             acc.meas_comp_runs[j] = mc.runs();
         }
+        // The runs all equal the mean here, but the zero-mean tests read the run-to-run
+        // spread: each run's first-moment sum gets the variance a consistent filter
+        // predicts (the filter's own for the states, one per step for white innovations),
+        // so that a spread of 0 does not make every mean significant.
+        let mean_var = comp_var.map(|cv| cv.mean_variances().to_vec());
         for (j, c) in self.mean_x.iter().enumerate() {
-            acc.state_mean_run_sq[j] = runs * c * c;
+            let v = mean_var.as_ref().map_or(0.0, |v| v[j]);
+            acc.state_mean_run_sq[j] = runs * (c * c + v);
+        }
+        for (j, c) in self.mean_z.iter().enumerate() {
+            acc.meas_mean_run_sq[j] = runs * (c * c + t);
         }
         acc.runs = mc.runs();
         acc.nees_null_var = runs * null_var.variance();

@@ -398,6 +398,9 @@ struct Chunk {
     run_mx: DMatrix<f64>,
     /// Per-run sums of u_j².
     run_z: DMatrix<f64>,
+    /// Each run's own sum of `ν_j/√S_jj` (runs × n_z), for the run-to-run spread of the
+    /// innovations' first moment.
+    run_mz: DMatrix<f64>,
     /// This step's normalized innovations, and the last `lags` steps' with their squares.
     u: DMatrix<f64>,
     ring: Vec<DMatrix<f64>>,
@@ -457,6 +460,7 @@ impl Chunk {
             run_x: DMatrix::zeros(b, ne),
             run_mx: DMatrix::zeros(b, ne),
             run_z: DMatrix::zeros(b, m),
+            run_mz: DMatrix::zeros(b, m),
             u: DMatrix::zeros(b, m),
             ring: (0..lags).map(|_| DMatrix::zeros(b, m)).collect(),
             ring_sq: vec![0.0; lags * m],
@@ -656,6 +660,9 @@ impl Chunk {
             for (r, v) in col_mut(&mut self.run_z, j).iter_mut().zip(uj) {
                 *r += v * v;
             }
+            for (r, v) in col_mut(&mut self.run_mz, j).iter_mut().zip(uj) {
+                *r += v;
+            }
             acc.meas_comp_total[j] += total;
             acc.meas_comp_samples[j] += live;
             for lag in 1..=lags.min(k - 1) {
@@ -688,6 +695,11 @@ impl Chunk {
         for (j, col) in self.run_mx.column_iter().enumerate() {
             for (v, _) in col.iter().zip(dead).filter(|(_, d)| !**d) {
                 acc.state_mean_run_sq[j] += v * v;
+            }
+        }
+        for (j, col) in self.run_mz.column_iter().enumerate() {
+            for (v, _) in col.iter().zip(dead).filter(|(_, d)| !**d) {
+                acc.meas_mean_run_sq[j] += v * v;
             }
         }
         for (j, col) in self.run_z.column_iter().enumerate() {

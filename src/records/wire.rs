@@ -15,7 +15,7 @@ use base64::engine::general_purpose::STANDARD;
 use crate::stats::{Accumulator, Divergence, StopCause};
 
 /// The first bytes of an encoded chunk: the format and its version.
-const MAGIC: &[u8; 8] = b"ATSUMS1\0";
+const MAGIC: &[u8; 8] = b"ATSUMS2\0";
 
 /// Longest divergence reason carried, in bytes (the records path keeps a worker's words
 /// whole, but a reason is shown on one line of a report).
@@ -52,7 +52,7 @@ pub enum WireError {
     #[error("'sums' is not base64: {0}")]
     Base64(String),
     /// Not this format, or another version of it.
-    #[error("'sums' is not autotune's sums format (version 1): another autotune's worker library?")]
+    #[error("'sums' is not autotune's sums format (version 2): another autotune's worker library?")]
     Magic,
     /// It ended early.
     #[error("'sums' ends early, at byte {0}")]
@@ -90,7 +90,7 @@ pub enum WireError {
 
 /// The per-step, component and whiteness vectors, in wire order, with their names (for
 /// errors) and whether they count samples (whole numbers).
-fn vectors(a: &mut Accumulator) -> [(&'static str, bool, &mut Vec<f64>); 26] {
+fn vectors(a: &mut Accumulator) -> [(&'static str, bool, &mut Vec<f64>); 27] {
     [
         ("nees_sum", false, &mut a.nees_sum),
         ("nees_sq", false, &mut a.nees_sq),
@@ -110,6 +110,7 @@ fn vectors(a: &mut Accumulator) -> [(&'static str, bool, &mut Vec<f64>); 26] {
         ("state_mean_run_sq", false, &mut a.state_mean_run_sq),
         ("state_mean_null_var", false, &mut a.state_mean_null_var),
         ("meas_mean_total", false, &mut a.meas_mean_total),
+        ("meas_mean_run_sq", false, &mut a.meas_mean_run_sq),
         ("meas_comp_total", false, &mut a.meas_comp_total),
         ("meas_comp_samples", true, &mut a.meas_comp_samples),
         ("meas_comp_run_sum", false, &mut a.meas_comp_run_sum),
@@ -268,14 +269,14 @@ pub fn decode(text: &str, want: &ChunkShape) -> Result<ChunkSums, WireError> {
 }
 
 /// The fewest bytes an encoded chunk of shape `want` can have (no divergence kept), `None`
-/// where that overflows: the magic and header, the 26 vectors (T each for the 8 per-step
-/// sums, n_x for 9, n_z for 5, L n_z for 4 whiteness sums), 3 scalars, 8 counts, n_z
+/// where that overflows: the magic and header, the 27 vectors (T each for the 8 per-step
+/// sums, n_x for 9, n_z for 6, L n_z for 4 whiteness sums), 3 scalars, 8 counts, n_z
 /// per-component run counts, the count of divergences kept and a fingerprint per run.
 pub fn min_len(want: &ChunkShape) -> Option<usize> {
     let words = [
         8usize.checked_mul(want.steps)?,
         9usize.checked_mul(want.n_x)?,
-        6usize.checked_mul(want.n_z)?,
+        7usize.checked_mul(want.n_z)?,
         want.lags.checked_mul(want.n_z)?.checked_mul(4)?,
         6 + 3 + 8 + 1,
         want.runs.len(),

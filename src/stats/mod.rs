@@ -371,11 +371,12 @@ fn component_stats(
         &acc.meas_comp_total,
         &acc.meas_comp_samples,
         |j| SumVariance::Predicted(2.0 * acc.meas_comp_samples[j]),
-        // White under consistency: each ν_j/√S_jj is an independent N(0, 1).
+        // The run-to-run spread, as for the states (white under consistency, but not under a
+        // misfit, where the sample count would understate the variance).
         |j| MeanSums {
             total: acc.meas_mean_total[j],
             samples: acc.meas_comp_samples[j],
-            variance: SumVariance::Predicted(acc.meas_comp_samples[j]),
+            variance: acc.meas_mean_variance(j),
             second_moment: acc.meas_comp_total[j] / acc.meas_comp_samples[j],
         },
         levels,
@@ -746,14 +747,21 @@ mod tests {
         assert_eq!(r.nis.verdict, Verdict::Inconclusive, "no power at 1 dof");
     }
 
-    /// Sums of 100 samples per component with the filters' predicted variances (white: 2 per
-    /// sample for the squares, 1 for the signed values): state 0 consistent, state 1 twice
-    /// its variance with a mean of 0.5 σ, measurement 0 at 0.6 with a mean of −0.3 σ,
-    /// measurement 1 at 1.49 with a mean of 0.7 σ (1.49 − 0.7² = 1: a bias alone).
+    /// Sums of 100 samples per component over 4 runs with the filters' predicted variances
+    /// for the squares (white: 2 per sample) and per-run first-moment sums spread with
+    /// sample variance 25 about their mean (so the zero-mean tests' variance is
+    /// 4 · 25 = 100): state 0 consistent, state 1 twice its variance with a mean of 0.5 σ,
+    /// measurement 0 at 0.6 with a mean of −0.3 σ, measurement 1 at 1.49 with a mean of
+    /// 0.7 σ (1.49 − 0.7² = 1: a bias alone).
     fn component_sums() -> Accumulator {
         let mut acc = Accumulator::new(1, 2, 2, 0);
-        acc.runs = 1;
-        acc.comp_null_var_runs = 1;
+        acc.runs = 4;
+        acc.comp_null_var_runs = 4;
+        acc.meas_comp_runs = vec![4, 4];
+        // Σ r² = (N − 1) s² + N m², m the per-run mean: 3 · 25 + 4 m².
+        let run_sq = |total: f64| 75.0 + 4.0 * (total / 4.0).powi(2);
+        acc.state_mean_run_sq = vec![run_sq(10.0), run_sq(50.0)];
+        acc.meas_mean_run_sq = vec![run_sq(-30.0), run_sq(70.0)];
         acc.state_comp_total = vec![100.0, 200.0];
         acc.state_comp_samples = vec![100.0, 100.0];
         acc.state_comp_null_var = vec![200.0, 200.0];
@@ -769,10 +777,10 @@ mod tests {
     #[test]
     fn component_values_intervals_and_zero_mean_tests_by_hand() {
         // Mean gate: the components are diagnostics at α = 0.05, so each interval is the
-        // table's [74.222, 129.561]/100, and each zero-mean test is two-sided normal at
-        // 1.96 on z = T / √(V · max(1, c − m²)) (c the second moment, m the mean):
-        // state 0: z = 10/√100 = 1; state 1: 50/√(100 · 1.75) = 3.780; measurement 0:
-        // −30/√100 = −3; measurement 1: 70/√(100 · 1) = 7. Tolerance 1e-12.
+        // table's [74.222, 129.561]/100, and each zero-mean test is two-sided Student t on
+        // 3 degrees of freedom (4 runs) at t = 3.182 (tables) on z = T / √(N s²) = T / 10:
+        // state 0: z = 1; state 1: 5; measurement 0: −3 (inside: 4 runs cannot tell);
+        // measurement 1: 7. Tolerance 1e-12.
         let r = report(&component_sums(), GateMode::Mean, true);
         let want = [
             (
@@ -789,7 +797,7 @@ mod tests {
                 2.0,
                 Verdict::Overconfident,
                 0.5,
-                50.0 / 175f64.sqrt(),
+                5.0,
                 Verdict::Biased,
                 false,
             ),
@@ -799,7 +807,7 @@ mod tests {
                 Verdict::Underconfident,
                 -0.3,
                 -3.0,
-                Verdict::Biased,
+                Verdict::Consistent,
                 false,
             ),
             (
@@ -866,6 +874,10 @@ mod tests {
         acc.state_mean_null_var = vec![n; 2];
         acc.meas_comp_total = vec![n; 2];
         acc.meas_comp_samples = vec![n; 2];
+        // Each run's first-moment sum over 4 white steps has variance 4, about a mean of 0.
+        acc.state_mean_run_sq = vec![runs * 4.0; 2];
+        acc.meas_mean_run_sq = vec![runs * 4.0; 2];
+        acc.meas_comp_runs = vec![50; 2];
         for j in 0..2 {
             acc.white_pairs[j] = runs * 3.0;
             acc.white_a2[j] = runs * 3.0;
@@ -890,6 +902,8 @@ mod tests {
         // fails because of the bias alone, so the verdict is the bias.
         let mut biased = consistent();
         biased.meas_mean_total[0] = 0.7 * 200.0;
+        // The per-run sums about their new mean 2.8: 49 · 4 + 50 · 2.8².
+        biased.meas_mean_run_sq[0] = 49.0 * 4.0 + 50.0 * 2.8 * 2.8;
         biased.meas_comp_total[0] = 1.49 * 200.0;
         let r = full(&biased);
         assert_eq!(

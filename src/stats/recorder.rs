@@ -176,6 +176,7 @@ impl RunRecorder {
             if self.comp_z_n[j] > 0.0 {
                 acc.add_run_component(false, j, self.comp_z[j] / self.comp_z_n[j]);
                 acc.meas_comp_runs[j] += 1;
+                acc.meas_mean_run_sq[j] += self.mean_z[j] * self.mean_z[j];
             }
         }
         acc.runs += 1;

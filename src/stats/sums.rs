@@ -117,6 +117,10 @@ pub struct Accumulator {
     /// Σ_{i,k} ν_j/√S_jj per measurement component (n_z). Innovations of a consistent filter
     /// are white, so its null variance is exactly its sample count, `meas_comp_samples`.
     pub(crate) meas_mean_total: Vec<f64>,
+    /// Σ over finished runs i of the square of the run's own sum `Σ_k ν_j/√S_jj` (n_z): the
+    /// run-to-run spread, the zero-mean test's variance whether or not the filter is
+    /// consistent.
+    pub(crate) meas_mean_run_sq: Vec<f64>,
     /// Σ_{i,k} ν_j²/S_jj per measurement component.
     pub(crate) meas_comp_total: Vec<f64>,
     /// Samples behind `meas_comp_total`.
@@ -178,6 +182,7 @@ impl Accumulator {
             state_mean_run_sq: z(n_x),
             state_mean_null_var: z(n_x),
             meas_mean_total: z(n_z),
+            meas_mean_run_sq: z(n_z),
             meas_comp_total: z(n_z),
             meas_comp_samples: z(n_z),
             meas_comp_run_sum: z(n_z),
@@ -297,25 +302,44 @@ impl Accumulator {
     }
 
     /// What the variance of state component j's first-moment sum `state_mean_total[j]`
-    /// rests on, by the same policy as [`Self::state_component_variance`]: the filters' own
-    /// prediction where every sampled filter supplied its error map, else `N s²` with `s²`
-    /// the sample variance of the per-run sums about their mean (about the mean, so that a
-    /// bias does not inflate its own yardstick).
+    /// rests on: `N s²`, with `s²` the sample variance of the per-run sums about their mean
+    /// (about the mean, so that a bias does not inflate its own yardstick). The spread
+    /// needs no consistency: errors that are zero-mean but correlated in time (a bias drawn
+    /// per run, coloured noise, a filter that is off) spread the per-run sums as much as
+    /// they spread the total, where the filter's own prediction would not (issue 38: z had
+    /// a standard deviation of 6 there). Below two finished runs there is no spread, and
+    /// the variance is the filters' own prediction where every sampled filter supplied its
+    /// error map (valid only for a consistent filter), else unavailable.
     pub fn state_mean_variance(&self, j: usize) -> SumVariance {
         let finished = self.runs.saturating_sub(self.diverged_runs);
-        if self.error_map_missing == 0 && self.comp_null_var_runs > 0 {
+        let v = spread(
+            self.state_mean_total[j],
+            self.state_mean_run_sq[j],
+            finished,
+        );
+        if matches!(v, SumVariance::Unavailable)
+            && self.error_map_missing == 0
+            && self.comp_null_var_runs > 0
+        {
             let scale = finished as f64 / self.comp_null_var_runs as f64;
             return SumVariance::Predicted(self.state_mean_null_var[j] * scale);
         }
-        if finished < 2 {
-            return SumVariance::Unavailable;
-        }
-        let n = finished as f64;
-        let mean = self.state_mean_total[j] / n;
-        let s2 = ((self.state_mean_run_sq[j] - n * mean * mean) / (n - 1.0)).max(0.0);
-        SumVariance::RunSpread {
-            var: n * s2,
-            runs: finished,
+        v
+    }
+
+    /// What the variance of measurement component j's first-moment sum
+    /// `meas_mean_total[j]` rests on: as [`Self::state_mean_variance`], over the runs in
+    /// which the component was measured. A single run (a recording) has no spread; its
+    /// variance is then the sample count, what white innovations of a consistent filter
+    /// give.
+    pub fn meas_mean_variance(&self, j: usize) -> SumVariance {
+        match spread(
+            self.meas_mean_total[j],
+            self.meas_mean_run_sq[j],
+            self.meas_comp_runs[j],
+        ) {
+            SumVariance::Unavailable => SumVariance::Predicted(self.meas_comp_samples[j]),
+            v => v,
         }
     }
 
@@ -352,6 +376,7 @@ impl Accumulator {
         add(&mut self.state_mean_run_sq, &o.state_mean_run_sq);
         add(&mut self.state_mean_null_var, &o.state_mean_null_var);
         add(&mut self.meas_mean_total, &o.meas_mean_total);
+        add(&mut self.meas_mean_run_sq, &o.meas_mean_run_sq);
         add(&mut self.meas_comp_total, &o.meas_comp_total);
         add(&mut self.meas_comp_samples, &o.meas_comp_samples);
         add(&mut self.meas_comp_run_sum, &o.meas_comp_run_sum);
@@ -573,6 +598,11 @@ impl Accumulator {
         &self.meas_mean_total
     }
 
+    /// Σ over finished runs i of the square of the run's own sum `Σ_k ν_j/√S_jj` (n_z).
+    pub fn meas_mean_run_sq(&self) -> &[f64] {
+        &self.meas_mean_run_sq
+    }
+
     /// Σ_{i,k} ν_j²/S_jj per measurement component.
     pub fn meas_comp_total(&self) -> &[f64] {
         &self.meas_comp_total
@@ -637,6 +667,18 @@ impl Accumulator {
     pub fn divergences(&self) -> &[Divergence] {
         &self.divergences
     }
+}
+
+/// `N s²` for a sum over `runs` runs of per-run sums whose squares add to `run_sq`: the
+/// run-to-run spread about the mean; unavailable below two runs.
+fn spread(total: f64, run_sq: f64, runs: usize) -> SumVariance {
+    if runs < 2 {
+        return SumVariance::Unavailable;
+    }
+    let n = runs as f64;
+    let mean = total / n;
+    let s2 = ((run_sq - n * mean * mean) / (n - 1.0)).max(0.0);
+    SumVariance::RunSpread { var: n * s2, runs }
 }
 
 #[cfg(test)]
@@ -705,7 +747,7 @@ mod merge_properties {
     }
 
     /// The vector sums of `acc`, for filling and for checking.
-    fn fields(acc: &mut Accumulator) -> [&mut Vec<f64>; 26] {
+    fn fields(acc: &mut Accumulator) -> [&mut Vec<f64>; 27] {
         [
             &mut acc.nees_sum,
             &mut acc.nees_sq,
@@ -725,6 +767,7 @@ mod merge_properties {
             &mut acc.state_mean_run_sq,
             &mut acc.state_mean_null_var,
             &mut acc.meas_mean_total,
+            &mut acc.meas_mean_run_sq,
             &mut acc.meas_comp_total,
             &mut acc.meas_comp_samples,
             &mut acc.meas_comp_run_sum,
@@ -852,6 +895,11 @@ mod merge_properties {
             acc.meas_mean_total(),
             &acc.meas_mean_total[..],
             "meas_mean_total"
+        );
+        assert_eq!(
+            acc.meas_mean_run_sq(),
+            &acc.meas_mean_run_sq[..],
+            "meas_mean_run_sq"
         );
         assert_eq!(
             acc.meas_comp_total(),

@@ -13,10 +13,15 @@
 //!   + w_comp     [(1/n_x) Σ_j (ln c_j)² + (1/n_z) Σ_j (ln d_j)²]   per component
 //!   + w_white    (1/(L n_z)) Σ_{l,j} ρ_lj²                  innovation whiteness
 //!   + w_shape    (1/T) Σ_k [ln(Var_k(NEES) / 2n_x)]²         distribution shape (optional)
+//!   + w_bias     [(1/n_x) Σ_j m_j² + (1/n_z) Σ_j μ_j²]        first moments (optional)
 //! ```
 //!
 //! where `c_j` is the average of `e_j²/P_jj`, `d_j` of `ν_j²/S_jj`, and `ρ_lj` the lag-l
-//! autocorrelation of `ν_j/√S_jj`. J is zero exactly when every statistic sits at its target
+//! autocorrelation of `ν_j/√S_jj`; `m_j` and `μ_j` are the averages of `e_j/√P_jj` and
+//! `ν_j/√S_jj`, 0 for a consistent filter. The second moments see a bias only through its
+//! square, which a larger Q or R can make up for; the first-moment term is what pins a
+//! structural change (a sensor offset, a step) where the gate's zero-mean tests judge it,
+//! and is off by default (the noise parameters barely move a mean). J is zero exactly when every statistic sits at its target
 //! and grows with the distance. Mean-only objectives (Chen et al. 2018) have whole curves of
 //! zeros; the per-component and whiteness terms are what pin down per-axis parameters. A
 //! filter that diverges scores +∞.
@@ -60,6 +65,8 @@ pub struct PerTerm {
     pub whiteness: f64,
     /// NEES variance at 2 n_x.
     pub shape: f64,
+    /// Normalized errors and innovations averaging to 0.
+    pub bias: f64,
 }
 
 /// Weights of the objective's terms.
@@ -74,10 +81,11 @@ impl PerTerm {
         components: 0.0,
         whiteness: 0.0,
         shape: 0.0,
+        bias: 0.0,
     };
 }
 
-/// The default weights: every term 1, but the distribution shape 0.
+/// The default weights: every term 1, but the distribution shape and the first moments 0.
 impl Default for PerTerm {
     fn default() -> Self {
         PerTerm {
@@ -87,6 +95,7 @@ impl Default for PerTerm {
             components: 1.0,
             whiteness: 1.0,
             shape: 0.0,
+            bias: 0.0,
         }
     }
 }
@@ -108,9 +117,10 @@ impl PerTerm {
             "components" => &mut self.components,
             "whiteness" => &mut self.whiteness,
             "shape" => &mut self.shape,
+            "bias" => &mut self.bias,
             _ => {
                 return Err(err(format!(
-                    "unknown weight '{name}' (known: mean, interval, per_step, components, whiteness, shape)"
+                    "unknown weight '{name}' (known: mean, interval, per_step, components, whiteness, shape, bias)"
                 )));
             }
         };
@@ -128,6 +138,7 @@ impl PerTerm {
             self.components,
             self.whiteness,
             self.shape,
+            self.bias,
         ];
         if w.iter().all(|&v| v == 0.0) {
             return Err(SettingError::new(
@@ -279,7 +290,7 @@ impl Objective {
         if let Some((states, meas)) = &self.block {
             self.block_terms(acc, states, meas, &mut s);
             let t = &mut s.t;
-            t.total = t.terms.mean + t.terms.components + t.terms.whiteness;
+            t.total = t.terms.mean + t.terms.components + t.terms.whiteness + t.terms.bias;
             return if t.total.is_finite() { s.t } else { inf };
         }
         if !self.average_terms(acc, &mut s) {
@@ -305,13 +316,28 @@ impl Objective {
         if w.shape > 0.0 && !self.nis_only {
             s.add(Term::Shape, w.shape, &shape_deviations(acc));
         }
+        if w.bias > 0.0 {
+            s.add(
+                Term::Bias,
+                w.bias,
+                &ratios(&acc.meas_mean_total, &acc.meas_comp_samples),
+            );
+            if !self.nis_only {
+                s.add(
+                    Term::Bias,
+                    w.bias,
+                    &ratios(&acc.state_mean_total, &acc.state_mean_samples),
+                );
+            }
+        }
         let t = &mut s.t;
         t.total = t.terms.mean
             + t.terms.interval
             + t.terms.per_step
             + t.terms.components
             + t.terms.whiteness
-            + t.terms.shape;
+            + t.terms.shape
+            + t.terms.bias;
         if !t.total.is_finite() {
             return inf;
         }
@@ -353,6 +379,25 @@ impl Objective {
         for (total, samples, idx, _) in kinds.into_iter().filter(|k| k.3) {
             s.add(Term::Mean, w.mean, &pooled(total, samples, idx));
             s.add(Term::Components, w.components, &pick(total, samples, idx));
+        }
+        if w.bias > 0.0 {
+            let firsts = [
+                (&acc.meas_mean_total, &acc.meas_comp_samples, meas, true),
+                (
+                    &acc.state_mean_total,
+                    &acc.state_mean_samples,
+                    states,
+                    !self.nis_only,
+                ),
+            ];
+            for (total, samples, idx, _) in firsts.into_iter().filter(|k| k.3) {
+                let m: Vec<f64> = idx
+                    .iter()
+                    .filter(|&&j| samples.get(j).is_some_and(|&n| n > 0.0))
+                    .map(|&j| total[j] / samples[j])
+                    .collect();
+                s.add(Term::Bias, w.bias, &m);
+            }
         }
         let n_z = acc.meas_comp_total.len().max(1);
         let rho = lag_correlations(acc, |o| meas.contains(&(o % n_z)));
@@ -412,6 +457,7 @@ enum Term {
     Components,
     Whiteness,
     Shape,
+    Bias,
 }
 
 /// J's terms as they accumulate, with the residuals behind them where asked for.
@@ -435,12 +481,23 @@ impl Scored<'_> {
             Term::Components => &mut terms.components,
             Term::Whiteness => &mut terms.whiteness,
             Term::Shape => &mut terms.shape,
+            Term::Bias => &mut terms.bias,
         };
         *slot += scale * xs.iter().map(|x| x * x).sum::<f64>();
         if let Some(r) = self.res.as_deref_mut() {
             r.extend(xs.iter().map(|x| scale.sqrt() * x));
         }
     }
+}
+
+/// Each component's ratio of its total to its samples, over the components with samples.
+fn ratios(total: &[f64], samples: &[f64]) -> Vec<f64> {
+    total
+        .iter()
+        .zip(samples)
+        .filter(|(_, b)| **b > 0.0)
+        .map(|(a, b)| a / b)
+        .collect()
 }
 
 /// Each component's log ratio of its total to its samples, over the components with

@@ -16,7 +16,7 @@ use crate::input::SettingError;
 #[serde(deny_unknown_fields)]
 pub struct TuneSpec {
     /// Set an objective weight, NAME=VALUE (mean, interval, per_step, components,
-    /// whiteness, shape; repeatable).
+    /// whiteness, shape, bias; repeatable).
     #[serde(default, deserialize_with = "weight_table")]
     #[arg(long = "weight", value_name = "NAME=VALUE")]
     pub weights: Vec<String>,

@@ -172,6 +172,8 @@ pub fn cause_name(c: &autotune::internals::explain::Cause) -> String {
 pub struct Draw {
     pub kind: Kind,
     pub axes: usize,
+    /// The axis a one-axis fault is on (its sensor is measurement component `fault_axis`).
+    pub fault_axis: usize,
     pub experiment: LinearExperiment,
     pub start: Vec<f64>,
     pub truth: Vec<f64>,
@@ -342,6 +344,7 @@ pub fn draw(kind: Kind, seed: u64) -> Draw {
     Draw {
         kind,
         axes,
+        fault_axis: a,
         experiment,
         start,
         truth: truth_values,

@@ -365,12 +365,24 @@ pub fn family_finding(result: &TuneResult, explanations: &[Explanation]) -> Opti
         lines.push(format!("{}. {}", k + 1, e.line()));
     }
     if !tried.is_empty() {
-        lines.push("tried, and not making it consistent:".to_string());
+        // Each line says which: no fit, a fit that changed nothing, or a case of one above.
+        lines.push("tried, and not explaining it:".to_string());
         lines.extend(tried.iter().map(|e| format!("- {}", e.line())));
     }
-    if !untried.is_empty() {
-        let what: Vec<String> = untried.iter().map(|e| e.cause.words()).collect();
-        let why = untried[0].untried.clone().unwrap_or_default();
+    // One line per reason, in the order the reasons first appear.
+    let mut reasons: Vec<&str> = Vec::new();
+    for e in &untried {
+        let why = e.untried.as_deref().unwrap_or_default();
+        if !reasons.contains(&why) {
+            reasons.push(why);
+        }
+    }
+    for why in reasons {
+        let what: Vec<String> = untried
+            .iter()
+            .filter(|e| e.untried.as_deref().unwrap_or_default() == why)
+            .map(|e| e.cause.words())
+            .collect();
         lines.push(format!("not tried ({why}): {}", what.join("; ")));
     }
     Some(lines)

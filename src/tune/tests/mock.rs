@@ -342,6 +342,7 @@ const COMPONENTS_ONLY: Weights = Weights {
     components: 1.0,
     whiteness: 0.0,
     shape: 0.0,
+    bias: 0.0,
 };
 
 /// Settings whose J is the formula in the module doc.

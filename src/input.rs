@@ -256,8 +256,33 @@ pub fn input_at(path: &Path) -> Option<PathBuf> {
     use std::os::unix::fs::MetadataExt;
     let m = std::fs::metadata(path).ok()?;
     let inputs = INPUTS.lock().unwrap_or_else(|e| e.into_inner());
+    // An input whose path no longer leads to the file noted was removed or replaced: its
+    // inode may since belong to another file (a library user's long process, tests).
+    let same =
+        |p: &Path| std::fs::metadata(p).is_ok_and(|n| n.dev() == m.dev() && n.ino() == m.ino());
     inputs
         .iter()
-        .find(|f| f.dev == m.dev() && f.ino == m.ino())
+        .find(|f| f.dev == m.dev() && f.ino == m.ino() && same(&f.path))
         .map(|f| f.path.clone())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn an_input_removed_since_it_was_noted_protects_no_other_file() {
+        let dir = tempfile::tempdir().unwrap();
+        let input = dir.path().join("problem.toml");
+        std::fs::write(&input, "x").unwrap();
+        note_input(&input);
+        assert_eq!(input_at(&input), Some(input.clone()));
+        std::fs::remove_file(&input).unwrap();
+        // A new file may get the removed one's inode; it is not the input.
+        for k in 0..8 {
+            let other = dir.path().join(format!("out{k}.xml"));
+            std::fs::write(&other, "y").unwrap();
+            assert_eq!(input_at(&other), None, "{}", other.display());
+        }
+    }
 }

@@ -212,7 +212,8 @@ fn mark_nested(out: &mut [Explanation], steps: usize) {
     };
     let bias = fits(out, Hypothesis::SensorBias);
     let gain = fits(out, Hypothesis::SensorGain);
-    let slow = 1.0 - 1.0 / steps.max(1) as f64;
+    // Also at the correlation's upper bound (0.999), which longer runs cannot reach past.
+    let slow = (1.0 - 1.0 / steps.max(1) as f64).min(0.998);
     for e in out.iter_mut() {
         let Some(t) = e.trial.as_mut() else { continue };
         if !t.fits() {
@@ -255,6 +256,15 @@ pub fn explain(
     }
     let mut out = trials::bounds(experiment, result);
     if result.status == TuneStatus::Consistent {
+        return Ok(out);
+    }
+    // A failure the recheck on more runs did not repeat is no misfit to explain: a change
+    // that fits would be no evidence for a cause.
+    if result
+        .certificate
+        .as_ref()
+        .is_some_and(|c| c.recheck_passed == Some(true))
+    {
         return Ok(out);
     }
     let t = trials::Trials {

@@ -219,10 +219,11 @@ impl RunSums<'_> {
         let mean_var = comp_var.map(|cv| cv.mean_variances().to_vec());
         for (j, c) in self.mean_x.iter().enumerate() {
             let v = mean_var.as_ref().map_or(0.0, |v| v[j]);
-            acc.state_mean_run_sq[j] = runs * (c * c + v);
+            // Σ r² = N c² + (N − 1) v gives the sample variance v about the mean c.
+            acc.state_mean_run_sq[j] = runs * c * c + (runs - 1.0) * v;
         }
         for (j, c) in self.mean_z.iter().enumerate() {
-            acc.meas_mean_run_sq[j] = runs * (c * c + t);
+            acc.meas_mean_run_sq[j] = runs * c * c + (runs - 1.0) * t;
         }
         acc.runs = mc.runs();
         acc.nees_null_var = runs * null_var.variance();

@@ -15,12 +15,15 @@
 //! - Zero mean of component j: consistency (Bar-Shalom, Li, Kirubarajan 2001, §5.4) is
 //!   zero-mean errors *and* the stated covariance, and a constant bias the filter does not
 //!   model (a sensor offset, an unmodelled input) shows in the first moment before anything
-//!   else. The sum `T_j` of `e_j/√P_jj` (or `ν_j/√S_jj`) over all runs and steps has mean 0
-//!   and, under consistency, the variance the filter predicts: the sample count for the
-//!   white innovations, the error-map recursion of [`super::ComponentNullVariance`] for the
-//!   correlated state errors (or the run-to-run spread of the per-run sums without a map,
-//!   then judged against Student's t with N − 1 degrees of freedom). The test is two-sided
-//!   normal on `z = T_j/√Var(T_j)`.
+//!   else. The sum `T_j` of `e_j/√P_jj` (or `ν_j/√S_jj`) over all runs and steps has mean 0;
+//!   its variance is `N s²`, with `s²` the sample variance of the N per-run sums, and `z =
+//!   T_j/√(N s²)` is judged against Student's t with N − 1 degrees of freedom. Unlike the
+//!   variance a consistent filter predicts, the spread holds under a misfit: errors that are
+//!   zero-mean but correlated in time (a bias drawn per run, coloured noise) spread the
+//!   per-run sums as much as the total (issue 38). The per-run sums of first moments are
+//!   near normal (unlike the per-run averages of squares above). With one run there is no
+//!   spread: the predicted variance (the sample count for white innovations, the error-map
+//!   recursion of [`super::ComponentNullVariance`] for the states) and a normal test.
 //! - Whiteness of component j: an optimal filter's innovations are uncorrelated in time, so
 //!   with `u = ν_j/√S_jj` the pooled lag-l autocorrelation `ρ_l` is about N(0, 1/pairs_l),
 //!   independently across lags; the portmanteau `Q_j = Σ_l pairs_l ρ_l²` (Box and Pierce

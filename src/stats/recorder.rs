@@ -340,6 +340,8 @@ mod tests {
         assert_eq!(acc.state_mean_run_sq, vec![4.0]);
         // Innovations 2y at steps 1 and 3: (2, 6) and (1, −2).
         assert_eq!(acc.meas_mean_total, vec![7.0]);
+        // Per-run sums of ν/√S: 8 and −1.
+        assert_eq!(acc.meas_mean_run_sq, vec![65.0]);
         assert_eq!(acc.meas_comp_total, vec![45.0]);
         assert_eq!(acc.meas_comp_samples, vec![4.0]);
         assert!((acc.meas_comp_run_sum[0] - (20.0 + 2.5)).abs() < 1e-12);

@@ -960,4 +960,49 @@ mod merge_properties {
         let runs: Vec<usize> = a.divergences.iter().map(|d: &Divergence| d.run).collect();
         assert_eq!(runs, (0..10).collect::<Vec<_>>());
     }
+
+    #[test]
+    fn the_zero_mean_variance_is_the_run_spread_and_one_run_falls_back_to_the_prediction() {
+        // 4 runs whose first-moment sums are 1, 3, −2, 2: total 4, Σ r² = 18, mean 1,
+        // s² = (18 − 4)/3 = 14/3, variance N s² = 56/3.
+        let mut acc = Accumulator::new(1, 1, 1, 0);
+        acc.runs = 4;
+        acc.state_mean_total = vec![4.0];
+        acc.state_mean_run_sq = vec![18.0];
+        acc.meas_mean_total = vec![4.0];
+        acc.meas_mean_run_sq = vec![18.0];
+        acc.meas_comp_runs = vec![4];
+        acc.meas_comp_samples = vec![40.0];
+        acc.comp_null_var_runs = 4;
+        acc.state_mean_null_var = vec![8.0];
+        for v in [acc.state_mean_variance(0), acc.meas_mean_variance(0)] {
+            match v {
+                SumVariance::RunSpread { var, runs } => {
+                    assert!((var - 56.0 / 3.0).abs() < 1e-12, "{var}");
+                    assert_eq!(runs, 4);
+                }
+                other => panic!("{other:?}"),
+            }
+        }
+        // One run: no spread; the states take the filters' prediction (scaled to the
+        // finished runs), the innovations their sample count.
+        acc.runs = 1;
+        acc.meas_comp_runs = vec![1];
+        assert!(
+            matches!(acc.state_mean_variance(0), SumVariance::Predicted(v) if (v - 2.0).abs() < 1e-12),
+            "{:?}",
+            acc.state_mean_variance(0)
+        );
+        assert!(
+            matches!(acc.meas_mean_variance(0), SumVariance::Predicted(v) if v == 40.0),
+            "{:?}",
+            acc.meas_mean_variance(0)
+        );
+        // Without error maps one run has nothing to go on.
+        acc.error_map_missing = 1;
+        assert!(matches!(
+            acc.state_mean_variance(0),
+            SumVariance::Unavailable
+        ));
+    }
 }

@@ -11,7 +11,7 @@
 //! - Otherwise the misfit is claimed ([`TuneStatus::Inconsistent`]) only when at least two
 //!   starts agree on the best score (so the best is not one search's accident), and the
 //!   best point fails the gate again on [`RECHECK`] times the runs, on a fresh seed (so the
-//!   failure is not Monte Carlo noise at N runs). Else the run is
+//!   failure is not Monte Carlo noise at N runs; an inconclusive recheck is no failure). Else the run is
 //!   [`TuneStatus::Undecided`], and the certificate says which condition failed.
 
 use serde::Serialize;
@@ -26,7 +26,7 @@ pub const WIDEN: f64 = 100.0;
 pub const STARTS: usize = 4;
 /// The recheck's runs, in multiples of the confirmation's N.
 pub const RECHECK: usize = 4;
-/// Scores within this fraction of the best (and of 1, for a best near 0) agree.
+/// Scores within this fraction of the best (and of 0.1, for a best near 0) agree.
 const AGREE: f64 = 0.02;
 
 /// One start's search in the widened box.
@@ -141,7 +141,9 @@ pub fn certify(
     let mut runs: Vec<TuneResult> = Vec::with_capacity(STARTS);
     for s in &starts {
         let r = super::tune(&wide, s, fixed, mc, &quiet, &Silent)?;
-        let fits = r.status == TuneStatus::Consistent;
+        // A filter that passes its confirmation fits, whether or not its search had
+        // converged when its budget ran out.
+        let fits = r.confirmation.holds();
         runs.push(r);
         if fits {
             break;
@@ -164,7 +166,7 @@ pub fn certify(
         .iter()
         .map(|r| r.evaluations + r.refine_evaluations)
         .sum();
-    if let Some(k) = runs.iter().position(|r| r.status == TuneStatus::Consistent) {
+    if let Some(k) = runs.iter().position(|r| r.confirmation.holds()) {
         let mut fit = runs.swap_remove(k);
         let certificate = Certificate {
             bounds,
@@ -188,10 +190,13 @@ pub fn certify(
         .map(|(k, _)| k)
         .unwrap_or(0);
     let j_best = runs[best].objective_final.total;
-    let tol = AGREE * j_best.abs().max(1.0);
+    // Relative, down to a floor of 0.1 (scores that small are near a fit anyway).
+    let tol = AGREE * j_best.abs().max(0.1);
     let agreeing = runs
         .iter()
-        .filter(|r| (r.objective_final.total - j_best).abs() <= tol)
+        .filter(|r| {
+            r.objective_final.total.is_finite() && (r.objective_final.total - j_best).abs() <= tol
+        })
         .count();
     let recheck_runs = mc.runs().saturating_mul(RECHECK);
     let recheck_mc = mc
@@ -200,7 +205,9 @@ pub fn certify(
     let use_nees = !settings.nis_only() && !model.state_names().is_empty();
     let report = crate::check::check(&wide, &runs[best].tuned, &recheck_mc, use_nees)?;
     let recheck_passed = report.verdict.passes();
-    let proven = agreeing >= 2 && !recheck_passed;
+    // An inconclusive recheck is no failure.
+    let recheck_failed = !recheck_passed && report.verdict != crate::stats::Verdict::Inconclusive;
+    let proven = agreeing >= 2 && recheck_failed;
     let certificate = Certificate {
         bounds,
         starts: certified,

@@ -560,6 +560,38 @@ mod tests {
     }
 
     #[test]
+    fn the_first_moment_term_scores_each_components_mean_and_only_when_weighted() {
+        // Means: states 0.5 and 0 (samples 10), measurements −0.2 and 0.4 (samples 10).
+        let mut acc = sums();
+        acc.state_mean_total = vec![5.0, 0.0];
+        acc.state_mean_samples = vec![10.0, 10.0];
+        acc.meas_mean_total = vec![-2.0, 4.0];
+        let off = Objective::new(Weights::default(), false, 0.05).evaluate(&acc);
+        assert_eq!(off.terms.bias, 0.0, "off by default");
+        let w = Weights {
+            bias: 3.0,
+            ..Weights::default()
+        };
+        let o = Objective::new(w, false, 0.05);
+        let t = o.evaluate(&acc);
+        // 3 · [(0.5² + 0)/2 + (0.04 + 0.16)/2] = 3 · 0.225.
+        assert!((t.terms.bias - 0.675).abs() < 1e-12, "{t:?}");
+        assert!((t.total - off.total - 0.675).abs() < 1e-12);
+        let r = o.residuals(&acc).unwrap();
+        assert!((r.iter().map(|x| x * x).sum::<f64>() - t.total).abs() < 1e-9);
+        // NIS only: the measurements' means alone.
+        let nis = Objective::new(w, true, 0.05).evaluate(&acc);
+        assert!((nis.terms.bias - 0.3).abs() < 1e-12, "{nis:?}");
+        // A block: its own components, state 0 and measurement 1: 3 · (0.25 + 0.16).
+        let b = Objective::new(w, false, 0.05)
+            .restricted(&[0], &[1])
+            .evaluate(&acc);
+        assert!((b.terms.bias - 1.23).abs() < 1e-12, "{b:?}");
+        let mut named = Weights::default();
+        assert!(named.set("bias", 1.0).is_ok() && named.bias == 1.0);
+    }
+
+    #[test]
     fn a_restricted_objective_scores_only_its_blocks_components() {
         let o = Objective::new(Weights::default(), false, 0.05);
         let right = o.clone().restricted(&[1], &[1]).evaluate(&sums());

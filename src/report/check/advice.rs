@@ -286,7 +286,8 @@ pub fn amend_for_explanation(recs: &mut [Recommendation], explanations: &[Explan
     let Some((e, t)) = explanations
         .first()
         .filter(|e| e.cause != crate::explain::Cause::SearchBounds)
-        .and_then(|e| e.trial.as_ref().filter(|t| t.consistent()).map(|t| (e, t)))
+        .filter(|e| e.fits())
+        .and_then(|e| e.trial.as_ref().map(|t| (e, t)))
     else {
         // A widened bound is already in the tuned values.
         return;
@@ -352,6 +353,16 @@ pub fn family_finding(result: &TuneResult, explanations: &[Explanation]) -> Opti
         .collect();
     let untried: Vec<&Explanation> = explanations.iter().filter(|e| e.trial.is_none()).collect();
     match fitted.len() {
+        // Some tried changes may pass yet explain nothing (their own parameters at no
+        // change, or a case of another): then none "makes it consistent" would be false.
+        0 if tried
+            .iter()
+            .any(|e| e.trial.as_ref().is_some_and(|t| t.consistent())) =>
+        {
+            lines.push(
+                "none of the tried changes explains it (those that pass changed nothing, or repeat another): autotune names no cause (what stays off is above)".to_string(),
+            )
+        }
         0 if !tried.is_empty() => lines.push(
             "none of the tried changes makes it consistent: autotune names no cause (what stays off is above)".to_string(),
         ),
@@ -399,6 +410,10 @@ fn undecided(result: &TuneResult) -> String {
         Some(cert) if cert.recheck_passed == Some(true) => format!(
             "{head}: the best fit passes the gate on {} runs, so the effect is at the limit of what {} runs can see (check with --runs {} or more to decide)",
             cert.recheck_runs, result.runs, cert.recheck_runs
+        ),
+        Some(cert) if cert.agreeing >= 2 => format!(
+            "{head}: the gate cannot decide at the best fit on {} runs (inconclusive), so the effect is at the limit of what the runs can see",
+            cert.recheck_runs
         ),
         Some(cert) => format!(
             "{head}: the searches from {} starts in a box widened ×{} do not agree on the best score ({} of them do), so the search cannot tell whether a better fit exists",

@@ -194,7 +194,7 @@ fn search_markdown(o: &mut String, r: &TuneResult) {
     );
     let _ = writeln!(
         o,
-        "- objective: {:.4e} at the start, {:.4e} tuned (terms: mean {:.2e}, interval {:.2e}, per-step {:.2e}, components {:.2e}, whiteness {:.2e}, shape {:.2e})",
+        "- objective: {:.4e} at the start, {:.4e} tuned (terms: mean {:.2e}, interval {:.2e}, per-step {:.2e}, components {:.2e}, whiteness {:.2e}, shape {:.2e}, bias {:.2e})",
         r.objective_initial.total,
         r.objective_final.total,
         r.objective_final.terms.mean,
@@ -202,7 +202,8 @@ fn search_markdown(o: &mut String, r: &TuneResult) {
         r.objective_final.terms.per_step,
         r.objective_final.terms.components,
         r.objective_final.terms.whiteness,
-        r.objective_final.terms.shape
+        r.objective_final.terms.shape,
+        r.objective_final.terms.bias
     );
     let _ = writeln!(
         o,

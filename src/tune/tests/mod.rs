@@ -290,6 +290,23 @@ fn two_basins_the_certification_finds_the_deep_basin_a_local_search_missed() {
     assert_eq!(r.status, TuneStatus::Consistent, "{cert:#?}");
     assert!(r.tuned[0].ln() < TWO_BASINS_RIDGE, "{:?}", r.tuned);
     assert!(!cert.proven);
+    // The box: each free parameter's bounds widened ×100 on each side; every start inside
+    // it, the first the search's own result.
+    let params = &mock.params().params;
+    for (i, ((lo, hi), p)) in cert.bounds.iter().zip(params).enumerate() {
+        let (want_lo, want_hi) = if p.fixed {
+            (p.lower, p.upper)
+        } else {
+            (p.lower / 100.0, p.upper * 100.0)
+        };
+        assert!(
+            (lo / want_lo - 1.0).abs() < 1e-12 && (hi / want_hi - 1.0).abs() < 1e-12,
+            "parameter {i}: ({lo}, {hi})"
+        );
+        for s in &cert.starts {
+            assert!(*lo <= s.start[i] && s.start[i] <= *hi, "{:?}", s.start);
+        }
+    }
 }
 
 #[test]

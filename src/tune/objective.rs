@@ -587,6 +587,18 @@ mod tests {
             .restricted(&[0], &[1])
             .evaluate(&acc);
         assert!((b.terms.bias - 1.23).abs() < 1e-12, "{b:?}");
+        let parts = b.terms.mean + b.terms.components + b.terms.whiteness + b.terms.bias;
+        assert!((b.total - parts).abs() < 1e-12, "{b:?}");
+        // A component without samples has no mean: it is left out, not a 0/0.
+        acc.state_mean_samples = vec![10.0, 0.0];
+        acc.meas_comp_samples = vec![10.0, 0.0];
+        for o in [
+            Objective::new(w, false, 0.05),
+            Objective::new(w, false, 0.05).restricted(&[0, 1], &[0, 1]),
+        ] {
+            let t = o.evaluate(&acc);
+            assert!(t.terms.bias.is_finite() && t.total.is_finite(), "{t:?}");
+        }
         let mut named = Weights::default();
         assert!(named.set("bias", 1.0).is_ok() && named.bias == 1.0);
     }

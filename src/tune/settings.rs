@@ -717,4 +717,14 @@ mod tests {
             )
         );
     }
+
+    #[test]
+    fn a_stop_below_is_a_positive_finite_score_or_none() {
+        let s = TuneSettings::default();
+        assert_eq!(s.stop_below(), 0.0);
+        assert_eq!(s.clone().with_stop_below(1e-5).stop_below(), 1e-5);
+        for bad in [0.0, -1.0, f64::NAN, f64::INFINITY] {
+            assert_eq!(s.clone().with_stop_below(bad).stop_below(), 0.0, "{bad}");
+        }
+    }
 }

@@ -310,6 +310,39 @@ mod tests {
     }
 
     #[test]
+    fn nees_null_variance_on_two_of_three_states_matches_brute_force_double_sum() {
+        // A NEES on states 0 and 1 of three: ε_k = e₁ₖ' P₁₁⁻¹ e₁ₖ, and with C = (A^{|k−l|}
+        // P)₁₁ the cross-covariance of e₁ₖ and e₁ₗ, Isserlis gives Cov(ε_k, ε_l) =
+        // 2 tr(P₁₁⁻¹ C P₁₁⁻¹ C') (2 · 2 = 4 on the diagonal: two judged states, not one).
+        let a = DMatrix::from_row_slice(3, 3, &[0.9, 0.2, 0.0, -0.1, 0.7, 0.1, 0.05, 0.0, 0.5]);
+        let p = DMatrix::from_row_slice(3, 3, &[2.0, 0.3, 0.1, 0.3, 1.0, -0.2, 0.1, -0.2, 0.8]);
+        let p11 = p.view((0, 0), (2, 2)).clone_owned();
+        let chol11 = Cholesky::new(p11.clone()).unwrap();
+        let p11_inv = p11.try_inverse().unwrap();
+        let t = 15;
+        let mut nv = NeesNullVariance::judged(3, 2);
+        let first = nv.step_judged(&a, &p, &chol11);
+        assert_relative_eq!(first, 4.0, max_relative = 1e-12);
+        for _ in 1..t {
+            nv.step_judged(&a, &p, &chol11);
+        }
+        let mut powers = vec![DMatrix::identity(3, 3)];
+        for i in 1..t {
+            powers.push(&a * &powers[i - 1]);
+        }
+        let mut want = 0.0;
+        for k in 0..t {
+            for l in 0..t {
+                let c = (&powers[k.abs_diff(l)] * &p)
+                    .view((0, 0), (2, 2))
+                    .clone_owned();
+                want += 2.0 * (&p11_inv * &c * &p11_inv * c.transpose()).trace();
+            }
+        }
+        assert_relative_eq!(nv.variance(), want, max_relative = 1e-12);
+    }
+
+    #[test]
     fn component_null_variance_matches_brute_force_double_sum() {
         // A fixed error map and covariance: Cov(x_k, x_l) = 2 (A^{|k−l|} P)_jj² / P_jj².
         let a = DMatrix::from_row_slice(2, 2, &[0.9, 0.2, -0.1, 0.7]);

@@ -998,11 +998,19 @@ mod merge_properties {
             "{:?}",
             acc.meas_mean_variance(0)
         );
-        // Without error maps one run has nothing to go on.
+        // Without error maps one run has nothing to go on; nor has it when no run's null
+        // variance was taken (no prediction to scale).
         acc.error_map_missing = 1;
         assert!(matches!(
             acc.state_mean_variance(0),
             SumVariance::Unavailable
         ));
+        acc.error_map_missing = 0;
+        acc.comp_null_var_runs = 0;
+        assert!(
+            matches!(acc.state_mean_variance(0), SumVariance::Unavailable),
+            "{:?}",
+            acc.state_mean_variance(0)
+        );
     }
 }

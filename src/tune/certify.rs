@@ -14,6 +14,8 @@
 //!   failure is not Monte Carlo noise at N runs; an inconclusive recheck is no failure). Else the run is
 //!   [`TuneStatus::Undecided`], and the certificate says which condition failed.
 
+use rand_xoshiro::SplitMix64;
+use rand_xoshiro::rand_core::{RngCore, SeedableRng};
 use serde::Serialize;
 
 use super::{Silent, TuneError, TuneResult, TuneSettings, TuneStatus};
@@ -44,6 +46,12 @@ pub struct CertifiedStart {
     pub seeds: usize,
     /// How its search ended.
     pub status: TuneStatus,
+    /// Evaluations its search spent.
+    pub evaluations: usize,
+    /// Evaluations its refinement spent.
+    pub refine_evaluations: usize,
+    /// Its wall-clock time, s.
+    pub seconds: f64,
 }
 
 /// What the certification of a misfit found.
@@ -73,16 +81,11 @@ pub fn needed(result: &TuneResult) -> bool {
 }
 
 /// Quasi-random points of the unit cube in `dim` dimensions (a Latin hypercube, each
-/// coordinate's `k` strata shuffled by a splitmix stream of `seed`).
+/// coordinate's `k` strata shuffled by Fisher–Yates on a SplitMix64 stream of `seed`, offset
+/// by a constant: the search's seed also seeds its own draws).
 fn hypercube(k: usize, dim: usize, seed: u64) -> Vec<Vec<f64>> {
-    let mut state = seed ^ 0x5EED_CE47_1F1C_A7E0;
-    let mut next = || {
-        state = state.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = state;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^ (z >> 31)
-    };
+    let mut rng = SplitMix64::seed_from_u64(seed ^ 0x5EED_CE47_1F1C_A7E0);
+    let mut next = || rng.next_u64();
     let mut cols: Vec<Vec<usize>> = (0..dim)
         .map(|_| {
             let mut v: Vec<usize> = (0..k).collect();
@@ -99,6 +102,22 @@ fn hypercube(k: usize, dim: usize, seed: u64) -> Vec<Vec<f64>> {
                 .collect()
         })
         .collect()
+}
+
+/// How many of `scores` agree with the least finite one: within [`AGREE`] of it, relative
+/// down to a floor of 0.1 (scores that small are near a fit anyway). Scores that are not
+/// finite agree with none.
+fn agreeing(scores: &[f64]) -> usize {
+    let best = scores
+        .iter()
+        .copied()
+        .filter(|j| j.is_finite())
+        .fold(f64::INFINITY, f64::min);
+    let tol = AGREE * best.abs().max(0.1);
+    scores
+        .iter()
+        .filter(|j| j.is_finite() && (*j - best).abs() <= tol)
+        .count()
 }
 
 /// Certify `first` (a run of [`super::tune`] on `model` that [`needed`] it):
@@ -156,16 +175,20 @@ pub fn certify(
         passed: r.confirmation.passed,
         seeds: r.confirmation.seeds,
         status: r.status,
+        evaluations: r.evaluations,
+        refine_evaluations: r.refine_evaluations,
+        seconds: r.seconds,
     };
     let certified: Vec<CertifiedStart> = starts
         .iter()
         .zip(&runs)
         .map(|(s, r)| record(s, r))
         .collect();
-    let spent: usize = runs
-        .iter()
-        .map(|r| r.evaluations + r.refine_evaluations)
-        .sum();
+    let spent = Spent {
+        evaluations: certified.iter().map(|c| c.evaluations).sum(),
+        refine_evaluations: certified.iter().map(|c| c.refine_evaluations).sum(),
+        seconds: certified.iter().map(|c| c.seconds).sum(),
+    };
     if let Some(k) = runs.iter().position(|r| r.confirmation.holds()) {
         let mut fit = runs.swap_remove(k);
         let certificate = Certificate {
@@ -189,20 +212,17 @@ pub fn certify(
         })
         .map(|(k, _)| k)
         .unwrap_or(0);
-    let j_best = runs[best].objective_final.total;
-    // Relative, down to a floor of 0.1 (scores that small are near a fit anyway).
-    let tol = AGREE * j_best.abs().max(0.1);
-    let agreeing = runs
-        .iter()
-        .filter(|r| {
-            r.objective_final.total.is_finite() && (r.objective_final.total - j_best).abs() <= tol
-        })
-        .count();
+    let agreeing = agreeing(
+        &runs
+            .iter()
+            .map(|r| r.objective_final.total)
+            .collect::<Vec<_>>(),
+    );
     let recheck_runs = mc.runs().saturating_mul(RECHECK);
     let recheck_mc = mc
         .with_runs(recheck_runs)?
         .with_seed(first.confirm_seed.wrapping_add(0x00C0_FFEE));
-    let use_nees = !settings.nis_only() && !model.state_names().is_empty();
+    let use_nees = settings.scores_nees(!model.state_names().is_empty());
     let report = crate::check::check(&wide, &runs[best].tuned, &recheck_mc, use_nees)?;
     let recheck_passed = report.verdict.passes();
     // An inconclusive recheck is no failure.
@@ -226,16 +246,26 @@ pub fn certify(
     Ok(adopt(out, certificate))
 }
 
+/// What the certification's searches spent, all starts together.
+struct Spent {
+    evaluations: usize,
+    refine_evaluations: usize,
+    /// Wall-clock time, s.
+    seconds: f64,
+}
+
 /// `r` (a start's search) as the run's result: the run's own start and its report, and the
-/// evaluations of every search.
-fn fit_from(first: &TuneResult, r: &mut TuneResult, spent: usize) -> TuneResult {
+/// evaluations (the searches' and the refinements') and time of the first search and every
+/// start's.
+fn fit_from(first: &TuneResult, r: &mut TuneResult, spent: Spent) -> TuneResult {
     let mut out = r.clone();
     out.initial = first.initial.clone();
     out.objective_initial = first.objective_initial;
     out.before = first.before.clone();
-    out.evaluations = first.evaluations + spent;
+    out.evaluations = first.evaluations + spent.evaluations;
+    out.refine_evaluations = first.refine_evaluations + spent.refine_evaluations;
     out.widened = first.widened.clone();
-    out.seconds += first.seconds;
+    out.seconds = first.seconds + spent.seconds;
     out
 }
 
@@ -258,5 +288,52 @@ mod tests {
             assert_eq!(strata, vec![0, 1, 2, 3, 4]);
         }
         assert_ne!(hypercube(5, 3, 7), hypercube(5, 3, 8));
+    }
+
+    #[test]
+    fn seeds_that_differ_in_any_one_bit_give_different_hypercubes() {
+        // 8 strata in 3 dimensions: (8!)³ ≈ 6.6e13 cubes, so two seeds' cubes coincide by
+        // chance with probability ~1.5e-14 per pair; 65 seeds, 2080 pairs.
+        let mut seen: Vec<Vec<Vec<f64>>> = Vec::new();
+        for seed in std::iter::once(0).chain((0..64).map(|b| 1u64 << b)) {
+            let cube = hypercube(8, 3, seed);
+            assert!(!seen.contains(&cube), "seed {seed:#x} repeats a cube");
+            seen.push(cube);
+        }
+    }
+
+    #[test]
+    fn each_ordering_of_the_strata_is_equally_likely() {
+        // Three strata in one dimension over 1200 seeds: each of the 3! orderings 200 times
+        // on average, binomial SD √(1200 · 1/6 · 5/6) = 12.9; the band is ±4 SD (a uniform
+        // shuffle leaves it with probability 4e-4 over the six counts). A shuffle that never
+        // leaves a stratum in place (Sattolo's) gives the identity 0 times.
+        let mut counts = std::collections::HashMap::new();
+        for seed in 0..1200 {
+            let order: Vec<usize> = hypercube(3, 1, seed)
+                .iter()
+                .map(|p| (p[0] * 3.0) as usize)
+                .collect();
+            *counts.entry(order).or_insert(0usize) += 1;
+        }
+        assert_eq!(counts.len(), 6, "{counts:?}");
+        for (order, n) in &counts {
+            assert!((148..=252).contains(n), "{order:?}: {n} of 1200");
+        }
+        // Each point at its stratum's middle.
+        for p in hypercube(4, 2, 3).iter().flatten() {
+            assert!(((p * 4.0).fract() - 0.5).abs() < 1e-12, "{p}");
+        }
+    }
+
+    #[test]
+    fn scores_agree_within_two_percent_of_the_best_down_to_a_floor_of_a_tenth() {
+        // Best 2: within 0.04.
+        assert_eq!(agreeing(&[2.03, 2.0, 2.05, f64::INFINITY, f64::NAN]), 2);
+        assert_eq!(agreeing(&[2.0, 2.039, 2.02]), 3);
+        // Best 0.001: the floor, within 0.002.
+        assert_eq!(agreeing(&[0.0035, 0.001, 0.0025]), 2);
+        assert_eq!(agreeing(&[0.5]), 1);
+        assert_eq!(agreeing(&[f64::INFINITY, f64::NAN]), 0);
     }
 }

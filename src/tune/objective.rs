@@ -316,19 +316,18 @@ impl Objective {
         if w.shape > 0.0 && !self.nis_only {
             s.add(Term::Shape, w.shape, &shape_deviations(acc));
         }
-        if w.bias > 0.0 {
+        // (`add` skips a term of weight 0, the bias's default.)
+        s.add(
+            Term::Bias,
+            w.bias,
+            &ratios(&acc.meas_mean_total, &acc.meas_comp_samples),
+        );
+        if !self.nis_only {
             s.add(
                 Term::Bias,
                 w.bias,
-                &ratios(&acc.meas_mean_total, &acc.meas_comp_samples),
+                &ratios(&acc.state_mean_total, &acc.state_mean_samples),
             );
-            if !self.nis_only {
-                s.add(
-                    Term::Bias,
-                    w.bias,
-                    &ratios(&acc.state_mean_total, &acc.state_mean_samples),
-                );
-            }
         }
         let t = &mut s.t;
         t.total = t.terms.mean
@@ -380,24 +379,22 @@ impl Objective {
             s.add(Term::Mean, w.mean, &pooled(total, samples, idx));
             s.add(Term::Components, w.components, &pick(total, samples, idx));
         }
-        if w.bias > 0.0 {
-            let firsts = [
-                (&acc.meas_mean_total, &acc.meas_comp_samples, meas, true),
-                (
-                    &acc.state_mean_total,
-                    &acc.state_mean_samples,
-                    states,
-                    !self.nis_only,
-                ),
-            ];
-            for (total, samples, idx, _) in firsts.into_iter().filter(|k| k.3) {
-                let m: Vec<f64> = idx
-                    .iter()
-                    .filter(|&&j| samples.get(j).is_some_and(|&n| n > 0.0))
-                    .map(|&j| total[j] / samples[j])
-                    .collect();
-                s.add(Term::Bias, w.bias, &m);
-            }
+        let firsts = [
+            (&acc.meas_mean_total, &acc.meas_comp_samples, meas, true),
+            (
+                &acc.state_mean_total,
+                &acc.state_mean_samples,
+                states,
+                !self.nis_only,
+            ),
+        ];
+        for (total, samples, idx, _) in firsts.into_iter().filter(|k| k.3) {
+            let m: Vec<f64> = idx
+                .iter()
+                .filter(|&&j| samples.get(j).is_some_and(|&n| n > 0.0))
+                .map(|&j| total[j] / samples[j])
+                .collect();
+            s.add(Term::Bias, w.bias, &m);
         }
         let n_z = acc.meas_comp_total.len().max(1);
         let rho = lag_correlations(acc, |o| meas.contains(&(o % n_z)));
@@ -619,6 +616,8 @@ mod tests {
         );
         assert!((wrong.terms.whiteness - 0.25).abs() < 1e-12, "{wrong:?}");
         assert_eq!(wrong.terms.interval + wrong.terms.per_step, 0.0);
+        // J is the sum of the block's terms.
+        assert!((wrong.total - (4.0 * l + 0.25)).abs() < 1e-12, "{wrong:?}");
     }
 
     /// Two steps of two runs: NIS sums 6 and 10 on 4 degrees of freedom a step (ANIS = 4 per

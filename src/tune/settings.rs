@@ -373,7 +373,7 @@ impl TuneSettings {
     /// converges): for a search that only asks whether some value fits, as an explanation's
     /// trial does. Values that are not finite or are negative are taken as 0.
     pub fn with_stop_below(mut self, j: f64) -> Self {
-        self.stop_below = if j.is_finite() && j > 0.0 { j } else { 0.0 };
+        self.stop_below = if j.is_finite() { j.max(0.0) } else { 0.0 };
         self
     }
 
@@ -412,6 +412,13 @@ impl TuneSettings {
     /// Whether only innovations are scored.
     pub fn nis_only(&self) -> bool {
         self.nis_only
+    }
+
+    /// Whether the estimation errors are scored (NEES and the state components) on an
+    /// experiment that has states (`has_states`: ground truth to score against), or only the
+    /// innovations.
+    pub fn scores_nees(&self, has_states: bool) -> bool {
+        !self.nis_only && has_states
     }
 
     /// Evaluation budget.
@@ -716,6 +723,16 @@ mod tests {
                 "unknown local search 'newton' (known: simplex, gauss_newton)"
             )
         );
+    }
+
+    #[test]
+    fn errors_are_scored_only_with_states_and_not_nis_only() {
+        let s = TuneSettings::default();
+        assert!(s.scores_nees(true));
+        assert!(!s.scores_nees(false));
+        let nis = s.with_nis_only(true);
+        assert!(!nis.scores_nees(true));
+        assert!(!nis.scores_nees(false));
     }
 
     #[test]

@@ -100,7 +100,7 @@ impl<'a> Tuning<'a> {
         }
         .with_gate(GateMode::Mean);
         // Without states (no ground truth) only the innovations can be scored.
-        let nis_only = settings.nis_only() || model.state_names().is_empty();
+        let nis_only = !settings.scores_nees(!model.state_names().is_empty());
         let objective = Objective::new(settings.weights(), nis_only, mc.alpha());
         let mut cost = Cost::new(model, search_mc, exact, objective, start, fixed);
         cost.stop_below = settings.stop_below();

@@ -60,6 +60,9 @@ pub(crate) struct Mock {
     fail_above: Option<(usize, f64)>,
     /// The sums are the same for every seed (a filter over one recorded data set).
     recorded: bool,
+    /// `ln c_j` offset by `.0[j]` at every θ (a misfit no parameter removes), in exact sums
+    /// and in Monte Carlo calls of fewer than `.1` runs (a misfit that more runs dispel).
+    offset: Option<(Vec<f64>, usize)>,
 }
 
 impl Mock {
@@ -97,7 +100,18 @@ impl Mock {
             blocks: None,
             fail_above: None,
             recorded: false,
+            offset: None,
         }
+    }
+
+    /// The mock whose component j is off by the factor `e^{o_j}` at every θ ([`Mock::j`]
+    /// then has no zero), in its exact sums and in Monte Carlo calls of fewer than
+    /// `below_runs` runs: `usize::MAX` for a misfit at any N, a finite count for one that
+    /// the recheck on more runs does not repeat.
+    pub(crate) fn misfit(mut self, o: &[f64], below_runs: usize) -> Mock {
+        assert_eq!(o.len(), self.exponents.len(), "one offset per component");
+        self.offset = Some((o.to_vec(), below_runs));
+        self
     }
 
     /// The mock with its components in the measurements, `ν_j²/S_jj` averaging `c_j`, and
@@ -171,11 +185,22 @@ impl Mock {
 
     /// J at θ, from the formula in the module doc.
     pub(crate) fn j(&self, theta: &[f64]) -> f64 {
-        let c = self.components(theta);
+        let c = self.components(theta, true);
         c.iter().map(|c| c.ln().powi(2)).sum::<f64>() / c.len() as f64
     }
 
-    fn components(&self, theta: &[f64]) -> Vec<f64> {
+    /// The components at θ, off by the misfit's factors when `offset` (see [`Mock::misfit`]).
+    fn components(&self, theta: &[f64], offset: bool) -> Vec<f64> {
+        let mut c = self.consistent_components(theta);
+        if let (true, Some((o, _))) = (offset, &self.offset) {
+            for (c, o) in c.iter_mut().zip(o) {
+                *c *= o.exp();
+            }
+        }
+        c
+    }
+
+    fn consistent_components(&self, theta: &[f64]) -> Vec<f64> {
         if let Some(bend) = &self.bend {
             let d: Vec<f64> = theta
                 .iter()
@@ -206,10 +231,10 @@ impl Mock {
     /// The sums of `runs` runs of `steps` steps whose statistics equal their means exactly.
     /// The run count is the mock's own whatever the caller asks, so exact and Monte Carlo
     /// scoring see bit-identical sums.
-    fn sums(&self, theta: &[f64]) -> Accumulator {
+    fn sums(&self, theta: &[f64], offset: bool) -> Accumulator {
         self.calls.fetch_add(1, Ordering::SeqCst);
         self.points.lock().unwrap().push(theta.to_vec());
-        let c = self.components(theta);
+        let c = self.components(theta, offset);
         let (runs, steps) = (self.mc().runs(), self.mc().steps());
         let (r, t) = (runs as f64, steps as f64);
         if self.measuring {
@@ -307,11 +332,12 @@ impl Experiment for Mock {
                 asked: (mc.runs(), mc.steps(), mc.lags()),
             });
         }
-        Ok(self.sums(theta))
+        let offset = self.offset.as_ref().is_some_and(|o| mc.runs() < o.1);
+        Ok(self.sums(theta, offset))
     }
 
     fn expected(&self, theta: &[f64], _mc: &McConfig) -> Option<Accumulator> {
-        self.exact.then(|| self.sums(theta))
+        self.exact.then(|| self.sums(theta, true))
     }
 
     fn blocks(&self) -> Option<Vec<Block>> {
@@ -359,6 +385,6 @@ pub(crate) fn cost<'a>(mock: &'a Mock, fixed: &[bool]) -> Cost<'a> {
     let start = mock.params().values();
     let objective = Objective::new(COMPONENTS_ONLY, false, mock.mc().alpha());
     let mut cost = Cost::new(mock, *mock.mc(), true, objective, &start, fixed);
-    cost.objective.prepare(&mock.sums(&start));
+    cost.objective.prepare(&mock.sums(&start, true));
     cost
 }

@@ -8,6 +8,7 @@
 //! J ≲ 1e-10 at the best vertex. Levenberg–Marquardt solves linear residuals (these are) to
 //! rounding, so its tolerance is the brief's 1e-6 with orders of magnitude to spare.
 
+mod certification;
 mod mock;
 
 pub(crate) use mock::{Mock, cost, settings};

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Mutation testing of this submission's change (issue #24): cargo-mutants on the lines of
-# src/stats and src/tune that differ from the last landed commit (.ci/mutants-base), each
+# src/explain, src/stats and src/tune that differ from the last landed commit (.ci/mutants-base), each
 # mutant built with the `mutants` profile and judged by the fast tests .cargo/mutants.toml
 # chooses. Fails when the tests miss a mutant. See docs/src/mutation-testing.md.
 #
@@ -11,7 +11,7 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 
 version=27.1.0
-paths=(src/stats src/tune)
+paths=(src/explain src/stats src/tune)
 base_file=.ci/mutants-base
 
 # git's blob id of a file, without git or a repository: sha1 of "blob <size>\0<content>".

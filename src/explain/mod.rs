@@ -12,9 +12,7 @@
 //! - a search bound widened (the tuner's own widening, or the certificate's box).
 //!
 //! The explanations are ranked by what their trial achieved: a change that makes the filter
-//! consistent comes first — judged by the full gate before one judged by its innovations
-//! alone (a change that adds states), then with the fewest added parameters, then the best
-//! score — and when several fit, the data do not decide between them and the result says
+//! consistent comes first — with the fewest added parameters, then the best score — and when several fit, the data do not decide between them and the result says
 //! so. A trial whose change ends at its neutral value (a time scale of 1, a gain of 1, …)
 //! changed nothing: it is no evidence for its cause. Changes that were tried and did not
 //! fit come next, then what could not be tried (never above a tried one); no cause is named
@@ -28,6 +26,8 @@ use crate::montecarlo::McConfig;
 use crate::tune::{TuneError, TuneResult, TuneSettings, TuneStatus};
 
 mod remedy;
+#[cfg(test)]
+mod tests;
 mod trials;
 
 /// What an explanation blames.
@@ -75,8 +75,8 @@ pub struct Trial {
     /// Whether the change's own parameters ended at their neutral values (it changed
     /// nothing, so its fit is no evidence for its cause).
     pub neutral: bool,
-    /// Whether the trial was judged by the innovations alone (the change adds states the
-    /// truth has nothing to compare with).
+    /// Whether the trial was judged by the innovations alone (the run's own NIS-only
+    /// scoring; a change that adds states is judged on the filter's own states).
     pub nis_only: bool,
     /// The simpler hypothesis this fit is a case of, when that one fits too (coloured noise
     /// whose correlation outlasts the run is a bias; a measurement matrix without a
@@ -105,7 +105,7 @@ impl Trial {
 
     fn outcome(&self) -> String {
         let by = if self.nis_only {
-            " (judged by the innovations: the change adds states)"
+            " (judged by the innovations alone)"
         } else {
             ""
         };
@@ -276,16 +276,21 @@ pub fn explain(
     out.extend(t.free_fixed()?);
     out.extend(t.hypotheses()?);
     mark_nested(&mut out, mc.steps());
-    // Stable: within a rank, the order of the trials.
+    order(&mut out);
+    Ok(out)
+}
+
+/// Order explanations as the module says: fits first (the fewest added parameters, then the
+/// best score), then tried, then untried; stable within a rank, so the trials' order stays.
+fn order(out: &mut [Explanation]) {
     out.sort_by(|a, b| {
         a.rank()
             .cmp(&b.rank())
             .then_with(|| match (&a.trial, &b.trial) {
-                (Some(x), Some(y)) if a.rank() == 0 => (x.nis_only, a.added)
-                    .cmp(&(y.nis_only, b.added))
-                    .then(x.score.total_cmp(&y.score)),
+                (Some(x), Some(y)) if a.rank() == 0 => {
+                    a.added.cmp(&b.added).then(x.score.total_cmp(&y.score))
+                }
                 _ => std::cmp::Ordering::Equal,
             })
     });
-    Ok(out)
 }

@@ -12,6 +12,15 @@ pub(super) fn fmt_value(v: f64) -> String {
     }
 }
 
+/// A value in a few significant digits and its unit, if it has one.
+pub(super) fn with_unit(v: f64, unit: &str) -> String {
+    if unit.is_empty() {
+        fmt_value(v)
+    } else {
+        format!("{} {unit}", fmt_value(v))
+    }
+}
+
 /// The added parameters of `h` whose fitted values change something, as `name value`.
 fn moved(h: &Hypothesized, t: &Trial) -> Vec<(String, f64)> {
     h.added()

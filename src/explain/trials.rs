@@ -1,9 +1,10 @@
 //! The trials: each candidate change fitted by the same search as the noise parameters.
 
-use super::remedy::{fmt_value, read};
+use super::remedy::{fmt_value, read, with_unit};
 use super::{Cause, Explanation, Trial};
 use crate::experiment::{Experiment, Hypothesis, Hypothesized, Rebounded};
 use crate::montecarlo::McConfig;
+use crate::tune::certify::WIDEN;
 use crate::tune::{LocalSearch, Silent, TuneError, TuneResult, TuneSettings, tune};
 
 /// The bounds the tuner widened: the widening was the trial.
@@ -40,10 +41,9 @@ pub(super) fn bounds(experiment: &dyn Experiment, result: &TuneResult) -> Vec<Ex
                 )
             } else {
                 format!(
-                    "widen {}'s bounds in the problem file (the fit is {} {})",
+                    "widen {}'s bounds in the problem file (the fit is {})",
                     p.name,
-                    fmt_value(result.tuned[w.param]),
-                    p.unit
+                    with_unit(result.tuned[w.param], &p.unit)
                 )
             };
             Explanation {
@@ -92,10 +92,10 @@ pub(super) struct Trials<'a> {
 }
 
 impl Trials<'_> {
-    /// The settings of a trial: the run's, with its confirmation seed, no certification of
-    /// its own, judged by the innovations alone where asked, and Levenberg–Marquardt
-    /// (unless the user chose a local search).
-    fn settings_for(&self, e: &dyn Experiment, fixed: &[bool], nis_only: bool) -> TuneSettings {
+    /// The settings of a trial: the run's (its NIS-only scoring included), with its
+    /// confirmation seed, no certification of its own, the first moments weighed, and the
+    /// simplex (unless the user chose a local search).
+    pub(super) fn settings_for(&self) -> TuneSettings {
         // A trial's question is whether a consistent filter exists with the change, which
         // its confirmation answers; a few hundred evaluations find the fit where one exists.
         let evals = self.settings.max_evals().min(TRIAL_EVALS);
@@ -120,13 +120,11 @@ impl Trials<'_> {
             // of a dozen dimensions only leads away from.
             .with_from_estimate(true)
             .with_certify(false)
-            .with_confirm_seed(Some(self.result.confirm_seed))
-            .with_nis_only(self.settings.nis_only() || nis_only);
+            .with_confirm_seed(Some(self.result.confirm_seed));
         // The simplex: a change's own parameters have no components of their own for the
         // moment equations, and Levenberg–Marquardt from a best fit that moved the noise
         // parameters to make up for the change stays in that basin (measured: a sensor gain
         // of 1.32 fit from the designer's values by the simplex, not by it).
-        let _ = (e, fixed);
         if self.settings.local_is_set() {
             s
         } else {
@@ -152,18 +150,21 @@ impl Trials<'_> {
     /// Each fixed parameter freed.
     pub(super) fn free_fixed(&self) -> Result<Vec<Explanation>, TuneError> {
         let r = self.result;
-        let bounds = self.base_bounds();
-        let wide = Rebounded::new(self.experiment, &bounds);
         let mut out = Vec::new();
         for (i, p) in self.experiment.params().params.iter().enumerate() {
             if !r.fixed[i] {
                 continue;
             }
+            // The freed parameter's box widened as the certificate widens a free one's: a
+            // value held fixed says nothing of where the data want it.
+            let mut bounds = self.base_bounds();
+            bounds[i] = (bounds[i].0 / WIDEN, bounds[i].1 * WIDEN);
+            let wide = Rebounded::new(self.experiment, &bounds);
             let mut fixed = r.fixed.clone();
             fixed[i] = false;
-            let s = self.settings_for(&wide, &fixed, false);
+            let s = self.settings_for();
             let t = tune(&wide, &r.tuned, &fixed, self.mc, &s, &Silent)?;
-            let mut trial = trial(format!("freeing {}", p.name), &wide, &t, false);
+            let mut trial = trial(format!("freeing {}", p.name), &wide, &t, s.nis_only());
             trial.neutral = (t.tuned[i] / r.tuned[i]).ln().abs() <= 0.02;
             out.push(Explanation {
                 cause: Cause::FixedParameter,
@@ -175,10 +176,9 @@ impl Trials<'_> {
                     fmt_value(r.tuned[i])
                 ),
                 remedy: format!(
-                    "set {} to about {} {} (it was fixed at {})",
+                    "set {} to about {} (it was fixed at {})",
                     p.name,
-                    fmt_value(t.tuned[i]),
-                    p.unit,
+                    with_unit(t.tuned[i], &p.unit),
                     fmt_value(r.tuned[i])
                 ),
                 trial: Some(trial),
@@ -219,7 +219,7 @@ impl Trials<'_> {
         let wide = Rebounded::new(e, &bounds);
         let mut fixed = r.fixed.clone();
         fixed.extend(e.added().iter().map(|_| false));
-        let s = self.settings_for(&wide, &fixed, false);
+        let s = self.settings_for();
         // A first look on a small budget from the run's best fit with the change at its
         // neutral value; a change whose look comes well below the unchanged filter's best
         // is searched in full from there. Where that does not fit, the same from the
@@ -259,7 +259,7 @@ impl Trials<'_> {
             }
         }
         let t = best.expect("a trial ran");
-        let mut tr = trial(format!("fitting {}", h.words()), &wide, &t, false);
+        let mut tr = trial(format!("fitting {}", h.words()), &wide, &t, s.nis_only());
         tr.neutral = e.at_neutral(&t.tuned);
         let (subject, evidence, remedy) = read(e, &tr);
         Ok(Explanation {
@@ -276,7 +276,7 @@ impl Trials<'_> {
 
 /// `a` before `b` when it is the better trial: its confirmation holds where `b`'s does not,
 /// or, alike in that, a lower score.
-fn better(a: &TuneResult, b: &TuneResult) -> std::cmp::Ordering {
+pub(super) fn better(a: &TuneResult, b: &TuneResult) -> std::cmp::Ordering {
     b.confirmation
         .holds()
         .cmp(&a.confirmation.holds())
@@ -284,7 +284,7 @@ fn better(a: &TuneResult, b: &TuneResult) -> std::cmp::Ordering {
 }
 
 /// Why a filter cannot express `h` ([`Hypothesized::new`] gave none).
-fn inexpressible(h: Hypothesis) -> &'static str {
+pub(super) fn inexpressible(h: Hypothesis) -> &'static str {
     match h {
         Hypothesis::TimeStep | Hypothesis::NoiseKind => {
             "this filter's F has no real logarithm, so no other step can be built from it"

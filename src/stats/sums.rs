@@ -984,6 +984,17 @@ mod merge_properties {
                 other => panic!("{other:?}"),
             }
         }
+        // Two runs are the fewest with a spread: per-run sums 1 and 2 (total 3, squares 5)
+        // spread s² = 0.5 about their mean, var = N s² = 1.
+        let mut two = acc.clone();
+        two.runs = 2;
+        two.state_mean_total = vec![3.0];
+        two.state_mean_run_sq = vec![5.0];
+        assert!(
+            matches!(two.state_mean_variance(0), SumVariance::RunSpread { var, runs: 2 } if (var - 1.0).abs() < 1e-12),
+            "{:?}",
+            two.state_mean_variance(0)
+        );
         // One run: no spread; the states take the filters' prediction (scaled to the
         // finished runs), the innovations their sample count.
         acc.runs = 1;

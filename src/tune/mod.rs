@@ -51,7 +51,7 @@ mod simplex;
 mod spec;
 mod stages;
 #[cfg(test)]
-mod tests;
+pub(crate) mod tests;
 
 pub use certify::{Certificate, CertifiedStart};
 pub use objective::{Objective, Terms, Weights};

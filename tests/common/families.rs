@@ -174,11 +174,28 @@ pub struct Draw {
     pub axes: usize,
     /// The axis a one-axis fault is on (its sensor is measurement component `fault_axis`).
     pub fault_axis: usize,
+    /// The axes the fault touches (every axis for a fault of the whole model); the others'
+    /// parameters are decoupled from it.
+    pub faulted: Vec<usize>,
     pub experiment: LinearExperiment,
     pub start: Vec<f64>,
     pub truth: Vec<f64>,
     pub fixed: Vec<bool>,
     pub what: String,
+}
+
+impl Draw {
+    /// The axis parameter `i` belongs to: q of axis i, then r of each sensor (the second
+    /// sensor of a full-R draw is on axis 0).
+    pub fn param_axis(&self, i: usize) -> usize {
+        if i < self.axes {
+            i
+        } else if i - self.axes < self.axes {
+            i - self.axes
+        } else {
+            0
+        }
+    }
 }
 
 fn cv(dt: f64) -> DMatrix<f64> {
@@ -279,11 +296,24 @@ pub fn draw(kind: Kind, seed: u64) -> Draw {
     let mut fixed = vec![false; axes + m];
     let mut truth_values: Vec<f64> = q.iter().chain(&r_all).copied().collect();
     let a = rng.below(axes);
+    let mut faulted = match kind {
+        Kind::SensorGain
+        | Kind::Misalignment
+        | Kind::ColouredNoise
+        | Kind::RunBias
+        | Kind::ConstantBias
+        | Kind::MotionState
+        | Kind::FixedParameter
+        | Kind::CoupledDynamics => vec![a],
+        Kind::FullR => vec![0],
+        _ => (0..axes).collect(),
+    };
     let what = fault(
         kind,
         &mut rng,
         axes,
         a,
+        &mut faulted,
         dt,
         &q,
         &r,
@@ -345,6 +375,7 @@ pub fn draw(kind: Kind, seed: u64) -> Draw {
         kind,
         axes,
         fault_axis: a,
+        faulted,
         experiment,
         start,
         truth: truth_values,
@@ -369,6 +400,7 @@ fn fault(
     rng: &mut Rng,
     axes: usize,
     a: usize,
+    faulted: &mut Vec<usize>,
     dt: f64,
     q: &[f64],
     r: &[f64],
@@ -403,6 +435,7 @@ fn fault(
         }
         Kind::Misalignment => {
             let b = (a + 1 + rng.below(axes - 1)) % axes;
+            faulted.push(b);
             let th =
                 rng.uniform(4.0, 15.0).to_radians() * if rng.unit() < 0.5 { 1.0 } else { -1.0 };
             let (c, s) = (th.cos(), th.sin());
@@ -543,6 +576,7 @@ fn fault(
         }
         Kind::CoupledDynamics => {
             let b = (a + 1 + rng.below(axes - 1)) % axes;
+            faulted.push(b);
             let w = rng.uniform(2.0, 8.0).to_radians();
             let (c, s) = (w.cos(), w.sin());
             // Velocities rotate by w per step in the (a, b) plane.

@@ -381,7 +381,7 @@ pub(crate) fn settings(scoring: Scoring) -> TuneSettings {
 
 /// The search's cost on `mock` with the parameters flagged in `fixed` held at 1, exact
 /// scoring, J the formula in the module doc.
-pub(crate) fn cost<'a>(mock: &'a Mock, fixed: &[bool]) -> Cost<'a> {
+pub(in crate::tune) fn cost<'a>(mock: &'a Mock, fixed: &[bool]) -> Cost<'a> {
     let start = mock.params().values();
     let objective = Objective::new(COMPONENTS_ONLY, false, mock.mc().alpha());
     let mut cost = Cost::new(mock, *mock.mc(), true, objective, &start, fixed);

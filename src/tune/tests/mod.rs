@@ -11,7 +11,8 @@
 mod certification;
 mod mock;
 
-pub(crate) use mock::{Mock, cost, settings};
+pub(in crate::tune) use mock::cost;
+pub(crate) use mock::{Mock, settings};
 
 use std::sync::atomic::Ordering;
 

@@ -405,7 +405,17 @@ fn fits_come_first_by_fewest_added_parameters_then_score_and_untried_last() {
     };
     let mut out = vec![
         explanation(Hypothesis::TimeStep, None),
-        explanation(Hypothesis::Delay(1), Some(trial(0, 10, 7))),
+        // Tried, not fitting: kept in the trials' order whatever their sizes and scores.
+        Explanation {
+            added: 2,
+            ..explanation(
+                Hypothesis::Delay(1),
+                Some(Trial {
+                    score: 5.0,
+                    ..trial(0, 10, 7)
+                }),
+            )
+        },
         fit(Hypothesis::ColouredNoise, 2, 0.001),
         explanation(Hypothesis::Delay(2), Some(trial(1, 10, 7))),
         fit(Hypothesis::SensorGain, 1, 0.3),

@@ -131,7 +131,11 @@ fn run(draws: u64) -> Vec<Row> {
         use rayon::prelude::*;
         let outcomes: Vec<Outcome> = (1..=draws)
             .into_par_iter()
-            .map(|seed| conclude(&draw(kind, seed)))
+            .map(|seed| {
+                let o = conclude(&draw(kind, seed));
+                eprintln!("  ({kind:?} seed {seed} done in {:.1} s)", o.seconds);
+                o
+            })
             .collect();
         for (o, seed) in outcomes.into_iter().zip(1..) {
             if o.right(kind) {
@@ -231,7 +235,7 @@ fn examples() {
             let r = tune(e, &d.start, &d.fixed, &mc, &settings, &Silent).expect("the tune runs");
             let x = explain(e, &r, &mc, &settings).expect("the explanation runs");
             let mut page = format!(
-                "## {kind:?}{}\n\n{} ({} axes; N = {} runs × T = {} steps). The tune ends **{:?}**",
+                "## {kind:?}{}\n\n{} ({} {}; N = {} runs × T = {} steps). The tune ends **{:?}**",
                 if kind.uncovered() {
                     " (no hypothesis covers it)"
                 } else {
@@ -239,6 +243,7 @@ fn examples() {
                 },
                 d.what,
                 d.axes,
+                if d.axes == 1 { "axis" } else { "axes" },
                 mc.runs(),
                 mc.steps(),
                 r.status

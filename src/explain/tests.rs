@@ -256,6 +256,19 @@ fn separate() -> Mock {
     separate_at(20.0)
 }
 
+/// `mock` tuned from (1, 1) with both parameters free: consistent on the mocks that fit.
+fn consistent_run(mock: &Mock) -> TuneResult {
+    tune(
+        mock,
+        &[1.0, 1.0],
+        &[false, false],
+        mock.mc(),
+        &quiet(),
+        &Silent,
+    )
+    .expect("tuned")
+}
+
 fn quiet() -> TuneSettings {
     settings(Scoring::Exact).with_local(LocalSearch::Simplex)
 }
@@ -328,15 +341,7 @@ fn a_misfit_more_runs_dispel_is_not_explained() {
 #[test]
 fn a_run_needs_explaining_when_it_failed_or_had_to_widen_a_bound() {
     let mock = separate();
-    let mut r = tune(
-        &mock,
-        &[1.0, 1.0],
-        &[false, false],
-        mock.mc(),
-        &quiet(),
-        &Silent,
-    )
-    .unwrap();
+    let mut r = consistent_run(&mock);
     assert_eq!(r.status, TuneStatus::Consistent);
     assert!(!needed(&r));
     assert!(explain(&mock, &r, mock.mc(), &quiet()).unwrap().is_empty());
@@ -374,15 +379,7 @@ fn a_run_needs_explaining_when_it_failed_or_had_to_widen_a_bound() {
 #[test]
 fn a_trial_that_passes_is_better_than_one_that_does_not_whatever_the_scores() {
     let mock = separate();
-    let r = tune(
-        &mock,
-        &[1.0, 1.0],
-        &[false, false],
-        mock.mc(),
-        &quiet(),
-        &Silent,
-    )
-    .unwrap();
+    let r = consistent_run(&mock);
     let with = |passed: usize, j: f64| {
         let mut t = r.clone();
         t.confirmation.passed = passed;
@@ -441,15 +438,7 @@ fn fits_come_first_by_fewest_added_parameters_then_score_and_untried_last() {
 #[test]
 fn a_trial_weighs_the_first_moments_unless_the_run_already_did() {
     let mock = separate();
-    let r = tune(
-        &mock,
-        &[1.0, 1.0],
-        &[false, false],
-        mock.mc(),
-        &quiet(),
-        &Silent,
-    )
-    .unwrap();
+    let r = consistent_run(&mock);
     let bias_of = |s: &TuneSettings| {
         trials::Trials {
             experiment: &mock,

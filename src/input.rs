@@ -241,6 +241,9 @@ pub fn note_input(path: &Path) {
     use std::os::unix::fs::MetadataExt;
     if let Ok(m) = std::fs::metadata(path) {
         let mut inputs = INPUTS.lock().unwrap_or_else(|e| e.into_inner());
+        // A noted input removed since may have left its inode to this file: that entry's
+        // path no longer leads here, so it must not stand in for this one.
+        inputs.retain(|f| !(f.dev == m.dev() && f.ino == m.ino()) || leads_to(&f.path, &m));
         if !inputs.iter().any(|f| f.dev == m.dev() && f.ino == m.ino()) {
             inputs.push(InputFile {
                 dev: m.dev(),
@@ -258,12 +261,16 @@ pub fn input_at(path: &Path) -> Option<PathBuf> {
     let inputs = INPUTS.lock().unwrap_or_else(|e| e.into_inner());
     // An input whose path no longer leads to the file noted was removed or replaced: its
     // inode may since belong to another file (a library user's long process, tests).
-    let same =
-        |p: &Path| std::fs::metadata(p).is_ok_and(|n| n.dev() == m.dev() && n.ino() == m.ino());
     inputs
         .iter()
-        .find(|f| f.dev == m.dev() && f.ino == m.ino() && same(&f.path))
+        .find(|f| f.dev == m.dev() && f.ino == m.ino() && leads_to(&f.path, &m))
         .map(|f| f.path.clone())
+}
+
+/// Whether `path` resolves (following links) to the file whose metadata is `m`.
+fn leads_to(path: &Path, m: &std::fs::Metadata) -> bool {
+    use std::os::unix::fs::MetadataExt;
+    std::fs::metadata(path).is_ok_and(|n| n.dev() == m.dev() && n.ino() == m.ino())
 }
 
 #[cfg(test)]
@@ -283,6 +290,29 @@ mod tests {
             let other = dir.path().join(format!("out{k}.xml"));
             std::fs::write(&other, "y").unwrap();
             assert_eq!(input_at(&other), None, "{}", other.display());
+        }
+    }
+
+    #[test]
+    fn a_file_that_took_a_removed_inputs_inode_is_protected_once_noted() {
+        let dir = tempfile::tempdir().unwrap();
+        // Remove and recreate until an inode comes back (ext4 and tmpfs reuse the last one
+        // freed); the new file, noted as an input, must be found although an entry for its
+        // inode under the old path was noted first.
+        for k in 0..64 {
+            let old = dir.path().join(format!("old{k}.toml"));
+            std::fs::write(&old, "x").unwrap();
+            note_input(&old);
+            let ino = std::os::unix::fs::MetadataExt::ino(&std::fs::metadata(&old).unwrap());
+            std::fs::remove_file(&old).unwrap();
+            let new = dir.path().join(format!("new{k}.toml"));
+            std::fs::write(&new, "y").unwrap();
+            note_input(&new);
+            assert_eq!(input_at(&new), Some(new.clone()));
+            let reused = std::os::unix::fs::MetadataExt::ino(&std::fs::metadata(&new).unwrap());
+            if reused == ino {
+                return;
+            }
         }
     }
 }

@@ -326,7 +326,10 @@ fn probe() {
     for x in explain(e, &result, &mc, &settings).unwrap() {
         eprintln!("- {}", x.line());
         if let Some(t) = &x.trial {
-            eprintln!("    score {:.4}, {} evaluations", t.score, t.evaluations);
+            eprintln!(
+                "    score {:.4}, {} evaluations, {:?}, values {:?}",
+                t.score, t.evaluations, t.status, t.values
+            );
         }
     }
     eprintln!("explain {:.1} s", t1.elapsed().as_secs_f64());

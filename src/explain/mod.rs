@@ -193,6 +193,13 @@ impl Explanation {
     }
 }
 
+/// The per-step correlation from which coloured sensor noise outlasts a run of `steps`
+/// steps (`1 − 1/steps`), and is a bias drawn per run to the run's statistics. Also at the
+/// correlation's upper bound (0.999), which longer runs cannot reach past.
+pub(super) fn slow_correlation(steps: usize) -> f64 {
+    (1.0 - 1.0 / steps.max(1) as f64).min(0.998)
+}
+
 /// Mark the fits that are cases of a simpler hypothesis that fits too: coloured sensor noise
 /// whose every fitted correlation outlasts the run (a per-step correlation above
 /// `1 − 1/steps`) is a bias; a measurement matrix where the gains alone fit is a gain.
@@ -212,8 +219,7 @@ fn mark_nested(out: &mut [Explanation], steps: usize) {
     };
     let bias = fits(out, Hypothesis::SensorBias);
     let gain = fits(out, Hypothesis::SensorGain);
-    // Also at the correlation's upper bound (0.999), which longer runs cannot reach past.
-    let slow = (1.0 - 1.0 / steps.max(1) as f64).min(0.998);
+    let slow = slow_correlation(steps);
     for e in out.iter_mut() {
         let Some(t) = e.trial.as_mut() else { continue };
         if !t.fits() {

@@ -331,6 +331,45 @@ fn a_right_fixed_parameter_freed_changes_nothing_and_is_no_evidence() {
 }
 
 #[test]
+fn a_freed_fit_that_does_not_hold_is_polished_unless_the_user_chose_the_search() {
+    // p1 held at 1 (truth 20) beside a misfit no value removes: freeing p1 comes far below
+    // the unchanged filter's best but cannot hold, so the trial's full search is polished
+    // by Levenberg–Marquardt (more evaluations), unless the user chose the local search.
+    // Without the misfit the full search holds and nothing is polished.
+    let calls = |mock: &Mock, local_set: bool| {
+        let s = if local_set {
+            quiet()
+        } else {
+            settings(Scoring::Exact)
+        };
+        let r = tune(
+            mock,
+            &[1.0, 1.0],
+            &[false, true],
+            mock.mc(),
+            &quiet(),
+            &Silent,
+        )
+        .unwrap();
+        let before = mock.calls.load(std::sync::atomic::Ordering::SeqCst);
+        let e = explain(mock, &r, mock.mc(), &s).expect("explained");
+        let freed = e.iter().find(|x| x.cause == Cause::FixedParameter).unwrap();
+        let n = mock.calls.load(std::sync::atomic::Ordering::SeqCst) - before;
+        (n, freed.fits())
+    };
+    let off = Mock::new(&[0.3, 20.0], &[&[1.0, 0.0], &[1.0, 0.0], &[0.0, 1.0]])
+        .misfit(&[0.5, -0.5, 0.0], usize::MAX);
+    let (polished, fits) = calls(&off, false);
+    assert!(!fits);
+    let (plain, _) = calls(&off, true);
+    assert!(polished > plain, "{polished} vs {plain} calls");
+    let right = separate();
+    let (unset, fits) = calls(&right, false);
+    assert!(fits);
+    assert_eq!(unset, calls(&right, true).0);
+}
+
+#[test]
 fn a_misfit_more_runs_dispel_is_not_explained() {
     let mock = misfit(4 * misfit(0).mc().runs());
     let (r, e) = explained(&mock, &[1.0, 1.0], false);

@@ -630,6 +630,12 @@ mod tests {
         assert!(deep.converged(5e-4, 1.0, 0.6) && !deep.converged(5e-4, 1.0, 0.5));
         assert!(!plain.converged(2e-3, 1.0, 0.9) && !deep.converged(2e-3, 1.0, 0.9));
         assert!(deep.converged(2e-3, 1.0, 1.0 - 0.9e-4) && !deep.converged(2e-3, 1.0, 0.9998));
+        // At the edges: halved means at most half of the sum before (here 2), a step of
+        // 1e-3 exactly is not short, and a gain of exactly 1e-12 above a sum of 0 is not
+        // too small (one of half that is).
+        assert!(!deep.converged(5e-4, 2.0, 1.0) && deep.converged(5e-4, 2.0, 1.01));
+        assert!(!plain.converged(1e-3, 1.0, 0.9));
+        assert!(!plain.converged(2e-3, 1e-12, 0.0) && plain.converged(2e-3, 5e-13, 0.0));
     }
 
     #[test]

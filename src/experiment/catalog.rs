@@ -2,6 +2,7 @@
 
 use super::{Definition, Experiment, ExperimentError, RunOptions};
 use crate::catalog::{CatalogEntry, CatalogModel};
+use crate::filter::{Corrected, Correction};
 use crate::montecarlo::{self, McConfig, TruthCache};
 use crate::params::Target;
 use crate::stats::Accumulator;
@@ -40,6 +41,28 @@ impl Experiment for CatalogExperiment {
             run,
             &self.truth_cache,
         ))
+    }
+
+    fn monte_carlo_corrected(
+        &self,
+        theta: &[f64],
+        mc: &McConfig,
+        run: RunOptions<'_>,
+        correction: &Correction,
+    ) -> Option<Result<Accumulator, ExperimentError>> {
+        let filter = self.model.filter(theta);
+        let read = Corrected::new(&filter, correction)?;
+        Some(Ok(montecarlo::run_generic_cached(
+            self.model.truth(),
+            &read,
+            mc,
+            run,
+            &self.truth_cache,
+        )))
+    }
+
+    fn innovation_scales(&self, theta: &[f64], mc: &McConfig) -> Option<Vec<f64>> {
+        montecarlo::innovation_scales(self.model.truth(), &self.model.filter(theta), mc)
     }
 
     fn target(&self, i: usize) -> Option<Target> {

@@ -25,7 +25,7 @@ pub use error::{
     Ended, ExperimentError, RequestInfo, SeedContractViolation, StartFailure, Uncontained,
     WorkerError, WorkerFailure, WorkerRole,
 };
-pub use hypotheses::{Added, Hypothesis, Hypothesized};
+pub use hypotheses::{Added, Changed, Hypothesis, Hypothesized, ReadThrough};
 pub use linear::{FilterModel, LinearExperiment};
 pub use rebounded::Rebounded;
 pub use recorded::RecordsExperiment;
@@ -321,6 +321,28 @@ pub trait Experiment: Sync {
     /// estimating Q and R from recorded measurements alone needs (the likelihood and ALS
     /// work on the filter's matrices). `None`, the default, for every other experiment.
     fn linear(&self) -> Option<&LinearExperiment> {
+        None
+    }
+
+    /// [`Experiment::monte_carlo_with`] with the filter reading every measurement through
+    /// `correction`, where autotune feeds the filter its readings (catalog and Rust-model
+    /// filters): what the sensor-side hypotheses of [`crate::explain`] change on a filter
+    /// held as code. `None`, the default, where it does not (a worker's filter reads its
+    /// own; a linear problem's hypotheses change its matrices instead).
+    fn monte_carlo_corrected(
+        &self,
+        _theta: &[f64],
+        _mc: &McConfig,
+        _options: RunOptions<'_>,
+        _correction: &crate::filter::Correction,
+    ) -> Option<Result<Accumulator, ExperimentError>> {
+        None
+    }
+
+    /// Each measurement component's innovation standard deviation at `theta` over one
+    /// run of `mc` (in the component's units; [`crate::montecarlo::innovation_scales`]),
+    /// where [`Experiment::monte_carlo_corrected`] is offered; `None` otherwise.
+    fn innovation_scales(&self, _theta: &[f64], _mc: &McConfig) -> Option<Vec<f64>> {
         None
     }
 

@@ -40,6 +40,21 @@ impl Experiment for Rebounded<'_> {
         self.inner.monte_carlo_with(theta, mc, options)
     }
 
+    fn monte_carlo_corrected(
+        &self,
+        theta: &[f64],
+        mc: &McConfig,
+        options: RunOptions<'_>,
+        correction: &crate::filter::Correction,
+    ) -> Option<Result<Accumulator, ExperimentError>> {
+        self.inner
+            .monte_carlo_corrected(theta, mc, options, correction)
+    }
+
+    fn innovation_scales(&self, theta: &[f64], mc: &McConfig) -> Option<Vec<f64>> {
+        self.inner.innovation_scales(theta, mc)
+    }
+
     fn supports(&self, engine: Engine) -> bool {
         self.inner.supports(engine)
     }

@@ -281,6 +281,28 @@ where
         self.targets.get(i).cloned()
     }
 
+    fn monte_carlo_corrected(
+        &self,
+        theta: &[f64],
+        mc: &McConfig,
+        run: RunOptions<'_>,
+        correction: &crate::filter::Correction,
+    ) -> Option<Result<Accumulator, ExperimentError>> {
+        let filter = (self.build)(theta);
+        let read = crate::filter::Corrected::new(&filter, correction)?;
+        Some(Ok(montecarlo::run_generic_cached(
+            &self.truth,
+            &read,
+            mc,
+            run,
+            &self.truth_cache,
+        )))
+    }
+
+    fn innovation_scales(&self, theta: &[f64], mc: &McConfig) -> Option<Vec<f64>> {
+        montecarlo::innovation_scales(&self.truth, &(self.build)(theta), mc)
+    }
+
     fn covariances(&self, theta: &[f64]) -> Option<Covariances> {
         self.covariances.as_ref().map(|f| f(theta))
     }

@@ -1,7 +1,7 @@
 //! What a fitted hypothesis says, and what to change: read off the values its trial fit.
 
 use super::Trial;
-use crate::experiment::{Hypothesis, Hypothesized};
+use crate::experiment::{Changed, Hypothesis};
 
 /// A value in a few significant digits.
 pub(super) fn fmt_value(v: f64) -> String {
@@ -22,7 +22,7 @@ pub(super) fn with_unit(v: f64, unit: &str) -> String {
 }
 
 /// The added parameters of `h` whose fitted values change something, as `name value`.
-fn moved(h: &Hypothesized, t: &Trial) -> Vec<(String, f64)> {
+fn moved(h: &dyn Changed, t: &Trial) -> Vec<(String, f64)> {
     h.added()
         .iter()
         .filter(|a| a.effect)
@@ -34,7 +34,7 @@ fn moved(h: &Hypothesized, t: &Trial) -> Vec<(String, f64)> {
 }
 
 /// The components a per-component change moved (`gain_x` → `x`), or all of them.
-fn components(h: &Hypothesized, t: &Trial, prefix: &str) -> Vec<String> {
+fn components(h: &dyn Changed, t: &Trial, prefix: &str) -> Vec<String> {
     moved(h, t)
         .iter()
         .filter_map(|(n, _)| n.strip_prefix(prefix).map(str::to_string))
@@ -51,7 +51,7 @@ fn subject(place: &str, z: &[String]) -> String {
 }
 
 /// The subject (where the change is), what the fit says, and the remedy.
-pub(super) fn read(h: &Hypothesized, t: &Trial) -> (String, String, String) {
+pub(super) fn read(h: &dyn Changed, t: &Trial) -> (String, String, String) {
     let place = h.hypothesis().place();
     let fitted: Vec<String> = h
         .added()

@@ -2,7 +2,7 @@
 
 use super::remedy::{fmt_value, read, with_unit};
 use super::{Cause, Explanation, Trial};
-use crate::experiment::{Experiment, Hypothesis, Hypothesized, Rebounded};
+use crate::experiment::{Changed, Experiment, Hypothesis, Hypothesized, ReadThrough, Rebounded};
 use crate::montecarlo::McConfig;
 use crate::tune::certify::WIDEN;
 use crate::tune::{LocalSearch, Silent, TuneError, TuneResult, TuneSettings, tune};
@@ -197,14 +197,22 @@ impl Trials<'_> {
     /// Each hypothesis about the filter's model, where the experiment holds its model as
     /// matrices (a linear problem); not tried, and said so, elsewhere.
     pub(super) fn hypotheses(&self) -> Result<Vec<Explanation>, TuneError> {
-        let Some(lin) = self.experiment.linear() else {
-            return Ok(Hypothesis::ALL
-                .iter()
-                .map(|&h| untried(h, "autotune holds this filter's model as code, not as matrices it can change (only a linear problem's filter can be changed)"))
-                .collect());
-        };
         // The trials do not depend on each other: side by side, booked in their order.
         use rayon::prelude::*;
+        let Some(lin) = self.experiment.linear() else {
+            // A filter held as code: where autotune feeds it its readings, what it reads
+            // can be changed (a sensor's offset or gain); its model cannot.
+            let e = self.experiment;
+            let scales = e.innovation_scales(&self.result.tuned, e.mc());
+            return Hypothesis::ALL
+                .par_iter()
+                .map(|&h| match scales.as_deref().and_then(|s| ReadThrough::new(e, h, s)) {
+                    Some(read) => self.run(&read),
+                    None if scales.is_some() => Ok(untried(h, "autotune holds this filter's model as code: it can change what the filter reads (a sensor's offset or gain), not its model")),
+                    None => Ok(untried(h, "autotune holds this filter's model as code, not as matrices it can change (only a linear problem's filter can be changed)")),
+                })
+                .collect();
+        };
         Hypothesis::ALL
             .par_iter()
             .map(|&h| match Hypothesized::new(lin, h, &self.result.tuned) {
@@ -216,12 +224,12 @@ impl Trials<'_> {
 
     /// The trial of hypothesis experiment `e`, from the run's best fit and the change's
     /// own starting values.
-    fn run(&self, e: &Hypothesized) -> Result<Explanation, TuneError> {
+    fn run(&self, e: &dyn Changed) -> Result<Explanation, TuneError> {
         let r = self.result;
         let h = e.hypothesis();
         let mut bounds = self.base_bounds();
         bounds.extend(e.added().iter().map(|a| (a.def.lower, a.def.upper)));
-        let wide = Rebounded::new(e, &bounds);
+        let wide = Rebounded::new(e as &dyn Experiment, &bounds);
         let mut fixed = r.fixed.clone();
         fixed.extend(e.added().iter().map(|_| false));
         let s = self.settings_for();
@@ -248,14 +256,14 @@ impl Trials<'_> {
                 for &i in &corr {
                     within[i].1 = within[i].1.min(half).max(within[i].0);
                 }
-                let fast = Rebounded::new(e, &within);
+                let fast = Rebounded::new(e as &dyn Experiment, &within);
                 let decays = self.fit(&fast, starts, &fixed)?;
                 if decays.confirmation.holds() {
                     t = decays;
                 }
             }
         }
-        let mut tr = trial(format!("fitting {}", h.words()), &wide, &t, s.nis_only());
+        let mut tr = trial(format!("fitting {}", e.words()), &wide, &t, s.nis_only());
         tr.neutral = e.at_neutral(&t.tuned);
         let (subject, evidence, remedy) = read(e, &tr);
         Ok(Explanation {

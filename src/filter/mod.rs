@@ -4,11 +4,13 @@
 //! ([`KalmanFilter`]) implements it, and so can a user's own filter.
 
 pub mod conditioning;
+mod corrected;
 mod joseph;
 mod kf;
 mod nonlinear;
 pub mod unscented;
 
+pub use corrected::{Corrected, Correction};
 pub use joseph::{CovarianceUpdate, joseph_update};
 pub use kf::KalmanFilter;
 pub use nonlinear::{Ekf, Jacobian, LinearSystem, SystemModel, Ukf, numerical_jacobian};

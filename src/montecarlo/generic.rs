@@ -233,6 +233,49 @@ where
     })
 }
 
+/// Each measurement component's innovation standard deviation √S_jj (in the component's
+/// units), averaged in S over the updates of run 0 of `mc`'s seed set: the scale of what
+/// the filter reads, for changes whose size is a reading (a sensor's offset). `None` where
+/// the run fails, or a component is never measured.
+pub fn innovation_scales<M, F>(truth: &M, filter: &F, mc: &McConfig) -> Option<Vec<f64>>
+where
+    M: TruthModel + ?Sized,
+    F: Filter + ?Sized,
+{
+    let dims = filter.sensor_dims();
+    let starts = sensor_offsets(&dims);
+    let n_z: usize = dims.iter().sum();
+    let (mut total, mut count) = (vec![0.0; n_z], vec![0usize; n_z]);
+    let mut meas = Vec::new();
+    let mut live = Live::new(truth, mc.seed(), 0, &mut meas);
+    let mut est = filter.initial();
+    for k in 1..=mc.steps() {
+        if !live.advance(k) {
+            break;
+        }
+        match live.input() {
+            Some(u) => filter.predict_with_input(k, &mut est, u).ok()?,
+            None => filter.predict(k, &mut est).ok()?,
+        }
+        for m in live.measurements() {
+            check_measurement(dims.get(m.sensor).copied(), m).ok()?;
+            let i = filter.update(k, &mut est, m).ok()?;
+            for j in 0..m.z.len() {
+                total[starts[m.sensor] + j] += i.S[(j, j)];
+                count[starts[m.sensor] + j] += 1;
+            }
+        }
+    }
+    total
+        .iter()
+        .zip(&count)
+        .map(|(t, &c)| {
+            let s = (t / c as f64).sqrt();
+            (c > 0 && s.is_finite() && s > 0.0).then_some(s)
+        })
+        .collect()
+}
+
 /// Bytes a run's sums take, beyond its filter's own storage.
 fn run_bytes(mc: &McConfig, n_x: usize, n_z: usize) -> usize {
     let per_step = 8;

@@ -19,7 +19,9 @@ mod tape;
 
 pub use config::{DEFAULT_ALPHA, DEFAULT_LAGS, MAX_RUNS, MAX_STEPS, McConfig};
 pub use expected::{expected_accumulator, expected_accumulator_mapped, models_match};
-pub use generic::{NULL_VAR_STRIDE, run_generic, run_generic_cached, run_generic_with};
+pub use generic::{
+    NULL_VAR_STRIDE, innovation_scales, run_generic, run_generic_cached, run_generic_with,
+};
 pub use linear::{run_linear, run_linear_with};
 pub use share::{ChunkSink, MergeError, Share, ShareOf};
 pub use tape::{TapeUsage, TruthCache, TruthTape};

@@ -137,6 +137,21 @@ impl Experiment for Problem {
         self.experiment().monte_carlo_with(theta, mc, run)
     }
 
+    fn monte_carlo_corrected(
+        &self,
+        theta: &[f64],
+        mc: &McConfig,
+        options: RunOptions<'_>,
+        correction: &crate::filter::Correction,
+    ) -> Option<Result<Accumulator, ExperimentError>> {
+        self.experiment()
+            .monte_carlo_corrected(theta, mc, options, correction)
+    }
+
+    fn innovation_scales(&self, theta: &[f64], mc: &McConfig) -> Option<Vec<f64>> {
+        self.experiment().innovation_scales(theta, mc)
+    }
+
     fn supports(&self, engine: Engine) -> bool {
         self.experiment().supports(engine)
     }

@@ -30,7 +30,14 @@ pub(super) struct Prep {
 
 /// `name` with bounds and a neutral value: a factor (neutral within 2%) that sizes the
 /// change.
-fn added(name: String, neutral: f64, lower: f64, upper: f64, start: f64, about: &str) -> Added {
+pub(super) fn added(
+    name: String,
+    neutral: f64,
+    lower: f64,
+    upper: f64,
+    start: f64,
+    about: &str,
+) -> Added {
     let mut def = ParamDef::new(&name, start)
         .bounds(lower, upper)
         .about(about);

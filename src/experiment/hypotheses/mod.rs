@@ -23,7 +23,10 @@
 #![allow(non_snake_case)]
 
 mod build;
+mod read;
 mod time;
+
+pub use read::ReadThrough;
 
 use nalgebra::DMatrix;
 
@@ -165,6 +168,46 @@ impl Added {
             Some(t) => value <= t,
             None => (value / self.neutral).ln().abs() <= 0.02,
         }
+    }
+}
+
+/// A changed experiment a hypothesis trial fits: the base's parameters, then the change's
+/// own ([`Changed::added`]).
+pub trait Changed: Experiment {
+    /// The hypothesis the change is.
+    fn hypothesis(&self) -> Hypothesis;
+
+    /// The added parameters, in θ's order after the base's.
+    fn added(&self) -> &[Added];
+
+    /// Whether `theta`'s added parameters change nothing.
+    fn at_neutral(&self, theta: &[f64]) -> bool;
+
+    /// An added parameter's name and value as a reader reads them (an offset in its
+    /// units, an angle in rad), from its name and value in θ.
+    fn reading(&self, name: &str, value: f64) -> (String, f64);
+
+    /// The change in a few words.
+    fn words(&self) -> String {
+        self.hypothesis().words()
+    }
+}
+
+impl Changed for Hypothesized {
+    fn hypothesis(&self) -> Hypothesis {
+        Hypothesized::hypothesis(self)
+    }
+
+    fn added(&self) -> &[Added] {
+        Hypothesized::added(self)
+    }
+
+    fn at_neutral(&self, theta: &[f64]) -> bool {
+        Hypothesized::at_neutral(self, theta)
+    }
+
+    fn reading(&self, name: &str, value: f64) -> (String, f64) {
+        Hypothesized::reading(self, name, value)
     }
 }
 

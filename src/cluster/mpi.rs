@@ -369,6 +369,23 @@ impl Experiment for Ranked<'_> {
         self.inner.supports(engine)
     }
 
+    // A hypothesis trial's corrected readings run in this process, whole: the same sums as
+    // one process gives, so a tune's explanations do not depend on the rank count.
+    fn monte_carlo_corrected(
+        &self,
+        theta: &[f64],
+        mc: &McConfig,
+        options: RunOptions<'_>,
+        correction: &crate::filter::Correction,
+    ) -> Option<Result<Accumulator, ExperimentError>> {
+        self.inner
+            .monte_carlo_corrected(theta, mc, options, correction)
+    }
+
+    fn innovation_scales(&self, theta: &[f64], mc: &McConfig) -> Option<Vec<f64>> {
+        self.inner.innovation_scales(theta, mc)
+    }
+
     fn expected(&self, theta: &[f64], mc: &McConfig) -> Option<Accumulator> {
         self.inner.expected(theta, mc)
     }

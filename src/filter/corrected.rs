@@ -48,8 +48,9 @@ impl<'a, F: Filter + ?Sized> Corrected<'a, F> {
         })
     }
 
-    /// `meas` as the filter reads it; a sensor the filter does not have is passed as it is
-    /// (the engine refuses it).
+    /// `meas` as the filter reads it. A sensor the filter does not have, or components past
+    /// its dimension, are passed as they are: the engine refuses such a measurement before
+    /// any filter reads it.
     fn read(&self, meas: &Measurement) -> Measurement {
         let Some(&s) = self.starts.get(meas.sensor) else {
             return meas.clone();
@@ -57,9 +58,11 @@ impl<'a, F: Filter + ?Sized> Corrected<'a, F> {
         let c = self.correction;
         let z = DVector::from_iterator(
             meas.z.len(),
-            meas.z.iter().enumerate().map(|(j, z)| {
-                let i = (s + j).min(c.offset.len().saturating_sub(1));
-                (z - c.offset[i]) / c.gain[i]
+            meas.z.iter().enumerate().map(|(j, &z)| {
+                match (c.offset.get(s + j), c.gain.get(s + j)) {
+                    (Some(b), Some(g)) => (z - b) / g,
+                    _ => z,
+                }
             }),
         );
         Measurement {

@@ -665,6 +665,18 @@ mod tests {
             inward[(k, 0)]
         );
         assert_eq!(inward, one_side);
+        // A side exactly H away from either bound is inside the box: both sides are taken.
+        for (lo, hi) in [(y[0] - H, y[0] + 1.0), (y[0] - 1.0, y[0] + H)] {
+            let mut edge = crate::tune::tests::cost(&mock, &[false]);
+            (edge.lo[0], edge.hi[0]) = (lo, hi);
+            let mut b = Budget::new(&edge, 1000, deadline, &Silent);
+            let both = difference(&mut b, &y, &r, Equations::Objective, true).unwrap();
+            assert!(
+                (both[(k, 0)] / slope - 1.0).abs() < 1e-6,
+                "{}",
+                both[(k, 0)]
+            );
+        }
     }
 
     #[test]

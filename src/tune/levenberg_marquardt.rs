@@ -100,6 +100,19 @@ impl Settle {
         (moved < 1e-3 && !self.deep) || before - after < 1e-4 * after + 1e-12
     }
 
+    /// What follows a step that `converged` ([`Settle::converged`]) from a Jacobian that
+    /// was `fresh` (differenced, not updated). A deep fit's converged step on an updated
+    /// Jacobian says the update has gone stale, not that the fit is done (measured: a
+    /// misalignment's fit stopped at J 4e-3 on such a step; a fresh Jacobian went on):
+    /// there only a fresh one's ends it.
+    fn next(self, converged: bool, fresh: bool) -> Next {
+        match (converged, self.deep && !fresh) {
+            (false, _) => Next::Go,
+            (true, true) => Next::Refresh,
+            (true, false) => Next::Stop,
+        }
+    }
+
     /// The sum is on the noise floor.
     fn settled(self, sum: f64) -> bool {
         sum <= self.floor
@@ -110,6 +123,17 @@ impl Settle {
         let tenth = 0.1 * self.floor;
         sum <= tenth || (self.settled(sum) && gain < tenth)
     }
+}
+
+/// What Levenberg–Marquardt does after a step.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Next {
+    /// Go on from the updated Jacobian.
+    Go,
+    /// Difference the Jacobian afresh, then go on.
+    Refresh,
+    /// The search has converged.
+    Stop,
 }
 
 /// What one evaluation gives Levenberg–Marquardt: the residuals of its equations and J's
@@ -262,26 +286,23 @@ pub(super) fn levenberg_marquardt(
             continue;
         };
         broyden(&mut jac, &trial, &y, &rt, &r);
-        let stale = !fresh;
-        fresh = false;
         let moved = max_abs_diff(&trial, &y);
         let j_new = sum_sq(&rt);
         let gain = j - j_new;
-        let converged = settle.converged(moved, j, j_new);
+        let next = settle.next(settle.converged(moved, j, j_new), fresh);
+        fresh = false;
         y = trial;
         r = rt;
         objective = ot;
         j = j_new;
-        if converged && stale && settle.deep {
-            // A deep fit's short step on an updated Jacobian says the update has gone
-            // stale, not that the fit is done (measured: a misalignment's fit stopped at
-            // J 4e-3 on such a step; a fresh Jacobian went on): only a fresh one's ends it.
-            jac = difference(budget, &y, &r, equations, settle.deep)?;
-            fresh = true;
-            continue;
-        }
-        if converged {
-            break;
+        match next {
+            Next::Stop => break,
+            Next::Refresh => {
+                jac = difference(budget, &y, &r, equations, settle.deep)?;
+                fresh = true;
+                continue;
+            }
+            Next::Go => {}
         }
         if settle.done(j, gain) {
             break;
@@ -319,7 +340,7 @@ fn difference(
         let step = if y[k] + H > hi[k] { -H } else { H };
         let (col, step) = match neighbour(step)? {
             Some(rk) if both => match neighbour(-step)? {
-                Some(rl) if rl.len() == rk.len() => {
+                Some(rl) => {
                     let d: Vec<f64> = rk.iter().zip(&rl).map(|(a, b)| a - b).collect();
                     (d, 2.0 * step)
                 }
@@ -677,6 +698,30 @@ mod tests {
                 both[(k, 0)]
             );
         }
+        // One side only where the other is outside the box or diverges: the forward
+        // difference where the lower side is (its slope (2d + H) / (2d) of the truth's),
+        // the backward where the upper side is ((2d − H) / (2d)), central asked or not.
+        let forward = (2.0 * d + H) / (2.0 * d);
+        let backward = (2.0 * d - H) / (2.0 * d);
+        let (below, above) = ((y[0] - 0.5 * H).exp(), (y[0] + 0.5 * H).exp());
+        let bent = || Mock::new(&[0.3], &[&[0.0]]).bent(&[&[100.0]]);
+        let sides = [
+            (bent().diverging_below(0, below), forward, false),
+            (bent().diverging_above(0, above), backward, false),
+            (bent(), forward, true),
+        ];
+        for (m, f, low_bound) in &sides {
+            let mut c = crate::tune::tests::cost(m, &[false]);
+            if *low_bound {
+                c.lo[0] = y[0] - 0.5 * H;
+            }
+            for central in [true, false] {
+                let mut b = Budget::new(&c, 1000, deadline, &Silent);
+                let one = difference(&mut b, &y, &r, Equations::Objective, central).unwrap();
+                let got = one[(k, 0)] / (slope * f);
+                assert!((got - 1.0).abs() < 1e-6, "{f} {central}: {got}");
+            }
+        }
     }
 
     #[test]
@@ -707,6 +752,12 @@ mod tests {
             Settle::new(false, Equations::Objective, true),
         );
         assert_eq!(deep.floor, 0.0);
+        // After a converged step a deep fit differences afresh unless its Jacobian was.
+        assert_eq!(deep.next(false, false), Next::Go);
+        assert_eq!(deep.next(true, false), Next::Refresh);
+        assert_eq!(deep.next(true, true), Next::Stop);
+        assert_eq!(plain.next(true, false), Next::Stop);
+        assert_eq!(plain.next(false, true), Next::Go);
         assert!(plain.converged(5e-4, 1.0, 0.1) && !deep.converged(5e-4, 1.0, 0.1));
         assert!(plain.converged(5e-4, 1.0, 0.9) && !deep.converged(5e-4, 1.0, 0.9));
         assert!(!deep.converged(1e-6, 1.0, 0.99) && deep.converged(1e-6, 1.0, 1.0 - 0.9e-4));

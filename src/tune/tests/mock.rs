@@ -42,6 +42,8 @@ pub(crate) struct Mock {
     bend: Option<Vec<Vec<f64>>>,
     /// A candidate diverges when parameter `.0` exceeds `.1`.
     diverge_above: Option<(usize, f64)>,
+    /// A candidate diverges when parameter `.0` is below `.1`.
+    diverge_below: Option<(usize, f64)>,
     /// Calls of `expected` and `monte_carlo_with`.
     pub calls: AtomicUsize,
     /// Those calls that returned diverged sums.
@@ -91,6 +93,7 @@ impl Mock {
             exponents: exponents.iter().map(|r| r.to_vec()).collect(),
             bend: None,
             diverge_above: None,
+            diverge_below: None,
             calls: AtomicUsize::new(0),
             diverged_calls: AtomicUsize::new(0),
             points: Mutex::new(Vec::new()),
@@ -175,6 +178,12 @@ impl Mock {
     /// Candidates whose parameter `i` exceeds `limit` diverge.
     pub(crate) fn diverging_above(mut self, i: usize, limit: f64) -> Mock {
         self.diverge_above = Some((i, limit));
+        self
+    }
+
+    /// Candidates whose parameter `i` is below `limit` diverge.
+    pub(crate) fn diverging_below(mut self, i: usize, limit: f64) -> Mock {
+        self.diverge_below = Some((i, limit));
         self
     }
 
@@ -271,6 +280,9 @@ impl Mock {
         if self
             .diverge_above
             .is_some_and(|(i, limit)| theta[i] > limit)
+            || self
+                .diverge_below
+                .is_some_and(|(i, limit)| theta[i] < limit)
         {
             acc.diverged_runs = runs;
             self.diverged_calls.fetch_add(1, Ordering::SeqCst);
@@ -302,6 +314,9 @@ impl Mock {
         if self
             .diverge_above
             .is_some_and(|(i, limit)| theta[i] > limit)
+            || self
+                .diverge_below
+                .is_some_and(|(i, limit)| theta[i] < limit)
         {
             acc.diverged_runs = runs;
             self.diverged_calls.fetch_add(1, Ordering::SeqCst);

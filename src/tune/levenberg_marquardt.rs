@@ -4,7 +4,7 @@
 //! J is a sum of squared log-ratios that are close to linear in the log-parameters, so
 //! Gauss–Newton steps converge in a handful of iterations where a simplex in 6 dimensions
 //! wanders along the valleys that partly interchangeable parameters make. The Jacobian is
-//! a forward difference (step 0.05, i.e. 5%; central in a deep fit), the damping Marquardt's diagonal scaling,
+//! a forward difference (step 0.05, i.e. 5%; central in a deep fit under exact scoring), the damping Marquardt's diagonal scaling,
 //! and steps are projected into the box. Each iteration costs d + 1 evaluations or a few
 //! more.
 
@@ -67,18 +67,22 @@ impl Equations<'_> {
 ///
 /// A search asked for a score below a given one (a hypothesis trial's `stop_below`) wants
 /// the fit as deep as it goes, as exact scoring does: no floor, and a short step that
-/// still gains is not the end. Its residuals can be quadratic at the optimum (a
+/// still halves the sum is not the end. Its residuals can be quadratic at the optimum (a
 /// misalignment's angle moves e²/P by its square), where each step halves the error and
 /// the sum falls 16-fold: stopped at the first step under 1e-3, a misaligned sensor's
-/// angle ended 0.001 rad off, which 11 of 12 fresh seeds' gates see. Along a valley such
-/// residuals make with the gains, a step under 1e-3 still gained several percent of the
-/// sum, and stopping at the first such step ended a fit at J 4e-3 (J 1e-6 at the truth).
+/// angle ended 0.001 rad off, which 11 of 12 fresh seeds' gates see. Under exact scoring,
+/// where an evaluation is cheap, a deep fit is *sharp*: along a valley such residuals make
+/// with the gains, a step under 1e-3 still gained several percent of the sum, and stopping
+/// at the first such step ended a fit at J 4e-3 (J 1e-6 at the truth), so there only the
+/// gain ends it, after a fresh Jacobian, differenced on both sides.
 #[derive(Debug, Clone, Copy)]
 struct Settle {
     /// The noise floor of the sum; 0 under exact scoring or where a deep fit is asked.
     floor: f64,
     /// A score to get below was asked for.
     deep: bool,
+    /// A deep fit under exact scoring.
+    sharp: bool,
 }
 
 impl Settle {
@@ -90,23 +94,26 @@ impl Settle {
                 equations.noise_floor()
             },
             deep,
+            sharp: deep && exact,
         }
     }
 
     /// A step of log-size `moved` that took the sum from `before` to `after` ends the
-    /// search: it moved less than 1e-3 (not in a deep fit, where a step that short can be
-    /// what the fit still needs), or it gained less than 1e-4 of the sum.
+    /// search: it moved less than 1e-3 (unless, in a deep fit, it halved the sum; never in
+    /// a sharp one), or it gained less than 1e-4 of the sum.
     fn converged(self, moved: f64, before: f64, after: f64) -> bool {
-        (moved < 1e-3 && !self.deep) || before - after < 1e-4 * after + 1e-12
+        let halved = after <= 0.5 * before;
+        let short = moved < 1e-3 && !self.sharp && !(self.deep && halved);
+        short || before - after < 1e-4 * after + 1e-12
     }
 
     /// What follows a step that `converged` ([`Settle::converged`]) from a Jacobian that
-    /// was `fresh` (differenced, not updated). A deep fit's converged step on an updated
+    /// was `fresh` (differenced, not updated). A sharp fit's converged step on an updated
     /// Jacobian says the update has gone stale, not that the fit is done (measured: a
     /// misalignment's fit stopped at J 4e-3 on such a step; a fresh Jacobian went on):
     /// there only a fresh one's ends it.
     fn next(self, converged: bool, fresh: bool) -> Next {
-        match (converged, self.deep && !fresh) {
+        match (converged, self.sharp && !fresh) {
             (false, _) => Next::Go,
             (true, true) => Next::Refresh,
             (true, false) => Next::Stop,
@@ -265,7 +272,7 @@ pub(super) fn levenberg_marquardt(
         });
     }
     let mut lambda = 1e-3;
-    let mut jac = difference(budget, &y, &r, equations, settle.deep)?;
+    let mut jac = difference(budget, &y, &r, equations, settle.sharp)?;
     let mut fresh = true;
     for _ in 0..MAX_ITERS {
         let before = lambda;
@@ -281,7 +288,7 @@ pub(super) fn levenberg_marquardt(
             // The damping rose for the stale Jacobian's sake; the fresh one starts where
             // the last accepted step left it.
             lambda = before;
-            jac = difference(budget, &y, &r, equations, settle.deep)?;
+            jac = difference(budget, &y, &r, equations, settle.sharp)?;
             fresh = true;
             continue;
         };
@@ -298,7 +305,7 @@ pub(super) fn levenberg_marquardt(
         match next {
             Next::Stop => break,
             Next::Refresh => {
-                jac = difference(budget, &y, &r, equations, settle.deep)?;
+                jac = difference(budget, &y, &r, equations, settle.sharp)?;
                 fresh = true;
                 continue;
             }
@@ -745,27 +752,34 @@ mod tests {
         assert!(shallow <= 0.1 * CONSISTENT_J && shallow > 1e-6, "{shallow}");
         let deep = solve(1e-10);
         assert!(deep < 1e-10, "{deep}");
-        // The rule itself: a short step ends the search unless the fit is deep; a step
-        // gaining under 1e-4 of the sum ends it either way.
-        let (plain, deep) = (
+        // The rule itself: a short step ends the search unless, in a deep fit, it halved
+        // the sum (in a sharp fit, never); a step gaining under 1e-4 of the sum ends it
+        // whatever the fit.
+        let (plain, deep, sharp) = (
             Settle::new(false, Equations::Objective, false),
             Settle::new(false, Equations::Objective, true),
+            Settle::new(true, Equations::Objective, true),
         );
         assert_eq!(deep.floor, 0.0);
-        // After a converged step a deep fit differences afresh unless its Jacobian was.
-        assert_eq!(deep.next(false, false), Next::Go);
-        assert_eq!(deep.next(true, false), Next::Refresh);
-        assert_eq!(deep.next(true, true), Next::Stop);
-        assert_eq!(plain.next(true, false), Next::Stop);
-        assert_eq!(plain.next(false, true), Next::Go);
+        assert!(
+            !deep.sharp && sharp.sharp && !Settle::new(true, Equations::Objective, false).sharp
+        );
         assert!(plain.converged(5e-4, 1.0, 0.1) && !deep.converged(5e-4, 1.0, 0.1));
-        assert!(plain.converged(5e-4, 1.0, 0.9) && !deep.converged(5e-4, 1.0, 0.9));
-        assert!(!deep.converged(1e-6, 1.0, 0.99) && deep.converged(1e-6, 1.0, 1.0 - 0.9e-4));
+        assert!(deep.converged(5e-4, 1.0, 0.6) && !deep.converged(5e-4, 1.0, 0.5));
+        assert!(!sharp.converged(5e-4, 1.0, 0.9) && !sharp.converged(1e-6, 1.0, 0.99));
+        assert!(sharp.converged(1e-6, 1.0, 1.0 - 0.9e-4));
         assert!(!plain.converged(2e-3, 1.0, 0.9) && !deep.converged(2e-3, 1.0, 0.9));
         assert!(deep.converged(2e-3, 1.0, 1.0 - 0.9e-4) && !deep.converged(2e-3, 1.0, 0.9998));
-        // At the edges: a step of 1e-3 exactly is not short, and a gain of exactly 1e-12
-        // above a sum of 0 is not too small (one of half that is).
-        assert!(!deep.converged(5e-4, 1e-12, 0.0) && deep.converged(5e-4, 5e-13, 0.0));
+        // After a converged step a sharp fit differences afresh unless its Jacobian was.
+        assert_eq!(sharp.next(false, false), Next::Go);
+        assert_eq!(sharp.next(true, false), Next::Refresh);
+        assert_eq!(sharp.next(true, true), Next::Stop);
+        assert_eq!(deep.next(true, false), Next::Stop);
+        assert_eq!(plain.next(false, true), Next::Go);
+        // At the edges: halved means at most half of the sum before (here 2), a step of
+        // 1e-3 exactly is not short, and a gain of exactly 1e-12 above a sum of 0 is not
+        // too small (one of half that is).
+        assert!(!deep.converged(5e-4, 2.0, 1.0) && deep.converged(5e-4, 2.0, 1.01));
         assert!(!plain.converged(1e-3, 1.0, 0.9));
         assert!(!plain.converged(2e-3, 1e-12, 0.0) && plain.converged(2e-3, 5e-13, 0.0));
     }

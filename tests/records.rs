@@ -586,3 +586,103 @@ fn absurd_sizes_and_headers_are_one_line_errors() {
         }
     }
 }
+
+/// Issue 39: records of two sensors that take turns (`lidar`, two components, at odd steps;
+/// `radar`, one, at even ones), 20 runs of 200 steps. Each sensor's own innovation sequence
+/// is a moving average `(w_i + θ w_{i−1}) · √(v / (1 + θ²))` of white noise (lag-1
+/// correlation `θ / (1 + θ²)` between a sensor's successive readings, variance `v` relative
+/// to S): what a filter with a wrong Q leaves behind.
+fn write_alternating(path: &Path, theta: f64, v: f64, seed: u64) {
+    use autotune::SimRng;
+    use rand::{RngExt, SeedableRng};
+    use rand_distr::StandardNormal;
+    let mut rng = SimRng::seed_from_u64(seed);
+    let scale = (v / (1.0 + theta * theta)).sqrt();
+    let mut text = String::from(
+        "run,step,nu_lidar_1,nu_lidar_2,S_lidar_1_1,S_lidar_1_2,S_lidar_2_2,nu_radar_1,S_radar_1_1\n",
+    );
+    for run in 0..20 {
+        let mut w: [f64; 3] = std::array::from_fn(|_| rng.sample(StandardNormal));
+        let mut ma = |c: usize, rng: &mut SimRng| {
+            let next: f64 = rng.sample(StandardNormal);
+            let u = (next + theta * w[c]) * scale;
+            w[c] = next;
+            u
+        };
+        for k in 1..=200 {
+            if k % 2 == 1 {
+                let (a, b) = (ma(0, &mut rng), ma(1, &mut rng));
+                text += &format!("{run},{k},{},{},4,0,4,,\n", 2.0 * a, 2.0 * b);
+            } else {
+                text += &format!("{run},{k},,,,,,{},9\n", 3.0 * ma(2, &mut rng));
+            }
+        }
+    }
+    std::fs::write(path, text).unwrap();
+}
+
+#[test]
+fn sensors_that_take_turns_are_paired_and_diagnosed_as_nis_pairs_and_diagnoses_them() {
+    // Each reading pairs with its own sensor's previous one, not with the step before
+    // (which the other sensor measured): 99 pairs per run at lag 1 for every component, the
+    // same ρ as `autotune nis` computes from the same innovations (to rounding: the two sum
+    // the same products), and the same Q-vs-R finding. θ = −0.6 with v = 0.8 (too much Q:
+    // successive innovations anticorrelated, NIS low) must read "decrease Q"; θ = +0.6 with
+    // v = 1.2 (too little Q) "increase Q". At 1980 pairs ρ₁'s standard error is 0.022,
+    // against ±0.44. (`nis` sets outliers aside, beyond NIS's 10⁻⁵ tail, and pairs around
+    // them; at v ≤ 1.2 a sensor's 2000 updates expect at most 0.14 of them, and these have
+    // none.)
+    let dir = tempfile::tempdir().unwrap();
+    for (theta, v, action) in [(-0.6, 0.8, "decrease Q"), (0.6, 1.2, "increase Q")] {
+        let path = dir.path().join(format!("alternating_{theta}.csv"));
+        write_alternating(&path, theta, v, 39);
+        let (_, check) = check_json(&[&path], &[]);
+        let (_, nis, stderr) = autotune(&["nis", "--json", path.to_str().unwrap()]);
+        let nis: Value = serde_json::from_str(&nis).unwrap_or_else(|e| panic!("{e}: {stderr}"));
+        let report = &check["report"];
+        for s in nis["sensors"].as_array().unwrap() {
+            assert_eq!(s["outliers"], 0, "{}", s["name"]);
+        }
+        let rho = |white: &Value, component: &str, lag: u64| {
+            white
+                .as_array()
+                .unwrap()
+                .iter()
+                .find(|w| w["component"] == component && w["lag"] == lag)
+                .map(|w| (w["rho"].as_f64().unwrap(), w["pairs"].as_f64().unwrap()))
+                .unwrap_or_else(|| panic!("{component} lag {lag} in {white}"))
+        };
+        for (sensor, component, name) in [
+            (0, "lidar_1", "lidar_1"),
+            (0, "lidar_2", "lidar_2"),
+            (1, "radar_1", "radar_1"),
+        ] {
+            for lag in 1..=3 {
+                let (r_check, pairs) = rho(&report["whiteness"], name, lag);
+                let (r_nis, nis_pairs) = rho(&nis["sensors"][sensor]["whiteness"], component, lag);
+                assert_eq!(pairs, 20.0 * (100 - lag) as f64, "{name} lag {lag}: pairs");
+                assert_eq!(pairs, nis_pairs, "{name} lag {lag}");
+                assert!(
+                    (r_check - r_nis).abs() < 1e-12,
+                    "{name} lag {lag}: {r_check} vs {r_nis}"
+                );
+            }
+            let want = theta / (1.0 + theta * theta);
+            let (r1, _) = rho(&report["whiteness"], name, 1);
+            assert!(
+                (r1 - want).abs() < 0.07,
+                "{name}: ρ₁ {r1}, the process's {want}"
+            );
+        }
+        let findings = report["diagnosis"]["findings"].as_array().unwrap();
+        assert_eq!(findings.len(), 3, "{findings:?}");
+        for f in findings {
+            assert_eq!(f["action"], action, "check: {f}");
+        }
+        for s in nis["sensors"].as_array().unwrap() {
+            assert_eq!(s["finding"]["action"], action, "nis: {}", s["finding"]);
+        }
+        assert_eq!(report["diagnosis"]["suspect"], "q");
+        assert_eq!(nis["suspect"], "q");
+    }
+}

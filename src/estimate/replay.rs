@@ -86,7 +86,7 @@ impl Experiment for ReplayExperiment {
                 P = F * &P * F.transpose() + Q;
                 let rows: Vec<usize> = (0..m).filter(|&j| zk[j].is_finite()).collect();
                 if rows.is_empty() {
-                    rec.end_step(&mut acc, step);
+                    rec.end_step(&mut acc);
                     continue;
                 }
                 let Hr = H.select_rows(&rows);
@@ -110,7 +110,7 @@ impl Experiment for ReplayExperiment {
                 for (r, &j) in rows.iter().enumerate() {
                     rec.innovation(j, nu[r] / S[(r, r)].sqrt());
                 }
-                rec.end_step(&mut acc, step);
+                rec.end_step(&mut acc);
                 let K = &P * Hr.transpose() * chol.inverse();
                 x += &K * &nu;
                 let ikh = &eye - &K * &Hr;

@@ -379,7 +379,7 @@ where
         if dof > 0 {
             acc.add_nis(i, nis, dof as f64);
         }
-        scratch.end_step(acc, k);
+        scratch.end_step(acc);
         acc.add_nees(i, nees, n_x as f64);
         run_nees += nees;
         scratch.state_step(acc, (0..n_x).map(|j| e[j] / est.P[(j, j)].sqrt()));

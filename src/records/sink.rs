@@ -453,7 +453,7 @@ impl RecordSink {
         for (j, u) in n.u {
             self.recorder.innovation(j, u);
         }
-        self.recorder.end_step(&mut self.acc, k);
+        self.recorder.end_step(&mut self.acc);
         if let Some((nees, dof)) = n.nees {
             self.acc.add_nees(i, nees, dof);
             if let Some(c) = self.current.as_mut() {

@@ -29,9 +29,14 @@ pub struct RunRecorder {
     white_ab: Vec<f64>,
     white_a2: Vec<f64>,
     white_b2: Vec<f64>,
-    /// The last `lags` normalized innovation vectors (NaN where not measured), ring-indexed
-    /// by step.
-    ring: Vec<f64>,
+    /// Each component's last `lags` readings, component-major, ring-indexed by the
+    /// component's own count of readings: lag l pairs a reading with the l-th reading of
+    /// the same component before it, however many steps back (a sensor that reports every
+    /// other step, or drops out, pairs with its own previous reading, as `autotune nis`
+    /// pairs a field log's).
+    history: Vec<f64>,
+    /// Each component's readings so far in the run.
+    readings: Vec<usize>,
     /// The current step's normalized innovations.
     u: Vec<f64>,
     /// The current step's `(component, u)`, added to the sums when the step closes.
@@ -54,7 +59,8 @@ impl RunRecorder {
             white_ab: vec![0.0; lags * n_z],
             white_a2: vec![0.0; lags * n_z],
             white_b2: vec![0.0; lags * n_z],
-            ring: vec![f64::NAN; lags.max(1) * n_z],
+            history: vec![f64::NAN; lags * n_z],
+            readings: vec![0; n_z],
             u: vec![f64::NAN; n_z],
             pending: Vec::new(),
         }
@@ -71,7 +77,8 @@ impl RunRecorder {
         self.white_ab.fill(0.0);
         self.white_a2.fill(0.0);
         self.white_b2.fill(0.0);
-        self.ring.fill(f64::NAN);
+        self.history.fill(f64::NAN);
+        self.readings.fill(0);
         self.u.fill(f64::NAN);
         self.pending.clear();
     }
@@ -107,9 +114,9 @@ impl RunRecorder {
         self.u[j] = u;
     }
 
-    /// Close step `k` (1-based): add its innovation components, pair its innovations with
-    /// earlier steps' and store them for later lags.
-    pub fn end_step(&mut self, acc: &mut Accumulator, k: usize) {
+    /// Close the step: add its innovation components, pair each with its own
+    /// earlier readings and store it for later lags.
+    pub fn end_step(&mut self, acc: &mut Accumulator) {
         for &(j, u) in &self.pending {
             self.mean_z[j] += u;
             self.comp_z[j] += u * u;
@@ -118,16 +125,17 @@ impl RunRecorder {
         }
         let (m, lags) = (self.n_z, self.lags);
         if lags > 0 {
-            for lag in 1..=lags.min(k - 1) {
-                let slot = ((k - lag) % lags) * m;
-                // Only this step's components can pair (the others are NaN in `u`): a
-                // sensor with dozens of components, a few measured a step, costs those few.
-                // A component measured twice in the step pairs once, with its last value.
-                for (p, &(j, _)) in self.pending.iter().enumerate() {
-                    if self.pending[p + 1..].iter().any(|&(i, _)| i == j) {
-                        continue;
-                    }
-                    let (a, b) = (self.u[j], self.ring[slot + j]);
+            // Only this step's components pair: a sensor with dozens of components, a few
+            // measured a step, costs those few. A component measured twice in the step
+            // pairs once, with its last value.
+            for (p, &(j, _)) in self.pending.iter().enumerate() {
+                if self.pending[p + 1..].iter().any(|&(i, _)| i == j) {
+                    continue;
+                }
+                let (a, seen) = (self.u[j], self.readings[j]);
+                let own = &mut self.history[j * lags..(j + 1) * lags];
+                for lag in 1..=lags.min(seen) {
+                    let b = own[(seen - lag) % lags];
                     if a.is_finite() && b.is_finite() {
                         let idx = (lag - 1) * m + j;
                         self.white_ab[idx] += a * b;
@@ -136,9 +144,9 @@ impl RunRecorder {
                         acc.white_pairs[idx] += 1.0;
                     }
                 }
+                own[seen % lags] = a;
+                self.readings[j] = seen + 1;
             }
-            let slot = (k % lags) * m;
-            self.ring[slot..slot + m].copy_from_slice(&self.u);
         }
         for &(j, _) in &self.pending {
             self.u[j] = f64::NAN;
@@ -204,30 +212,56 @@ mod tests {
     }
 
     /// By plain loops over `runs` runs of `t` steps of one component's sequence `u(run, k)`
-    /// (NaN where unmeasured): `[Σ u_k u_k−lag, Σ u_k², Σ u_k−lag², pairs]` over the pairs
-    /// whose both ends are measured, in step order.
+    /// (NaN where unmeasured): `[Σ u_i u_i−lag, Σ u_i², Σ u_i−lag², pairs]` over the
+    /// component's own readings i (the measured steps, in step order), each paired with its
+    /// lag-th reading before it within the run.
     fn lagged_sums(runs: usize, t: usize, lag: usize, u: impl Fn(usize, usize) -> f64) -> [f64; 4] {
         let mut sums = [0.0; 4];
         for run in 0..runs {
-            for k in lag + 1..=t {
-                let (a, b) = (u(run, k), u(run, k - lag));
-                if a.is_finite() && b.is_finite() {
-                    sums[0] += a * b;
-                    sums[1] += a * a;
-                    sums[2] += b * b;
-                    sums[3] += 1.0;
-                }
+            let own: Vec<f64> = (1..=t).map(|k| u(run, k)).filter(|v| !v.is_nan()).collect();
+            for i in lag..own.len() {
+                let (a, b) = (own[i], own[i - lag]);
+                sums[0] += a * b;
+                sums[1] += a * a;
+                sums[2] += b * b;
+                sums[3] += 1.0;
             }
         }
         sums
     }
 
     #[test]
+    fn sensors_that_take_turns_pair_each_reading_with_their_own_previous_one() {
+        // Two sensors that take turns (component 0 at odd steps, 1 at even ones), 10 steps:
+        // lag 1 pairs each with its own reading two steps back. Component 0 alternates
+        // +1, −1 (ρ₁ = −1), component 1 repeats 2 (ρ₁ = +1); each has 5 readings, so 4 pairs
+        // at lag 1 and 3 at lag 2, and none across the run boundary.
+        let mut acc = Accumulator::new(10, 0, 2, 2);
+        let mut rec = RunRecorder::new(0, 2, 2);
+        for _ in 0..2 {
+            rec.reset();
+            for k in 1..=10usize {
+                if k % 2 == 1 {
+                    rec.innovation(0, if k % 4 == 1 { 1.0 } else { -1.0 });
+                } else {
+                    rec.innovation(1, 2.0);
+                }
+                rec.end_step(&mut acc);
+            }
+            rec.end_run(&mut acc);
+        }
+        assert_eq!(acc.white_pairs, vec![8.0, 8.0, 6.0, 6.0]);
+        assert_eq!(acc.white_ab, vec![-8.0, 32.0, 6.0, 24.0]);
+        assert_eq!(acc.white_a2, vec![8.0, 32.0, 6.0, 24.0]);
+        assert_eq!(acc.white_b2, vec![8.0, 32.0, 6.0, 24.0]);
+    }
+
+    #[test]
     fn lagged_products_match_a_brute_force_sum_over_every_lag_up_to_l() {
-        // Two runs of T = 12 steps, two components, L = 3 lags: the recorder's sums of
-        // u_k u_{k−l}, u_k², u_{k−l}² and the pair counts against plain loops over the
-        // sequences (pairs where both ends are measured). Tolerance 1e-12: a few dozen
-        // rounded products.
+        // Two runs of T = 12 steps, two components (the second missing two steps), L = 3
+        // lags: the recorder's sums of u_i u_{i−l}, u_i², u_{i−l}² and the pair counts
+        // against plain loops over each component's own readings. Tolerance 1e-12: a few
+        // dozen rounded products.
         let (t, m, lags) = (12, 2, 3);
         let mut acc = Accumulator::new(t, 0, m, lags);
         let mut rec = RunRecorder::new(0, m, lags);
@@ -239,7 +273,7 @@ mod tests {
                         rec.innovation(j, u(run, k, j));
                     }
                 }
-                rec.end_step(&mut acc, k);
+                rec.end_step(&mut acc);
             }
             rec.end_run(&mut acc);
         }
@@ -293,7 +327,7 @@ mod tests {
                 last[k][2] = value(k, 2) + 1.0;
                 samples[2] += 1.0;
             }
-            rec.end_step(&mut acc, k);
+            rec.end_step(&mut acc);
         }
         rec.end_run(&mut acc);
         for lag in 1..=lags {
@@ -325,7 +359,7 @@ mod tests {
                 if k != 1 {
                     rec.innovation(0, 2.0 * y);
                 }
-                rec.end_step(&mut acc, k + 1);
+                rec.end_step(&mut acc);
             }
             rec.end_run(&mut acc);
         }
@@ -359,7 +393,7 @@ mod tests {
         rec.reset();
         for (k, y) in [(1, 1.0), (2, -2.0)] {
             rec.innovation(0, 3.0 * y);
-            rec.end_step(&mut acc, k);
+            rec.end_step(&mut acc);
             rec.state_step(&mut acc, std::iter::once(y));
         }
         rec.stop_run(&mut acc);
@@ -374,7 +408,7 @@ mod tests {
         assert_eq!(acc.runs, 0);
         rec.reset();
         rec.state_step(&mut acc, std::iter::once(2.0));
-        rec.end_step(&mut acc, 1);
+        rec.end_step(&mut acc);
         rec.end_run(&mut acc);
         assert_eq!(acc.state_comp_total, vec![9.0]);
         assert_eq!(acc.state_comp_run_sum, vec![4.0]);

@@ -686,3 +686,72 @@ fn sensors_that_take_turns_are_paired_and_diagnosed_as_nis_pairs_and_diagnoses_t
         assert_eq!(nis["suspect"], "q");
     }
 }
+
+/// One run of `steps` steps of a 2-state filter whose error is a stationary AR(1) vector
+/// (`e_k = 0.8 e_{k−1} + 0.6 w_k`, unit variance) and whose P is `p · I`, as a records CSV
+/// of errors and covariances alone (no innovations, no error map).
+fn write_recording(path: &Path, runs: usize, steps: usize, p: f64, seed: u64) {
+    use autotune::SimRng;
+    use rand::{RngExt, SeedableRng};
+    use rand_distr::StandardNormal;
+    let mut rng = SimRng::seed_from_u64(seed);
+    let mut text = String::from("run,step,e_1,e_2,P_1_1,P_1_2,P_2_2\n");
+    for run in 0..runs {
+        let mut e: [f64; 2] = std::array::from_fn(|_| rng.sample(StandardNormal));
+        for k in 1..=steps {
+            for x in e.iter_mut() {
+                *x = 0.8 * *x + 0.6 * rng.sample::<f64, _>(StandardNormal);
+            }
+            text += &format!("{run},{k},{},{},{p},0,{p}\n", e[0], e[1]);
+        }
+    }
+    std::fs::write(path, text).unwrap();
+}
+
+#[test]
+fn one_recording_with_truth_gets_a_nees_verdict_from_batch_means() {
+    // Issue 39: a single recording of a filter that supplies no error map has no per-run
+    // spread; its ANEES interval comes from batch means over its steps (the rates over
+    // many recordings are src/stats/interval.rs's tests). Here: a consistent filter passes
+    // on 500 steps, one whose P is half the truth fails as overconfident, a recording of 30
+    // steps gets no interval and says why, and errors without innovations (ANIS has no
+    // data) are judged on ANEES alone, for one run as for twenty.
+    let dir = tempfile::tempdir().unwrap();
+    let file = |name: &str| dir.path().join(name);
+    write_recording(&file("one.csv"), 1, 500, 1.0, 3);
+    write_recording(&file("half.csv"), 1, 500, 0.5, 3);
+    write_recording(&file("short.csv"), 1, 30, 1.0, 3);
+    write_recording(&file("twenty.csv"), 20, 100, 1.0, 3);
+    let (code, one) = check_json(&[&file("one.csv")], &[]);
+    let nees = &one["report"]["nees"];
+    assert_eq!(one["report"]["verdict"], "consistent", "{nees}");
+    assert_eq!(code, Some(0));
+    let blocks = nees["batch_spread_batches"].as_u64().expect("batch means");
+    assert!((8..=32).contains(&blocks), "{blocks}");
+    let (lo, hi) = (
+        nees["interval"]["lower"].as_f64().unwrap(),
+        nees["interval"]["upper"].as_f64().unwrap(),
+    );
+    // Around the target 2, no wider than ±40% (the ANEES of 500 steps correlated over about
+    // 4.6 steps has a standard deviation near 0.19; the t quantile of the blocks and the
+    // spread's own noise widen the interval to about ±36% here).
+    assert!(lo < 2.0 && 2.0 < hi && hi - lo < 1.6, "[{lo}, {hi}]");
+    let (code, half) = check_json(&[&file("half.csv")], &[]);
+    assert_eq!(half["report"]["verdict"], "overconfident");
+    assert_eq!(code, Some(1));
+    let (code, stdout, _) = autotune(&["check", "--records", file("short.csv").to_str().unwrap()]);
+    assert_eq!(code, Some(1));
+    assert!(
+        stdout.contains("none (see note)") && !stdout.contains("NaN"),
+        "{stdout}"
+    );
+    assert!(
+        stdout.contains("a recording of at least 40 steps, or a second recording"),
+        "{stdout}"
+    );
+    assert!(stdout.contains("verdict: inconclusive"), "{stdout}");
+    let (code, twenty) = check_json(&[&file("twenty.csv")], &[]);
+    assert_eq!(twenty["report"]["verdict"], "consistent");
+    assert_eq!(code, Some(0));
+    assert!(twenty["report"]["nees"]["batch_spread_batches"].is_null());
+}

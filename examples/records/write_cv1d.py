@@ -6,6 +6,10 @@ that anyone can regenerate the files and compare: `python3 write_cv1d.py` writes
 `cv1d.csv` (errors, covariances, innovations: judged by NEES and NIS) and
 `cv1d_innovations.csv` (innovations only: judged without truth). Run i draws from
 random.Random(1000 + i) alone, as the seed contract of the worker protocol asks.
+
+It also writes two single recordings of the same filter, as a drive with a reference
+trajectory would give them: `cv1d_drive.csv` (one run of 500 steps, from
+random.Random(2000)) and `cv1d_short.csv` (its first 30 steps).
 """
 
 import random
@@ -14,8 +18,8 @@ RUNS, STEPS, DT = 24, 40, 1.0
 Q_ACCEL, R_POS = 0.5, 1.0
 
 
-def run(i):
-    rng = random.Random(1000 + i)
+def run(i, steps=STEPS, seed=None):
+    rng = random.Random(1000 + i if seed is None else seed)
     dt2, dt3, dt4 = DT * DT, DT**3, DT**4
     q = [[Q_ACCEL * dt4 / 4, Q_ACCEL * dt3 / 2], [Q_ACCEL * dt3 / 2, Q_ACCEL * dt2]]
     # Truth and estimate start from the same prior: x0 ~ N(0, P0).
@@ -23,7 +27,7 @@ def run(i):
     x = [rng.gauss(0, 10.0**0.5), rng.gauss(0, 1.0)]
     xh = [0.0, 0.0]
     rows = []
-    for k in range(1, STEPS + 1):
+    for k in range(1, steps + 1):
         # White acceleration held over the step (the dwna model of problems/cv1d.toml).
         a = rng.gauss(0, Q_ACCEL**0.5)
         x = [x[0] + DT * x[1] + dt2 / 2 * a, x[1] + DT * a]
@@ -48,13 +52,20 @@ def run(i):
     return rows
 
 
-def main():
-    rows = [r for i in range(RUNS) for r in run(i)]
-    with open("cv1d.csv", "w") as f:
+def write_full(path, rows):
+    with open(path, "w") as f:
         f.write("run,step,e_1,e_2,P_1_1,P_2_1,P_2_2,nu_1,S_1_1\n")
         for i, k, e, p, nu, s in rows:
             vals = [e[0], e[1], p[0][0], p[1][0], p[1][1], nu, s]
             f.write(f"{i},{k}," + ",".join(f"{v:.6g}" for v in vals) + "\n")
+
+
+def main():
+    rows = [r for i in range(RUNS) for r in run(i)]
+    write_full("cv1d.csv", rows)
+    drive = run(0, steps=500, seed=2000)
+    write_full("cv1d_drive.csv", drive)
+    write_full("cv1d_short.csv", drive[:30])
     with open("cv1d_innovations.csv", "w") as f:
         f.write("run,step,nu_1,S_1_1\n")
         for i, k, _, _, nu, s in rows:

@@ -89,8 +89,12 @@ pub(super) fn mean_test(m: &MeanSums, level: f64) -> (f64, f64, Verdict) {
             v * (m.second_moment - mean * mean).max(1.0),
             normal_two_sided_quantile(level),
         ),
-        SumVariance::RunSpread { var, runs } => {
-            let t = StudentsT::new(0.0, 1.0, runs.saturating_sub(1).max(1) as f64)
+        SumVariance::RunSpread { var, runs: samples }
+        | SumVariance::BatchSpread {
+            var,
+            batches: samples,
+        } => {
+            let t = StudentsT::new(0.0, 1.0, samples.saturating_sub(1).max(1) as f64)
                 .map(|d| d.inverse_cdf(1.0 - level / 2.0))
                 .unwrap_or(f64::INFINITY);
             (var, t)

@@ -81,8 +81,83 @@ pub enum SumVariance {
         /// The runs it was measured on (≥ 2).
         runs: usize,
     },
-    /// Neither (fewer than two runs and no prediction).
+    /// Measured from one or a few runs by batch means ([`batch_spread`]): the sum over
+    /// steps cut into `batches` blocks of consecutive steps, long enough that their sums are
+    /// nearly independent, and the spread of those block sums.
+    BatchSpread {
+        /// The estimated variance of the sum over all runs and steps.
+        var: f64,
+        /// The blocks it was measured on (≥ [`MIN_BATCHES`]).
+        batches: usize,
+    },
+    /// None of these (no prediction, fewer than two runs, and too few steps for batches).
     Unavailable,
+}
+
+/// The fewest blocks batch means uses: with 8, the t quantile has 7 degrees of freedom
+/// (2.36 at 95%, against 1.96 for a known variance).
+pub const MIN_BATCHES: usize = 8;
+/// The most blocks batch means uses.
+const MAX_BATCHES: usize = 32;
+/// The fewest steps in a block.
+pub const MIN_BATCH_STEPS: usize = 5;
+
+/// The variance of `Σ series` estimated by batch means, and the number of blocks it rests
+/// on; `None` below [`MIN_BATCHES`] blocks of [`MIN_BATCH_STEPS`] steps.
+///
+/// A time series of one run (a NEES per step, say) is correlated over time, so the spread
+/// of its values says nothing about the spread of its sum. Cut into `B` blocks of `L`
+/// consecutive steps, the block sums are nearly independent once `L` is well beyond the
+/// integrated correlation time `τ = 1 + 2 Σ_l ρ_l`, and `Var(Σ) ≈ (T/L) s²` with `s²` their
+/// sample variance (Law and Carson 1979). `τ` is estimated from the series with Sokal's
+/// self-consistent window (the sum runs to the first lag `M ≥ 5 τ`); blocks are
+/// `BLOCK_TAUS · τ` steps long, between 8 and 32 of them. The steps that do not fill a
+/// block are the first ones (a filter's start): they join the sum, not the spread.
+pub fn batch_spread(series: &[f64]) -> Option<(f64, usize)> {
+    let t = series.len();
+    if t < MIN_BATCHES * MIN_BATCH_STEPS {
+        return None;
+    }
+    let tau = correlation_time(series);
+    let fit = (t as f64 / (BLOCK_TAUS * tau)).floor() as usize;
+    let batches = fit.clamp(MIN_BATCHES, MAX_BATCHES.min(t / MIN_BATCH_STEPS));
+    let len = t / batches;
+    let sums: Vec<f64> = series[t - batches * len..]
+        .chunks(len)
+        .map(|c| c.iter().sum())
+        .collect();
+    let b = batches as f64;
+    let mean = sums.iter().sum::<f64>() / b;
+    let s2 = sums.iter().map(|s| (s - mean) * (s - mean)).sum::<f64>() / (b - 1.0);
+    let short = (1.0 - tau / len as f64).max(0.25);
+    Some((t as f64 / len as f64 * s2 / short, batches))
+}
+
+/// Block length in integrated correlation times.
+const BLOCK_TAUS: f64 = 5.0;
+
+/// The integrated correlation time `τ = 1 + 2 Σ_{l=1}^{M} ρ_l` of `series`, with Sokal's
+/// window: the smallest `M ≥ 5 τ(M)` (at most a quarter of the series); at least 1.
+fn correlation_time(series: &[f64]) -> f64 {
+    let t = series.len();
+    let mean = series.iter().sum::<f64>() / t as f64;
+    let dev: Vec<f64> = series.iter().map(|v| v - mean).collect();
+    let c0: f64 = dev.iter().map(|d| d * d).sum();
+    if c0 <= 0.0 {
+        return 1.0;
+    }
+    let rho = |lag: usize| dev[lag..].iter().zip(&dev).map(|(a, b)| a * b).sum::<f64>() / c0;
+    let mut tau = 1.0;
+    for lag in 1..=t / 4 {
+        tau += 2.0 * rho(lag);
+        if lag as f64 >= 5.0 * tau {
+            break;
+        }
+    }
+    // A short series truncates the window before a slow correlation has died out; the
+    // first-order autoregression through ρ₁ does not truncate, and is the larger then.
+    let r1 = rho(1).clamp(0.0, 0.99);
+    tau.max((1.0 + r1) / (1.0 - r1)).max(1.0)
 }
 
 /// The two-sided (1 − α) gate interval of a time average `sum / count` whose sum has mean
@@ -93,14 +168,20 @@ pub enum SumVariance {
 /// - [`SumVariance::RunSpread`]: the t interval `(D ± t_{1−α/2}(N−1) √var) / count` (the
 ///   per-run sums are independent, so their mean is t-distributed about its target whatever
 ///   the correlation inside a run), widened to contain the textbook interval: conservative.
+/// - [`SumVariance::BatchSpread`]: the same t interval on the blocks' `B − 1` degrees of
+///   freedom.
 /// - [`SumVariance::Unavailable`]: NaN bounds and 0 degrees of freedom (no test).
 pub fn gate_interval(alpha: f64, dof: f64, count: f64, var: SumVariance) -> (Interval, f64) {
     let floor = 2.0 * dof;
     match var {
         SumVariance::Predicted(v) => scaled_chi2_interval(alpha, dof, v.max(floor), count),
-        SumVariance::RunSpread { var, runs } => {
+        SumVariance::RunSpread { var, runs: samples }
+        | SumVariance::BatchSpread {
+            var,
+            batches: samples,
+        } => {
             let naive = chi2_average_interval(alpha, dof, count);
-            let t = StudentsT::new(0.0, 1.0, runs.saturating_sub(1).max(1) as f64)
+            let t = StudentsT::new(0.0, 1.0, samples.saturating_sub(1).max(1) as f64)
                 .map(|d| d.inverse_cdf(1.0 - alpha / 2.0))
                 .unwrap_or(f64::INFINITY);
             let half = t * var.max(0.0).sqrt();
@@ -358,5 +439,89 @@ mod tests {
             Verdict::Diverged
         );
         assert!(!Verdict::Biased.passes());
+    }
+
+    /// `count` NEES series of `t` steps of a filter whose 5-state error is a stationary
+    /// AR(1) vector (`e_k = ρ e_{k−1} + √(1 − ρ²) w_k`, unit variance) and whose P is
+    /// `1/scale` (so its NEES is `scale · χ²(5)`, successive ones correlated by ρ²): how many
+    /// time averages fall outside the batch-means gate interval at α = 0.05, and the block
+    /// counts batch means chose.
+    fn batch_outside(rho: f64, scale: f64, count: usize, seed: u64) -> (usize, Vec<usize>) {
+        use rand::{RngExt, SeedableRng};
+        let t = 500;
+        let mut rng = crate::SimRng::seed_from_u64(seed);
+        let mut normal = || rng.sample::<f64, _>(rand_distr::StandardNormal);
+        let (mut outside, mut blocks) = (0, Vec::new());
+        for _ in 0..count {
+            let mut e: Vec<f64> = (0..5).map(|_| normal()).collect();
+            let series: Vec<f64> = (0..t)
+                .map(|_| {
+                    for x in e.iter_mut() {
+                        *x = rho * *x + (1.0 - rho * rho).sqrt() * normal();
+                    }
+                    scale * e.iter().map(|x| x * x).sum::<f64>()
+                })
+                .collect();
+            let (var, b) = batch_spread(&series).expect("500 steps are enough");
+            blocks.push(b);
+            let var = SumVariance::BatchSpread { var, batches: b };
+            let (iv, _) = gate_interval(0.05, 5.0 * t as f64, t as f64, var);
+            if !iv.contains(series.iter().sum::<f64>() / t as f64) {
+                outside += 1;
+            }
+        }
+        (outside, blocks)
+    }
+
+    #[test]
+    fn batch_means_hold_the_false_alarm_rate_of_one_correlated_recording() {
+        // 400 single recordings of 500 steps each, at error correlations ρ whose NEES
+        // correlation times τ = (1 + ρ²)/(1 − ρ²) are 1, 4.6, 19.5 and 49 steps (500 steps
+        // down to 10 correlation times). A consistent filter's time average must leave the
+        // α = 0.05 interval at most as often as the binomial 99% band of 400 draws allows
+        // (≤ 31 of 400), and not far less where the series is correlated (≥ 9): a
+        // variance estimate that ignored the correlation would leave it on most draws at
+        // ρ = 0.95, one that doubled it on almost none. Measured: 7, 14, 25, 24. White
+        // series sit below the band: the interval is widened to contain the textbook one,
+        // which is exact for them.
+        for (rho, low) in [(0.0, 0), (0.8, 9), (0.95, 9), (0.98, 9)] {
+            let (outside, blocks) = batch_outside(rho, 1.0, 400, 39);
+            assert!(
+                (low..=31).contains(&outside),
+                "ρ = {rho}: {outside} of 400 outside the interval"
+            );
+            assert!(
+                blocks
+                    .iter()
+                    .all(|b| (MIN_BATCHES..=MAX_BATCHES).contains(b))
+            );
+            if rho == 0.0 {
+                // White steps: the blocks are as short as allowed (32 of them).
+                assert!(blocks.iter().all(|&b| b == MAX_BATCHES), "{blocks:?}");
+            }
+            if rho == 0.98 {
+                // 49 steps of correlation: 8 blocks, the fewest.
+                assert!(blocks.iter().all(|&b| b == MIN_BATCHES), "{blocks:?}");
+            }
+        }
+    }
+
+    #[test]
+    fn batch_means_catch_a_covariance_off_by_two_in_one_recording() {
+        // The same recordings at ρ = 0.8 with P half and twice the truth (NEES ×2, ×0.5):
+        // the interval is ±15% or so around 5 there, so both are caught on every draw
+        // (measured 100 of 100 each).
+        for scale in [2.0, 0.5] {
+            let (outside, _) = batch_outside(0.8, scale, 100, 7);
+            assert_eq!(outside, 100, "NEES × {scale}");
+        }
+    }
+
+    #[test]
+    fn batch_means_need_eight_blocks_of_five_steps() {
+        assert!(batch_spread(&[1.0; 39]).is_none());
+        // A constant series has no spread; its correlation time is taken as one step.
+        assert_eq!(batch_spread(&[1.0; 40]), Some((0.0, MIN_BATCHES)));
+        assert_eq!(batch_spread(&[2.0; 400]), Some((0.0, MAX_BATCHES)));
     }
 }

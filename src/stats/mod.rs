@@ -32,8 +32,9 @@ pub use diagnostics::{
 use diagnostics::{MeanSums, components, whiteness};
 
 pub use interval::{
-    GateMode, Interval, SumVariance, Verdict, chi2_average_interval, chi2_inv, combine, gate_alpha,
-    gate_interval, has_power, normal_two_sided_quantile, scaled_chi2_interval,
+    GateMode, Interval, MIN_BATCH_STEPS, MIN_BATCHES, SumVariance, Verdict, batch_spread,
+    chi2_average_interval, chi2_inv, combine, gate_alpha, gate_interval, has_power,
+    normal_two_sided_quantile, scaled_chi2_interval,
 };
 pub use null_variance::{ComponentNullVariance, NeesNullVariance};
 pub use recorder::RunRecorder;
@@ -81,6 +82,11 @@ pub struct StatisticSummary {
     /// [`crate::filter::Filter`]); absent otherwise.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub run_spread_runs: Option<usize>,
+    /// Set when the interval rests on batch means over the steps of one run (a single
+    /// recording whose filter supplies no error map): the number of blocks of consecutive
+    /// steps; absent otherwise.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub batch_spread_batches: Option<usize>,
     /// Whether the time-averaged test can detect a factor-2 covariance error.
     pub has_power: bool,
     /// Verdict of the time-averaged test.
@@ -394,16 +400,24 @@ fn gate_verdicts(
     whiteness_tests: &[WhitenessTest],
     full: bool,
 ) -> Vec<Verdict> {
-    let mut verdicts = vec![nis.verdict];
-    if let Some(nees) = nees {
-        verdicts.push(nees.verdict);
+    // A statistic without data (no innovations in a record of errors, no errors in one
+    // of innovations) or a component whose spread the data cannot give (one run of a
+    // filter without an error map) is no test: it does not make the gate inconclusive.
+    // With no test at all, the gate is.
+    let mut verdicts: Vec<Verdict> = std::iter::once(nis)
+        .chain(nees)
+        .filter(|s| s.steps_with_data > 0)
+        .map(|s| s.verdict)
+        .collect();
+    if verdicts.is_empty() {
+        return vec![Verdict::Inconclusive];
     }
     if full {
         verdicts.extend(
             state_components
                 .iter()
                 .chain(measurement_components)
-                .filter(|c| c.samples > 0.0)
+                .filter(|c| c.samples > 0.0 && !c.interval.lower.is_nan())
                 .map(|c| c.verdict),
         );
         // A mean test without a statistic (no sign in the records, no variance) is no
@@ -554,6 +568,10 @@ fn summarize(
         effective_dof,
         run_spread_runs: match variance {
             SumVariance::RunSpread { runs, .. } => Some(runs),
+            _ => None,
+        },
+        batch_spread_batches: match variance {
+            SumVariance::BatchSpread { batches, .. } => Some(batches),
             _ => None,
         },
         has_power: power,

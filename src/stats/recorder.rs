@@ -391,7 +391,7 @@ mod tests {
         let mut acc = Accumulator::new(4, 1, 1, 1);
         let mut rec = RunRecorder::new(1, 1, 1);
         rec.reset();
-        for (k, y) in [(1, 1.0), (2, -2.0)] {
+        for y in [1.0, -2.0] {
             rec.innovation(0, 3.0 * y);
             rec.end_step(&mut acc);
             rec.state_step(&mut acc, std::iter::once(y));

@@ -255,15 +255,25 @@ impl Accumulator {
 
     /// What the variance of the NEES sum over all runs rests on: the filters' own
     /// prediction where every sampled filter supplied its error map, else the spread of the
-    /// per-run sums.
+    /// per-run sums, else (one run: a single recording) batch means over its steps
+    /// ([`super::interval::batch_spread`] on the per-step sums).
     pub fn nees_sum_variance(&self) -> SumVariance {
         if self.has_nees_null_variance() {
-            SumVariance::Predicted(self.nees_null_variance())
-        } else {
-            match self.nees_spread_variance() {
-                Some((var, runs)) => SumVariance::RunSpread { var, runs },
-                None => SumVariance::Unavailable,
-            }
+            return SumVariance::Predicted(self.nees_null_variance());
+        }
+        if let Some((var, runs)) = self.nees_spread_variance() {
+            return SumVariance::RunSpread { var, runs };
+        }
+        let series: Vec<f64> = self
+            .nees_sum
+            .iter()
+            .zip(&self.nees_count)
+            .filter(|(_, c)| **c > 0.0)
+            .map(|(s, _)| *s)
+            .collect();
+        match super::interval::batch_spread(&series) {
+            Some((var, batches)) => SumVariance::BatchSpread { var, batches },
+            None => SumVariance::Unavailable,
         }
     }
 

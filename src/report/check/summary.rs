@@ -36,11 +36,16 @@ impl StatCells {
         StatCells {
             average: fmt_fixed(s.time_average, 4),
             target: fmt_fixed(s.target, 2),
-            interval: format!(
-                "[{}, {}]",
-                fmt_fixed(s.interval.lower, 4),
-                fmt_fixed(s.interval.upper, 4)
-            ),
+            // No interval (too little data for a spread; a note says why): a dash, not NaN.
+            interval: if s.interval.lower.is_nan() {
+                "none (see note)".into()
+            } else {
+                format!(
+                    "[{}, {}]",
+                    fmt_fixed(s.interval.lower, 4),
+                    fmt_fixed(s.interval.upper, 4)
+                )
+            },
             in_bounds: format!("{:.1}%", 100.0 * s.fraction_in_bounds),
             verdict: s.verdict.label(),
         }
@@ -239,16 +244,34 @@ fn component_lines(out: &mut String, r: &ConsistencyReport, gated: &str) {
         );
         return;
     }
-    let worst = r.worst_components(3);
+    // One run of a filter without an error map leaves its state components untested (no
+    // spread to judge them by): they are listed apart, never as inside an interval.
+    let untested: Vec<String> = r
+        .state_components
+        .iter()
+        .chain(&r.measurement_components)
+        .filter(|c| c.samples > 0.0 && c.value.is_finite() && c.interval.lower.is_nan())
+        .map(|c| format!("{} {} {}", kind_word(c), c.name, fmt_fixed(c.value, 3)))
+        .collect();
+    let worst: Vec<String> = r
+        .worst_components(usize::MAX)
+        .into_iter()
+        .filter(|c| !c.interval.lower.is_nan())
+        .take(3)
+        .map(|c| format!("{} {} {}", kind_word(c), c.name, fmt_fixed(c.value, 3)))
+        .collect();
     if !worst.is_empty() {
-        let w: Vec<String> = worst
-            .iter()
-            .map(|c| format!("{} {} {}", kind_word(c), c.name, fmt_fixed(c.value, 3)))
-            .collect();
         let _ = writeln!(
             out,
             "  components (target 1, all inside their intervals; worst first): {}",
-            w.join("; ")
+            worst.join("; ")
+        );
+    }
+    if !untested.is_empty() {
+        let _ = writeln!(
+            out,
+            "  components not tested (one run of a filter without an error map gives no spread to judge them by; a second recording would): {}",
+            untested.join("; ")
         );
     }
 }
@@ -372,8 +395,32 @@ pub(crate) fn stopped_runs(verdict: Verdict) -> &'static str {
 /// supplies no error map), the sentence that says so and what it costs: the interval's
 /// half-width against the textbook one's, each relative to the target (for 128 runs × 400
 /// steps of a 2-state filter, about ±4.4% instead of ±1.2%).
+///
+/// For one run (a single recording), the sentence says the interval comes from batch means
+/// over its steps instead, and what a second recording would add.
 pub fn run_spread_note(s: &StatisticSummary) -> Option<String> {
     let half = |i: &crate::stats::Interval| 50.0 * (i.upper - i.lower) / s.target;
+    if s.interval.lower.is_nan() && s.time_average.is_finite() {
+        return Some(format!(
+            "the filter supplies no error map, and one run of {} steps is too short for the spread of its A{} sum over time (batch means needs {} blocks of {} steps), so A{} has no interval and no verdict: a recording of at least {} steps, or a second recording, would give one",
+            s.steps_with_data,
+            s.name,
+            crate::stats::MIN_BATCHES,
+            crate::stats::MIN_BATCH_STEPS,
+            s.name,
+            crate::stats::MIN_BATCHES * crate::stats::MIN_BATCH_STEPS,
+        ));
+    }
+    if let Some(b) = s.batch_spread_batches {
+        return Some(format!(
+            "the filter supplies no error map and there is one run, so the A{} interval comes from batch means: the spread of the sums of {b} blocks of consecutive steps (Student t, {} degrees of freedom), widened to contain the textbook interval: ±{:.1}% around {} instead of ±{:.1}% (it catches only larger errors; a longer or a second recording narrows it)",
+            s.name,
+            b - 1,
+            half(&s.interval),
+            fmt_g(s.target),
+            half(&s.naive_interval),
+        ));
+    }
     s.run_spread_runs.map(|n| {
         format!(
             "the filter supplies no error map, so the A{} interval comes from the spread of the {n} per-run sums (Student t), widened to contain the textbook interval: ±{:.1}% around {} instead of ±{:.1}% (it catches only larger errors; more runs narrow it)",

@@ -6,54 +6,13 @@
 //! [3.946, 4.054] to [3.556, 4.471], and Q ×0.8 and ×1.3 both read "consistent".
 
 mod common;
+use common::NoMap;
 
 use autotune::internals::experiment::Experiment;
-use autotune::internals::filter::{Estimate, Filter, FilterError, Innovation, KalmanFilter};
-use autotune::internals::measurement::Measurement;
 use autotune::internals::montecarlo::run_generic;
 use autotune::internals::stats::{ConsistencyReport, Verdict};
 use common::{load, scaled, truth_values};
-use nalgebra::DVector;
 use statrs::distribution::{Binomial, DiscreteCDF};
-
-/// A Kalman filter that erases its error map after every call, as a user's filter that does
-/// not track it leaves it unset.
-struct NoMap(KalmanFilter);
-
-impl Filter for NoMap {
-    fn n_x(&self) -> usize {
-        self.0.n_x()
-    }
-
-    fn sensor_dims(&self) -> Vec<usize> {
-        self.0.sensor_dims()
-    }
-
-    fn initial(&self) -> Estimate {
-        self.0.initial()
-    }
-
-    fn predict(&self, k: usize, est: &mut Estimate) -> Result<(), FilterError> {
-        self.0.predict(k, est)?;
-        est.error_map = None;
-        Ok(())
-    }
-
-    fn update(
-        &self,
-        k: usize,
-        est: &mut Estimate,
-        meas: &Measurement,
-    ) -> Result<Innovation, FilterError> {
-        let inn = self.0.update(k, est, meas)?;
-        est.error_map = None;
-        Ok(inn)
-    }
-
-    fn state_error(&self, truth: &DVector<f64>, estimate: &DVector<f64>) -> DVector<f64> {
-        self.0.state_error(truth, estimate)
-    }
-}
 
 /// The consistency report of cv2d's filter at `theta`, with or without its error map, at
 /// seed `seed` (N = 200, T = 200 as shipped).

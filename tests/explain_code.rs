@@ -18,6 +18,11 @@ mod families;
 
 use std::time::Instant;
 
+/// The binary's allocator (Cargo.toml's `mimalloc` feature): these suites tune and explain
+/// hundreds of problems, about a fifth faster than with glibc's.
+#[global_allocator]
+static GLOBAL: mimalloc::MiMalloc = mimalloc::MiMalloc;
+
 use autotune::internals::experiment::Experiment;
 use autotune::internals::explain::explain;
 use autotune::internals::model::{LinearGaussianModel, TruthModel};

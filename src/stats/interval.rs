@@ -120,7 +120,8 @@ pub fn batch_spread(series: &[f64]) -> Option<(f64, usize)> {
     }
     let tau = correlation_time(series);
     let fit = (t as f64 / (BLOCK_TAUS * tau)).floor() as usize;
-    let batches = fit.clamp(MIN_BATCHES, MAX_BATCHES.min(t / MIN_BATCH_STEPS));
+    // τ ≥ 1, so the blocks are never shorter than BLOCK_TAUS ≥ MIN_BATCH_STEPS steps.
+    let batches = fit.clamp(MIN_BATCHES, MAX_BATCHES);
     let len = t / batches;
     let sums: Vec<f64> = series[t - batches * len..]
         .chunks(len)
@@ -128,7 +129,7 @@ pub fn batch_spread(series: &[f64]) -> Option<(f64, usize)> {
         .collect();
     let b = batches as f64;
     let mean = sums.iter().sum::<f64>() / b;
-    let s2 = sums.iter().map(|s| (s - mean) * (s - mean)).sum::<f64>() / (b - 1.0);
+    let s2 = sums.iter().map(|s| (s - mean).powi(2)).sum::<f64>() / (b - 1.0);
     let short = (1.0 - tau / len as f64).max(0.25);
     Some((t as f64 / len as f64 * s2 / short, batches))
 }
@@ -518,10 +519,79 @@ mod tests {
     }
 
     #[test]
+    fn batch_means_by_hand_on_a_series_without_correlation() {
+        // 40 steps alternating ±1 (negative lag-1 correlation: τ taken as 1), offset by 0.4
+        // in blocks 2, 3, 6 and 7 of 5 steps: 8 blocks of 5, block sums 1, −1, 3, 1, 1, −1,
+        // 3, 1 (a block that starts at an even step sums +1 of the alternation, an odd one
+        // −1). Their sample variance is 16/7; the sum's variance (40/5) · (16/7) over the
+        // short-block factor 1 − τ/5 = 0.8, that is 160/7.
+        let series: Vec<f64> = (0..40)
+            .map(|i: usize| {
+                let offset = if matches!(i / 5, 2 | 3 | 6 | 7) {
+                    0.4
+                } else {
+                    0.0
+                };
+                if i.is_multiple_of(2) {
+                    1.0 + offset
+                } else {
+                    -1.0 + offset
+                }
+            })
+            .collect();
+        let (var, blocks) = batch_spread(&series).unwrap();
+        assert_eq!(blocks, MIN_BATCHES);
+        assert!((var - 160.0 / 7.0).abs() < 1e-12, "{var}");
+    }
+
+    #[test]
+    fn the_correlation_time_sums_the_autocorrelations_past_the_first() {
+        // White noise plus an AR(1) part of equal variance with φ = 0.95: ρ_l = 0.5 · 0.95^l,
+        // so τ = 1 + 2 · 0.5 · 0.95 / 0.05 = 20, though ρ₁ alone (0.475) would give the
+        // autoregression's (1 + ρ₁)/(1 − ρ₁) = 2.8. On 20 000 steps Sokal's window gives 20
+        // within a few steps (its standard error is about τ √(2 · 5τ / T) ≈ 2).
+        use rand::{RngExt, SeedableRng};
+        let mut rng = crate::SimRng::seed_from_u64(5);
+        let mut normal = || rng.sample::<f64, _>(rand_distr::StandardNormal);
+        let mut y = normal();
+        let series: Vec<f64> = (0..20_000)
+            .map(|_| {
+                y = 0.95 * y + (1.0 - 0.95f64 * 0.95).sqrt() * normal();
+                y + normal()
+            })
+            .collect();
+        let tau = correlation_time(&series);
+        assert!((15.0..25.0).contains(&tau), "τ = {tau}");
+    }
+
+    #[test]
+    fn the_correlation_window_stops_at_a_quarter_of_the_series() {
+        // 200 steps of white noise plus a square wave of period 200 (0.7 for 100 steps, then
+        // −0.7): ρ₁ is about 0.33, but ρ_l stays near it out to lag 50, so the window never
+        // closes (it would need M ≥ 5τ) and stops at lag 50, with τ = 23.8 on this seed.
+        // Past lag 50 the wave's correlation turns negative: a window let run on shrinks τ
+        // before it closes (19.6 on this seed).
+        use rand::{RngExt, SeedableRng};
+        let mut rng = crate::SimRng::seed_from_u64(11);
+        let series: Vec<f64> = (0..200)
+            .map(|i| {
+                let wave = if i < 100 { 0.7 } else { -0.7 };
+                wave + rng.sample::<f64, _>(rand_distr::StandardNormal)
+            })
+            .collect();
+        let tau = correlation_time(&series);
+        assert!(tau > 20.0, "τ = {tau}");
+    }
+
+    #[test]
     fn batch_means_need_eight_blocks_of_five_steps() {
         assert!(batch_spread(&[1.0; 39]).is_none());
         // A constant series has no spread; its correlation time is taken as one step.
         assert_eq!(batch_spread(&[1.0; 40]), Some((0.0, MIN_BATCHES)));
         assert_eq!(batch_spread(&[2.0; 400]), Some((0.0, MAX_BATCHES)));
+        // A drift: its correlation window never closes, and stops at a quarter of the series;
+        // the blocks are the fewest.
+        let ramp: Vec<f64> = (0..100).map(f64::from).collect();
+        assert_eq!(batch_spread(&ramp).map(|(_, b)| b), Some(MIN_BATCHES));
     }
 }

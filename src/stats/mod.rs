@@ -417,7 +417,8 @@ fn gate_verdicts(
             state_components
                 .iter()
                 .chain(measurement_components)
-                .filter(|c| c.samples > 0.0 && !c.interval.lower.is_nan())
+                // A component without samples has no interval either.
+                .filter(|c| !c.interval.lower.is_nan())
                 .map(|c| c.verdict),
         );
         // A mean test without a statistic (no sign in the records, no variance) is no
@@ -980,5 +981,71 @@ mod tests {
             "no diagnosis on runs that stopped: {:?}",
             r.diagnosis.findings
         );
+    }
+
+    /// One run of `steps` steps of a 2-state filter without an error map: NEES per step
+    /// `scale · (2 + 0.8 sin 0.7k)`, each state's squares summing to the same, no
+    /// innovations.
+    fn one_recording(steps: usize, scale: f64) -> Accumulator {
+        let mut acc = Accumulator::new(steps, 2, 1, 1);
+        acc.runs = 1;
+        acc.error_map_missing = 1;
+        let mut total = 0.0;
+        for k in 0..steps {
+            let nees = scale * (2.0 + 0.8 * (0.7 * k as f64).sin());
+            acc.nees_sum[k] = nees;
+            acc.nees_dof[k] = 2.0;
+            acc.nees_count[k] = 1.0;
+            total += nees;
+        }
+        acc.add_run_nees_total(total);
+        acc.state_comp_total = vec![total / 2.0; 2];
+        acc.state_comp_samples = vec![steps as f64; 2];
+        acc.state_comp_run_sum = vec![total / 2.0 / steps as f64; 2];
+        acc.state_comp_run_sq = vec![(total / 2.0 / steps as f64).powi(2); 2];
+        acc
+    }
+
+    #[test]
+    fn one_recording_is_judged_by_batch_means_and_untested_parts_leave_the_gate_alone() {
+        // 200 steps whose NEES swings ±0.8 about 2 with a period of 9 steps: batch means
+        // gives an interval about 2 (the blocks average the swing out), the two state
+        // components have no spread to be tested by and ANIS has no data, so neither makes
+        // the gate inconclusive: consistent. Twice the NEES is overconfident.
+        let r = report(&one_recording(200, 1.0), GateMode::Full, true);
+        let nees = r.nees.as_ref().unwrap();
+        let blocks = nees.batch_spread_batches.expect("batch means");
+        assert!((MIN_BATCHES..=32).contains(&blocks), "{blocks}");
+        assert_eq!(nees.run_spread_runs, None);
+        assert!(
+            nees.interval.contains(2.0) && nees.interval.upper < 2.5,
+            "{:?}",
+            nees.interval
+        );
+        assert_eq!(nees.verdict, Verdict::Consistent);
+        assert_eq!(r.nis.steps_with_data, 0);
+        assert!(r.state_components.iter().all(|c| c.interval.lower.is_nan()));
+        assert_eq!(r.verdict, Verdict::Consistent, "{:?}", r.verdict);
+        let r = report(&one_recording(200, 2.0), GateMode::Full, true);
+        assert_eq!(r.verdict, Verdict::Overconfident);
+        // 39 steps are too few for eight blocks of five: no interval, no verdict.
+        let r = report(&one_recording(39, 1.0), GateMode::Full, true);
+        let nees = r.nees.as_ref().unwrap();
+        assert!(nees.interval.lower.is_nan() && nees.batch_spread_batches.is_none());
+        assert_eq!(r.verdict, Verdict::Inconclusive);
+        // Steps without a NEES (a recording whose reference ends early) are not part of
+        // the series.
+        let mut longer = one_recording(220, 1.0);
+        for k in 200..220 {
+            (longer.nees_sum[k], longer.nees_dof[k], longer.nees_count[k]) = (0.0, 0.0, 0.0);
+        }
+        assert_eq!(
+            longer.nees_sum_variance(),
+            one_recording(200, 1.0).nees_sum_variance()
+        );
+        // Nothing with data at all (no NEES judged, no innovations): inconclusive, never a
+        // pass.
+        let r = report(&one_recording(200, 1.0), GateMode::Full, false);
+        assert_eq!(r.verdict, Verdict::Inconclusive);
     }
 }

@@ -98,3 +98,50 @@ pub fn with_default_signals(cmd: &mut std::process::Command) -> &mut std::proces
         })
     }
 }
+
+/// A filter with its error map hidden: what a filter that does not track it (a records
+/// file, a worker) gives the engine, its numbers otherwise the wrapped filter's.
+pub struct NoMap<F>(pub F);
+
+impl<F: autotune::internals::filter::Filter> autotune::internals::filter::Filter for NoMap<F> {
+    fn n_x(&self) -> usize {
+        self.0.n_x()
+    }
+
+    fn sensor_dims(&self) -> Vec<usize> {
+        self.0.sensor_dims()
+    }
+
+    fn initial(&self) -> autotune::internals::filter::Estimate {
+        self.0.initial()
+    }
+
+    fn predict(
+        &self,
+        k: usize,
+        est: &mut autotune::internals::filter::Estimate,
+    ) -> autotune::internals::filter::PredictResult {
+        self.0.predict(k, est)?;
+        est.error_map = None;
+        Ok(())
+    }
+
+    fn update(
+        &self,
+        k: usize,
+        est: &mut autotune::internals::filter::Estimate,
+        meas: &autotune::internals::measurement::Measurement,
+    ) -> autotune::internals::filter::UpdateResult {
+        let inn = self.0.update(k, est, meas)?;
+        est.error_map = None;
+        Ok(inn)
+    }
+
+    fn state_error(
+        &self,
+        truth: &nalgebra::DVector<f64>,
+        estimate: &nalgebra::DVector<f64>,
+    ) -> nalgebra::DVector<f64> {
+        self.0.state_error(truth, estimate)
+    }
+}

@@ -77,7 +77,7 @@ impl RunRecorder {
         self.white_ab.fill(0.0);
         self.white_a2.fill(0.0);
         self.white_b2.fill(0.0);
-        self.history.fill(f64::NAN);
+        // A component's history is read only as far as its count of readings reaches.
         self.readings.fill(0);
         self.u.fill(f64::NAN);
         self.pending.clear();

@@ -26,6 +26,7 @@ use super::McConfig;
 use super::generic::Fault;
 use crate::filter::{CovarianceUpdate, Filter, FilterError, KalmanFilter};
 use crate::linalg::cholesky;
+use crate::linalg::products::Sparse;
 use crate::model::LinearGaussianModel;
 use crate::stats::Accumulator;
 use crate::stats::{ComponentNullVariance, GateMode, NeesNullVariance};
@@ -55,8 +56,8 @@ pub fn expected_accumulator(
 
 /// The error moments of either kind.
 enum Moments {
-    Matched(ErrorMoments),
-    Joint(JointMoments),
+    Matched(Box<ErrorMoments>),
+    Joint(Box<JointMoments>),
 }
 
 /// The expected value of the sums [`super::run_linear`] accumulates over `mc.runs()` runs
@@ -80,9 +81,9 @@ pub fn expected_accumulator_mapped(
 
     let mut P = f.P0.clone();
     let mut moments = if map.is_none() && models_match(truth, f) {
-        Moments::Matched(ErrorMoments::new(truth, f, lags))
+        Moments::Matched(Box::new(ErrorMoments::new(truth, f, lags)))
     } else {
-        Moments::Joint(JointMoments::new(truth, f, map, lags))
+        Moments::Joint(Box::new(JointMoments::new(truth, f, map, lags)))
     };
     let mut null_var = NeesNullVariance::judged(n_f, n);
     // The component variances (second and first moment) cost n times the NEES one; only
@@ -139,7 +140,7 @@ pub fn expected_accumulator_mapped(
             cv.step(&A, &cu.P);
         }
         let values = match &mut moments {
-            Moments::Matched(e) => e.step(truth, f, &cu, &chol_p, &A),
+            Moments::Matched(e) => e.step(truth, f, &cu, &chol_p),
             Moments::Joint(j) => j.step(truth, f, &cu, &chol_p),
         };
         last_null = Some((A, cu.P.clone(), chol_p));
@@ -241,13 +242,15 @@ impl RunSums<'_> {
 }
 
 /// The estimation error's mean and covariance, and the innovation cross-moments the
-/// whiteness sums need, propagated step by step.
+/// whiteness sums need, propagated step by step (F and H as [`Sparse`] operands).
 struct ErrorMoments {
     mu: DVector<f64>,
     sigma: DMatrix<f64>,
+    f: Sparse,
+    h: Sparse,
     lags: usize,
-    /// `window[l − 1] = E[e_{k−1} ν_{k−l}']` (n × m), most recent first.
-    window: Vec<DMatrix<f64>>,
+    /// `E[e_{k−1} ν_{k−l}']` for l = 1, 2, … side by side (n × m each, most recent first).
+    window: DMatrix<f64>,
     /// History of diag(S) for the lagged normalizations, most recent first.
     s_diag_hist: Vec<DVector<f64>>,
     /// History of expected u_j² per step, most recent first.
@@ -259,47 +262,48 @@ impl ErrorMoments {
         ErrorMoments {
             mu: &truth.x0 - &f.x0,
             sigma: truth.P0.clone(),
+            f: Sparse::new(&f.F),
+            h: Sparse::new(&f.H),
             lags,
-            window: Vec::with_capacity(lags),
+            window: DMatrix::zeros(f.F.nrows(), 0),
             s_diag_hist: Vec::with_capacity(lags),
             comp_z_hist: Vec::with_capacity(lags),
         }
     }
 
     /// Through one step of the filter (its covariance update `cu`, `P`'s Cholesky factor
-    /// `chol_p`, the error map `A = (I − K H) F`): the step's expected values.
+    /// `chol_p`): the step's expected values.
     fn step(
         &mut self,
         truth: &LinearGaussianModel,
         f: &KalmanFilter,
         cu: &CovarianceUpdate,
         chol_p: &Cholesky<f64, Dyn>,
-        A: &DMatrix<f64>,
     ) -> StepValues {
-        let (F, H) = (&f.F, &f.H);
-        let Ht = H.transpose();
-        let (n, m) = (F.nrows(), H.nrows());
+        let (fs, hs) = (&self.f, &self.h);
+        let (n, m) = (f.F.nrows(), f.H.nrows());
         // Error moments before and after the update.
-        let mu_p = F * &self.mu;
-        let mut sig_p = F * &self.sigma * F.transpose() + &truth.Q;
+        let mu_p = &f.F * &self.mu;
+        let mut sig_p = fs.sandwich(&self.sigma, fs) + &truth.Q;
         crate::linalg::symmetrize(&mut sig_p);
         let m2_p = &sig_p + &mu_p * mu_p.transpose();
-        let nu_mean = H * &mu_p;
-        let nu_m2 = H * &m2_p * &Ht + &truth.R;
-        let K = &cu.K;
-        let mut sig = &cu.IKH * &sig_p * cu.IKH.transpose() + K * &truth.R * K.transpose();
+        let nu_mean = &f.H * &mu_p;
+        let m2_ht = hs.right_tr(&m2_p);
+        let nu_m2 = hs.left(&m2_ht) + &truth.R;
+        let (k, l) = (Sparse::new(&cu.K), Sparse::new(&cu.IKH));
+        let mut sig = l.sandwich(&sig_p, &l) + k.sandwich(&truth.R, &k);
         crate::linalg::symmetrize(&mut sig);
         let mu_new = &cu.IKH * &mu_p;
         let e_m2 = &sig + &mu_new * mu_new.transpose();
 
-        let nees = chol_p.solve(&e_m2).trace();
-        let nees_sq = gaussian_quadratic_second_moment(chol_p, &sig, &mu_new);
-        let nis = cu.chol.solve(&nu_m2).trace();
+        let (nees, nees_sq) = gaussian_quadratic_moments(chol_p, &sig, &mu_new);
         let nu_cov = &nu_m2 - &nu_mean * nu_mean.transpose();
-        let nis_sq = gaussian_quadratic_second_moment(&cu.chol, &nu_cov, &nu_mean);
+        let (nis, nis_sq) = gaussian_quadratic_moments(&cu.chol, &nu_cov, &nu_mean);
 
         let s_diag = cu.S.diagonal();
-        let cross: Vec<DVector<f64>> = self.window.iter().map(|y| (H * F * y).diagonal()).collect();
+        // E[ν_k ν_{k−l}'] = H F E[e_{k−1} ν_{k−l}']: only the diagonal of each block is read.
+        let z = fs.left(&self.window);
+        let cross = hs.left(&z);
         let comp_z_now: Vec<f64> = (0..m).map(|j| nu_m2[(j, j)] / s_diag[j]).collect();
         let values = StepValues {
             nees,
@@ -310,29 +314,34 @@ impl ErrorMoments {
             comp_z: comp_z_now.clone(),
             mean_x: (0..n).map(|j| mu_new[j] / cu.P[(j, j)].sqrt()).collect(),
             mean_z: (0..m).map(|j| nu_mean[j] / s_diag[j].sqrt()).collect(),
-            white: cross
+            white: self
+                .s_diag_hist
                 .iter()
-                .zip(&self.s_diag_hist)
-                .map(|(c, sd)| (0..m).map(|j| c[j] / (s_diag[j] * sd[j]).sqrt()).collect())
+                .enumerate()
+                .map(|(lag, sd)| {
+                    (0..m)
+                        .map(|j| cross[(j, lag * m + j)] / (s_diag[j] * sd[j]).sqrt())
+                        .collect()
+                })
                 .collect(),
             lagged_b2: self.comp_z_hist.clone(),
         };
 
-        // Advance the cross-moment window: E[e_k ν_k'] and older ones through A_k.
-        let lags = self.lags;
-        let d = &cu.IKH * &m2_p * &Ht - K * &truth.R;
-        let mut next = Vec::with_capacity(lags);
-        if lags > 0 {
-            next.push(d);
-            for y in self.window.iter().take(lags - 1) {
-                next.push(A * y);
-            }
+        // Advance the cross-moment window: E[e_k ν_k'] = (I − K H) E[e⁻ ν'] − K R, and the
+        // older ones through A_k = (I − K H) F (F applied above).
+        if self.lags > 0 {
+            let kept = (self.lags - 1).min(self.s_diag_hist.len()) * m;
+            let d = l.left(&m2_ht) - k.left(&truth.R);
+            let mut next = DMatrix::zeros(n, m + kept);
+            next.columns_mut(0, m).copy_from(&d);
+            next.columns_mut(m, kept)
+                .copy_from(&l.left(&z.columns(0, kept).clone_owned()));
+            self.window = next;
         }
-        self.window = next;
         self.s_diag_hist.insert(0, s_diag.clone_owned());
-        self.s_diag_hist.truncate(lags);
+        self.s_diag_hist.truncate(self.lags);
         self.comp_z_hist.insert(0, comp_z_now);
-        self.comp_z_hist.truncate(lags);
+        self.comp_z_hist.truncate(self.lags);
         self.sigma = sig;
         self.mu = mu_new;
         values
@@ -388,15 +397,36 @@ impl TruthMoment {
 /// The joint mean and second moments of the truth's state and the filter's estimate,
 /// `s = [x; x̂]`, and the innovation cross-moments the whiteness sums need, propagated step
 /// by step (the module's second case).
+///
+/// Held by blocks: `Φ` is block-diagonal and `B` the identity over the truth's rows, so the
+/// truth's block is only propagated, never updated. The models' matrices are products'
+/// sparse operands ([`Sparse`]): a misfit trial spends most of its scoring time here.
 struct JointMoments {
-    mu: DVector<f64>,
-    sigma: DMatrix<f64>,
-    /// `D = [M, −I]`: the error from the joint state.
-    d: DMatrix<f64>,
-    n_t: usize,
+    /// `E[x]`, n_t.
+    mu_t: DVector<f64>,
+    /// `E[x̂]`, n_f.
+    mu_f: DVector<f64>,
+    /// `Cov(x)`, n_t × n_t.
+    s_tt: DMatrix<f64>,
+    /// `Cov(x, x̂)`, n_t × n_f.
+    s_tf: DMatrix<f64>,
+    /// `Cov(x̂)`, n_f × n_f.
+    s_ff: DMatrix<f64>,
+    /// The truth's F and H, the filter's, and `M` (ne × n_t; the judged error is
+    /// `M x − x̂[..ne]`).
+    f_t: Sparse,
+    h_t: Sparse,
+    f_f: Sparse,
+    h_f: Sparse,
+    map: Sparse,
+    map_dense: DMatrix<f64>,
+    /// The error's rows.
+    ne: usize,
     lags: usize,
-    /// `window[l − 1] = E[s_{k−1} ν_{k−l}']`, most recent first.
-    window: Vec<DMatrix<f64>>,
+    /// `E[x_{k−1} ν_{k−l}']` for l = 1, 2, … side by side (n_t × m each, most recent
+    /// first), and `E[x̂_{k−1} ν_{k−l}']` (n_f × m each).
+    window_t: DMatrix<f64>,
+    window_f: DMatrix<f64>,
     s_diag_hist: Vec<DVector<f64>>,
     comp_z_hist: Vec<Vec<f64>>,
 }
@@ -409,26 +439,24 @@ impl JointMoments {
         lags: usize,
     ) -> Self {
         let (n_t, n_f) = (truth.F.nrows(), f.F.nrows());
-        let mut mu = DVector::zeros(n_t + n_f);
-        mu.rows_mut(0, n_t).copy_from(&truth.x0);
-        mu.rows_mut(n_t, n_f).copy_from(&f.x0);
-        let mut sigma = DMatrix::zeros(n_t + n_f, n_t + n_f);
-        sigma.view_mut((0, 0), (n_t, n_t)).copy_from(&truth.P0);
-        let ne = map.map_or(n_f, |m| m.nrows());
-        let mut d = DMatrix::zeros(ne, n_t + n_f);
-        match map {
-            Some(m) => d.view_mut((0, 0), (ne, n_t)).copy_from(m),
-            None => d.view_mut((0, 0), (ne, n_t)).fill_with_identity(),
-        }
-        d.view_mut((0, n_t), (ne, n_f))
-            .copy_from(&(-DMatrix::<f64>::identity(ne, n_f)));
+        // Without a map the error is taken on the first states of both.
+        let map = map.cloned().unwrap_or_else(|| DMatrix::identity(n_f, n_t));
         JointMoments {
-            mu,
-            sigma,
-            d,
-            n_t,
+            mu_t: truth.x0.clone(),
+            mu_f: f.x0.clone(),
+            s_tt: truth.P0.clone(),
+            s_tf: DMatrix::zeros(n_t, n_f),
+            s_ff: DMatrix::zeros(n_f, n_f),
+            f_t: Sparse::new(&truth.F),
+            h_t: Sparse::new(&truth.H),
+            f_f: Sparse::new(&f.F),
+            h_f: Sparse::new(&f.H),
+            ne: map.nrows(),
+            map: Sparse::new(&map),
+            map_dense: map,
             lags,
-            window: Vec::with_capacity(lags),
+            window_t: DMatrix::zeros(n_t, 0),
+            window_f: DMatrix::zeros(n_f, 0),
             s_diag_hist: Vec::with_capacity(lags),
             comp_z_hist: Vec::with_capacity(lags),
         }
@@ -443,53 +471,58 @@ impl JointMoments {
         cu: &CovarianceUpdate,
         chol_p: &Cholesky<f64, Dyn>,
     ) -> StepValues {
-        let n_t = self.n_t;
-        let (n_f, m) = (f.F.nrows(), f.H.nrows());
-        let ne = self.d.nrows();
-        let dim = n_t + n_f;
-        let mut phi = DMatrix::zeros(dim, dim);
-        phi.view_mut((0, 0), (n_t, n_t)).copy_from(&truth.F);
-        phi.view_mut((n_t, n_t), (n_f, n_f)).copy_from(&f.F);
-        let mut c = DMatrix::zeros(m, dim);
-        c.view_mut((0, 0), (m, n_t)).copy_from(&truth.H);
-        c.view_mut((0, n_t), (m, n_f)).copy_from(&(-&f.H));
-        let K = &cu.K;
-        let mut b = DMatrix::identity(dim, dim);
-        b.view_mut((n_t, 0), (n_f, n_t)).copy_from(&(K * &truth.H));
-        b.view_mut((n_t, n_t), (n_f, n_f)).copy_from(&cu.IKH);
-        let mut gamma = DMatrix::zeros(dim, m);
-        gamma.view_mut((n_t, 0), (n_f, m)).copy_from(K);
+        let (f_t, h_t, f_f, h_f) = (&self.f_t, &self.h_t, &self.f_f, &self.h_f);
+        let m = f.H.nrows();
+        let ne = self.ne;
 
-        let mu_p = &phi * &self.mu;
-        let mut sig_p = &phi * &self.sigma * phi.transpose();
-        {
-            let mut q = sig_p.view_mut((0, 0), (n_t, n_t));
-            q += &truth.Q;
-        }
-        crate::linalg::symmetrize(&mut sig_p);
-        let m2_p = &sig_p + &mu_p * mu_p.transpose();
-        let ct = c.transpose();
-        let nu_mean = &c * &mu_p;
-        let nu_m2 = &c * &m2_p * &ct + &truth.R;
-        let mut sig = &b * &sig_p * b.transpose() + &gamma * &truth.R * gamma.transpose();
-        crate::linalg::symmetrize(&mut sig);
-        let mu_new = &b * &mu_p;
-        let e_mean = &self.d * &mu_new;
-        let mut e_cov = &self.d * &sig * self.d.transpose();
+        // The prediction: Φ is block-diagonal, the truth's noise enters its own block.
+        let mp_t = &truth.F * &self.mu_t;
+        let mp_f = &f.F * &self.mu_f;
+        let mut p_tt = f_t.sandwich(&self.s_tt, f_t) + &truth.Q;
+        crate::linalg::symmetrize(&mut p_tt);
+        let p_tf = f_t.sandwich(&self.s_tf, f_f);
+        let mut p_ff = f_f.sandwich(&self.s_ff, f_f);
+        crate::linalg::symmetrize(&mut p_ff);
+        let m_tt = &p_tt + &mp_t * mp_t.transpose();
+        let m_ft = p_tf.transpose() + &mp_f * mp_t.transpose();
+        let m_tf = m_ft.transpose();
+        let m_ff = &p_ff + &mp_f * mp_f.transpose();
+
+        // ν = H_t x − H_f x̂ + v: its mean, its second moment and E[s⁻ ν'] by blocks.
+        let w_t = h_t.right_tr(&m_tt) - h_f.right_tr(&m_tf);
+        let w_f = h_t.right_tr(&m_ft) - h_f.right_tr(&m_ff);
+        let nu_mean = &truth.H * &mp_t - &f.H * &mp_f;
+        let nu_m2 = h_t.left(&w_t) - h_f.left(&w_f) + &truth.R;
+
+        // The update leaves the truth alone and sets x̂ = K H_t x + (I − K H_f) x̂⁻ + K v.
+        // With G = K H_t: Cov(x, x̂) = P_tt G' + P_tf L', Cov(x̂) = Cov(x̂, x) G' +
+        // (G P_tf + L P_ff) L' + K R K'.
+        let k = Sparse::new(&cu.K);
+        let g_dense = h_t.right(&cu.K);
+        let (g, l) = (Sparse::new(&g_dense), Sparse::new(&cu.IKH));
+        let s_tf = g.right_tr(&p_tt) + l.right_tr(&p_tf);
+        let v = g.right_tr(&p_tf.transpose()) + l.right_tr(&p_ff);
+        let mut s_ff =
+            g.right_tr(&s_tf.transpose()) + l.right_tr(&v.transpose()) + k.sandwich(&truth.R, &k);
+        crate::linalg::symmetrize(&mut s_ff);
+        let mu_f = &g_dense * &mp_t + &cu.IKH * &mp_f;
+
+        // The judged error M x − x̂[..ne].
+        let map = &self.map;
+        let e_mean = &self.map_dense * &mp_t - mu_f.rows(0, ne);
+        let x = map.left(&s_tf.columns(0, ne).clone_owned());
+        let mut e_cov = map.sandwich(&p_tt, map) - &x - x.transpose() + s_ff.view((0, 0), (ne, ne));
         crate::linalg::symmetrize(&mut e_cov);
         let e_m2 = &e_cov + &e_mean * e_mean.transpose();
 
-        let nees = chol_p.solve(&e_m2).trace();
-        let nees_sq = gaussian_quadratic_second_moment(chol_p, &e_cov, &e_mean);
-        let nis = cu.chol.solve(&nu_m2).trace();
+        let (nees, nees_sq) = gaussian_quadratic_moments(chol_p, &e_cov, &e_mean);
         let nu_cov = &nu_m2 - &nu_mean * nu_mean.transpose();
-        let nis_sq = gaussian_quadratic_second_moment(&cu.chol, &nu_cov, &nu_mean);
+        let (nis, nis_sq) = gaussian_quadratic_moments(&cu.chol, &nu_cov, &nu_mean);
         let s_diag = cu.S.diagonal();
-        let cross: Vec<DVector<f64>> = self
-            .window
-            .iter()
-            .map(|y| (&c * &phi * y).diagonal())
-            .collect();
+        // E[ν_k ν_{k−l}'] = C Φ E[s_{k−1} ν_{k−l}'], whose Φ part also advances the window.
+        let z_t = f_t.left(&self.window_t);
+        let z_f = f_f.left(&self.window_f);
+        let cross = h_t.left(&z_t) - h_f.left(&z_f);
         let comp_z_now: Vec<f64> = (0..m).map(|j| nu_m2[(j, j)] / s_diag[j]).collect();
         let values = StepValues {
             nees,
@@ -500,30 +533,42 @@ impl JointMoments {
             comp_z: comp_z_now.clone(),
             mean_x: (0..ne).map(|j| e_mean[j] / cu.P[(j, j)].sqrt()).collect(),
             mean_z: (0..m).map(|j| nu_mean[j] / s_diag[j].sqrt()).collect(),
-            white: cross
+            white: self
+                .s_diag_hist
                 .iter()
-                .zip(&self.s_diag_hist)
-                .map(|(x, sd)| (0..m).map(|j| x[j] / (s_diag[j] * sd[j]).sqrt()).collect())
+                .enumerate()
+                .map(|(l, sd)| {
+                    (0..m)
+                        .map(|j| cross[(j, l * m + j)] / (s_diag[j] * sd[j]).sqrt())
+                        .collect()
+                })
                 .collect(),
             lagged_b2: self.comp_z_hist.clone(),
         };
-        // E[s_k ν_k'] and the older cross-moments through B Φ.
-        let a = &b * &phi;
-        let now = &b * &m2_p * &ct + &gamma * &truth.R;
-        let mut next = Vec::with_capacity(self.lags);
+        // E[s_k ν_k'] and the older cross-moments through B (Φ applied above).
         if self.lags > 0 {
-            next.push(now);
-            for y in self.window.iter().take(self.lags - 1) {
-                next.push(&a * y);
-            }
+            let kept = (self.lags - 1).min(self.s_diag_hist.len()) * m;
+            let now_f = g.left(&w_t) + l.left(&w_f) + k.left(&truth.R);
+            let (z_t, z_f) = (z_t.columns(0, kept).clone_owned(), z_f.columns(0, kept));
+            let older_f = g.left(&z_t) + l.left(&z_f.clone_owned());
+            let mut next_t = DMatrix::zeros(w_t.nrows(), m + kept);
+            next_t.columns_mut(0, m).copy_from(&w_t);
+            next_t.columns_mut(m, kept).copy_from(&z_t);
+            let mut next_f = DMatrix::zeros(now_f.nrows(), m + kept);
+            next_f.columns_mut(0, m).copy_from(&now_f);
+            next_f.columns_mut(m, kept).copy_from(&older_f);
+            self.window_t = next_t;
+            self.window_f = next_f;
         }
-        self.window = next;
         self.s_diag_hist.insert(0, s_diag.clone_owned());
         self.s_diag_hist.truncate(self.lags);
         self.comp_z_hist.insert(0, comp_z_now);
         self.comp_z_hist.truncate(self.lags);
-        self.sigma = sig;
-        self.mu = mu_new;
+        self.mu_t = mp_t;
+        self.mu_f = mu_f;
+        self.s_tt = p_tt;
+        self.s_tf = s_tf;
+        self.s_ff = s_ff;
         values
     }
 }
@@ -538,20 +583,24 @@ fn stop_all(mut acc: Accumulator, mc: &McConfig, k: usize, fault: Fault) -> Accu
     acc
 }
 
-/// `E[(x' M⁻¹ x)²]` for x ~ N(μ, Σ), with M given by its Cholesky factor:
-/// `(tr B)² + 2 tr(B²) + 4 μ' M⁻¹ Σ M⁻¹ μ + 2 tr(B) μ'M⁻¹μ + (μ'M⁻¹μ)²`, `B = M⁻¹ Σ`.
-fn gaussian_quadratic_second_moment(
+/// `E[x' M⁻¹ x]` and `E[(x' M⁻¹ x)²]` for x ~ N(μ, Σ), with M given by its Cholesky factor:
+/// `tr B + μ'M⁻¹μ` and `(tr B)² + 2 tr(B²) + 4 μ' M⁻¹ Σ M⁻¹ μ + 2 tr(B) μ'M⁻¹μ + (μ'M⁻¹μ)²`,
+/// `B = M⁻¹ Σ`. `tr(B²) = Σ_ij B_ij B_ji` needs no product.
+fn gaussian_quadratic_moments(
     chol: &nalgebra::Cholesky<f64, nalgebra::Dyn>,
     sigma: &DMatrix<f64>,
     mu: &DVector<f64>,
-) -> f64 {
+) -> (f64, f64) {
     let b = chol.solve(sigma);
     let tr = b.trace();
-    let tr2 = (&b * &b).trace();
+    let tr2 = b.component_mul(&b.transpose()).sum();
     let minv_mu = chol.solve(mu);
     let q = mu.dot(&minv_mu);
     let cross = minv_mu.dot(&(sigma * &minv_mu));
-    tr * tr + 2.0 * tr2 + 4.0 * cross + 2.0 * tr * q + q * q
+    (
+        tr + q,
+        tr * tr + 2.0 * tr2 + 4.0 * cross + 2.0 * tr * q + q * q,
+    )
 }
 
 /// The expected per-run values of one step.

@@ -11,6 +11,8 @@ use nalgebra::{
     RawStorage, SMatrix, SymmetricEigen,
 };
 
+pub mod products;
+
 /// Relative tolerance for symmetry and positive-semidefiniteness checks on user input.
 ///
 /// Problem files are typed by hand with a handful of significant digits, so anything

@@ -70,9 +70,9 @@ impl Filter for KalmanFilter {
         Estimate::new(&self.x0, &self.P0)
     }
 
-    fn predict(&self, _k: usize, est: &mut Estimate) -> PredictResult {
+    fn predict(&self, k: usize, est: &mut Estimate) -> PredictResult {
         est.x = &self.F * &est.x;
-        est.P = self.predict_covariance(&est.P);
+        est.P = super::recursion_memo::predict(self, k, &est.P);
         est.error_map = Some(self.F.clone());
         Ok(())
     }
@@ -80,7 +80,7 @@ impl Filter for KalmanFilter {
     fn update(&self, k: usize, est: &mut Estimate, meas: &Measurement) -> UpdateResult {
         let m = self.H.nrows();
         super::check_measurement((meas.sensor == 0).then_some(m), meas)?;
-        let cu = self.update_covariance(&est.P, k)?;
+        let cu = super::recursion_memo::update(self, k, &est.P)?;
         let nu = &meas.z - &self.H * &est.x;
         est.x += &cu.K * &nu;
         est.P = cu.P;

@@ -8,6 +8,7 @@ mod corrected;
 mod joseph;
 mod kf;
 mod nonlinear;
+mod recursion_memo;
 pub mod unscented;
 
 pub use corrected::{Corrected, Correction};

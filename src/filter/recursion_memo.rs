@@ -22,18 +22,25 @@ use super::kf::KalmanFilter;
 /// Bytes of matrices a thread remembers at most; steps beyond are computed each time.
 const MEMO_BYTES: usize = 16 << 20;
 
+/// Steps a thread remembers at most: the slots themselves take memory before any matrix
+/// (a run of a million steps would take a hundred megabytes of empty ones).
+const MEMO_STEPS: usize = 1 << 14;
+
 thread_local! {
     static MEMO: RefCell<Memo> = RefCell::new(Memo::default());
 }
+
+/// A step's input and what was computed from it.
+type Slot<T> = Option<(DMatrix<f64>, T)>;
 
 #[derive(Default)]
 struct Memo {
     /// The filter the steps belong to: F, Q, H, R.
     model: Option<[DMatrix<f64>; 4]>,
     /// At step k: the posterior predicted from and the prior predicted.
-    predicted: Vec<Option<(DMatrix<f64>, DMatrix<f64>)>>,
+    predicted: Vec<Slot<DMatrix<f64>>>,
     /// At step k: the prior updated from and the update.
-    updated: Vec<Option<(DMatrix<f64>, CovarianceUpdate)>>,
+    updated: Vec<Slot<CovarianceUpdate>>,
     bytes: usize,
 }
 
@@ -61,17 +68,39 @@ impl Memo {
         }
         self
     }
+}
 
-    /// Room for `bytes` more, at step `k` of `slots`.
-    fn room<T>(&mut self, slots: &mut Vec<Option<T>>, k: usize, bytes: usize) -> bool {
-        if self.bytes + bytes > MEMO_BYTES {
-            return false;
-        }
-        if slots.len() <= k {
-            slots.resize_with(k + 1, || None);
-        }
-        true
+/// Step k's value of `slots` where it was computed from `from`.
+fn recall<'a, T>(slots: &'a [Slot<T>], k: usize, from: &DMatrix<f64>) -> Option<&'a T> {
+    match slots.get(k) {
+        Some(Some((input, value))) if same(input, from) => Some(value),
+        _ => None,
     }
+}
+
+/// Keep `value`, computed at step k from `from`, in `slots`, where the memo's `bytes`
+/// stay within [`MEMO_BYTES`] (slots of one filter are all the same size).
+fn remember<T: Clone>(
+    slots: &mut Vec<Slot<T>>,
+    bytes: &mut usize,
+    k: usize,
+    from: &DMatrix<f64>,
+    value: &T,
+    size: usize,
+) {
+    if k >= MEMO_STEPS {
+        return;
+    }
+    if slots.len() <= k {
+        slots.resize_with(k + 1, || None);
+    }
+    if slots[k].is_none() {
+        if *bytes + size > MEMO_BYTES {
+            return;
+        }
+        *bytes += size;
+    }
+    slots[k] = Some((from.clone(), value.clone()));
 }
 
 fn bytes(m: &DMatrix<f64>) -> usize {
@@ -82,21 +111,18 @@ fn bytes(m: &DMatrix<f64>) -> usize {
 pub(super) fn predict(f: &KalmanFilter, k: usize, P: &DMatrix<f64>) -> DMatrix<f64> {
     MEMO.with_borrow_mut(|memo| {
         let memo = memo.for_filter(f);
-        if let Some(Some((from, to))) = memo.predicted.get(k)
-            && same(from, P)
-        {
-            return to.clone();
+        if let Some(Pp) = recall(&memo.predicted, k, P) {
+            return Pp.clone();
         }
         let Pp = f.predict_covariance(P);
-        let size = 2 * bytes(P);
-        let mut slots = std::mem::take(&mut memo.predicted);
-        if memo.room(&mut slots, k, size) {
-            if slots[k].is_none() {
-                memo.bytes += size;
-            }
-            slots[k] = Some((P.clone(), Pp.clone()));
-        }
-        memo.predicted = slots;
+        remember(
+            &mut memo.predicted,
+            &mut memo.bytes,
+            k,
+            P,
+            &Pp,
+            2 * bytes(P),
+        );
         Pp
     })
 }
@@ -110,21 +136,12 @@ pub(super) fn update(
 ) -> Result<CovarianceUpdate, FilterError> {
     MEMO.with_borrow_mut(|memo| {
         let memo = memo.for_filter(f);
-        if let Some(Some((from, cu))) = memo.updated.get(k)
-            && same(from, Pp)
-        {
+        if let Some(cu) = recall(&memo.updated, k, Pp) {
             return Ok(cu.clone());
         }
         let cu = f.update_covariance(Pp, k)?;
         let size = bytes(Pp) + bytes(&cu.K) + 2 * bytes(&cu.S) + bytes(&cu.P) + bytes(&cu.IKH);
-        let mut slots = std::mem::take(&mut memo.updated);
-        if memo.room(&mut slots, k, size) {
-            if slots[k].is_none() {
-                memo.bytes += size;
-            }
-            slots[k] = Some((Pp.clone(), cu.clone()));
-        }
-        memo.updated = slots;
+        remember(&mut memo.updated, &mut memo.bytes, k, Pp, &cu, size);
         Ok(cu)
     })
 }
@@ -219,5 +236,18 @@ mod tests {
             }
         }
         MEMO.with_borrow(|m| assert_eq!(m.updated.iter().flatten().count(), 0));
+    }
+
+    #[test]
+    fn steps_past_the_bound_are_computed_and_not_held() {
+        let f = cv(1.0);
+        let far = MEMO_STEPS + 5;
+        let Pp = predict(&f, far, &f.P0);
+        assert_eq!(Pp, f.predict_covariance(&f.P0));
+        update(&f, far, &Pp).unwrap();
+        MEMO.with_borrow(|m| {
+            assert!(m.predicted.len() <= MEMO_STEPS && m.updated.len() <= MEMO_STEPS);
+            assert_eq!(m.bytes, 0);
+        });
     }
 }

@@ -4,56 +4,11 @@
 //! A general matrix multiplication packs its operands into blocks first. At these sizes the
 //! packing costs as much as the arithmetic. The models are also block-structured: axes that
 //! do not couple, a transition matrix with a few entries per row, an H that reads positions
-//! only. So these loops run over columns with no packing and skip the exact zeros of the
-//! operand that scales a column. A skipped zero would have multiplied a finite entry: the
+//! only. So the model's matrix is held by its nonzero entries ([`Sparse`]) and the products
+//! run over them with no packing. A dropped zero would have multiplied a finite entry: the
 //! moments are finite wherever the recursion goes on (an overflow stops the test).
 
 use nalgebra::DMatrix;
-
-/// `a · b` (a: r × k, b: k × c), skipping `b`'s zero entries.
-pub fn mul(a: &DMatrix<f64>, b: &DMatrix<f64>) -> DMatrix<f64> {
-    assert_eq!(a.ncols(), b.nrows(), "mul: inner dimensions differ");
-    let (r, k, c) = (a.nrows(), a.ncols(), b.ncols());
-    let mut out = DMatrix::zeros(r, c);
-    let (av, bv) = (a.as_slice(), b.as_slice());
-    for (j, col) in out.as_mut_slice().chunks_exact_mut(r.max(1)).enumerate() {
-        for p in 0..k {
-            let s = bv[p + j * k];
-            if s != 0.0 {
-                axpy(col, &av[p * r..(p + 1) * r], s);
-            }
-        }
-    }
-    out
-}
-
-/// `a · b'` (a: r × k, b: c × k), skipping `b`'s zero entries.
-pub fn mul_tr(a: &DMatrix<f64>, b: &DMatrix<f64>) -> DMatrix<f64> {
-    assert_eq!(a.ncols(), b.ncols(), "mul_tr: inner dimensions differ");
-    let (r, k, c) = (a.nrows(), a.ncols(), b.nrows());
-    let mut out = DMatrix::zeros(r, c);
-    let (av, bv) = (a.as_slice(), b.as_slice());
-    for (j, col) in out.as_mut_slice().chunks_exact_mut(r.max(1)).enumerate() {
-        for p in 0..k {
-            let s = bv[j + p * c];
-            if s != 0.0 {
-                axpy(col, &av[p * r..(p + 1) * r], s);
-            }
-        }
-    }
-    out
-}
-
-/// `a · b` skipping `a`'s zero entries (a sparse transition or gain applied from the left):
-/// `(b' a')'`.
-pub fn lmul(a: &DMatrix<f64>, b: &DMatrix<f64>) -> DMatrix<f64> {
-    mul_tr(&b.transpose(), a).transpose()
-}
-
-/// `a · s · c'` (a: r × n, s: n × n', c: c × n'), skipping the zeros of `a` and `c`.
-pub fn sandwich(a: &DMatrix<f64>, s: &DMatrix<f64>, c: &DMatrix<f64>) -> DMatrix<f64> {
-    lmul(a, &mul_tr(s, c))
-}
 
 /// A matrix held by its nonzero entries, column by column, and its transpose likewise: the
 /// sparse operand of a product with a dense matrix on either side. Exact zeros are dropped.
@@ -236,15 +191,8 @@ mod tests {
             let a = sparse(r, k, seed);
             let b = sparse(k, c, seed + 100);
             let bt = b.transpose();
-            assert!(close(&mul(&a, &b), &(&a * &b)), "mul {r}×{k}×{c}");
-            assert!(close(&mul_tr(&a, &bt), &(&a * &b)), "mul_tr {r}×{k}×{c}");
-            assert!(close(&lmul(&a, &b), &(&a * &b)), "lmul {r}×{k}×{c}");
             let s = sparse(k, k, seed + 200);
             let cm = sparse(c, k, seed + 300);
-            assert!(
-                close(&sandwich(&a, &s, &cm), &(&a * &s * cm.transpose())),
-                "sandwich {r}×{k}×{c}"
-            );
             let (sa, sb, sc) = (Sparse::new(&a), Sparse::new(&b), Sparse::new(&cm));
             assert!(close(&sa.left(&b), &(&a * &b)), "Sparse::left {r}×{k}×{c}");
             assert!(

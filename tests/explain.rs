@@ -119,10 +119,30 @@ fn run(draws: u64) -> Vec<Row> {
     let mut table = Vec::new();
     // AUTOTUNE_FAMILIES=TimeStep,Delay runs only those kinds (while developing).
     let only = std::env::var("AUTOTUNE_FAMILIES").ok();
-    let kinds = Kind::ALL.into_iter().filter(|k| {
-        only.as_ref()
-            .is_none_or(|o| o.split(',').any(|x| x == format!("{k:?}")))
-    });
+    let kinds: Vec<Kind> = Kind::ALL
+        .into_iter()
+        .filter(|k| {
+            only.as_ref()
+                .is_none_or(|o| o.split(',').any(|x| x == format!("{k:?}")))
+        })
+        .collect();
+    // Every kind's draws side by side (the tune and its certification are serial; the
+    // trials run side by side within a draw): one kind at a time left a core idle while its
+    // slowest draw finished. Reported by kind, in seed order.
+    use rayon::prelude::*;
+    let jobs: Vec<(Kind, u64)> = kinds
+        .iter()
+        .flat_map(|&k| (1..=draws).map(move |seed| (k, seed)))
+        .collect();
+    let mut outcomes = jobs
+        .par_iter()
+        .map(|&(kind, seed)| {
+            let o = conclude(&draw(kind, seed));
+            eprintln!("  ({kind:?} seed {seed} done in {:.1} s)", o.seconds);
+            o
+        })
+        .collect::<Vec<Outcome>>()
+        .into_iter();
     for kind in kinds {
         let mut row = Row {
             kind,
@@ -132,17 +152,7 @@ fn run(draws: u64) -> Vec<Row> {
             decoupled_off: Vec::new(),
         };
         let mut unseen = 0;
-        // The draws side by side (the tune and its certification are serial; the trials
-        // run side by side within a draw), reported in seed order.
-        use rayon::prelude::*;
-        let outcomes: Vec<Outcome> = (1..=draws)
-            .into_par_iter()
-            .map(|seed| {
-                let o = conclude(&draw(kind, seed));
-                eprintln!("  ({kind:?} seed {seed} done in {:.1} s)", o.seconds);
-                o
-            })
-            .collect();
+        let outcomes: Vec<Outcome> = outcomes.by_ref().take(draws as usize).collect();
         for (o, seed) in outcomes.into_iter().zip(1..) {
             if o.right(kind) {
                 row.right += 1;

@@ -8,7 +8,7 @@
 //! - to the binary, `autotune check` with tiny run counts (and sometimes `tune` with a tiny
 //!   budget), which must exit 0, 1 or 2, print no panic, and print an error as one line.
 //!
-//! It runs for `AUTOTUNE_FUZZ_SECONDS` (default 8 s; `.ci/run` gives it 30 s) from seed
+//! It runs for `AUTOTUNE_FUZZ_SECONDS` (default 8 s, as in `.ci/run`) from seed
 //! `AUTOTUNE_FUZZ_SEED` (default 1, so a failure reproduces), and reports how many inputs
 //! it tried per second. Failing inputs are saved under the cargo target's temporary
 //! directory (`fuzz-failures/`) and printed. To fuzz longer, e.g. for an hour from a new seed:

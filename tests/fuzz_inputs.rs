@@ -34,7 +34,7 @@
 //! keep their content), leave no scratch directory behind, and notice a worker's exit
 //! without waiting out the timeout.
 //!
-//! The fuzzing parts share `AUTOTUNE_FUZZ_SECONDS` (default 8 s; `.ci/run` gives 30 s)
+//! The fuzzing parts share `AUTOTUNE_FUZZ_SECONDS` (default 8 s, as in `.ci/run`)
 //! 35 / 35 / 30 %; the hand-made inputs come on top (a few seconds when nothing hangs).
 //! The seed is `AUTOTUNE_FUZZ_SEED` (default 1). Failing inputs are saved under the cargo
 //! target's temporary directory (`fuzz-failures-inputs/`) and printed, grouped by kind of

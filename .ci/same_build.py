@@ -1,5 +1,6 @@
 #!/usr/bin/env python3
-"""Issue 37, item 12: the README's two commands share one build.
+"""Issue 37, item 12: the README's two commands share one build (and the C ABI library and
+the Python package's wheel share it too).
 
     same_build.py snapshot TARGET_DIR STATE   after the first command (`cargo run --release`)
     same_build.py compare  TARGET_DIR STATE   after the second's build (`cargo test --release`)
@@ -49,7 +50,7 @@ def main():
         with open(state, "w") as f:
             json.dump(now, f)
         crates = sorted({c for c, _ in now.values()})
-        print(f"same_build: the first command built {len(crates)} crates")
+        print(f"same_build: {len(crates)} crates built so far")
         return
     with open(state) as f:
         before = json.load(f)
@@ -64,10 +65,10 @@ def main():
     new = sorted({c for n, (c, _) in now.items() if n not in before and c not in first})
     if again:
         sys.exit(
-            f"same_build: the second command compiled {len(again)} crates the first had built: "
+            f"same_build: the build since the snapshot compiled {len(again)} crates built before it: "
             + ", ".join(again)
         )
-    print(f"same_build: the second command compiled only crates the first did not build ({len(new)}: its dev-dependencies)")
+    print(f"same_build: the build since the snapshot compiled only crates not built before it ({len(new)})")
 
 
 main()

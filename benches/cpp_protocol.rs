@@ -9,7 +9,7 @@
 //! share, 1 − own/evaluation; for sums also the share of everything but the filter,
 //! (evaluation − filter)/evaluation, which counts the statistics the library computes in the
 //! worker (autotune's own work, not protocol). Needs `c++` or `g++` and the library
-//! (`cargo rustc --release --lib --crate-type cdylib`); skipped, saying why, without them.
+//! (`cargo build --release -p autotune-cdylib`); skipped, saying why, without them.
 
 use std::cell::RefCell;
 use std::path::{Path, PathBuf};
@@ -136,7 +136,7 @@ fn cpp_protocol(c: &mut Criterion) {
     let lib = Path::new(env!("CARGO_MANIFEST_DIR")).join("target/release");
     if !lib.join("libautotune.so").is_file() {
         eprintln!(
-            "cpp_protocol bench skipped: no {} (build it: cargo rustc --release --lib --crate-type cdylib)",
+            "cpp_protocol bench skipped: no {} (build it: cargo build --release -p autotune-cdylib)",
             lib.join("libautotune.so").display()
         );
         return;

@@ -1,6 +1,6 @@
 //! The C ABI of a worker that sums its own records (`include/autotune.h`, generated from
 //! this file by cbindgen; build the shared library with
-//! `cargo rustc --release --lib --crate-type cdylib`). A C or C++ worker hands each request
+//! `cargo build --release -p autotune-cdylib`). A C or C++ worker hands each request
 //! line to [`autotune_chunk_new`], gives every run's e and P and every measurement's ν and S
 //! as it computes them, and prints the line [`autotune_chunk_answer`] returns: the request's
 //! sums, O(T·(n+m)) numbers instead of the records' O(N·T·n²), equal bit for bit to what

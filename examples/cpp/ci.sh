@@ -11,7 +11,7 @@
 #      (report.json: the factor within which the runs determine it);
 #   3. `autotune check --config <tuned>` on a fresh seed exits 0 (consistent).
 # Given the directory of autotune's worker library (libautotune.so, from
-# `cargo rustc --release --lib --crate-type cdylib`; the header is the repository's
+# `cargo build --release -p autotune-cdylib`; the header is the repository's
 # include/), it also builds the worker with -DAUTOTUNE_SUMS against it, and
 #   4. (after step 1) `autotune check --json` of the wrong start with that worker answering
 #      npz and answering sums exits 1 both times, with byte-identical reports but for the
@@ -39,7 +39,7 @@ fi
 libdir=
 if [[ $# -eq 2 ]]; then
     if [[ ! -f $2/libautotune.so ]]; then
-        echo "ci.sh: no libautotune.so in $2 (build it: cargo rustc --release --lib --crate-type cdylib)" >&2
+        echo "ci.sh: no libautotune.so in $2 (build it: cargo build --release -p autotune-cdylib)" >&2
         exit 2
     fi
     if [[ ! -f include/autotune.h ]]; then

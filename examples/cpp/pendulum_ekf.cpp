@@ -20,7 +20,7 @@
 // the formats' speed).
 //
 // Sums: built with -DAUTOTUNE_SUMS against autotune's C library (include/autotune.h,
-// libautotune.so from `cargo rustc --release --lib --crate-type cdylib`), `--format sums`
+// libautotune.so from `cargo build --release -p autotune-cdylib`), `--format sums`
 // keeps no records: each step's e, P, nu_bob and S_bob go to the library as they are
 // computed, and the answer is the line it makes, {"id": .., "sums": ".."}: the sums of
 // exactly the numbers the .npz would hold, so autotune's statistics are the same bit for

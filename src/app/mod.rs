@@ -114,11 +114,13 @@ enum Command {
     /// ground truth: NIS per sensor against its chi-square interval, outliers, whiteness;
     /// exit 0 if consistent, 1 if not, 2 on bad input.
     Nis(nis::NisArgs),
-    /// Draw measurements (and optionally the true states) from a linear problem's truth, to
-    /// try `estimate` on data whose answer is known.
+    /// Draw measurements (and optionally the true states) from a problem's truth (a linear
+    /// problem's or a catalog model's), to try `estimate` and `--measurements` on data whose
+    /// answer is known.
     Simulate(SimulateOptions),
-    /// Estimate a linear problem's free Q/R parameters from recorded measurements alone:
-    /// maximum likelihood with standard errors, or autocovariance least squares.
+    /// Estimate a problem's free Q/R parameters from recorded measurements alone: maximum
+    /// likelihood with standard errors (any filter autotune holds as code), or
+    /// autocovariance least squares (a linear problem).
     Estimate(EstimateOptions),
     /// Write a commented starter problem file (NAME.toml) whose filter equals its truth, so
     /// `autotune check` passes on it; replace its parameter values with your own guesses.
@@ -281,7 +283,7 @@ where
             (Some(p), Some(f)) => {
                 let problem = Problem::load(&p)?;
                 let measured = measured_experiment(&problem, &p, f)?;
-                check(&measured, a.options.with_nis_only())
+                check(measured.as_ref(), a.options.with_nis_only())
             }
             (Some(p), None) => match (a.shard, &a.sums_out) {
                 (Some(share), Some(out)) => shard(&Problem::load(&p)?, &a.options, share, out),
@@ -363,7 +365,7 @@ fn tune_problem_over(
         Some(f) => {
             let measured = measured_experiment(p, &a.problem, f)?;
             let settings = p.tune.clone().with_nis_only(true);
-            tune(&measured, &settings, a.options, init)
+            tune(measured.as_ref(), &settings, a.options, init)
         }
     }
 }

@@ -8,18 +8,22 @@ use super::CommandError;
 use super::options::name_value;
 use crate::estimate::EstimateError;
 use crate::estimate::als::{self, AlsModel, FullMatrix};
-use crate::estimate::{MeasurementRecord, ReplayExperiment, ml, read_measurements, simulate};
+use crate::estimate::{
+    FilterReplay, MeasurementRecord, ReplayExperiment, ReplayRefusal, ml, read_measurements,
+    simulate, simulate_sensors,
+};
 use crate::experiment::{Experiment, LinearExperiment};
 use crate::input::FileError;
 use crate::output::{Outputs, check_output_file};
-use crate::problem::{Problem, ProblemKind};
+use crate::problem::Problem;
 use crate::report::estimate::{EstimateSummary, als_text, estimate_json, ml_text, start_note};
 use crate::report::tune::tuned::estimated_config_toml;
 
 /// The options of `estimate`.
 #[derive(Debug, Clone, clap::Args)]
 pub struct EstimateOptions {
-    /// Problem file (TOML) whose linear filter has the parameters to estimate.
+    /// Problem file (TOML) whose filter has the parameters to estimate: a linear problem, or
+    /// a catalog model (its sensors' components side by side in the record).
     pub problem: PathBuf,
     /// The recorded measurements: .csv, .jsonl, .npy or .npz (docs/src/measurements.md).
     #[arg(long, value_name = "FILE")]
@@ -86,28 +90,6 @@ fn write_config(
     Ok(())
 }
 
-/// The linear truth and filter of problem `p` (file `path`), which `what` needs; an error
-/// naming the section that is the obstacle otherwise.
-pub fn linear<'a>(
-    p: &'a Problem,
-    path: &Path,
-    what: &str,
-) -> Result<&'a LinearExperiment, CommandError> {
-    p.experiment().linear().ok_or_else(|| {
-        let kind = p.kind();
-        FileError::new(
-            path,
-            kind.field(),
-            format!(
-                "{what} works on {}; this one is {}",
-                ProblemKind::Linear.describe(),
-                kind.describe()
-            ),
-        )
-        .into()
-    })
-}
-
 /// The record `file` read, with as many components per step as problem `p` measures.
 fn read_record(
     p: &Problem,
@@ -156,16 +138,85 @@ fn estimable(file: &Path, data: &MeasurementRecord) -> Result<(), CommandError> 
 }
 
 /// The filter of problem `p` (file `path`) over the measurement record `file`, as an
-/// experiment `check` and `tune` can judge by its innovations.
-pub fn measured_experiment(
-    p: &Problem,
+/// experiment `check` and `tune` can judge by its innovations: a linear problem's Kalman
+/// filter (every component may come and go on its own), or any other filter autotune holds
+/// as code (a catalog model's: the record gives its sensors' components side by side, a
+/// sensor's reading whole or not at all).
+pub fn measured_experiment<'a>(
+    p: &'a Problem,
     path: &Path,
     file: &Path,
-) -> Result<ReplayExperiment, CommandError> {
-    let lin = linear(p, path, "--measurements")?;
-    let data = read_record(p, lin, file)?;
-    ReplayExperiment::new(lin, data)
-        .map_err(|e| FileError::new(file, "", format!("{}: {}", e.setting, e.message)).into())
+) -> Result<Box<dyn Experiment + 'a>, CommandError> {
+    if let Some(lin) = p.experiment().linear() {
+        let data = read_record(p, lin, file)?;
+        let replay = ReplayExperiment::new(lin, data)
+            .map_err(|e| FileError::new(file, "", format!("{}: {}", e.setting, e.message)))?;
+        return Ok(Box::new(replay));
+    }
+    let data = read_measurements(file)?;
+    Ok(Box::new(replayed(p, path, data, file, "--measurements")?))
+}
+
+/// The filter of problem `p` (file `path`), held as code, over `data` (read from `file`,
+/// or simulated): refused naming the problem's section when autotune does not hold its
+/// filter (`asked_by`: the flag or command that asked), and the record's field when it
+/// does not fit the filter's sensors.
+fn replayed<'a>(
+    p: &'a Problem,
+    path: &Path,
+    data: MeasurementRecord,
+    file: &Path,
+    asked_by: &str,
+) -> Result<FilterReplay<'a>, CommandError> {
+    FilterReplay::new(p, data).map_err(|e| match e {
+        ReplayRefusal::NoFilter(_) | ReplayRefusal::Inputs { .. } => {
+            FileError::new(path, p.kind().field(), format!("{asked_by}: {e}")).into()
+        }
+        e => FileError::new(file, "z", e.to_string()).into(),
+    })
+}
+
+/// The maximum-likelihood estimate of the filter `replay` replays, from `start`: its own
+/// innovations' likelihood (exact for a Kalman filter, the usual approximation for an EKF,
+/// UKF or ESKF), searched as for a linear problem.
+fn replayed_ml(
+    replay: &FilterReplay<'_>,
+    start: &[f64],
+    fixed: &[bool],
+    max_iterations: u64,
+    file: &Path,
+) -> Result<Result<ml::MlEstimate, EstimateError>, CommandError> {
+    // Where the filter cannot run over the record at the start, say where and why.
+    if let Err(stop) = replay.neg_log_likelihood(start) {
+        return Err(FileError::new(
+            file,
+            "z",
+            format!("the filter cannot run over the record at the start values: {stop}"),
+        )
+        .into());
+    }
+    let nll = |theta: &[f64]| replay.neg_log_likelihood(theta).ok();
+    Ok(ml::estimate_by(
+        &nll,
+        replay.data().values(),
+        start,
+        fixed,
+        max_iterations,
+    ))
+}
+
+/// A linear problem's record method, or `ml` (the one a filter held otherwise has).
+fn replayable_method(method: &str, flag: &str) -> Result<(), CommandError> {
+    if method == "ml" {
+        Ok(())
+    } else {
+        Err(CommandError::option(
+            flag,
+            format!(
+                "{method} works on a linear problem's matrices; a filter held as code (a catalog model's) is estimated by ml, its innovations' likelihood"
+            ),
+        ))
+    }
 }
 
 /// Added to the problem's seed for the record `tune --init` simulates.
@@ -192,7 +243,9 @@ pub fn initial(
     method: &str,
     asked_by: &str,
 ) -> Result<Start, CommandError> {
-    let lin = linear(p, path, asked_by)?;
+    let Some(lin) = p.linear() else {
+        return initial_replayed(p, path, record, method, asked_by);
+    };
     let (data, origin) = match record {
         Some(f) => {
             let d = read_record(p, lin, f)?;
@@ -236,6 +289,60 @@ pub fn initial(
     Ok(Start { theta, note })
 }
 
+/// [`initial`] of a problem whose filter autotune holds as code (a catalog model's): the
+/// likelihood's maximum over its innovations on the record, or on one simulated from the
+/// problem's truth (its Monte Carlo runs × steps, another seed).
+fn initial_replayed(
+    p: &Problem,
+    path: &Path,
+    record: Option<&Path>,
+    method: &str,
+    asked_by: &str,
+) -> Result<Start, CommandError> {
+    replayable_method(method, asked_by)?;
+    let (data, origin, file) = match record {
+        Some(f) => {
+            let d = read_measurements(f)?;
+            estimable(f, &d)?;
+            (d, f.display().to_string(), f.to_path_buf())
+        }
+        None => {
+            let mc = p.mc();
+            let seed = mc.seed().wrapping_add(INIT_SEED_OFFSET);
+            let truth = p.simulation_truth().ok_or_else(|| {
+                FileError::new(
+                    path,
+                    p.kind().field(),
+                    format!("{asked_by}: autotune does not hold this problem's truth to simulate a record from"),
+                )
+            })?;
+            let dims = p
+                .replay_filter(&p.params().values())
+                .map(|f| f.sensor_dims())
+                .unwrap_or_default();
+            let sim = simulate_sensors(truth, &dims, mc.runs(), mc.steps(), seed);
+            let origin = format!(
+                "{} × {} steps simulated from the truth (seed {seed})",
+                mc.runs(),
+                mc.steps()
+            );
+            (sim.measurements, origin, path.to_path_buf())
+        }
+    };
+    let replay = replayed(p, path, data, &file, asked_by)?;
+    let params = p.params();
+    let fixed: Vec<bool> = params.params.iter().map(|d| d.fixed).collect();
+    let t0 = Instant::now();
+    let theta = replayed_ml(&replay, &params.values(), &fixed, 200, &file)?
+        .map_err(|e| CommandError::Estimate {
+            subject: format!("the start ({method} on {origin}, asked by {asked_by})"),
+            source: e,
+        })?
+        .theta;
+    let note = start_note(method, &origin, t0.elapsed().as_secs_f64(), params, &theta);
+    Ok(Start { theta, note })
+}
+
 /// The checked options of an estimate, before it runs.
 fn validate(a: &EstimateOptions) -> Result<(), CommandError> {
     if a.method == "als" {
@@ -271,19 +378,16 @@ fn validate(a: &EstimateOptions) -> Result<(), CommandError> {
 /// config where `--out` asks.
 pub fn estimate(a: &EstimateOptions) -> Result<EstimateRun, CommandError> {
     let p = Problem::load(&a.problem)?;
-    let lin = linear(&p, &a.problem, "estimate")?;
+    let Some(lin) = p.linear() else {
+        return estimate_replayed(&p, a);
+    };
     let data = read_record(&p, lin, &a.measurements)?;
     estimable(&a.measurements, &data)?;
     if let Some(out) = &a.out {
         check_output_file(out, a.force).map_err(|e| e.of_flag("--out"))?;
     }
     let params = p.params();
-    let mut start = params.values();
-    for kv in &a.set {
-        let (i, v) = name_value(params, "--set", kv)?;
-        start[i] = v;
-    }
-    let fixed: Vec<bool> = params.params.iter().map(|d| d.fixed).collect();
+    let (start, fixed) = start_values(&p, a)?;
     validate(a)?;
     let failed = |e: EstimateError| CommandError::Estimate {
         subject: a.measurements.display().to_string(),
@@ -323,16 +427,73 @@ pub fn estimate(a: &EstimateOptions) -> Result<EstimateRun, CommandError> {
     let build = |theta: &[f64]| lin.filter_at(theta);
     let est = ml::estimate(&build, &data, &start, &fixed, a.max_iterations).map_err(failed)?;
     summary.seconds = t0.elapsed().as_secs_f64();
+    ml_run(&p, a, &summary, &est)
+}
+
+/// The start values (the problem's, with `--set`'s) and which parameters are fixed.
+fn start_values(p: &Problem, a: &EstimateOptions) -> Result<(Vec<f64>, Vec<bool>), CommandError> {
+    let params = p.params();
+    let mut start = params.values();
+    for kv in &a.set {
+        let (i, v) = name_value(params, "--set", kv)?;
+        start[i] = v;
+    }
+    Ok((start, params.params.iter().map(|d| d.fixed).collect()))
+}
+
+/// A maximum-likelihood estimate's config (where `--out` asks) and its table or JSON.
+fn ml_run(
+    p: &Problem,
+    a: &EstimateOptions,
+    summary: &EstimateSummary<'_>,
+    est: &ml::MlEstimate,
+) -> Result<EstimateRun, CommandError> {
     if let Some(out) = &a.out {
         let score = ("neg_log_likelihood", est.neg_log_likelihood);
-        write_config(&p, out, &est.theta, "ml", &a.measurements, score, a.force)?;
+        write_config(p, out, &est.theta, "ml", &a.measurements, score, a.force)?;
     }
     let output = if a.json {
-        estimate_json(&summary, "ml", &est, serde_json::Map::new())
+        estimate_json(summary, "ml", est, serde_json::Map::new())
     } else {
-        ml_text(&summary, &est)
+        ml_text(summary, est)
     };
     Ok(EstimateRun { output })
+}
+
+/// [`estimate`] of a problem whose filter autotune holds as code (a catalog model's): the
+/// maximum of its innovations' likelihood over the record.
+fn estimate_replayed(p: &Problem, a: &EstimateOptions) -> Result<EstimateRun, CommandError> {
+    validate(a)?;
+    replayable_method(&a.method, "--method")?;
+    let data = read_measurements(&a.measurements)?;
+    estimable(&a.measurements, &data)?;
+    let replay = replayed(p, &a.problem, data, &a.measurements, "estimate")?;
+    if let Some(out) = &a.out {
+        check_output_file(out, a.force).map_err(|e| e.of_flag("--out"))?;
+    }
+    let params = p.params();
+    let (start, fixed) = start_values(p, a)?;
+    let data = replay.data();
+    let mut summary = EstimateSummary {
+        problem: p.name(),
+        record: &a.measurements,
+        sequences: data.sequences.len(),
+        values: data.values(),
+        params,
+        start: &start,
+        seconds: 0.0,
+        max_iterations: a.max_iterations,
+    };
+    let t0 = Instant::now();
+    let est =
+        replayed_ml(&replay, &start, &fixed, a.max_iterations, &a.measurements)?.map_err(|e| {
+            CommandError::Estimate {
+                subject: a.measurements.display().to_string(),
+                source: e,
+            }
+        })?;
+    summary.seconds = t0.elapsed().as_secs_f64();
+    ml_run(p, a, &summary, &est)
 }
 
 /// A full Q or R by autocovariance least squares under a semidefinite constraint: needs

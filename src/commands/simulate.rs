@@ -1,12 +1,12 @@
-//! `simulate`: measurements (and the true states) drawn from a linear problem's truth, to
-//! try `estimate` on data whose answer is known.
+//! `simulate`: measurements (and the true states) drawn from a problem's truth, to try
+//! `estimate`, and `check` or `tune` with `--measurements`, on data whose answer is known.
 
 use std::path::PathBuf;
 
 use super::CommandError;
-use super::estimate::linear;
-use crate::estimate::{record_bytes, simulate as draw};
+use crate::estimate::{record_bytes, simulate_sensors as draw};
 use crate::experiment::Experiment;
+use crate::input::FileError;
 use crate::output::{Outputs, check_output_file, same_place};
 use crate::problem::Problem;
 use crate::report::estimate::simulate_text;
@@ -14,7 +14,7 @@ use crate::report::estimate::simulate_text;
 /// The options of `simulate`.
 #[derive(Debug, Clone, clap::Args)]
 pub struct SimulateOptions {
-    /// Problem file (TOML) with a linear truth.
+    /// Problem file (TOML) whose truth autotune holds: a linear problem or a catalog model.
     pub problem: PathBuf,
     /// Where to write the measurements: .csv, .jsonl or .npy (docs/src/measurements.md).
     #[arg(long, value_name = "FILE")]
@@ -38,11 +38,29 @@ pub struct SimulateOptions {
     pub force: bool,
 }
 
-/// Run `simulate`: draw the measurements (and the true states where asked) from problem's
-/// linear truth and write them; returns the line saying what was written.
+/// Run `simulate`: draw the measurements (and the true states where asked) from the
+/// problem's truth and write them, every sensor's components side by side (empty where a
+/// sensor did not report); returns the line saying what was written.
 pub fn simulate(a: &SimulateOptions) -> Result<String, CommandError> {
     let p = Problem::load(&a.problem)?;
-    let lin = linear(&p, &a.problem, "simulate")?;
+    // Each sensor's dimension: a linear problem's one sensor, or the filter's sensors.
+    let dims = match p.linear() {
+        Some(lin) => Some(vec![lin.truth.n_z()]),
+        None => p
+            .replay_filter(&p.params().values())
+            .map(|f| f.sensor_dims()),
+    };
+    let (Some(truth), Some(dims)) = (p.simulation_truth(), dims) else {
+        return Err(FileError::new(
+            &a.problem,
+            p.kind().field(),
+            format!(
+                "simulate works on a problem whose truth autotune holds (a linear problem, a catalog model); this one is {}",
+                p.kind().describe()
+            ),
+        )
+        .into());
+    };
     if !(1..=100_000).contains(&a.runs) {
         return Err(CommandError::option(
             "--runs",
@@ -73,8 +91,8 @@ pub fn simulate(a: &SimulateOptions) -> Result<String, CommandError> {
             ));
         }
     }
-    let m = lin.truth.n_z();
-    let sim = draw(&lin.truth, m, a.runs, steps, seed);
+    let m: usize = dims.iter().sum();
+    let sim = draw(truth, &dims, a.runs, steps, seed);
     let z: Vec<&[f64]> = sim
         .measurements
         .sequences

@@ -69,8 +69,8 @@ pub struct MlEstimate {
 
 /// What L-BFGS sees: `−log L` over the free parameters' logs.
 struct Objective<'a> {
-    build: &'a dyn Fn(&[f64]) -> KalmanFilter,
-    data: &'a MeasurementRecord,
+    /// `−log L` at θ (`None` where the filter has no likelihood there).
+    nll: &'a dyn Fn(&[f64]) -> Option<f64>,
     theta: Vec<f64>,
     free: Vec<usize>,
     /// Measured values in the record.
@@ -94,10 +94,7 @@ impl Objective<'_> {
         if phi.iter().any(|p| p.is_nan() || p.abs() >= 700.0) {
             return f64::MAX;
         }
-        let model = (self.build)(&self.theta_at(phi));
-        model
-            .neg_log_likelihood(self.data)
-            .map_or(f64::MAX, |v| v / self.scale)
+        (self.nll)(&self.theta_at(phi)).map_or(f64::MAX, |v| v / self.scale)
     }
 
     fn gradient_at(&self, phi: &[f64]) -> Vec<f64> {
@@ -151,13 +148,26 @@ pub fn estimate(
     fixed: &[bool],
     max_iterations: u64,
 ) -> Result<MlEstimate, EstimateError> {
+    let nll = |t: &[f64]| build(t).neg_log_likelihood(data).ok();
+    estimate_by(&nll, data.values(), start, fixed, max_iterations)
+}
+
+/// [`estimate`] of any filter whose `−log L` at θ is `nll(θ)` (`None` where it has none),
+/// over a record of `values` measured values (the objective's scale): a filter held as
+/// code replayed over a record ([`super::FilterReplay::neg_log_likelihood`]).
+pub fn estimate_by(
+    nll: &dyn Fn(&[f64]) -> Option<f64>,
+    values: usize,
+    start: &[f64],
+    fixed: &[bool],
+    max_iterations: u64,
+) -> Result<MlEstimate, EstimateError> {
     let free: Vec<usize> = (0..start.len()).filter(|&i| !fixed[i]).collect();
     let obj = Objective {
-        build,
-        data,
+        nll,
         theta: start.to_vec(),
         free: free.clone(),
-        scale: data.values().max(1) as f64,
+        scale: values.max(1) as f64,
         evaluations: std::cell::Cell::new(0),
     };
     let phi0: Vec<f64> = free.iter().map(|&i| start[i].ln()).collect();
@@ -397,7 +407,7 @@ impl Check {
             let mut t = obj.theta_at(phi);
             t[obj.free[k]] = v;
             obj.evaluations.set(obj.evaluations.get() + 1);
-            (obj.build)(&t).neg_log_likelihood(obj.data).ok()
+            (obj.nll)(&t)
         };
         for (k, &g) in gradient.iter().enumerate() {
             if g < -AT_BOUND_TOL {

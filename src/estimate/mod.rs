@@ -8,6 +8,7 @@ pub mod als;
 pub mod als_full;
 mod error;
 mod files;
+mod filter_replay;
 mod likelihood;
 pub mod ml;
 mod replay;
@@ -15,6 +16,7 @@ mod replay;
 pub use files::{read_measurements, record_bytes};
 
 pub use error::{EstimateError, NotDefinite};
+pub use filter_replay::{FilterReplay, ReplayRefusal, ReplayStop};
 pub use replay::ReplayExperiment;
 
 use nalgebra::DVector;
@@ -78,7 +80,21 @@ pub fn simulate(
     steps: usize,
     seed: u64,
 ) -> Simulated {
+    simulate_sensors(truth, &[m], runs, steps, seed)
+}
+
+/// [`simulate`] with every sensor of dimension `dims[s]` (sensor s) side by side in the
+/// record, in sensor order: a step's columns of a sensor that did not report stay NaN.
+pub fn simulate_sensors(
+    truth: &dyn TruthModel,
+    dims: &[usize],
+    runs: usize,
+    steps: usize,
+    seed: u64,
+) -> Simulated {
     let n = truth.n_x();
+    let m: usize = dims.iter().sum();
+    let offsets = crate::measurement::sensor_offsets(dims);
     let mut sequences = Vec::with_capacity(runs);
     let mut states = Vec::with_capacity(runs);
     let mut meas = Vec::new();
@@ -91,8 +107,9 @@ pub fn simulate(
             x = truth.propagate(k, &x, &mut rng);
             meas.clear();
             truth.measure(k, &x, &mut rng, &mut meas);
-            for me in meas.iter().filter(|me| me.sensor == 0) {
-                z[(k - 1) * m..k * m].copy_from_slice(me.z.as_slice());
+            for me in meas.iter().filter(|me| me.sensor < dims.len()) {
+                let o = (k - 1) * m + offsets[me.sensor];
+                z[o..o + dims[me.sensor]].copy_from_slice(me.z.as_slice());
             }
             xs.extend_from_slice(x.as_slice());
         }

@@ -61,6 +61,14 @@ impl Experiment for CatalogExperiment {
         )))
     }
 
+    fn replay_filter(&self, theta: &[f64]) -> Option<Box<dyn crate::filter::Filter + '_>> {
+        Some(self.model.filter(theta))
+    }
+
+    fn simulation_truth(&self) -> Option<&dyn crate::model::TruthModel> {
+        Some(self.model.truth())
+    }
+
     fn innovation_scales(&self, theta: &[f64], mc: &McConfig) -> Option<Vec<f64>> {
         montecarlo::innovation_scales(self.model.truth(), &self.model.filter(theta), mc)
     }

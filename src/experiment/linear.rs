@@ -69,6 +69,14 @@ impl Experiment for LinearExperiment {
         &self.definition
     }
 
+    fn replay_filter(&self, theta: &[f64]) -> Option<Box<dyn Filter + '_>> {
+        Some(Box::new(self.filter_at(theta)))
+    }
+
+    fn simulation_truth(&self) -> Option<&dyn crate::model::TruthModel> {
+        Some(&self.truth)
+    }
+
     fn truth_reuse(&self, _since: crate::montecarlo::TapeUsage) -> super::TruthReuse {
         super::TruthReuse::Simulated {
             why: "a linear problem's engine simulates the truth with the filter, the runs batched, which costs less than a replay would".to_string(),

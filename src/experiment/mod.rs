@@ -324,6 +324,20 @@ pub trait Experiment: Sync {
         None
     }
 
+    /// The filter at `theta` as code, for a replay over recorded measurements
+    /// ([`crate::estimate::FilterReplay`]: `check` and `tune` with `--measurements`, the
+    /// likelihood of a record). `None`, the default, where autotune does not hold the filter
+    /// (a worker's, a records file's).
+    fn replay_filter(&self, _theta: &[f64]) -> Option<Box<dyn crate::filter::Filter + '_>> {
+        None
+    }
+
+    /// The truth model as code, for drawing a record from it (`autotune simulate`). `None`,
+    /// the default, where autotune does not hold the truth (a worker's, a records file's).
+    fn simulation_truth(&self) -> Option<&dyn crate::model::TruthModel> {
+        None
+    }
+
     /// [`Experiment::monte_carlo_with`] with the filter reading every measurement through
     /// `correction`, where autotune feeds the filter its readings (catalog and Rust-model
     /// filters): what the sensor-side hypotheses of [`crate::explain`] change on a filter

@@ -191,6 +191,14 @@ impl Experiment for Problem {
     fn linear(&self) -> Option<&LinearExperiment> {
         self.experiment().linear()
     }
+
+    fn replay_filter(&self, theta: &[f64]) -> Option<Box<dyn crate::filter::Filter + '_>> {
+        self.experiment().replay_filter(theta)
+    }
+
+    fn simulation_truth(&self) -> Option<&dyn crate::model::TruthModel> {
+        self.experiment().simulation_truth()
+    }
 }
 
 /// SHA-256 of bytes as lowercase hex.

@@ -78,6 +78,10 @@ pub struct Trial {
     /// Whether the trial was judged by the innovations alone (the run's own NIS-only
     /// scoring; a change that adds states is judged on the filter's own states).
     pub nis_only: bool,
+    /// Whether the trial was judged on a recording rather than on fresh seeds (a seed-free
+    /// experiment: `passed` of `seeds` = 1 then says whether the record passes).
+    #[serde(skip_serializing_if = "std::ops::Not::not")]
+    pub recorded: bool,
     /// The simpler hypothesis this fit is a case of, when that one fits too (coloured noise
     /// whose correlation outlasts the run is a bias; a measurement matrix without a
     /// rotation is a gain): not separate evidence.
@@ -103,33 +107,41 @@ impl Trial {
         self.values.iter().find(|(n, _)| n == name).map(|(_, v)| *v)
     }
 
+    /// What the gate said on the trial's confirmation: on fresh seeds, or on the record.
+    fn passes(&self) -> String {
+        if !self.recorded {
+            format!("{} of {} fresh seeds pass", self.passed, self.seeds)
+        } else if self.passed == self.seeds {
+            "the record passes".to_string()
+        } else {
+            "the record fails".to_string()
+        }
+    }
+
     fn outcome(&self) -> String {
         let by = if self.nis_only {
             " (judged by the innovations alone)"
         } else {
             ""
         };
+        let passes = self.passes();
         if let (true, Some(h)) = (self.consistent(), self.same_as) {
             format!(
-                "fits, as a case of {} (which fits too): not separate evidence ({} of {} fresh seeds pass){by}",
+                "fits, as a case of {} (which fits too): not separate evidence ({passes}){by}",
                 h.words(),
-                self.passed,
-                self.seeds
             )
         } else if self.consistent() && self.neutral {
             format!(
-                "fits, but with its own parameters at their neutral values: it changed nothing ({} of {} fresh seeds pass){by}",
-                self.passed, self.seeds
+                "fits, but with its own parameters at their neutral values: it changed nothing ({passes}){by}"
             )
         } else if self.consistent() {
-            format!(
-                "makes the filter consistent ({} of {} fresh seeds pass){by}",
-                self.passed, self.seeds
-            )
+            format!("makes the filter consistent ({passes}){by}")
+        } else if self.recorded {
+            format!("does not make it consistent ({passes}){by}")
         } else {
             format!(
-                "does not make it consistent ({} of {} fresh seeds pass; a consistent filter passes at least {}){by}",
-                self.passed, self.seeds, self.band_low
+                "does not make it consistent ({passes}; a consistent filter passes at least {}){by}",
+                self.band_low
             )
         }
     }

@@ -23,6 +23,7 @@ fn trial(passed: usize, seeds: usize, band_low: usize) -> Trial {
         score: 0.0,
         neutral: false,
         nis_only: false,
+        recorded: false,
         same_as: None,
     }
 }
@@ -99,6 +100,20 @@ fn a_trials_outcome_says_what_it_showed() {
     };
     assert!(nis.outcome().ends_with("(judged by the innovations alone)"));
     assert!(!fitting().outcome().contains("innovations"));
+    // On a recording there are no fresh seeds: the record itself passes or fails.
+    let on_record = |passed| Trial {
+        recorded: true,
+        ..trial(passed, 1, 1)
+    };
+    says(
+        &on_record(1),
+        "makes the filter consistent (the record passes)",
+    );
+    says(
+        &on_record(0),
+        "does not make it consistent (the record fails)",
+    );
+    assert!(!on_record(0).outcome().contains("at least"));
 }
 
 #[test]

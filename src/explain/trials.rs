@@ -32,6 +32,7 @@ pub(super) fn bounds(experiment: &dyn Experiment, result: &TuneResult) -> Vec<Ex
                 score: result.objective_final.total,
                 neutral: false,
                 nis_only: false,
+                recorded: result.confirmation.recorded,
                 same_as: None,
             };
             let remedy = if still {
@@ -429,6 +430,7 @@ fn trial(change: String, e: &dyn Experiment, t: &TuneResult, nis_only: bool) -> 
         score: t.objective_final.total,
         neutral: false,
         nis_only,
+        recorded: t.confirmation.recorded,
         same_as: None,
     }
 }

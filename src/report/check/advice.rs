@@ -402,10 +402,14 @@ pub fn family_finding(result: &TuneResult, explanations: &[Explanation]) -> Opti
 /// Why a failed confirmation is not a proven misfit.
 fn undecided(result: &TuneResult) -> String {
     let c = &result.confirmation;
-    let head = format!(
-        "the tuned filter fails its confirmation ({} of {} fresh seeds pass; a consistent filter passes at least {}), but that no value fits is not proven",
-        c.passed, c.seeds, c.band_low
-    );
+    let head = if c.recorded {
+        "the tuned filter fails the gate on the recorded measurements, but that no value fits is not proven".to_string()
+    } else {
+        format!(
+            "the tuned filter fails its confirmation ({} of {} fresh seeds pass; a consistent filter passes at least {}), but that no value fits is not proven",
+            c.passed, c.seeds, c.band_low
+        )
+    };
     match &result.certificate {
         Some(cert) if cert.recheck_passed == Some(true) => format!(
             "{head}: the best fit passes the gate on {} runs, so the effect is at the limit of what {} runs can see (check with --runs {} or more to decide)",

@@ -169,7 +169,16 @@ fn replayed<'a>(
     asked_by: &str,
 ) -> Result<FilterReplay<'a>, CommandError> {
     FilterReplay::new(p, data).map_err(|e| match e {
-        ReplayRefusal::NoFilter(_) | ReplayRefusal::Inputs { .. } => {
+        ReplayRefusal::NoFilter(_) => FileError::new(
+            path,
+            p.kind().field(),
+            format!(
+                "{asked_by}: this problem is {}, whose filter autotune does not hold, so it cannot replay it over a record",
+                p.kind().describe()
+            ),
+        )
+        .into(),
+        ReplayRefusal::Inputs { .. } => {
             FileError::new(path, p.kind().field(), format!("{asked_by}: {e}")).into()
         }
         e => FileError::new(file, "z", e.to_string()).into(),

@@ -28,9 +28,7 @@ const LN_2PI: f64 = 1.837_877_066_409_345_5;
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum ReplayRefusal {
     /// The problem's filter is not held by autotune (a worker's) or has no sensors.
-    #[error(
-        "{0}'s filter cannot be replayed over a record (only filters held as code: a linear problem's, a catalog model's, a Rust model's)"
-    )]
+    #[error("autotune does not hold {0}'s filter as code, so it cannot replay it over a record")]
     NoFilter(String),
     /// The filter predicts from inputs (IMU samples) that a record of measurements does
     /// not carry.

@@ -395,23 +395,13 @@ pub fn estimate(a: &EstimateOptions) -> Result<EstimateRun, CommandError> {
     if let Some(out) = &a.out {
         check_output_file(out, a.force).map_err(|e| e.of_flag("--out"))?;
     }
-    let params = p.params();
     let (start, fixed) = start_values(&p, a)?;
     validate(a)?;
     let failed = |e: EstimateError| CommandError::Estimate {
         subject: a.measurements.display().to_string(),
         source: e,
     };
-    let mut summary = EstimateSummary {
-        problem: p.name(),
-        record: &a.measurements,
-        sequences: data.sequences.len(),
-        values: data.values(),
-        params,
-        start: &start,
-        seconds: 0.0,
-        max_iterations: a.max_iterations,
-    };
+    let mut summary = summary_of(&p, a, &data, &start);
     let t0 = Instant::now();
     if a.method == "als" {
         let model = AlsModel::of(lin);
@@ -437,6 +427,25 @@ pub fn estimate(a: &EstimateOptions) -> Result<EstimateRun, CommandError> {
     let est = ml::estimate(&build, &data, &start, &fixed, a.max_iterations).map_err(failed)?;
     summary.seconds = t0.elapsed().as_secs_f64();
     ml_run(&p, a, &summary, &est)
+}
+
+/// What an estimate's table and JSON say of its inputs, before its search has run.
+fn summary_of<'a>(
+    p: &'a Problem,
+    a: &'a EstimateOptions,
+    data: &MeasurementRecord,
+    start: &'a [f64],
+) -> EstimateSummary<'a> {
+    EstimateSummary {
+        problem: p.name(),
+        record: &a.measurements,
+        sequences: data.sequences.len(),
+        values: data.values(),
+        params: p.params(),
+        start,
+        seconds: 0.0,
+        max_iterations: a.max_iterations,
+    }
 }
 
 /// The start values (the problem's, with `--set`'s) and which parameters are fixed.
@@ -480,19 +489,9 @@ fn estimate_replayed(p: &Problem, a: &EstimateOptions) -> Result<EstimateRun, Co
     if let Some(out) = &a.out {
         check_output_file(out, a.force).map_err(|e| e.of_flag("--out"))?;
     }
-    let params = p.params();
     let (start, fixed) = start_values(p, a)?;
     let data = replay.data();
-    let mut summary = EstimateSummary {
-        problem: p.name(),
-        record: &a.measurements,
-        sequences: data.sequences.len(),
-        values: data.values(),
-        params,
-        start: &start,
-        seconds: 0.0,
-        max_iterations: a.max_iterations,
-    };
+    let mut summary = summary_of(p, a, data, &start);
     let t0 = Instant::now();
     let est =
         replayed_ml(&replay, &start, &fixed, a.max_iterations, &a.measurements)?.map_err(|e| {

@@ -546,7 +546,7 @@ where
 
 /// The arguments (by their ids) whose values are files or directories a command writes:
 /// `--out`, `--truth`, `--junit`, `--report`, `--sums-out`. Every other argument whose
-/// value is a path names an input (`tests/outputs.rs` holds every command's path arguments
+/// value is a path names an input (`tests/cli/outputs.rs` holds every command's path arguments
 /// to this: each is an output here or an input, and no output may name an input).
 pub const OUTPUT_ARGS: [&str; 5] = ["out", "truth", "junit", "report", "sums_out"];
 

@@ -3,7 +3,7 @@
 //! Each starter (`templates/<model>.toml`) is a complete problem file whose comments explain
 //! every section and field. Its filter parameters EQUAL the truth's noise, so `autotune check`
 //! passes on it unchanged with the Monte Carlo seed it ships with (the integration tests in
-//! `tests/cli_init.rs` run that check for every model); the comments tell the user to replace
+//! `tests/cli/init.rs` run that check for every model); the comments tell the user to replace
 //! the values with their own guesses, which `autotune tune` then corrects.
 
 use std::path::PathBuf;

@@ -2,7 +2,7 @@
 //! explanations rank and read, which fits are cases of a simpler one; and [`explain`] end to
 //! end on mock experiments (a fixed parameter that is wrong, one that is right, a failure
 //! more runs dispel). The hypotheses' trials on linear problems are tested by families of
-//! random problems (tests/explain.rs).
+//! random problems (tests/misfit/explain.rs).
 
 use super::remedy::fmt_value;
 use super::trials::{self, better, bounds, inexpressible};

@@ -34,7 +34,7 @@ pub use wire::{
 /// Largest number of steps per run records may have. The sums take memory proportional to
 /// T, allocated before the first record is read, so T is checked first; this is the
 /// engines' `montecarlo::MAX_STEPS`, repeated here because `records` sits below
-/// `montecarlo` (tests/records.rs checks the two agree).
+/// `montecarlo` (tests/workers/records.rs checks the two agree).
 pub const MAX_STEPS: usize = 1_000_000;
 
 /// Most components a state or a sensor of records may have (e, P's side, nu, u, …): the

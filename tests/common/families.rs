@@ -1,6 +1,6 @@
 //! Generators of random linear problems with a fault of a stated kind (issue 38): the
 //! families the explanation of a misfit is tested on. Included with `#[path]` by
-//! `tests/explain.rs`.
+//! `tests/misfit/explain.rs`.
 //!
 //! Every problem has 1 to 3 decoupled axes, each a nearly-constant-velocity target
 //! (position, velocity) seen by a position sensor, with a step `dt` drawn from [0.2, 2] s,

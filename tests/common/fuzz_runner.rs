@@ -1,5 +1,5 @@
 //! Running a fuzzed input through the binary and tallying what happened, for the fuzzers
-//! that run `autotune` on files (`tests/fuzz_inputs.rs`, `tests/fuzz_cluster.rs`). Included
+//! that run `autotune` on files (`tests/fuzz/inputs.rs`, `tests/fuzz/shards.rs`). Included
 //! with `#[path]`, beside `common/fuzzing.rs`.
 #![allow(dead_code)]
 

@@ -1,4 +1,4 @@
-//! What the fuzzers (`tests/fuzz.rs`, `tests/fuzz_fieldlog.rs`, `tests/fuzz_inputs.rs`)
+//! What the fuzzers (`tests/fuzz/loaders.rs`, `tests/fuzz/fieldlog.rs`, `tests/fuzz/inputs.rs`)
 //! share: their random numbers, their settings, and a look at a child's memory. Included
 //! with `#[path]`, so that the other tests do not compile it.
 #![allow(dead_code)]

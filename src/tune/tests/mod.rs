@@ -261,7 +261,7 @@ fn two_basins_a_local_search_from_the_start_ends_in_the_shallow_basin() {
     for local in [LocalSearch::Simplex, LocalSearch::GaussNewton] {
         let mock = two_basins();
         // Without the certification, which would search the widened box from spread starts
-        // (tests/explain.rs tests that it does).
+        // (tests/misfit/explain.rs tests that it does).
         let s = settings(Scoring::Exact)
             .with_local(local)
             .with_from_estimate(true)

@@ -332,3 +332,20 @@ fn issue37_test_ratios_of_other_filter_cycles_are_not_used_and_the_summary_says_
         );
     }
 }
+
+/// A channel's update rate counts the intervals between its updates, not the updates: the
+/// short hop's innovations are logged every 0.2 s from 0 to 39.8 s, so a channel judged from
+/// its first row to its last, on n of them, runs at (n − 1) / 39.8 Hz (n / 39.8 would count
+/// one update too many).
+#[test]
+fn a_channels_update_rate_counts_the_intervals_between_its_updates() {
+    let (_, v) = judge_bytes(&fx::short_hop_v111(1), false);
+    let s = sensor(&v, "ekf0.baro_vpos").unwrap();
+    let n = s["updates"].as_u64().unwrap() as f64;
+    let span = (support::px4_fixtures_issue37::HOP_LOG_S * 5.0 - 1.0) / 5.0;
+    let hz = s["px4"]["update_hz"].as_f64().unwrap();
+    assert!(
+        (hz - (n - 1.0) / span).abs() < 1e-12,
+        "{hz} Hz over {n} updates in {span} s"
+    );
+}

@@ -304,14 +304,18 @@ pub(crate) fn read_raw(paths: &[PathBuf]) -> Result<Vec<RawArray>, FileError> {
         let archive_len = userfile::length(&file, &f)?;
         let total = userfile::npz_budget(archive_len);
         let mut budget = Budget { left: total, total };
-        let mut archive = npyz::npz::NpzArchive::new(std::io::BufReader::new(f)).map_err(|e| {
+        let mut archive = zip::ZipArchive::new(std::io::BufReader::new(f)).map_err(|e| {
             FileError::new(&file, "", format!("not an .npz archive: {}", one_line(&e)))
         })?;
-        let names: Vec<String> = archive.array_names().map(str::to_string).collect();
+        // NumPy's reading: every entry named `*.npy` is an array of that name.
+        let names: Vec<String> = archive
+            .file_names()
+            .filter_map(npyz::npz::array_name_from_file_name)
+            .map(str::to_string)
+            .collect();
         for name in names {
             let at = |m: String| FileError::new(&file, format!("array {name}"), m);
             let entry = archive
-                .zip_archive()
                 .by_name(&npyz::npz::file_name_from_array_name(&name))
                 .map_err(|e| at(format!("cannot read: {}", one_line(&e))))?;
             // The entry's size is the zip's claim; reading stops at the data really there.

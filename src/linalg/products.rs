@@ -101,6 +101,14 @@ impl Sparse {
         right(b, self.ncols, self.nrows, &self.t_start, &self.t_entries)
     }
 
+    /// `(self · s · self')_jj`, row j's quadratic form in `s` (ncols × ncols).
+    pub fn row_quadratic(&self, j: usize, s: &DMatrix<f64>) -> f64 {
+        let row = &self.t_entries[self.t_start[j]..self.t_start[j + 1]];
+        row.iter()
+            .map(|&(p, _, a)| a * row.iter().map(|&(q, _, b)| s[(p, q)] * b).sum::<f64>())
+            .sum()
+    }
+
     /// `self · s · c'` (s: ncols × c.ncols).
     pub fn sandwich(&self, s: &DMatrix<f64>, c: &Sparse) -> DMatrix<f64> {
         self.left(&c.right_tr(s))

@@ -24,6 +24,7 @@ use nalgebra::{Cholesky, DMatrix, DVector, Dyn};
 
 use super::McConfig;
 use super::generic::Fault;
+use super::linear::{self, same_covariance};
 use crate::filter::{CovarianceUpdate, Filter, FilterError, KalmanFilter};
 use crate::linalg::cholesky;
 use crate::linalg::products::Sparse;
@@ -79,7 +80,6 @@ pub fn expected_accumulator_mapped(
     let runs = mc.runs() as f64;
     let mut acc = Accumulator::new(mc.steps(), n, m, lags);
 
-    let mut P = f.P0.clone();
     let mut moments = if map.is_none() && models_match(truth, f) {
         Moments::Matched(Box::new(ErrorMoments::new(truth, f, lags)))
     } else {
@@ -98,7 +98,11 @@ pub fn expected_accumulator_mapped(
     let mut steady: Option<StepValues> = None;
     let mut previous: Option<StepValues> = None;
     let mut quiet_steps = 0usize;
-    let mut last_null = None;
+    // The filter's latest step, and how many steps in a row its P has not changed: once it
+    // is steady (as the Monte Carlo engine judges it), its step serves every later one.
+    let mut filt: Option<FilterStep> = None;
+    let mut filter_quiet = 0usize;
+    let f_op = Sparse::new(&f.F);
 
     // The truth's second moment E[x x'], to stop where the Monte Carlo runs would: a truth
     // that overflows or outgrows double precision relative to the filter's P ([`Fault`]).
@@ -108,8 +112,8 @@ pub fn expected_accumulator_mapped(
 
     for k in 1..=mc.steps() {
         let i = k - 1;
-        if let Some(v) = &steady {
-            if let Some(fault) = truth_m2.step(truth, &P, &v.comp_x) {
+        if let (Some(v), Some(fs)) = (&steady, &filt) {
+            if let Some(fault) = truth_m2.step(&fs.cu.P, &v.comp_x) {
                 return Ok(stop_all(acc, mc, k, fault));
             }
             v.add(&mut acc, i, runs, n, m, &mut comp_x, &mut comp_z, lags, k);
@@ -119,32 +123,31 @@ pub fn expected_accumulator_mapped(
             for (s, y) in mean_z.iter_mut().zip(&v.mean_z) {
                 *s += y;
             }
-            if let Some((a, p, c)) = &last_null {
-                null_var.step_judged(a, p, c);
-                if let Some(cv) = &mut comp_var {
-                    cv.step(a, p);
-                }
+            null_var.step_judged(&fs.a, &fs.cu.P, &fs.chol_p);
+            if let Some(cv) = &mut comp_var {
+                cv.step(&fs.a, &fs.cu.P);
             }
             continue;
         }
-        let Pp = f.predict_covariance(&P);
-        let cu = f.update_covariance(&Pp, k)?;
-        let judged_p = cu.P.view((0, 0), (n, n)).clone_owned();
-        let chol_p = cholesky(&judged_p).ok_or(FilterError::NotPositiveDefinite {
-            which: "P",
-            step: k,
-        })?;
-        let A = &cu.IKH * &f.F;
-        null_var.step_judged(&A, &cu.P, &chol_p);
+        let frozen = filter_quiet >= FILTER_STEADY_STEPS;
+        if !frozen {
+            let next = FilterStep::after(f, &f_op, filt.as_ref().map_or(&f.P0, |s| &s.cu.P), n, k)?;
+            filter_quiet = match &filt {
+                Some(prev) if same_covariance(&next.cu.P, &prev.cu.P) => filter_quiet + 1,
+                _ => 0,
+            };
+            filt = Some(next);
+        }
+        let fs = filt.as_ref().expect("a filter step");
+        null_var.step_judged(&fs.a, &fs.cu.P, &fs.chol_p);
         if let Some(cv) = &mut comp_var {
-            cv.step(&A, &cu.P);
+            cv.step(&fs.a, &fs.cu.P);
         }
         let values = match &mut moments {
-            Moments::Matched(e) => e.step(truth, f, &cu, &chol_p),
-            Moments::Joint(j) => j.step(truth, f, &cu, &chol_p),
+            Moments::Matched(e) => e.step(truth, f, &fs.cu, &fs.chol_p, frozen),
+            Moments::Joint(j) => j.step(truth, f, &fs.cu, &fs.chol_p, frozen),
         };
-        last_null = Some((A, cu.P.clone(), chol_p));
-        if let Some(fault) = truth_m2.step(truth, &cu.P, &values.comp_x) {
+        if let Some(fault) = truth_m2.step(&fs.cu.P, &values.comp_x) {
             return Ok(stop_all(acc, mc, k, fault));
         }
         values.add(&mut acc, i, runs, n, m, &mut comp_x, &mut comp_z, lags, k);
@@ -163,7 +166,6 @@ pub fn expected_accumulator_mapped(
             _ => 0,
         };
         let converged = k > lags + 1 && quiet_steps >= STEADY_STEPS;
-        P = cu.P;
         if converged {
             steady = Some(values);
         } else {
@@ -178,6 +180,42 @@ pub fn expected_accumulator_mapped(
     };
     runs_sums.add(&mut acc, mc, &null_var, comp_var.as_ref());
     Ok(acc)
+}
+
+/// Steps in a row with an unchanged P after which the filter's step is reused.
+const FILTER_STEADY_STEPS: usize = linear::STEADY_STEPS;
+
+/// One step of the filter's covariance recursion, and what the moments read of it.
+struct FilterStep {
+    cu: CovarianceUpdate,
+    /// The error map `A = (I − K H) F`, n × n.
+    a: DMatrix<f64>,
+    /// The Cholesky factor of P's judged block (its first `judged` states).
+    chol_p: Cholesky<f64, Dyn>,
+}
+
+impl FilterStep {
+    /// Step `k` of `f` (its F as a product operand, `f_op`) from the posterior `P` of the
+    /// step before.
+    fn after(
+        f: &KalmanFilter,
+        f_op: &Sparse,
+        P: &DMatrix<f64>,
+        judged: usize,
+        k: usize,
+    ) -> Result<Self, FilterError> {
+        // `predict_covariance`'s F P F' + Q, with F's zeros skipped.
+        let mut Pp = f_op.sandwich(P, f_op) + &f.Q;
+        crate::linalg::symmetrize(&mut Pp);
+        let cu = f.update_covariance(&Pp, k)?;
+        let judged_p = cu.P.view((0, 0), (judged, judged)).clone_owned();
+        let chol_p = cholesky(&judged_p).ok_or(FilterError::NotPositiveDefinite {
+            which: "P",
+            step: k,
+        })?;
+        let a = &cu.IKH * &f.F;
+        Ok(FilterStep { cu, a, chol_p })
+    }
 }
 
 /// Every run's expected sums over its steps, for the per-run spreads.
@@ -255,6 +293,8 @@ struct ErrorMoments {
     s_diag_hist: Vec<DVector<f64>>,
     /// History of expected u_j² per step, most recent first.
     comp_z_hist: Vec<Vec<f64>>,
+    /// The gain and `I − K H` as product operands, kept while the filter is steady.
+    gains: Option<(Sparse, Sparse)>,
 }
 
 impl ErrorMoments {
@@ -268,17 +308,36 @@ impl ErrorMoments {
             window: DMatrix::zeros(f.F.nrows(), 0),
             s_diag_hist: Vec::with_capacity(lags),
             comp_z_hist: Vec::with_capacity(lags),
+            gains: None,
         }
     }
 
     /// Through one step of the filter (its covariance update `cu`, `P`'s Cholesky factor
-    /// `chol_p`): the step's expected values.
+    /// `chol_p`; `frozen`: the same step as the last one): the step's expected values.
     fn step(
         &mut self,
         truth: &LinearGaussianModel,
         f: &KalmanFilter,
         cu: &CovarianceUpdate,
         chol_p: &Cholesky<f64, Dyn>,
+        frozen: bool,
+    ) -> StepValues {
+        let gains = match self.gains.take() {
+            Some(g) if frozen => g,
+            _ => (Sparse::new(&cu.K), Sparse::new(&cu.IKH)),
+        };
+        let values = self.advance(truth, f, cu, chol_p, &gains);
+        self.gains = Some(gains);
+        values
+    }
+
+    fn advance(
+        &mut self,
+        truth: &LinearGaussianModel,
+        f: &KalmanFilter,
+        cu: &CovarianceUpdate,
+        chol_p: &Cholesky<f64, Dyn>,
+        (k, l): &(Sparse, Sparse),
     ) -> StepValues {
         let (fs, hs) = (&self.f, &self.h);
         let (n, m) = (f.F.nrows(), f.H.nrows());
@@ -290,7 +349,6 @@ impl ErrorMoments {
         let nu_mean = &f.H * &mu_p;
         let m2_ht = hs.right_tr(&m2_p);
         let nu_m2 = hs.left(&m2_ht) + &truth.R;
-        let (k, l) = (Sparse::new(&cu.K), Sparse::new(&cu.IKH));
         let mut sig = l.sandwich(&sig_p, &l) + k.sandwich(&truth.R, &k);
         crate::linalg::symmetrize(&mut sig);
         let mu_new = &cu.IKH * &mu_p;
@@ -350,46 +408,50 @@ impl ErrorMoments {
 
 /// The truth's second moment `E[x_k x_k']`, propagated until it settles (a stable truth)
 /// or stops the test (an unstable one), and the map to the filter's states.
-struct TruthMoment(Option<DMatrix<f64>>, Option<DMatrix<f64>>);
+struct TruthMoment {
+    /// `E[x x']`, n_t × n_t; `None` once settled.
+    x2: Option<DMatrix<f64>>,
+    f: Sparse,
+    q: DMatrix<f64>,
+    /// The map's rows (n_e × n_t), `None` for the identity.
+    map: Option<Sparse>,
+}
 
 impl TruthMoment {
     fn new(truth: &LinearGaussianModel, map: Option<&DMatrix<f64>>) -> Self {
-        TruthMoment(
-            Some(&truth.P0 + &truth.x0 * truth.x0.transpose()),
-            map.cloned(),
-        )
+        TruthMoment {
+            x2: Some(&truth.P0 + &truth.x0 * truth.x0.transpose()),
+            f: Sparse::new(&truth.F),
+            q: truth.Q.clone(),
+            map: map.map(Sparse::new),
+        }
     }
 
     /// Advance to the next step, whose filter covariance is `P` and expected normalized
     /// errors `E[e_j²] / P_jj` are `comp_x`: the [`Fault`] that stops the runs there, as the
     /// Monte Carlo engines judge it with the truth's root mean square in place of one run's
     /// estimate.
-    fn step(
-        &mut self,
-        truth: &LinearGaussianModel,
-        P: &DMatrix<f64>,
-        comp_x: &[f64],
-    ) -> Option<Fault> {
-        let x2 = self.0.as_ref()?;
-        let mut next = &truth.F * x2 * truth.F.transpose() + &truth.Q;
+    fn step(&mut self, P: &DMatrix<f64>, comp_x: &[f64]) -> Option<Fault> {
+        let x2 = self.x2.as_ref()?;
+        let mut next = self.f.sandwich(x2, &self.f) + &self.q;
         crate::linalg::symmetrize(&mut next);
         if next.iter().any(|v| !v.is_finite()) {
             return Some(Fault::TruthOverflow);
         }
-        // The truth's moment on the filter's states.
-        let seen = match &self.1 {
-            Some(m) => m * &next * m.transpose(),
-            None => next.clone(),
+        // The truth's mean square on the filter's judged states: diag(M E[x x'] M').
+        let seen = |j: usize| match &self.map {
+            Some(m) => m.row_quadratic(j, &next),
+            None => next[(j, j)],
         };
-        if let Some(fault) = Fault::resolution(comp_x.len(), |j| {
-            seen[(j, j)] / (P[(j, j)] * comp_x[j].max(1.0))
-        }) {
+        if let Some(fault) =
+            Fault::resolution(comp_x.len(), |j| seen(j) / (P[(j, j)] * comp_x[j].max(1.0)))
+        {
             return Some(fault);
         }
         let settled = x2.iter().zip(next.iter()).all(|(a, b)| {
             (a - b).abs() <= STEADY_RTOL * a.abs().max(b.abs()).max(f64::MIN_POSITIVE)
         });
-        self.0 = (!settled).then_some(next);
+        self.x2 = (!settled).then_some(next);
         None
     }
 }
@@ -429,6 +491,31 @@ struct JointMoments {
     window_f: DMatrix<f64>,
     s_diag_hist: Vec<DVector<f64>>,
     comp_z_hist: Vec<Vec<f64>>,
+    /// The step's operands kept while the filter is steady.
+    gains: Option<JointGains>,
+}
+
+/// The operands of a joint step that depend on the filter's gain only.
+struct JointGains {
+    /// K.
+    k: Sparse,
+    /// `G = K H_t`, dense and as an operand.
+    g_dense: DMatrix<f64>,
+    g: Sparse,
+    /// `I − K H_f`.
+    l: Sparse,
+}
+
+impl JointGains {
+    fn new(h_t: &Sparse, cu: &CovarianceUpdate) -> Self {
+        let g_dense = h_t.right(&cu.K);
+        JointGains {
+            k: Sparse::new(&cu.K),
+            g: Sparse::new(&g_dense),
+            g_dense,
+            l: Sparse::new(&cu.IKH),
+        }
+    }
 }
 
 impl JointMoments {
@@ -459,17 +546,36 @@ impl JointMoments {
             window_f: DMatrix::zeros(n_f, 0),
             s_diag_hist: Vec::with_capacity(lags),
             comp_z_hist: Vec::with_capacity(lags),
+            gains: None,
         }
     }
 
     /// Through one step of the filter (its covariance update `cu`, `P`'s Cholesky factor
-    /// `chol_p`): the step's expected values.
+    /// `chol_p`; `frozen`: the same step as the last one): the step's expected values.
     fn step(
         &mut self,
         truth: &LinearGaussianModel,
         f: &KalmanFilter,
         cu: &CovarianceUpdate,
         chol_p: &Cholesky<f64, Dyn>,
+        frozen: bool,
+    ) -> StepValues {
+        let gains = match self.gains.take() {
+            Some(g) if frozen => g,
+            _ => JointGains::new(&self.h_t, cu),
+        };
+        let values = self.advance(truth, f, cu, chol_p, &gains);
+        self.gains = Some(gains);
+        values
+    }
+
+    fn advance(
+        &mut self,
+        truth: &LinearGaussianModel,
+        f: &KalmanFilter,
+        cu: &CovarianceUpdate,
+        chol_p: &Cholesky<f64, Dyn>,
+        gains: &JointGains,
     ) -> StepValues {
         let (f_t, h_t, f_f, h_f) = (&self.f_t, &self.h_t, &self.f_f, &self.h_f);
         let m = f.H.nrows();
@@ -497,15 +603,13 @@ impl JointMoments {
         // The update leaves the truth alone and sets x̂ = K H_t x + (I − K H_f) x̂⁻ + K v.
         // With G = K H_t: Cov(x, x̂) = P_tt G' + P_tf L', Cov(x̂) = Cov(x̂, x) G' +
         // (G P_tf + L P_ff) L' + K R K'.
-        let k = Sparse::new(&cu.K);
-        let g_dense = h_t.right(&cu.K);
-        let (g, l) = (Sparse::new(&g_dense), Sparse::new(&cu.IKH));
+        let JointGains { k, g_dense, g, l } = gains;
         let s_tf = g.right_tr(&p_tt) + l.right_tr(&p_tf);
         let v = g.right_tr(&p_tf.transpose()) + l.right_tr(&p_ff);
         let mut s_ff =
             g.right_tr(&s_tf.transpose()) + l.right_tr(&v.transpose()) + k.sandwich(&truth.R, &k);
         crate::linalg::symmetrize(&mut s_ff);
-        let mu_f = &g_dense * &mp_t + &cu.IKH * &mp_f;
+        let mu_f = g_dense * &mp_t + &cu.IKH * &mp_f;
 
         // The judged error M x − x̂[..ne].
         let map = &self.map;

@@ -45,14 +45,14 @@ struct Schedule {
 }
 
 /// Relative change below which a covariance entry or increment counts as unchanged.
-const STEADY_RTOL: f64 = 1e-14;
+pub(super) const STEADY_RTOL: f64 = 1e-14;
 
 /// Unchanged steps in a row after which the recursion is in steady state.
-const STEADY_STEPS: usize = 3;
+pub(super) const STEADY_STEPS: usize = 3;
 
 /// Whether every entry of `a` equals `b`'s to [`STEADY_RTOL`] relative to the geometric
 /// mean of the two diagonal entries it couples (a unit-free test).
-fn same_covariance(a: &DMatrix<f64>, b: &DMatrix<f64>) -> bool {
+pub(super) fn same_covariance(a: &DMatrix<f64>, b: &DMatrix<f64>) -> bool {
     let n = a.nrows();
     (0..n).all(|i| {
         (0..n).all(|j| {

@@ -2,10 +2,6 @@
 
 use nalgebra::{Cholesky, DMatrix, Dyn};
 
-fn cholesky_of(m: &DMatrix<f64>) -> Option<Cholesky<f64, Dyn>> {
-    Cholesky::new(m.clone())
-}
-
 /// Streaming computation of the variance of one run's NEES sum `Σ_k ε_k` that a filter
 /// predicts for itself if it is consistent.
 ///
@@ -27,6 +23,8 @@ pub struct NeesNullVariance {
     judged: usize,
     g: DMatrix<f64>,
     p_prev: Option<DMatrix<f64>>,
+    /// The Cholesky factor of `p_prev`'s judged block (a NEES on some states only).
+    chol_prev: Option<Cholesky<f64, Dyn>>,
     /// Scratch, n × n each: `G + P_{k−1}`, `A (G + P_{k−1})`, `A'` and `P_k⁻¹ G`, so that a
     /// step allocates nothing (the products are those `a * s * a'` computes, in its order).
     sum: DMatrix<f64>,
@@ -44,6 +42,7 @@ impl NeesNullVariance {
             judged: n,
             g: DMatrix::zeros(n, n),
             p_prev: None,
+            chol_prev: None,
             sum: DMatrix::zeros(n, n),
             left: DMatrix::zeros(n, n),
             a_t: DMatrix::zeros(n, n),
@@ -75,22 +74,28 @@ impl NeesNullVariance {
         }
         let ne = self.judged;
         if let Some(pp) = &self.p_prev {
-            // P M P = P[:, :ne] P₁₁⁻¹ P[:ne, :] of the previous step.
+            // P M P = P[:, :ne] P₁₁⁻¹ P[:ne, :] of the previous step, whose P₁₁ factor was
+            // that step's `chol11`.
             let left = pp.columns(0, ne).clone_owned();
-            let p11 = pp.view((0, 0), (ne, ne)).clone_owned();
-            let solved = cholesky_of(&p11).map(|c| c.solve(&left.transpose()));
-            let pmp = match solved {
-                Some(s) => &left * s,
+            let pmp = match &self.chol_prev {
+                Some(c) => &left * c.solve(&left.transpose()),
                 None => DMatrix::zeros(self.n, self.n),
             };
-            let sum = &self.g + pmp;
-            self.g = a * sum * a.transpose();
+            self.sum.copy_from(&self.g);
+            self.sum += pmp;
+            self.left.gemm(1.0, a, &self.sum, 0.0);
+            a.transpose_to(&mut self.a_t);
+            self.g.gemm(1.0, &self.left, &self.a_t, 0.0);
         }
         let g11 = self.g.view((0, 0), (ne, ne)).clone_owned();
         let cross = chol11.solve(&g11).trace();
         let inc = 2.0 * ne as f64 + 4.0 * cross;
         self.var += inc;
-        self.p_prev = Some(p.clone());
+        match &mut self.p_prev {
+            Some(pp) => pp.copy_from(p),
+            None => self.p_prev = Some(p.clone()),
+        }
+        self.chol_prev = Some(chol11.clone());
         inc
     }
 

@@ -349,7 +349,7 @@ impl ErrorMoments {
         let nu_mean = &f.H * &mu_p;
         let m2_ht = hs.right_tr(&m2_p);
         let nu_m2 = hs.left(&m2_ht) + &truth.R;
-        let mut sig = l.sandwich(&sig_p, &l) + k.sandwich(&truth.R, &k);
+        let mut sig = l.sandwich(&sig_p, l) + k.sandwich(&truth.R, k);
         crate::linalg::symmetrize(&mut sig);
         let mu_new = &cu.IKH * &mu_p;
         let e_m2 = &sig + &mu_new * mu_new.transpose();
@@ -607,7 +607,7 @@ impl JointMoments {
         let s_tf = g.right_tr(&p_tt) + l.right_tr(&p_tf);
         let v = g.right_tr(&p_tf.transpose()) + l.right_tr(&p_ff);
         let mut s_ff =
-            g.right_tr(&s_tf.transpose()) + l.right_tr(&v.transpose()) + k.sandwich(&truth.R, &k);
+            g.right_tr(&s_tf.transpose()) + l.right_tr(&v.transpose()) + k.sandwich(&truth.R, k);
         crate::linalg::symmetrize(&mut s_ff);
         let mu_f = g_dense * &mp_t + &cu.IKH * &mp_f;
 

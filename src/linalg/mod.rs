@@ -201,6 +201,33 @@ pub fn inverse_cholesky_factor(chol: &Cholesky<f64, Dyn>) -> DMatrix<f64> {
         .expect("a Cholesky factor has a nonzero diagonal")
 }
 
+/// `M⁻¹` (n × n, symmetric) from the lower Cholesky factor `l` of `M` (its lower triangle
+/// is read): `L⁻¹` by forward substitution, then `L⁻ᵀ L⁻¹`, in plain loops. The exact
+/// scoring weighs every step's quadratic forms by the same P⁻¹ and S⁻¹; at a filter's sizes
+/// nalgebra's column-by-column triangular solves cost several times these loops.
+pub fn spd_inverse(l: &DMatrix<f64>) -> DMatrix<f64> {
+    let n = l.nrows();
+    let lv = l.as_slice();
+    // W = L⁻¹, lower triangular, column-major.
+    let mut w = vec![0.0; n * n];
+    for j in 0..n {
+        w[j + j * n] = 1.0 / lv[j + j * n];
+        for i in j + 1..n {
+            let s: f64 = (j..i).map(|k| lv[i + k * n] * w[k + j * n]).sum();
+            w[i + j * n] = -s / lv[i + i * n];
+        }
+    }
+    let mut out = DMatrix::zeros(n, n);
+    for j in 0..n {
+        for i in j..n {
+            let s: f64 = (i..n).map(|k| w[k + i * n] * w[k + j * n]).sum();
+            out[(i, j)] = s;
+            out[(j, i)] = s;
+        }
+    }
+    out
+}
+
 /// The fixed-size copy of a dynamic matrix or vector, or `None` when its shape is not
 /// `R × C`.
 #[inline]
@@ -330,6 +357,31 @@ pub fn wrap_angle(a: f64) -> f64 {
 #[cfg(test)]
 mod tests {
     use nalgebra::{Cholesky, DMatrix};
+
+    #[test]
+    fn spd_inverse_inverts_ill_scaled_matrices() {
+        // Sizes 1 to 12, entries spanning six decades (a position beside a rate), checked
+        // against LU's inverse and by the product with M.
+        for n in 1..=12usize {
+            let b = DMatrix::from_fn(n, n, |i, j| ((i * 7 + j * 3) % 11) as f64 - 5.0);
+            let d = DMatrix::from_fn(n, n, |i, j| {
+                if i == j {
+                    10f64.powi(i as i32 % 6 - 3)
+                } else {
+                    0.0
+                }
+            });
+            let m = &d * (&b * b.transpose() + DMatrix::identity(n, n)) * &d;
+            let l = Cholesky::new(m.clone()).unwrap().l();
+            let inv = super::spd_inverse(&l);
+            let lu = m.clone().try_inverse().unwrap();
+            let scale = lu.amax();
+            assert!((&inv - &lu).amax() <= 1e-9 * scale, "n = {n}");
+            assert_eq!(inv, inv.transpose());
+            let id = &d * (&inv * &m) * d.try_inverse().unwrap();
+            assert!((id - DMatrix::identity(n, n)).amax() < 1e-9, "n = {n}");
+        }
+    }
 
     #[test]
     fn cholesky_in_place_is_nalgebras_factor_bit_for_bit() {

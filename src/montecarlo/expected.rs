@@ -20,14 +20,14 @@
 
 #![allow(non_snake_case)]
 
-use nalgebra::{Cholesky, DMatrix, DVector, Dyn};
+use nalgebra::{DMatrix, DVector};
 
 use super::McConfig;
 use super::generic::Fault;
 use super::linear::{self, same_covariance};
 use crate::filter::{CovarianceUpdate, Filter, FilterError, KalmanFilter};
-use crate::linalg::cholesky;
 use crate::linalg::products::Sparse;
+use crate::linalg::{cholesky, spd_inverse};
 use crate::model::LinearGaussianModel;
 use crate::stats::Accumulator;
 use crate::stats::{ComponentNullVariance, GateMode, NeesNullVariance};
@@ -123,7 +123,7 @@ pub fn expected_accumulator_mapped(
             for (s, y) in mean_z.iter_mut().zip(&v.mean_z) {
                 *s += y;
             }
-            null_var.step_judged(&fs.a, &fs.cu.P, &fs.chol_p);
+            null_var.step_judged(&fs.a, &fs.cu.P, &fs.p_inv);
             if let Some(cv) = &mut comp_var {
                 cv.step(&fs.a, &fs.cu.P);
             }
@@ -139,13 +139,13 @@ pub fn expected_accumulator_mapped(
             filt = Some(next);
         }
         let fs = filt.as_ref().expect("a filter step");
-        null_var.step_judged(&fs.a, &fs.cu.P, &fs.chol_p);
+        null_var.step_judged(&fs.a, &fs.cu.P, &fs.p_inv);
         if let Some(cv) = &mut comp_var {
             cv.step(&fs.a, &fs.cu.P);
         }
         let values = match &mut moments {
-            Moments::Matched(e) => e.step(truth, f, &fs.cu, &fs.chol_p, frozen),
-            Moments::Joint(j) => j.step(truth, f, &fs.cu, &fs.chol_p, frozen),
+            Moments::Matched(e) => e.step(truth, f, fs, frozen),
+            Moments::Joint(j) => j.step(truth, f, fs, frozen),
         };
         if let Some(fault) = truth_m2.step(&fs.cu.P, &values.comp_x) {
             return Ok(stop_all(acc, mc, k, fault));
@@ -190,8 +190,10 @@ struct FilterStep {
     cu: CovarianceUpdate,
     /// The error map `A = (I − K H) F`, n × n.
     a: DMatrix<f64>,
-    /// The Cholesky factor of P's judged block (its first `judged` states).
-    chol_p: Cholesky<f64, Dyn>,
+    /// The inverse of P's judged block (its first `judged` states), and of S: the weights
+    /// of the NEES and NIS.
+    p_inv: DMatrix<f64>,
+    s_inv: DMatrix<f64>,
 }
 
 impl FilterStep {
@@ -214,7 +216,14 @@ impl FilterStep {
             step: k,
         })?;
         let a = &cu.IKH * &f.F;
-        Ok(FilterStep { cu, a, chol_p })
+        let p_inv = spd_inverse(chol_p.l_dirty());
+        let s_inv = spd_inverse(cu.chol.l_dirty());
+        Ok(FilterStep {
+            cu,
+            a,
+            p_inv,
+            s_inv,
+        })
     }
 }
 
@@ -312,21 +321,21 @@ impl ErrorMoments {
         }
     }
 
-    /// Through one step of the filter (its covariance update `cu`, `P`'s Cholesky factor
-    /// `chol_p`; `frozen`: the same step as the last one): the step's expected values.
+    /// Through one step `fs` of the filter (`frozen`: the same step as the last one): the
+    /// step's expected values.
     fn step(
         &mut self,
         truth: &LinearGaussianModel,
         f: &KalmanFilter,
-        cu: &CovarianceUpdate,
-        chol_p: &Cholesky<f64, Dyn>,
+        fs: &FilterStep,
         frozen: bool,
     ) -> StepValues {
+        let cu = &fs.cu;
         let gains = match self.gains.take() {
             Some(g) if frozen => g,
             _ => (Sparse::new(&cu.K), Sparse::new(&cu.IKH)),
         };
-        let values = self.advance(truth, f, cu, chol_p, &gains);
+        let values = self.advance(truth, f, fs, &gains);
         self.gains = Some(gains);
         values
     }
@@ -335,10 +344,10 @@ impl ErrorMoments {
         &mut self,
         truth: &LinearGaussianModel,
         f: &KalmanFilter,
-        cu: &CovarianceUpdate,
-        chol_p: &Cholesky<f64, Dyn>,
+        step: &FilterStep,
         (k, l): &(Sparse, Sparse),
     ) -> StepValues {
+        let cu = &step.cu;
         let (fs, hs) = (&self.f, &self.h);
         let (n, m) = (f.F.nrows(), f.H.nrows());
         // Error moments before and after the update.
@@ -354,9 +363,9 @@ impl ErrorMoments {
         let mu_new = &cu.IKH * &mu_p;
         let e_m2 = &sig + &mu_new * mu_new.transpose();
 
-        let (nees, nees_sq) = gaussian_quadratic_moments(chol_p, &sig, &mu_new);
+        let (nees, nees_sq) = gaussian_quadratic_moments(&step.p_inv, &sig, &mu_new);
         let nu_cov = &nu_m2 - &nu_mean * nu_mean.transpose();
-        let (nis, nis_sq) = gaussian_quadratic_moments(&cu.chol, &nu_cov, &nu_mean);
+        let (nis, nis_sq) = gaussian_quadratic_moments(&step.s_inv, &nu_cov, &nu_mean);
 
         let s_diag = cu.S.diagonal();
         // E[ν_k ν_{k−l}'] = H F E[e_{k−1} ν_{k−l}']: only the diagonal of each block is read.
@@ -550,21 +559,21 @@ impl JointMoments {
         }
     }
 
-    /// Through one step of the filter (its covariance update `cu`, `P`'s Cholesky factor
-    /// `chol_p`; `frozen`: the same step as the last one): the step's expected values.
+    /// Through one step `fs` of the filter (`frozen`: the same step as the last one): the
+    /// step's expected values.
     fn step(
         &mut self,
         truth: &LinearGaussianModel,
         f: &KalmanFilter,
-        cu: &CovarianceUpdate,
-        chol_p: &Cholesky<f64, Dyn>,
+        fs: &FilterStep,
         frozen: bool,
     ) -> StepValues {
+        let cu = &fs.cu;
         let gains = match self.gains.take() {
             Some(g) if frozen => g,
             _ => JointGains::new(&self.h_t, cu),
         };
-        let values = self.advance(truth, f, cu, chol_p, &gains);
+        let values = self.advance(truth, f, fs, &gains);
         self.gains = Some(gains);
         values
     }
@@ -573,10 +582,10 @@ impl JointMoments {
         &mut self,
         truth: &LinearGaussianModel,
         f: &KalmanFilter,
-        cu: &CovarianceUpdate,
-        chol_p: &Cholesky<f64, Dyn>,
+        step: &FilterStep,
         gains: &JointGains,
     ) -> StepValues {
+        let cu = &step.cu;
         let (f_t, h_t, f_f, h_f) = (&self.f_t, &self.h_t, &self.f_f, &self.h_f);
         let m = f.H.nrows();
         let ne = self.ne;
@@ -619,9 +628,9 @@ impl JointMoments {
         crate::linalg::symmetrize(&mut e_cov);
         let e_m2 = &e_cov + &e_mean * e_mean.transpose();
 
-        let (nees, nees_sq) = gaussian_quadratic_moments(chol_p, &e_cov, &e_mean);
+        let (nees, nees_sq) = gaussian_quadratic_moments(&step.p_inv, &e_cov, &e_mean);
         let nu_cov = &nu_m2 - &nu_mean * nu_mean.transpose();
-        let (nis, nis_sq) = gaussian_quadratic_moments(&cu.chol, &nu_cov, &nu_mean);
+        let (nis, nis_sq) = gaussian_quadratic_moments(&step.s_inv, &nu_cov, &nu_mean);
         let s_diag = cu.S.diagonal();
         // E[ν_k ν_{k−l}'] = C Φ E[s_{k−1} ν_{k−l}'], whose Φ part also advances the window.
         let z_t = f_t.left(&self.window_t);
@@ -687,18 +696,34 @@ fn stop_all(mut acc: Accumulator, mc: &McConfig, k: usize, fault: Fault) -> Accu
     acc
 }
 
-/// `E[x' M⁻¹ x]` and `E[(x' M⁻¹ x)²]` for x ~ N(μ, Σ), with M given by its Cholesky factor:
+/// `E[x' M⁻¹ x]` and `E[(x' M⁻¹ x)²]` for x ~ N(μ, Σ), given `M⁻¹` (symmetric):
 /// `tr B + μ'M⁻¹μ` and `(tr B)² + 2 tr(B²) + 4 μ' M⁻¹ Σ M⁻¹ μ + 2 tr(B) μ'M⁻¹μ + (μ'M⁻¹μ)²`,
-/// `B = M⁻¹ Σ`. `tr(B²) = Σ_ij B_ij B_ji` needs no product.
+/// `B = M⁻¹ Σ`, in plain loops (a few states: no packing, no allocation beyond B).
 fn gaussian_quadratic_moments(
-    chol: &nalgebra::Cholesky<f64, nalgebra::Dyn>,
+    minv: &DMatrix<f64>,
     sigma: &DMatrix<f64>,
     mu: &DVector<f64>,
 ) -> (f64, f64) {
-    let b = chol.solve(sigma);
-    let tr = b.trace();
-    let tr2 = b.component_mul(&b.transpose()).sum();
-    let minv_mu = chol.solve(mu);
+    let n = mu.len();
+    let (w, s) = (minv.as_slice(), sigma.as_slice());
+    let mut b = vec![0.0; n * n];
+    for j in 0..n {
+        let col = &mut b[j * n..(j + 1) * n];
+        for k in 0..n {
+            let skj = s[k + j * n];
+            for (bi, wi) in col.iter_mut().zip(&w[k * n..(k + 1) * n]) {
+                *bi += wi * skj;
+            }
+        }
+    }
+    let tr: f64 = (0..n).map(|i| b[i + i * n]).sum();
+    let mut tr2 = 0.0;
+    for j in 0..n {
+        for i in 0..n {
+            tr2 += b[i + j * n] * b[j + i * n];
+        }
+    }
+    let minv_mu = minv * mu;
     let q = mu.dot(&minv_mu);
     let cross = minv_mu.dot(&(sigma * &minv_mu));
     (

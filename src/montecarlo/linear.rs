@@ -16,7 +16,7 @@ use super::generic::{Fault, MAX_RATIO_SQ};
 use super::{McConfig, RunOptions, run_chunked, run_rng};
 use crate::filter::conditioning::check_conditioned;
 use crate::filter::{Filter, FilterError, KalmanFilter};
-use crate::linalg::{cholesky, inverse_cholesky_factor};
+use crate::linalg::{cholesky, inverse_cholesky_factor, spd_inverse};
 use crate::model::{LinearGaussianModel, sample_gaussian};
 use crate::stats::Accumulator;
 use crate::stats::{ComponentNullVariance, GateMode, NeesNullVariance};
@@ -123,7 +123,7 @@ impl Schedule {
                 )?
             };
             let map = &cu.IKH * &f.F;
-            let inc = nv.step_judged(&map, &cu.P, &chol);
+            let inc = nv.step_judged(&map, &cu.P, &spd_inverse(chol.l_dirty()));
             let cinc = cv
                 .as_mut()
                 .map(|cv| cv.step(&map, &cu.P))

@@ -23,8 +23,8 @@ pub struct NeesNullVariance {
     judged: usize,
     g: DMatrix<f64>,
     p_prev: Option<DMatrix<f64>>,
-    /// The Cholesky factor of `p_prev`'s judged block (a NEES on some states only).
-    chol_prev: Option<Cholesky<f64, Dyn>>,
+    /// The inverse of `p_prev`'s judged block (a NEES on some states only).
+    inv_prev: Option<DMatrix<f64>>,
     /// Scratch, n × n each: `G + P_{k−1}`, `A (G + P_{k−1})`, `A'` and `P_k⁻¹ G`, so that a
     /// step allocates nothing (the products are those `a * s * a'` computes, in its order).
     sum: DMatrix<f64>,
@@ -42,7 +42,7 @@ impl NeesNullVariance {
             judged: n,
             g: DMatrix::zeros(n, n),
             p_prev: None,
-            chol_prev: None,
+            inv_prev: None,
             sum: DMatrix::zeros(n, n),
             left: DMatrix::zeros(n, n),
             a_t: DMatrix::zeros(n, n),
@@ -61,41 +61,49 @@ impl NeesNullVariance {
     }
 
     /// Add a step of a NEES on the first `judged` states: its error map `A_k`, posterior
-    /// covariance `P_k` (n × n) and the Cholesky factor of its leading `judged × judged`
-    /// block. Returns this step's contribution to the variance.
+    /// covariance `P_k` (n × n) and the inverse of its leading `judged × judged` block
+    /// ([`crate::linalg::spd_inverse`]). Returns this step's contribution to the variance.
     pub fn step_judged(
         &mut self,
         a: &DMatrix<f64>,
         p: &DMatrix<f64>,
-        chol11: &Cholesky<f64, Dyn>,
+        p11_inv: &DMatrix<f64>,
     ) -> f64 {
-        if self.judged == self.n {
-            return self.step(a, p, chol11);
-        }
         let ne = self.judged;
         if let Some(pp) = &self.p_prev {
-            // P M P = P[:, :ne] P₁₁⁻¹ P[:ne, :] of the previous step, whose P₁₁ factor was
-            // that step's `chol11`.
-            let left = pp.columns(0, ne).clone_owned();
-            let pmp = match &self.chol_prev {
-                Some(c) => &left * c.solve(&left.transpose()),
-                None => DMatrix::zeros(self.n, self.n),
-            };
             self.sum.copy_from(&self.g);
-            self.sum += pmp;
+            if ne == self.n {
+                self.sum += pp;
+            } else if let Some(inv) = &self.inv_prev {
+                // P M P = P[:, :ne] P₁₁⁻¹ P[:ne, :] of the previous step, whose P₁₁⁻¹ was
+                // that step's `p11_inv`.
+                let left = pp.columns(0, ne);
+                let right = inv * left.transpose();
+                self.sum.gemm(1.0, &left, &right, 1.0);
+            }
             self.left.gemm(1.0, a, &self.sum, 0.0);
             a.transpose_to(&mut self.a_t);
             self.g.gemm(1.0, &self.left, &self.a_t, 0.0);
         }
-        let g11 = self.g.view((0, 0), (ne, ne)).clone_owned();
-        let cross = chol11.solve(&g11).trace();
+        // tr(P₁₁⁻¹ G₁₁), both symmetric: no product.
+        let mut cross = 0.0;
+        for j in 0..ne {
+            for i in 0..ne {
+                cross += p11_inv[(i, j)] * self.g[(j, i)];
+            }
+        }
         let inc = 2.0 * ne as f64 + 4.0 * cross;
         self.var += inc;
         match &mut self.p_prev {
             Some(pp) => pp.copy_from(p),
             None => self.p_prev = Some(p.clone()),
         }
-        self.chol_prev = Some(chol11.clone());
+        if ne < self.n {
+            match &mut self.inv_prev {
+                Some(i) => i.copy_from(p11_inv),
+                None => self.inv_prev = Some(p11_inv.clone()),
+            }
+        }
         inc
     }
 
@@ -294,11 +302,11 @@ mod tests {
         // P_00², as for a component.
         let a = DMatrix::from_row_slice(2, 2, &[0.9, 0.2, -0.1, 0.7]);
         let p = DMatrix::from_row_slice(2, 2, &[2.0, 0.3, 0.3, 1.0]);
-        let chol11 = Cholesky::new(DMatrix::from_element(1, 1, 2.0)).unwrap();
+        let p11_inv = DMatrix::from_element(1, 1, 0.5);
         let t = 20;
         let mut nv = NeesNullVariance::judged(2, 1);
         for _ in 0..t {
-            nv.step_judged(&a, &p, &chol11);
+            nv.step_judged(&a, &p, &p11_inv);
         }
         let mut powers = vec![DMatrix::identity(2, 2)];
         for i in 1..t {
@@ -322,14 +330,13 @@ mod tests {
         let a = DMatrix::from_row_slice(3, 3, &[0.9, 0.2, 0.0, -0.1, 0.7, 0.1, 0.05, 0.0, 0.5]);
         let p = DMatrix::from_row_slice(3, 3, &[2.0, 0.3, 0.1, 0.3, 1.0, -0.2, 0.1, -0.2, 0.8]);
         let p11 = p.view((0, 0), (2, 2)).clone_owned();
-        let chol11 = Cholesky::new(p11.clone()).unwrap();
         let p11_inv = p11.try_inverse().unwrap();
         let t = 15;
         let mut nv = NeesNullVariance::judged(3, 2);
-        let first = nv.step_judged(&a, &p, &chol11);
+        let first = nv.step_judged(&a, &p, &p11_inv);
         assert_relative_eq!(first, 4.0, max_relative = 1e-12);
         for _ in 1..t {
-            nv.step_judged(&a, &p, &chol11);
+            nv.step_judged(&a, &p, &p11_inv);
         }
         let mut powers = vec![DMatrix::identity(3, 3)];
         for i in 1..t {

@@ -20,6 +20,8 @@
 
 #![allow(non_snake_case)]
 
+use std::sync::{Arc, Mutex};
+
 use nalgebra::{DMatrix, DVector};
 
 use super::McConfig;
@@ -56,9 +58,9 @@ pub fn expected_accumulator(
 }
 
 /// The error moments of either kind.
-enum Moments {
+enum Moments<'a> {
     Matched(Box<ErrorMoments>),
-    Joint(Box<JointMoments>),
+    Joint(Box<JointMoments<'a>>),
 }
 
 /// The expected value of the sums [`super::run_linear`] accumulates over `mc.runs()` runs
@@ -71,6 +73,19 @@ pub fn expected_accumulator_mapped(
     map: Option<&DMatrix<f64>>,
     mc: &McConfig,
 ) -> Result<Accumulator, FilterError> {
+    expected_accumulator_tracked(truth, f, map, mc, None)
+}
+
+/// [`expected_accumulator_mapped`] with the truth's own moments taken from `track` where
+/// it was built for this truth, map and at least `mc.steps()` steps (a search scoring many
+/// filters against one truth: [`TruthTrack`]); computed here otherwise.
+pub fn expected_accumulator_tracked(
+    truth: &LinearGaussianModel,
+    f: &KalmanFilter,
+    map: Option<&DMatrix<f64>>,
+    mc: &McConfig,
+    track: Option<&TruthTrack>,
+) -> Result<Accumulator, FilterError> {
     // The judged states: the map's rows (a filter with states the truth lacks is judged on
     // its first ones), or all of them.
     let n_f = f.n_x();
@@ -80,10 +95,25 @@ pub fn expected_accumulator_mapped(
     let runs = mc.runs() as f64;
     let mut acc = Accumulator::new(mc.steps(), n, m, lags);
 
-    let mut moments = if map.is_none() && models_match(truth, f) {
-        Moments::Matched(Box::new(ErrorMoments::new(truth, f, lags)))
+    let built;
+    let (mut moments, mut truth_m2) = if map.is_none() && models_match(truth, f) {
+        (
+            Moments::Matched(Box::new(ErrorMoments::new(truth, f, lags))),
+            Truth::Propagated(TruthMoment::new(truth, map)),
+        )
     } else {
-        Moments::Joint(Box::new(JointMoments::new(truth, f, map, lags)))
+        let judged = TruthTrack::judged_map(truth, f, map);
+        let track = match track {
+            Some(t) if t.serves(&judged, mc.steps()) => t,
+            _ => {
+                built = TruthTrack::new(truth, f, map, mc.steps());
+                &built
+            }
+        };
+        (
+            Moments::Joint(Box::new(JointMoments::new(truth, f, track, lags))),
+            Truth::Tracked(track),
+        )
     };
     let mut null_var = NeesNullVariance::judged(n_f, n);
     // The component variances (second and first moment) cost n times the NEES one; only
@@ -104,16 +134,13 @@ pub fn expected_accumulator_mapped(
     let mut filter_quiet = 0usize;
     let f_op = Sparse::new(&f.F);
 
-    // The truth's second moment E[x x'], to stop where the Monte Carlo runs would: a truth
-    // that overflows or outgrows double precision relative to the filter's P ([`Fault`]).
-    // The error moments above stay bounded for a truth-matched filter on an unstable model,
-    // so without this the exact path would grade a test no run can carry out.
-    let mut truth_m2 = TruthMoment::new(truth, map);
-
     for k in 1..=mc.steps() {
         let i = k - 1;
+        if let Some(fault) = truth_m2.overflows(k) {
+            return Ok(stop_all(acc, mc, k, fault));
+        }
         if let (Some(v), Some(fs)) = (&steady, &filt) {
-            if let Some(fault) = truth_m2.step(&fs.cu.P, &v.comp_x) {
+            if let Some(fault) = truth_m2.step(k, &fs.cu.P, &v.comp_x) {
                 return Ok(stop_all(acc, mc, k, fault));
             }
             v.add(&mut acc, i, runs, n, m, &mut comp_x, &mut comp_z, lags, k);
@@ -145,9 +172,9 @@ pub fn expected_accumulator_mapped(
         }
         let values = match &mut moments {
             Moments::Matched(e) => e.step(truth, f, fs, frozen),
-            Moments::Joint(j) => j.step(truth, f, fs, frozen),
+            Moments::Joint(j) => j.step(i, truth, f, fs, frozen),
         };
-        if let Some(fault) = truth_m2.step(&fs.cu.P, &values.comp_x) {
+        if let Some(fault) = truth_m2.step(k, &fs.cu.P, &values.comp_x) {
             return Ok(stop_all(acc, mc, k, fault));
         }
         values.add(&mut acc, i, runs, n, m, &mut comp_x, &mut comp_z, lags, k);
@@ -452,9 +479,7 @@ impl TruthMoment {
             Some(m) => m.row_quadratic(j, &next),
             None => next[(j, j)],
         };
-        if let Some(fault) =
-            Fault::resolution(comp_x.len(), |j| seen(j) / (P[(j, j)] * comp_x[j].max(1.0)))
-        {
+        if let Some(fault) = resolution_fault(seen, P, comp_x) {
             return Some(fault);
         }
         let settled = x2.iter().zip(next.iter()).all(|(a, b)| {
@@ -465,20 +490,193 @@ impl TruthMoment {
     }
 }
 
+/// Where the truth's mean square on judged state j is `seen(j)`: the fault that stops the
+/// runs when it has outgrown double precision relative to the filter's `P` (`comp_x`: the
+/// expected normalized errors), as the Monte Carlo engines judge one run's estimate.
+fn resolution_fault(
+    seen: impl Fn(usize) -> f64,
+    P: &DMatrix<f64>,
+    comp_x: &[f64],
+) -> Option<Fault> {
+    Fault::resolution(comp_x.len(), |j| seen(j) / (P[(j, j)] * comp_x[j].max(1.0)))
+}
+
+/// The truth's second moment, to stop where the Monte Carlo runs would: a truth that
+/// overflows or outgrows double precision relative to the filter's P ([`Fault`]). The error
+/// moments stay bounded for a truth-matched filter on an unstable model, so without this
+/// the exact path would grade a test no run can carry out.
+enum Truth<'a> {
+    /// Propagated here, until it settles (the matched models' path).
+    Propagated(TruthMoment),
+    /// Read from the truth's track (the joint path).
+    Tracked(&'a TruthTrack),
+}
+
+impl Truth<'_> {
+    /// The fault at step `k` (from 1) before anything is computed there: the truth's
+    /// moments overflowed.
+    fn overflows(&self, k: usize) -> Option<Fault> {
+        match self {
+            Truth::Propagated(_) => None,
+            Truth::Tracked(t) => (k > t.steps.len()).then_some(Fault::TruthOverflow),
+        }
+    }
+
+    /// The fault at step `k` once its filter covariance `P` and expected normalized errors
+    /// `comp_x` are known.
+    fn step(&mut self, k: usize, P: &DMatrix<f64>, comp_x: &[f64]) -> Option<Fault> {
+        match self {
+            Truth::Propagated(m) => m.step(P, comp_x),
+            Truth::Tracked(t) => {
+                let seen = &t.steps[k - 1].seen;
+                resolution_fault(|j| seen[j], P, comp_x)
+            }
+        }
+    }
+}
+
+/// A linear truth's own moments at every step, which no filter changes: a search that
+/// scores many filters against one truth (a misfit trial's) computes them once. Built for
+/// one map `M` (n_e × n_t) from the truth's states to the judged ones.
+#[derive(Debug, Clone)]
+pub struct TruthTrack {
+    map: DMatrix<f64>,
+    /// Steps 1, 2, … up to the one asked for, or to the one before the truth overflows.
+    steps: Vec<TruthStep>,
+    /// The steps asked for.
+    wanted: usize,
+}
+
+/// The [`TruthTrack`] a search's evaluations share, built at the first and rebuilt when one
+/// needs more steps or another map than it holds (a one-step probe may come first).
+#[derive(Debug, Default)]
+pub struct SharedTrack(Mutex<Option<Arc<TruthTrack>>>);
+
+impl SharedTrack {
+    /// The track of `truth` for filter `f` judged through `map`, over `steps` steps.
+    pub fn get(
+        &self,
+        truth: &LinearGaussianModel,
+        f: &KalmanFilter,
+        map: Option<&DMatrix<f64>>,
+        steps: usize,
+    ) -> Arc<TruthTrack> {
+        let judged = TruthTrack::judged_map(truth, f, map);
+        // A poisoned lock only means another evaluation panicked; the track is still whole.
+        let mut held = self.0.lock().unwrap_or_else(|e| e.into_inner());
+        match held.as_ref() {
+            Some(t) if t.serves(&judged, steps) => Arc::clone(t),
+            _ => {
+                let want = held.as_ref().map_or(steps, |t| t.wanted.max(steps));
+                let t = Arc::new(TruthTrack::new(truth, f, map, want));
+                *held = Some(Arc::clone(&t));
+                t
+            }
+        }
+    }
+}
+
+impl Clone for SharedTrack {
+    fn clone(&self) -> Self {
+        let held = self.0.lock().unwrap_or_else(|e| e.into_inner());
+        SharedTrack(Mutex::new(held.clone()))
+    }
+}
+
+/// The truth's moments after one step's propagation (the truth is never updated).
+#[derive(Debug, Clone)]
+struct TruthStep {
+    /// `E[x]`, n_t.
+    mean: DVector<f64>,
+    /// `Cov(x)`, n_t × n_t.
+    cov: DMatrix<f64>,
+    /// `E[x x'] H'`, n_t × m.
+    m2_ht: DMatrix<f64>,
+    /// `H E[x]`, m.
+    h_mean: DVector<f64>,
+    /// `M Cov(x) M'`, n_e × n_e, and `M E[x]`, n_e.
+    map_cov: DMatrix<f64>,
+    map_mean: DVector<f64>,
+    /// `diag(M E[x x'] M')`, the truth's mean square on the judged states.
+    seen: Vec<f64>,
+}
+
+impl TruthTrack {
+    /// The moments of `truth` over `steps` steps, for filter `f` judged through `map`
+    /// (n_e × n_t; `None`: the first states of both).
+    pub fn new(
+        truth: &LinearGaussianModel,
+        f: &KalmanFilter,
+        map: Option<&DMatrix<f64>>,
+        steps: usize,
+    ) -> Self {
+        let map = Self::judged_map(truth, f, map);
+        let (f, h, m) = (
+            Sparse::new(&truth.F),
+            Sparse::new(&truth.H),
+            Sparse::new(&map),
+        );
+        let mut mean = truth.x0.clone();
+        let mut cov = truth.P0.clone();
+        let mut out = Vec::with_capacity(steps);
+        for _ in 0..steps {
+            mean = &truth.F * &mean;
+            cov = f.sandwich(&cov, &f) + &truth.Q;
+            crate::linalg::symmetrize(&mut cov);
+            let m2 = &cov + &mean * mean.transpose();
+            if m2.iter().any(|v| !v.is_finite()) {
+                break;
+            }
+            let mut map_cov = m.sandwich(&cov, &m);
+            crate::linalg::symmetrize(&mut map_cov);
+            let map_mean = &map * &mean;
+            out.push(TruthStep {
+                m2_ht: h.right_tr(&m2),
+                h_mean: &truth.H * &mean,
+                seen: (0..map.nrows()).map(|j| m.row_quadratic(j, &m2)).collect(),
+                map_cov,
+                map_mean,
+                mean: mean.clone(),
+                cov: cov.clone(),
+            });
+        }
+        TruthTrack {
+            map,
+            steps: out,
+            wanted: steps,
+        }
+    }
+
+    /// The map the error of `f` is judged through: `map`, or, without one, the first states
+    /// of both.
+    fn judged_map(
+        truth: &LinearGaussianModel,
+        f: &KalmanFilter,
+        map: Option<&DMatrix<f64>>,
+    ) -> DMatrix<f64> {
+        map.cloned()
+            .unwrap_or_else(|| DMatrix::identity(f.n_x(), truth.F.nrows()))
+    }
+
+    /// Whether it holds the moments a test of `steps` steps judged through `map` reads.
+    fn serves(&self, map: &DMatrix<f64>, steps: usize) -> bool {
+        steps <= self.wanted && *map == self.map
+    }
+}
+
 /// The joint mean and second moments of the truth's state and the filter's estimate,
 /// `s = [x; x̂]`, and the innovation cross-moments the whiteness sums need, propagated step
 /// by step (the module's second case).
 ///
 /// Held by blocks: `Φ` is block-diagonal and `B` the identity over the truth's rows, so the
-/// truth's block is only propagated, never updated. The models' matrices are products'
-/// sparse operands ([`Sparse`]): a misfit trial spends most of its scoring time here.
-struct JointMoments {
-    /// `E[x]`, n_t.
-    mu_t: DVector<f64>,
+/// truth's block is only propagated, never updated, and is read from its [`TruthTrack`].
+/// The models' matrices are products' sparse operands ([`Sparse`]): a misfit trial spends
+/// most of its scoring time here.
+struct JointMoments<'a> {
+    /// The truth's moments, step by step.
+    track: &'a TruthTrack,
     /// `E[x̂]`, n_f.
     mu_f: DVector<f64>,
-    /// `Cov(x)`, n_t × n_t.
-    s_tt: DMatrix<f64>,
     /// `Cov(x, x̂)`, n_t × n_f.
     s_tf: DMatrix<f64>,
     /// `Cov(x̂)`, n_f × n_f.
@@ -490,7 +688,6 @@ struct JointMoments {
     f_f: Sparse,
     h_f: Sparse,
     map: Sparse,
-    map_dense: DMatrix<f64>,
     /// The error's rows.
     ne: usize,
     lags: usize,
@@ -527,29 +724,25 @@ impl JointGains {
     }
 }
 
-impl JointMoments {
+impl<'a> JointMoments<'a> {
     fn new(
         truth: &LinearGaussianModel,
         f: &KalmanFilter,
-        map: Option<&DMatrix<f64>>,
+        track: &'a TruthTrack,
         lags: usize,
     ) -> Self {
         let (n_t, n_f) = (truth.F.nrows(), f.F.nrows());
-        // Without a map the error is taken on the first states of both.
-        let map = map.cloned().unwrap_or_else(|| DMatrix::identity(n_f, n_t));
         JointMoments {
-            mu_t: truth.x0.clone(),
+            track,
             mu_f: f.x0.clone(),
-            s_tt: truth.P0.clone(),
             s_tf: DMatrix::zeros(n_t, n_f),
             s_ff: DMatrix::zeros(n_f, n_f),
             f_t: Sparse::new(&truth.F),
             h_t: Sparse::new(&truth.H),
             f_f: Sparse::new(&f.F),
             h_f: Sparse::new(&f.H),
-            ne: map.nrows(),
-            map: Sparse::new(&map),
-            map_dense: map,
+            ne: track.map.nrows(),
+            map: Sparse::new(&track.map),
             lags,
             window_t: DMatrix::zeros(n_t, 0),
             window_f: DMatrix::zeros(n_f, 0),
@@ -559,10 +752,11 @@ impl JointMoments {
         }
     }
 
-    /// Through one step `fs` of the filter (`frozen`: the same step as the last one): the
-    /// step's expected values.
+    /// Through step `i` (from 0) of the filter, `fs` (`frozen`: the same step as the last
+    /// one): the step's expected values.
     fn step(
         &mut self,
+        i: usize,
         truth: &LinearGaussianModel,
         f: &KalmanFilter,
         fs: &FilterStep,
@@ -573,13 +767,14 @@ impl JointMoments {
             Some(g) if frozen => g,
             _ => JointGains::new(&self.h_t, cu),
         };
-        let values = self.advance(truth, f, fs, &gains);
+        let values = self.advance(i, truth, f, fs, &gains);
         self.gains = Some(gains);
         values
     }
 
     fn advance(
         &mut self,
+        i: usize,
         truth: &LinearGaussianModel,
         f: &KalmanFilter,
         step: &FilterStep,
@@ -589,42 +784,40 @@ impl JointMoments {
         let (f_t, h_t, f_f, h_f) = (&self.f_t, &self.h_t, &self.f_f, &self.h_f);
         let m = f.H.nrows();
         let ne = self.ne;
+        let ts = &self.track.steps[i];
 
-        // The prediction: Φ is block-diagonal, the truth's noise enters its own block.
-        let mp_t = &truth.F * &self.mu_t;
+        // The prediction: Φ is block-diagonal, the truth's noise enters its own block (the
+        // truth's moments are the track's).
+        let (mp_t, p_tt) = (&ts.mean, &ts.cov);
         let mp_f = &f.F * &self.mu_f;
-        let mut p_tt = f_t.sandwich(&self.s_tt, f_t) + &truth.Q;
-        crate::linalg::symmetrize(&mut p_tt);
         let p_tf = f_t.sandwich(&self.s_tf, f_f);
         let mut p_ff = f_f.sandwich(&self.s_ff, f_f);
         crate::linalg::symmetrize(&mut p_ff);
-        let m_tt = &p_tt + &mp_t * mp_t.transpose();
         let m_ft = p_tf.transpose() + &mp_f * mp_t.transpose();
         let m_tf = m_ft.transpose();
         let m_ff = &p_ff + &mp_f * mp_f.transpose();
 
         // ν = H_t x − H_f x̂ + v: its mean, its second moment and E[s⁻ ν'] by blocks.
-        let w_t = h_t.right_tr(&m_tt) - h_f.right_tr(&m_tf);
+        let w_t = &ts.m2_ht - h_f.right_tr(&m_tf);
         let w_f = h_t.right_tr(&m_ft) - h_f.right_tr(&m_ff);
-        let nu_mean = &truth.H * &mp_t - &f.H * &mp_f;
+        let nu_mean = &ts.h_mean - &f.H * &mp_f;
         let nu_m2 = h_t.left(&w_t) - h_f.left(&w_f) + &truth.R;
 
         // The update leaves the truth alone and sets x̂ = K H_t x + (I − K H_f) x̂⁻ + K v.
         // With G = K H_t: Cov(x, x̂) = P_tt G' + P_tf L', Cov(x̂) = Cov(x̂, x) G' +
         // (G P_tf + L P_ff) L' + K R K'.
         let JointGains { k, g_dense, g, l } = gains;
-        let s_tf = g.right_tr(&p_tt) + l.right_tr(&p_tf);
+        let s_tf = g.right_tr(p_tt) + l.right_tr(&p_tf);
         let v = g.right_tr(&p_tf.transpose()) + l.right_tr(&p_ff);
         let mut s_ff =
             g.right_tr(&s_tf.transpose()) + l.right_tr(&v.transpose()) + k.sandwich(&truth.R, k);
         crate::linalg::symmetrize(&mut s_ff);
-        let mu_f = g_dense * &mp_t + &cu.IKH * &mp_f;
+        let mu_f = g_dense * mp_t + &cu.IKH * &mp_f;
 
         // The judged error M x − x̂[..ne].
-        let map = &self.map;
-        let e_mean = &self.map_dense * &mp_t - mu_f.rows(0, ne);
-        let x = map.left(&s_tf.columns(0, ne).clone_owned());
-        let mut e_cov = map.sandwich(&p_tt, map) - &x - x.transpose() + s_ff.view((0, 0), (ne, ne));
+        let e_mean = &ts.map_mean - mu_f.rows(0, ne);
+        let x = self.map.left(&s_tf.columns(0, ne).clone_owned());
+        let mut e_cov = &ts.map_cov - &x - x.transpose() + s_ff.view((0, 0), (ne, ne));
         crate::linalg::symmetrize(&mut e_cov);
         let e_m2 = &e_cov + &e_mean * e_mean.transpose();
 
@@ -677,9 +870,7 @@ impl JointMoments {
         self.s_diag_hist.truncate(self.lags);
         self.comp_z_hist.insert(0, comp_z_now);
         self.comp_z_hist.truncate(self.lags);
-        self.mu_t = mp_t;
         self.mu_f = mu_f;
-        self.s_tt = p_tt;
         self.s_tf = s_tf;
         self.s_ff = s_ff;
         values

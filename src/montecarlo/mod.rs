@@ -18,7 +18,10 @@ mod share;
 mod tape;
 
 pub use config::{DEFAULT_ALPHA, DEFAULT_LAGS, MAX_RUNS, MAX_STEPS, McConfig};
-pub use expected::{expected_accumulator, expected_accumulator_mapped, models_match};
+pub use expected::{
+    SharedTrack, TruthTrack, expected_accumulator, expected_accumulator_mapped,
+    expected_accumulator_tracked, models_match,
+};
 pub use generic::{
     NULL_VAR_STRIDE, innovation_scales, run_generic, run_generic_cached, run_generic_with,
 };

@@ -341,3 +341,45 @@ fn the_error_and_joint_recursions_agree_where_both_apply() {
     }
     assert_eq!(compared, 3);
 }
+
+/// The truth's moments are built once per search ([`TruthTrack`]) and read by every
+/// candidate filter scored against it: each filter's sums equal, bit for bit, those of the
+/// path that propagates the truth itself, for filters at other noise levels than the one
+/// the track was built with, and a track built for fewer steps or another map is not read.
+/// (One built on another truth is read as given: the sums then differ.)
+#[test]
+fn a_truth_track_serves_every_filter_alike() {
+    use autotune::internals::montecarlo::{
+        TruthTrack, expected_accumulator_mapped, expected_accumulator_tracked,
+    };
+    for name in ["singer_vs_cv.toml", "ca_vs_cv.toml"] {
+        let p = Problem::load(&data(name)).unwrap();
+        let lin = p.linear().expect("a linear problem");
+        let theta = p.params().values();
+        let mc = p.mc().with_lags(3).unwrap();
+        let map = lin.filter.map.as_ref();
+        let first = lin.filter_at(&theta);
+        let track = TruthTrack::new(&lin.truth, &first, map, mc.steps());
+        let short = TruthTrack::new(&lin.truth, &first, map, mc.steps() / 2);
+        let other = map.map(|m| m * 2.0);
+        let elsewhere = TruthTrack::new(&lin.truth, &first, other.as_ref(), mc.steps());
+        let mut noisier = lin.truth.clone();
+        noisier.model.Q *= 2.0;
+        let foreign = TruthTrack::new(&noisier, &first, map, mc.steps());
+        for scale in [1.0, 0.3, 4.0] {
+            let at: Vec<f64> = theta.iter().map(|v| v * scale).collect();
+            let kf = lin.filter_at(&at);
+            let own = expected_accumulator_mapped(&lin.truth, &kf, map, &mc).unwrap();
+            for t in [&track, &short, &elsewhere] {
+                let read = expected_accumulator_tracked(&lin.truth, &kf, map, &mc, Some(t));
+                assert_eq!(read.unwrap(), own, "{name} at ×{scale}");
+            }
+            let misread = expected_accumulator_tracked(&lin.truth, &kf, map, &mc, Some(&foreign));
+            assert_ne!(
+                misread.unwrap().nees_sum(),
+                own.nees_sum(),
+                "{name} at ×{scale}"
+            );
+        }
+    }
+}

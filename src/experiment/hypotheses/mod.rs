@@ -34,7 +34,7 @@ use super::{
     Block, Covariances, Definition, Experiment, ExperimentError, LinearExperiment, RunOptions,
 };
 use crate::filter::KalmanFilter;
-use crate::montecarlo::{self, Engine, McConfig, expected_accumulator_mapped};
+use crate::montecarlo::{self, Engine, McConfig, SharedTrack, expected_accumulator_tracked};
 use crate::params::{ParamDef, Target};
 use crate::stats::Accumulator;
 
@@ -144,6 +144,9 @@ pub struct Hypothesized {
     definition: Definition,
     /// What the change needs, worked out once.
     prep: build::Prep,
+    /// The truth's moments over the test's steps, which no candidate changes: built at the
+    /// first exact evaluation, read by every one after it.
+    track: SharedTrack,
 }
 
 /// One parameter a hypothesis adds, with its neutral value (where the change is no change).
@@ -227,6 +230,7 @@ impl Hypothesized {
             hypothesis,
             definition,
             prep,
+            track: SharedTrack::default(),
         })
     }
 
@@ -345,8 +349,12 @@ impl Experiment for Hypothesized {
         let n_z = self.definition.measurement_names.len();
         let stopped = |e: &crate::filter::FilterError| montecarlo::all_stopped(mc, n_x, n_z, e);
         Some(match self.filter_at(theta) {
-            Some((kf, map)) => expected_accumulator_mapped(&self.base.truth, &kf, map.as_ref(), mc)
-                .unwrap_or_else(|e| stopped(&e)),
+            Some((kf, map)) => {
+                let truth = &self.base.truth;
+                let track = self.track.get(truth, &kf, map.as_ref(), mc.steps());
+                expected_accumulator_tracked(truth, &kf, map.as_ref(), mc, Some(&track))
+                    .unwrap_or_else(|e| stopped(&e))
+            }
             None => stopped(&crate::filter::FilterError::NotPositiveDefinite {
                 which: "R",
                 step: 0,

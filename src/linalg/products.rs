@@ -84,8 +84,16 @@ impl Sparse {
             .chunks_exact_mut(r)
             .zip(b.as_slice().chunks_exact(k))
         {
-            for &(i, p, v) in &self.entries {
-                col[i] += v * b_col[p];
+            // Column p of self scaled by b's entry p: the entries in their stored order (so
+            // the sums are the same), a zero multiplier's column skipped (the windows and
+            // block-structured moments have many).
+            for (p, &bp) in b_col.iter().enumerate() {
+                if bp == 0.0 {
+                    continue;
+                }
+                for &(i, _, v) in &self.entries[self.start[p]..self.start[p + 1]] {
+                    col[i] += v * bp;
+                }
             }
         }
         out

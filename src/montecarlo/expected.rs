@@ -99,7 +99,7 @@ pub fn expected_accumulator_tracked(
     let (mut moments, mut truth_m2) = if map.is_none() && models_match(truth, f) {
         (
             Moments::Matched(Box::new(ErrorMoments::new(truth, f, lags))),
-            Truth::Propagated(TruthMoment::new(truth, map)),
+            Truth::Propagated(Box::new(TruthMoment::new(truth, map))),
         )
     } else {
         let judged = TruthTrack::judged_map(truth, f, map);
@@ -507,7 +507,7 @@ fn resolution_fault(
 /// the exact path would grade a test no run can carry out.
 enum Truth<'a> {
     /// Propagated here, until it settles (the matched models' path).
-    Propagated(TruthMoment),
+    Propagated(Box<TruthMoment>),
     /// Read from the truth's track (the joint path).
     Tracked(&'a TruthTrack),
 }

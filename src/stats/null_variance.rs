@@ -73,6 +73,7 @@ impl NeesNullVariance {
         if let Some(pp) = &self.p_prev {
             self.sum.copy_from(&self.g);
             if ne == self.n {
+                // M = P⁻¹: P M P is P itself.
                 self.sum += pp;
             } else if let Some(inv) = &self.inv_prev {
                 // P M P = P[:, :ne] P₁₁⁻¹ P[:ne, :] of the previous step, whose P₁₁⁻¹ was
@@ -98,11 +99,9 @@ impl NeesNullVariance {
             Some(pp) => pp.copy_from(p),
             None => self.p_prev = Some(p.clone()),
         }
-        if ne < self.n {
-            match &mut self.inv_prev {
-                Some(i) => i.copy_from(p11_inv),
-                None => self.inv_prev = Some(p11_inv.clone()),
-            }
+        match &mut self.inv_prev {
+            Some(i) => i.copy_from(p11_inv),
+            None => self.inv_prev = Some(p11_inv.clone()),
         }
         inc
     }
@@ -284,9 +283,14 @@ mod tests {
         let pm = DMatrix::from_element(1, 1, p);
         let chol = Cholesky::new(pm.clone()).unwrap();
         let mut nv = NeesNullVariance::new(1);
+        // The same NEES judged on all of its (one) states, weighed by P⁻¹.
+        let mut judged = NeesNullVariance::judged(1, 1);
+        let p_inv = DMatrix::from_element(1, 1, 1.0 / p);
         for _ in 0..t {
             nv.step(&am, &pm, &chol);
+            judged.step_judged(&am, &pm, &p_inv);
         }
+        assert_relative_eq!(judged.variance(), nv.variance(), max_relative = 1e-14);
         let mut want = 0.0;
         for j in 0..t {
             for k in 0..t {

@@ -16,11 +16,11 @@ mod generic;
 mod linear;
 mod share;
 mod tape;
+mod truth_moments;
 
 pub use config::{DEFAULT_ALPHA, DEFAULT_LAGS, MAX_RUNS, MAX_STEPS, McConfig};
 pub use expected::{
-    SharedTrack, TruthTrack, expected_accumulator, expected_accumulator_mapped,
-    expected_accumulator_tracked, models_match,
+    expected_accumulator, expected_accumulator_mapped, expected_accumulator_tracked, models_match,
 };
 pub use generic::{
     NULL_VAR_STRIDE, innovation_scales, run_generic, run_generic_cached, run_generic_with,
@@ -28,6 +28,7 @@ pub use generic::{
 pub use linear::{run_linear, run_linear_with};
 pub use share::{ChunkSink, MergeError, Share, ShareOf};
 pub use tape::{TapeUsage, TruthCache, TruthTape};
+pub use truth_moments::{SharedTrack, TruthTrack};
 
 use std::ops::Range;
 

@@ -250,6 +250,15 @@ impl FilterStep {
     }
 }
 
+/// The gain operands kept from the last step where the filter's step is `frozen` (the same
+/// as the last one), built by `make` otherwise; the caller puts them back after the step.
+fn kept_or<G>(kept: &mut Option<G>, frozen: bool, make: impl FnOnce() -> G) -> G {
+    match kept.take() {
+        Some(g) if frozen => g,
+        _ => make(),
+    }
+}
+
 /// Every run's expected sums over its steps, for the per-run spreads.
 struct RunSums<'a> {
     /// Σ_k E[e_j²]/P_jj.
@@ -354,10 +363,9 @@ impl ErrorMoments {
         frozen: bool,
     ) -> StepValues {
         let cu = &fs.cu;
-        let gains = match self.gains.take() {
-            Some(g) if frozen => g,
-            _ => (Sparse::new(&cu.K), Sparse::new(&cu.IKH)),
-        };
+        let gains = kept_or(&mut self.gains, frozen, || {
+            (Sparse::new(&cu.K), Sparse::new(&cu.IKH))
+        });
         let values = self.advance(truth, f, fs, &gains);
         self.gains = Some(gains);
         values
@@ -537,10 +545,7 @@ impl<'a> JointMoments<'a> {
         frozen: bool,
     ) -> StepValues {
         let cu = &fs.cu;
-        let gains = match self.gains.take() {
-            Some(g) if frozen => g,
-            _ => JointGains::new(&self.h_t, cu),
-        };
+        let gains = kept_or(&mut self.gains, frozen, || JointGains::new(&self.h_t, cu));
         let values = self.advance(i, truth, f, fs, &gains);
         self.gains = Some(gains);
         values

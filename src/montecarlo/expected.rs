@@ -26,6 +26,7 @@ use super::McConfig;
 use super::generic::Fault;
 use super::linear::{self, same_covariance};
 use super::truth_moments::{STEADY_RTOL, Truth, TruthMoment, TruthTrack};
+use crate::filter::conditioning::check_conditioned;
 use crate::filter::{CovarianceUpdate, Filter, FilterError, KalmanFilter};
 use crate::linalg::products::Sparse;
 use crate::linalg::{cholesky, spd_inverse};
@@ -128,7 +129,7 @@ pub fn expected_accumulator_tracked(
     // is steady (as the Monte Carlo engine judges it), its step serves every later one.
     let mut filt: Option<FilterStep> = None;
     let mut filter_quiet = 0usize;
-    let f_op = Sparse::new(&f.F);
+    let (f_op, h_op) = (Sparse::new(&f.F), Sparse::new(&f.H));
 
     for k in 1..=mc.steps() {
         let i = k - 1;
@@ -154,7 +155,13 @@ pub fn expected_accumulator_tracked(
         }
         let frozen = filter_quiet >= FILTER_STEADY_STEPS;
         if !frozen {
-            let next = FilterStep::after(f, &f_op, filt.as_ref().map_or(&f.P0, |s| &s.cu.P), n, k)?;
+            let next = FilterStep::after(
+                f,
+                (&f_op, &h_op),
+                filt.as_ref().map_or(&f.P0, |s| &s.cu.P),
+                n,
+                k,
+            )?;
             filter_quiet = match &filt {
                 Some(prev) if same_covariance(&next.cu.P, &prev.cu.P) => filter_quiet + 1,
                 _ => 0,
@@ -167,7 +174,7 @@ pub fn expected_accumulator_tracked(
             cv.step(&fs.a, &fs.cu.P);
         }
         let values = match &mut moments {
-            Moments::Matched(e) => e.step(truth, f, fs, frozen),
+            Moments::Matched(e) => e.advance(truth, f, fs),
             Moments::Joint(j) => j.step(i, truth, f, fs, frozen),
         };
         if let Some(fault) = truth_m2.step(k, &fs.cu.P, &values.comp_x) {
@@ -211,6 +218,9 @@ const FILTER_STEADY_STEPS: usize = linear::STEADY_STEPS;
 /// One step of the filter's covariance recursion, and what the moments read of it.
 struct FilterStep {
     cu: CovarianceUpdate,
+    /// K and `I − K H` as product operands.
+    k_op: Sparse,
+    ikh_op: Sparse,
     /// The error map `A = (I − K H) F`, n × n.
     a: DMatrix<f64>,
     /// The inverse of P's judged block (its first `judged` states), and of S: the weights
@@ -220,11 +230,17 @@ struct FilterStep {
 }
 
 impl FilterStep {
-    /// Step `k` of `f` (its F as a product operand, `f_op`) from the posterior `P` of the
-    /// step before.
+    /// Step `k` of `f` (its F and H as product operands, `f_op` and `h_op`) from the
+    /// posterior `P` of the step before.
+    ///
+    /// [`KalmanFilter::update_covariance`]'s checks, failures and Joseph update, with the
+    /// products over the models' nonzeros: a general multiplication packs its operands
+    /// first, which at a dozen states costs as much as the arithmetic, and this runs for
+    /// every step of every filter a search scores. The sums are the same ones in another
+    /// order, so they agree with the filter's to rounding, not to the bit.
     fn after(
         f: &KalmanFilter,
-        f_op: &Sparse,
+        (f_op, h_op): (&Sparse, &Sparse),
         P: &DMatrix<f64>,
         judged: usize,
         k: usize,
@@ -232,17 +248,46 @@ impl FilterStep {
         // `predict_covariance`'s F P F' + Q, with F's zeros skipped.
         let mut Pp = f_op.sandwich(P, f_op) + &f.Q;
         crate::linalg::symmetrize(&mut Pp);
-        let cu = f.update_covariance(&Pp, k)?;
-        let judged_p = cu.P.view((0, 0), (judged, judged)).clone_owned();
+        let chol_pp = cholesky(&Pp).ok_or(FilterError::IllConditioned {
+            which: "P⁻",
+            step: k,
+            condition: f64::INFINITY,
+        })?;
+        check_conditioned("P⁻", &Pp, &chol_pp, k)?;
+        let hp = h_op.left(&Pp);
+        let mut S = h_op.right_tr(&hp) + &f.R;
+        crate::linalg::symmetrize(&mut S);
+        let chol = cholesky(&S).ok_or(FilterError::NotPositiveDefinite {
+            which: "S",
+            step: k,
+        })?;
+        let K = chol.solve(&hp).transpose();
+        let mut IKH = -h_op.right(&K);
+        for j in 0..IKH.nrows() {
+            IKH[(j, j)] += 1.0;
+        }
+        let (k_op, ikh_op) = (Sparse::new(&K), Sparse::new(&IKH));
+        let mut P = ikh_op.sandwich(&Pp, &ikh_op) + k_op.sandwich(&f.R, &k_op);
+        crate::linalg::symmetrize(&mut P);
+        if P.iter().any(|v| !v.is_finite()) {
+            return Err(FilterError::NotPositiveDefinite {
+                which: "P",
+                step: k,
+            });
+        }
+        check_conditioned("S", &S, &chol, k)?;
+        let judged_p = P.view((0, 0), (judged, judged)).clone_owned();
         let chol_p = cholesky(&judged_p).ok_or(FilterError::NotPositiveDefinite {
             which: "P",
             step: k,
         })?;
-        let a = &cu.IKH * &f.F;
+        let a = f_op.right(&IKH);
         let p_inv = spd_inverse(chol_p.l_dirty());
-        let s_inv = spd_inverse(cu.chol.l_dirty());
+        let s_inv = spd_inverse(chol.l_dirty());
         Ok(FilterStep {
-            cu,
+            cu: CovarianceUpdate { K, S, chol, P, IKH },
+            k_op,
+            ikh_op,
             a,
             p_inv,
             s_inv,
@@ -334,8 +379,6 @@ struct ErrorMoments {
     s_diag_hist: Vec<DVector<f64>>,
     /// History of expected u_j² per step, most recent first.
     comp_z_hist: Vec<Vec<f64>>,
-    /// The gain and `I − K H` as product operands, kept while the filter is steady.
-    gains: Option<(Sparse, Sparse)>,
 }
 
 impl ErrorMoments {
@@ -349,36 +392,18 @@ impl ErrorMoments {
             window: DMatrix::zeros(f.F.nrows(), 0),
             s_diag_hist: Vec::with_capacity(lags),
             comp_z_hist: Vec::with_capacity(lags),
-            gains: None,
         }
     }
 
-    /// Through one step `fs` of the filter (`frozen`: the same step as the last one): the
-    /// step's expected values.
-    fn step(
-        &mut self,
-        truth: &LinearGaussianModel,
-        f: &KalmanFilter,
-        fs: &FilterStep,
-        frozen: bool,
-    ) -> StepValues {
-        let cu = &fs.cu;
-        let gains = kept_or(&mut self.gains, frozen, || {
-            (Sparse::new(&cu.K), Sparse::new(&cu.IKH))
-        });
-        let values = self.advance(truth, f, fs, &gains);
-        self.gains = Some(gains);
-        values
-    }
-
+    /// Through one step of the filter: the step's expected values.
     fn advance(
         &mut self,
         truth: &LinearGaussianModel,
         f: &KalmanFilter,
         step: &FilterStep,
-        (k, l): &(Sparse, Sparse),
     ) -> StepValues {
         let cu = &step.cu;
+        let (k, l) = (&step.k_op, &step.ikh_op);
         let (fs, hs) = (&self.f, &self.h);
         let (n, m) = (f.F.nrows(), f.H.nrows());
         // Error moments before and after the update.
@@ -483,25 +508,19 @@ struct JointMoments<'a> {
     gains: Option<JointGains>,
 }
 
-/// The operands of a joint step that depend on the filter's gain only.
+/// The operand of a joint step that depends on the filter's gain and the truth's H:
+/// `G = K H_t`, dense and as an operand.
 struct JointGains {
-    /// K.
-    k: Sparse,
-    /// `G = K H_t`, dense and as an operand.
     g_dense: DMatrix<f64>,
     g: Sparse,
-    /// `I − K H_f`.
-    l: Sparse,
 }
 
 impl JointGains {
     fn new(h_t: &Sparse, cu: &CovarianceUpdate) -> Self {
         let g_dense = h_t.right(&cu.K);
         JointGains {
-            k: Sparse::new(&cu.K),
             g: Sparse::new(&g_dense),
             g_dense,
-            l: Sparse::new(&cu.IKH),
         }
     }
 }
@@ -585,7 +604,8 @@ impl<'a> JointMoments<'a> {
         // The update leaves the truth alone and sets x̂ = K H_t x + (I − K H_f) x̂⁻ + K v.
         // With G = K H_t: Cov(x, x̂) = P_tt G' + P_tf L', Cov(x̂) = Cov(x̂, x) G' +
         // (G P_tf + L P_ff) L' + K R K'.
-        let JointGains { k, g_dense, g, l } = gains;
+        let JointGains { g_dense, g } = gains;
+        let (k, l) = (&step.k_op, &step.ikh_op);
         let s_tf = g.right_tr(p_tt) + l.right_tr(&p_tf);
         let v = g.right_tr(&p_tf.transpose()) + l.right_tr(&p_ff);
         let mut s_ff =

@@ -109,6 +109,14 @@ impl Sparse {
         right(b, self.ncols, self.nrows, &self.t_start, &self.t_entries)
     }
 
+    /// `(self · x)_j`, row j's product with `x` (ncols): one entry of [`Sparse::left`]
+    /// without the others, the same sum in the same order.
+    pub fn row_dot(&self, j: usize, x: &[f64]) -> f64 {
+        self.t_entries[self.t_start[j]..self.t_start[j + 1]]
+            .iter()
+            .fold(0.0, |s, &(p, _, v)| s + v * x[p])
+    }
+
     /// `(self · s · self')_jj`, row j's quadratic form in `s` (ncols × ncols).
     pub fn row_quadratic(&self, j: usize, s: &DMatrix<f64>) -> f64 {
         let row = &self.t_entries[self.t_start[j]..self.t_start[j + 1]];
@@ -223,6 +231,15 @@ mod tests {
                 close(&sa.sandwich(&s, &sc), &(&a * &s * cm.transpose())),
                 "Sparse::sandwich {r}×{k}×{c}"
             );
+            // One entry of `left` alone is that entry, to the bit (the whiteness sums read
+            // only the diagonal of each lag's block).
+            let full = sa.left(&b);
+            for i in 0..r {
+                for j in 0..c {
+                    let one = sa.row_dot(i, b.column(j).as_slice());
+                    assert_eq!(one.to_bits(), full[(i, j)].to_bits(), "row_dot {i},{j}");
+                }
+            }
         }
     }
 }

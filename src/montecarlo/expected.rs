@@ -426,7 +426,8 @@ impl ErrorMoments {
         let s_diag = cu.S.diagonal();
         // E[ν_k ν_{k−l}'] = H F E[e_{k−1} ν_{k−l}']: only the diagonal of each block is read.
         let z = fs.left(&self.window);
-        let cross = hs.left(&z);
+        // Only the diagonal of each lag's block is read: row j of H against column j.
+        let cross = |lag: usize, j: usize| hs.row_dot(j, z.column(lag * m + j).as_slice());
         let comp_z_now: Vec<f64> = (0..m).map(|j| nu_m2[(j, j)] / s_diag[j]).collect();
         let values = StepValues {
             nees,
@@ -443,7 +444,7 @@ impl ErrorMoments {
                 .enumerate()
                 .map(|(lag, sd)| {
                     (0..m)
-                        .map(|j| cross[(j, lag * m + j)] / (s_diag[j] * sd[j]).sqrt())
+                        .map(|j| cross(lag, j) / (s_diag[j] * sd[j]).sqrt())
                         .collect()
                 })
                 .collect(),
@@ -627,7 +628,11 @@ impl<'a> JointMoments<'a> {
         // E[ν_k ν_{k−l}'] = C Φ E[s_{k−1} ν_{k−l}'], whose Φ part also advances the window.
         let z_t = f_t.left(&self.window_t);
         let z_f = f_f.left(&self.window_f);
-        let cross = h_t.left(&z_t) - h_f.left(&z_f);
+        // Only the diagonal of each lag's block is read: row j of C against column j.
+        let cross = |l: usize, j: usize| {
+            let c = l * m + j;
+            h_t.row_dot(j, z_t.column(c).as_slice()) - h_f.row_dot(j, z_f.column(c).as_slice())
+        };
         let comp_z_now: Vec<f64> = (0..m).map(|j| nu_m2[(j, j)] / s_diag[j]).collect();
         let values = StepValues {
             nees,
@@ -644,7 +649,7 @@ impl<'a> JointMoments<'a> {
                 .enumerate()
                 .map(|(l, sd)| {
                     (0..m)
-                        .map(|j| cross[(j, l * m + j)] / (s_diag[j] * sd[j]).sqrt())
+                        .map(|j| cross(l, j) / (s_diag[j] * sd[j]).sqrt())
                         .collect()
                 })
                 .collect(),

@@ -73,7 +73,11 @@ impl Filter for KalmanFilter {
     fn predict(&self, k: usize, est: &mut Estimate) -> PredictResult {
         est.x = &self.F * &est.x;
         est.P = super::recursion_memo::predict(self, k, &est.P);
-        est.error_map = Some(self.F.clone());
+        // The map's storage is reused from step to step where it has F's shape.
+        match &mut est.error_map {
+            Some(a) if a.shape() == self.F.shape() => a.copy_from(&self.F),
+            a => *a = Some(self.F.clone()),
+        }
         Ok(())
     }
 

@@ -71,6 +71,7 @@ mod output;
 mod params;
 mod problem;
 mod records;
+mod rng;
 mod statespace;
 mod stats;
 mod tune;
@@ -117,6 +118,9 @@ pub mod internals {
     }
     pub mod measurement {
         pub use crate::measurement::*;
+    }
+    pub mod rng {
+        pub use crate::rng::*;
     }
     pub mod model {
         pub use crate::model::*;
@@ -195,6 +199,5 @@ pub use records::{Layout, SensorLayout, SensorRecord, StateLayout, StateRecord, 
 // Errors of bad input.
 pub use input::{FileError, SettingError};
 
-/// The random number generator of one Monte Carlo run (xoshiro256++: fast, seedable, and
-/// with independent streams per seed).
-pub type SimRng = rand::rngs::Xoshiro256PlusPlus;
+// The random number generator of one Monte Carlo run.
+pub use rng::SimRng;

@@ -298,7 +298,7 @@ pub fn check_shard(
 pub fn merge(
     files: &[PathBuf],
     options: &CheckOptions,
-) -> Result<(crate::Problem, CheckRun), CommandError> {
+) -> Result<(crate::problem::Problem, CheckRun), CommandError> {
     let refused = |r: shard::MergeRefusal| FileError::new(&r.file, "shard", r.why);
     let heads = files
         .iter()
@@ -308,7 +308,7 @@ pub fn merge(
     let ordered = shard::plan(&heads).map_err(refused)?;
     let s = &heads[0].settings;
     // The problem the shards name: an error about it says which shard file named it.
-    let problem = crate::Problem::load(&s.file).map_err(|e| {
+    let problem = crate::problem::Problem::load(&s.file).map_err(|e| {
         FileError::new(
             &heads[0].path,
             "settings.file",

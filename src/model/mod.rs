@@ -7,8 +7,8 @@ use nalgebra::{DMatrix, DVector};
 use rand::RngExt;
 use rand_distr::StandardNormal;
 
-use crate::SimRng;
 use crate::measurement::Measurement;
+use crate::rng::SimRng;
 use crate::statespace::LinearGaussian;
 
 /// A simulated system: the truth the filter is tested against.

@@ -371,7 +371,7 @@ struct Transposed {
 struct Chunk {
     first_run: usize,
     t: Transposed,
-    rngs: Vec<crate::SimRng>,
+    rngs: Vec<crate::rng::SimRng>,
     /// True state (B × n_t) and estimate (B × n).
     xt: DMatrix<f64>,
     xh: DMatrix<f64>,

@@ -35,8 +35,8 @@ use std::ops::Range;
 use rand::SeedableRng;
 use rayon::prelude::*;
 
-use crate::SimRng;
 use crate::filter::FilterError;
+use crate::rng::SimRng;
 use crate::stats::{Accumulator, StopCause};
 
 /// Runs per chunk: the unit of parallel work and of summation order.

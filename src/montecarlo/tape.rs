@@ -19,9 +19,9 @@ use nalgebra::DVector;
 use rayon::prelude::*;
 
 use super::{McConfig, Share, run_rng};
-use crate::SimRng;
 use crate::measurement::Measurement;
 use crate::model::TruthModel;
+use crate::rng::SimRng;
 
 /// What one step of a run's truth gives the filter: the true state, the control input, the
 /// measurements. The engine advances it step by step, simulating or replaying.

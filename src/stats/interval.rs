@@ -453,7 +453,7 @@ mod tests {
     fn batch_outside(rho: f64, scale: f64, count: usize, seed: u64) -> (usize, Vec<usize>) {
         use rand::{RngExt, SeedableRng};
         let t = 500;
-        let mut rng = crate::SimRng::seed_from_u64(seed);
+        let mut rng = crate::rng::SimRng::seed_from_u64(seed);
         let mut normal = || rng.sample::<f64, _>(rand_distr::StandardNormal);
         let (mut outside, mut blocks) = (0, Vec::new());
         for _ in 0..count {
@@ -554,7 +554,7 @@ mod tests {
         // autoregression's (1 + ρ₁)/(1 − ρ₁) = 2.8. On 20 000 steps Sokal's window gives 20
         // within a few steps (its standard error is about τ √(2 · 5τ / T) ≈ 2).
         use rand::{RngExt, SeedableRng};
-        let mut rng = crate::SimRng::seed_from_u64(5);
+        let mut rng = crate::rng::SimRng::seed_from_u64(5);
         let mut normal = || rng.sample::<f64, _>(rand_distr::StandardNormal);
         let mut y = normal();
         let series: Vec<f64> = (0..20_000)
@@ -575,7 +575,7 @@ mod tests {
         // Past lag 50 the wave's correlation turns negative: a window let run on shrinks τ
         // before it closes (19.6 on this seed).
         use rand::{RngExt, SeedableRng};
-        let mut rng = crate::SimRng::seed_from_u64(11);
+        let mut rng = crate::rng::SimRng::seed_from_u64(11);
         let series: Vec<f64> = (0..200)
             .map(|i| {
                 let wave = if i < 100 { 0.7 } else { -0.7 };

@@ -8,10 +8,10 @@ use rand_distr::StandardNormal;
 
 use super::system::radar_of;
 use super::{LIDAR, RADAR};
-use crate::SimRng;
 use crate::linalg::wrap_angle;
 use crate::measurement::Measurement;
 use crate::model::TruthModel;
+use crate::rng::SimRng;
 
 /// Continuous CTRV dynamics driven by held accelerations `a` (m/s²) and `yy` (rad/s²).
 fn derivative(x: &Vector5<f64>, a: f64, yy: f64) -> Vector5<f64> {

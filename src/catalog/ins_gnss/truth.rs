@@ -26,9 +26,9 @@ use rand::RngExt;
 use rand_distr::StandardNormal;
 
 use super::nav::{GRAVITY, N_NOM, Nominal};
-use crate::SimRng;
 use crate::measurement::Measurement;
 use crate::model::TruthModel;
+use crate::rng::SimRng;
 
 /// One smooth manoeuvre: a raised-cosine pulse of `peak` amplitude from `start` for
 /// `duration` seconds (its integral is `peak · duration / 2`).

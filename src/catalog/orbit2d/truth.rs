@@ -7,9 +7,9 @@ use rand::RngExt;
 use rand_distr::StandardNormal;
 
 use super::system::{Stations, frame, rk4, to4};
-use crate::SimRng;
 use crate::measurement::Measurement;
 use crate::model::TruthModel;
+use crate::rng::SimRng;
 
 /// The simulated satellite and stations.
 #[derive(Debug, Clone)]

@@ -1,0 +1,6 @@
+//! The random number generator every simulated run draws from: a leaf, so that the truth
+//! models, the engines and the catalog name it without reaching up to the crate root.
+
+/// The random number generator of one Monte Carlo run (xoshiro256++: fast, seedable, and
+/// with independent streams per seed).
+pub type SimRng = rand::rngs::Xoshiro256PlusPlus;

@@ -17,9 +17,10 @@
 #![allow(non_snake_case)]
 
 use nalgebra::allocator::Allocator;
-use nalgebra::{Cholesky, DefaultAllocator, Dim, Dyn, OMatrix};
+use nalgebra::{Cholesky, DMatrix, DefaultAllocator, Dim, Dyn, OMatrix};
 
 use super::FilterError;
+use crate::linalg::products::Sparse;
 use crate::linalg::{cholesky, symmetrize};
 
 /// The data-independent half of a Kalman update, for state dimension `N` and measurement
@@ -73,6 +74,37 @@ where
         return Err(FilterError::NotPositiveDefinite { which: "P", step });
     }
     Ok(CovarianceUpdate { K, S, chol, P, IKH })
+}
+
+/// [`joseph_update`] for a dynamic-size filter whose `H` is held by its nonzeros (`h`,
+/// m × n), every product over the operands' nonzeros instead of a general multiplication
+/// (which packs its operands first: at a dozen states that costs as much as the
+/// arithmetic). The same formulas and failures; the sums run in another order, so the
+/// result agrees with [`joseph_update`]'s to rounding, not to the bit. Also returns K and
+/// `I − K H` as operands, for callers that multiply by them again.
+pub fn joseph_update_sparse(
+    Pp: &DMatrix<f64>,
+    h: &Sparse,
+    R: &DMatrix<f64>,
+    step: usize,
+) -> Result<(CovarianceUpdate, Sparse, Sparse), FilterError> {
+    let HP = h.left(Pp);
+    let mut S = h.right_tr(&HP) + R;
+    symmetrize(&mut S);
+    let chol = cholesky(&S).ok_or(FilterError::NotPositiveDefinite { which: "S", step })?;
+    let K = chol.solve(&HP).transpose();
+    // I − K H: the negated product with 1 added on the diagonal, the same bits.
+    let mut IKH = -h.right(&K);
+    for j in 0..IKH.nrows() {
+        IKH[(j, j)] += 1.0;
+    }
+    let (k_op, ikh_op) = (Sparse::new(&K), Sparse::new(&IKH));
+    let mut P = ikh_op.sandwich(Pp, &ikh_op) + k_op.sandwich(R, &k_op);
+    symmetrize(&mut P);
+    if P.iter().any(|v| !v.is_finite()) {
+        return Err(FilterError::NotPositiveDefinite { which: "P", step });
+    }
+    Ok((CovarianceUpdate { K, S, chol, P, IKH }, k_op, ikh_op))
 }
 
 #[cfg(test)]
@@ -129,5 +161,79 @@ mod tests {
                 step: 3
             }
         );
+        let dynamic = |m: &[f64], r: usize, c: usize| DMatrix::from_column_slice(r, c, m);
+        let h = Sparse::new(&dynamic(H.as_slice(), 2, 4));
+        assert_eq!(
+            joseph_update_sparse(
+                &dynamic(P.as_slice(), 4, 4),
+                &h,
+                &dynamic(bad_r.as_slice(), 2, 2),
+                3
+            )
+            .err(),
+            Some(FilterError::NotPositiveDefinite {
+                which: "S",
+                step: 3
+            })
+        );
+    }
+
+    /// A matrix of pseudo-random entries in [−1, 1), about a third of them exactly zero (a
+    /// fixed pattern from `seed`).
+    fn entries(r: usize, c: usize, seed: u64) -> DMatrix<f64> {
+        let mut state = seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1;
+        DMatrix::from_fn(r, c, |_, _| {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            let u = (state >> 11) as f64 / (1u64 << 53) as f64;
+            if u < 0.33 { 0.0 } else { 2.0 * u - 1.0 }
+        })
+    }
+
+    #[test]
+    fn over_nonzeros_it_is_the_dense_update_to_rounding() {
+        // Sizes on both sides of nalgebra's switch to a packed multiplication (above 5),
+        // magnitudes over six decades. Every entry within 1e-15 of the matrix's largest:
+        // the two differ only in the order of sums of up to a dozen terms (measured: at
+        // most 1.3e-16, at 12 states).
+        for (i, &(n, m)) in [(1, 1), (2, 1), (4, 2), (6, 3), (9, 3), (12, 4), (12, 1)]
+            .iter()
+            .enumerate()
+        {
+            let seed = 10 * i as u64;
+            let a = entries(n, n, seed);
+            let scale = DMatrix::from_fn(n, n, |r, c| {
+                if r == c {
+                    10f64.powi(r as i32 % 7 - 3)
+                } else {
+                    0.0
+                }
+            });
+            let Pp = &scale * (&a * a.transpose() + DMatrix::identity(n, n)) * &scale;
+            let mut H = entries(m, n, seed + 1);
+            H[(0, 0)] = 1.0;
+            let b = entries(m, m, seed + 2);
+            let R = &b * b.transpose() + DMatrix::identity(m, m) * 0.5;
+            let dense = joseph_update(&Pp, &H, &R, 1).unwrap();
+            let (sparse, k_op, ikh_op) =
+                joseph_update_sparse(&Pp, &Sparse::new(&H), &R, 1).unwrap();
+            let close = |x: &DMatrix<f64>, y: &DMatrix<f64>, what: &str| {
+                let top = y.iter().fold(0.0f64, |t, v| t.max(v.abs()));
+                let worst = (x - y).iter().fold(0.0f64, |t, v| t.max(v.abs()));
+                assert!(
+                    worst <= 1e-15 * top,
+                    "{what} {n}×{m}: off by {worst:e} of {top:e}"
+                );
+            };
+            close(&sparse.P, &dense.P, "P");
+            close(&sparse.K, &dense.K, "K");
+            close(&sparse.S, &dense.S, "S");
+            close(&sparse.IKH, &dense.IKH, "I − K H");
+            assert_eq!(sparse.P, sparse.P.transpose(), "P symmetric {n}×{m}");
+            // The operands are the matrices returned beside them.
+            assert_eq!(k_op.left(&DMatrix::identity(m, m)), sparse.K);
+            assert_eq!(ikh_op.left(&DMatrix::identity(n, n)), sparse.IKH);
+        }
     }
 }

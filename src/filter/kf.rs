@@ -5,8 +5,9 @@
 use nalgebra::DMatrix;
 
 use super::conditioning::check_conditioned;
-use super::joseph::{CovarianceUpdate, joseph_update};
+use super::joseph::{CovarianceUpdate, joseph_update, joseph_update_sparse};
 use super::{Estimate, Filter, FilterError, Innovation, PredictResult, UpdateResult};
+use crate::linalg::products::Sparse;
 use crate::linalg::{cholesky, mahalanobis_sq, symmetrize};
 use crate::measurement::Measurement;
 use crate::statespace::LinearGaussian;
@@ -38,6 +39,34 @@ impl KalmanFilter {
         Pp: &DMatrix<f64>,
         step: usize,
     ) -> Result<CovarianceUpdate, FilterError> {
+        self.checked(Pp, step, || {
+            joseph_update(Pp, &self.H, &self.R, step).map(|cu| (cu, ()))
+        })
+        .map(|(cu, ())| cu)
+    }
+
+    /// [`KalmanFilter::update_covariance`] with `H` held by its nonzeros (`h`): the same
+    /// checks and failures around [`joseph_update_sparse`], whose K and `I − K H` operands
+    /// come back with it. For the exact scoring, which runs it at every step of every
+    /// filter a search scores.
+    pub(crate) fn update_covariance_sparse(
+        &self,
+        Pp: &DMatrix<f64>,
+        h: &Sparse,
+        step: usize,
+    ) -> Result<(CovarianceUpdate, (Sparse, Sparse)), FilterError> {
+        self.checked(Pp, step, || {
+            joseph_update_sparse(Pp, h, &self.R, step).map(|(cu, k, ikh)| (cu, (k, ikh)))
+        })
+    }
+
+    /// `update`'s result between the conditioning checks of `P⁻` (before) and `S` (after).
+    fn checked<T>(
+        &self,
+        Pp: &DMatrix<f64>,
+        step: usize,
+        update: impl FnOnce() -> Result<(CovarianceUpdate, T), FilterError>,
+    ) -> Result<(CovarianceUpdate, T), FilterError> {
         // P⁻ = F P F' + Q is positive semidefinite in exact arithmetic, so a P⁻ with no
         // Cholesky factor (or with entries that overflowed) is numerically singular: the far
         // end of ill-conditioning, not a different failure.
@@ -51,9 +80,9 @@ impl KalmanFilter {
                 });
             }
         }
-        let cu = joseph_update(Pp, &self.H, &self.R, step)?;
+        let (cu, extra) = update()?;
         check_conditioned("S", &cu.S, &cu.chol, step)?;
-        Ok(cu)
+        Ok((cu, extra))
     }
 }
 

@@ -26,7 +26,6 @@ use super::McConfig;
 use super::generic::Fault;
 use super::linear::{self, same_covariance};
 use super::truth_moments::{STEADY_RTOL, Truth, TruthMoment, TruthTrack};
-use crate::filter::conditioning::check_conditioned;
 use crate::filter::{CovarianceUpdate, Filter, FilterError, KalmanFilter};
 use crate::linalg::products::Sparse;
 use crate::linalg::{cholesky, spd_inverse};
@@ -233,11 +232,8 @@ impl FilterStep {
     /// Step `k` of `f` (its F and H as product operands, `f_op` and `h_op`) from the
     /// posterior `P` of the step before.
     ///
-    /// [`KalmanFilter::update_covariance`]'s checks, failures and Joseph update, with the
-    /// products over the models' nonzeros: a general multiplication packs its operands
-    /// first, which at a dozen states costs as much as the arithmetic, and this runs for
-    /// every step of every filter a search scores. The sums are the same ones in another
-    /// order, so they agree with the filter's to rounding, not to the bit.
+    /// The update is [`KalmanFilter::update_covariance_sparse`]: its products run over the
+    /// models' nonzeros, and its K and I − K H serve the moment recursions as operands.
     fn after(
         f: &KalmanFilter,
         (f_op, h_op): (&Sparse, &Sparse),
@@ -248,44 +244,17 @@ impl FilterStep {
         // `predict_covariance`'s F P F' + Q, with F's zeros skipped.
         let mut Pp = f_op.sandwich(P, f_op) + &f.Q;
         crate::linalg::symmetrize(&mut Pp);
-        let chol_pp = cholesky(&Pp).ok_or(FilterError::IllConditioned {
-            which: "P⁻",
-            step: k,
-            condition: f64::INFINITY,
-        })?;
-        check_conditioned("P⁻", &Pp, &chol_pp, k)?;
-        let hp = h_op.left(&Pp);
-        let mut S = h_op.right_tr(&hp) + &f.R;
-        crate::linalg::symmetrize(&mut S);
-        let chol = cholesky(&S).ok_or(FilterError::NotPositiveDefinite {
-            which: "S",
-            step: k,
-        })?;
-        let K = chol.solve(&hp).transpose();
-        let mut IKH = -h_op.right(&K);
-        for j in 0..IKH.nrows() {
-            IKH[(j, j)] += 1.0;
-        }
-        let (k_op, ikh_op) = (Sparse::new(&K), Sparse::new(&IKH));
-        let mut P = ikh_op.sandwich(&Pp, &ikh_op) + k_op.sandwich(&f.R, &k_op);
-        crate::linalg::symmetrize(&mut P);
-        if P.iter().any(|v| !v.is_finite()) {
-            return Err(FilterError::NotPositiveDefinite {
-                which: "P",
-                step: k,
-            });
-        }
-        check_conditioned("S", &S, &chol, k)?;
-        let judged_p = P.view((0, 0), (judged, judged)).clone_owned();
+        let (cu, (k_op, ikh_op)) = f.update_covariance_sparse(&Pp, h_op, k)?;
+        let judged_p = cu.P.view((0, 0), (judged, judged)).clone_owned();
         let chol_p = cholesky(&judged_p).ok_or(FilterError::NotPositiveDefinite {
             which: "P",
             step: k,
         })?;
-        let a = f_op.right(&IKH);
+        let a = f_op.right(&cu.IKH);
         let p_inv = spd_inverse(chol_p.l_dirty());
-        let s_inv = spd_inverse(chol.l_dirty());
+        let s_inv = spd_inverse(cu.chol.l_dirty());
         Ok(FilterStep {
-            cu: CovarianceUpdate { K, S, chol, P, IKH },
+            cu,
             k_op,
             ikh_op,
             a,

@@ -13,7 +13,8 @@
 //! the Hessian does not curve along, is reported as not identified.
 
 use argmin::core::{CostFunction, Executor, Gradient, State};
-use argmin::solver::linesearch::MoreThuenteLineSearch;
+use argmin::solver::linesearch::BacktrackingLineSearch;
+use argmin::solver::linesearch::condition::ArmijoCondition;
 use argmin::solver::quasinewton::LBFGS;
 use nalgebra::{DMatrix, DVector};
 use serde::Serialize;
@@ -185,11 +186,15 @@ pub fn estimate_by(
         escapes: 0,
         max_iterations,
     };
+    let mut first_round = true;
     let check = loop {
         let round_start = search.nll;
+        // The first round trusts L-BFGS's stop as far as the Newton check after it: a stop
+        // short of the maximum fails that check, and the next round restarts until still.
         if !free.is_empty() {
-            search.lbfgs_until_still()?;
+            search.lbfgs_until_still(first_round)?;
         }
+        first_round = false;
         let check = search.newton_steps();
         // A parameter walked so close to zero that its log no longer feels the pull back
         // up: in φ its gradient is θ times the pull, and the quadratic model there predicts
@@ -250,10 +255,10 @@ struct Search<'a, 'b> {
 }
 
 impl Search<'_, '_> {
-    /// L-BFGS from the point reached, restarted with fresh memory until a restart no
-    /// longer moves (the first run always gets one: its stop is what is in question), the
-    /// iterations run out, or [`MAX_RESTARTS`].
-    fn lbfgs_until_still(&mut self) -> Result<(), EstimateError> {
+    /// L-BFGS from the point reached (`once`: a single run), restarted with fresh memory
+    /// until a restart no longer moves (the first run always gets one: its stop is what is
+    /// in question), the iterations run out, or [`MAX_RESTARTS`].
+    fn lbfgs_until_still(&mut self, once: bool) -> Result<(), EstimateError> {
         let mut first = true;
         loop {
             let (next, its) = lbfgs(
@@ -268,7 +273,8 @@ impl Search<'_, '_> {
                 self.phi = next;
                 self.nll = next_nll;
             }
-            if (!first && moved < RESTART_TOL)
+            if once
+                || (!first && moved < RESTART_TOL)
                 || self.iterations >= self.max_iterations
                 || self.restarts >= MAX_RESTARTS
             {
@@ -359,7 +365,7 @@ fn lbfgs(
     phi0: Vec<f64>,
     max_iters: u64,
 ) -> Result<(Vec<f64>, u64), EstimateError> {
-    let line = MoreThuenteLineSearch::new();
+    let line = BacktrackingLineSearch::new(ArmijoCondition::new(1e-4).expect("in (0, 1)"));
     // argmin refuses only negative tolerances.
     let solver = LBFGS::new(line, 7)
         .with_tolerance_grad(1e-9)

@@ -54,7 +54,9 @@ fn issue21_ml_converged_means_a_restart_gains_nothing() {
 
 /// Item 9: a search stopped by its iteration limit says so, in text and JSON, with the
 /// gradient and the improvement still predicted. (Fails on ec9f763: "converged" was
-/// "stopped before the limit", and the text had neither.)
+/// "stopped before the limit", and the text had neither.) The Newton steps after L-BFGS may
+/// still reach the maximum from where the limit stops it (from 1 or 2 iterations they do on
+/// this record, and "converged" is then true); from 3 they leave r_a stuck near zero.
 #[test]
 fn issue21_estimate_reports_not_converged_with_gradient() {
     let (path, _, _) = data_problem("fullq2_issue21.toml");
@@ -65,10 +67,12 @@ fn issue21_estimate_reports_not_converged_with_gradient() {
     let (code, _, err) = common::autotune(&["simulate", p, "--out", r, "--seed", "4"]);
     assert_eq!(code, Some(0), "{err}");
     let (code, out, err) =
-        common::autotune(&["estimate", p, "--measurements", r, "--max-iterations", "2"]);
+        common::autotune(&["estimate", p, "--measurements", r, "--max-iterations", "3"]);
     assert_eq!(code, Some(0), "{err}");
     assert!(
-        out.contains("not converged") && out.contains("gradient in log θ"),
+        out.contains("not converged")
+            && out.contains("gradient in log θ")
+            && out.contains("iteration limit reached"),
         "{out}"
     );
     let (code, out, err) = common::autotune(&[
@@ -77,7 +81,7 @@ fn issue21_estimate_reports_not_converged_with_gradient() {
         "--measurements",
         r,
         "--max-iterations",
-        "2",
+        "3",
         "--json",
     ]);
     assert_eq!(code, Some(0), "{err}");

@@ -1,13 +1,22 @@
 //! Q and R from measurements on cv2d records simulated from the problem's truth: maximum
 //! likelihood (L-BFGS from all parameters = 1.0) on 5 000 and 20 000 steps, ALS (two
 //! passes, 15 lags) on 20 000, and with the `sdp` feature ALS with a full Q and R; ML and
-//! single likelihood evaluations on records with 1% of the cells empty.
+//! single likelihood evaluations on records with 1% of the cells empty. A catalog filter (the
+//! ctrv UKF) replayed over a 10 000-reading record: one likelihood evaluation against a
+//! hand-written predict/update loop of the same filter over the same readings (issue 39's
+//! bound: at most 1.5× as long), and the maximum-likelihood estimate on that record (in
+//! under 100 evaluations' time).
 
 use autotune::internals::estimate::als::{self, AlsModel};
-use autotune::internals::estimate::{MeasurementRecord, ml, simulate};
+use autotune::internals::estimate::{
+    FilterReplay, MeasurementRecord, ml, simulate, simulate_sensors,
+};
 use autotune::internals::experiment::Experiment as _;
+use autotune::internals::filter::Filter;
+use autotune::internals::measurement::Measurement;
 use autotune::internals::problem::Problem;
 use criterion::{Criterion, criterion_group, criterion_main};
+use nalgebra::DVector;
 
 fn estimate(c: &mut Criterion) {
     let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("problems/cv2d.toml");
@@ -63,6 +72,92 @@ fn estimate(c: &mut Criterion) {
     g.finish();
 }
 
+/// The ctrv UKF over a record of 10 000 steps of alternating lidar and radar (one reading a
+/// step), at the truth's noise: the replay's `−log L`, the same filter's predict/update loop
+/// written by hand over readings built beforehand (the floor any replay has), and the
+/// maximum-likelihood estimate from the problem's start (process noise 10× too small).
+fn replayed(c: &mut Criterion) {
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("problems/ctrv.toml");
+    let p = Problem::load(&path).expect("the shipped problem loads");
+    let params = p.params();
+    let start = params.values();
+    let fixed: Vec<bool> = params.params.iter().map(|d| d.fixed).collect();
+    let truth: Vec<f64> = start
+        .iter()
+        .zip(&params.params)
+        .map(|(v, d)| {
+            if d.name.starts_with("q_") {
+                10.0 * v
+            } else {
+                *v
+            }
+        })
+        .collect();
+    let dims = p.replay_filter(&truth).expect("held as code").sensor_dims();
+    let truth_model = p.simulation_truth().expect("held as code");
+    let data = simulate_sensors(truth_model, &dims, 1, 10_000, 11).measurements;
+    let readings = hand_readings(&data, &dims);
+    assert_eq!(readings.len(), 10_000, "one reading a step");
+    let replay = FilterReplay::new(&p, data).expect("the record fits");
+    let mut g = c.benchmark_group("replay_ctrv");
+    g.sample_size(20);
+    g.bench_function("nll_10000_readings", |b| {
+        b.iter(|| replay.neg_log_likelihood(&truth).expect("runs"))
+    });
+    g.bench_function("hand_loop_10000_readings", |b| {
+        b.iter(|| {
+            let filter = p.replay_filter(&truth).expect("held as code");
+            by_hand(&*filter, &readings)
+        })
+    });
+    let nll = |t: &[f64]| replay.neg_log_likelihood(t).ok();
+    let values = replay.data().values();
+    let est = ml::estimate_by(&nll, values, &start, &fixed, 200).expect("converges");
+    eprintln!(
+        "replay_ctrv: the estimate takes {} likelihood evaluations ({} L-BFGS iterations)",
+        est.evaluations, est.iterations
+    );
+    g.sample_size(10);
+    g.bench_function("ml_10000_readings", |b| {
+        b.iter(|| ml::estimate_by(&nll, values, &start, &fixed, 200).expect("converges"))
+    });
+    g.finish();
+}
+
+/// Each step's readings as the filter takes them (sensor, values), built once.
+fn hand_readings(data: &MeasurementRecord, dims: &[usize]) -> Vec<(usize, Measurement)> {
+    let mut out = Vec::new();
+    for (k, z) in data.sequences[0].z.chunks(data.dim).enumerate() {
+        let mut o = 0;
+        for (sensor, &d) in dims.iter().enumerate() {
+            if z[o].is_finite() {
+                let z = DVector::from_column_slice(&z[o..o + d]);
+                out.push((k + 1, Measurement { sensor, z }));
+            }
+            o += d;
+        }
+    }
+    out
+}
+
+/// `−log L` by the filter's own loop: predict to each reading's step, update, and add
+/// `½ (log det S + NIS + m log 2π)`.
+fn by_hand(filter: &dyn Filter, readings: &[(usize, Measurement)]) -> f64 {
+    let mut est = filter.initial();
+    let mut at = 0;
+    let mut nll = 0.0;
+    for (step, meas) in readings {
+        while at < *step {
+            at += 1;
+            filter.predict(at, &mut est).expect("predicts");
+        }
+        let inn = filter.update(at, &mut est, meas).expect("updates");
+        let m = inn.nu.len() as f64;
+        nll += 0.5 * (inn.S.determinant().ln() + inn.nis + m * (2.0 * std::f64::consts::PI).ln());
+    }
+    nll
+}
+
 /// `data` with 1% of its cells empty, drawn independently by a fixed linear congruential
 /// stream.
 fn with_gaps(mut data: MeasurementRecord) -> MeasurementRecord {
@@ -78,5 +173,5 @@ fn with_gaps(mut data: MeasurementRecord) -> MeasurementRecord {
     data
 }
 
-criterion_group!(benches, estimate);
+criterion_group!(benches, estimate, replayed);
 criterion_main!(benches);

@@ -6,17 +6,21 @@ use std::time::Instant;
 
 use super::CommandError;
 use super::options::name_value;
+use crate::check::check;
 use crate::estimate::EstimateError;
 use crate::estimate::als::{self, AlsModel, FullMatrix};
 use crate::estimate::{
-    FilterReplay, MeasurementRecord, ReplayExperiment, ReplayRefusal, ml, read_measurements,
-    simulate, simulate_sensors,
+    FilterReplay, GateRanges, LikelihoodRanges, MeasurementRecord, ReplayExperiment, ReplayRefusal,
+    gate_ranges, likelihood_ranges, ml, read_measurements, simulate, simulate_sensors,
 };
 use crate::experiment::{Experiment, LinearExperiment};
 use crate::input::FileError;
 use crate::output::{Outputs, check_output_file};
 use crate::problem::Problem;
-use crate::report::estimate::{EstimateSummary, als_text, estimate_json, ml_text, start_note};
+use crate::report::estimate::{
+    EstimateSummary, als_text, estimate_json, ml_text, ranges_json, ranges_text, rests_on,
+    start_note,
+};
 use crate::report::tune::tuned::estimated_config_toml;
 
 /// The options of `estimate`.
@@ -426,7 +430,31 @@ pub fn estimate(a: &EstimateOptions) -> Result<EstimateRun, CommandError> {
     let build = |theta: &[f64]| lin.filter_at(theta);
     let est = ml::estimate(&build, &data, &start, &fixed, a.max_iterations).map_err(failed)?;
     summary.seconds = t0.elapsed().as_secs_f64();
-    ml_run(&p, a, &summary, &est)
+    let nll = |t: &[f64]| lin.filter_at(t).neg_log_likelihood(&data).ok();
+    let judged = ReplayExperiment::new(lin, data.clone()).map_err(|e| {
+        FileError::new(&a.measurements, "", format!("{}: {}", e.setting, e.message))
+    })?;
+    let ranges = supported(&nll, &judged, &est, &fixed);
+    ml_run(&p, a, &summary, &est, &ranges)
+}
+
+/// The range of each free parameter the record supports around the estimate `est`: its
+/// 95% profile-likelihood interval (`−log L = nll(θ)`), and where the record passes the
+/// gate of `judged` (the filter over the record) with the other parameters at the
+/// estimate.
+fn supported(
+    nll: &dyn Fn(&[f64]) -> Option<f64>,
+    judged: &dyn Experiment,
+    est: &ml::MlEstimate,
+    fixed: &[bool],
+) -> (LikelihoodRanges, GateRanges) {
+    let likelihood = likelihood_ranges(nll, est, fixed, 0.95);
+    let passes = |t: &[f64]| {
+        check(judged, t, judged.mc(), false)
+            .ok()
+            .map(|r| r.verdict.passes())
+    };
+    (likelihood, gate_ranges(&passes, &est.theta, fixed))
 }
 
 /// What an estimate's table and JSON say of its inputs, before its search has run.
@@ -440,6 +468,7 @@ fn summary_of<'a>(
         problem: p.name(),
         record: &a.measurements,
         sequences: data.sequences.len(),
+        steps: data.sequences.iter().map(|s| s.steps).sum(),
         values: data.values(),
         params: p.params(),
         start,
@@ -465,15 +494,21 @@ fn ml_run(
     a: &EstimateOptions,
     summary: &EstimateSummary<'_>,
     est: &ml::MlEstimate,
+    (likelihood, gate): &(LikelihoodRanges, GateRanges),
 ) -> Result<EstimateRun, CommandError> {
     if let Some(out) = &a.out {
         let score = ("neg_log_likelihood", est.neg_log_likelihood);
         write_config(p, out, &est.theta, "ml", &a.measurements, score, a.force)?;
     }
     let output = if a.json {
-        estimate_json(summary, "ml", est, serde_json::Map::new())
+        let mut extra = serde_json::Map::new();
+        extra.insert("supported".into(), ranges_json(likelihood, gate));
+        extra.insert("judged_on".into(), rests_on(summary).into());
+        estimate_json(summary, "ml", est, extra)
     } else {
-        ml_text(summary, est)
+        let mut o = ml_text(summary, est);
+        ranges_text(&mut o, summary, likelihood, gate);
+        o
     };
     Ok(EstimateRun { output })
 }
@@ -501,7 +536,9 @@ fn estimate_replayed(p: &Problem, a: &EstimateOptions) -> Result<EstimateRun, Co
             }
         })?;
     summary.seconds = t0.elapsed().as_secs_f64();
-    ml_run(p, a, &summary, &est)
+    let nll = |t: &[f64]| replay.neg_log_likelihood(t).ok();
+    let ranges = supported(&nll, &replay, &est, &fixed);
+    ml_run(p, a, &summary, &est, &ranges)
 }
 
 /// A full Q or R by autocovariance least squares under a semidefinite constraint: needs

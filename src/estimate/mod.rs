@@ -11,12 +11,14 @@ mod files;
 mod filter_replay;
 mod likelihood;
 pub mod ml;
+mod ranges;
 mod replay;
 
 pub use files::{read_measurements, record_bytes};
 
 pub use error::{EstimateError, NotDefinite};
 pub use filter_replay::{FilterReplay, ReplayRefusal, ReplayStop};
+pub use ranges::{GateRanges, LikelihoodRanges, Range, RangeEnd, gate_ranges, likelihood_ranges};
 pub use replay::ReplayExperiment;
 
 use nalgebra::DVector;

@@ -90,6 +90,30 @@ pub fn fmt_fixed(v: f64, decimals: usize) -> String {
     }
 }
 
+/// One end as text: the value, or `≤ v` / `≥ v` where the trace stopped at its limit.
+fn end_text(e: &crate::estimate::RangeEnd, lower: bool) -> String {
+    match (e.reached, lower) {
+        (true, true) if e.value == 0.0 => "0".to_string(),
+        (true, _) => fmt_g(e.value),
+        (false, true) => format!("≤ {}", fmt_g(e.value)),
+        (false, false) => format!("≥ {}", fmt_g(e.value)),
+    }
+}
+
+/// A range as `lo … hi`, or `missing` in its place.
+pub fn range_text(r: Option<&crate::estimate::Range>, missing: &str) -> String {
+    r.map_or_else(
+        || missing.to_string(),
+        |r| {
+            format!(
+                "{} … {}",
+                end_text(&r.lower, true),
+                end_text(&r.upper, false)
+            )
+        },
+    )
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -134,8 +134,9 @@ pub fn tune(
     let refined = run.refine(&found, observer);
     let confirmed = run.confirm(&refined, observer);
     let resolution = run.resolution(&found, &refined, &confirmed);
+    let supported = run.supported(&confirmed);
     run.failed()?;
-    let result = run.result(found, refined, confirmed, resolution);
+    let result = run.result(found, refined, confirmed, resolution, supported);
     // One record is one deterministic test: restarts would search the same data again.
     if settings.certify() && !model.seed_free() && certify::needed(&result) {
         observer.phase("certify");

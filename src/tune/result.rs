@@ -145,6 +145,11 @@ pub struct TuneResult {
     pub after: ConsistencyReport,
     /// How the run ended.
     pub status: TuneStatus,
+    /// On one record that passes the gate at the tuned values: the range along each free
+    /// parameter (the others at their tuned values) over which the record still passes.
+    /// One record has no seed-to-seed spread, so this stands where a resolution would.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub supported: Option<crate::estimate::GateRanges>,
     /// The certification of a misfit (searches from several starts in a widened box, the
     /// best point rechecked on more runs), where the run needed one; absent otherwise.
     #[serde(skip_serializing_if = "Option::is_none")]

@@ -15,6 +15,7 @@ use super::{
     Objective, Observer, Plan, Resolution, Scoring, Terms, TuneError, TuneResult, TuneSettings,
     TuneStatus, Widening, bound_flags, default_confirm_seed, exact_scoring, local,
 };
+use crate::estimate::{GateRanges, gate_ranges};
 use crate::experiment::Experiment;
 use crate::montecarlo::{McConfig, TapeUsage};
 use crate::stats::{Accumulator, ConsistencyReport, GateMode};
@@ -382,6 +383,24 @@ impl<'a> Tuning<'a> {
         }
     }
 
+    /// On one record that passes the gate at the tuned values, the range along each free
+    /// parameter over which it still passes (the others at their tuned values): one record
+    /// is one deterministic test, so this is what it says of each value's precision.
+    pub(super) fn supported(&self, confirmed: &Confirmed) -> Option<GateRanges> {
+        if !self.model.seed_free() || !confirmed.confirmation.holds() {
+            return None;
+        }
+        let gate = self.gate();
+        let passes = |t: &[f64]| {
+            Some(
+                gate.report(t, self.mc.runs(), confirmed.confirm_seed)
+                    .verdict
+                    .passes(),
+            )
+        };
+        Some(gate_ranges(&passes, &confirmed.tuned, self.fixed))
+    }
+
     /// What the run showed. A search that ran out of budget did not converge, whatever the
     /// confirmation says: its values are the best found so far, never reported as the
     /// tuned answer. A parameter still on a bound after its widening was stopped by the
@@ -411,6 +430,7 @@ impl<'a> Tuning<'a> {
         refined: Refined,
         confirmed: Confirmed,
         resolution: Option<Vec<Resolution>>,
+        supported: Option<GateRanges>,
     ) -> TuneResult {
         let at_bound = bound_flags(&self.cost, &confirmed.tuned, self.fixed);
         let status = self.status(&found, &confirmed, &at_bound);
@@ -445,6 +465,7 @@ impl<'a> Tuning<'a> {
             before: confirmed.before,
             after: confirmed.after,
             status,
+            supported,
             certificate: None,
             truth: self.model.truth_reuse(self.tapes_before),
             seconds: self.t0.elapsed().as_secs_f64(),

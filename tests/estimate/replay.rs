@@ -11,7 +11,8 @@ use rayon::prelude::*;
 
 use autotune::internals::check::check;
 use autotune::internals::estimate::{
-    FilterReplay, MeasurementRecord, ReplayExperiment, ml, simulate, simulate_sensors,
+    FilterReplay, MeasurementRecord, ReplayExperiment, likelihood_ranges, ml, simulate,
+    simulate_sensors,
 };
 use autotune::internals::experiment::Experiment;
 use autotune::internals::montecarlo::McConfig;
@@ -78,7 +79,7 @@ fn coverage(name: &str, steps: usize, seeds: u64) -> Vec<usize> {
 /// stations that come and go, 300 steps): over 100 records each, every free parameter's 95%
 /// interval covers the truth on 91 to 99 of them, the 95% ± 4%. (A binomial(100,
 /// 0.95) count falls there with probability 0.97; an interval too narrow by a third covers
-/// about 83%.) Measured: ctrv 96 and 96, orbit2d 94 and 92. On 500-step ctrv records the
+/// about 83%.) Measured: ctrv 96 and 96, orbit2d 94 and 94. On 500-step ctrv records the
 /// yaw-acceleration interval covers 88: the observed information of a short record
 /// understates that estimate's spread (its z-scores' standard deviation is 1.24).
 #[test]
@@ -261,4 +262,66 @@ fn a_filter_driven_by_inputs_is_refused() {
         err.contains("ins_gnss.toml: model:") && err.contains("IMU"),
         "{err}"
     );
+}
+
+/// The supported range of each free parameter from one ctrv recording (alternating lidar
+/// and radar, 500 steps): the 95% profile-likelihood interval covers the truth on 95% ± 4%
+/// of 200 recordings (the band; a binomial(200, 0.95) count falls in 182–198 with
+/// probability 0.996, and an interval whose ends sit a fifth too close covers about 89%).
+#[test]
+fn one_recordings_supported_range_covers_the_truth() {
+    let p = common::load("ctrv");
+    let truth = common::truth_values(&p);
+    let params = p.params();
+    let start = params.values();
+    let fixed: Vec<bool> = params.params.iter().map(|d| d.fixed).collect();
+    let t0 = std::time::Instant::now();
+    let per_record: Vec<(Vec<bool>, usize, usize)> = (0..200u64)
+        .into_par_iter()
+        .map(|seed| {
+            let replay = FilterReplay::new(&p, record(&p, 1, 500, 9000 + seed)).unwrap();
+            let nll = |t: &[f64]| replay.neg_log_likelihood(t).ok();
+            let est = ml::estimate_by(&nll, replay.data().values(), &start, &fixed, 200)
+                .expect("the search runs");
+            let r = likelihood_ranges(&nll, &est, &fixed, 0.95);
+            // The profile interval's coverage, then the observed information's beside it.
+            let covered = (0..truth.len())
+                .filter(|&i| !fixed[i])
+                .map(|i| r.ranges[i].is_some_and(|r| r.contains(truth[i])))
+                .chain((0..truth.len()).filter(|&i| !fixed[i]).map(|i| {
+                    est.std_errors[i].is_some_and(|se| {
+                        (est.theta[i].ln() - truth[i].ln()).abs() <= 1.96 * se / est.theta[i]
+                    })
+                }))
+                .collect();
+            (covered, est.evaluations, r.evaluations)
+        })
+        .collect();
+    let counts: Vec<usize> = (0..per_record[0].0.len())
+        .map(|k| per_record.iter().filter(|c| c.0[k]).count())
+        .collect();
+    let half = counts.len() / 2;
+    let differ: Vec<usize> = (0..half)
+        .map(|k| {
+            per_record
+                .iter()
+                .filter(|c| c.0[k] != c.0[k + half])
+                .count()
+        })
+        .collect();
+    let ml_evals: usize = per_record.iter().map(|c| c.1).sum();
+    let range_evals: usize = per_record.iter().map(|c| c.2).sum();
+    eprintln!(
+        "ctrv, one 500-step recording: the 95% profile interval covers the truth {:?} of 200, the observed information's {:?} (they differ on {differ:?}; {ml_evals} ML and {range_evals} profile evaluations, {:.1} s)",
+        &counts[..counts.len() / 2],
+        &counts[counts.len() / 2..],
+        t0.elapsed().as_secs_f64()
+    );
+    let free = counts.len() / 2;
+    for (k, &c) in counts[..free].iter().enumerate() {
+        assert!(
+            (182..=198).contains(&c),
+            "free parameter {k}: the interval covers the truth on {c} of 200 recordings"
+        );
+    }
 }

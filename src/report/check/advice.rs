@@ -36,6 +36,9 @@ pub struct Recommendation {
     pub resolution: Option<f64>,
     /// The tuned value sits on a search bound (assessed at any status).
     pub at_bound: bool,
+    /// On one record: the range over which the record passes the gate, the other
+    /// parameters at their tuned values (its unit).
+    pub supported: Option<crate::estimate::Range>,
     /// The components the parameter acts on, with their normalized errors in the starting
     /// filter (target 1): `(name, value)`.
     pub evidence: Vec<(String, f64)>,
@@ -127,6 +130,10 @@ pub fn recommendations(
             identifiable: res.map(|r| r.identifiable),
             resolution: res.and_then(|r| r.factor),
             at_bound,
+            supported: result
+                .supported
+                .as_ref()
+                .and_then(|g| g.ranges.get(i).copied().flatten()),
             evidence,
             advice,
         });
@@ -327,6 +334,10 @@ impl Recommendation {
         ) {
             (true, ..) => "fixed".to_string(),
             (false, true, ..) => "at a search bound".to_string(),
+            _ if self.supported.is_some() => format!(
+                "gate passes {}",
+                crate::report::format::range_text(self.supported.as_ref(), "")
+            ),
             (false, false, Some(false), _) => "not identifiable".to_string(),
             (false, false, Some(true), Some(f)) => format!("±{:.1}%", 100.0 * (f - 1.0)),
             (false, false, _, _) => "not assessed".to_string(),

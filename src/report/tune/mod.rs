@@ -211,10 +211,7 @@ fn search_markdown(o: &mut String, r: &TuneResult) {
         r.refine_evaluations
     );
     if r.confirmation.recorded {
-        let _ = writeln!(
-            o,
-            "- resolution: not assessed, since one record gives one draw of the statistics (`autotune estimate --method ml` gives standard errors from the likelihood)"
-        );
+        let _ = writeln!(o, "- resolution: {}", recorded_precision(r, &[]).join(" "));
     } else {
         let _ = writeln!(
             o,
@@ -291,10 +288,9 @@ pub fn tune_summary(
         );
     }
     if result.confirmation.recorded {
-        let _ = writeln!(
-            o,
-            "  (how precisely one record determines each value: `autotune estimate --method ml` gives standard errors)"
-        );
+        for line in recorded_precision(result, recs) {
+            let _ = writeln!(o, "  {line}");
+        }
     }
     if let Some(lines) = crate::report::check::advice::family_finding(result, explanations) {
         for l in lines {
@@ -390,4 +386,40 @@ fn tune_verdict_line(result: &TuneResult) -> String {
         "verdict: before {}, after {after}",
         result.before.verdict.label(),
     )
+}
+
+/// What a tune on one record can say of each value's precision: where the record still
+/// passes the gate (each parameter alone, the others at their tuned values, where `recs`
+/// are given), what that rests on, and where the likelihood's interval comes from.
+fn recorded_precision(result: &TuneResult, recs: &[Recommendation]) -> Vec<String> {
+    let mut lines = Vec::new();
+    let shown: Vec<String> = recs
+        .iter()
+        .filter(|r| !r.fixed && r.supported.is_some())
+        .map(|r| {
+            format!(
+                "{} {}",
+                r.param,
+                crate::report::format::range_text(r.supported.as_ref(), "")
+            )
+        })
+        .collect();
+    if !shown.is_empty() {
+        lines.push(format!(
+            "the record passes the gate over: {} (each alone, the others at their tuned values)",
+            shown.join(", ")
+        ));
+    }
+    let what = if result.runs == 1 {
+        format!("one recording ({} steps)", result.steps)
+    } else {
+        format!(
+            "{} recordings (up to {} steps each)",
+            result.runs, result.steps
+        )
+    };
+    lines.push(format!(
+        "judged on {what}, not on simulated runs, so there are no fresh seeds to confirm on and no seed-to-seed resolution; `autotune estimate` gives each parameter's 95% profile-likelihood interval, and another recording as long would narrow both by about 1/√2"
+    ));
+    lines
 }

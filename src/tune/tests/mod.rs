@@ -736,6 +736,30 @@ fn one_record_is_confirmed_once_and_its_resolution_is_the_bounds_alone() {
         at_bound: false,
     };
     assert_eq!(r.resolution, Some(vec![unbounded; 2]));
+    // In its place, the range along each parameter (the other at its tuned value) over
+    // which the record passes: each end passes, and 3% beyond it fails (the trace stops at
+    // a bracket of 2%).
+    let supported = r.supported.as_ref().expect("a record that passes has ranges");
+    assert!(supported.passes_at_point);
+    let passes = |i: usize, v: f64| {
+        let mut t = r.tuned.clone();
+        t[i] = v;
+        crate::check::check(&mock, &t, mock.mc(), true)
+            .unwrap()
+            .verdict
+            .passes()
+    };
+    for i in 0..2 {
+        let range = supported.ranges[i].expect("a free parameter's range");
+        assert!(range.contains(r.tuned[i]), "{range:?}");
+        for (end, out) in [(range.lower, 1.0 / 1.03), (range.upper, 1.03)] {
+            assert!(end.reached, "{range:?}");
+            assert!(passes(i, end.value), "{i}: {end:?} passes");
+            assert!(!passes(i, end.value * out), "{i}: beyond {end:?} fails");
+        }
+    }
+    // Simulated runs have a seed-to-seed resolution instead.
+    assert!(run(&quadratic(), &settings(Scoring::Exact)).supported.is_none());
     // With every parameter fixed there is nothing to assess on one record.
     let fixed = [true, true];
     let start = mock.params().values();

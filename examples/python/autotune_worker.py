@@ -27,6 +27,13 @@ appends one JSON line to that file when it exits: its requests and the seconds s
 ``simulate``, in writing the records, and waiting for requests (to tell the protocol's
 cost from the filter's).
 
+A filter that replays a recorded measurement record instead (``autotune estimate`` or
+``--measurements`` on the problem) is served by ``serve(simulate, replay=replay)``: a
+request that names a record (``"replay": path``) calls ``replay(theta, path, steps)``, which
+returns the same arrays for every sequence of the record (leading axes (sequences,
+steps)), and the answer says ``"replays": true``. ``simulate`` may then be ``None``: a
+simulation request answers an error.
+
 ``write_records(path, arrays)`` writes the same arrays as a records file (.npz, .csv or
 .jsonl) for ``autotune check --records``.
 
@@ -80,8 +87,9 @@ def _request_fields(req: dict) -> tuple:
     return theta, seed, (a, b), steps, directory
 
 
-def serve(simulate, stdin=None) -> int:
-    """Answer autotune's requests with ``simulate`` until stdin closes; returns 0."""
+def serve(simulate, stdin=None, replay=None) -> int:
+    """Answer autotune's requests with ``simulate`` (and replay requests with ``replay``)
+    until stdin closes; returns 0."""
     stdin = sys.stdin if stdin is None else stdin
     # Keep the real stdout for the protocol; point fd 1 and sys.stdout at stderr.
     sys.stdout.flush()
@@ -114,12 +122,23 @@ def serve(simulate, stdin=None) -> int:
                 theta, seed, runs, steps, directory = _request_fields(req)
                 stats["requests"] += 1
                 t0 = time.perf_counter()
-                arrays = simulate(theta, seed, runs, steps)
+                record = req.get("replay")
+                if record is not None:
+                    if replay is None:
+                        raise ValueError("this worker does not replay a record")
+                    arrays = replay(theta, record, steps)
+                elif simulate is None:
+                    raise ValueError("this worker only replays a record (autotune estimate, or --measurements)")
+                else:
+                    arrays = simulate(theta, seed, runs, steps)
                 t1 = time.perf_counter()
                 check_shapes(arrays, runs[1] - runs[0], steps)
                 path = os.path.join(directory, f"{rid}.npz")
                 np.savez(path, **arrays)
-                answer({"id": rid, "file": path})
+                reply = {"id": rid, "file": path}
+                if record is not None:
+                    reply["replays"] = True
+                answer(reply)
                 stats["simulate_s"] += t1 - t0
                 stats["write_s"] += time.perf_counter() - t1
             except Exception as exc:  # noqa: BLE001 - every failure becomes an answer

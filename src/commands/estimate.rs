@@ -14,6 +14,7 @@ use crate::estimate::{
     gate_ranges, likelihood_ranges, ml, read_measurements, simulate, simulate_sensors,
 };
 use crate::experiment::{Experiment, LinearExperiment};
+use crate::external::{ExternalExperiment, WorkerReplay};
 use crate::input::FileError;
 use crate::output::{Outputs, check_output_file};
 use crate::problem::Problem;
@@ -157,8 +158,110 @@ pub fn measured_experiment<'a>(
             .map_err(|e| FileError::new(file, "", format!("{}: {}", e.setting, e.message)))?;
         return Ok(Box::new(replay));
     }
+    if let Some(w) = p.worker() {
+        return Ok(Box::new(worker_replay(p, w, file)?.0));
+    }
     let data = read_measurements(file)?;
     Ok(Box::new(replayed(p, path, data, file, "--measurements")?))
+}
+
+/// The worker of problem `p` replayed over the record `file` (its measured values counted
+/// beside it): refused when the record's components are not the worker's sensors', or its
+/// sequences differ in length (a worker's records run every sequence to the same T).
+fn worker_replay<'a>(
+    p: &'a Problem,
+    w: &'a ExternalExperiment,
+    file: &Path,
+) -> Result<(WorkerReplay<'a>, MeasurementRecord), CommandError> {
+    let data = read_measurements(file)?;
+    let names = p.measurement_names();
+    if data.dim != names.len() {
+        return Err(FileError::new(
+            file,
+            "z",
+            format!(
+                "{} components per step, but {}'s worker measures {} ({})",
+                data.dim,
+                p.name(),
+                names.len(),
+                names.join(", ")
+            ),
+        )
+        .into());
+    }
+    let steps = data.sequences.first().map_or(0, |s| s.steps);
+    if let Some((i, s)) = data
+        .sequences
+        .iter()
+        .enumerate()
+        .find(|(_, s)| s.steps != steps)
+    {
+        return Err(FileError::new(
+            file,
+            "step",
+            format!(
+                "run {i} has {} steps and run 0 {steps}: a worker replays sequences of one length",
+                s.steps
+            ),
+        )
+        .into());
+    }
+    let replay = WorkerReplay::new(w, file, data.sequences.len(), steps)
+        .map_err(|e| FileError::new(file, "", format!("{}: {}", e.setting, e.message)))?;
+    Ok((replay, data))
+}
+
+/// The maximum-likelihood estimate of a worker's filter replayed over `file` by `replay`,
+/// from `start`: `−log L` from the innovations and covariances it answers. A worker failure
+/// ends it with that error; records without S (normalized innovations) give no likelihood,
+/// and are refused naming the file.
+fn worker_ml(
+    replay: &WorkerReplay<'_>,
+    values: usize,
+    start: &[f64],
+    fixed: &[bool],
+    max_iterations: u64,
+    file: &Path,
+    with_ranges: bool,
+) -> Result<(ml::MlEstimate, Option<(LikelihoodRanges, GateRanges)>), CommandError> {
+    match replay.neg_log_likelihood(start)? {
+        Some(_) => {}
+        None => {
+            return Err(FileError::new(
+                file,
+                "z",
+                "the worker's records of this replay give no likelihood at the start values: they carry normalized innovations (nis_<sensor>) rather than nu_<sensor> and S_<sensor>, or a sequence stopped",
+            )
+            .into());
+        }
+    }
+    // The first worker failure stops the search and is the command's error.
+    let failure: std::cell::RefCell<Option<crate::experiment::ExperimentError>> =
+        std::cell::RefCell::new(None);
+    let nll = |t: &[f64]| {
+        if failure.borrow().is_some() {
+            return None;
+        }
+        replay
+            .neg_log_likelihood(t)
+            .map_err(|e| *failure.borrow_mut() = Some(e))
+            .ok()
+            .flatten()
+    };
+    let est = ml::estimate_by(&nll, values, start, fixed, max_iterations);
+    let ranges = est
+        .as_ref()
+        .ok()
+        .filter(|_| with_ranges)
+        .map(|est| supported(&nll, replay, est, fixed));
+    if let Some(e) = failure.into_inner() {
+        return Err(e.into());
+    }
+    let est = est.map_err(|e| CommandError::Estimate {
+        subject: file.display().to_string(),
+        source: e,
+    })?;
+    Ok((est, ranges))
 }
 
 /// The filter of problem `p` (file `path`), held as code, over `data` (read from `file`,
@@ -313,6 +416,34 @@ fn initial_replayed(
     asked_by: &str,
 ) -> Result<Start, CommandError> {
     replayable_method(method, asked_by)?;
+    if let (Some(w), Some(f)) = (p.worker(), record) {
+        let (replay, data) = worker_replay(p, w, f)?;
+        estimable(f, &data)?;
+        let params = p.params();
+        let fixed: Vec<bool> = params.params.iter().map(|d| d.fixed).collect();
+        let t0 = Instant::now();
+        let (est, _) = worker_ml(
+            &replay,
+            data.values(),
+            &params.values(),
+            &fixed,
+            200,
+            f,
+            false,
+        )?;
+        let origin = f.display().to_string();
+        let note = start_note(
+            method,
+            &origin,
+            t0.elapsed().as_secs_f64(),
+            params,
+            &est.theta,
+        );
+        return Ok(Start {
+            theta: est.theta,
+            note,
+        });
+    }
     let (data, origin, file) = match record {
         Some(f) => {
             let d = read_measurements(f)?;
@@ -518,6 +649,29 @@ fn ml_run(
 fn estimate_replayed(p: &Problem, a: &EstimateOptions) -> Result<EstimateRun, CommandError> {
     validate(a)?;
     replayable_method(&a.method, "--method")?;
+    if let Some(w) = p.worker() {
+        let (replay, data) = worker_replay(p, w, &a.measurements)?;
+        estimable(&a.measurements, &data)?;
+        if let Some(out) = &a.out {
+            check_output_file(out, a.force).map_err(|e| e.of_flag("--out"))?;
+        }
+        let (start, fixed) = start_values(p, a)?;
+        let mut summary = summary_of(p, a, &data, &start);
+        let t0 = Instant::now();
+        let values = data.values();
+        let (est, ranges) = worker_ml(
+            &replay,
+            values,
+            &start,
+            &fixed,
+            a.max_iterations,
+            &a.measurements,
+            true,
+        )?;
+        summary.seconds = t0.elapsed().as_secs_f64();
+        let ranges = ranges.expect("asked for");
+        return ml_run(p, a, &summary, &est, &ranges);
+    }
     let data = read_measurements(&a.measurements)?;
     estimable(&a.measurements, &data)?;
     let replay = replayed(p, &a.problem, data, &a.measurements, "estimate")?;

@@ -213,6 +213,11 @@ pub enum WorkerFailure {
     /// An answer that is none of the protocol's.
     #[error("answered {0}: expected \"file\", \"sums\", \"done\" or \"error\"")]
     Unexpected(String),
+    /// It answered a replay request without saying it replayed the record.
+    #[error(
+        "answered the request to replay the record without \"replays\": true on its closing line: a worker that replays answers with it, and one that cannot replay a record answers {{\"id\": …, \"error\": …}}"
+    )]
+    NotReplaying,
     /// Its records, together, cannot be summed (a run missing, steps out of order).
     #[error(transparent)]
     Records(#[from] RecordError),

@@ -17,15 +17,17 @@
 //! ([`stop_workers_and_remove_scratch`]).
 
 mod answer;
+mod replay;
 mod scratch;
 mod worker;
 
 pub use answer::{ChunkError, WorkerChunk};
+pub use replay::WorkerReplay;
 
 pub use scratch::stop_workers_and_remove_scratch;
 
 use std::collections::BTreeMap;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::sync::Mutex;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::Duration;
@@ -38,7 +40,7 @@ use crate::montecarlo::{CHUNK, McConfig, Share};
 use crate::params::Target;
 use crate::records::{Layout, RecordError, RecordSink, StepRecord, StepSink, WireError};
 use crate::stats::Accumulator;
-use worker::{Request, Worker};
+use worker::{Reply, Request, Worker};
 
 /// How to run the worker program.
 #[derive(Debug, Clone, PartialEq)]
@@ -76,6 +78,10 @@ pub struct ExternalExperiment {
     failed: Mutex<Option<ExperimentError>>,
     next_id: AtomicU64,
     contract_checked: AtomicBool,
+    /// A worker said its runs are a recording it replays (`"replays": true`): the sums do
+    /// not depend on the seed, so there is no seed contract to check and no fresh seed to
+    /// confirm on.
+    replays: AtomicBool,
 }
 
 impl std::fmt::Debug for ExternalExperiment {
@@ -106,6 +112,7 @@ impl ExternalExperiment {
             failed: Mutex::new(None),
             next_id: AtomicU64::new(1),
             contract_checked: AtomicBool::new(false),
+            replays: AtomicBool::new(false),
         }
     }
 
@@ -203,6 +210,7 @@ impl ExternalExperiment {
             steps: mc.steps(),
             lags: mc.lags(),
             sums_fields: &sums_fields,
+            replay: None,
         };
         let mut sink = self.sink(mc, runs.clone());
         let mut prints = prints;
@@ -216,7 +224,12 @@ impl ExternalExperiment {
             }
             None => w.request(&req, &self.layout, &mut sink, self.command.timeout),
         };
-        let summed = match asked {
+        if let Ok(reply) = &asked
+            && reply.replays
+        {
+            self.replays.store(true, Ordering::Relaxed);
+        }
+        let summed = match asked.map(|reply| reply.sums) {
             Ok(None) => sink.finish().map_err(WorkerFailure::from),
             // Inline records and then sums would count runs twice.
             Ok(Some(_)) if sink.runs() > 0 => Err(WorkerFailure::Sums(WireError::AfterRecords)),
@@ -284,7 +297,9 @@ impl ExternalExperiment {
                 report(done);
             }
         }
+        // A worker that replays a recording gives the same runs whatever the seed.
         if !self.contract_checked.swap(true, Ordering::Relaxed)
+            && !self.replays.load(Ordering::Relaxed)
             && let Some(first) = first_prints.into_inner().unwrap_or_else(|p| p.into_inner())
         {
             self.check_contract(&mut pool, &theta_json, mc, &first)?;
@@ -352,6 +367,68 @@ impl ExternalExperiment {
                 part.expect("every chunk of the wave answered")
             })
             .collect())
+    }
+
+    /// The worker's filter at `theta` replayed over the measurement record at `record` (its
+    /// `sequences` sequences of `steps` steps): the innovations' sums, as `--measurements`
+    /// judges them, and their `−log L` (`None` where the worker's records carry no S, or a
+    /// sequence stopped). One request to one worker, whose runs are the record's sequences;
+    /// it must answer `"replays": true`.
+    pub fn replay(
+        &self,
+        theta: &[f64],
+        record: &Path,
+        sequences: usize,
+        mc: &McConfig,
+    ) -> Result<(Accumulator, Option<f64>), ExperimentError> {
+        if let Some(e) = self
+            .failed
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .clone()
+        {
+            return Err(e);
+        }
+        let mut pool = self.pool.lock().unwrap_or_else(|p| p.into_inner());
+        if pool.is_empty() {
+            let w = Worker::start(&self.command.command, &self.command.dir, 0)
+                .map_err(|why| self.start_error(false, why))?;
+            pool.push(w);
+        }
+        let path = serde_json::to_string(&record.to_string_lossy()).expect("a string serializes");
+        let sums_fields = answer::request_fields(&self.layout, mc.lags());
+        let theta = self.theta_json(theta);
+        let req = Request {
+            id: self.next_id.fetch_add(1, Ordering::Relaxed),
+            theta: &theta,
+            seed: mc.seed(),
+            runs: 0..sequences,
+            steps: mc.steps(),
+            lags: mc.lags(),
+            sums_fields: &sums_fields,
+            replay: Some(&path),
+        };
+        let w = &mut pool[0];
+        let mut sink = self.sink(mc, 0..sequences);
+        let answered = w
+            .request(&req, &self.layout, &mut sink, self.command.timeout)
+            .and_then(|reply| match reply {
+                Reply { replays: false, .. } => Err(WorkerFailure::NotReplaying),
+                Reply {
+                    sums: Some(chunk), ..
+                } => Ok((chunk.sums, None)),
+                Reply { sums: None, .. } => {
+                    sink.finish_with_likelihood().map_err(WorkerFailure::from)
+                }
+            });
+        let result = answered.map_err(|failure| self.error(w, &req, failure));
+        if let Err(e) = &result {
+            shut_down(&mut pool);
+            *self.failed.lock().unwrap_or_else(|p| p.into_inner()) = Some(e.clone());
+        } else {
+            self.replays.store(true, Ordering::Relaxed);
+        }
+        result
     }
 
     /// The seed contract on the first chunk, whose runs' fingerprints are `whole`: the
@@ -466,6 +543,9 @@ impl Experiment for ExternalExperiment {
     }
 
     fn truth_reuse(&self, _since: crate::montecarlo::TapeUsage) -> crate::experiment::TruthReuse {
+        if self.replays.load(Ordering::Relaxed) {
+            return crate::experiment::TruthReuse::Recorded;
+        }
         crate::experiment::TruthReuse::Simulated {
             why: "the worker simulates its own truth, and autotune cannot tell whether the parameters it is sent enter it".to_string(),
         }
@@ -496,6 +576,11 @@ impl Experiment for ExternalExperiment {
 
     fn truth_values(&self) -> Option<Vec<f64>> {
         self.truth.clone()
+    }
+
+    /// Known once the first answer is in: a worker that replays a recording says so.
+    fn seed_free(&self) -> bool {
+        self.replays.load(Ordering::Relaxed)
     }
 
     fn target(&self, i: usize) -> Option<Target> {

@@ -41,6 +41,18 @@ pub(super) struct Request<'a> {
     pub lags: usize,
     /// `"lags":…,"layout":…`, for a worker that sums its own records.
     pub sums_fields: &'a str,
+    /// The measurement record to replay the filter over (its path, as a JSON string): a
+    /// replay request, whose runs are the record's sequences.
+    pub replay: Option<&'a str>,
+}
+
+/// What a worker answered: where its runs' sums are, and whether it says it replays
+/// recorded data (`"replays": true` on its closing line) rather than simulating runs.
+pub(super) struct Reply {
+    /// The sums of a worker that summed its own records (`None`: they went to the sink).
+    pub sums: Option<ChunkSums>,
+    /// The worker replays a recording: its runs do not depend on the seed.
+    pub replays: bool,
 }
 
 /// How long a request may still wait for lines.
@@ -55,10 +67,10 @@ struct Wait {
 #[derive(Debug, Clone, PartialEq)]
 enum Answer {
     More,
-    /// The records went to the sink.
-    Done,
-    /// The worker summed its own records.
-    Sums(Box<ChunkSums>),
+    /// The records went to the sink; whether the worker replays.
+    Done(bool),
+    /// The worker summed its own records; whether it replays.
+    Sums(Box<ChunkSums>, bool),
 }
 
 /// A running worker.
@@ -248,7 +260,7 @@ impl Worker {
         layout: &Layout,
         sink: &mut dyn StepSink<Error = RecordError>,
         timeout: Duration,
-    ) -> Result<Option<ChunkSums>, WorkerFailure> {
+    ) -> Result<Reply, WorkerFailure> {
         self.send(req)?;
         let mut wait = Wait {
             deadline: Instant::now() + timeout,
@@ -263,16 +275,29 @@ impl Worker {
             }
             match self.answer(trimmed, req, layout, sink)? {
                 Answer::More => {}
-                Answer::Done => return Ok(None),
-                Answer::Sums(sums) => return Ok(Some(*sums)),
+                Answer::Done(replays) => {
+                    return Ok(Reply {
+                        sums: None,
+                        replays,
+                    });
+                }
+                Answer::Sums(sums, replays) => {
+                    return Ok(Reply {
+                        sums: Some(*sums),
+                        replays,
+                    });
+                }
             }
         }
     }
 
     /// Write the request line to the worker's stdin.
     fn send(&mut self, req: &Request<'_>) -> Result<(), WorkerFailure> {
+        let replay = req
+            .replay
+            .map_or_else(String::new, |path| format!(",\"replay\":{path}"));
         let line = format!(
-            "{{\"id\":{},\"theta\":{},\"seed\":{},\"runs\":[{},{}],\"steps\":{},{},\"dir\":{}}}\n",
+            "{{\"id\":{},\"theta\":{},\"seed\":{},\"runs\":[{},{}],\"steps\":{},{}{replay},\"dir\":{}}}\n",
             req.id,
             req.theta,
             req.seed,
@@ -359,15 +384,16 @@ impl Worker {
             let msg = msg.as_str().map_or_else(|| msg.to_string(), str::to_string);
             return Err(WorkerFailure::Reported(quote(&msg)));
         }
+        let replays = obj.get("replays").and_then(Value::as_bool) == Some(true);
         if obj.get("done").and_then(Value::as_bool) == Some(true) {
-            return Ok(Answer::Done);
+            return Ok(Answer::Done(replays));
         }
         if let Some(file) = obj.get("file") {
             let Some(file) = file.as_str() else {
                 return Err(WorkerFailure::FileNotPath(quote(line)));
             };
             self.read_file(file, req, layout, sink)?;
-            return Ok(Answer::Done);
+            return Ok(Answer::Done(replays));
         }
         if let Some(sums) = obj.get("sums") {
             let Some(text) = sums.as_str() else {
@@ -383,7 +409,7 @@ impl Worker {
                 n_z: layout.n_z(),
             };
             let sums = decode_sums(text, &shape).map_err(WorkerFailure::Sums)?;
-            return Ok(Answer::Sums(Box::new(sums)));
+            return Ok(Answer::Sums(Box::new(sums), replays));
         }
         Err(WorkerFailure::Unexpected(quote(line)))
     }

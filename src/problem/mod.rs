@@ -17,6 +17,7 @@ use crate::experiment::{
     Covariances, Definition, Experiment, ExperimentError, Info, LinearExperiment, RunOptions,
     Source,
 };
+use crate::external::ExternalExperiment;
 use crate::input::{FileError, SettingError, parse_toml};
 use crate::montecarlo::{Engine, McConfig};
 use crate::params::{ParamDef, ParamSpace, Target};
@@ -62,12 +63,19 @@ impl ProblemKind {
 /// an [`Experiment`] itself (delegating to the one the file describes); the layers above
 /// see that experiment and nothing more concrete.
 pub struct Problem {
-    experiment: Box<dyn Experiment>,
+    experiment: Built,
     kind: ProblemKind,
     /// Sample period between filter steps, s.
     pub dt: f64,
     /// The file's `[tune]` section, validated (defaults where absent).
     pub tune: TuneSettings,
+}
+
+/// What a problem file built: a worker program (kept as such, since it can also replay a
+/// record), or any other experiment.
+enum Built {
+    Worker(Box<ExternalExperiment>),
+    Other(Box<dyn Experiment>),
 }
 
 impl std::fmt::Debug for Problem {
@@ -95,12 +103,27 @@ impl Problem {
 
     /// The experiment the file describes.
     pub fn experiment(&self) -> &dyn Experiment {
-        self.experiment.as_ref()
+        match &self.experiment {
+            Built::Worker(w) => w.as_ref(),
+            Built::Other(e) => e.as_ref(),
+        }
     }
 
     /// The experiment the file describes, owned.
     pub fn into_experiment(self) -> Box<dyn Experiment> {
-        self.experiment
+        match self.experiment {
+            Built::Worker(w) => w,
+            Built::Other(e) => e,
+        }
+    }
+
+    /// The worker program of an `[external]` problem, which can also replay its filter
+    /// over a record ([`crate::external::WorkerReplay`]).
+    pub fn worker(&self) -> Option<&ExternalExperiment> {
+        match &self.experiment {
+            Built::Worker(w) => Some(w),
+            Built::Other(_) => None,
+        }
     }
 
     /// Which section defines the system.
@@ -260,7 +283,7 @@ impl Validator<'_> {
         };
         // The one place the kinds of system are told apart: each section builds its
         // experiment, and everything after sees only the trait.
-        let (kind, experiment): (ProblemKind, Box<dyn Experiment>) =
+        let (kind, experiment): (ProblemKind, Built) =
             match (&s.external, &s.truth, &s.filter, &s.model) {
                 (Some(_), t, f, m) if t.is_some() || f.is_some() || m.is_some() => {
                     return self.err(
@@ -270,11 +293,11 @@ impl Validator<'_> {
                 }
                 (Some(ext), ..) => (
                     ProblemKind::External,
-                    Box::new(self.external_problem(&s, ext, info, mc)?),
+                    Built::Worker(Box::new(self.external_problem(&s, ext, info, mc)?)),
                 ),
                 (None, None, None, Some(model)) => (
                     ProblemKind::Catalog,
-                    Box::new(self.catalog_problem(&s, model, info, mc)?),
+                    Built::Other(Box::new(self.catalog_problem(&s, model, info, mc)?)),
                 ),
                 (None, t, _, Some(_)) => {
                     let which = if t.is_some() { "truth" } else { "filter" };
@@ -285,7 +308,7 @@ impl Validator<'_> {
                 }
                 (None, Some(t), Some(f), None) => (
                     ProblemKind::Linear,
-                    Box::new(self.linear_problem(&s, t, f, info, mc)?),
+                    Built::Other(Box::new(self.linear_problem(&s, t, f, info, mc)?)),
                 ),
                 (None, None, _, None) => {
                     return self.err(

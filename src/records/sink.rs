@@ -18,6 +18,9 @@ use crate::stats::{Accumulator, RunRecorder, StopCause};
 /// this) and never returned at 10¹⁹, which a mistyped `nees_dof` reached.
 pub(super) const MAX_DOF: f64 = 1e6;
 
+/// `log 2π`, the constant of each measured component's Gaussian density.
+const LN_2PI: f64 = 1.837_877_066_409_345_5;
+
 /// `x` as an error message shows it: as written for everyday sizes, in exponent form when
 /// huge or tiny (`1e300`, not its 301 digits).
 pub fn shown_number(x: f64) -> String {
@@ -38,6 +41,8 @@ pub struct NormalizedSensor {
     pub dof: f64,
     /// `ν_j/√S_jj` per component (`components` set, or `u` given).
     pub u: Option<Vec<f64>>,
+    /// `log det S`, where the record gives S (a normalized record does not).
+    pub log_det: Option<f64>,
 }
 
 /// Normalize one sensor record of dimension `dim`. `Err` is a shape error (the record does
@@ -70,10 +75,12 @@ pub fn normalize_sensor(
                 return Ok(Err(Breakdown::Overflowed("NIS")));
             }
             let u = components.then(|| (0..m).map(|j| nu[j] / sm[j * m + j].sqrt()).collect());
+            let log_det = 2.0 * chol.l().diagonal().iter().map(|d| d.ln()).sum::<f64>();
             Ok(Ok(NormalizedSensor {
                 nis,
                 dof: m as f64,
                 u,
+                log_det: Some(log_det),
             }))
         }
         SensorRecord::Normalized { nis, dof, u } => {
@@ -100,6 +107,7 @@ pub fn normalize_sensor(
                 nis: *nis,
                 dof: *dof,
                 u: u.clone(),
+                log_det: None,
             }))
         }
     }
@@ -213,6 +221,9 @@ struct Normalized {
     nis: Option<(f64, f64)>,
     /// `(component, ν_j/√S_jj)`.
     u: Vec<(usize, f64)>,
+    /// The step's `−log L` terms, `½ (log det S + ν'S⁻¹ν + m log 2π)` summed over its
+    /// sensors; `None` when a sensor's record is normalized (no S to take log det of).
+    nll: Option<f64>,
 }
 
 /// Streams [`StepRecord`]s of one experiment (T steps, `lags` whiteness lags) into an
@@ -229,6 +240,9 @@ pub struct RecordSink {
     seen: HashSet<usize>,
     /// The runs expected, where known (a worker's answer to a request).
     expected: Option<std::ops::Range<usize>>,
+    /// `−log L` of the innovations so far; `None` once a record gave no S or a run
+    /// stopped (the filter has no likelihood there).
+    nll: Option<f64>,
 }
 
 impl RecordSink {
@@ -244,6 +258,7 @@ impl RecordSink {
             current: None,
             seen: HashSet::new(),
             expected: None,
+            nll: Some(0.0),
         }
     }
 
@@ -325,6 +340,14 @@ impl RecordSink {
         }
     }
 
+    /// The sums, once every run is complete, and `−log L` of every innovation the records
+    /// hold (`½ Σ (log det S + ν'S⁻¹ν + m log 2π)`: a filter replayed over a record), or
+    /// `None` where a record is normalized or a run stopped.
+    pub fn finish_with_likelihood(self) -> Result<(Accumulator, Option<f64>), RecordError> {
+        let nll = self.nll;
+        self.finish().map(|acc| (acc, nll))
+    }
+
     /// The sums, once every run is complete.
     pub fn finish(mut self) -> Result<Accumulator, RecordError> {
         self.close()?;
@@ -370,6 +393,7 @@ impl RecordSink {
     }
 
     fn stop(&mut self, run: usize, k: usize, reason: String) {
+        self.nll = None;
         self.recorder.stop_run(&mut self.acc);
         self.acc.record_stop(run, k, StopCause::Diverged, reason);
         self.acc.runs += 1;
@@ -387,6 +411,7 @@ impl RecordSink {
             ep: None,
             nis: None,
             u: Vec::new(),
+            nll: Some(0.0),
         };
         match (&self.layout.state, &r.state) {
             (None, None) => {}
@@ -426,6 +451,10 @@ impl RecordSink {
             };
             nis += n.nis;
             dof += n.dof;
+            out.nll = match (out.nll, n.log_det) {
+                (Some(sum), Some(log_det)) => Some(sum + 0.5 * (log_det + n.nis + n.dof * LN_2PI)),
+                _ => None,
+            };
             if let Some(u) = n.u {
                 let o = self.offsets[*s];
                 out.u
@@ -447,6 +476,7 @@ impl RecordSink {
     /// Add a normalized step to the sums, in the generic engine's order.
     fn add(&mut self, k: usize, n: Normalized) {
         let i = k - 1;
+        self.nll = self.nll.zip(n.nll).map(|(a, b)| a + b);
         if let Some((nis, dof)) = n.nis {
             self.acc.add_nis(i, nis, dof);
         }

@@ -273,7 +273,7 @@ impl Confirmation {
         if self.recorded {
             let how = if self.passed == 1 { "pass" } else { "fail" };
             return format!(
-                "the recorded measurements {how} the gate (one record, so no fresh seeds to confirm on)"
+                "the recorded measurements {how} the gate (recorded data, judged as they are: no fresh seeds to confirm on)"
             );
         }
         format!(

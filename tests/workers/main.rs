@@ -15,6 +15,7 @@ mod common;
 mod external;
 mod first_use;
 mod records;
+mod replay;
 mod rust_model;
 mod scratch;
 mod worker_sums;

@@ -303,7 +303,7 @@ fn nan_in_records_is_a_diverged_run() {
 
 /// Whether python3 with numpy can run the Python example; required where
 /// AUTOTUNE_REQUIRE_PYTHON is set (CI installs numpy).
-fn numpy() -> bool {
+pub(crate) fn numpy() -> bool {
     let ok = Command::new("python3")
         .args(["-c", "import numpy"])
         .status()

@@ -739,7 +739,10 @@ fn one_record_is_confirmed_once_and_its_resolution_is_the_bounds_alone() {
     // In its place, the range along each parameter (the other at its tuned value) over
     // which the record passes: each end passes, and 3% beyond it fails (the trace stops at
     // a bracket of 2%).
-    let supported = r.supported.as_ref().expect("a record that passes has ranges");
+    let supported = r
+        .supported
+        .as_ref()
+        .expect("a record that passes has ranges");
     assert!(supported.passes_at_point);
     let passes = |i: usize, v: f64| {
         let mut t = r.tuned.clone();
@@ -759,7 +762,11 @@ fn one_record_is_confirmed_once_and_its_resolution_is_the_bounds_alone() {
         }
     }
     // Simulated runs have a seed-to-seed resolution instead.
-    assert!(run(&quadratic(), &settings(Scoring::Exact)).supported.is_none());
+    assert!(
+        run(&quadratic(), &settings(Scoring::Exact))
+            .supported
+            .is_none()
+    );
     // With every parameter fixed there is nothing to assess on one record.
     let fixed = [true, true];
     let start = mock.params().values();

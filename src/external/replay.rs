@@ -1,0 +1,94 @@
+//! A worker's filter replayed over a measurement record: the worker is handed the record's
+//! path and θ, runs its own filter over each sequence, and answers with the innovations'
+//! records (`"replays": true`). As an [`Experiment`] it is judged by those innovations, as
+//! `check --measurements` and `tune --measurements` judge a filter autotune holds; its
+//! `−log L` is what `estimate` maximizes.
+
+use std::path::{Path, PathBuf};
+
+use super::ExternalExperiment;
+use crate::experiment::{Definition, Experiment, ExperimentError, RunOptions, TruthReuse};
+use crate::input::SettingError;
+use crate::montecarlo::McConfig;
+use crate::params::Target;
+use crate::stats::Accumulator;
+
+/// The filter of a worker over one measurement record of `sequences` sequences of `steps`
+/// steps each.
+pub struct WorkerReplay<'a> {
+    worker: &'a ExternalExperiment,
+    record: PathBuf,
+    definition: Definition,
+}
+
+impl<'a> WorkerReplay<'a> {
+    /// The filter of `worker` over the record at `record` (made absolute: the worker runs in
+    /// its problem's directory), of `sequences` sequences of `steps` steps.
+    pub fn new(
+        worker: &'a ExternalExperiment,
+        record: &Path,
+        sequences: usize,
+        steps: usize,
+    ) -> Result<Self, SettingError> {
+        let record = std::path::absolute(record).map_err(|e| {
+            SettingError::new("--measurements", format!("{}: {e}", record.display()))
+        })?;
+        let mut definition = worker.definition().clone();
+        definition.mc = definition
+            .mc
+            .with_runs(sequences)
+            .and_then(|mc| mc.with_steps(steps))?;
+        Ok(WorkerReplay {
+            worker,
+            record,
+            definition,
+        })
+    }
+
+    /// `−log L` of the record under the worker's filter at `theta`, from the innovations
+    /// and covariances it answers (`½ Σ (log det S + ν'S⁻¹ν + m log 2π)`); `Ok(None)` where
+    /// its records give no S or a sequence stopped (no likelihood there).
+    pub fn neg_log_likelihood(&self, theta: &[f64]) -> Result<Option<f64>, ExperimentError> {
+        let mc = &self.definition.mc;
+        self.worker
+            .replay(theta, &self.record, mc.runs(), mc)
+            .map(|(_, nll)| nll)
+    }
+}
+
+impl Experiment for WorkerReplay<'_> {
+    fn definition(&self) -> &Definition {
+        &self.definition
+    }
+
+    fn truth_reuse(&self, _since: crate::montecarlo::TapeUsage) -> TruthReuse {
+        TruthReuse::Recorded
+    }
+
+    /// The worker's filter at `theta` over every sequence of the record (`mc`'s seed and
+    /// runs do not apply: the data are what they are).
+    fn monte_carlo_with(
+        &self,
+        theta: &[f64],
+        mc: &McConfig,
+        _options: RunOptions<'_>,
+    ) -> Result<Accumulator, ExperimentError> {
+        let own = &self.definition.mc;
+        let mc = own.with_lags(mc.lags()).unwrap_or(*own);
+        self.worker
+            .replay(theta, &self.record, own.runs(), &mc)
+            .map(|(acc, _)| acc)
+    }
+
+    fn seed_free(&self) -> bool {
+        true
+    }
+
+    fn truth_values(&self) -> Option<Vec<f64>> {
+        self.worker.truth_values()
+    }
+
+    fn target(&self, i: usize) -> Option<Target> {
+        self.worker.target(i)
+    }
+}

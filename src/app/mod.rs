@@ -142,9 +142,15 @@ struct ProblemCheck {
     records: Vec<PathBuf>,
     /// Judge the problem's filter on recorded measurements instead of its truth model: the
     /// filter runs over the record (CSV, JSON Lines, NumPy; docs/src/measurements.md) and is
-    /// judged by its innovations alone. Linear problems.
+    /// judged by its innovations. A linear problem, a catalog model, or a worker that
+    /// replays.
     #[arg(long, value_name = "FILE", requires = "problem", conflicts_with_all = ["runs", "steps", "seed", "engine"])]
     measurements: Option<PathBuf>,
+    /// The reference states recorded beside --measurements (RTK, motion capture, a
+    /// simulator's log; x_1 … x_n a step, as `simulate --truth` writes them): NEES is judged
+    /// too. A filter autotune holds (a linear problem or a catalog model).
+    #[arg(long, value_name = "FILE", requires = "measurements")]
+    truth: Option<PathBuf>,
     /// Compute only shard I of N of the Monte Carlo (0-based: 0/3, 1/3 and 2/3 are the
     /// three shards of three; chunk c of 64 runs is shard c mod N's) and write its sums to
     /// --sums-out, for `autotune merge` to judge with the others (docs/src/cluster.md).
@@ -197,9 +203,14 @@ struct ProblemTune {
     problem: PathBuf,
     /// Tune against recorded measurements instead of the truth model: the filter runs over
     /// the record (CSV, JSON Lines, NumPy; docs/src/measurements.md) and candidates are scored by
-    /// their innovations alone (NIS, per-component NIS, whiteness). Linear problems.
+    /// their innovations (NIS, per-component NIS, whiteness). A linear problem, a catalog
+    /// model, or a worker that replays.
     #[arg(long, value_name = "FILE", conflicts_with_all = ["runs", "steps", "seed"])]
     measurements: Option<PathBuf>,
+    /// The reference states recorded beside --measurements (x_1 … x_n a step, as
+    /// `simulate --truth` writes them): candidates are scored by their errors (NEES) too.
+    #[arg(long, value_name = "FILE", requires = "measurements")]
+    truth: Option<PathBuf>,
     /// Start the search from an estimate from measurements alone: ml (maximum likelihood)
     /// or als (autocovariance least squares), on --init-record, or else on --measurements,
     /// or else on a record simulated from the problem's truth (its runs × steps, another
@@ -282,8 +293,13 @@ where
         Command::Check(a) => match (a.problem, &a.measurements) {
             (Some(p), Some(f)) => {
                 let problem = Problem::load(&p)?;
-                let measured = measured_experiment(&problem, &p, f)?;
-                check(measured.as_ref(), a.options.with_nis_only())
+                let measured = measured_experiment(&problem, &p, f, a.truth.as_deref())?;
+                let options = if a.truth.is_some() {
+                    a.options
+                } else {
+                    a.options.with_nis_only()
+                };
+                check(measured.as_ref(), options)
             }
             (Some(p), None) => match (a.shard, &a.sums_out) {
                 (Some(share), Some(out)) => shard(&Problem::load(&p)?, &a.options, share, out),
@@ -363,8 +379,8 @@ fn tune_problem_over(
     match &a.measurements {
         None => tune(over, &p.tune, a.options, init),
         Some(f) => {
-            let measured = measured_experiment(p, &a.problem, f)?;
-            let settings = p.tune.clone().with_nis_only(true);
+            let measured = measured_experiment(p, &a.problem, f, a.truth.as_deref())?;
+            let settings = p.tune.clone().with_nis_only(a.truth.is_none());
             tune(measured.as_ref(), &settings, a.options, init)
         }
     }

@@ -11,7 +11,7 @@ use crate::estimate::EstimateError;
 use crate::estimate::als::{self, AlsModel, FullMatrix};
 use crate::estimate::{
     FilterReplay, GateRanges, LikelihoodRanges, MeasurementRecord, ReplayExperiment, ReplayRefusal,
-    gate_ranges, likelihood_ranges, ml, read_measurements, simulate, simulate_sensors,
+    gate_ranges, likelihood_ranges, ml, read_measurements, read_states, simulate, simulate_sensors,
 };
 use crate::experiment::{Experiment, LinearExperiment};
 use crate::external::{ExternalExperiment, WorkerReplay};
@@ -151,7 +151,24 @@ pub fn measured_experiment<'a>(
     p: &'a Problem,
     path: &Path,
     file: &Path,
+    truth: Option<&Path>,
 ) -> Result<Box<dyn Experiment + 'a>, CommandError> {
+    if let Some(states) = truth {
+        if p.worker().is_some() {
+            return Err(CommandError::option(
+                "--truth",
+                "a worker that replays gives its own errors (e and P in its records) where it has a reference; --truth is for a filter autotune holds",
+            ));
+        }
+        // The generic replay, which a linear problem's filter runs through as well.
+        let data = read_measurements(file)?;
+        let reference = read_states(states)?;
+        let replay = replayed(p, path, data, file, "--measurements")?;
+        let judged = replay
+            .with_reference(reference)
+            .map_err(|e| FileError::new(states, "x", e.to_string()))?;
+        return Ok(Box::new(judged));
+    }
     if let Some(lin) = p.experiment().linear() {
         let data = read_record(p, lin, file)?;
         let replay = ReplayExperiment::new(lin, data)

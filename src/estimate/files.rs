@@ -126,15 +126,27 @@ fn index(text: &str, what: &str) -> Result<usize, (String, String)> {
 
 /// Read a measurement record (by extension: `.csv`, `.jsonl`, `.npy`, `.npz`).
 pub fn read_measurements(path: &Path) -> Result<MeasurementRecord, FileError> {
+    read_named(path, "z")
+}
+
+/// Read reference states recorded beside a measurement record, in the same layout with
+/// `x` for `z` (columns `x_1 … x_n`, JSON key `x`, array `x`), as `simulate --truth` writes
+/// them: `dim` is then the state's n.
+pub fn read_states(path: &Path) -> Result<MeasurementRecord, FileError> {
+    read_named(path, "x")
+}
+
+/// A record whose values are named `prefix` (`z`: measurements, `x`: states).
+fn read_named(path: &Path, prefix: &str) -> Result<MeasurementRecord, FileError> {
     crate::input::note_input(path);
     let ext = path
         .extension()
         .and_then(|e| e.to_str())
         .map(str::to_ascii_lowercase);
     match ext.as_deref() {
-        Some("csv") => read_csv(path),
-        Some("jsonl") | Some("ndjson") => read_jsonl(path),
-        Some("npy") | Some("npz") => read_numpy(path),
+        Some("csv") => read_csv(path, prefix),
+        Some("jsonl") | Some("ndjson") => read_jsonl(path, prefix),
+        Some("npy") | Some("npz") => read_numpy(path, prefix),
         _ => Err(FileError::new(
             path,
             "",
@@ -143,7 +155,8 @@ pub fn read_measurements(path: &Path) -> Result<MeasurementRecord, FileError> {
     }
 }
 
-fn read_csv(path: &Path) -> Result<MeasurementRecord, FileError> {
+fn read_csv(path: &Path, prefix: &str) -> Result<MeasurementRecord, FileError> {
+    let column = format!("{prefix}_");
     let mut rdr = crate::userfile::csv_reader(
         path,
         csv::ReaderBuilder::new()
@@ -163,7 +176,7 @@ fn read_csv(path: &Path) -> Result<MeasurementRecord, FileError> {
             "step" => step = Some(c),
             "time" => {}
             _ => match name
-                .strip_prefix("z_")
+                .strip_prefix(column.as_str())
                 .and_then(|j| j.parse::<usize>().ok())
             {
                 Some(j) if j >= 1 => z.push((j, c)),
@@ -173,7 +186,7 @@ fn read_csv(path: &Path) -> Result<MeasurementRecord, FileError> {
                         1,
                         "header",
                         format!(
-                            "unknown column '{}' (expected run, step, time, z_1 … z_m)",
+                            "unknown column '{}' (expected run, step, time, {prefix}_1 … {prefix}_m)",
                             crate::records::shown_up_to(name, 40)
                         ),
                     ));
@@ -188,7 +201,7 @@ fn read_csv(path: &Path) -> Result<MeasurementRecord, FileError> {
             path,
             1,
             "header",
-            "the z columns must be z_1 … z_m without gaps",
+            format!("the {prefix} columns must be {prefix}_1 … {prefix}_m without gaps"),
         ));
     }
     let mut b = Builder::new();
@@ -218,7 +231,7 @@ fn read_csv(path: &Path) -> Result<MeasurementRecord, FileError> {
                 } else {
                     t.parse::<f64>().map_err(|_| {
                         (
-                            format!("z_{j}"),
+                            format!("{prefix}_{j}"),
                             format!("'{}' is not a number", crate::records::shown_up_to(t, 24)),
                         )
                     })?
@@ -231,7 +244,7 @@ fn read_csv(path: &Path) -> Result<MeasurementRecord, FileError> {
     b.finish(path)
 }
 
-fn read_jsonl(path: &Path) -> Result<MeasurementRecord, FileError> {
+fn read_jsonl(path: &Path, prefix: &str) -> Result<MeasurementRecord, FileError> {
     use std::io::BufRead;
     let mut b = Builder::new();
     for (i, line) in crate::userfile::text_lines(path)?.lines().enumerate() {
@@ -253,15 +266,15 @@ fn read_jsonl(path: &Path) -> Result<MeasurementRecord, FileError> {
             let r = int("run", Some(0))?;
             let s = int("step", None)?;
             let z: Vec<f64> = obj
-                .get("z")
+                .get(prefix)
                 .and_then(Value::as_array)
-                .ok_or_else(|| ("z".to_string(), "missing or not a list".to_string()))?
+                .ok_or_else(|| (prefix.to_string(), "missing or not a list".to_string()))?
                 .iter()
                 .map(|v| match v {
                     Value::Null => Ok(f64::NAN),
                     v => v
                         .as_f64()
-                        .ok_or_else(|| ("z".to_string(), "not a number or null".to_string())),
+                        .ok_or_else(|| (prefix.to_string(), "not a number or null".to_string())),
                 })
                 .collect::<Result<_, _>>()?;
             b.row(r, s, &z)
@@ -271,17 +284,17 @@ fn read_jsonl(path: &Path) -> Result<MeasurementRecord, FileError> {
     b.finish(path)
 }
 
-fn read_numpy(path: &Path) -> Result<MeasurementRecord, FileError> {
+fn read_numpy(path: &Path, prefix: &str) -> Result<MeasurementRecord, FileError> {
     let raw = crate::records::read_numpy_arrays(&[path.to_path_buf()])?;
     let single = raw.len() == 1;
     let (name, shape, data) = raw
         .into_iter()
-        .find(|(n, _, _)| single || n == "z")
+        .find(|(n, _, _)| single || n == prefix)
         .ok_or_else(|| {
             FileError::new(
                 path,
-                "array z",
-                "missing (the measurements are the array named z)",
+                format!("array {prefix}"),
+                format!("missing (the values are the array named {prefix})"),
             )
         })?;
     let field = format!("array {name}");

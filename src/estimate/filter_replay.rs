@@ -14,7 +14,7 @@ use nalgebra::DVector;
 
 use super::MeasurementRecord;
 use crate::experiment::{Covariances, Definition, Experiment, ExperimentError, RunOptions};
-use crate::filter::{Filter, FilterError, Innovation};
+use crate::filter::{Estimate, Filter, FilterError, Innovation};
 use crate::linalg::cholesky;
 use crate::measurement::{Measurement, sensor_offsets};
 use crate::montecarlo::{Engine, McConfig};
@@ -69,6 +69,9 @@ pub enum ReplayRefusal {
     /// steps) are out of range.
     #[error("{0}")]
     Settings(String),
+    /// The reference states do not line up with the record or the filter's state.
+    #[error("{0}")]
+    Reference(String),
 }
 
 /// Where a replay stopped: the sequence, the step and why.
@@ -84,11 +87,15 @@ pub struct ReplayStop {
 }
 
 /// A problem's filter held as code and a measurement record: one run per recorded
-/// sequence, no truth (NIS, per-component `ν_j²/S_jj` and whiteness only).
+/// sequence, judged by its innovations (NIS, per-component `ν_j²/S_jj` and whiteness), and
+/// by its errors against reference states where the record has them (NEES, `e_j²/P_jj`).
 pub struct FilterReplay<'a> {
     definition: Definition,
     source: &'a dyn Experiment,
     data: MeasurementRecord,
+    /// Reference states (RTK, motion capture, a simulator's log) beside the measurements,
+    /// one T × n row-major block per sequence, in the filter's state order.
+    reference: Option<MeasurementRecord>,
     /// Each sensor's dimension and first component.
     dims: Vec<usize>,
     offsets: Vec<usize>,
@@ -154,9 +161,53 @@ impl<'a> FilterReplay<'a> {
             definition,
             source,
             data,
+            reference: None,
             dims,
             offsets,
         })
+    }
+
+    /// The same replay judged against reference states as well (`states`: as many
+    /// sequences as the record, each as long, n values a step in the filter's state order,
+    /// every one given): NEES and each state's `e_j²/P_jj` join the innovations' tests.
+    pub fn with_reference(mut self, states: MeasurementRecord) -> Result<Self, ReplayRefusal> {
+        let n = self.definition.state_names.len();
+        let refuse = |why: String| Err(ReplayRefusal::Reference(why));
+        if states.dim != n {
+            return refuse(format!(
+                "{} values a step, but the filter's state has {n} ({})",
+                states.dim,
+                self.definition.state_names.join(", ")
+            ));
+        }
+        if states.sequences.len() != self.data.sequences.len() {
+            return refuse(format!(
+                "{} sequences, but the measurements have {}",
+                states.sequences.len(),
+                self.data.sequences.len()
+            ));
+        }
+        for (i, (x, z)) in states
+            .sequences
+            .iter()
+            .zip(&self.data.sequences)
+            .enumerate()
+        {
+            if x.steps != z.steps {
+                return refuse(format!(
+                    "run {i} has {} steps, its measurements {}",
+                    x.steps, z.steps
+                ));
+            }
+            if let Some(k) = x.z.iter().position(|v| !v.is_finite()) {
+                return refuse(format!(
+                    "run {i}, step {}: a state value is missing (every step needs the whole state)",
+                    k / n + 1
+                ));
+            }
+        }
+        self.reference = Some(states);
+        Ok(self)
     }
 
     /// The record.
@@ -241,7 +292,7 @@ impl<'a> FilterReplay<'a> {
                     innovation: &innovation,
                 })?;
             }
-            each(Event::Close { step })?;
+            each(Event::Close { step, est: &est })?;
         }
         Ok(())
     }
@@ -255,8 +306,8 @@ enum Event<'i> {
         offset: usize,
         innovation: &'i Innovation,
     },
-    /// Every update of `step` is done.
-    Close { step: usize },
+    /// Every update of `step` is done; the estimate after them.
+    Close { step: usize, est: &'i Estimate },
 }
 
 impl Experiment for FilterReplay<'_> {
@@ -281,11 +332,15 @@ impl Experiment for FilterReplay<'_> {
         let steps = mc.steps();
         // No truth: the state components stay empty, keeping their slots so that the
         // report lines up with the problem's state names.
-        let mut acc = Accumulator::new(steps, self.definition.state_names.len(), m, mc.lags());
-        let mut rec = RunRecorder::new(0, m, mc.lags());
+        let n = self.definition.state_names.len();
+        let mut acc = Accumulator::new(steps, n, m, mc.lags());
+        let judged_n = if self.reference.is_some() { n } else { 0 };
+        let mut rec = RunRecorder::new(judged_n, m, mc.lags());
         for i in 0..self.data.sequences.len() {
             rec.reset();
             let (mut nis, mut dof) = (0.0, 0usize);
+            let mut run_nees = 0.0;
+            let states = self.reference.as_ref().map(|r| &r.sequences[i].z);
             let run = self.replay(&*filter, i, steps, &mut |event| {
                 match event {
                     Event::Update {
@@ -298,18 +353,41 @@ impl Experiment for FilterReplay<'_> {
                             rec.innovation(offset + j, u);
                         }
                     }
-                    Event::Close { step } => {
+                    Event::Close { step, est } => {
                         if dof > 0 {
                             acc.add_nis(step - 1, nis, dof as f64);
                         }
                         rec.end_step(&mut acc);
                         (nis, dof) = (0.0, 0);
+                        if let Some(states) = states {
+                            let truth =
+                                DVector::from_column_slice(&states[(step - 1) * n..step * n]);
+                            let e = filter.state_error(&truth, &est.x);
+                            let stop = |which| ReplayStop {
+                                sequence: i,
+                                step,
+                                error: FilterError::NotPositiveDefinite { which, step },
+                            };
+                            let chol = cholesky(&est.P).ok_or(stop("P"))?;
+                            let nees = chol.solve(&e).dot(&e);
+                            if !nees.is_finite() {
+                                return Err(stop("P"));
+                            }
+                            acc.add_nees(step - 1, nees, n as f64);
+                            run_nees += nees;
+                            rec.state_step(&mut acc, (0..n).map(|j| e[j] / est.P[(j, j)].sqrt()));
+                        }
                     }
                 }
                 Ok(())
             });
             match run {
-                Ok(()) => rec.end_run(&mut acc),
+                Ok(()) => {
+                    if states.is_some() {
+                        acc.add_run_nees_total(run_nees);
+                    }
+                    rec.end_run(&mut acc)
+                }
                 Err(s) => {
                     rec.stop_run(&mut acc);
                     let cause = match s.error {

@@ -14,7 +14,7 @@ pub mod ml;
 mod ranges;
 mod replay;
 
-pub use files::{read_measurements, record_bytes};
+pub use files::{read_measurements, read_states, record_bytes};
 
 pub use error::{EstimateError, NotDefinite};
 pub use filter_replay::{FilterReplay, ReplayRefusal, ReplayStop};

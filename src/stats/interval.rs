@@ -189,8 +189,10 @@ pub fn gate_interval(alpha: f64, dof: f64, count: f64, var: SumVariance) -> (Int
                 .map(|d| d.inverse_cdf(1.0 - alpha / 2.0))
                 .unwrap_or(f64::INFINITY);
             let half = t * var.max(0.0).sqrt();
+            // A time average of squared normalized errors is never negative: a lower end
+            // below zero (a spread so wide the t interval reaches past it) is zero.
             let iv = Interval {
-                lower: ((dof - half) / count).min(naive.lower),
+                lower: ((dof - half) / count).max(0.0).min(naive.lower),
                 upper: ((dof + half) / count).max(naive.upper),
             };
             (iv, 2.0 * dof * dof / var.max(floor))
@@ -475,6 +477,25 @@ mod tests {
             }
         }
         (outside, blocks)
+    }
+
+    /// A spread so wide that the t interval reaches below zero (a badly wrong filter's
+    /// drifting NEES over one recording) is cut at zero, and still contains the textbook
+    /// interval: a time average of squares is never negative.
+    #[test]
+    fn a_batch_means_interval_never_reaches_below_zero() {
+        let (iv, _) = gate_interval(
+            0.05,
+            5.0,
+            1.0,
+            SumVariance::BatchSpread {
+                var: 400.0,
+                batches: 8,
+            },
+        );
+        let naive = chi2_average_interval(0.05, 5.0, 1.0);
+        assert_eq!(iv.lower, 0.0);
+        assert!(iv.upper > naive.upper && iv.lower <= naive.lower);
     }
 
     #[test]

@@ -11,7 +11,7 @@ use rayon::prelude::*;
 
 use autotune::internals::check::check;
 use autotune::internals::estimate::{
-    FilterReplay, MeasurementRecord, ReplayExperiment, likelihood_ranges, ml, simulate,
+    FilterReplay, MeasurementRecord, ReplayExperiment, Sequence, likelihood_ranges, ml, simulate,
     simulate_sensors,
 };
 use autotune::internals::experiment::Experiment;
@@ -123,6 +123,60 @@ fn one_recordings_gate_holds_its_level_and_sees_a_wrong_process_noise() {
     );
     assert!(
         small >= POWER_SMALL && large >= POWER_LARGE,
+        "power: Q ÷ 4 {small}, Q × 4 {large} of 200"
+    );
+}
+
+/// Failures of the one-recording gate with reference states at a process noise ÷ 4 and
+/// × 4, of 200: measured 200 and 179, less three binomial standard deviations (about 0.5
+/// and 13). (At the truth: 5 of 200.)
+const POWER_SMALL_TRUTH: usize = 197;
+const POWER_LARGE_TRUTH: usize = 166;
+
+/// The gate on one ctrv recording with its reference states (alternating lidar and radar,
+/// 500 steps; `check --measurements --truth`): NEES and the states' components join the
+/// innovations' tests. Over 200 recordings at the truth's noise it fails 3 to 19 (the
+/// binomial(200, 0.05) 99% band); with the process noise ÷ 4 or × 4 it fails at least
+/// [`POWER_SMALL_TRUTH`] and [`POWER_LARGE_TRUTH`].
+#[test]
+fn one_recording_with_truth_gets_a_nees_verdict_that_holds_its_level() {
+    let p = common::load("ctrv");
+    let truth = common::truth_values(&p);
+    let q_scaled = |f: f64| common::scaled(&p, &truth, "q_", f);
+    let dims = p.replay_filter(&truth).unwrap().sensor_dims();
+    let fails = |theta: &[f64]| {
+        (0..200u64)
+            .into_par_iter()
+            .filter(|&seed| {
+                let sim =
+                    simulate_sensors(p.simulation_truth().unwrap(), &dims, 1, 500, 7000 + seed);
+                let states = MeasurementRecord {
+                    dim: sim.n,
+                    sequences: vec![Sequence {
+                        steps: 500,
+                        z: sim.states[0].clone(),
+                    }],
+                };
+                let replay = FilterReplay::new(&p, sim.measurements)
+                    .unwrap()
+                    .with_reference(states)
+                    .expect("the states line up");
+                let report = check(&replay, theta, replay.mc(), true).expect("the check runs");
+                assert!(report.nees.is_some(), "NEES is judged");
+                !report.verdict.passes()
+            })
+            .count()
+    };
+    let (at_truth, small, large) = (fails(&truth), fails(&q_scaled(0.25)), fails(&q_scaled(4.0)));
+    eprintln!(
+        "ctrv, one 500-step recording with its reference states: the gate fails {at_truth} of 200 at the truth, {small} with Q ÷ 4, {large} with Q × 4"
+    );
+    assert!(
+        (3..=19).contains(&at_truth),
+        "false alarms: {at_truth} of 200"
+    );
+    assert!(
+        small >= POWER_SMALL_TRUTH && large >= POWER_LARGE_TRUTH,
         "power: Q ÷ 4 {small}, Q × 4 {large} of 200"
     );
 }
@@ -324,4 +378,62 @@ fn one_recordings_supported_range_covers_the_truth() {
             "free parameter {k}: the interval covers the truth on {c} of 200 recordings"
         );
     }
+}
+
+/// `--truth` beside `--measurements`: states that do not fit the filter's state are refused
+/// in one line naming the file and `x`, exit 2; states that fit bring NEES into the check.
+#[test]
+fn reference_states_are_checked_against_the_filter() {
+    let dir = tempfile::tempdir().unwrap();
+    let (z, x) = (dir.path().join("z.csv"), dir.path().join("x.csv"));
+    let problem = common::problem_path("cv2d");
+    let autotune = |args: &[&std::ffi::OsStr]| {
+        let out = Command::cargo_bin("autotune")
+            .unwrap()
+            .args(args)
+            .output()
+            .unwrap();
+        (
+            out.status.code(),
+            String::from_utf8_lossy(&out.stdout).into_owned(),
+            String::from_utf8_lossy(&out.stderr).into_owned(),
+        )
+    };
+    let (code, _, err) = autotune(&[
+        "simulate".as_ref(),
+        problem.as_os_str(),
+        "--out".as_ref(),
+        z.as_os_str(),
+        "--truth".as_ref(),
+        x.as_os_str(),
+        "--steps".as_ref(),
+        "300".as_ref(),
+    ]);
+    assert_eq!(code, Some(0), "{err}");
+    let check = |x: &std::path::Path| {
+        autotune(&[
+            "check".as_ref(),
+            problem.as_os_str(),
+            "--measurements".as_ref(),
+            z.as_os_str(),
+            "--truth".as_ref(),
+            x.as_os_str(),
+            "--config".as_ref(),
+            std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+                .join("tuned/cv2d.toml")
+                .as_os_str(),
+        ])
+    };
+    let (code, out, err) = check(&x);
+    assert_eq!(code, Some(0), "{out}{err}");
+    assert!(out.contains("ANEES"), "{out}");
+    let short = dir.path().join("short.csv");
+    std::fs::write(&short, "run,step,x_1,x_2\n0,1,0,0\n").unwrap();
+    let (code, _, err) = check(&short);
+    assert_eq!(code, Some(2), "{err}");
+    assert_eq!(err.lines().count(), 1, "{err}");
+    assert!(
+        err.contains("short.csv: x: 2 values a step, but the filter's state has 4"),
+        "{err}"
+    );
 }

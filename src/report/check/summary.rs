@@ -391,15 +391,27 @@ pub(crate) fn stopped_runs(verdict: Verdict) -> &'static str {
     }
 }
 
+/// An interval's ends relative to its target: "±4.4%" where they sit alike, or
+/// "−8.4% / +8.9%" (a chi-square interval, or one cut at zero).
+fn spread_text(target: f64, i: &crate::stats::Interval) -> String {
+    let below = 100.0 * (target - i.lower) / target;
+    let above = 100.0 * (i.upper - target) / target;
+    if (below - above).abs() < 0.05 {
+        format!("±{:.1}%", 0.5 * (below + above))
+    } else {
+        format!("−{below:.1}% / +{above:.1}%")
+    }
+}
+
 /// For a statistic whose gate interval rests on the spread of the per-run sums (a filter that
 /// supplies no error map), the sentence that says so and what it costs: the interval's
 /// half-width against the textbook one's, each relative to the target (for 128 runs × 400
-/// steps of a 2-state filter, about ±4.4% instead of ±1.2%).
+/// steps of a 2-state filter, about ±4.4% instead of −1.2% / +1.2%).
 ///
 /// For one run (a single recording), the sentence says the interval comes from batch means
 /// over its steps instead, and what a second recording would add.
 pub fn run_spread_note(s: &StatisticSummary) -> Option<String> {
-    let half = |i: &crate::stats::Interval| 50.0 * (i.upper - i.lower) / s.target;
+    let half = |i: &crate::stats::Interval| spread_text(s.target, i);
     if s.interval.lower.is_nan() && s.time_average.is_finite() {
         return Some(format!(
             "the filter supplies no error map, and one run of {} steps is too short for the spread of its A{} sum over time (batch means needs {} blocks of {} steps), so A{} has no interval and no verdict: a recording of at least {} steps, or a second recording, would give one",
@@ -413,7 +425,7 @@ pub fn run_spread_note(s: &StatisticSummary) -> Option<String> {
     }
     if let Some(b) = s.batch_spread_batches {
         return Some(format!(
-            "the filter supplies no error map and there is one run, so the A{} interval comes from batch means: the spread of the sums of {b} blocks of consecutive steps (Student t, {} degrees of freedom), widened to contain the textbook interval: ±{:.1}% around {} instead of ±{:.1}% (it catches only larger errors; a longer or a second recording narrows it)",
+            "the filter supplies no error map and there is one run, so the A{} interval comes from batch means: the spread of the sums of {b} blocks of consecutive steps (Student t, {} degrees of freedom), widened to contain the textbook interval: {} around {} instead of {} (it catches only larger errors; a longer or a second recording narrows it)",
             s.name,
             b - 1,
             half(&s.interval),
@@ -423,7 +435,7 @@ pub fn run_spread_note(s: &StatisticSummary) -> Option<String> {
     }
     s.run_spread_runs.map(|n| {
         format!(
-            "the filter supplies no error map, so the A{} interval comes from the spread of the {n} per-run sums (Student t), widened to contain the textbook interval: ±{:.1}% around {} instead of ±{:.1}% (it catches only larger errors; more runs narrow it)",
+            "the filter supplies no error map, so the A{} interval comes from the spread of the {n} per-run sums (Student t), widened to contain the textbook interval: {} around {} instead of {} (it catches only larger errors; more runs narrow it)",
             s.name,
             half(&s.interval),
             fmt_g(s.target),

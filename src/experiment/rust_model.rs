@@ -56,7 +56,13 @@ pub struct RustModel<T, B> {
     truth_values: Option<Vec<f64>>,
     /// The truth does not depend on θ (the builder makes the filter only).
     truth_cache: TruthCache,
+    /// The builder again, boxed, where the model is replayable.
+    replay: Option<ReplayFn>,
 }
+
+/// A filter builder `θ ↦ filter` behind a box, so that the filter can be run over a
+/// recording ([`Experiment::replay_filter`]).
+type ReplayFn = Box<dyn Fn(&[f64]) -> Box<dyn Filter> + Send + Sync>;
 
 /// Collects a [`RustModel`] experiment's parts; [`RustModelBuilder::build`] checks them.
 pub struct RustModelBuilder<T, B> {
@@ -71,6 +77,7 @@ pub struct RustModelBuilder<T, B> {
     mc: Option<McConfig>,
     covariances: Option<CovarianceFn>,
     truth_values: Option<Vec<f64>>,
+    replay: Option<ReplayFn>,
 }
 
 impl<T, F, B> RustModel<T, B>
@@ -95,6 +102,7 @@ where
             mc: None,
             covariances: None,
             truth_values: None,
+            replay: None,
         }
     }
 }
@@ -105,6 +113,22 @@ where
     F: Filter,
     B: Fn(&[f64]) -> F + Sync,
 {
+    /// Let the filter run over a recording as well as over the truth's runs (the library's
+    /// `estimate::FilterReplay`: maximum likelihood on its innovations, judging and tuning it
+    /// on the recording). The builder is kept a second time behind a box, which needs a
+    /// filter that owns its data (`F: 'static`) and a builder that can be cloned.
+    pub fn replayable(mut self) -> Self
+    where
+        B: Clone + Send + 'static,
+        F: 'static,
+    {
+        let build = self.build.clone();
+        self.replay = Some(Box::new(move |theta: &[f64]| -> Box<dyn Filter> {
+            Box::new(build(theta))
+        }));
+        self
+    }
+
     /// One line saying what is modelled.
     pub fn description(mut self, text: &str) -> Self {
         self.description = text.to_string();
@@ -248,6 +272,7 @@ where
             covariances: self.covariances,
             truth_values: self.truth_values,
             truth_cache: TruthCache::default(),
+            replay: self.replay,
         })
     }
 }
@@ -317,5 +342,16 @@ where
 
     fn truth_values(&self) -> Option<Vec<f64>> {
         self.truth_values.clone()
+    }
+
+    /// Where the model was made [`RustModelBuilder::replayable`].
+    fn replay_filter(&self, theta: &[f64]) -> Option<Box<dyn Filter + '_>> {
+        self.replay
+            .as_ref()
+            .map(|build| -> Box<dyn Filter + '_> { build(theta) })
+    }
+
+    fn simulation_truth(&self) -> Option<&dyn TruthModel> {
+        Some(&self.truth)
     }
 }

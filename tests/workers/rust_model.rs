@@ -124,6 +124,7 @@ fn rust_model(problem: &Problem) -> impl Experiment + use<> {
             Target::measurement(&[4]),
         )
         .montecarlo(*problem.mc())
+        .replayable()
         .build()
         .unwrap();
     // The targets written out above are the catalog entry's.
@@ -302,4 +303,41 @@ fn the_one_call_cli_refuses_bad_options_by_flag() {
         err(&["m", "tune", "--scoring", "exact"]).starts_with("--scoring: exact scoring needs")
     );
     assert!(err(&["m", "frobnicate"]).contains("(see 'ctrv_rust --help')"));
+}
+
+/// A Rust model made `replayable` runs over a recording as the catalog model it copies
+/// does: over a 300-step ctrv record (alternating lidar and radar), the same `−log L` to the
+/// bit at three θ, and the same maximum-likelihood estimate.
+#[test]
+fn a_replayable_rust_model_runs_over_a_recording_as_the_catalog_model_does() {
+    use autotune::internals::estimate::{FilterReplay, ml, simulate_sensors};
+    let dir = tempfile::tempdir().unwrap();
+    let problem = Problem::load(&problem_file(dir.path())).unwrap();
+    let model = rust_model(&problem);
+    let start = problem.params().values();
+    let dims = model
+        .replay_filter(&start)
+        .expect("replayable")
+        .sensor_dims();
+    let truth = model.simulation_truth().expect("the model's truth");
+    let data = simulate_sensors(truth, &dims, 1, 300, 9).measurements;
+    let ours = FilterReplay::new(&model, data.clone()).expect("the record fits");
+    let catalog = FilterReplay::new(&problem, data).expect("the record fits");
+    for f in [1.0, 10.0, 0.3] {
+        let theta: Vec<f64> = start.iter().map(|v| v * f).collect();
+        assert_eq!(
+            ours.neg_log_likelihood(&theta).unwrap().to_bits(),
+            catalog.neg_log_likelihood(&theta).unwrap().to_bits(),
+            "θ × {f}"
+        );
+    }
+    let fixed: Vec<bool> = problem.params().params.iter().map(|d| d.fixed).collect();
+    let values = ours.data().values();
+    let by = |r: &FilterReplay<'_>| {
+        let nll = |t: &[f64]| r.neg_log_likelihood(t).ok();
+        ml::estimate_by(&nll, values, &start, &fixed, 200).unwrap()
+    };
+    let (a, b) = (by(&ours), by(&catalog));
+    assert!(a.converged);
+    assert_eq!(a.theta, b.theta);
 }

@@ -102,6 +102,27 @@ fn read_record(
     file: &Path,
 ) -> Result<MeasurementRecord, CommandError> {
     let data = read_measurements(file)?;
+    // A linear problem's F and Q are built for its dt: a record with times must keep it.
+    for (i, seq) in data.sequences.iter().enumerate() {
+        let mut last = 0.0;
+        for (k, &t) in seq.time.iter().enumerate() {
+            if ((t - last) - p.dt).abs() > 1e-9 * p.dt {
+                return Err(FileError::new(
+                    file,
+                    "time",
+                    format!(
+                        "run {i}, step {}: {} s after the last, but {}'s filter steps by dt = {} s (a linear problem's filter replays a record at its own step only)",
+                        k + 1,
+                        t - last,
+                        p.name(),
+                        p.dt
+                    ),
+                )
+                .into());
+            }
+            last = t;
+        }
+    }
     let m = lin.filter.H.nrows();
     if data.dim != m {
         return Err(FileError::new(

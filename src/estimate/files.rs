@@ -44,8 +44,15 @@ impl Builder {
         }
     }
 
-    /// Add run `run`, step `step` with values `z` (NaN: missing); `Err((field, message))`.
-    fn row(&mut self, run: usize, step: usize, z: &[f64]) -> Result<(), (String, String)> {
+    /// Add run `run`, step `step` at `time` (s, where the record has times) with values `z`
+    /// (NaN: missing); `Err((field, message))`.
+    fn row(
+        &mut self,
+        run: usize,
+        step: usize,
+        time: Option<f64>,
+        z: &[f64],
+    ) -> Result<(), (String, String)> {
         let m = *self.dim.get_or_insert(z.len());
         if z.len() != m {
             return Err((
@@ -71,6 +78,7 @@ impl Builder {
             self.sequences.push(Sequence {
                 steps: 0,
                 z: Vec::new(),
+                time: Vec::new(),
             });
         }
         let s = self.sequences.last_mut().expect("pushed above");
@@ -81,6 +89,31 @@ impl Builder {
                     "run {run}: step {step} follows step {} (steps go 1, 2, … without gaps)",
                     s.steps
                 ),
+            ));
+        }
+        if let Some(t) = time {
+            // Every row gives a time or none does; each after the last, the first after the
+            // filter's initial state at 0.
+            if s.time.len() != s.steps {
+                return Err((
+                    "time".into(),
+                    format!("run {run}: some steps have a time and others not"),
+                ));
+            }
+            let last = s.time.last().copied().unwrap_or(0.0);
+            if !(t.is_finite() && t > last) {
+                return Err((
+                    "time".into(),
+                    format!(
+                        "run {run}, step {step}: {t} is not after {last} (times are seconds since the filter's initial state, increasing)"
+                    ),
+                ));
+            }
+            s.time.push(t);
+        } else if !s.time.is_empty() {
+            return Err((
+                "time".into(),
+                format!("run {run}: some steps have a time and others not"),
             ));
         }
         s.steps += 1;
@@ -168,13 +201,13 @@ fn read_csv(path: &Path, prefix: &str) -> Result<MeasurementRecord, FileError> {
         .map_err(|e| at(path, 1, "header", csv_message(&e)))?
         .clone();
     crate::userfile::check_columns(path, header.len())?;
-    let (mut run, mut step) = (None, None);
+    let (mut run, mut step, mut time) = (None, None, None);
     let mut z: Vec<(usize, usize)> = Vec::new();
     for (c, name) in header.iter().enumerate() {
         match name {
             "run" => run = Some(c),
             "step" => step = Some(c),
-            "time" => {}
+            "time" => time = Some(c),
             _ => match name
                 .strip_prefix(column.as_str())
                 .and_then(|j| j.parse::<usize>().ok())
@@ -224,6 +257,18 @@ fn read_csv(path: &Path, prefix: &str) -> Result<MeasurementRecord, FileError> {
                 None => 0,
             };
             let s = index(rec.get(step).unwrap_or(""), "step")?;
+            let t = match time {
+                Some(c) => {
+                    let t = rec.get(c).unwrap_or("");
+                    Some(t.parse::<f64>().map_err(|_| {
+                        (
+                            "time".to_string(),
+                            format!("'{}' is not a number", crate::records::shown_up_to(t, 24)),
+                        )
+                    })?)
+                }
+                None => None,
+            };
             for (k, (j, c)) in z.iter().enumerate() {
                 let t = rec.get(*c).unwrap_or("");
                 values[k] = if t.is_empty() {
@@ -237,7 +282,7 @@ fn read_csv(path: &Path, prefix: &str) -> Result<MeasurementRecord, FileError> {
                     })?
                 };
             }
-            b.row(r, s, &values)
+            b.row(r, s, t, &values)
         })();
         res.map_err(|(field, m)| at(path, line, &field, m))?;
     }
@@ -265,6 +310,13 @@ fn read_jsonl(path: &Path, prefix: &str) -> Result<MeasurementRecord, FileError>
             };
             let r = int("run", Some(0))?;
             let s = int("step", None)?;
+            let t = match obj.get("time") {
+                None => None,
+                Some(v) => Some(
+                    v.as_f64()
+                        .ok_or_else(|| ("time".to_string(), "not a number".to_string()))?,
+                ),
+            };
             let z: Vec<f64> = obj
                 .get(prefix)
                 .and_then(Value::as_array)
@@ -277,7 +329,7 @@ fn read_jsonl(path: &Path, prefix: &str) -> Result<MeasurementRecord, FileError>
                         .ok_or_else(|| (prefix.to_string(), "not a number or null".to_string())),
                 })
                 .collect::<Result<_, _>>()?;
-            b.row(r, s, &z)
+            b.row(r, s, t, &z)
         })();
         res.map_err(|(field, m)| at(path, n, &field, m))?;
     }
@@ -332,12 +384,17 @@ fn read_numpy(path: &Path, prefix: &str) -> Result<MeasurementRecord, FileError>
     }
     // One run keeps the numbers read; several are cut from them.
     let sequences = if runs == 1 {
-        vec![Sequence { steps, z: data }]
+        vec![Sequence {
+            steps,
+            z: data,
+            time: Vec::new(),
+        }]
     } else {
         data.chunks(steps * m)
             .map(|c| Sequence {
                 steps,
                 z: c.to_vec(),
+                time: Vec::new(),
             })
             .collect()
     };

@@ -72,6 +72,11 @@ pub enum ReplayRefusal {
     /// The reference states do not line up with the record or the filter's state.
     #[error("{0}")]
     Reference(String),
+    /// The record has times the filter cannot step by.
+    #[error(
+        "the record has a time column, but {0}'s filter steps only by its own step length: leave the column out to replay it at the filter's own steps"
+    )]
+    Times(String),
 }
 
 /// Where a replay stopped: the sequence, the step and why.
@@ -122,6 +127,17 @@ impl<'a> FilterReplay<'a> {
                 problem: name(),
                 what,
             });
+        }
+        // A record with times steps the filter by them: it must say its own step length and
+        // be able to depart from it.
+        if data.sequences.iter().any(|s| !s.time.is_empty()) {
+            let steps_by_time = filter.step_length().is_some_and(|h| {
+                let mut est = filter.initial();
+                filter.predict_over(1, &mut est, 0.5 * h).is_ok()
+            });
+            if !steps_by_time {
+                return Err(ReplayRefusal::Times(name()));
+            }
         }
         let offsets = sensor_offsets(&dims);
         let names = source.measurement_names();
@@ -265,9 +281,24 @@ impl<'a> FilterReplay<'a> {
             error,
         };
         let mut est = filter.initial();
+        let times = &self.data.sequences[i].time;
+        let own = filter.step_length();
         for (k, z) in self.data.sequences[i].z.chunks(m).take(steps).enumerate() {
             let step = k + 1;
-            filter.predict(step, &mut est).map_err(|e| stop(step, e))?;
+            // With times, the step from the last reading (the first from the initial state
+            // at 0); the filter's own predict where that is its own step length.
+            let over = match (times.get(k), own) {
+                (Some(&t), Some(h)) => {
+                    let dt = t - if k == 0 { 0.0 } else { times[k - 1] };
+                    ((dt - h).abs() > 1e-9 * h).then_some(dt)
+                }
+                _ => None,
+            };
+            match over {
+                Some(dt) => filter.predict_over(step, &mut est, dt),
+                None => filter.predict(step, &mut est),
+            }
+            .map_err(|e| stop(step, e))?;
             for (sensor, (&o, &d)) in self.offsets.iter().zip(&self.dims).enumerate() {
                 // `new` checked that a reading is given whole or not at all.
                 if !z[o].is_finite() {

@@ -751,7 +751,11 @@ mod tests {
                         zk.fill(f64::NAN);
                     }
                 }
-                sequences.push(Sequence { steps, z });
+                sequences.push(Sequence {
+                    steps,
+                    z,
+                    time: Vec::new(),
+                });
             }
             let data = MeasurementRecord { dim: m, sequences };
             assert!(!data.complete());

@@ -33,6 +33,9 @@ pub struct Sequence {
     pub steps: usize,
     /// The measurements, T × m row-major; NaN where a component was not measured.
     pub z: Vec<f64>,
+    /// Each step's time, s since the filter's initial state (the record's `time` column),
+    /// increasing; empty when the record has none (the steps are then the filter's own).
+    pub time: Vec<f64>,
 }
 
 /// Recorded measurements: several sequences of one sensor of dimension m.
@@ -115,7 +118,11 @@ pub fn simulate_sensors(
             }
             xs.extend_from_slice(x.as_slice());
         }
-        sequences.push(Sequence { steps, z });
+        sequences.push(Sequence {
+            steps,
+            z,
+            time: Vec::new(),
+        });
         states.push(xs);
     }
     Simulated {

@@ -332,6 +332,21 @@ pub trait Filter: Sync {
     /// Incorporate one measurement taken at step `k`.
     fn update(&self, k: usize, est: &mut Estimate, meas: &Measurement) -> UpdateResult;
 
+    /// The length of the filter's own step (s), where it has one it can also depart from
+    /// ([`Filter::predict_over`]); `None` by default.
+    fn step_length(&self) -> Option<f64> {
+        None
+    }
+
+    /// Propagate the estimate to step `k` over `dt` seconds instead of the filter's own
+    /// step (a record with irregular times). The default refuses: a filter whose model is
+    /// built for its step length overrides it.
+    fn predict_over(&self, _k: usize, _est: &mut Estimate, _dt: f64) -> PredictResult {
+        Err(FilterError::Unsupported {
+            what: "steps of their own length",
+        })
+    }
+
     /// The estimation error `x_true − x̂` (override to wrap angles or map a
     /// higher-fidelity truth state onto the filter's state).
     fn state_error(&self, truth: &DVector<f64>, estimate: &DVector<f64>) -> DVector<f64> {
@@ -389,6 +404,14 @@ impl<F: Filter + ?Sized> Filter for Box<F> {
 
     fn update(&self, k: usize, est: &mut Estimate, meas: &Measurement) -> UpdateResult {
         (**self).update(k, est, meas)
+    }
+
+    fn step_length(&self) -> Option<f64> {
+        (**self).step_length()
+    }
+
+    fn predict_over(&self, k: usize, est: &mut Estimate, dt: f64) -> PredictResult {
+        (**self).predict_over(k, est, dt)
     }
 
     fn state_error(&self, truth: &DVector<f64>, estimate: &DVector<f64>) -> DVector<f64> {

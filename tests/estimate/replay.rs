@@ -155,6 +155,7 @@ fn one_recording_with_truth_gets_a_nees_verdict_that_holds_its_level() {
                     sequences: vec![Sequence {
                         steps: 500,
                         z: sim.states[0].clone(),
+                        time: Vec::new(),
                     }],
                 };
                 let replay = FilterReplay::new(&p, sim.measurements)
@@ -434,6 +435,79 @@ fn reference_states_are_checked_against_the_filter() {
     assert_eq!(err.lines().count(), 1, "{err}");
     assert!(
         err.contains("short.csv: x: 2 values a step, but the filter's state has 4"),
+        "{err}"
+    );
+}
+
+/// A record with times (`time` column, s since the filter's initial state) steps the filter
+/// by them: the ctrv filter of step 0.1 s over a record at 0.25 s intervals gives, to the
+/// bit, the `−log L` of the same model built for 0.25 s over the same readings without
+/// times (0.25 s, so that the times' differences are exact in binary). A filter that cannot depart from its step (orbit2d's EKF) and a linear problem's
+/// at another step are refused in one line naming the `time` field; times that do not
+/// increase are refused naming the row.
+#[test]
+fn a_record_with_times_steps_the_filter_by_them() {
+    let dir = tempfile::tempdir().unwrap();
+    let text = std::fs::read_to_string(common::problem_path("ctrv")).unwrap();
+    let slow = dir.path().join("ctrv_025.toml");
+    std::fs::write(&slow, text.replace("dt = 0.1", "dt = 0.25")).unwrap();
+    let slow = autotune::internals::problem::Problem::load(&slow).unwrap();
+    let fast = common::load("ctrv");
+    let data = record(&slow, 1, 300, 31);
+    let mut timed = data.clone();
+    timed.sequences[0].time = (1..=300).map(|k| 0.25 * k as f64).collect();
+    let by_times = FilterReplay::new(&fast, timed).expect("ctrv steps by times");
+    let own_step = FilterReplay::new(&slow, data).unwrap();
+    let truth = common::truth_values(&fast);
+    for f in [1.0, 0.3, 3.0] {
+        let theta: Vec<f64> = truth.iter().map(|v| v * f).collect();
+        assert_eq!(
+            by_times.neg_log_likelihood(&theta).unwrap().to_bits(),
+            own_step.neg_log_likelihood(&theta).unwrap().to_bits(),
+            "θ × {f}"
+        );
+    }
+    let run = |problem: &std::path::Path, body: &str| {
+        let z = dir.path().join("z.csv");
+        std::fs::write(&z, body).unwrap();
+        let out = Command::cargo_bin("autotune")
+            .unwrap()
+            .arg("check")
+            .arg(problem)
+            .arg("--measurements")
+            .arg(&z)
+            .output()
+            .unwrap();
+        (
+            out.status.code(),
+            String::from_utf8_lossy(&out.stderr).into_owned(),
+        )
+    };
+    let (code, err) = run(
+        &common::problem_path("orbit2d"),
+        "step,time,z_1,z_2,z_3,z_4\n1,10,1,1,1,1\n2,25,1,1,1,1\n",
+    );
+    assert_eq!(code, Some(2), "{err}");
+    assert!(
+        err.contains("time column") && err.lines().count() == 1,
+        "{err}"
+    );
+    let (code, err) = run(
+        &common::problem_path("cv2d"),
+        "step,time,z_1,z_2\n1,1,0,0\n2,3,0,0\n",
+    );
+    assert_eq!(code, Some(2), "{err}");
+    assert!(
+        err.contains("z.csv: time: run 0, step 2: 2 s after the last"),
+        "{err}"
+    );
+    let (code, err) = run(
+        &common::problem_path("ctrv"),
+        "step,time,z_1,z_2,z_3,z_4,z_5\n1,0.1,0,0,,,\n2,0.1,,,1,0,0\n",
+    );
+    assert_eq!(code, Some(2), "{err}");
+    assert!(
+        err.contains("z.csv:3: time: run 0, step 2: 0.1 is not after 0.1"),
         "{err}"
     );
 }

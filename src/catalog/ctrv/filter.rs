@@ -192,6 +192,18 @@ impl Filter for CtrvFilter {
         Ok(())
     }
 
+    fn step_length(&self) -> Option<f64> {
+        Some(self.system.dt)
+    }
+
+    /// The same CTRV transition and noise held over `dt` instead of the filter's step: the
+    /// model is closed-form in its step length.
+    fn predict_over(&self, k: usize, est: &mut Estimate, dt: f64) -> PredictResult {
+        let mut over = self.clone();
+        over.system.dt = dt;
+        over.predict(k, est)
+    }
+
     fn update(&self, k: usize, est: &mut Estimate, meas: &Measurement) -> UpdateResult {
         update_by_into(self, k, est, meas)
     }

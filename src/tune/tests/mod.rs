@@ -730,6 +730,11 @@ fn one_record_is_confirmed_once_and_its_resolution_is_the_bounds_alone() {
     let r = run(&mock, &settings(Scoring::Exact));
     assert_converged(&mock, &r, LocalSearch::Simplex, QUADRATIC_SIMPLEX_TOL);
     assert!(r.confirmation.recorded && r.confirmation.seeds == 1);
+    // Said as what it is: the record judged as it is, never "fresh seeds".
+    assert_eq!(
+        r.confirmation.text(),
+        "the recorded measurements pass the gate (recorded data, judged as they are: no fresh seeds to confirm on)"
+    );
     let unbounded = Resolution {
         factor: None,
         identifiable: true,
@@ -761,11 +766,16 @@ fn one_record_is_confirmed_once_and_its_resolution_is_the_bounds_alone() {
             assert!(!passes(i, end.value * out), "{i}: beyond {end:?} fails");
         }
     }
-    // Simulated runs have a seed-to-seed resolution instead.
-    assert!(
-        run(&quadratic(), &settings(Scoring::Exact))
-            .supported
-            .is_none()
+    // Simulated runs have a seed-to-seed resolution instead, and are confirmed on seeds.
+    let simulated = run(&quadratic(), &settings(Scoring::Exact));
+    assert!(simulated.supported.is_none());
+    let c = &simulated.confirmation;
+    assert_eq!(
+        c.text(),
+        format!(
+            "{} of {} fresh seeds pass the gate (a consistent filter passes at least {} with 99% probability)",
+            c.passed, c.seeds, c.band_low
+        )
     );
     // With every parameter fixed there is nothing to assess on one record.
     let fixed = [true, true];

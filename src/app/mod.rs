@@ -149,8 +149,8 @@ struct ProblemCheck {
     /// The reference states recorded beside --measurements (RTK, motion capture, a
     /// simulator's log; x_1 … x_n a step, as `simulate --truth` writes them): NEES is judged
     /// too. A filter autotune holds (a linear problem or a catalog model).
-    #[arg(long, value_name = "FILE", requires = "measurements")]
-    truth: Option<PathBuf>,
+    #[arg(long = "truth", value_name = "FILE", requires = "measurements")]
+    reference: Option<PathBuf>,
     /// Compute only shard I of N of the Monte Carlo (0-based: 0/3, 1/3 and 2/3 are the
     /// three shards of three; chunk c of 64 runs is shard c mod N's) and write its sums to
     /// --sums-out, for `autotune merge` to judge with the others (docs/src/cluster.md).
@@ -209,8 +209,8 @@ struct ProblemTune {
     measurements: Option<PathBuf>,
     /// The reference states recorded beside --measurements (x_1 … x_n a step, as
     /// `simulate --truth` writes them): candidates are scored by their errors (NEES) too.
-    #[arg(long, value_name = "FILE", requires = "measurements")]
-    truth: Option<PathBuf>,
+    #[arg(long = "truth", value_name = "FILE", requires = "measurements")]
+    reference: Option<PathBuf>,
     /// Start the search from an estimate from measurements alone: ml (maximum likelihood)
     /// or als (autocovariance least squares), on --init-record, or else on --measurements,
     /// or else on a record simulated from the problem's truth (its runs × steps, another
@@ -293,8 +293,8 @@ where
         Command::Check(a) => match (a.problem, &a.measurements) {
             (Some(p), Some(f)) => {
                 let problem = Problem::load(&p)?;
-                let measured = measured_experiment(&problem, &p, f, a.truth.as_deref())?;
-                let options = if a.truth.is_some() {
+                let measured = measured_experiment(&problem, &p, f, a.reference.as_deref())?;
+                let options = if a.reference.is_some() {
                     a.options
                 } else {
                     a.options.with_nis_only()
@@ -379,8 +379,8 @@ fn tune_problem_over(
     match &a.measurements {
         None => tune(over, &p.tune, a.options, init),
         Some(f) => {
-            let measured = measured_experiment(p, &a.problem, f, a.truth.as_deref())?;
-            let settings = p.tune.clone().with_nis_only(a.truth.is_none());
+            let measured = measured_experiment(p, &a.problem, f, a.reference.as_deref())?;
+            let settings = p.tune.clone().with_nis_only(a.reference.is_none());
             tune(measured.as_ref(), &settings, a.options, init)
         }
     }

@@ -32,6 +32,10 @@ pub struct SimulateOptions {
     /// run i of a Monte Carlo check.
     #[arg(long)]
     pub seed: Option<u64>,
+    /// Write each step's time beside it (k · dt, s since the initial state): a `time` column
+    /// (CSV) or key (JSON Lines), as a recording with timestamps has.
+    #[arg(long)]
+    pub time: bool,
     /// Replace existing --out and --truth files (a record has no room for autotune's mark,
     /// so an existing one is replaced only with --force; an input is never replaced).
     #[arg(long)]
@@ -77,6 +81,16 @@ pub fn simulate(a: &SimulateOptions) -> Result<String, CommandError> {
             ),
         ));
     }
+    if a.time
+        && a.out
+            .extension()
+            .is_some_and(|e| e.eq_ignore_ascii_case("npy"))
+    {
+        return Err(CommandError::option(
+            "--time",
+            "a .npy array has no room for times: write .csv or .jsonl",
+        ));
+    }
     let seed = a.seed.unwrap_or(p.mc().seed());
     check_output_file(&a.out, a.force).map_err(|e| e.of_flag("--out"))?;
     if let Some(t) = &a.truth {
@@ -100,10 +114,11 @@ pub fn simulate(a: &SimulateOptions) -> Result<String, CommandError> {
         .map(|s| s.z.as_slice())
         .collect();
     let mut outputs = Outputs::replacing(a.force);
-    outputs.file(&a.out, record_bytes(&a.out, "z", m, &z)?);
+    let dt = a.time.then_some(p.dt);
+    outputs.file(&a.out, record_bytes(&a.out, "z", m, &z, dt)?);
     if let Some(t) = &a.truth {
         let x: Vec<&[f64]> = sim.states.iter().map(Vec::as_slice).collect();
-        outputs.file(t, record_bytes(t, "x", sim.n, &x)?);
+        outputs.file(t, record_bytes(t, "x", sim.n, &x, dt)?);
     }
     outputs.commit()?;
     Ok(simulate_text(a.runs, steps, m, &a.out, seed))

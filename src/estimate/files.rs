@@ -403,12 +403,14 @@ fn read_numpy(path: &Path, prefix: &str) -> Result<MeasurementRecord, FileError>
 
 /// The bytes of a record (by `path`'s extension: CSV, JSON Lines or `.npy`) holding `rows`
 /// named `prefix_1 … prefix_d` (`z` for measurements, `x` for true states): one `Vec` per
-/// sequence, T × d row-major.
+/// sequence, T × d row-major. With `dt` (s), each step k's time `k · dt` beside it (a
+/// `time` column or key; a `.npy` array has no room for it).
 pub fn record_bytes(
     path: &Path,
     prefix: &str,
     d: usize,
     rows: &[&[f64]],
+    dt: Option<f64>,
 ) -> Result<Vec<u8>, FileError> {
     let ext = path
         .extension()
@@ -423,7 +425,11 @@ pub fn record_bytes(
     };
     match ext.as_deref() {
         Some("csv") => {
-            let mut o = String::from("run,step");
+            let mut o = String::from(if dt.is_some() {
+                "run,step,time"
+            } else {
+                "run,step"
+            });
             for j in 1..=d {
                 let _ = write!(o, ",{prefix}_{j}");
             }
@@ -431,6 +437,9 @@ pub fn record_bytes(
             for (r, seq) in rows.iter().enumerate() {
                 for (k, row) in seq.chunks(d).enumerate() {
                     let _ = write!(o, "{r},{}", k + 1);
+                    if let Some(dt) = dt {
+                        let _ = write!(o, ",{}", (k + 1) as f64 * dt);
+                    }
                     for v in row {
                         let _ = write!(o, ",{}", num(*v));
                     }
@@ -453,9 +462,12 @@ pub fn record_bytes(
                             }
                         })
                         .collect();
+                    let time = dt.map_or_else(String::new, |dt| {
+                        format!(", \"time\": {}", (k + 1) as f64 * dt)
+                    });
                     let _ = writeln!(
                         o,
-                        "{{\"run\": {r}, \"step\": {}, \"{prefix}\": [{}]}}",
+                        "{{\"run\": {r}, \"step\": {}{time}, \"{prefix}\": [{}]}}",
                         k + 1,
                         vals.join(", ")
                     );

@@ -511,3 +511,51 @@ fn a_record_with_times_steps_the_filter_by_them() {
         "{err}"
     );
 }
+
+/// `simulate --time` writes each step's time (k · dt) beside it; read back, the ctrv filter
+/// replays that record exactly as the record without times (the gaps are its own step), and
+/// a `.npy` output, which has no room for times, is refused naming the flag.
+#[test]
+fn simulate_writes_times_that_replay_as_the_filters_own_steps() {
+    let dir = tempfile::tempdir().unwrap();
+    let problem = common::problem_path("ctrv");
+    let sim = |out: &std::path::Path, time: bool| {
+        let mut cmd = Command::cargo_bin("autotune").unwrap();
+        cmd.arg("simulate")
+            .arg(&problem)
+            .arg("--out")
+            .arg(out)
+            .args(["--steps", "200", "--seed", "4"]);
+        if time {
+            cmd.arg("--time");
+        }
+        let out = cmd.output().unwrap();
+        (
+            out.status.code(),
+            String::from_utf8_lossy(&out.stderr).into_owned(),
+        )
+    };
+    let (timed, plain) = (dir.path().join("t.csv"), dir.path().join("p.csv"));
+    assert_eq!(sim(&timed, true).0, Some(0));
+    assert_eq!(sim(&plain, false).0, Some(0));
+    let text = std::fs::read_to_string(&timed).unwrap();
+    assert!(text.starts_with("run,step,time,z_1"), "{}", &text[..40]);
+    let with = autotune::internals::estimate::read_measurements(&timed).unwrap();
+    let without = autotune::internals::estimate::read_measurements(&plain).unwrap();
+    assert_eq!(with.sequences[0].time.len(), 200);
+    assert!((with.sequences[0].time[199] - 20.0).abs() < 1e-9);
+    let p = common::load("ctrv");
+    let truth = common::truth_values(&p);
+    let a = FilterReplay::new(&p, with)
+        .unwrap()
+        .neg_log_likelihood(&truth)
+        .unwrap();
+    let b = FilterReplay::new(&p, without)
+        .unwrap()
+        .neg_log_likelihood(&truth)
+        .unwrap();
+    assert_eq!(a.to_bits(), b.to_bits());
+    let (code, err) = sim(&dir.path().join("z.npy"), true);
+    assert_eq!(code, Some(2), "{err}");
+    assert!(err.contains("--time") && err.lines().count() == 1, "{err}");
+}

@@ -102,7 +102,26 @@ fn read_record(
     file: &Path,
 ) -> Result<MeasurementRecord, CommandError> {
     let data = read_measurements(file)?;
-    // A linear problem's F and Q are built for its dt: a record with times must keep it.
+    at_own_step(p, file, &data)?;
+    let m = lin.filter.H.nrows();
+    if data.dim != m {
+        return Err(FileError::new(
+            file,
+            "z",
+            format!(
+                "{} components per step, but {} measures {m}",
+                data.dim,
+                p.name()
+            ),
+        )
+        .into());
+    }
+    Ok(data)
+}
+
+/// Refuse a record whose times step a linear problem's filter by another length than its
+/// dt (its F and Q are built for that step).
+fn at_own_step(p: &Problem, file: &Path, data: &MeasurementRecord) -> Result<(), CommandError> {
     for (i, seq) in data.sequences.iter().enumerate() {
         let mut last = 0.0;
         for (k, &t) in seq.time.iter().enumerate() {
@@ -123,20 +142,7 @@ fn read_record(
             last = t;
         }
     }
-    let m = lin.filter.H.nrows();
-    if data.dim != m {
-        return Err(FileError::new(
-            file,
-            "z",
-            format!(
-                "{} components per step, but {} measures {m}",
-                data.dim,
-                p.name()
-            ),
-        )
-        .into());
-    }
-    Ok(data)
+    Ok(())
 }
 
 /// Refuse a record no estimate can come from: no measured value at all, or a single step
@@ -181,8 +187,15 @@ pub fn measured_experiment<'a>(
                 "a worker that replays gives its own errors (e and P in its records) where it has a reference; --truth is for a filter autotune holds",
             ));
         }
-        // The generic replay, which a linear problem's filter runs through as well.
-        let data = read_measurements(file)?;
+        // The generic replay, which a linear problem's filter runs through as well (at its
+        // own step: a record with times keeps its dt, and they are then not needed).
+        let mut data = read_measurements(file)?;
+        if p.linear().is_some() {
+            at_own_step(p, file, &data)?;
+            for seq in &mut data.sequences {
+                seq.time.clear();
+            }
+        }
         let reference = read_states(states)?;
         let replay = replayed(p, path, data, file, "--measurements")?;
         let judged = replay
@@ -268,7 +281,7 @@ fn worker_ml(
             return Err(FileError::new(
                 file,
                 "z",
-                "the worker's records of this replay give no likelihood at the start values: they carry normalized innovations (nis_<sensor>) rather than nu_<sensor> and S_<sensor>, or a sequence stopped",
+                "the worker's answer to this replay gives no likelihood at the start values: it answered sums, or records of normalized innovations (nis_<sensor>), rather than records of nu_<sensor> and S_<sensor>; or a sequence stopped",
             )
             .into());
         }
@@ -292,7 +305,9 @@ fn worker_ml(
         .ok()
         .filter(|_| with_ranges)
         .map(|est| supported(&nll, replay, est, fixed));
-    if let Some(e) = failure.into_inner() {
+    // A failure inside the gate's trace reads as "fails" there: the worker's own record
+    // of it stops the command as well.
+    if let Some(e) = failure.into_inner().or_else(|| replay.failure()) {
         return Err(e.into());
     }
     let est = est.map_err(|e| CommandError::Estimate {
@@ -326,6 +341,7 @@ fn replayed<'a>(
         ReplayRefusal::Inputs { .. } => {
             FileError::new(path, p.kind().field(), format!("{asked_by}: {e}")).into()
         }
+        e @ ReplayRefusal::Times(_) => FileError::new(file, "time", e.to_string()).into(),
         e => FileError::new(file, "z", e.to_string()).into(),
     })
 }

@@ -81,11 +81,8 @@ pub fn simulate(a: &SimulateOptions) -> Result<String, CommandError> {
             ),
         ));
     }
-    if a.time
-        && a.out
-            .extension()
-            .is_some_and(|e| e.eq_ignore_ascii_case("npy"))
-    {
+    let npy = |f: &PathBuf| f.extension().is_some_and(|e| e.eq_ignore_ascii_case("npy"));
+    if a.time && (npy(&a.out) || a.truth.as_ref().is_some_and(npy)) {
         return Err(CommandError::option(
             "--time",
             "a .npy array has no room for times: write .csv or .jsonl",

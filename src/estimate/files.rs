@@ -26,6 +26,8 @@ fn at(path: &Path, line: usize, field: &str, m: impl Into<String>) -> FileError 
 
 /// Builds sequences from rows that arrive in order.
 struct Builder {
+    /// What the values are called (`z`, `x`), for messages.
+    prefix: &'static str,
     dim: Option<usize>,
     sequences: Vec<Sequence>,
     runs: Vec<usize>,
@@ -34,8 +36,9 @@ struct Builder {
 }
 
 impl Builder {
-    fn new() -> Self {
+    fn new(prefix: &'static str) -> Self {
         Builder {
+            prefix,
             dim: None,
             sequences: Vec::new(),
             runs: Vec::new(),
@@ -56,16 +59,16 @@ impl Builder {
         let m = *self.dim.get_or_insert(z.len());
         if z.len() != m {
             return Err((
-                "z".into(),
+                self.prefix.into(),
                 format!("{} components, earlier rows {m}", z.len()),
             ));
         }
         if let Some(j) = z.iter().position(|v| v.is_infinite()) {
-            return Err((format!("z_{}", j + 1), "not finite".into()));
+            return Err((format!("{}_{}", self.prefix, j + 1), "not finite".into()));
         }
         self.values += m;
         if self.values > MAX_VALUES {
-            return Err(("z".into(), format!("more than {MAX_VALUES} values")));
+            return Err((self.prefix.into(), format!("more than {MAX_VALUES} values")));
         }
         if self.runs.last() != Some(&run) {
             if !self.seen.insert(run) {
@@ -170,7 +173,7 @@ pub fn read_states(path: &Path) -> Result<MeasurementRecord, FileError> {
 }
 
 /// A record whose values are named `prefix` (`z`: measurements, `x`: states).
-fn read_named(path: &Path, prefix: &str) -> Result<MeasurementRecord, FileError> {
+fn read_named(path: &Path, prefix: &'static str) -> Result<MeasurementRecord, FileError> {
     crate::input::note_input(path);
     let ext = path
         .extension()
@@ -188,7 +191,7 @@ fn read_named(path: &Path, prefix: &str) -> Result<MeasurementRecord, FileError>
     }
 }
 
-fn read_csv(path: &Path, prefix: &str) -> Result<MeasurementRecord, FileError> {
+fn read_csv(path: &Path, prefix: &'static str) -> Result<MeasurementRecord, FileError> {
     let column = format!("{prefix}_");
     let mut rdr = crate::userfile::csv_reader(
         path,
@@ -237,7 +240,7 @@ fn read_csv(path: &Path, prefix: &str) -> Result<MeasurementRecord, FileError> {
             format!("the {prefix} columns must be {prefix}_1 … {prefix}_m without gaps"),
         ));
     }
-    let mut b = Builder::new();
+    let mut b = Builder::new(prefix);
     let mut rec = csv::StringRecord::new();
     let mut values = vec![0.0; z.len()];
     loop {
@@ -289,9 +292,9 @@ fn read_csv(path: &Path, prefix: &str) -> Result<MeasurementRecord, FileError> {
     b.finish(path)
 }
 
-fn read_jsonl(path: &Path, prefix: &str) -> Result<MeasurementRecord, FileError> {
+fn read_jsonl(path: &Path, prefix: &'static str) -> Result<MeasurementRecord, FileError> {
     use std::io::BufRead;
-    let mut b = Builder::new();
+    let mut b = Builder::new(prefix);
     for (i, line) in crate::userfile::text_lines(path)?.lines().enumerate() {
         let n = i + 1;
         let line = line.map_err(|e| at(path, n, "", format!("cannot read: {e}")))?;

@@ -77,6 +77,9 @@ struct Objective<'a> {
     /// Measured values in the record.
     scale: f64,
     evaluations: std::cell::Cell<usize>,
+    /// Evaluations after which the running L-BFGS is stopped ([`LBFGS_BUDGET`] past its
+    /// start).
+    budget_end: std::cell::Cell<usize>,
 }
 
 impl Objective<'_> {
@@ -95,12 +98,18 @@ impl Objective<'_> {
         if phi.iter().any(|p| p.is_nan() || p.abs() >= 700.0) {
             return f64::MAX;
         }
-        (self.nll)(&self.theta_at(phi)).map_or(f64::MAX, |v| v / self.scale)
+        (self.nll)(&self.theta_at(phi))
+            .filter(|v| v.is_finite())
+            .map_or(f64::MAX, |v| v / self.scale)
     }
 
+    /// Central differences; one-sided where one neighbour has no likelihood (a bound the
+    /// filter fails past), and zero where neither has: a gradient is always finite, so the
+    /// search's steps are (an infinite one would make its line search run forever).
     fn gradient_at(&self, phi: &[f64]) -> Vec<f64> {
         let mut g = vec![0.0; phi.len()];
         let mut p = phi.to_vec();
+        let mut centre = None;
         for i in 0..phi.len() {
             let h = GRAD_STEP;
             p[i] = phi[i] + h;
@@ -108,7 +117,19 @@ impl Objective<'_> {
             p[i] = phi[i] - h;
             let down = self.value(&p);
             p[i] = phi[i];
-            g[i] = (up - down) / (2.0 * h);
+            let defined = |v: f64| v < f64::MAX;
+            g[i] = match (defined(up), defined(down)) {
+                (true, true) => (up - down) / (2.0 * h),
+                (false, false) => 0.0,
+                (up_ok, _) => {
+                    let v = *centre.get_or_insert_with(|| self.value(phi));
+                    match (defined(v), up_ok) {
+                        (false, _) => 0.0,
+                        (true, true) => (up - v) / h,
+                        (true, false) => (v - down) / h,
+                    }
+                }
+            };
         }
         g
     }
@@ -119,6 +140,11 @@ impl CostFunction for &Objective<'_> {
     type Output = f64;
 
     fn cost(&self, p: &Vec<f64>) -> Result<f64, argmin::core::Error> {
+        if self.evaluations.get() >= self.budget_end.get() {
+            return Err(argmin::core::Error::msg(format!(
+                "L-BFGS spent {LBFGS_BUDGET} likelihood evaluations in one run without stopping"
+            )));
+        }
         Ok(self.value(p))
     }
 }
@@ -136,12 +162,14 @@ impl Gradient for &Objective<'_> {
 /// positive). `build(θ)` is the filter at θ. `Err` when the start itself has no likelihood
 /// (a covariance is not positive definite there) or the search fails.
 ///
-/// L-BFGS stops on its own tolerances, which say nothing about the likelihood's maximum (a
-/// line search that gives up, or a stall in a flat valley, stops it as well). So a stop is
-/// followed by a restart from the point reached, with fresh memory, until a restart no
-/// longer moves; then Newton steps on the differenced Hessian, until the improvement the
-/// quadratic model still predicts, `½ g' H⁻¹ g`, is below [`PREDICTED_TOL`] nats. Only that
-/// makes `converged` true. `max_iterations` bounds the L-BFGS iterations of all restarts.
+/// L-BFGS (a backtracking Armijo line search, which evaluates only `−log L` at its trial
+/// points) stops on its own tolerances, which say nothing about the likelihood's maximum (a
+/// line search that gives up, or a stall in a flat valley, stops it as well). So its stop is
+/// followed by Newton steps on the differenced Hessian, until the improvement the quadratic
+/// model still predicts, `½ g' H⁻¹ g`, is below [`PREDICTED_TOL`] nats; where they do not get
+/// there, by restarts from the point reached, with fresh memory, until a restart no longer
+/// moves, and Newton steps again. Only the Newton check makes `converged` true.
+/// `max_iterations` bounds the L-BFGS iterations of all restarts.
 pub fn estimate(
     build: &dyn Fn(&[f64]) -> KalmanFilter,
     data: &MeasurementRecord,
@@ -170,6 +198,7 @@ pub fn estimate_by(
         free: free.clone(),
         scale: values.max(1) as f64,
         evaluations: std::cell::Cell::new(0),
+        budget_end: std::cell::Cell::new(usize::MAX),
     };
     let phi0: Vec<f64> = free.iter().map(|&i| start[i].ln()).collect();
     let start_nll = obj.value(&phi0) * obj.scale;
@@ -255,9 +284,10 @@ struct Search<'a, 'b> {
 }
 
 impl Search<'_, '_> {
-    /// L-BFGS from the point reached (`once`: a single run), restarted with fresh memory
-    /// until a restart no longer moves (the first run always gets one: its stop is what is
-    /// in question), the iterations run out, or [`MAX_RESTARTS`].
+    /// L-BFGS from the point reached: with `once`, a single run (the Newton check after it
+    /// decides whether its stop was the maximum); otherwise restarted with fresh memory until
+    /// a restart no longer moves (at least one restart), the iterations run out, or
+    /// [`MAX_RESTARTS`].
     fn lbfgs_until_still(&mut self, once: bool) -> Result<(), EstimateError> {
         let mut first = true;
         loop {
@@ -341,6 +371,10 @@ impl Search<'_, '_> {
     }
 }
 
+/// Likelihood evaluations one L-BFGS run may spend (a search of a few parameters takes a
+/// few hundred): past it the run stops with an error rather than looping (a line search
+/// that cannot satisfy its condition).
+const LBFGS_BUDGET: usize = 20_000;
 /// A restart that gains less than this (nats) no longer moves: `−log L` of a record of
 /// 10⁵ values is computed to some 1e-11 nats, so this is well above its noise.
 const RESTART_TOL: f64 = 1e-9;
@@ -365,6 +399,8 @@ fn lbfgs(
     phi0: Vec<f64>,
     max_iters: u64,
 ) -> Result<(Vec<f64>, u64), EstimateError> {
+    obj.budget_end
+        .set(obj.evaluations.get().saturating_add(LBFGS_BUDGET));
     let line = BacktrackingLineSearch::new(ArmijoCondition::new(1e-4).expect("in (0, 1)"));
     // argmin refuses only negative tolerances.
     let solver = LBFGS::new(line, 7)

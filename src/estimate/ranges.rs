@@ -78,8 +78,9 @@ pub struct LikelihoodRanges {
     /// Confidence level (0.95: each interval covers the truth on 95% of records).
     pub level: f64,
     /// One per parameter: `None` for a fixed one, and for one whose profile could not be
-    /// traced (the filter fails next to the estimate, or the likelihood is higher away from
-    /// it: the estimate was not its maximum).
+    /// traced (the likelihood is higher away from the estimate: it was not the maximum).
+    /// Where the filter fails before the level is reached, the end is put at the failure
+    /// (the record excludes what the filter cannot run at).
     pub ranges: Vec<Option<Range>>,
     /// Likelihood evaluations the trace took.
     pub evaluations: usize,
@@ -354,7 +355,11 @@ impl Profile<'_> {
             return Some(v);
         }
         for _ in 0..20 {
-            let (g, h) = self.local_model(&at, &phi, v)?;
+            // A neighbour without a likelihood (a failure boundary next to this point):
+            // stop here, with the value this point has.
+            let Some((g, h)) = self.local_model(&at, &phi, v) else {
+                break;
+            };
             let h = floored(&h);
             let Some(ch) = h.cholesky() else {
                 break;
@@ -466,7 +471,11 @@ pub fn gate_ranges(
             let f = if up { 2.0 } else { 0.5 };
             let mut ok = theta[i];
             let mut bad = None;
-            while (ok / theta[i]).max(theta[i] / ok) < GATE_SPAN {
+            // At most ten doublings (10³ is 2^9.97) and sixty halvings: bounded whatever
+            // the numbers (a value that underflows to zero would never end a ratio test).
+            let mut left = 70;
+            while (ok / theta[i]).max(theta[i] / ok) < GATE_SPAN && left > 0 {
+                left -= 1;
                 let trial = ok * f;
                 let mut t = theta.to_vec();
                 t[i] = trial;
@@ -484,7 +493,8 @@ pub fn gate_ranges(
                     reached: false,
                 };
             };
-            while (bad / ok).max(ok / bad) > GATE_RATIO {
+            while (bad / ok).max(ok / bad) > GATE_RATIO && left > 0 {
+                left -= 1;
                 let mid = (ok * bad).sqrt();
                 let mut t = theta.to_vec();
                 t[i] = mid;

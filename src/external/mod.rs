@@ -369,6 +369,14 @@ impl ExternalExperiment {
             .collect())
     }
 
+    /// The failure that stopped the workers, if one has: every later evaluation gives it.
+    pub fn failure(&self) -> Option<ExperimentError> {
+        self.failed
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .clone()
+    }
+
     /// The worker's filter at `theta` replayed over the measurement record at `record` (its
     /// `sequences` sequences of `steps` steps): the innovations' sums, as `--measurements`
     /// judges them, and their `−log L` (`None` where the worker's records carry no S, or a
@@ -390,10 +398,14 @@ impl ExternalExperiment {
             return Err(e);
         }
         let mut pool = self.pool.lock().unwrap_or_else(|p| p.into_inner());
+        // The whole pool, as an evaluation starts it: a later simulation request (a tune
+        // from a start estimated on the record) finds its workers.
         if pool.is_empty() {
-            let w = Worker::start(&self.command.command, &self.command.dir, 0)
-                .map_err(|why| self.start_error(false, why))?;
-            pool.push(w);
+            for k in 0..self.command.workers {
+                let w = Worker::start(&self.command.command, &self.command.dir, k)
+                    .map_err(|why| self.start_error(false, why))?;
+                pool.push(w);
+            }
         }
         let path = serde_json::to_string(&record.to_string_lossy()).expect("a string serializes");
         let sums_fields = answer::request_fields(&self.layout, mc.lags());
@@ -414,6 +426,10 @@ impl ExternalExperiment {
             .request(&req, &self.layout, &mut sink, self.command.timeout)
             .and_then(|reply| match reply {
                 Reply { replays: false, .. } => Err(WorkerFailure::NotReplaying),
+                // Inline records and then sums would count runs twice.
+                Reply { sums: Some(_), .. } if sink.runs() > 0 => {
+                    Err(WorkerFailure::Sums(WireError::AfterRecords))
+                }
                 Reply {
                     sums: Some(chunk), ..
                 } => Ok((chunk.sums, None)),
@@ -421,12 +437,12 @@ impl ExternalExperiment {
                     sink.finish_with_likelihood().map_err(WorkerFailure::from)
                 }
             });
+        // A replay says nothing of the worker's simulations: `replays` (seed-free runs) is
+        // set by the answers to simulation requests alone.
         let result = answered.map_err(|failure| self.error(w, &req, failure));
         if let Err(e) = &result {
             shut_down(&mut pool);
             *self.failed.lock().unwrap_or_else(|p| p.into_inner()) = Some(e.clone());
-        } else {
-            self.replays.store(true, Ordering::Relaxed);
         }
         result
     }

@@ -45,6 +45,12 @@ impl<'a> WorkerReplay<'a> {
         })
     }
 
+    /// The worker failure that stopped this replay's workers, if one has (a search that
+    /// reads a failure as "no likelihood here" asks this after it).
+    pub fn failure(&self) -> Option<ExperimentError> {
+        self.worker.failure()
+    }
+
     /// `−log L` of the record under the worker's filter at `theta`, from the innovations
     /// and covariances it answers (`½ Σ (log det S + ν'S⁻¹ν + m log 2π)`); `Ok(None)` where
     /// its records give no S or a sequence stopped (no likelihood there).

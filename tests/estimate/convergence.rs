@@ -345,3 +345,14 @@ fn issue21_tune_on_a_record_agrees_with_estimate() {
         "the ML estimate passed on {ml_passes} of 6 records"
     );
 }
+
+/// A likelihood defined on one side of a bound only (the filter fails past θ = 1), searched
+/// from the bound itself: the gradient there is one-sided rather than infinite, so the line
+/// search ends, and the search finds the maximum inside (θ = 0.5). (With an infinite
+/// gradient the Armijo line search never met its condition.)
+#[test]
+fn a_search_from_a_failure_boundary_ends() {
+    let nll = |t: &[f64]| (t[0] <= 1.0).then(|| 100.0 * (t[0] - 0.5).powi(2));
+    let est = ml::estimate_by(&nll, 1, &[1.0], &[false], 100).expect("the search runs");
+    assert!((est.theta[0] - 0.5).abs() < 1e-3, "{est:?}");
+}

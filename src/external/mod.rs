@@ -251,13 +251,7 @@ impl ExternalExperiment {
         options: RunOptions<'_>,
     ) -> Result<Accumulator, ExperimentError> {
         let mut pool = self.pool.lock().unwrap_or_else(|p| p.into_inner());
-        if pool.is_empty() {
-            for k in 0..self.command.workers {
-                let w = Worker::start(&self.command.command, &self.command.dir, k)
-                    .map_err(|why| self.start_error(false, why))?;
-                pool.push(w);
-            }
-        }
+        self.fill(&mut pool)?;
         let theta_json = self.theta_json(theta);
         let runs = mc.runs();
         // This process's chunks, in order: all of them, or a share's (a shard, an MPI rank).
@@ -369,6 +363,18 @@ impl ExternalExperiment {
             .collect())
     }
 
+    /// Start the pool's workers, where it has none yet (they start at the first request).
+    fn fill(&self, pool: &mut Vec<Worker>) -> Result<(), ExperimentError> {
+        if pool.is_empty() {
+            for k in 0..self.command.workers {
+                let w = Worker::start(&self.command.command, &self.command.dir, k)
+                    .map_err(|why| self.start_error(false, why))?;
+                pool.push(w);
+            }
+        }
+        Ok(())
+    }
+
     /// The failure that stopped the workers, if one has: every later evaluation gives it.
     pub fn failure(&self) -> Option<ExperimentError> {
         self.failed
@@ -400,13 +406,7 @@ impl ExternalExperiment {
         let mut pool = self.pool.lock().unwrap_or_else(|p| p.into_inner());
         // The whole pool, as an evaluation starts it: a later simulation request (a tune
         // from a start estimated on the record) finds its workers.
-        if pool.is_empty() {
-            for k in 0..self.command.workers {
-                let w = Worker::start(&self.command.command, &self.command.dir, k)
-                    .map_err(|why| self.start_error(false, why))?;
-                pool.push(w);
-            }
-        }
+        self.fill(&mut pool)?;
         let path = serde_json::to_string(&record.to_string_lossy()).expect("a string serializes");
         let sums_fields = answer::request_fields(&self.layout, mc.lags());
         let theta = self.theta_json(theta);

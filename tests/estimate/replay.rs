@@ -389,16 +389,8 @@ fn reference_states_are_checked_against_the_filter() {
     let (z, x) = (dir.path().join("z.csv"), dir.path().join("x.csv"));
     let problem = common::problem_path("cv2d");
     let autotune = |args: &[&std::ffi::OsStr]| {
-        let out = Command::cargo_bin("autotune")
-            .unwrap()
-            .args(args)
-            .output()
-            .unwrap();
-        (
-            out.status.code(),
-            String::from_utf8_lossy(&out.stdout).into_owned(),
-            String::from_utf8_lossy(&out.stderr).into_owned(),
-        )
+        let args: Vec<&str> = args.iter().map(|a| a.to_str().unwrap()).collect();
+        common::autotune(&args)
     };
     let (code, _, err) = autotune(&[
         "simulate".as_ref(),

@@ -395,12 +395,7 @@ impl ExternalExperiment {
         sequences: usize,
         mc: &McConfig,
     ) -> Result<(Accumulator, Option<f64>), ExperimentError> {
-        if let Some(e) = self
-            .failed
-            .lock()
-            .unwrap_or_else(|p| p.into_inner())
-            .clone()
-        {
+        if let Some(e) = self.failure() {
             return Err(e);
         }
         let mut pool = self.pool.lock().unwrap_or_else(|p| p.into_inner());
@@ -573,12 +568,7 @@ impl Experiment for ExternalExperiment {
         mc: &McConfig,
         options: RunOptions<'_>,
     ) -> Result<Accumulator, ExperimentError> {
-        if let Some(e) = self
-            .failed
-            .lock()
-            .unwrap_or_else(|p| p.into_inner())
-            .clone()
-        {
+        if let Some(e) = self.failure() {
             return Err(e);
         }
         let result = self.run(theta, mc, options);

@@ -30,10 +30,12 @@ fn by_columns(
     r: usize,
     c: usize,
     transpose: bool,
-) -> (Vec<usize>, Vec<(usize, usize, f64)>) {
+    start: &mut Vec<usize>,
+    entries: &mut Vec<(usize, usize, f64)>,
+) {
     let (outer, inner) = if transpose { (r, c) } else { (c, r) };
-    let mut start = Vec::with_capacity(outer + 1);
-    let mut entries = Vec::with_capacity(m.len());
+    start.clear();
+    entries.clear();
     start.push(0);
     for j in 0..outer {
         for i in 0..inner {
@@ -48,41 +50,44 @@ fn by_columns(
         }
         start.push(entries.len());
     }
-    (start, entries)
 }
 
 impl Sparse {
     /// The nonzero entries of `m`.
     pub fn new(m: &DMatrix<f64>) -> Self {
-        let (r, c) = m.shape();
-        let (start, entries) = by_columns(m.as_slice(), r, c, false);
-        let (t_start, t_entries) = by_columns(m.as_slice(), r, c, true);
-        Sparse {
-            nrows: r,
-            ncols: c,
-            start,
-            entries,
-            t_start,
-            t_entries,
-        }
+        let mut s = Sparse {
+            nrows: 0,
+            ncols: 0,
+            start: Vec::new(),
+            entries: Vec::new(),
+            t_start: Vec::new(),
+            t_entries: Vec::new(),
+        };
+        s.reset(m);
+        s
     }
 
     /// `self · b` (b: ncols × c).
     pub fn left(&self, b: &DMatrix<f64>) -> DMatrix<f64> {
-        assert_eq!(
-            self.ncols,
-            b.nrows(),
-            "Sparse::left: inner dimensions differ"
-        );
+        let mut out = DMatrix::zeros(0, 0);
+        self.left_into(b.as_slice(), b.ncols(), &mut out);
+        out
+    }
+
+    /// `self · b` into `out` (reshaped to nrows × c, its storage reused), for `b` the
+    /// column-major `ncols × c` slice: [`Sparse::left`] without an allocation per product
+    /// (the moment recursions make a few dozen a step), the same sums in the same order.
+    pub fn left_into(&self, b: &[f64], c: usize, out: &mut DMatrix<f64>) {
         let (r, k) = (self.nrows, self.ncols);
-        let mut out = DMatrix::zeros(r, b.ncols());
+        assert_eq!(k * c, b.len(), "Sparse::left: inner dimensions differ");
+        zeroed(out, r, c);
         if r == 0 || k == 0 {
-            return out;
+            return;
         }
         for (col, b_col) in out
             .as_mut_slice()
             .chunks_exact_mut(r)
-            .zip(b.as_slice().chunks_exact(k))
+            .zip(b.chunks_exact(k))
         {
             // Column p of self scaled by b's entry p: the entries in their stored order (so
             // the sums are the same), a zero multiplier's column skipped (the windows and
@@ -96,17 +101,37 @@ impl Sparse {
                 }
             }
         }
-        out
     }
 
     /// `b · self` (b: r × nrows).
     pub fn right(&self, b: &DMatrix<f64>) -> DMatrix<f64> {
-        right(b, self.nrows, self.ncols, &self.start, &self.entries)
+        let mut out = DMatrix::zeros(0, 0);
+        self.right_into(b, &mut out);
+        out
     }
 
     /// `b · self'` (b: r × ncols).
     pub fn right_tr(&self, b: &DMatrix<f64>) -> DMatrix<f64> {
-        right(b, self.ncols, self.nrows, &self.t_start, &self.t_entries)
+        let mut out = DMatrix::zeros(0, 0);
+        self.right_tr_into(b, &mut out);
+        out
+    }
+
+    /// [`Sparse::right`] into `out` (reshaped, its storage reused).
+    pub fn right_into(&self, b: &DMatrix<f64>, out: &mut DMatrix<f64>) {
+        right(b, self.nrows, self.ncols, &self.start, &self.entries, out);
+    }
+
+    /// [`Sparse::right_tr`] into `out` (reshaped, its storage reused).
+    pub fn right_tr_into(&self, b: &DMatrix<f64>, out: &mut DMatrix<f64>) {
+        right(
+            b,
+            self.ncols,
+            self.nrows,
+            &self.t_start,
+            &self.t_entries,
+            out,
+        );
     }
 
     /// `(self · x)_j`, row j's product with `x` (ncols): one entry of [`Sparse::left`]
@@ -129,6 +154,55 @@ impl Sparse {
     pub fn sandwich(&self, s: &DMatrix<f64>, c: &Sparse) -> DMatrix<f64> {
         self.left(&c.right_tr(s))
     }
+
+    /// [`Sparse::sandwich`] into `out`, through `scratch` (both reshaped, their storage
+    /// reused).
+    pub fn sandwich_into(
+        &self,
+        s: &DMatrix<f64>,
+        c: &Sparse,
+        scratch: &mut DMatrix<f64>,
+        out: &mut DMatrix<f64>,
+    ) {
+        c.right_tr_into(s, scratch);
+        self.left_into(scratch.as_slice(), scratch.ncols(), out);
+    }
+
+    /// Hold the nonzero entries of `m` instead, keeping the storage.
+    pub fn reset(&mut self, m: &DMatrix<f64>) {
+        let (r, c) = m.shape();
+        self.nrows = r;
+        self.ncols = c;
+        by_columns(
+            m.as_slice(),
+            r,
+            c,
+            false,
+            &mut self.start,
+            &mut self.entries,
+        );
+        by_columns(
+            m.as_slice(),
+            r,
+            c,
+            true,
+            &mut self.t_start,
+            &mut self.t_entries,
+        );
+    }
+}
+
+/// `out` as an `r × c` matrix of zeros, its storage reused where the size allows.
+pub fn zeroed(out: &mut DMatrix<f64>, r: usize, c: usize) {
+    if out.shape() == (r, c) {
+        out.as_mut_slice().fill(0.0);
+    } else {
+        // The buffer's storage, reshaped: no copy of the old entries (resize_mut keeps them).
+        let mut v: Vec<f64> = std::mem::replace(out, DMatrix::zeros(0, 0)).data.into();
+        v.clear();
+        v.resize(r * c, 0.0);
+        *out = DMatrix::from_vec(r, c, v);
+    }
 }
 
 /// `b · a` for `a` (k × c) by the columns `start`, `entries`: each output column a sum of
@@ -139,12 +213,13 @@ fn right(
     c: usize,
     start: &[usize],
     entries: &[(usize, usize, f64)],
-) -> DMatrix<f64> {
+    out: &mut DMatrix<f64>,
+) {
     assert_eq!(b.ncols(), k, "Sparse::right: inner dimensions differ");
     let r = b.nrows();
-    let mut out = DMatrix::zeros(r, c);
+    zeroed(out, r, c);
     if r == 0 {
-        return out;
+        return;
     }
     let bv = b.as_slice();
     for (j, col) in out.as_mut_slice().chunks_exact_mut(r).enumerate() {
@@ -152,7 +227,6 @@ fn right(
             axpy(col, &bv[p * r..(p + 1) * r], v);
         }
     }
-    out
 }
 
 /// `y += a x` over a column.
@@ -230,6 +304,38 @@ mod tests {
             assert!(
                 close(&sa.sandwich(&s, &sc), &(&a * &s * cm.transpose())),
                 "Sparse::sandwich {r}×{k}×{c}"
+            );
+            // Into a buffer of another shape holding other values (the moment recursions'
+            // buffers are reused from product to product): the same bits as a fresh product.
+            let same = |x: &DMatrix<f64>, y: &DMatrix<f64>| {
+                x.shape() == y.shape()
+                    && x.iter()
+                        .zip(y.iter())
+                        .all(|(p, q)| p.to_bits() == q.to_bits())
+            };
+            let mut buf = DMatrix::from_element(2, 5, 7.0);
+            sa.left_into(b.as_slice(), c, &mut buf);
+            assert!(same(&buf, &sa.left(&b)), "Sparse::left_into {r}×{k}×{c}");
+            sb.right_into(&a, &mut buf);
+            assert!(same(&buf, &sb.right(&a)), "Sparse::right_into {r}×{k}×{c}");
+            let sbt = Sparse::new(&bt);
+            sbt.right_tr_into(&a, &mut buf);
+            assert!(
+                same(&buf, &sbt.right_tr(&a)),
+                "Sparse::right_tr_into {r}×{k}×{c}"
+            );
+            let mut scratch = DMatrix::from_element(1, 1, -3.0);
+            sa.sandwich_into(&s, &sc, &mut scratch, &mut buf);
+            assert!(
+                same(&buf, &sa.sandwich(&s, &sc)),
+                "Sparse::sandwich_into {r}×{k}×{c}"
+            );
+            // A matrix held anew in an operand's storage is the operand of that matrix.
+            let mut held = Sparse::new(&s);
+            held.reset(&a);
+            assert!(
+                same(&held.left(&b), &sa.left(&b)),
+                "Sparse::reset {r}×{k}×{c}"
             );
             // One entry of `left` alone is that entry, to the bit (the whiteness sums read
             // only the diagonal of each lag's block).

@@ -27,7 +27,7 @@ use super::generic::Fault;
 use super::linear::{self, same_covariance};
 use super::truth_moments::{STEADY_RTOL, Truth, TruthMoment, TruthTrack};
 use crate::filter::{CovarianceUpdate, Filter, FilterError, KalmanFilter};
-use crate::linalg::products::Sparse;
+use crate::linalg::products::{Sparse, zeroed};
 use crate::linalg::{cholesky, spd_inverse};
 use crate::model::LinearGaussianModel;
 use crate::stats::Accumulator;
@@ -123,6 +123,8 @@ pub fn expected_accumulator_tracked(
     let mut comp_z = vec![0.0; m];
     let mut steady: Option<StepValues> = None;
     let mut previous: Option<StepValues> = None;
+    // This step's values, written over the buffers of the step before last.
+    let mut values = StepValues::default();
     let mut quiet_steps = 0usize;
     // The filter's latest step, and how many steps in a row its P has not changed: once it
     // is steady (as the Monte Carlo engine judges it), its step serves every later one.
@@ -172,10 +174,10 @@ pub fn expected_accumulator_tracked(
         if let Some(cv) = &mut comp_var {
             cv.step(&fs.a, &fs.cu.P);
         }
-        let values = match &mut moments {
-            Moments::Matched(e) => e.advance(truth, f, fs),
-            Moments::Joint(j) => j.step(i, truth, f, fs, frozen),
-        };
+        match &mut moments {
+            Moments::Matched(e) => e.advance(truth, f, fs, &mut values),
+            Moments::Joint(j) => j.step(i, truth, f, fs, frozen, &mut values),
+        }
         if let Some(fault) = truth_m2.step(k, &fs.cu.P, &values.comp_x) {
             return Ok(stop_all(acc, mc, k, fault));
         }
@@ -196,9 +198,12 @@ pub fn expected_accumulator_tracked(
         };
         let converged = k > lags + 1 && quiet_steps >= STEADY_STEPS;
         if converged {
-            steady = Some(values);
+            steady = Some(std::mem::take(&mut values));
         } else {
-            previous = Some(values);
+            match &mut previous {
+                Some(p) => std::mem::swap(p, &mut values),
+                None => previous = Some(std::mem::take(&mut values)),
+            }
         }
     }
     let runs_sums = RunSums {
@@ -370,7 +375,8 @@ impl ErrorMoments {
         truth: &LinearGaussianModel,
         f: &KalmanFilter,
         step: &FilterStep,
-    ) -> StepValues {
+        out: &mut StepValues,
+    ) {
         let cu = &step.cu;
         let (k, l) = (&step.k_op, &step.ikh_op);
         let (fs, hs) = (&self.f, &self.h);
@@ -398,7 +404,7 @@ impl ErrorMoments {
         // Only the diagonal of each lag's block is read: row j of H against column j.
         let cross = |lag: usize, j: usize| hs.row_dot(j, z.column(lag * m + j).as_slice());
         let comp_z_now: Vec<f64> = (0..m).map(|j| nu_m2[(j, j)] / s_diag[j]).collect();
-        let values = StepValues {
+        *out = StepValues {
             nees,
             nees_sq,
             nis,
@@ -407,17 +413,18 @@ impl ErrorMoments {
             comp_z: comp_z_now.clone(),
             mean_x: (0..n).map(|j| mu_new[j] / cu.P[(j, j)].sqrt()).collect(),
             mean_z: (0..m).map(|j| nu_mean[j] / s_diag[j].sqrt()).collect(),
+            lags: self.s_diag_hist.len(),
             white: self
                 .s_diag_hist
                 .iter()
                 .enumerate()
-                .map(|(lag, sd)| {
+                .flat_map(|(lag, sd)| {
                     (0..m)
                         .map(|j| cross(lag, j) / (s_diag[j] * sd[j]).sqrt())
-                        .collect()
+                        .collect::<Vec<f64>>()
                 })
                 .collect(),
-            lagged_b2: self.comp_z_hist.clone(),
+            lagged_b2: self.comp_z_hist.concat(),
         };
 
         // Advance the cross-moment window: E[e_k ν_k'] = (I − K H) E[e⁻ ν'] − K R, and the
@@ -437,7 +444,6 @@ impl ErrorMoments {
         self.comp_z_hist.truncate(self.lags);
         self.sigma = sig;
         self.mu = mu_new;
-        values
     }
 }
 
@@ -448,7 +454,8 @@ impl ErrorMoments {
 /// Held by blocks: `Φ` is block-diagonal and `B` the identity over the truth's rows, so the
 /// truth's block is only propagated, never updated, and is read from its [`TruthTrack`].
 /// The models' matrices are products' sparse operands ([`Sparse`]): a misfit trial spends
-/// most of its scoring time here.
+/// most of its scoring time here, so every product writes into a buffer of [`JointWork`]
+/// kept from step to step (tens of allocations a step were a fifth of the time).
 struct JointMoments<'a> {
     /// The truth's moments, step by step.
     track: &'a TruthTrack,
@@ -472,10 +479,13 @@ struct JointMoments<'a> {
     /// first), and `E[x̂_{k−1} ν_{k−l}']` (n_f × m each).
     window_t: DMatrix<f64>,
     window_f: DMatrix<f64>,
-    s_diag_hist: Vec<DVector<f64>>,
-    comp_z_hist: Vec<Vec<f64>>,
+    /// diag(S) and the expected u_j² of the last `held` steps, most recent first (m each).
+    s_diag_hist: Vec<f64>,
+    comp_z_hist: Vec<f64>,
+    held: usize,
     /// The step's operands kept while the filter is steady.
     gains: Option<JointGains>,
+    work: JointWork,
 }
 
 /// The operand of a joint step that depends on the filter's gain and the truth's H:
@@ -493,6 +503,66 @@ impl JointGains {
             g_dense,
         }
     }
+}
+
+/// The intermediate products of one joint step, kept for the next (named as in
+/// [`JointMoments::advance`]; `t1`, `t2` and the others hold a product before it is added,
+/// one buffer per shape so that none is reshaped from step to step).
+#[derive(Default)]
+struct JointWork {
+    mp_f: DVector<f64>,
+    p_tf: DMatrix<f64>,
+    p_ff: DMatrix<f64>,
+    m_ft: DMatrix<f64>,
+    m_tf: DMatrix<f64>,
+    m_ff: DMatrix<f64>,
+    w_t: DMatrix<f64>,
+    w_f: DMatrix<f64>,
+    h_mp: DVector<f64>,
+    nu_mean: DVector<f64>,
+    nu_m2: DMatrix<f64>,
+    nu_cov: DMatrix<f64>,
+    s_tf: DMatrix<f64>,
+    v: DMatrix<f64>,
+    tr: DMatrix<f64>,
+    s_ff: DMatrix<f64>,
+    mu_f: DVector<f64>,
+    g_mp: DVector<f64>,
+    e_mean: DVector<f64>,
+    x: DMatrix<f64>,
+    e_cov: DMatrix<f64>,
+    z_t: DMatrix<f64>,
+    z_f: DMatrix<f64>,
+    next_t: DMatrix<f64>,
+    next_f: DMatrix<f64>,
+    t1: DMatrix<f64>,
+    t2: DMatrix<f64>,
+    tm: DMatrix<f64>,
+    fm1: DMatrix<f64>,
+    fm2: DMatrix<f64>,
+    mm1: DMatrix<f64>,
+    mm2: DMatrix<f64>,
+    fk1: DMatrix<f64>,
+    fk2: DMatrix<f64>,
+    scratch: DMatrix<f64>,
+    scratch_k: DMatrix<f64>,
+}
+
+/// `a − b`, `a + b`: elementwise into `out` (reshaped), the sums of nalgebra's operators.
+fn sub_into(a: &DMatrix<f64>, b: &DMatrix<f64>, out: &mut DMatrix<f64>) {
+    zeroed(out, a.nrows(), a.ncols());
+    out.zip_zip_apply(a, b, |o, x, y| *o = x - y);
+}
+
+fn add_into(a: &DMatrix<f64>, b: &DMatrix<f64>, out: &mut DMatrix<f64>) {
+    zeroed(out, a.nrows(), a.ncols());
+    out.zip_zip_apply(a, b, |o, x, y| *o = x + y);
+}
+
+/// The transpose of `a` into `out` (reshaped).
+fn transpose_into(a: &DMatrix<f64>, out: &mut DMatrix<f64>) {
+    zeroed(out, a.ncols(), a.nrows());
+    a.transpose_to(out);
 }
 
 impl<'a> JointMoments<'a> {
@@ -517,14 +587,16 @@ impl<'a> JointMoments<'a> {
             lags,
             window_t: DMatrix::zeros(n_t, 0),
             window_f: DMatrix::zeros(n_f, 0),
-            s_diag_hist: Vec::with_capacity(lags),
-            comp_z_hist: Vec::with_capacity(lags),
+            s_diag_hist: Vec::new(),
+            comp_z_hist: Vec::new(),
+            held: 0,
             gains: None,
+            work: JointWork::default(),
         }
     }
 
     /// Through step `i` (from 0) of the filter, `fs` (`frozen`: the same step as the last
-    /// one): the step's expected values.
+    /// one): the step's expected values, into `out`.
     fn step(
         &mut self,
         i: usize,
@@ -532,12 +604,12 @@ impl<'a> JointMoments<'a> {
         f: &KalmanFilter,
         fs: &FilterStep,
         frozen: bool,
-    ) -> StepValues {
+        out: &mut StepValues,
+    ) {
         let cu = &fs.cu;
         let gains = kept_or(&mut self.gains, frozen, || JointGains::new(&self.h_t, cu));
-        let values = self.advance(i, truth, f, fs, &gains);
+        self.advance(i, truth, f, fs, &gains, out);
         self.gains = Some(gains);
-        values
     }
 
     fn advance(
@@ -547,106 +619,183 @@ impl<'a> JointMoments<'a> {
         f: &KalmanFilter,
         step: &FilterStep,
         gains: &JointGains,
-    ) -> StepValues {
+        out: &mut StepValues,
+    ) {
         let cu = &step.cu;
         let (f_t, h_t, f_f, h_f) = (&self.f_t, &self.h_t, &self.f_f, &self.h_f);
         let m = f.H.nrows();
         let ne = self.ne;
         let ts = &self.track.steps[i];
+        let w = &mut self.work;
 
         // The prediction: Φ is block-diagonal, the truth's noise enters its own block (the
         // truth's moments are the track's).
         let (mp_t, p_tt) = (&ts.mean, &ts.cov);
-        let mp_f = &f.F * &self.mu_f;
-        let p_tf = f_t.sandwich(&self.s_tf, f_f);
-        let mut p_ff = f_f.sandwich(&self.s_ff, f_f);
-        crate::linalg::symmetrize(&mut p_ff);
-        let m_ft = p_tf.transpose() + &mp_f * mp_t.transpose();
-        let m_tf = m_ft.transpose();
-        let m_ff = &p_ff + &mp_f * mp_f.transpose();
+        w.mp_f.resize_vertically_mut(f.F.nrows(), 0.0);
+        f.F.mul_to(&self.mu_f, &mut w.mp_f);
+        f_t.sandwich_into(&self.s_tf, f_f, &mut w.scratch, &mut w.p_tf);
+        f_f.sandwich_into(&self.s_ff, f_f, &mut w.scratch, &mut w.p_ff);
+        crate::linalg::symmetrize(&mut w.p_ff);
+        // M_ft = P_tf' + E[x̂] E[x]', M_tf its transpose, M_ff = P_ff + E[x̂] E[x̂]'.
+        let mp_f = &w.mp_f;
+        transpose_into(&w.p_tf, &mut w.m_ft);
+        for (c, &xt) in mp_t.iter().enumerate() {
+            for (r, &xf) in mp_f.iter().enumerate() {
+                w.m_ft[(r, c)] += xf * xt;
+            }
+        }
+        transpose_into(&w.m_ft, &mut w.m_tf);
+        zeroed(&mut w.m_ff, mp_f.len(), mp_f.len());
+        w.m_ff.copy_from(&w.p_ff);
+        for (c, &xc) in mp_f.iter().enumerate() {
+            for (r, &xr) in mp_f.iter().enumerate() {
+                w.m_ff[(r, c)] += xr * xc;
+            }
+        }
 
         // ν = H_t x − H_f x̂ + v: its mean, its second moment and E[s⁻ ν'] by blocks.
-        let w_t = &ts.m2_ht - h_f.right_tr(&m_tf);
-        let w_f = h_t.right_tr(&m_ft) - h_f.right_tr(&m_ff);
-        let nu_mean = &ts.h_mean - &f.H * &mp_f;
-        let nu_m2 = h_t.left(&w_t) - h_f.left(&w_f) + &truth.R;
+        h_f.right_tr_into(&w.m_tf, &mut w.tm);
+        sub_into(&ts.m2_ht, &w.tm, &mut w.w_t);
+        h_t.right_tr_into(&w.m_ft, &mut w.fm1);
+        h_f.right_tr_into(&w.m_ff, &mut w.fm2);
+        sub_into(&w.fm1, &w.fm2, &mut w.w_f);
+        w.h_mp.resize_vertically_mut(m, 0.0);
+        f.H.mul_to(&w.mp_f, &mut w.h_mp);
+        w.nu_mean.resize_vertically_mut(m, 0.0);
+        w.nu_mean
+            .zip_zip_apply(&ts.h_mean, &w.h_mp, |o, a, b| *o = a - b);
+        h_t.left_into(w.w_t.as_slice(), w.w_t.ncols(), &mut w.mm1);
+        h_f.left_into(w.w_f.as_slice(), w.w_f.ncols(), &mut w.mm2);
+        sub_into(&w.mm1, &w.mm2, &mut w.nu_m2);
+        w.nu_m2 += &truth.R;
 
         // The update leaves the truth alone and sets x̂ = K H_t x + (I − K H_f) x̂⁻ + K v.
         // With G = K H_t: Cov(x, x̂) = P_tt G' + P_tf L', Cov(x̂) = Cov(x̂, x) G' +
         // (G P_tf + L P_ff) L' + K R K'.
         let JointGains { g_dense, g } = gains;
         let (k, l) = (&step.k_op, &step.ikh_op);
-        let s_tf = g.right_tr(p_tt) + l.right_tr(&p_tf);
-        let v = g.right_tr(&p_tf.transpose()) + l.right_tr(&p_ff);
-        let mut s_ff =
-            g.right_tr(&s_tf.transpose()) + l.right_tr(&v.transpose()) + k.sandwich(&truth.R, k);
-        crate::linalg::symmetrize(&mut s_ff);
-        let mu_f = g_dense * mp_t + &cu.IKH * &mp_f;
+        g.right_tr_into(p_tt, &mut w.t1);
+        l.right_tr_into(&w.p_tf, &mut w.t2);
+        add_into(&w.t1, &w.t2, &mut w.s_tf);
+        transpose_into(&w.p_tf, &mut w.tr);
+        g.right_tr_into(&w.tr, &mut w.t1);
+        l.right_tr_into(&w.p_ff, &mut w.t2);
+        add_into(&w.t1, &w.t2, &mut w.v);
+        transpose_into(&w.s_tf, &mut w.tr);
+        g.right_tr_into(&w.tr, &mut w.t1);
+        transpose_into(&w.v, &mut w.tr);
+        l.right_tr_into(&w.tr, &mut w.t2);
+        add_into(&w.t1, &w.t2, &mut w.s_ff);
+        k.sandwich_into(&truth.R, k, &mut w.scratch_k, &mut w.t1);
+        w.s_ff += &w.t1;
+        crate::linalg::symmetrize(&mut w.s_ff);
+        w.g_mp.resize_vertically_mut(g_dense.nrows(), 0.0);
+        g_dense.mul_to(mp_t, &mut w.g_mp);
+        w.mu_f.resize_vertically_mut(cu.IKH.nrows(), 0.0);
+        cu.IKH.mul_to(&w.mp_f, &mut w.mu_f);
+        w.mu_f += &w.g_mp;
 
         // The judged error M x − x̂[..ne].
-        let e_mean = &ts.map_mean - mu_f.rows(0, ne);
-        let x = self.map.left(&s_tf.columns(0, ne).clone_owned());
-        let mut e_cov = &ts.map_cov - &x - x.transpose() + s_ff.view((0, 0), (ne, ne));
-        crate::linalg::symmetrize(&mut e_cov);
-        let e_m2 = &e_cov + &e_mean * e_mean.transpose();
+        w.e_mean.resize_vertically_mut(ne, 0.0);
+        w.e_mean
+            .zip_zip_apply(&ts.map_mean, &w.mu_f.rows(0, ne), |o, a, b| *o = a - b);
+        let n_t = w.s_tf.nrows();
+        self.map
+            .left_into(&w.s_tf.as_slice()[..n_t * ne], ne, &mut w.x);
+        zeroed(&mut w.e_cov, ne, ne);
+        for c in 0..ne {
+            for r in 0..ne {
+                w.e_cov[(r, c)] = ts.map_cov[(r, c)] - w.x[(r, c)] - w.x[(c, r)] + w.s_ff[(r, c)];
+            }
+        }
+        crate::linalg::symmetrize(&mut w.e_cov);
 
-        let (nees, nees_sq) = gaussian_quadratic_moments(&step.p_inv, &e_cov, &e_mean);
-        let nu_cov = &nu_m2 - &nu_mean * nu_mean.transpose();
-        let (nis, nis_sq) = gaussian_quadratic_moments(&step.s_inv, &nu_cov, &nu_mean);
-        let s_diag = cu.S.diagonal();
+        let (nees, nees_sq) = gaussian_quadratic_moments(&step.p_inv, &w.e_cov, &w.e_mean);
+        zeroed(&mut w.nu_cov, m, m);
+        for c in 0..m {
+            for r in 0..m {
+                w.nu_cov[(r, c)] = w.nu_m2[(r, c)] - w.nu_mean[r] * w.nu_mean[c];
+            }
+        }
+        let (nis, nis_sq) = gaussian_quadratic_moments(&step.s_inv, &w.nu_cov, &w.nu_mean);
         // E[ν_k ν_{k−l}'] = C Φ E[s_{k−1} ν_{k−l}'], whose Φ part also advances the window.
-        let z_t = f_t.left(&self.window_t);
-        let z_f = f_f.left(&self.window_f);
+        f_t.left_into(self.window_t.as_slice(), self.window_t.ncols(), &mut w.z_t);
+        f_f.left_into(self.window_f.as_slice(), self.window_f.ncols(), &mut w.z_f);
+        out.nees = nees;
+        out.nees_sq = nees_sq;
+        out.nis = nis;
+        out.nis_sq = nis_sq;
+        let s_diag = |j: usize| cu.S[(j, j)];
+        let p_diag = |j: usize| cu.P[(j, j)];
+        out.comp_x.clear();
+        out.comp_x.extend((0..ne).map(|j| {
+            let e2 = w.e_cov[(j, j)] + w.e_mean[j] * w.e_mean[j];
+            e2 / p_diag(j)
+        }));
+        out.comp_z.clear();
+        out.comp_z
+            .extend((0..m).map(|j| w.nu_m2[(j, j)] / s_diag(j)));
+        out.mean_x.clear();
+        out.mean_x
+            .extend((0..ne).map(|j| w.e_mean[j] / p_diag(j).sqrt()));
+        out.mean_z.clear();
+        out.mean_z
+            .extend((0..m).map(|j| w.nu_mean[j] / s_diag(j).sqrt()));
         // Only the diagonal of each lag's block is read: row j of C against column j.
-        let cross = |l: usize, j: usize| {
-            let c = l * m + j;
-            h_t.row_dot(j, z_t.column(c).as_slice()) - h_f.row_dot(j, z_f.column(c).as_slice())
-        };
-        let comp_z_now: Vec<f64> = (0..m).map(|j| nu_m2[(j, j)] / s_diag[j]).collect();
-        let values = StepValues {
-            nees,
-            nees_sq,
-            nis,
-            nis_sq,
-            comp_x: (0..ne).map(|j| e_m2[(j, j)] / cu.P[(j, j)]).collect(),
-            comp_z: comp_z_now.clone(),
-            mean_x: (0..ne).map(|j| e_mean[j] / cu.P[(j, j)].sqrt()).collect(),
-            mean_z: (0..m).map(|j| nu_mean[j] / s_diag[j].sqrt()).collect(),
-            white: self
-                .s_diag_hist
-                .iter()
-                .enumerate()
-                .map(|(l, sd)| {
-                    (0..m)
-                        .map(|j| cross(l, j) / (s_diag[j] * sd[j]).sqrt())
-                        .collect()
-                })
-                .collect(),
-            lagged_b2: self.comp_z_hist.clone(),
-        };
+        out.lags = self.held;
+        out.white.clear();
+        for l in 0..self.held {
+            for j in 0..m {
+                let c = l * m + j;
+                let cross = h_t.row_dot(j, w.z_t.column(c).as_slice())
+                    - h_f.row_dot(j, w.z_f.column(c).as_slice());
+                out.white
+                    .push(cross / (s_diag(j) * self.s_diag_hist[c]).sqrt());
+            }
+        }
+        out.lagged_b2.clear();
+        out.lagged_b2
+            .extend_from_slice(&self.comp_z_hist[..self.held * m]);
         // E[s_k ν_k'] and the older cross-moments through B (Φ applied above).
         if self.lags > 0 {
-            let kept = (self.lags - 1).min(self.s_diag_hist.len()) * m;
-            let now_f = g.left(&w_t) + l.left(&w_f) + k.left(&truth.R);
-            let (z_t, z_f) = (z_t.columns(0, kept).clone_owned(), z_f.columns(0, kept));
-            let older_f = g.left(&z_t) + l.left(&z_f.clone_owned());
-            let mut next_t = DMatrix::zeros(w_t.nrows(), m + kept);
-            next_t.columns_mut(0, m).copy_from(&w_t);
-            next_t.columns_mut(m, kept).copy_from(&z_t);
-            let mut next_f = DMatrix::zeros(now_f.nrows(), m + kept);
-            next_f.columns_mut(0, m).copy_from(&now_f);
-            next_f.columns_mut(m, kept).copy_from(&older_f);
-            self.window_t = next_t;
-            self.window_f = next_f;
+            let kept = (self.lags - 1).min(self.held) * m;
+            let n_f = w.s_ff.nrows();
+            // now_f = G W_t + L W_f + K R, older_f = G Z_t + L Z_f (the kept columns).
+            g.left_into(w.w_t.as_slice(), m, &mut w.fm1);
+            l.left_into(w.w_f.as_slice(), m, &mut w.fm2);
+            w.fm1 += &w.fm2;
+            k.left_into(truth.R.as_slice(), m, &mut w.fm2);
+            w.fm1 += &w.fm2;
+            zeroed(&mut w.next_f, n_f, m + kept);
+            w.next_f.columns_mut(0, m).copy_from(&w.fm1);
+            g.left_into(&w.z_t.as_slice()[..n_t * kept], kept, &mut w.fk1);
+            l.left_into(&w.z_f.as_slice()[..n_f * kept], kept, &mut w.fk2);
+            w.fk1 += &w.fk2;
+            w.next_f.columns_mut(m, kept).copy_from(&w.fk1);
+            zeroed(&mut w.next_t, n_t, m + kept);
+            w.next_t.columns_mut(0, m).copy_from(&w.w_t);
+            w.next_t
+                .columns_mut(m, kept)
+                .copy_from(&w.z_t.columns(0, kept));
+            std::mem::swap(&mut self.window_t, &mut w.next_t);
+            std::mem::swap(&mut self.window_f, &mut w.next_f);
         }
-        self.s_diag_hist.insert(0, s_diag.clone_owned());
-        self.s_diag_hist.truncate(self.lags);
-        self.comp_z_hist.insert(0, comp_z_now);
-        self.comp_z_hist.truncate(self.lags);
-        self.mu_f = mu_f;
-        self.s_tf = s_tf;
-        self.s_ff = s_ff;
-        values
+        // The histories, most recent first, `lags` steps long.
+        if self.lags > 0 {
+            self.held = (self.held + 1).min(self.lags);
+            let len = self.held * m;
+            self.s_diag_hist.resize(len, 0.0);
+            self.comp_z_hist.resize(len, 0.0);
+            self.s_diag_hist.copy_within(0..len - m, m);
+            self.comp_z_hist.copy_within(0..len - m, m);
+            for j in 0..m {
+                self.s_diag_hist[j] = s_diag(j);
+            }
+            self.comp_z_hist[..m].copy_from_slice(&out.comp_z);
+        }
+        std::mem::swap(&mut self.mu_f, &mut w.mu_f);
+        std::mem::swap(&mut self.s_tf, &mut w.s_tf);
+        std::mem::swap(&mut self.s_ff, &mut w.s_ff);
     }
 }
 
@@ -697,6 +846,7 @@ fn gaussian_quadratic_moments(
 }
 
 /// The expected per-run values of one step.
+#[derive(Default)]
 struct StepValues {
     nees: f64,
     nees_sq: f64,
@@ -708,10 +858,12 @@ struct StepValues {
     mean_x: Vec<f64>,
     /// `E[ν_j]/√S_jj`.
     mean_z: Vec<f64>,
-    /// `white[l − 1][j]` = E[u_k,j u_{k−l},j].
-    white: Vec<Vec<f64>>,
-    /// `lagged_b2[l − 1][j]` = E[u_{k−l},j²].
-    lagged_b2: Vec<Vec<f64>>,
+    /// The lags with a step behind them (up to the configured lags).
+    lags: usize,
+    /// `white[(l − 1) m + j]` = E[u_k,j u_{k−l},j].
+    white: Vec<f64>,
+    /// `lagged_b2[(l − 1) m + j]` = E[u_{k−l},j²].
+    lagged_b2: Vec<f64>,
 }
 
 impl StepValues {
@@ -739,14 +891,9 @@ impl StepValues {
             && all(&self.comp_z, &o.comp_z)
             && near(&self.mean_x, &o.mean_x)
             && near(&self.mean_z, &o.mean_z)
-            && self.white.len() == o.white.len()
-            && self.white.iter().zip(&o.white).all(|(a, b)| all(a, b))
-            && self.lagged_b2.len() == o.lagged_b2.len()
-            && self
-                .lagged_b2
-                .iter()
-                .zip(&o.lagged_b2)
-                .all(|(a, b)| all(a, b))
+            && self.lags == o.lags
+            && all(&self.white, &o.white)
+            && all(&self.lagged_b2, &o.lagged_b2)
     }
 
     #[allow(clippy::too_many_arguments)]
@@ -783,12 +930,12 @@ impl StepValues {
             acc.meas_comp_samples[j] += runs;
             acc.meas_mean_total[j] += runs * self.mean_z[j];
         }
-        for lag in 1..=lags.min(k - 1).min(self.white.len()) {
+        for lag in 1..=lags.min(k - 1).min(self.lags) {
             for j in 0..m {
                 let o = (lag - 1) * m + j;
-                acc.white_ab[o] += runs * self.white[lag - 1][j];
+                acc.white_ab[o] += runs * self.white[o];
                 acc.white_a2[o] += runs * self.comp_z[j];
-                acc.white_b2[o] += runs * self.lagged_b2[lag - 1][j];
+                acc.white_b2[o] += runs * self.lagged_b2[o];
                 acc.white_pairs[o] += runs;
             }
         }

@@ -8,7 +8,9 @@ use super::{Block, Covariances, Definition, Experiment, ExperimentError, RunOpti
 use crate::filter::{Estimate, Filter, KalmanFilter, PredictResult, UpdateResult};
 use crate::measurement::Measurement;
 use crate::model::LinearGaussianModel;
-use crate::montecarlo::{self, Engine, McConfig, expected_accumulator_mapped};
+use crate::montecarlo::{
+    self, Engine, McConfig, SharedTrack, expected_accumulator_tracked, models_match,
+};
 use crate::params::{Coef, CovModel, NoiseKind, Target};
 use crate::stats::Accumulator;
 
@@ -48,9 +50,23 @@ pub struct LinearExperiment {
     pub truth: LinearGaussianModel,
     /// The filter's model.
     pub filter: FilterModel,
+    /// The truth's moments step by step, built at the first exact scoring that reads them
+    /// (a filter whose model is not the truth's) and shared by the later ones: the truth
+    /// does not depend on the parameters.
+    track: SharedTrack,
 }
 
 impl LinearExperiment {
+    /// The experiment of `truth` and `filter`, named and sized by `definition`.
+    pub fn new(definition: Definition, truth: LinearGaussianModel, filter: FilterModel) -> Self {
+        LinearExperiment {
+            definition,
+            truth,
+            filter,
+            track: SharedTrack::default(),
+        }
+    }
+
     /// The Kalman filter with parameters `theta` (one value per parameter, in order).
     pub fn filter_at(&self, theta: &[f64]) -> KalmanFilter {
         KalmanFilter {
@@ -113,8 +129,11 @@ impl Experiment for LinearExperiment {
     fn expected(&self, theta: &[f64], mc: &McConfig) -> Option<Accumulator> {
         let kf = self.filter_at(theta);
         let map = self.filter.map.as_ref();
+        // Only the joint moments read the truth's own (the matched recursion needs none).
+        let track = (map.is_some() || !models_match(&self.truth, &kf))
+            .then(|| self.track.get(&self.truth, &kf, map, mc.steps()));
         Some(
-            expected_accumulator_mapped(&self.truth, &kf, map, mc)
+            expected_accumulator_tracked(&self.truth, &kf, map, mc, track.as_deref())
                 .unwrap_or_else(|e| montecarlo::all_stopped(mc, kf.F.nrows(), kf.H.nrows(), &e)),
         )
     }

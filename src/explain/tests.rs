@@ -552,8 +552,8 @@ fn cv2d() -> LinearExperiment {
             })
             .collect()
     };
-    LinearExperiment {
-        definition: Definition {
+    LinearExperiment::new(
+        Definition {
             info: Info {
                 name: "cv2d".into(),
                 description: String::new(),
@@ -566,9 +566,9 @@ fn cv2d() -> LinearExperiment {
             measurement_names: vec!["x".into(), "y".into()],
             mc: McConfig::new(50, 100).expect("valid"),
         },
-        truth: LinearGaussianModel::new(f.clone(), h.clone(), big_q, big_r, x0.clone(), p0.clone())
+        LinearGaussianModel::new(f.clone(), h.clone(), big_q, big_r, x0.clone(), p0.clone())
             .expect("a valid truth"),
-        filter: FilterModel {
+        FilterModel {
             F: f,
             H: h,
             x0,
@@ -583,7 +583,7 @@ fn cv2d() -> LinearExperiment {
             },
             map: None,
         },
-    }
+    )
 }
 
 /// What a fitted hypothesis says on cv2d ([`cv2d`]), read off hand-set values: each added

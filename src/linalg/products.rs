@@ -36,6 +36,8 @@ fn by_columns(
     let (outer, inner) = if transpose { (r, c) } else { (c, r) };
     start.clear();
     entries.clear();
+    start.reserve(outer + 1);
+    entries.reserve(m.len());
     start.push(0);
     for j in 0..outer {
         for i in 0..inner {

@@ -100,7 +100,7 @@ pub fn expected_accumulator_tracked(
     } else {
         let judged = TruthTrack::judged_map(truth, f, map);
         let track = match track {
-            Some(t) if t.serves(&judged, mc.steps()) => t,
+            Some(t) if t.serves(truth, &judged, mc.steps()) => t,
             _ => {
                 built = TruthTrack::new(truth, f, map, mc.steps());
                 &built
@@ -269,15 +269,6 @@ impl FilterStep {
     }
 }
 
-/// The gain operands kept from the last step where the filter's step is `frozen` (the same
-/// as the last one), built by `make` otherwise; the caller puts them back after the step.
-fn kept_or<G>(kept: &mut Option<G>, frozen: bool, make: impl FnOnce() -> G) -> G {
-    match kept.take() {
-        Some(g) if frozen => g,
-        _ => make(),
-    }
-}
-
 /// Every run's expected sums over its steps, for the per-run spreads.
 struct RunSums<'a> {
     /// Σ_k E[e_j²]/P_jj.
@@ -394,9 +385,10 @@ impl ErrorMoments {
         let mu_new = &cu.IKH * &mu_p;
         let e_m2 = &sig + &mu_new * mu_new.transpose();
 
-        let (nees, nees_sq) = gaussian_quadratic_moments(&step.p_inv, &sig, &mu_new);
+        let quad = &mut QuadScratch::default();
+        let (nees, nees_sq) = gaussian_quadratic_moments(&step.p_inv, &sig, &mu_new, quad);
         let nu_cov = &nu_m2 - &nu_mean * nu_mean.transpose();
-        let (nis, nis_sq) = gaussian_quadratic_moments(&step.s_inv, &nu_cov, &nu_mean);
+        let (nis, nis_sq) = gaussian_quadratic_moments(&step.s_inv, &nu_cov, &nu_mean, quad);
 
         let s_diag = cu.S.diagonal();
         // E[ν_k ν_{k−l}'] = H F E[e_{k−1} ν_{k−l}']: only the diagonal of each block is read.
@@ -503,6 +495,12 @@ impl JointGains {
             g_dense,
         }
     }
+
+    /// The operands of another gain, in this one's storage.
+    fn refresh(&mut self, h_t: &Sparse, cu: &CovarianceUpdate) {
+        h_t.right_into(&cu.K, &mut self.g_dense);
+        self.g.reset(&self.g_dense);
+    }
 }
 
 /// The intermediate products of one joint step, kept for the next (named as in
@@ -546,6 +544,7 @@ struct JointWork {
     fk2: DMatrix<f64>,
     scratch: DMatrix<f64>,
     scratch_k: DMatrix<f64>,
+    quad: QuadScratch,
 }
 
 /// `a − b`, `a + b`: elementwise into `out` (reshaped), the sums of nalgebra's operators.
@@ -557,6 +556,14 @@ fn sub_into(a: &DMatrix<f64>, b: &DMatrix<f64>, out: &mut DMatrix<f64>) {
 fn add_into(a: &DMatrix<f64>, b: &DMatrix<f64>, out: &mut DMatrix<f64>) {
     zeroed(out, a.nrows(), a.ncols());
     out.zip_zip_apply(a, b, |o, x, y| *o = x + y);
+}
+
+/// `v` of length `n`, its storage kept where it has that length already (the contents
+/// are written over by the caller).
+fn sized(v: &mut DVector<f64>, n: usize) {
+    if v.len() != n {
+        *v = DVector::zeros(n);
+    }
 }
 
 /// The transpose of `a` into `out` (reshaped).
@@ -607,7 +614,16 @@ impl<'a> JointMoments<'a> {
         out: &mut StepValues,
     ) {
         let cu = &fs.cu;
-        let gains = kept_or(&mut self.gains, frozen, || JointGains::new(&self.h_t, cu));
+        // The gain operands of the last step serve a frozen one; otherwise they are rebuilt
+        // in their own storage.
+        let gains = match self.gains.take() {
+            Some(g) if frozen => g,
+            Some(mut g) => {
+                g.refresh(&self.h_t, cu);
+                g
+            }
+            None => JointGains::new(&self.h_t, cu),
+        };
         self.advance(i, truth, f, fs, &gains, out);
         self.gains = Some(gains);
     }
@@ -631,7 +647,7 @@ impl<'a> JointMoments<'a> {
         // The prediction: Φ is block-diagonal, the truth's noise enters its own block (the
         // truth's moments are the track's).
         let (mp_t, p_tt) = (&ts.mean, &ts.cov);
-        w.mp_f.resize_vertically_mut(f.F.nrows(), 0.0);
+        sized(&mut w.mp_f, f.F.nrows());
         f.F.mul_to(&self.mu_f, &mut w.mp_f);
         f_t.sandwich_into(&self.s_tf, f_f, &mut w.scratch, &mut w.p_tf);
         f_f.sandwich_into(&self.s_ff, f_f, &mut w.scratch, &mut w.p_ff);
@@ -659,9 +675,9 @@ impl<'a> JointMoments<'a> {
         h_t.right_tr_into(&w.m_ft, &mut w.fm1);
         h_f.right_tr_into(&w.m_ff, &mut w.fm2);
         sub_into(&w.fm1, &w.fm2, &mut w.w_f);
-        w.h_mp.resize_vertically_mut(m, 0.0);
+        sized(&mut w.h_mp, m);
         f.H.mul_to(&w.mp_f, &mut w.h_mp);
-        w.nu_mean.resize_vertically_mut(m, 0.0);
+        sized(&mut w.nu_mean, m);
         w.nu_mean
             .zip_zip_apply(&ts.h_mean, &w.h_mp, |o, a, b| *o = a - b);
         h_t.left_into(w.w_t.as_slice(), w.w_t.ncols(), &mut w.mm1);
@@ -689,14 +705,14 @@ impl<'a> JointMoments<'a> {
         k.sandwich_into(&truth.R, k, &mut w.scratch_k, &mut w.t1);
         w.s_ff += &w.t1;
         crate::linalg::symmetrize(&mut w.s_ff);
-        w.g_mp.resize_vertically_mut(g_dense.nrows(), 0.0);
+        sized(&mut w.g_mp, g_dense.nrows());
         g_dense.mul_to(mp_t, &mut w.g_mp);
-        w.mu_f.resize_vertically_mut(cu.IKH.nrows(), 0.0);
+        sized(&mut w.mu_f, cu.IKH.nrows());
         cu.IKH.mul_to(&w.mp_f, &mut w.mu_f);
         w.mu_f += &w.g_mp;
 
         // The judged error M x − x̂[..ne].
-        w.e_mean.resize_vertically_mut(ne, 0.0);
+        sized(&mut w.e_mean, ne);
         w.e_mean
             .zip_zip_apply(&ts.map_mean, &w.mu_f.rows(0, ne), |o, a, b| *o = a - b);
         let n_t = w.s_tf.nrows();
@@ -710,14 +726,16 @@ impl<'a> JointMoments<'a> {
         }
         crate::linalg::symmetrize(&mut w.e_cov);
 
-        let (nees, nees_sq) = gaussian_quadratic_moments(&step.p_inv, &w.e_cov, &w.e_mean);
+        let (nees, nees_sq) =
+            gaussian_quadratic_moments(&step.p_inv, &w.e_cov, &w.e_mean, &mut w.quad);
         zeroed(&mut w.nu_cov, m, m);
         for c in 0..m {
             for r in 0..m {
                 w.nu_cov[(r, c)] = w.nu_m2[(r, c)] - w.nu_mean[r] * w.nu_mean[c];
             }
         }
-        let (nis, nis_sq) = gaussian_quadratic_moments(&step.s_inv, &w.nu_cov, &w.nu_mean);
+        let (nis, nis_sq) =
+            gaussian_quadratic_moments(&step.s_inv, &w.nu_cov, &w.nu_mean, &mut w.quad);
         // E[ν_k ν_{k−l}'] = C Φ E[s_{k−1} ν_{k−l}'], whose Φ part also advances the window.
         f_t.left_into(self.window_t.as_slice(), self.window_t.ncols(), &mut w.z_t);
         f_f.left_into(self.window_f.as_slice(), self.window_f.ncols(), &mut w.z_f);
@@ -811,15 +829,22 @@ fn stop_all(mut acc: Accumulator, mc: &McConfig, k: usize, fault: Fault) -> Accu
 
 /// `E[x' M⁻¹ x]` and `E[(x' M⁻¹ x)²]` for x ~ N(μ, Σ), given `M⁻¹` (symmetric):
 /// `tr B + μ'M⁻¹μ` and `(tr B)² + 2 tr(B²) + 4 μ' M⁻¹ Σ M⁻¹ μ + 2 tr(B) μ'M⁻¹μ + (μ'M⁻¹μ)²`,
-/// `B = M⁻¹ Σ`, in plain loops (a few states: no packing, no allocation beyond B).
+/// `B = M⁻¹ Σ`, in plain loops (a few states: no packing), in the storage of `scratch`.
 fn gaussian_quadratic_moments(
     minv: &DMatrix<f64>,
     sigma: &DMatrix<f64>,
     mu: &DVector<f64>,
+    scratch: &mut QuadScratch,
 ) -> (f64, f64) {
     let n = mu.len();
     let (w, s) = (minv.as_slice(), sigma.as_slice());
-    let mut b = vec![0.0; n * n];
+    let QuadScratch {
+        b,
+        minv_mu,
+        s_minv_mu,
+    } = scratch;
+    b.clear();
+    b.resize(n * n, 0.0);
     for j in 0..n {
         let col = &mut b[j * n..(j + 1) * n];
         for k in 0..n {
@@ -836,13 +861,24 @@ fn gaussian_quadratic_moments(
             tr2 += b[i + j * n] * b[j + i * n];
         }
     }
-    let minv_mu = minv * mu;
-    let q = mu.dot(&minv_mu);
-    let cross = minv_mu.dot(&(sigma * &minv_mu));
+    sized(minv_mu, n);
+    minv.mul_to(mu, minv_mu);
+    let q = mu.dot(minv_mu);
+    sized(s_minv_mu, n);
+    sigma.mul_to(minv_mu, s_minv_mu);
+    let cross = minv_mu.dot(s_minv_mu);
     (
         tr + q,
         tr * tr + 2.0 * tr2 + 4.0 * cross + 2.0 * tr * q + q * q,
     )
+}
+
+/// The storage [`gaussian_quadratic_moments`] works in: `B`, `M⁻¹ μ` and `Σ M⁻¹ μ`.
+#[derive(Default)]
+struct QuadScratch {
+    b: Vec<f64>,
+    minv_mu: DVector<f64>,
+    s_minv_mu: DVector<f64>,
 }
 
 /// The expected per-run values of one step.

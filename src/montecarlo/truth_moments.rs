@@ -12,6 +12,7 @@ use super::generic::Fault;
 use crate::filter::{Filter, KalmanFilter};
 use crate::linalg::products::Sparse;
 use crate::model::LinearGaussianModel;
+use crate::statespace::LinearGaussian;
 
 /// Relative change of every per-step expected value below which a step counts as quiet
 /// (and the truth's second moment as settled).
@@ -115,6 +116,9 @@ impl Truth<'_> {
 /// one map `M` (n_e × n_t) from the truth's states to the judged ones.
 #[derive(Debug, Clone)]
 pub struct TruthTrack {
+    /// The truth it was built for: a track is only ever read for that truth (an
+    /// experiment's truth is a public field, and a clone may be given another one).
+    truth: LinearGaussian,
     pub(super) map: DMatrix<f64>,
     /// Steps 1, 2, … up to the one asked for, or to the one before the truth overflows.
     pub(super) steps: Vec<TruthStep>,
@@ -140,7 +144,7 @@ impl SharedTrack {
         // A poisoned lock only means another evaluation panicked; the track is still whole.
         let mut held = self.0.lock().unwrap_or_else(|e| e.into_inner());
         match held.as_ref() {
-            Some(t) if t.serves(&judged, steps) => Arc::clone(t),
+            Some(t) if t.serves(truth, &judged, steps) => Arc::clone(t),
             _ => {
                 let want = held.as_ref().map_or(steps, |t| t.wanted.max(steps));
                 let t = Arc::new(TruthTrack::new(truth, f, map, want));
@@ -216,6 +220,7 @@ impl TruthTrack {
             });
         }
         TruthTrack {
+            truth: truth.model.clone(),
             map,
             steps: out,
             wanted: steps,
@@ -233,8 +238,68 @@ impl TruthTrack {
             .unwrap_or_else(|| DMatrix::identity(f.n_x(), truth.F.nrows()))
     }
 
-    /// Whether it holds the moments a test of `steps` steps judged through `map` reads.
-    pub(super) fn serves(&self, map: &DMatrix<f64>, steps: usize) -> bool {
-        steps <= self.wanted && *map == self.map
+    /// Whether it holds the moments a test of `truth` over `steps` steps judged through
+    /// `map` reads.
+    pub(super) fn serves(
+        &self,
+        truth: &LinearGaussianModel,
+        map: &DMatrix<f64>,
+        steps: usize,
+    ) -> bool {
+        steps <= self.wanted && *map == self.map && self.truth == truth.model
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::montecarlo::{McConfig, expected_accumulator_mapped, expected_accumulator_tracked};
+    use crate::params::dwna_block;
+
+    /// A constant-velocity truth whose process noise is `q` times the unit block.
+    fn truth(q: f64) -> LinearGaussianModel {
+        LinearGaussianModel::new(
+            DMatrix::from_row_slice(2, 2, &[1.0, 1.0, 0.0, 1.0]),
+            DMatrix::from_row_slice(1, 2, &[1.0, 0.0]),
+            dwna_block(1.0) * q,
+            DMatrix::from_element(1, 1, 1.0),
+            DVector::from_column_slice(&[0.0, 1.0]),
+            DMatrix::from_diagonal(&DVector::from_column_slice(&[4.0, 1.0])),
+        )
+        .unwrap()
+    }
+
+    /// A filter built for a step of 1.2 instead of the truth's 1: its model is not the
+    /// truth's, so the joint moments read the track.
+    fn filter(t: &LinearGaussianModel) -> KalmanFilter {
+        KalmanFilter {
+            F: DMatrix::from_row_slice(2, 2, &[1.0, 1.2, 0.0, 1.0]),
+            H: t.H.clone(),
+            Q: dwna_block(1.2) * 0.3,
+            R: DMatrix::from_element(1, 1, 2.0),
+            x0: t.x0.clone(),
+            P0: t.P0.clone(),
+        }
+    }
+
+    #[test]
+    fn a_shared_track_serves_only_the_truth_it_was_built_for() {
+        let mc = McConfig::new(10, 40).unwrap();
+        let shared = SharedTrack::default();
+        let (a, b) = (truth(0.5), truth(2.0));
+        for t in [&a, &b, &a] {
+            let f = filter(t);
+            let track = shared.get(t, &f, None, mc.steps());
+            assert!(track.serves(t, &TruthTrack::judged_map(t, &f, None), mc.steps()));
+            // Through the shared track: the same sums, to the bit, as built afresh.
+            let through = expected_accumulator_tracked(t, &f, None, &mc, Some(&track)).unwrap();
+            let fresh = expected_accumulator_mapped(t, &f, None, &mc).unwrap();
+            assert_eq!(through, fresh);
+        }
+        // A track built for one truth is not read for another with the same map and steps.
+        let f = filter(&a);
+        let track = shared.get(&a, &f, None, mc.steps());
+        assert!(!track.serves(&b, &track.map, mc.steps()));
+        assert!(!track.serves(&a, &track.map, mc.steps() + 1));
     }
 }

@@ -64,8 +64,8 @@ impl Validator<'_> {
                 }
             })?;
         let measurement_names = self.names("measurement_names", &s.measurement_names, m, "z")?;
-        Ok(LinearExperiment {
-            definition: Definition {
+        Ok(LinearExperiment::new(
+            Definition {
                 info,
                 params,
                 state_names,
@@ -74,7 +74,7 @@ impl Validator<'_> {
             },
             truth,
             filter,
-        })
+        ))
     }
 
     /// `[truth]`'s matrices, checked (Q and R built from their fixed terms).

@@ -399,11 +399,11 @@ pub fn draw(kind: Kind, seed: u64) -> Draw {
         measurement_names: meas,
         mc,
     };
-    let experiment = LinearExperiment {
+    let experiment = LinearExperiment::new(
         definition,
-        truth: LinearGaussianModel::new(F, H, Q, R, x0, P0).expect("a valid truth"),
+        LinearGaussianModel::new(F, H, Q, R, x0, P0).expect("a valid truth"),
         filter,
-    };
+    );
     Draw {
         kind,
         axes,

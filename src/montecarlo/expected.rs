@@ -25,7 +25,7 @@ use nalgebra::{DMatrix, DVector};
 use super::McConfig;
 use super::generic::Fault;
 use super::linear::{self, same_covariance};
-use super::truth_moments::{STEADY_RTOL, Truth, TruthMoment, TruthTrack};
+use super::truth_moments::{STEADY_RTOL, Truth, TruthMoment, TruthStep, TruthTrack};
 use crate::filter::{CovarianceUpdate, Filter, FilterError, KalmanFilter};
 use crate::linalg::products::{Sparse, zeroed};
 use crate::linalg::{cholesky, spd_inverse};
@@ -547,6 +547,101 @@ struct JointWork {
     quad: QuadScratch,
 }
 
+impl JointWork {
+    /// The prediction and the innovation's moments of a step: `E[x̂⁻]`, the prior
+    /// second moments by blocks, `E[ν]`, `E[ν ν']` and `E[s⁻ ν']` (`w_t`, `w_f`), from the
+    /// last step's `E[x̂]` (`mu_f`), `[Cov(x, x̂), Cov(x̂)]` (`s`) and the truth's step `ts`;
+    /// `ops` are the truth's F and H and the filter's.
+    fn predict(
+        &mut self,
+        f: &KalmanFilter,
+        truth: &LinearGaussianModel,
+        [f_t, h_t, f_f, h_f]: [&Sparse; 4],
+        [s_tf, s_ff]: [&DMatrix<f64>; 2],
+        mu_f: &DVector<f64>,
+        ts: &TruthStep,
+    ) {
+        let m = f.H.nrows();
+        // The prediction: Φ is block-diagonal, the truth's noise enters its own block (the
+        // truth's moments are the track's).
+        let mp_t = &ts.mean;
+        sized(&mut self.mp_f, f.F.nrows());
+        f.F.mul_to(mu_f, &mut self.mp_f);
+        f_t.sandwich_into(s_tf, f_f, &mut self.scratch, &mut self.p_tf);
+        f_f.sandwich_into(s_ff, f_f, &mut self.scratch, &mut self.p_ff);
+        crate::linalg::symmetrize(&mut self.p_ff);
+        // M_ft = P_tf' + E[x̂] E[x]', M_tf its transpose, M_ff = P_ff + E[x̂] E[x̂]'.
+        let mp_f = &self.mp_f;
+        transpose_into(&self.p_tf, &mut self.m_ft);
+        for (c, &xt) in mp_t.iter().enumerate() {
+            for (r, &xf) in mp_f.iter().enumerate() {
+                self.m_ft[(r, c)] += xf * xt;
+            }
+        }
+        transpose_into(&self.m_ft, &mut self.m_tf);
+        zeroed(&mut self.m_ff, mp_f.len(), mp_f.len());
+        self.m_ff.copy_from(&self.p_ff);
+        for (c, &xc) in mp_f.iter().enumerate() {
+            for (r, &xr) in mp_f.iter().enumerate() {
+                self.m_ff[(r, c)] += xr * xc;
+            }
+        }
+
+        // ν = H_t x − H_f x̂ + v: its mean, its second moment and E[s⁻ ν'] by blocks.
+        h_f.right_tr_into(&self.m_tf, &mut self.tm);
+        sub_into(&ts.m2_ht, &self.tm, &mut self.w_t);
+        h_t.right_tr_into(&self.m_ft, &mut self.fm1);
+        h_f.right_tr_into(&self.m_ff, &mut self.fm2);
+        sub_into(&self.fm1, &self.fm2, &mut self.w_f);
+        sized(&mut self.h_mp, m);
+        f.H.mul_to(&self.mp_f, &mut self.h_mp);
+        sized(&mut self.nu_mean, m);
+        self.nu_mean
+            .zip_zip_apply(&ts.h_mean, &self.h_mp, |o, a, b| *o = a - b);
+        h_t.left_into(self.w_t.as_slice(), self.w_t.ncols(), &mut self.mm1);
+        h_f.left_into(self.w_f.as_slice(), self.w_f.ncols(), &mut self.mm2);
+        sub_into(&self.mm1, &self.mm2, &mut self.nu_m2);
+        self.nu_m2 += &truth.R;
+    }
+
+    /// The update's moments, `Cov(x, x̂)`, `Cov(x̂)` and `E[x̂]`, from the prediction's.
+    fn update(
+        &mut self,
+        truth: &LinearGaussianModel,
+        step: &FilterStep,
+        gains: &JointGains,
+        ts: &TruthStep,
+    ) {
+        let cu = &step.cu;
+        let (mp_t, p_tt) = (&ts.mean, &ts.cov);
+        // The update leaves the truth alone and sets x̂ = K H_t x + (I − K H_f) x̂⁻ + K v.
+        // With G = K H_t: Cov(x, x̂) = P_tt G' + P_tf L', Cov(x̂) = Cov(x̂, x) G' +
+        // (G P_tf + L P_ff) L' + K R K'.
+        let JointGains { g_dense, g } = gains;
+        let (k, l) = (&step.k_op, &step.ikh_op);
+        g.right_tr_into(p_tt, &mut self.t1);
+        l.right_tr_into(&self.p_tf, &mut self.t2);
+        add_into(&self.t1, &self.t2, &mut self.s_tf);
+        transpose_into(&self.p_tf, &mut self.tr);
+        g.right_tr_into(&self.tr, &mut self.t1);
+        l.right_tr_into(&self.p_ff, &mut self.t2);
+        add_into(&self.t1, &self.t2, &mut self.v);
+        transpose_into(&self.s_tf, &mut self.tr);
+        g.right_tr_into(&self.tr, &mut self.t1);
+        transpose_into(&self.v, &mut self.tr);
+        l.right_tr_into(&self.tr, &mut self.t2);
+        add_into(&self.t1, &self.t2, &mut self.s_ff);
+        k.sandwich_into(&truth.R, k, &mut self.scratch_k, &mut self.t1);
+        self.s_ff += &self.t1;
+        crate::linalg::symmetrize(&mut self.s_ff);
+        sized(&mut self.g_mp, g_dense.nrows());
+        g_dense.mul_to(mp_t, &mut self.g_mp);
+        sized(&mut self.mu_f, cu.IKH.nrows());
+        cu.IKH.mul_to(&self.mp_f, &mut self.mu_f);
+        self.mu_f += &self.g_mp;
+    }
+}
+
 /// `a − b`, `a + b`: elementwise into `out` (reshaped), the sums of nalgebra's operators.
 fn sub_into(a: &DMatrix<f64>, b: &DMatrix<f64>, out: &mut DMatrix<f64>) {
     zeroed(out, a.nrows(), a.ncols());
@@ -644,78 +739,22 @@ impl<'a> JointMoments<'a> {
         let ts = &self.track.steps[i];
         let w = &mut self.work;
 
-        // The prediction: Φ is block-diagonal, the truth's noise enters its own block (the
-        // truth's moments are the track's).
-        let (mp_t, p_tt) = (&ts.mean, &ts.cov);
-        sized(&mut w.mp_f, f.F.nrows());
-        f.F.mul_to(&self.mu_f, &mut w.mp_f);
-        f_t.sandwich_into(&self.s_tf, f_f, &mut w.scratch, &mut w.p_tf);
-        f_f.sandwich_into(&self.s_ff, f_f, &mut w.scratch, &mut w.p_ff);
-        crate::linalg::symmetrize(&mut w.p_ff);
-        // M_ft = P_tf' + E[x̂] E[x]', M_tf its transpose, M_ff = P_ff + E[x̂] E[x̂]'.
-        let mp_f = &w.mp_f;
-        transpose_into(&w.p_tf, &mut w.m_ft);
-        for (c, &xt) in mp_t.iter().enumerate() {
-            for (r, &xf) in mp_f.iter().enumerate() {
-                w.m_ft[(r, c)] += xf * xt;
-            }
-        }
-        transpose_into(&w.m_ft, &mut w.m_tf);
-        zeroed(&mut w.m_ff, mp_f.len(), mp_f.len());
-        w.m_ff.copy_from(&w.p_ff);
-        for (c, &xc) in mp_f.iter().enumerate() {
-            for (r, &xr) in mp_f.iter().enumerate() {
-                w.m_ff[(r, c)] += xr * xc;
-            }
-        }
-
-        // ν = H_t x − H_f x̂ + v: its mean, its second moment and E[s⁻ ν'] by blocks.
-        h_f.right_tr_into(&w.m_tf, &mut w.tm);
-        sub_into(&ts.m2_ht, &w.tm, &mut w.w_t);
-        h_t.right_tr_into(&w.m_ft, &mut w.fm1);
-        h_f.right_tr_into(&w.m_ff, &mut w.fm2);
-        sub_into(&w.fm1, &w.fm2, &mut w.w_f);
-        sized(&mut w.h_mp, m);
-        f.H.mul_to(&w.mp_f, &mut w.h_mp);
-        sized(&mut w.nu_mean, m);
-        w.nu_mean
-            .zip_zip_apply(&ts.h_mean, &w.h_mp, |o, a, b| *o = a - b);
-        h_t.left_into(w.w_t.as_slice(), w.w_t.ncols(), &mut w.mm1);
-        h_f.left_into(w.w_f.as_slice(), w.w_f.ncols(), &mut w.mm2);
-        sub_into(&w.mm1, &w.mm2, &mut w.nu_m2);
-        w.nu_m2 += &truth.R;
-
-        // The update leaves the truth alone and sets x̂ = K H_t x + (I − K H_f) x̂⁻ + K v.
-        // With G = K H_t: Cov(x, x̂) = P_tt G' + P_tf L', Cov(x̂) = Cov(x̂, x) G' +
-        // (G P_tf + L P_ff) L' + K R K'.
-        let JointGains { g_dense, g } = gains;
-        let (k, l) = (&step.k_op, &step.ikh_op);
-        g.right_tr_into(p_tt, &mut w.t1);
-        l.right_tr_into(&w.p_tf, &mut w.t2);
-        add_into(&w.t1, &w.t2, &mut w.s_tf);
-        transpose_into(&w.p_tf, &mut w.tr);
-        g.right_tr_into(&w.tr, &mut w.t1);
-        l.right_tr_into(&w.p_ff, &mut w.t2);
-        add_into(&w.t1, &w.t2, &mut w.v);
-        transpose_into(&w.s_tf, &mut w.tr);
-        g.right_tr_into(&w.tr, &mut w.t1);
-        transpose_into(&w.v, &mut w.tr);
-        l.right_tr_into(&w.tr, &mut w.t2);
-        add_into(&w.t1, &w.t2, &mut w.s_ff);
-        k.sandwich_into(&truth.R, k, &mut w.scratch_k, &mut w.t1);
-        w.s_ff += &w.t1;
-        crate::linalg::symmetrize(&mut w.s_ff);
-        sized(&mut w.g_mp, g_dense.nrows());
-        g_dense.mul_to(mp_t, &mut w.g_mp);
-        sized(&mut w.mu_f, cu.IKH.nrows());
-        cu.IKH.mul_to(&w.mp_f, &mut w.mu_f);
-        w.mu_f += &w.g_mp;
+        w.predict(
+            f,
+            truth,
+            [f_t, h_t, f_f, h_f],
+            [&self.s_tf, &self.s_ff],
+            &self.mu_f,
+            ts,
+        );
+        w.update(truth, step, gains, ts);
+        let n_t = w.s_tf.nrows();
+        let (k, l, g) = (&step.k_op, &step.ikh_op, &gains.g);
 
         // The judged error M x − x̂[..ne].
         sized(&mut w.e_mean, ne);
         w.e_mean
             .zip_zip_apply(&ts.map_mean, &w.mu_f.rows(0, ne), |o, a, b| *o = a - b);
-        let n_t = w.s_tf.nrows();
         self.map
             .left_into(&w.s_tf.as_slice()[..n_t * ne], ne, &mut w.x);
         zeroed(&mut w.e_cov, ne, ne);

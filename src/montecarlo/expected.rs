@@ -27,7 +27,7 @@ use super::generic::Fault;
 use super::linear::{self, same_covariance};
 use super::truth_moments::{STEADY_RTOL, Truth, TruthMoment, TruthStep, TruthTrack};
 use crate::filter::{CovarianceUpdate, Filter, FilterError, KalmanFilter};
-use crate::linalg::products::{Sparse, zeroed};
+use crate::linalg::products::{Sparse, shaped};
 use crate::linalg::{cholesky, spd_inverse};
 use crate::model::LinearGaussianModel;
 use crate::stats::Accumulator;
@@ -579,7 +579,7 @@ impl JointWork {
             }
         }
         transpose_into(&self.m_ft, &mut self.m_tf);
-        zeroed(&mut self.m_ff, mp_f.len(), mp_f.len());
+        shaped(&mut self.m_ff, mp_f.len(), mp_f.len());
         self.m_ff.copy_from(&self.p_ff);
         for (c, &xc) in mp_f.iter().enumerate() {
             for (r, &xr) in mp_f.iter().enumerate() {
@@ -644,12 +644,12 @@ impl JointWork {
 
 /// `a − b`, `a + b`: elementwise into `out` (reshaped), the sums of nalgebra's operators.
 fn sub_into(a: &DMatrix<f64>, b: &DMatrix<f64>, out: &mut DMatrix<f64>) {
-    zeroed(out, a.nrows(), a.ncols());
+    shaped(out, a.nrows(), a.ncols());
     out.zip_zip_apply(a, b, |o, x, y| *o = x - y);
 }
 
 fn add_into(a: &DMatrix<f64>, b: &DMatrix<f64>, out: &mut DMatrix<f64>) {
-    zeroed(out, a.nrows(), a.ncols());
+    shaped(out, a.nrows(), a.ncols());
     out.zip_zip_apply(a, b, |o, x, y| *o = x + y);
 }
 
@@ -663,7 +663,7 @@ fn sized(v: &mut DVector<f64>, n: usize) {
 
 /// The transpose of `a` into `out` (reshaped).
 fn transpose_into(a: &DMatrix<f64>, out: &mut DMatrix<f64>) {
-    zeroed(out, a.ncols(), a.nrows());
+    shaped(out, a.ncols(), a.nrows());
     a.transpose_to(out);
 }
 
@@ -757,7 +757,7 @@ impl<'a> JointMoments<'a> {
             .zip_zip_apply(&ts.map_mean, &w.mu_f.rows(0, ne), |o, a, b| *o = a - b);
         self.map
             .left_into(&w.s_tf.as_slice()[..n_t * ne], ne, &mut w.x);
-        zeroed(&mut w.e_cov, ne, ne);
+        shaped(&mut w.e_cov, ne, ne);
         for c in 0..ne {
             for r in 0..ne {
                 w.e_cov[(r, c)] = ts.map_cov[(r, c)] - w.x[(r, c)] - w.x[(c, r)] + w.s_ff[(r, c)];
@@ -767,7 +767,7 @@ impl<'a> JointMoments<'a> {
 
         let (nees, nees_sq) =
             gaussian_quadratic_moments(&step.p_inv, &w.e_cov, &w.e_mean, &mut w.quad);
-        zeroed(&mut w.nu_cov, m, m);
+        shaped(&mut w.nu_cov, m, m);
         for c in 0..m {
             for r in 0..m {
                 w.nu_cov[(r, c)] = w.nu_m2[(r, c)] - w.nu_mean[r] * w.nu_mean[c];
@@ -823,13 +823,13 @@ impl<'a> JointMoments<'a> {
             w.fm1 += &w.fm2;
             k.left_into(truth.R.as_slice(), m, &mut w.fm2);
             w.fm1 += &w.fm2;
-            zeroed(&mut w.next_f, n_f, m + kept);
+            shaped(&mut w.next_f, n_f, m + kept);
             w.next_f.columns_mut(0, m).copy_from(&w.fm1);
             g.left_into(&w.z_t.as_slice()[..n_t * kept], kept, &mut w.fk1);
             l.left_into(&w.z_f.as_slice()[..n_f * kept], kept, &mut w.fk2);
             w.fk1 += &w.fk2;
             w.next_f.columns_mut(m, kept).copy_from(&w.fk1);
-            zeroed(&mut w.next_t, n_t, m + kept);
+            shaped(&mut w.next_t, n_t, m + kept);
             w.next_t.columns_mut(0, m).copy_from(&w.w_t);
             w.next_t
                 .columns_mut(m, kept)

@@ -282,6 +282,31 @@ mod tests {
     }
 
     #[test]
+    fn shaped_keeps_a_buffer_of_its_shape_and_reshapes_another() {
+        let mut buf = DMatrix::from_element(2, 3, 7.0);
+        let storage = buf.as_slice().as_ptr();
+        shaped(&mut buf, 2, 3);
+        assert_eq!(buf.as_slice().as_ptr(), storage, "the same storage");
+        assert!(
+            buf.iter().all(|&v| v == 7.0),
+            "its entries left for the caller"
+        );
+        shaped(&mut buf, 3, 1);
+        assert_eq!(buf.shape(), (3, 1));
+        assert!(
+            buf.iter().all(|&v| v == 0.0),
+            "a reshaped buffer holds zeros"
+        );
+        zeroed(&mut buf, 3, 1);
+        buf[(1, 0)] = 2.0;
+        zeroed(&mut buf, 3, 1);
+        assert!(
+            buf.iter().all(|&v| v == 0.0),
+            "zeroed clears a buffer of its shape"
+        );
+    }
+
+    #[test]
     fn products_equal_nalgebras_on_every_shape() {
         // Shapes around the sizes met (1 to 24 states, 1 to 6 readings), empty ones included.
         for (i, &(r, k, c)) in [

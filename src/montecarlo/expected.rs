@@ -535,6 +535,10 @@ struct JointWork {
     next_f: DMatrix<f64>,
     t1: DMatrix<f64>,
     t2: DMatrix<f64>,
+    u1: DMatrix<f64>,
+    u2: DMatrix<f64>,
+    tr_ff: DMatrix<f64>,
+    scratch_ff: DMatrix<f64>,
     tm: DMatrix<f64>,
     fm1: DMatrix<f64>,
     fm2: DMatrix<f64>,
@@ -568,24 +572,16 @@ impl JointWork {
         sized(&mut self.mp_f, f.F.nrows());
         f.F.mul_to(mu_f, &mut self.mp_f);
         f_t.sandwich_into(s_tf, f_f, &mut self.scratch, &mut self.p_tf);
-        f_f.sandwich_into(s_ff, f_f, &mut self.scratch, &mut self.p_ff);
+        f_f.sandwich_into(s_ff, f_f, &mut self.scratch_ff, &mut self.p_ff);
         crate::linalg::symmetrize(&mut self.p_ff);
         // M_ft = P_tf' + E[x̂] E[x]', M_tf its transpose, M_ff = P_ff + E[x̂] E[x̂]'.
         let mp_f = &self.mp_f;
         transpose_into(&self.p_tf, &mut self.m_ft);
-        for (c, &xt) in mp_t.iter().enumerate() {
-            for (r, &xf) in mp_f.iter().enumerate() {
-                self.m_ft[(r, c)] += xf * xt;
-            }
-        }
+        add_outer(&mut self.m_ft, mp_f, mp_t);
         transpose_into(&self.m_ft, &mut self.m_tf);
         shaped(&mut self.m_ff, mp_f.len(), mp_f.len());
         self.m_ff.copy_from(&self.p_ff);
-        for (c, &xc) in mp_f.iter().enumerate() {
-            for (r, &xr) in mp_f.iter().enumerate() {
-                self.m_ff[(r, c)] += xr * xc;
-            }
-        }
+        add_outer(&mut self.m_ff, mp_f, mp_f);
 
         // ν = H_t x − H_f x̂ + v: its mean, its second moment and E[s⁻ ν'] by blocks.
         h_f.right_tr_into(&self.m_tf, &mut self.tm);
@@ -619,26 +615,39 @@ impl JointWork {
         // (G P_tf + L P_ff) L' + K R K'.
         let JointGains { g_dense, g } = gains;
         let (k, l) = (&step.k_op, &step.ikh_op);
+        // The n_t × n_f products in `t1`, `t2`, the n_f × n_f ones in `u1`, `u2`, the
+        // transposes in `tr` and `tr_ff`: a buffer that changed shape within a step was
+        // reallocated and zeroed twice a step (filters with more states than the truth).
         g.right_tr_into(p_tt, &mut self.t1);
         l.right_tr_into(&self.p_tf, &mut self.t2);
         add_into(&self.t1, &self.t2, &mut self.s_tf);
         transpose_into(&self.p_tf, &mut self.tr);
-        g.right_tr_into(&self.tr, &mut self.t1);
-        l.right_tr_into(&self.p_ff, &mut self.t2);
-        add_into(&self.t1, &self.t2, &mut self.v);
+        g.right_tr_into(&self.tr, &mut self.u1);
+        l.right_tr_into(&self.p_ff, &mut self.u2);
+        add_into(&self.u1, &self.u2, &mut self.v);
         transpose_into(&self.s_tf, &mut self.tr);
-        g.right_tr_into(&self.tr, &mut self.t1);
-        transpose_into(&self.v, &mut self.tr);
-        l.right_tr_into(&self.tr, &mut self.t2);
-        add_into(&self.t1, &self.t2, &mut self.s_ff);
-        k.sandwich_into(&truth.R, k, &mut self.scratch_k, &mut self.t1);
-        self.s_ff += &self.t1;
+        g.right_tr_into(&self.tr, &mut self.u1);
+        transpose_into(&self.v, &mut self.tr_ff);
+        l.right_tr_into(&self.tr_ff, &mut self.u2);
+        add_into(&self.u1, &self.u2, &mut self.s_ff);
+        k.sandwich_into(&truth.R, k, &mut self.scratch_k, &mut self.u1);
+        self.s_ff += &self.u1;
         crate::linalg::symmetrize(&mut self.s_ff);
         sized(&mut self.g_mp, g_dense.nrows());
         g_dense.mul_to(mp_t, &mut self.g_mp);
         sized(&mut self.mu_f, cu.IKH.nrows());
         cu.IKH.mul_to(&self.mp_f, &mut self.mu_f);
         self.mu_f += &self.g_mp;
+    }
+}
+
+/// `out += a b'` (out: a.len() × b.len()), by columns.
+fn add_outer(out: &mut DMatrix<f64>, a: &DVector<f64>, b: &DVector<f64>) {
+    let r = a.len();
+    for (col, &bc) in out.as_mut_slice().chunks_exact_mut(r).zip(b.iter()) {
+        for (o, &ar) in col.iter_mut().zip(a.iter()) {
+            *o += ar * bc;
+        }
     }
 }
 

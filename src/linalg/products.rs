@@ -101,11 +101,7 @@ impl Sparse {
                     continue;
                 }
                 for &(i, v) in &self.entries[self.start[p]..self.start[p + 1]] {
-                    debug_assert!(i < r);
-                    // SAFETY: `by_columns` stores a column's row indices below its `inner`,
-                    // which is `nrows` = r here, and `col` holds r entries. The bounds
-                    // check per entry was a tenth of this loop's time.
-                    unsafe { *col.get_unchecked_mut(i) += v * bp };
+                    col[i] += v * bp;
                 }
             }
         }

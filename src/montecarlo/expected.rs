@@ -644,6 +644,10 @@ impl JointWork {
 /// `out += a b'` (out: a.len() × b.len()), by columns.
 fn add_outer(out: &mut DMatrix<f64>, a: &DVector<f64>, b: &DVector<f64>) {
     let r = a.len();
+    debug_assert_eq!(out.shape(), (r, b.len()));
+    if r == 0 {
+        return;
+    }
     for (col, &bc) in out.as_mut_slice().chunks_exact_mut(r).zip(b.iter()) {
         for (o, &ar) in col.iter_mut().zip(a.iter()) {
             *o += ar * bc;

@@ -2,7 +2,7 @@
 
 #![allow(non_snake_case)]
 
-use nalgebra::DMatrix;
+use nalgebra::{DMatrix, DVector};
 
 use super::conditioning::check_conditioned;
 use super::joseph::{CovarianceUpdate, joseph_update, joseph_update_sparse};
@@ -101,7 +101,7 @@ impl Filter for KalmanFilter {
 
     fn predict(&self, k: usize, est: &mut Estimate) -> PredictResult {
         est.x = &self.F * &est.x;
-        est.P = super::recursion_memo::predict(self, k, &est.P);
+        super::recursion_memo::predict(self, k, &mut est.P);
         // The map's storage is reused from step to step where it has F's shape.
         match &mut est.error_map {
             Some(a) if a.shape() == self.F.shape() => a.copy_from(&self.F),
@@ -113,13 +113,82 @@ impl Filter for KalmanFilter {
     fn update(&self, k: usize, est: &mut Estimate, meas: &Measurement) -> UpdateResult {
         let m = self.H.nrows();
         super::check_measurement((meas.sensor == 0).then_some(m), meas)?;
-        let cu = super::recursion_memo::update(self, k, &est.P)?;
-        let nu = &meas.z - &self.H * &est.x;
-        est.x += &cu.K * &nu;
-        est.P = cu.P;
-        est.compose_error_map(&cu.IKH);
-        let nis = mahalanobis_sq(&cu.chol, &nu);
-        Ok(Innovation { nu, S: cu.S, nis })
+        self.update_mean(k, est, meas, |nu, S, nis| Innovation {
+            nu,
+            S: S.clone(),
+            nis,
+        })
+    }
+
+    fn update_into(
+        &self,
+        k: usize,
+        est: &mut Estimate,
+        meas: &Measurement,
+        out: &mut Innovation,
+    ) -> Result<(), FilterError> {
+        let m = self.H.nrows();
+        super::check_measurement((meas.sensor == 0).then_some(m), meas)?;
+        self.update_mean(k, est, meas, |nu, S, nis| {
+            out.nu = nu;
+            // S into the innovation's own storage where it has S's shape.
+            if out.S.shape() == S.shape() {
+                out.S.copy_from(S);
+            } else {
+                out.S = S.clone();
+            }
+            out.nis = nis;
+        })
+    }
+
+    fn state_error_into(
+        &self,
+        truth: &DVector<f64>,
+        estimate: &DVector<f64>,
+        out: &mut DVector<f64>,
+    ) {
+        // `truth − estimate` (the default's), into `out`'s storage.
+        assert_eq!(
+            truth.len(),
+            estimate.len(),
+            "Matrix addition/subtraction dimensions mismatch."
+        );
+        if out.len() != truth.len() {
+            *out = DVector::zeros(truth.len());
+        }
+        out.zip_zip_apply(truth, estimate, |o, t, e| *o = t - e);
+    }
+}
+
+impl KalmanFilter {
+    /// The update of the estimate's mean, covariance and error map at step `k` with the
+    /// remembered covariance update (`update_covariance` of the prior), the innovation,
+    /// its covariance S and NIS handed to `out`: one body for `update` and `update_into`.
+    fn update_mean<R>(
+        &self,
+        k: usize,
+        est: &mut Estimate,
+        meas: &Measurement,
+        out: impl FnOnce(DVector<f64>, &DMatrix<f64>, f64) -> R,
+    ) -> Result<R, FilterError> {
+        super::recursion_memo::update(self, k, est, |u, est| {
+            let cu = &u.cu;
+            let nu = &meas.z - &self.H * &est.x;
+            est.x += &cu.K * &nu;
+            if est.P.shape() == cu.P.shape() {
+                est.P.copy_from(&cu.P);
+            } else {
+                est.P = cu.P.clone();
+            }
+            // After this filter's prediction the map is F, whose composition with I − K H
+            // the memo holds: the same product, computed once for every run.
+            match &mut est.error_map {
+                Some(a) if crate::linalg::same_bits(a, &self.F) => a.copy_from(&u.map),
+                _ => est.compose_error_map(&cu.IKH),
+            }
+            let nis = mahalanobis_sq(&cu.chol, &nu);
+            out(nu, &cu.S, nis)
+        })
     }
 }
 
@@ -204,5 +273,93 @@ mod tests {
             kf.update(1, &mut est, &z),
             Err(FilterError::BadMeasurement { .. })
         ));
+    }
+
+    /// The bits of an estimate: mean, covariance and error map.
+    fn bits(est: &Estimate) -> Vec<u64> {
+        est.x
+            .iter()
+            .chain(est.P.iter())
+            .chain(est.error_map.iter().flatten())
+            .map(|v| v.to_bits())
+            .collect()
+    }
+
+    #[test]
+    fn update_into_and_a_remembered_update_give_the_bits_of_the_textbook_step() {
+        // Several runs of one filter through `update` and `update_into`, the later ones
+        // served by the memo: each step's estimate, innovation, S and NIS are the bits of
+        // the step computed from its definitions (x⁻ = F x, P⁻ = F P F' + Q, the Joseph
+        // update, the map (I − K H) F), whichever path gave them.
+        let kf = cv1d();
+        for run in 0..3 {
+            let (mut a, mut b) = (kf.initial(), kf.initial());
+            let mut reference = kf.initial();
+            let mut out = Innovation::empty();
+            for k in 1..=6 {
+                let z = Measurement {
+                    sensor: 0,
+                    z: DVector::from_column_slice(&[0.7 * k as f64 - 0.3 * run as f64]),
+                };
+                kf.predict(k, &mut a).unwrap();
+                kf.predict(k, &mut b).unwrap();
+                let inn = kf.update(k, &mut a, &z).unwrap();
+                kf.update_into(k, &mut b, &z, &mut out).unwrap();
+
+                reference.x = &kf.F * &reference.x;
+                reference.P = kf.predict_covariance(&reference.P);
+                let cu = kf.update_covariance(&reference.P, k).unwrap();
+                let nu = &z.z - &kf.H * &reference.x;
+                reference.x += &cu.K * &nu;
+                reference.P = cu.P.clone();
+                reference.error_map = Some(&cu.IKH * &kf.F);
+                let nis = mahalanobis_sq(&cu.chol, &nu);
+
+                assert_eq!(bits(&a), bits(&reference), "run {run} step {k}");
+                assert_eq!(bits(&b), bits(&reference), "run {run} step {k}");
+                for i in [&inn, &out] {
+                    assert_eq!(i.nu, nu);
+                    assert_eq!(i.S, cu.S);
+                    assert_eq!(i.nis.to_bits(), nis.to_bits());
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn a_second_update_in_a_step_composes_the_map_it_finds() {
+        // After one update the map is (I − K H) F, not F: a second update of the same step
+        // composes its own I − K H with it instead of taking the remembered (I − K H) F.
+        let kf = cv1d();
+        let mut est = kf.initial();
+        kf.predict(1, &mut est).unwrap();
+        let z = Measurement {
+            sensor: 0,
+            z: DVector::from_column_slice(&[1.0]),
+        };
+        kf.update(1, &mut est, &z).unwrap();
+        let first = est.error_map.clone().unwrap();
+        let prior = est.P.clone();
+        kf.update(1, &mut est, &z).unwrap();
+        let cu = kf.update_covariance(&prior, 1).unwrap();
+        assert_eq!(est.error_map.unwrap(), &cu.IKH * &first);
+    }
+
+    #[test]
+    fn state_error_into_is_the_difference_in_the_buffer_given() {
+        let kf = cv1d();
+        let (t, e) = (
+            DVector::from_column_slice(&[1.5, -0.0]),
+            DVector::from_column_slice(&[0.25, 0.0]),
+        );
+        let mut out = DVector::zeros(7);
+        kf.state_error_into(&t, &e, &mut out);
+        let want = kf.state_error(&t, &e);
+        assert_eq!(out.len(), 2);
+        assert!(
+            out.iter()
+                .zip(&want)
+                .all(|(a, b)| a.to_bits() == b.to_bits())
+        );
     }
 }

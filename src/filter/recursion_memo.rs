@@ -15,9 +15,11 @@ use std::cell::RefCell;
 
 use nalgebra::DMatrix;
 
-use super::FilterError;
+use crate::linalg::same_bits as same;
+
 use super::joseph::CovarianceUpdate;
 use super::kf::KalmanFilter;
+use super::{Estimate, FilterError};
 
 /// Bytes of matrices a thread remembers at most; steps beyond are computed each time.
 const MEMO_BYTES: usize = 16 << 20;
@@ -33,6 +35,15 @@ thread_local! {
 /// A step's input and what was computed from it.
 type Slot<T> = Option<(DMatrix<f64>, T)>;
 
+/// An update remembered: the covariance update, and the step's error map `(I − K H) F`
+/// (what [`super::Estimate::compose_error_map`] makes of the map F that the prediction
+/// set), computed once for all the runs instead of once per run.
+#[derive(Clone)]
+pub(super) struct Updated {
+    pub(super) cu: CovarianceUpdate,
+    pub(super) map: DMatrix<f64>,
+}
+
 #[derive(Default)]
 struct Memo {
     /// The filter the steps belong to: F, Q, H, R.
@@ -40,18 +51,8 @@ struct Memo {
     /// At step k: the posterior predicted from and the prior predicted.
     predicted: Vec<Slot<DMatrix<f64>>>,
     /// At step k: the prior updated from and the update.
-    updated: Vec<Slot<CovarianceUpdate>>,
+    updated: Vec<Slot<Updated>>,
     bytes: usize,
-}
-
-/// Whether `a` and `b` have the same shape and the same bits (−0 is not 0, a NaN equals
-/// nothing a memo would hold).
-fn same(a: &DMatrix<f64>, b: &DMatrix<f64>) -> bool {
-    a.shape() == b.shape()
-        && a.as_slice()
-            .iter()
-            .zip(b.as_slice())
-            .all(|(x, y)| x.to_bits() == y.to_bits())
 }
 
 impl Memo {
@@ -107,12 +108,18 @@ fn bytes(m: &DMatrix<f64>) -> usize {
     m.len() * std::mem::size_of::<f64>()
 }
 
-/// `f.predict_covariance(P)` at step `k`, remembered.
-pub(super) fn predict(f: &KalmanFilter, k: usize, P: &DMatrix<f64>) -> DMatrix<f64> {
+/// `P` predicted at step `k` (`f.predict_covariance(P)`), in place, remembered: a step
+/// served from the memo copies into P's storage instead of allocating.
+pub(super) fn predict(f: &KalmanFilter, k: usize, P: &mut DMatrix<f64>) {
     MEMO.with_borrow_mut(|memo| {
         let memo = memo.for_filter(f);
         if let Some(Pp) = recall(&memo.predicted, k, P) {
-            return Pp.clone();
+            if Pp.shape() == P.shape() {
+                P.copy_from(Pp);
+            } else {
+                *P = Pp.clone();
+            }
+            return;
         }
         let Pp = f.predict_covariance(P);
         remember(
@@ -123,26 +130,35 @@ pub(super) fn predict(f: &KalmanFilter, k: usize, P: &DMatrix<f64>) -> DMatrix<f
             &Pp,
             2 * bytes(P),
         );
-        Pp
+        *P = Pp;
     })
 }
 
-/// `f.update_covariance(Pp, k)`, remembered (a failure is not: it is computed again, with
-/// its own step in the message).
-pub(super) fn update(
+/// `f.update_covariance(&est.P, k)`, remembered, handed to `then` with the step's error
+/// map and the estimate (a failure is not remembered: it is computed again, with its own
+/// step in the message). What is handed over is borrowed from the memo, not cloned.
+pub(super) fn update<R>(
     f: &KalmanFilter,
     k: usize,
-    Pp: &DMatrix<f64>,
-) -> Result<CovarianceUpdate, FilterError> {
+    est: &mut Estimate,
+    then: impl FnOnce(&Updated, &mut Estimate) -> R,
+) -> Result<R, FilterError> {
     MEMO.with_borrow_mut(|memo| {
         let memo = memo.for_filter(f);
-        if let Some(cu) = recall(&memo.updated, k, Pp) {
-            return Ok(cu.clone());
+        if let Some(u) = recall(&memo.updated, k, &est.P) {
+            return Ok(then(u, est));
         }
-        let cu = f.update_covariance(Pp, k)?;
-        let size = bytes(Pp) + bytes(&cu.K) + 2 * bytes(&cu.S) + bytes(&cu.P) + bytes(&cu.IKH);
-        remember(&mut memo.updated, &mut memo.bytes, k, Pp, &cu, size);
-        Ok(cu)
+        let cu = f.update_covariance(&est.P, k)?;
+        let map = &cu.IKH * &f.F;
+        let u = Updated { cu, map };
+        let size = bytes(&est.P)
+            + bytes(&u.cu.K)
+            + 2 * bytes(&u.cu.S)
+            + bytes(&u.cu.P)
+            + bytes(&u.cu.IKH)
+            + bytes(&u.map);
+        remember(&mut memo.updated, &mut memo.bytes, k, &est.P, &u, size);
+        Ok(then(&u, est))
     })
 }
 
@@ -170,12 +186,14 @@ mod tests {
         (1..=steps)
             .map(|k| {
                 let Pp = if memo {
-                    predict(f, k, &P)
+                    let mut Pp = P.clone();
+                    predict(f, k, &mut Pp);
+                    Pp
                 } else {
                     f.predict_covariance(&P)
                 };
                 let cu = if memo {
-                    update(f, k, &Pp)
+                    update(f, k, &mut Estimate::new(&f.x0, &Pp), |u, _| u.cu.clone())
                 } else {
                     f.update_covariance(&Pp, k)
                 };
@@ -230,7 +248,7 @@ mod tests {
         f.R[(0, 0)] = -1e9;
         let Pp = f.predict_covariance(&f.P0);
         for k in [3, 7] {
-            match update(&f, k, &Pp) {
+            match update(&f, k, &mut Estimate::new(&f.x0, &Pp), |_, _| ()) {
                 Err(FilterError::NotPositiveDefinite { which: "S", step }) => assert_eq!(step, k),
                 other => panic!("{other:?}"),
             }
@@ -242,9 +260,10 @@ mod tests {
     fn steps_past_the_bound_are_computed_and_not_held() {
         let f = cv(1.0);
         let far = MEMO_STEPS + 5;
-        let Pp = predict(&f, far, &f.P0);
+        let mut Pp = f.P0.clone();
+        predict(&f, far, &mut Pp);
         assert_eq!(Pp, f.predict_covariance(&f.P0));
-        update(&f, far, &Pp).unwrap();
+        update(&f, far, &mut Estimate::new(&f.x0, &Pp), |_, _| ()).unwrap();
         MEMO.with_borrow(|m| {
             assert!(m.predicted.len() <= MEMO_STEPS && m.updated.len() <= MEMO_STEPS);
             assert_eq!(m.bytes, 0);

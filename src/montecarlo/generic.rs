@@ -352,16 +352,13 @@ where
 
         filter.state_error_into(truth.state(), &est.x, error);
         let e = &*error;
-        if !bufs.factor(&est.P) {
+        let StepBuffers { factors, whitened } = &mut *bufs;
+        let Some(l) = factors.factor(k, &est.P) else {
             return Err(Stop::Filter(FilterError::NotPositiveDefinite {
                 which: "P",
                 step: k,
             }));
-        }
-        let StepBuffers {
-            factor: l,
-            whitened,
-        } = &mut *bufs;
+        };
         check_conditioned_factor("P", &est.P, l, k)?;
         // The estimate's magnitude is comparable with P only when it is laid out as the
         // error state (an error-state filter's nominal state is not).
@@ -406,25 +403,63 @@ struct Work {
 /// [`crate::linalg::mahalanobis_sq`]'s, bit for bit ([`cholesky_in_place`]).
 #[derive(Default)]
 struct StepBuffers {
-    /// P's lower Cholesky factor, n_x × n_x (the strict upper triangle is P's).
-    factor: DMatrix<f64>,
+    /// P's lower Cholesky factors.
+    factors: Factors,
     /// `L⁻¹ e`, n_x.
     whitened: DVector<f64>,
 }
 
-impl StepBuffers {
-    /// Factor P into the kept storage; `false` when P has a non-finite entry or is not
+/// Bytes of P's and their factors a thread's [`Factors`] holds at most, and steps (the
+/// slots take memory before any matrix).
+const FACTOR_BYTES: usize = 4 << 20;
+const FACTOR_STEPS: usize = 1 << 14;
+
+/// P's lower Cholesky factor at each step, with the P it was computed from (n_x × n_x
+/// each; the factor's strict upper triangle is P's). A linear filter's P at a step is the
+/// same in every run, so the runs after the first find the factor of their P, the same
+/// bits, instead of computing it again (it was a tenth of a run's time on a filter held as
+/// code); a filter whose P depends on the readings (an EKF) finds none and computes it, as
+/// before. Steps past the byte budget share one slot and are always computed.
+#[derive(Default)]
+struct Factors {
+    slots: Vec<(DMatrix<f64>, DMatrix<f64>)>,
+}
+
+impl Factors {
+    /// P's factor at step `k` (from 1); `None` when P has a non-finite entry or is not
     /// positive definite.
     #[inline]
-    fn factor(&mut self, p: &DMatrix<f64>) -> bool {
+    fn factor(&mut self, k: usize, p: &DMatrix<f64>) -> Option<&DMatrix<f64>> {
+        let held =
+            (FACTOR_BYTES / (2 * std::mem::size_of::<f64>() * p.len()).max(1)).min(FACTOR_STEPS);
+        let slot = k.saturating_sub(1).min(held);
+        if self.slots.len() <= slot {
+            self.slots
+                .resize_with(slot + 1, || (DMatrix::zeros(0, 0), DMatrix::zeros(0, 0)));
+        }
+        let (from, l) = &mut self.slots[slot];
+        // Only a factor that succeeded is kept with its P, and its P was finite.
+        if slot < held && crate::linalg::same_bits(from, p) {
+            return Some(l);
+        }
         if p.iter().any(|v| !v.is_finite()) {
-            return false;
+            return None;
         }
-        if self.factor.shape() != p.shape() {
-            self.factor = DMatrix::zeros(p.nrows(), p.ncols());
+        if l.shape() != p.shape() {
+            *l = DMatrix::zeros(p.nrows(), p.ncols());
         }
-        self.factor.copy_from(p);
-        cholesky_in_place(&mut self.factor)
+        l.copy_from(p);
+        if !cholesky_in_place(l) {
+            *from = DMatrix::zeros(0, 0);
+            return None;
+        }
+        if slot < held {
+            if from.shape() != p.shape() {
+                *from = DMatrix::zeros(p.nrows(), p.ncols());
+            }
+            from.copy_from(p);
+        }
+        Some(l)
     }
 }
 
@@ -540,5 +575,43 @@ impl RunNullVariance {
                 acc.comp_null_var_runs += 1;
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The lower triangle of `l` has the bits of `linalg::cholesky(p)`'s factor.
+    fn is_factor_of(l: &DMatrix<f64>, p: &DMatrix<f64>) -> bool {
+        let want = crate::linalg::cholesky(p).unwrap().l();
+        (0..p.nrows()).all(|i| (0..=i).all(|j| l[(i, j)].to_bits() == want[(i, j)].to_bits()))
+    }
+
+    #[test]
+    fn a_remembered_factor_is_the_factor_of_the_p_asked_about() {
+        let a = DMatrix::from_row_slice(2, 2, &[4.0, 1.0, 1.0, 3.0]);
+        let b = DMatrix::from_row_slice(2, 2, &[2.0, -0.5, -0.5, 1.0]);
+        let mut f = Factors::default();
+        // Step 1 asked with a, again with a (served), then with b (computed, replacing a),
+        // and a again: each answer is the factor of what was asked.
+        for p in [&a, &a, &b, &a] {
+            assert!(is_factor_of(f.factor(1, p).unwrap(), p));
+        }
+        assert!(is_factor_of(f.factor(2, &b).unwrap(), &b));
+        assert!(is_factor_of(f.factor(1, &a).unwrap(), &a));
+        // Not positive definite, or not finite: none, and not remembered.
+        let indefinite = DMatrix::from_row_slice(2, 2, &[1.0, 2.0, 2.0, 1.0]);
+        assert!(f.factor(1, &indefinite).is_none());
+        assert!(f.factor(1, &indefinite).is_none());
+        let mut nan = a.clone();
+        nan[(1, 1)] = f64::NAN;
+        assert!(f.factor(1, &nan).is_none());
+        assert!(is_factor_of(f.factor(1, &a).unwrap(), &a));
+        // Steps past the budget share one slot and are computed each time.
+        let far = FACTOR_STEPS + 10;
+        assert!(is_factor_of(f.factor(far, &a).unwrap(), &a));
+        assert!(is_factor_of(f.factor(far + 1, &b).unwrap(), &b));
+        assert!(f.slots.len() <= FACTOR_STEPS + 1);
     }
 }

@@ -1,8 +1,4 @@
-//! The linear fast path: for a linear filter measured on a fixed schedule, P_k, S_k and
-//! K_k do not depend on the data, so they are computed once per evaluation and every run
-//! only propagates its mean. Runs are processed a chunk at a time as the rows of B × n
-//! matrices, so each step is a handful of products whose inner loops run over the B runs,
-//! instead of B·(several) tiny matrix-vector products with their per-call overhead.
+//! One chunk of the linear fast path's runs, as the rows of B × n matrices.
 
 #![allow(non_snake_case)]
 
@@ -12,324 +8,24 @@ use nalgebra::{DMatrix, DVector};
 use rand::RngExt;
 use rand_distr::StandardNormal;
 
-use super::generic::{Fault, MAX_RATIO_SQ};
-use super::{McConfig, RunOptions, run_chunked, run_rng};
-use crate::filter::conditioning::check_conditioned;
-use crate::filter::{Filter, FilterError, KalmanFilter};
-use crate::linalg::{cholesky, inverse_cholesky_factor, spd_inverse};
+use super::kernels::{
+    col, col_mut, dot, from_abs_bits, gemm_rows, max_abs_bits, row_norms, zero_row,
+};
+use super::schedule::Schedule;
+use crate::filter::{Filter, KalmanFilter};
 use crate::model::{LinearGaussianModel, sample_gaussian};
+use crate::montecarlo::generic::{Fault, MAX_RATIO_SQ};
+use crate::montecarlo::{McConfig, run_rng};
 use crate::stats::Accumulator;
-use crate::stats::{ComponentNullVariance, GateMode, NeesNullVariance};
-
-/// The data-independent part of the filter, per step.
-struct Schedule {
-    /// Gains, transposed (m × n), to multiply run rows from the right.
-    Kt: Vec<DMatrix<f64>>,
-    /// `(L_P⁻¹)'`, so NEES = |e' Wt|².
-    Wt: Vec<DMatrix<f64>>,
-    /// `(L_S⁻¹)'`, so NIS = |ν' Vt|².
-    Vt: Vec<DMatrix<f64>>,
-    /// 1 / P_jj.
-    p_inv_diag: Vec<DVector<f64>>,
-    /// 1 / √S_jj.
-    s_inv_sqrt_diag: Vec<DVector<f64>>,
-    null_var: f64,
-    /// The predicted variance of each state component's per-run sum (empty when the gate
-    /// does not test components).
-    comp_null_var: Vec<f64>,
-    /// The predicted variance of each state component's per-run sum of `e_j/√P_jj` (empty
-    /// when the gate does not test components).
-    mean_null_var: Vec<f64>,
-    /// 1 / √P_jj.
-    p_inv_sqrt_diag: Vec<DVector<f64>>,
-}
-
-/// Relative change below which a covariance entry or increment counts as unchanged.
-pub(super) const STEADY_RTOL: f64 = 1e-14;
-
-/// Unchanged steps in a row after which the recursion is in steady state.
-pub(super) const STEADY_STEPS: usize = 3;
-
-/// Whether every entry of `a` equals `b`'s to [`STEADY_RTOL`] relative to the geometric
-/// mean of the two diagonal entries it couples (a unit-free test).
-pub(super) fn same_covariance(a: &DMatrix<f64>, b: &DMatrix<f64>) -> bool {
-    let n = a.nrows();
-    (0..n).all(|i| {
-        (0..n).all(|j| {
-            let scale = (a[(i, i)] * a[(j, j)]).abs().sqrt();
-            (a[(i, j)] - b[(i, j)]).abs() <= STEADY_RTOL * scale
-        })
-    })
-}
-
-impl Schedule {
-    /// Index of the stored matrices for step index `i` (the last stored ones once steady).
-    fn at(&self, i: usize) -> usize {
-        i.min(self.Kt.len() - 1)
-    }
-
-    /// The schedule of `f` over `steps` steps, the NEES and the state components taken on
-    /// its first `judged` states (all n but for a filter with states the truth lacks).
-    fn compute(
-        f: &KalmanFilter,
-        steps: usize,
-        components: bool,
-        judged: usize,
-    ) -> Result<Self, FilterError> {
-        let n = f.n_x();
-        let mut s = Schedule {
-            Kt: Vec::with_capacity(steps),
-            Wt: Vec::with_capacity(steps),
-            Vt: Vec::with_capacity(steps),
-            p_inv_diag: Vec::with_capacity(steps),
-            s_inv_sqrt_diag: Vec::with_capacity(steps),
-            null_var: 0.0,
-            comp_null_var: Vec::new(),
-            mean_null_var: Vec::new(),
-            p_inv_sqrt_diag: Vec::with_capacity(steps),
-        };
-        let mut P = f.P0.clone();
-        let mut nv = NeesNullVariance::judged(n, judged);
-        let mut cv = components.then(|| ComponentNullVariance::new(n));
-        let mut last_cinc: Vec<f64> = Vec::new();
-        // A time-invariant filter's covariance converges; once P and the null-variance
-        // increment have stopped changing for a few steps, the last step's matrices serve
-        // all remaining steps ([`Schedule::at`]) and the increment is extrapolated.
-        let (mut quiet_p, mut quiet_v, mut last_inc) = (0usize, 0usize, f64::NAN);
-        let mut p_steady = false;
-        for k in 1..=steps {
-            if p_steady && quiet_v >= STEADY_STEPS {
-                nv.extend_steady(last_inc, steps - k + 1);
-                if let Some(cv) = &mut cv {
-                    cv.extend_steady(&last_cinc, steps - k + 1);
-                }
-                break;
-            }
-            let Pp = f.predict_covariance(&P);
-            let cu = f.update_covariance(&Pp, k)?;
-            let chol = cholesky(&cu.P).ok_or(FilterError::NotPositiveDefinite {
-                which: "P",
-                step: k,
-            })?;
-            check_conditioned("P", &cu.P, &chol, k)?;
-            let chol = if judged == n {
-                chol
-            } else {
-                cholesky(&cu.P.view((0, 0), (judged, judged)).clone_owned()).ok_or(
-                    FilterError::NotPositiveDefinite {
-                        which: "P",
-                        step: k,
-                    },
-                )?
-            };
-            let map = &cu.IKH * &f.F;
-            let inc = nv.step_judged(&map, &cu.P, &spd_inverse(chol.l_dirty()));
-            let cinc = cv
-                .as_mut()
-                .map(|cv| cv.step(&map, &cu.P))
-                .unwrap_or_default();
-            let comps_quiet = cinc.len() == last_cinc.len()
-                && cinc
-                    .iter()
-                    .zip(&last_cinc)
-                    .all(|(a, b)| (a - b).abs() <= STEADY_RTOL * a.abs());
-            last_cinc = cinc;
-            quiet_v = if (inc - last_inc).abs() <= STEADY_RTOL * inc.abs() && comps_quiet {
-                quiet_v + 1
-            } else {
-                0
-            };
-            last_inc = inc;
-            if !p_steady {
-                quiet_p = if same_covariance(&cu.P, &P) {
-                    quiet_p + 1
-                } else {
-                    0
-                };
-                p_steady = quiet_p >= STEADY_STEPS;
-                s.Wt.push(inverse_cholesky_factor(&chol).transpose());
-                s.Vt.push(inverse_cholesky_factor(&cu.chol).transpose());
-                let judged_diag = cu.P.diagonal().rows(0, judged).clone_owned();
-                s.p_inv_diag.push(judged_diag.map(|v| 1.0 / v));
-                s.p_inv_sqrt_diag.push(judged_diag.map(|v| 1.0 / v.sqrt()));
-                s.s_inv_sqrt_diag
-                    .push(cu.S.diagonal().map(|v| 1.0 / v.sqrt()));
-                s.Kt.push(cu.K.transpose());
-            }
-            P = cu.P;
-        }
-        s.null_var = nv.variance();
-        if let Some(cv) = &cv {
-            s.comp_null_var = cv.variances()[..judged].to_vec();
-            s.mean_null_var = cv.mean_variances()[..judged].to_vec();
-        }
-        Ok(s)
-    }
-}
-
-/// Run the Monte Carlo test of a linear Kalman filter against a linear-Gaussian truth.
-///
-/// Gives the same statistics as [`super::run_generic`] on the same pair (to rounding: the
-/// random draws are the same, the arithmetic is reordered), several times faster.
-pub fn run_linear(
-    truth: &LinearGaussianModel,
-    filter: &KalmanFilter,
-    mc: &McConfig,
-) -> Accumulator {
-    run_linear_with(truth, filter, None, mc, RunOptions::default())
-}
-
-/// [`run_linear`] for a filter whose state is `map · x_true` (n_f × n_t; `None`: the
-/// truth's state), the NEES taken on `map · x_true − x̂`, with options: progress after each
-/// parallel wave, and a share of the chunks (the engine path in the options is not read).
-/// A run whose numbers stop meaning anything (the truth overflows, the
-/// state outgrows double precision, the NEES or NIS overflows) stops there as a divergence,
-/// as on the generic path.
-pub fn run_linear_with(
-    truth: &LinearGaussianModel,
-    filter: &KalmanFilter,
-    map: Option<&DMatrix<f64>>,
-    mc: &McConfig,
-    options: RunOptions<'_>,
-) -> Accumulator {
-    // A map with fewer rows than the filter has states judges its first ones only.
-    let n = map.map_or(filter.n_x(), |m| m.nrows());
-    let m = filter.H.nrows();
-    let map_t = map.map(|m| m.transpose());
-    match Schedule::compute(filter, mc.steps(), mc.gate() == GateMode::Full, n) {
-        Ok(sched) => run_chunked(mc, n, m, options, |range, acc| {
-            let job = Job {
-                truth,
-                f: filter,
-                map_t: map_t.as_ref(),
-                sched: &sched,
-                mc,
-            };
-            run_chunk_dispatch(&job, range, acc)
-        }),
-        // The covariance recursion is the same in every run, so every run stops at the same
-        // step.
-        Err(e) => super::all_stopped_with(mc, n, m, &e, options),
-    }
-}
-
-/// `Σ a_i b_i` with four independent partial sums, so the additions pipeline instead of
-/// forming one long dependency chain (the order is fixed, so results stay reproducible).
-#[inline(always)]
-fn dot(a: &[f64], b: &[f64]) -> f64 {
-    let mut p = [0.0; 4];
-    let (ca, cb) = (a.chunks_exact(4), b.chunks_exact(4));
-    let (ra, rb) = (ca.remainder(), cb.remainder());
-    for (x, y) in ca.zip(cb) {
-        for l in 0..4 {
-            p[l] += x[l] * y[l];
-        }
-    }
-    let tail: f64 = ra.iter().zip(rb).map(|(x, y)| x * y).sum();
-    (p[0] + p[1]) + (p[2] + p[3]) + tail
-}
-
-/// `c ← α a b + β c` where `a` and `c` hold one run per row (B × k and B × n) and `b` is a
-/// small k × n matrix. Each output column is a sum of k scaled columns of `a`, so the inner
-/// loop runs over the B runs on contiguous memory and vectorizes. (nalgebra's `gemm` takes
-/// the same approach below six columns but through strided generic iterators that cost
-/// several times more per element here.)
-#[inline(always)]
-fn gemm_rows(c: &mut DMatrix<f64>, alpha: f64, a: &DMatrix<f64>, b: &DMatrix<f64>, beta: f64) {
-    let rows = a.nrows();
-    debug_assert_eq!(a.ncols(), b.nrows());
-    debug_assert_eq!(c.shape(), (rows, b.ncols()));
-    for j in 0..b.ncols() {
-        let cj = col_mut(c, j);
-        if beta == 0.0 {
-            cj.fill(0.0);
-        } else if beta != 1.0 {
-            cj.iter_mut().for_each(|v| *v *= beta);
-        }
-        for l in 0..a.ncols() {
-            let s = alpha * b[(l, j)];
-            if s != 0.0 {
-                for (x, y) in cj.iter_mut().zip(col(a, l)) {
-                    *x += s * y;
-                }
-            }
-        }
-    }
-}
-
-/// Column `j` of a column-major B-row matrix as a slice.
-#[inline(always)]
-fn col(m: &DMatrix<f64>, j: usize) -> &[f64] {
-    let b = m.nrows();
-    &m.as_slice()[j * b..(j + 1) * b]
-}
-
-#[inline(always)]
-fn col_mut(m: &mut DMatrix<f64>, j: usize) -> &mut [f64] {
-    let b = m.nrows();
-    &mut m.as_mut_slice()[j * b..(j + 1) * b]
-}
-
-/// [`run_chunk`] compiled for AVX2 where the CPU has it (checked at run time), else for the
-/// baseline. The arithmetic is the same element by element (Rust never fuses a multiply and
-/// an add on its own, and every reduction has a fixed order), so results are identical;
-/// only the vector width changes.
-fn run_chunk_dispatch(job: &Job<'_>, range: Range<usize>, acc: &mut Accumulator) {
-    #[cfg(target_arch = "x86_64")]
-    if std::is_x86_feature_detected!("avx2") {
-        // SAFETY: the CPU supports AVX2, checked just above.
-        unsafe { run_chunk_avx2(job, range, acc) };
-        return;
-    }
-    run_chunk(job, range, acc);
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-fn run_chunk_avx2(job: &Job<'_>, range: Range<usize>, acc: &mut Accumulator) {
-    run_chunk(job, range, acc);
-}
 
 /// What every chunk of one evaluation shares.
-struct Job<'a> {
-    truth: &'a LinearGaussianModel,
-    f: &'a KalmanFilter,
+pub(super) struct Job<'a> {
+    pub(super) truth: &'a LinearGaussianModel,
+    pub(super) f: &'a KalmanFilter,
     /// The truth-to-filter map, transposed (n_t × n_f), to multiply run rows from the right.
-    map_t: Option<&'a DMatrix<f64>>,
-    sched: &'a Schedule,
-    mc: &'a McConfig,
-}
-
-/// The largest magnitude in `v` as a bit pattern: the bits of `|x|` order as the numbers do
-/// and a NaN's lie above infinity's, so one integer maximum (which vectorizes) finds both.
-#[inline(always)]
-fn max_abs_bits(acc: i64, v: f64) -> i64 {
-    acc.max(v.to_bits() as i64 & i64::MAX)
-}
-
-/// `|x|` from [`max_abs_bits`].
-#[inline(always)]
-fn from_abs_bits(b: i64) -> f64 {
-    f64::from_bits(b as u64)
-}
-
-/// Per-row `Σ_j mat[r, j]²` into `sq`, and its total.
-#[inline(always)]
-fn row_norms(sq: &mut [f64], mat: &DMatrix<f64>) -> f64 {
-    sq.fill(0.0);
-    for j in 0..mat.ncols() {
-        for (s, v) in sq.iter_mut().zip(col(mat, j)) {
-            *s += v * v;
-        }
-    }
-    sq.iter().sum::<f64>()
-}
-
-/// Zero row `r` of each matrix.
-fn zero_row(r: usize, mats: &mut [&mut DMatrix<f64>]) {
-    for m in mats.iter_mut() {
-        m.row_mut(r).fill(0.0);
-    }
+    pub(super) map_t: Option<&'a DMatrix<f64>>,
+    pub(super) sched: &'a Schedule,
+    pub(super) mc: &'a McConfig,
 }
 
 /// Runs `range` as the rows of B × n matrices (one row per run), so every product is a few
@@ -340,7 +36,7 @@ fn zero_row(r: usize, mats: &mut [&mut DMatrix<f64>]) {
 /// Every stage is `#[inline(always)]`, so that the whole step loop is compiled as one body
 /// for the AVX2 build of [`run_chunk_dispatch`].
 #[inline(always)]
-fn run_chunk(job: &Job<'_>, range: Range<usize>, acc: &mut Accumulator) {
+pub(super) fn run_chunk(job: &Job<'_>, range: Range<usize>, acc: &mut Accumulator) {
     let mut c = Chunk::new(job, range);
     for k in 1..=job.mc.steps() {
         let si = job.sched.at(k - 1);
@@ -729,53 +425,5 @@ impl Chunk {
             }
             acc.comp_null_var_runs += live;
         }
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::params::dwna_block;
-
-    #[test]
-    fn avx2_build_gives_the_same_sums_as_the_baseline() {
-        let F = DMatrix::from_row_slice(2, 2, &[1.0, 1.0, 0.0, 1.0]);
-        let H = DMatrix::from_row_slice(1, 2, &[1.0, 0.0]);
-        let truth = LinearGaussianModel::new(
-            F.clone(),
-            H.clone(),
-            dwna_block(1.0) * 0.5,
-            DMatrix::from_element(1, 1, 1.0),
-            DVector::from_column_slice(&[0.0, 1.0]),
-            DMatrix::from_diagonal(&DVector::from_column_slice(&[4.0, 1.0])),
-        )
-        .unwrap();
-        let kf = KalmanFilter {
-            F,
-            H,
-            Q: dwna_block(1.0) * 0.2,
-            R: DMatrix::from_element(1, 1, 2.0),
-            x0: truth.x0.clone(),
-            P0: truth.P0.clone(),
-        };
-        let mc = McConfig::new(100, 50)
-            .unwrap()
-            .with_seed(7)
-            .with_lags(3)
-            .unwrap();
-        let sched = Schedule::compute(&kf, mc.steps(), true, kf.n_x()).unwrap();
-        let mut base = Accumulator::new(50, 2, 1, 3);
-        let job = Job {
-            truth: &truth,
-            f: &kf,
-            map_t: None,
-            sched: &sched,
-            mc: &mc,
-        };
-        run_chunk(&job, 0..100, &mut base);
-        let mut fast = Accumulator::new(50, 2, 1, 3);
-        run_chunk_dispatch(&job, 0..100, &mut fast);
-        assert_eq!(base, fast);
-        assert!(base.nees_sum.iter().all(|v| *v > 0.0));
     }
 }

@@ -1,95 +1,19 @@
-//! The generic engine: any [`TruthModel`] against any [`Filter`], one run at a time.
-//!
-//! A run stops, recorded with its cause and reason ([`StopCause`]) and contributing nothing
-//! at the step it stops, when its filter fails ([`FilterError`], including a covariance too
-//! ill-conditioned to invert: [`crate::filter::conditioning`]) or when its numbers stop
-//! meaning anything ([`Fault`]): the truth state overflows, the state outgrows double
-//! precision relative to the filter's standard deviation, or the NEES or NIS overflows.
+//! One run of the generic engine: its steps, the NEES's factor of P, and the run's
+//! predicted NEES variance.
 
 use nalgebra::{DMatrix, DVector};
-use rayon::prelude::*;
 
-use super::tape::{Live, Replay, TruthCache, TruthSource, TruthTape};
-use super::{McConfig, RunOptions, record_divergence, run_chunked};
-use crate::filter::conditioning::{MAX_CONDITION, check_conditioned_factor};
+use super::fault::Fault;
+use crate::filter::conditioning::check_conditioned_factor;
 use crate::filter::{Estimate, Filter, FilterError, Innovation, check_measurement};
 use crate::linalg::cholesky_in_place;
-use crate::measurement::{Measurement, sensor_offsets};
-use crate::model::TruthModel;
-use crate::stats::{
-    Accumulator, ComponentNullVariance, GateMode, NeesNullVariance, RunRecorder, StopCause,
-};
-
-/// Why a run stopped though its filter did not fail: its numbers would mean nothing.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub(super) enum Fault {
-    /// The truth state stopped being finite.
-    TruthOverflow,
-    /// The estimate of `state` (on the exact path, the truth's root mean square) is `ratio`
-    /// times both its standard deviation `√P_jj` and its actual error `|e_j|` away from
-    /// zero, above [`MAX_CONDITION`]: the error `x − x̂` is then formed from two numbers
-    /// whose rounding (`u |x̂|`, u = 1.1e-16) exceeds 1e-4 of the error's own size, the same
-    /// loss the conditioning bound allows ([`crate::filter::conditioning`]). Both scales
-    /// count, so that a filter whose P is far too small (its error is then far above √P,
-    /// and its NEES a true "overconfident") is not mistaken for a truth outgrowing the
-    /// double format.
-    Resolution {
-        /// Index of the filter's state.
-        state: usize,
-        /// `|x̂_j| / max(√P_jj, |e_j|)` (exact path: `√E[x_j²] / max(√P_jj, √E[e_j²])`).
-        ratio: f64,
-    },
-    /// The NEES or NIS is not finite although truth and estimate are.
-    Overflow,
-}
-
-/// `ratio²` above which [`Fault::Resolution`] stops a run.
-pub(super) const MAX_RATIO_SQ: f64 = MAX_CONDITION * MAX_CONDITION;
-
-impl Fault {
-    /// How the report counts a run stopped by this fault: an estimate beyond double
-    /// precision means the truth it tracks is (the filter's error is within its covariance
-    /// until then, or the NEES would have said so); an overflowing NEES with finite truth
-    /// and estimate is a filter whose error has left its covariance.
-    pub(super) fn cause(self) -> StopCause {
-        match self {
-            Fault::TruthOverflow | Fault::Resolution { .. } => StopCause::TruthOverflow,
-            Fault::Overflow => StopCause::Diverged,
-        }
-    }
-
-    /// The divergence reason for a run stopped by this fault at `step`.
-    pub(super) fn reason(self, step: usize) -> String {
-        match self {
-            Fault::TruthOverflow => format!(
-                "the truth state overflowed at step {step}: the truth model is unstable over this horizon"
-            ),
-            Fault::Resolution { state, ratio } => format!(
-                "state {state} outgrew double precision at step {step}: it is {ratio:.1e} standard deviations from zero (above {MAX_CONDITION:.0e}), so x − x̂ keeps fewer than 4 digits; the truth model is unstable over this horizon"
-            ),
-            Fault::Overflow => {
-                format!(
-                    "the NEES or NIS overflowed at step {step}: the error is beyond 1e154 standard deviations"
-                )
-            }
-        }
-    }
-
-    /// The first of `n` states whose estimate has outgrown double precision, given
-    /// `ratio_sq(j) = x̂_j² / max(P_jj, e_j²)` (a NaN is left to the NEES check).
-    pub(super) fn resolution(n: usize, ratio_sq: impl Fn(usize) -> f64) -> Option<Fault> {
-        (0..n).find_map(|j| {
-            let r = ratio_sq(j);
-            (r > MAX_RATIO_SQ).then(|| Fault::Resolution {
-                state: j,
-                ratio: r.sqrt(),
-            })
-        })
-    }
-}
+use crate::measurement::Measurement;
+use crate::montecarlo::McConfig;
+use crate::montecarlo::tape::TruthSource;
+use crate::stats::{Accumulator, ComponentNullVariance, GateMode, NeesNullVariance, RunRecorder};
 
 /// Why [`one_run`] stopped.
-enum Stop {
+pub(super) enum Stop {
     Filter(FilterError),
     Fault(Fault, usize),
 }
@@ -107,208 +31,14 @@ impl From<FilterError> for Stop {
 /// a linear filter it is the same in every run, and the estimate is exact).
 pub const NULL_VAR_STRIDE: usize = 8;
 
-/// Run the Monte Carlo test with any truth model and filter, one run at a time (the general
-/// path: nonlinear models, filters whose gain depends on the data, changing measurements).
-pub fn run_generic<M, F>(truth: &M, filter: &F, mc: &McConfig) -> Accumulator
-where
-    M: TruthModel + ?Sized,
-    F: Filter + ?Sized,
-{
-    run_generic_with(truth, filter, mc, RunOptions::default())
-}
-
-/// [`run_generic`] with options: progress after each parallel wave, and a share of the
-/// chunks (the engine path in the options is not read: this is the generic one).
-pub fn run_generic_with<M, F>(
-    truth: &M,
-    filter: &F,
-    mc: &McConfig,
-    options: RunOptions<'_>,
-) -> Accumulator
-where
-    M: TruthModel + ?Sized,
-    F: Filter + ?Sized,
-{
-    run_with_tape(truth, filter, mc, options, None)
-}
-
-/// [`run_generic_with`] for a truth that does not depend on the filter's
-/// parameters: a seed set evaluated before is replayed from `cache` rather than simulated
-/// again (the sums are bit-identical; see [`TruthCache`]).
-pub fn run_generic_cached<M, F>(
-    truth: &M,
-    filter: &F,
-    mc: &McConfig,
-    options: RunOptions<'_>,
-    cache: &TruthCache,
-) -> Accumulator
-where
-    M: TruthModel + ?Sized,
-    F: Filter + ?Sized,
-{
-    let share = options.share.map_or(super::Share::WHOLE, |s| s.share);
-    let tape = cache.tape(truth, mc, share);
-    run_with_tape(truth, filter, mc, options, tape.as_deref())
-}
-
-/// The generic engine on `tape`'s runs where given (it must cover `mc`), else simulating.
-fn run_with_tape<M, F>(
-    truth: &M,
-    filter: &F,
-    mc: &McConfig,
-    options: RunOptions<'_>,
-    tape: Option<&TruthTape>,
-) -> Accumulator
-where
-    M: TruthModel + ?Sized,
-    F: Filter + ?Sized,
-{
-    let share = options.share.map_or(super::Share::WHOLE, |s| s.share);
-    debug_assert!(tape.is_none_or(|t| t.covers(mc, share)));
-    let n_x = filter.n_x();
-    let dims = filter.sensor_dims();
-    let offsets = sensor_offsets(&dims);
-    let n_z: usize = dims.iter().sum();
-    let shape = Shape {
-        offsets: &offsets,
-        dims: &dims,
-    };
-    let side_by_side = runs_side_by_side(mc, n_x, n_z);
-    let new_work = || Work {
-        recorder: RunRecorder::new(n_x, n_z, mc.lags()),
-        bufs: StepBuffers::default(),
-        error: DVector::zeros(n_x),
-        innovation: Innovation::empty(),
-        meas: Vec::new(),
-    };
-    let run = |run: usize, acc: &mut Accumulator, work: &mut Work| {
-        work.recorder.reset();
-        let done = match tape {
-            Some(t) => one_run(Replay::new(t.run(run)), filter, mc, run, shape, acc, work),
-            None => {
-                let mut meas = std::mem::take(&mut work.meas);
-                let live = Live::new(truth, mc.seed(), run, &mut meas);
-                let done = one_run(live, filter, mc, run, shape, acc, work);
-                work.meas = meas;
-                done
-            }
-        };
-        match done {
-            Ok(()) => work.recorder.end_run(acc),
-            Err(e) => {
-                work.recorder.stop_run(acc);
-                match e {
-                    Stop::Filter(e) => record_divergence(acc, run, &e),
-                    Stop::Fault(f, step) => acc.record_stop(run, step, f.cause(), f.reason(step)),
-                }
-                acc.runs += 1;
-            }
-        }
-    };
-    run_chunked(mc, n_x, n_z, options, |range, acc| {
-        if side_by_side <= 1 {
-            let mut work = new_work();
-            for r in range {
-                run(r, acc, &mut work);
-            }
-            return;
-        }
-        // Each run adds to every sum of the accumulator at most once (the recorder sums a
-        // run's own steps first), so runs summed apart and added in run order give what
-        // summing them one after the other gives, bit for bit.
-        let (start, end) = (range.start, range.end);
-        for first in (start..end).step_by(side_by_side) {
-            let parts: Vec<Accumulator> = (first..end.min(first + side_by_side))
-                .into_par_iter()
-                .map_init(new_work, |work, r| {
-                    let mut own = Accumulator::new(mc.steps(), n_x, n_z, mc.lags());
-                    run(r, &mut own, work);
-                    own
-                })
-                .collect();
-            for p in &parts {
-                acc.merge(p);
-            }
-        }
-    })
-}
-
-/// Each measurement component's innovation standard deviation √S_jj (in the component's
-/// units), averaged in S over the updates of run 0 of `mc`'s seed set: the scale of what
-/// the filter reads, for changes whose size is a reading (a sensor's offset). `None` where
-/// the run fails, or a component is never measured.
-pub fn innovation_scales<M, F>(truth: &M, filter: &F, mc: &McConfig) -> Option<Vec<f64>>
-where
-    M: TruthModel + ?Sized,
-    F: Filter + ?Sized,
-{
-    let dims = filter.sensor_dims();
-    let starts = sensor_offsets(&dims);
-    let n_z: usize = dims.iter().sum();
-    let (mut total, mut count) = (vec![0.0; n_z], vec![0usize; n_z]);
-    let mut meas = Vec::new();
-    let mut live = Live::new(truth, mc.seed(), 0, &mut meas);
-    let mut est = filter.initial();
-    for k in 1..=mc.steps() {
-        if !live.advance(k) {
-            break;
-        }
-        match live.input() {
-            Some(u) => filter.predict_with_input(k, &mut est, u).ok()?,
-            None => filter.predict(k, &mut est).ok()?,
-        }
-        for m in live.measurements() {
-            check_measurement(dims.get(m.sensor).copied(), m).ok()?;
-            let i = filter.update(k, &mut est, m).ok()?;
-            for j in 0..m.z.len() {
-                total[starts[m.sensor] + j] += i.S[(j, j)];
-                count[starts[m.sensor] + j] += 1;
-            }
-        }
-    }
-    total
-        .iter()
-        .zip(&count)
-        .map(|(t, &c)| {
-            let s = (t / c as f64).sqrt();
-            (c > 0 && s.is_finite() && s > 0.0).then_some(s)
-        })
-        .collect()
-}
-
-/// Bytes a run's sums take, beyond its filter's own storage.
-fn run_bytes(mc: &McConfig, n_x: usize, n_z: usize) -> usize {
-    let per_step = 8;
-    let numbers = per_step * mc.steps() + 12 * n_x + 10 * n_z + 4 * mc.lags() * n_z;
-    numbers.saturating_mul(std::mem::size_of::<f64>())
-}
-
-/// At most this much memory holds runs summed apart.
-const SIDE_BY_SIDE_BYTES: usize = 256 << 20;
-
-/// How many runs of a chunk to compute side by side (1: one after the other). A chunk is
-/// the unit of parallel work, so an evaluation of fewer chunks than threads (60 runs are
-/// one chunk) would leave threads idle; its runs then go to the threads a few at a time,
-/// each into sums of its own, added in run order. Otherwise, and when so many runs' sums
-/// would not fit in [`SIDE_BY_SIDE_BYTES`], one after the other.
-fn runs_side_by_side(mc: &McConfig, n_x: usize, n_z: usize) -> usize {
-    let threads = rayon::current_num_threads();
-    let chunks = mc.runs().div_ceil(super::CHUNK);
-    if threads <= 1 || chunks >= threads {
-        return 1;
-    }
-    let fit = SIDE_BY_SIDE_BYTES / (chunks * run_bytes(mc, n_x, n_z)).max(1);
-    (2 * threads).min(fit).min(super::CHUNK)
-}
-
 /// The filter's sensors: each one's dimension and first component's offset.
 #[derive(Clone, Copy)]
-struct Shape<'a> {
-    offsets: &'a [usize],
-    dims: &'a [usize],
+pub(super) struct Shape<'a> {
+    pub(super) offsets: &'a [usize],
+    pub(super) dims: &'a [usize],
 }
 
-fn one_run<S, F>(
+pub(super) fn one_run<S, F>(
     mut truth: S,
     filter: &F,
     mc: &McConfig,
@@ -389,20 +119,20 @@ where
 
 /// A thread's storage, reused from run to run: the run's recorder, the step's buffers, the
 /// state error (n_x), the last update's innovation and a live truth's measurements.
-struct Work {
-    recorder: RunRecorder,
-    bufs: StepBuffers,
-    error: DVector<f64>,
-    innovation: Innovation,
+pub(super) struct Work {
+    pub(super) recorder: RunRecorder,
+    pub(super) bufs: StepBuffers,
+    pub(super) error: DVector<f64>,
+    pub(super) innovation: Innovation,
     /// A live truth's measurements of the step.
-    meas: Vec<Measurement>,
+    pub(super) meas: Vec<Measurement>,
 }
 
 /// Storage a step's NEES reuses from step to step, so that factoring P and whitening the
 /// error allocate nothing; the arithmetic is [`crate::linalg::cholesky`]'s and
 /// [`crate::linalg::mahalanobis_sq`]'s, bit for bit ([`cholesky_in_place`]).
 #[derive(Default)]
-struct StepBuffers {
+pub(super) struct StepBuffers {
     /// P's lower Cholesky factors.
     factors: Factors,
     /// `L⁻¹ e`, n_x.

@@ -20,7 +20,7 @@ use nalgebra::allocator::Allocator;
 use nalgebra::{Cholesky, DMatrix, DefaultAllocator, Dim, Dyn, OMatrix};
 
 use super::FilterError;
-use crate::linalg::products::Sparse;
+use crate::linalg::products::{Sparse, shaped};
 use crate::linalg::{cholesky, symmetrize};
 
 /// The data-independent half of a Kalman update, for state dimension `N` and measurement
@@ -76,35 +76,112 @@ where
     Ok(CovarianceUpdate { K, S, chol, P, IKH })
 }
 
+/// A dynamic-size update's storage for [`joseph_update_sparse`]: the update, K and
+/// `I − K H` as product operands, and the intermediate products. Kept from step to step,
+/// a recursion allocates nothing after its first steps.
+pub(crate) struct SparseUpdate {
+    /// The update (its storage written over at each step).
+    pub(crate) cu: CovarianceUpdate,
+    /// K and `I − K H` as product operands.
+    pub(crate) k_op: Sparse,
+    pub(crate) ikh_op: Sparse,
+    hp: DMatrix<f64>,
+    scratch: DMatrix<f64>,
+    scratch_r: DMatrix<f64>,
+    krk: DMatrix<f64>,
+    /// The factor of S of the step before the last, whose storage the next factor takes.
+    spare_chol: Option<Cholesky<f64, Dyn>>,
+}
+
+impl Default for SparseUpdate {
+    fn default() -> Self {
+        let empty = || DMatrix::zeros(0, 0);
+        SparseUpdate {
+            cu: CovarianceUpdate {
+                K: empty(),
+                S: empty(),
+                chol: Cholesky::new(DMatrix::identity(1, 1)).expect("the identity's factor"),
+                P: empty(),
+                IKH: empty(),
+            },
+            k_op: Sparse::new(&empty()),
+            ikh_op: Sparse::new(&empty()),
+            hp: empty(),
+            scratch: empty(),
+            scratch_r: empty(),
+            krk: empty(),
+            spare_chol: None,
+        }
+    }
+}
+
+/// [`cholesky`] of `m` in the storage of `old` (a factor given up): nalgebra's
+/// factorization of a copy of `m`, the same bits, without allocating a matrix.
+pub(crate) fn cholesky_reusing(
+    m: &DMatrix<f64>,
+    old: Option<Cholesky<f64, Dyn>>,
+) -> Option<Cholesky<f64, Dyn>> {
+    if m.iter().any(|v| !v.is_finite()) {
+        return None;
+    }
+    let mut storage = match old {
+        Some(c) => c.unpack_dirty(),
+        None => DMatrix::zeros(0, 0),
+    };
+    if storage.shape() != m.shape() {
+        storage = DMatrix::zeros(m.nrows(), m.ncols());
+    }
+    storage.copy_from(m);
+    Cholesky::new(storage)
+}
+
 /// [`joseph_update`] for a dynamic-size filter whose `H` is held by its nonzeros (`h`,
 /// m × n), every product over the operands' nonzeros instead of a general multiplication
 /// (which packs its operands first: at a dozen states that costs as much as the
-/// arithmetic). The same formulas and failures; the sums run in another order, so the
-/// result agrees with [`joseph_update`]'s to rounding, not to the bit. Also returns K and
-/// `I − K H` as operands, for callers that multiply by them again.
-pub fn joseph_update_sparse(
+/// arithmetic), into `out`'s storage. The same formulas and failures; the sums run in
+/// another order, so the result agrees with [`joseph_update`]'s to rounding, not to the
+/// bit. K and `I − K H` are also left as operands, for callers that multiply by them
+/// again. `out` is left partly written when the update fails.
+pub(crate) fn joseph_update_sparse(
     Pp: &DMatrix<f64>,
     h: &Sparse,
     R: &DMatrix<f64>,
     step: usize,
-) -> Result<(CovarianceUpdate, Sparse, Sparse), FilterError> {
-    let HP = h.left(Pp);
-    let mut S = h.right_tr(&HP) + R;
-    symmetrize(&mut S);
-    let chol = cholesky(&S).ok_or(FilterError::NotPositiveDefinite { which: "S", step })?;
-    let K = chol.solve(&HP).transpose();
+    out: &mut SparseUpdate,
+) -> Result<(), FilterError> {
+    let (n, m) = (Pp.nrows(), R.nrows());
+    let cu = &mut out.cu;
+    h.left_into(Pp.as_slice(), n, &mut out.hp);
+    h.right_tr_into(&out.hp, &mut cu.S);
+    cu.S += R;
+    symmetrize(&mut cu.S);
+    let chol = cholesky_reusing(&cu.S, out.spare_chol.take())
+        .ok_or(FilterError::NotPositiveDefinite { which: "S", step })?;
+    out.spare_chol = Some(std::mem::replace(&mut cu.chol, chol));
+    // K = (S⁻¹ H P⁻)', solved in a copy of H P⁻ as Cholesky::solve does.
+    shaped(&mut out.scratch, m, n);
+    out.scratch.copy_from(&out.hp);
+    cu.chol.solve_mut(&mut out.scratch);
+    shaped(&mut cu.K, n, m);
+    out.scratch.transpose_to(&mut cu.K);
     // I − K H: the negated product with 1 added on the diagonal, the same bits.
-    let mut IKH = -h.right(&K);
-    for j in 0..IKH.nrows() {
-        IKH[(j, j)] += 1.0;
+    h.right_into(&cu.K, &mut cu.IKH);
+    cu.IKH.neg_mut();
+    for j in 0..cu.IKH.nrows() {
+        cu.IKH[(j, j)] += 1.0;
     }
-    let (k_op, ikh_op) = (Sparse::new(&K), Sparse::new(&IKH));
-    let mut P = ikh_op.sandwich(Pp, &ikh_op) + k_op.sandwich(R, &k_op);
-    symmetrize(&mut P);
-    if P.iter().any(|v| !v.is_finite()) {
+    out.k_op.reset(&cu.K);
+    out.ikh_op.reset(&cu.IKH);
+    out.ikh_op
+        .sandwich_into(Pp, &out.ikh_op, &mut out.scratch, &mut cu.P);
+    out.k_op
+        .sandwich_into(R, &out.k_op, &mut out.scratch_r, &mut out.krk);
+    cu.P += &out.krk;
+    symmetrize(&mut cu.P);
+    if cu.P.iter().any(|v| !v.is_finite()) {
         return Err(FilterError::NotPositiveDefinite { which: "P", step });
     }
-    Ok((CovarianceUpdate { K, S, chol, P, IKH }, k_op, ikh_op))
+    Ok(())
 }
 
 #[cfg(test)]
@@ -168,7 +245,8 @@ mod tests {
                 &dynamic(P.as_slice(), 4, 4),
                 &h,
                 &dynamic(bad_r.as_slice(), 2, 2),
-                3
+                3,
+                &mut SparseUpdate::default(),
             )
             .err(),
             Some(FilterError::NotPositiveDefinite {
@@ -197,6 +275,7 @@ mod tests {
         // magnitudes over six decades. Every entry within 1e-15 of the matrix's largest:
         // the two differ only in the order of sums of up to a dozen terms (measured: at
         // most 1.3e-16, at 12 states).
+        let mut reused = SparseUpdate::default();
         for (i, &(n, m)) in [(1, 1), (2, 1), (4, 2), (6, 3), (9, 3), (12, 4), (12, 1)]
             .iter()
             .enumerate()
@@ -216,8 +295,21 @@ mod tests {
             let b = entries(m, m, seed + 2);
             let R = &b * b.transpose() + DMatrix::identity(m, m) * 0.5;
             let dense = joseph_update(&Pp, &H, &R, 1).unwrap();
-            let (sparse, k_op, ikh_op) =
-                joseph_update_sparse(&Pp, &Sparse::new(&H), &R, 1).unwrap();
+            // Into storage of another shape's update (reshaped), as a recursion reuses it.
+            let mut out = SparseUpdate::default();
+            joseph_update_sparse(&Pp, &Sparse::new(&H), &R, 1, &mut reused).unwrap();
+            joseph_update_sparse(&Pp, &Sparse::new(&H), &R, 1, &mut out).unwrap();
+            assert_eq!(
+                reused.cu.P, out.cu.P,
+                "the same bits in reused storage {n}×{m}"
+            );
+            assert_eq!(reused.cu.K, out.cu.K);
+            let SparseUpdate {
+                cu: sparse,
+                k_op,
+                ikh_op,
+                ..
+            } = out;
             let close = |x: &DMatrix<f64>, y: &DMatrix<f64>, what: &str| {
                 let top = y.iter().fold(0.0f64, |t, v| t.max(v.abs()));
                 let worst = (x - y).iter().fold(0.0f64, |t, v| t.max(v.abs()));

@@ -2,10 +2,12 @@
 
 #![allow(non_snake_case)]
 
-use nalgebra::{DMatrix, DVector};
+use nalgebra::{Cholesky, DMatrix, DVector, Dyn};
 
 use super::conditioning::check_conditioned;
-use super::joseph::{CovarianceUpdate, joseph_update, joseph_update_sparse};
+use super::joseph::{
+    CovarianceUpdate, SparseUpdate, cholesky_reusing, joseph_update, joseph_update_sparse,
+};
 use super::{Estimate, Filter, FilterError, Innovation, PredictResult, UpdateResult};
 use crate::linalg::products::Sparse;
 use crate::linalg::{cholesky, mahalanobis_sq, symmetrize};
@@ -45,19 +47,33 @@ impl KalmanFilter {
         .map(|(cu, ())| cu)
     }
 
-    /// [`KalmanFilter::update_covariance`] with `H` held by its nonzeros (`h`): the same
-    /// checks and failures around [`joseph_update_sparse`], whose K and `I − K H` operands
-    /// come back with it. For the exact scoring, which runs it at every step of every
-    /// filter a search scores.
+    /// [`KalmanFilter::update_covariance`] with `H` held by its nonzeros (`h`), into the
+    /// storage of `out` (and P⁻'s factor into `prior`'s): the same checks and failures
+    /// around [`joseph_update_sparse`], whose K and `I − K H` operands it leaves beside the
+    /// update. For the exact scoring, which runs it at every step of every filter a search
+    /// scores.
     pub(crate) fn update_covariance_sparse(
         &self,
         Pp: &DMatrix<f64>,
         h: &Sparse,
         step: usize,
-    ) -> Result<(CovarianceUpdate, (Sparse, Sparse)), FilterError> {
-        self.checked(Pp, step, || {
-            joseph_update_sparse(Pp, h, &self.R, step).map(|(cu, k, ikh)| (cu, (k, ikh)))
-        })
+        out: &mut SparseUpdate,
+        prior: &mut Option<Cholesky<f64, Dyn>>,
+    ) -> Result<(), FilterError> {
+        // `checked`'s conditioning checks of P⁻ (before) and S (after).
+        *prior = cholesky_reusing(Pp, prior.take());
+        match prior {
+            Some(chol) => check_conditioned("P⁻", Pp, chol, step)?,
+            None => {
+                return Err(FilterError::IllConditioned {
+                    which: "P⁻",
+                    step,
+                    condition: f64::INFINITY,
+                });
+            }
+        }
+        joseph_update_sparse(Pp, h, &self.R, step, out)?;
+        check_conditioned("S", &out.cu.S, &out.cu.chol, step)
     }
 
     /// `update`'s result between the conditioning checks of `P⁻` (before) and `S` (after).

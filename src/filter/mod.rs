@@ -13,6 +13,7 @@ pub mod unscented;
 
 pub use corrected::{Corrected, Correction};
 pub use joseph::{CovarianceUpdate, joseph_update};
+pub(crate) use joseph::{SparseUpdate, cholesky_reusing};
 pub use kf::KalmanFilter;
 pub use nonlinear::{Ekf, Jacobian, LinearSystem, SystemModel, Ukf, numerical_jacobian};
 

@@ -218,10 +218,19 @@ pub fn inverse_cholesky_factor(chol: &Cholesky<f64, Dyn>) -> DMatrix<f64> {
 /// scoring weighs every step's quadratic forms by the same P⁻¹ and S⁻¹; at a filter's sizes
 /// nalgebra's column-by-column triangular solves cost several times these loops.
 pub fn spd_inverse(l: &DMatrix<f64>) -> DMatrix<f64> {
+    let mut out = DMatrix::zeros(0, 0);
+    spd_inverse_into(l, &mut Vec::new(), &mut out);
+    out
+}
+
+/// [`spd_inverse`] into `out` (reshaped to n × n, its storage kept where it has that shape),
+/// `L⁻¹` in `w`'s storage: the same loops, without allocating at each step of a recursion.
+pub fn spd_inverse_into(l: &DMatrix<f64>, w: &mut Vec<f64>, out: &mut DMatrix<f64>) {
     let n = l.nrows();
     let lv = l.as_slice();
     // W = L⁻¹, lower triangular, column-major.
-    let mut w = vec![0.0; n * n];
+    w.clear();
+    w.resize(n * n, 0.0);
     for j in 0..n {
         w[j + j * n] = 1.0 / lv[j + j * n];
         for i in j + 1..n {
@@ -229,7 +238,8 @@ pub fn spd_inverse(l: &DMatrix<f64>) -> DMatrix<f64> {
             w[i + j * n] = -s / lv[i + i * n];
         }
     }
-    let mut out = DMatrix::zeros(n, n);
+    // Every entry is written below.
+    products::shaped(out, n, n);
     for j in 0..n {
         for i in j..n {
             let s: f64 = (i..n).map(|k| w[k + i * n] * w[k + j * n]).sum();
@@ -237,7 +247,6 @@ pub fn spd_inverse(l: &DMatrix<f64>) -> DMatrix<f64> {
             out[(j, i)] = s;
         }
     }
-    out
 }
 
 /// The fixed-size copy of a dynamic matrix or vector, or `None` when its shape is not

@@ -180,13 +180,13 @@ impl JointWork {
         gains: &JointGains,
         ts: &TruthStep,
     ) {
-        let cu = &step.cu;
+        let cu = &step.up.cu;
         let (mp_t, p_tt) = (&ts.mean, &ts.cov);
         // The update leaves the truth alone and sets x̂ = K H_t x + (I − K H_f) x̂⁻ + K v.
         // With G = K H_t: Cov(x, x̂) = P_tt G' + P_tf L', Cov(x̂) = Cov(x̂, x) G' +
         // (G P_tf + L P_ff) L' + K R K'.
         let JointGains { g_dense, g } = gains;
-        let (k, l) = (&step.k_op, &step.ikh_op);
+        let (k, l) = (&step.up.k_op, &step.up.ikh_op);
         // The n_t × n_f products in `t1`, `t2`, the n_f × n_f ones in `u1`, `u2`, the
         // transposes in `tr` and `tr_ff`: a buffer that changed shape within a step was
         // reallocated and zeroed twice a step (filters with more states than the truth).
@@ -285,7 +285,7 @@ impl<'a> JointMoments<'a> {
         frozen: bool,
         out: &mut StepValues,
     ) {
-        let cu = &fs.cu;
+        let cu = &fs.up.cu;
         // The gain operands of the last step serve a frozen one; otherwise they are rebuilt
         // in their own storage.
         let gains = match self.gains.take() {
@@ -309,7 +309,7 @@ impl<'a> JointMoments<'a> {
         gains: &JointGains,
         out: &mut StepValues,
     ) {
-        let cu = &step.cu;
+        let cu = &step.up.cu;
         let (f_t, h_t, f_f, h_f) = (&self.f_t, &self.h_t, &self.f_f, &self.h_f);
         let m = f.H.nrows();
         let ne = self.ne;
@@ -326,7 +326,7 @@ impl<'a> JointMoments<'a> {
         );
         w.update(truth, step, gains, ts);
         let n_t = w.s_tf.nrows();
-        let (k, l, g) = (&step.k_op, &step.ikh_op, &gains.g);
+        let (k, l, g) = (&step.up.k_op, &step.up.ikh_op, &gains.g);
 
         // The judged error M x − x̂[..ne].
         sized(&mut w.e_mean, ne);

@@ -48,8 +48,8 @@ impl ErrorMoments {
         step: &FilterStep,
         out: &mut StepValues,
     ) {
-        let cu = &step.cu;
-        let (k, l) = (&step.k_op, &step.ikh_op);
+        let cu = &step.up.cu;
+        let (k, l) = (&step.up.k_op, &step.up.ikh_op);
         let (fs, hs) = (&self.f, &self.h);
         let (n, m) = (f.F.nrows(), f.H.nrows());
         // Error moments before and after the update.

@@ -138,6 +138,7 @@ pub fn expected_accumulator_tracked(
     // The filter's latest step, and how many steps in a row its P has not changed: once it
     // is steady (as the Monte Carlo engine judges it), its step serves every later one.
     let mut filt: Option<FilterStep> = None;
+    let mut spare: Option<FilterStep> = None;
     let mut filter_quiet = 0usize;
     let (f_op, h_op) = (Sparse::new(&f.F), Sparse::new(&f.H));
 
@@ -147,7 +148,7 @@ pub fn expected_accumulator_tracked(
             return Ok(stop_all(acc, mc, k, fault));
         }
         if let (Some(v), Some(fs)) = (&steady, &filt) {
-            if let Some(fault) = truth_m2.step(k, &fs.cu.P, &v.comp_x) {
+            if let Some(fault) = truth_m2.step(k, &fs.up.cu.P, &v.comp_x) {
                 return Ok(stop_all(acc, mc, k, fault));
             }
             v.add(&mut acc, i, runs, n, m, &mut comp_x, &mut comp_z, lags, k);
@@ -157,37 +158,39 @@ pub fn expected_accumulator_tracked(
             for (s, y) in mean_z.iter_mut().zip(&v.mean_z) {
                 *s += y;
             }
-            null_var.step_judged(&fs.a, &fs.cu.P, &fs.p_inv);
+            null_var.step_judged(&fs.a, &fs.up.cu.P, &fs.p_inv);
             if let Some(cv) = &mut comp_var {
-                cv.step(&fs.a, &fs.cu.P);
+                cv.step(&fs.a, &fs.up.cu.P);
             }
             continue;
         }
         let frozen = filter_quiet >= FILTER_STEADY_STEPS;
         if !frozen {
-            let next = FilterStep::after(
-                f,
-                (&f_op, &h_op),
-                filt.as_ref().map_or(&f.P0, |s| &s.cu.P),
-                n,
-                k,
-            )?;
+            // The step before the last gives its storage to this one.
+            let from = filt.as_ref().map_or(&f.P0, |s| &s.up.cu.P);
+            let next = match spare.take() {
+                Some(mut s) => {
+                    s.advance(f, (&f_op, &h_op), from, n, k)?;
+                    s
+                }
+                None => FilterStep::after(f, (&f_op, &h_op), from, n, k)?,
+            };
             filter_quiet = match &filt {
-                Some(prev) if same_covariance(&next.cu.P, &prev.cu.P) => filter_quiet + 1,
+                Some(prev) if same_covariance(&next.up.cu.P, &prev.up.cu.P) => filter_quiet + 1,
                 _ => 0,
             };
-            filt = Some(next);
+            spare = filt.replace(next);
         }
         let fs = filt.as_ref().expect("a filter step");
-        null_var.step_judged(&fs.a, &fs.cu.P, &fs.p_inv);
+        null_var.step_judged(&fs.a, &fs.up.cu.P, &fs.p_inv);
         if let Some(cv) = &mut comp_var {
-            cv.step(&fs.a, &fs.cu.P);
+            cv.step(&fs.a, &fs.up.cu.P);
         }
         match &mut moments {
             Moments::Matched(e) => e.advance(truth, f, fs, &mut values),
             Moments::Joint(j) => j.step(i, truth, f, fs, frozen, &mut values),
         }
-        if let Some(fault) = truth_m2.step(k, &fs.cu.P, &values.comp_x) {
+        if let Some(fault) = truth_m2.step(k, &fs.up.cu.P, &values.comp_x) {
             return Ok(stop_all(acc, mc, k, fault));
         }
         values.add(&mut acc, i, runs, n, m, &mut comp_x, &mut comp_z, lags, k);

@@ -21,7 +21,7 @@ use nalgebra::{Cholesky, DMatrix, DefaultAllocator, Dim, Dyn, OMatrix};
 
 use super::FilterError;
 use crate::linalg::products::{Sparse, shaped};
-use crate::linalg::{cholesky, symmetrize};
+use crate::linalg::{cholesky, cholesky_reusing, symmetrize};
 
 /// The data-independent half of a Kalman update, for state dimension `N` and measurement
 /// dimension `M` (dynamic by default).
@@ -113,26 +113,6 @@ impl Default for SparseUpdate {
             spare_chol: None,
         }
     }
-}
-
-/// [`cholesky`] of `m` in the storage of `old` (a factor given up): nalgebra's
-/// factorization of a copy of `m`, the same bits, without allocating a matrix.
-pub(crate) fn cholesky_reusing(
-    m: &DMatrix<f64>,
-    old: Option<Cholesky<f64, Dyn>>,
-) -> Option<Cholesky<f64, Dyn>> {
-    if m.iter().any(|v| !v.is_finite()) {
-        return None;
-    }
-    let mut storage = match old {
-        Some(c) => c.unpack_dirty(),
-        None => DMatrix::zeros(0, 0),
-    };
-    if storage.shape() != m.shape() {
-        storage = DMatrix::zeros(m.nrows(), m.ncols());
-    }
-    storage.copy_from(m);
-    Cholesky::new(storage)
 }
 
 /// [`joseph_update`] for a dynamic-size filter whose `H` is held by its nonzeros (`h`,

@@ -5,12 +5,10 @@
 use nalgebra::{Cholesky, DMatrix, DVector, Dyn};
 
 use super::conditioning::check_conditioned;
-use super::joseph::{
-    CovarianceUpdate, SparseUpdate, cholesky_reusing, joseph_update, joseph_update_sparse,
-};
+use super::joseph::{CovarianceUpdate, SparseUpdate, joseph_update, joseph_update_sparse};
 use super::{Estimate, Filter, FilterError, Innovation, PredictResult, UpdateResult};
 use crate::linalg::products::Sparse;
-use crate::linalg::{cholesky, mahalanobis_sq, symmetrize};
+use crate::linalg::{cholesky, cholesky_reusing, mahalanobis_sq, symmetrize};
 use crate::measurement::Measurement;
 use crate::statespace::LinearGaussian;
 
@@ -127,8 +125,6 @@ impl Filter for KalmanFilter {
     }
 
     fn update(&self, k: usize, est: &mut Estimate, meas: &Measurement) -> UpdateResult {
-        let m = self.H.nrows();
-        super::check_measurement((meas.sensor == 0).then_some(m), meas)?;
         self.update_mean(k, est, meas, |nu, S, nis| Innovation {
             nu,
             S: S.clone(),
@@ -143,8 +139,6 @@ impl Filter for KalmanFilter {
         meas: &Measurement,
         out: &mut Innovation,
     ) -> Result<(), FilterError> {
-        let m = self.H.nrows();
-        super::check_measurement((meas.sensor == 0).then_some(m), meas)?;
         self.update_mean(k, est, meas, |nu, S, nis| {
             out.nu = nu;
             // S into the innovation's own storage where it has S's shape.
@@ -177,8 +171,9 @@ impl Filter for KalmanFilter {
 }
 
 impl KalmanFilter {
-    /// The update of the estimate's mean, covariance and error map at step `k` with the
-    /// remembered covariance update (`update_covariance` of the prior), the innovation,
+    /// The update of the estimate's mean, covariance and error map at step `k` (after
+    /// checking the measurement against the filter's one sensor) with the remembered
+    /// covariance update (`update_covariance` of the prior), the innovation,
     /// its covariance S and NIS handed to `out`: one body for `update` and `update_into`.
     fn update_mean<R>(
         &self,
@@ -187,6 +182,8 @@ impl KalmanFilter {
         meas: &Measurement,
         out: impl FnOnce(DVector<f64>, &DMatrix<f64>, f64) -> R,
     ) -> Result<R, FilterError> {
+        let m = self.H.nrows();
+        super::check_measurement((meas.sensor == 0).then_some(m), meas)?;
         super::recursion_memo::update(self, k, est, |u, est| {
             let cu = &u.cu;
             let nu = &meas.z - &self.H * &est.x;

@@ -12,8 +12,8 @@ mod recursion_memo;
 pub mod unscented;
 
 pub use corrected::{Corrected, Correction};
+pub(crate) use joseph::SparseUpdate;
 pub use joseph::{CovarianceUpdate, joseph_update};
-pub(crate) use joseph::{SparseUpdate, cholesky_reusing};
 pub use kf::KalmanFilter;
 pub use nonlinear::{Ekf, Jacobian, LinearSystem, SystemModel, Ukf, numerical_jacobian};
 

@@ -158,6 +158,21 @@ where
     Cholesky::new(m)
 }
 
+/// [`cholesky`] of `m` in the storage of `old`, a factor its owner gives up (of any size):
+/// [`cholesky_owned`] of a copy of `m` made there, the same bits as [`cholesky`], without
+/// allocating a matrix at each step of a recursion.
+pub fn cholesky_reusing(
+    m: &DMatrix<f64>,
+    old: Option<Cholesky<f64, Dyn>>,
+) -> Option<Cholesky<f64, Dyn>> {
+    let mut storage = old.map_or_else(|| DMatrix::zeros(0, 0), Cholesky::unpack_dirty);
+    if storage.shape() != m.shape() {
+        storage = DMatrix::zeros(m.nrows(), m.ncols());
+    }
+    storage.copy_from(m);
+    cholesky_owned(storage)
+}
+
 /// Factor a symmetric positive-definite `m` (n × n) in place into its lower Cholesky
 /// factor L (the strict upper triangle is left as it was): the arithmetic of
 /// [`Cholesky::new`], operation for operation and so bit for bit, without its generic
@@ -537,5 +552,24 @@ mod tests {
             &DMatrix::from_column_slice(1, 2, &[1.0, 2.0])
         ));
         assert!(same_bits(&DMatrix::zeros(0, 3), &DMatrix::zeros(0, 3)));
+    }
+
+    #[test]
+    fn a_factor_in_reused_storage_is_choleskys_and_a_bad_matrix_has_none() {
+        let a = DMatrix::from_row_slice(3, 3, &[4.0, 1.0, 0.5, 1.0, 3.0, -0.2, 0.5, -0.2, 2.0]);
+        let b = DMatrix::from_row_slice(2, 2, &[2.0, 0.3, 0.3, 1.0]);
+        // Storage of another shape, then of the same shape, then none.
+        let from_b = cholesky_reusing(&a, cholesky(&b)).unwrap();
+        let again = cholesky_reusing(&a, Some(from_b)).unwrap();
+        assert_eq!(again.l_dirty(), cholesky(&a).unwrap().l_dirty());
+        assert_eq!(
+            cholesky_reusing(&b, None).unwrap().l_dirty(),
+            cholesky(&b).unwrap().l_dirty()
+        );
+        let mut nan = a.clone();
+        nan[(2, 1)] = f64::NAN;
+        assert!(cholesky_reusing(&nan, Some(again)).is_none());
+        let indefinite = DMatrix::from_row_slice(2, 2, &[1.0, 2.0, 2.0, 1.0]);
+        assert!(cholesky_reusing(&indefinite, cholesky(&b)).is_none());
     }
 }

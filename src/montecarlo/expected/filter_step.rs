@@ -4,9 +4,9 @@
 
 use nalgebra::{Cholesky, DMatrix, Dyn};
 
-use crate::filter::{FilterError, KalmanFilter, SparseUpdate, cholesky_reusing};
+use crate::filter::{FilterError, KalmanFilter, SparseUpdate};
 use crate::linalg::products::{Sparse, shaped};
-use crate::linalg::{spd_inverse_into, symmetrize};
+use crate::linalg::{cholesky_reusing, spd_inverse_into, symmetrize};
 
 /// One step of the filter's covariance recursion, and what the moments read of it.
 pub(super) struct FilterStep {

@@ -27,24 +27,12 @@
 
 use nalgebra::{Cholesky, DMatrix, Dyn, SymmetricEigen};
 
-use super::FilterError;
+use super::error::FilterError;
+pub use super::error::{MAX_CONDITION, describe};
 use crate::linalg::jacobi_scaled;
-
-/// Largest Jacobi-scaled condition number of a covariance the engine inverts: the NEES and
-/// NIS keep about 4 of their 16 digits there (see the module documentation).
-pub const MAX_CONDITION: f64 = 1e12;
 
 /// Pivot bound below which the eigenvalues are not computed: 1e-4 of [`MAX_CONDITION`].
 pub const SCREEN: f64 = MAX_CONDITION * 1e-4;
-
-/// The condition number in words, for an [`FilterError::IllConditioned`] message.
-pub fn describe(condition: f64) -> String {
-    if condition.is_finite() {
-        format!("condition number {condition:.1e}, above {MAX_CONDITION:.0e}")
-    } else {
-        "numerically singular".to_string()
-    }
-}
 
 /// The condition number `λ_max / λ_min` of `m` scaled to a unit diagonal (symmetric, with a
 /// positive diagonal); infinite when the scaled matrix is singular or indefinite.

@@ -115,7 +115,9 @@ impl Filter for KalmanFilter {
 
     fn predict(&self, k: usize, est: &mut Estimate) -> PredictResult {
         est.x = &self.F * &est.x;
-        super::recursion_memo::predict(self, k, &mut est.P);
+        super::recursion_memo::predict(self.memo_key(), k, &mut est.P, |P| {
+            self.predict_covariance(P)
+        });
         // The map's storage is reused from step to step where it has F's shape.
         match &mut est.error_map {
             Some(a) if a.shape() == self.F.shape() => a.copy_from(&self.F),
@@ -171,6 +173,11 @@ impl Filter for KalmanFilter {
 }
 
 impl KalmanFilter {
+    /// What the recursion memo knows this filter by: F, Q, H, R.
+    fn memo_key(&self) -> super::recursion_memo::Model<'_> {
+        [&self.F, &self.Q, &self.H, &self.R]
+    }
+
     /// The update of the estimate's mean, covariance and error map at step `k` (after
     /// checking the measurement against the filter's one sensor) with the remembered
     /// covariance update (`update_covariance` of the prior), the innovation,
@@ -184,7 +191,8 @@ impl KalmanFilter {
     ) -> Result<R, FilterError> {
         let m = self.H.nrows();
         super::check_measurement((meas.sensor == 0).then_some(m), meas)?;
-        super::recursion_memo::update(self, k, est, |u, est| {
+        let covariance = |P: &DMatrix<f64>| self.update_covariance(P, k);
+        super::recursion_memo::update(self.memo_key(), k, est, covariance, |u, est| {
             let cu = &u.cu;
             let nu = &meas.z - &self.H * &est.x;
             est.x += &cu.K * &nu;

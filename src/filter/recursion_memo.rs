@@ -18,7 +18,6 @@ use nalgebra::DMatrix;
 use crate::linalg::same_bits as same;
 
 use super::joseph::CovarianceUpdate;
-use super::kf::KalmanFilter;
 use super::{Estimate, FilterError};
 
 /// Bytes of matrices a thread remembers at most; steps beyond are computed each time.
@@ -31,6 +30,9 @@ const MEMO_STEPS: usize = 1 << 14;
 thread_local! {
     static MEMO: RefCell<Memo> = RefCell::new(Memo::default());
 }
+
+/// The filter whose steps are remembered: its F, Q, H and R.
+pub(super) type Model<'a> = [&'a DMatrix<f64>; 4];
 
 /// A step's input and what was computed from it.
 type Slot<T> = Option<(DMatrix<f64>, T)>;
@@ -56,14 +58,14 @@ struct Memo {
 }
 
 impl Memo {
-    /// The memo, emptied unless it belongs to `f`.
-    fn for_filter(&mut self, f: &KalmanFilter) -> &mut Self {
+    /// The memo, emptied unless it belongs to the filter `[F, Q, H, R]`.
+    fn for_filter(&mut self, f: Model) -> &mut Self {
         let mine = self.model.as_ref().is_some_and(|[F, Q, H, R]| {
-            same(F, &f.F) && same(Q, &f.Q) && same(H, &f.H) && same(R, &f.R)
+            same(F, f[0]) && same(Q, f[1]) && same(H, f[2]) && same(R, f[3])
         });
         if !mine {
             *self = Memo {
-                model: Some([f.F.clone(), f.Q.clone(), f.H.clone(), f.R.clone()]),
+                model: Some(f.map(DMatrix::clone)),
                 ..Memo::default()
             };
         }
@@ -108,9 +110,14 @@ fn bytes(m: &DMatrix<f64>) -> usize {
     m.len() * std::mem::size_of::<f64>()
 }
 
-/// `P` predicted at step `k` (`f.predict_covariance(P)`), in place, remembered: a step
-/// served from the memo copies into P's storage instead of allocating.
-pub(super) fn predict(f: &KalmanFilter, k: usize, P: &mut DMatrix<f64>) {
+/// `P` predicted at step `k` by the filter `f` (`predict(P)`), in place, remembered: a
+/// step served from the memo copies into P's storage instead of allocating.
+pub(super) fn predict(
+    f: Model,
+    k: usize,
+    P: &mut DMatrix<f64>,
+    predict: impl FnOnce(&DMatrix<f64>) -> DMatrix<f64>,
+) {
     MEMO.with_borrow_mut(|memo| {
         let memo = memo.for_filter(f);
         if let Some(Pp) = recall(&memo.predicted, k, P) {
@@ -121,7 +128,7 @@ pub(super) fn predict(f: &KalmanFilter, k: usize, P: &mut DMatrix<f64>) {
             }
             return;
         }
-        let Pp = f.predict_covariance(P);
+        let Pp = predict(P);
         remember(
             &mut memo.predicted,
             &mut memo.bytes,
@@ -134,13 +141,15 @@ pub(super) fn predict(f: &KalmanFilter, k: usize, P: &mut DMatrix<f64>) {
     })
 }
 
-/// `f.update_covariance(&est.P, k)`, remembered, handed to `then` with the step's error
-/// map and the estimate (a failure is not remembered: it is computed again, with its own
-/// step in the message). What is handed over is borrowed from the memo, not cloned.
+/// The filter `f`'s covariance update of `est.P` at step `k` (`update(&est.P)`),
+/// remembered, handed to `then` with the step's error map and the estimate (a failure is
+/// not remembered: it is computed again, with its own step in the message). What is
+/// handed over is borrowed from the memo, not cloned.
 pub(super) fn update<R>(
-    f: &KalmanFilter,
+    f: Model,
     k: usize,
     est: &mut Estimate,
+    update: impl FnOnce(&DMatrix<f64>) -> Result<CovarianceUpdate, FilterError>,
     then: impl FnOnce(&Updated, &mut Estimate) -> R,
 ) -> Result<R, FilterError> {
     MEMO.with_borrow_mut(|memo| {
@@ -148,8 +157,8 @@ pub(super) fn update<R>(
         if let Some(u) = recall(&memo.updated, k, &est.P) {
             return Ok(then(u, est));
         }
-        let cu = f.update_covariance(&est.P, k)?;
-        let map = &cu.IKH * &f.F;
+        let cu = update(&est.P)?;
+        let map = &cu.IKH * f[0];
         let u = Updated { cu, map };
         let size = bytes(&est.P)
             + bytes(&u.cu.K)
@@ -165,7 +174,12 @@ pub(super) fn update<R>(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::filter::KalmanFilter;
     use nalgebra::DVector;
+
+    fn key(f: &KalmanFilter) -> Model<'_> {
+        [&f.F, &f.Q, &f.H, &f.R]
+    }
 
     /// A constant-velocity filter whose noise levels are scaled by `s`.
     fn cv(s: f64) -> KalmanFilter {
@@ -187,13 +201,19 @@ mod tests {
             .map(|k| {
                 let Pp = if memo {
                     let mut Pp = P.clone();
-                    predict(f, k, &mut Pp);
+                    predict(key(f), k, &mut Pp, |P| f.predict_covariance(P));
                     Pp
                 } else {
                     f.predict_covariance(&P)
                 };
                 let cu = if memo {
-                    update(f, k, &mut Estimate::new(&f.x0, &Pp), |u, _| u.cu.clone())
+                    update(
+                        key(f),
+                        k,
+                        &mut Estimate::new(&f.x0, &Pp),
+                        |P| f.update_covariance(P, k),
+                        |u, _| u.cu.clone(),
+                    )
                 } else {
                     f.update_covariance(&Pp, k)
                 };
@@ -248,7 +268,13 @@ mod tests {
         f.R[(0, 0)] = -1e9;
         let Pp = f.predict_covariance(&f.P0);
         for k in [3, 7] {
-            match update(&f, k, &mut Estimate::new(&f.x0, &Pp), |_, _| ()) {
+            match update(
+                key(&f),
+                k,
+                &mut Estimate::new(&f.x0, &Pp),
+                |P| f.update_covariance(P, k),
+                |_, _| (),
+            ) {
                 Err(FilterError::NotPositiveDefinite { which: "S", step }) => assert_eq!(step, k),
                 other => panic!("{other:?}"),
             }
@@ -261,9 +287,16 @@ mod tests {
         let f = cv(1.0);
         let far = MEMO_STEPS + 5;
         let mut Pp = f.P0.clone();
-        predict(&f, far, &mut Pp);
+        predict(key(&f), far, &mut Pp, |P| f.predict_covariance(P));
         assert_eq!(Pp, f.predict_covariance(&f.P0));
-        update(&f, far, &mut Estimate::new(&f.x0, &Pp), |_, _| ()).unwrap();
+        update(
+            key(&f),
+            far,
+            &mut Estimate::new(&f.x0, &Pp),
+            |P| f.update_covariance(P, far),
+            |_, _| (),
+        )
+        .unwrap();
         MEMO.with_borrow(|m| {
             assert!(m.predicted.len() <= MEMO_STEPS && m.updated.len() <= MEMO_STEPS);
             assert_eq!(m.bytes, 0);

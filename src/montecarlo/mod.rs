@@ -26,7 +26,7 @@ pub use generic::{
     NULL_VAR_STRIDE, innovation_scales, run_generic, run_generic_cached, run_generic_with,
 };
 pub use linear::{run_linear, run_linear_with};
-pub use share::{ChunkSink, MergeError, Share, ShareOf};
+pub use share::{CHUNK, ChunkSink, MergeError, Share, ShareOf};
 pub use tape::{TapeUsage, TruthCache, TruthTape};
 pub use truth_moments::{SharedTrack, TruthTrack};
 
@@ -38,9 +38,6 @@ use rayon::prelude::*;
 use crate::filter::FilterError;
 use crate::rng::SimRng;
 use crate::stats::{Accumulator, StopCause};
-
-/// Runs per chunk: the unit of parallel work and of summation order.
-pub const CHUNK: usize = 64;
 
 /// Which Monte Carlo path runs a linear problem.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum)]

@@ -6,7 +6,8 @@
 use crate::input::SettingError;
 use crate::stats::Accumulator;
 
-use super::CHUNK;
+/// Runs per chunk: the unit of parallel work and of summation order.
+pub const CHUNK: usize = 64;
 
 /// Share `index` of `count`: chunk `c` (runs `64 c .. 64 c + 64`) belongs to share
 /// `c mod count`. Dealing chunks round-robin keeps the shares within one chunk of each

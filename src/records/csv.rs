@@ -6,8 +6,8 @@ use std::collections::{HashMap, HashSet};
 use std::path::Path;
 
 use super::error::RecordError;
-use super::files::{Found, Keys, Row, fits, infer_layout, shown, step_record};
 use super::names::{Quantity, parse_column};
+use super::rows::{Found, Keys, Row, fits, infer_layout, shown, step_record};
 use super::{Layout, MAX_STEPS, StepSink};
 use crate::input::FileError;
 use crate::userfile::{self, LineCapped};

@@ -10,7 +10,23 @@ use std::ops::Range;
 
 use super::MAX_COMPONENTS;
 use super::MAX_STEPS;
-use super::sink::{MAX_DOF, shown_number};
+
+/// Most degrees of freedom one record's NEES or NIS may claim (and at least 1): they count
+/// a filter's state or measurement components. Below 1, the gate's moment-matched
+/// chi-square lost its degrees of freedom to underflow (10⁻³⁰⁰ panicked); above, the
+/// verdict's quantiles take seconds from about 10¹⁵ total degrees of freedom (N runs times
+/// this) and never returned at 10¹⁹, which a mistyped `nees_dof` reached.
+pub(super) const MAX_DOF: f64 = 1e6;
+
+/// `x` as an error message shows it: as written for everyday sizes, in exponent form when
+/// huge or tiny (`1e300`, not its 301 digits).
+pub fn shown_number(x: f64) -> String {
+    if x == 0.0 || !x.is_finite() || (1e-6..1e16).contains(&x.abs()) {
+        format!("{x}")
+    } else {
+        format!("{x:e}")
+    }
+}
 
 /// A records file with state quantities for an experiment without them, and the hint.
 const NO_GROUND_TRUTH: &str = "state quantities, but the experiment has no ground truth (an [external] problem declares its states, and so its ground truth, in state_names)";

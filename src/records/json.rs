@@ -8,8 +8,8 @@ use std::path::Path;
 use serde_json::{Map, Value};
 
 use super::error::RecordError;
-use super::files::{Found, Keys, Row, infer_layout, shown, step_record};
 use super::names::Quantity;
+use super::rows::{Found, Keys, Row, infer_layout, shown, step_record};
 use super::{Layout, MAX_STEPS, StepRecord, StepSink};
 use crate::input::FileError;
 

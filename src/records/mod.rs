@@ -15,17 +15,20 @@ mod fingerprint;
 mod json;
 mod names;
 mod npy;
+mod rows;
 mod sink;
 mod wire;
 
+pub use error::shown_number;
 pub use error::{Breakdown, LayoutError, RecordError, SensorShapeError, ShapeError};
-pub use files::{Recorded, feed_file, feed_files, read_files, scan_files, shown_up_to};
+pub use files::{Recorded, feed_file, feed_files, read_files, scan_files};
 pub(crate) use fingerprint::chain as fingerprint;
 pub(crate) use json::object as json_object;
 pub use json::parse_record_line;
 pub use names::{Quantity, experiment_name, valid_sensor};
 pub(crate) use npy::{read_numpy_records, read_raw as read_numpy_arrays};
-pub use sink::{NormalizedSensor, RecordSink, StepSink, normalize_sensor, shown_number};
+pub use rows::shown_up_to;
+pub use sink::{NormalizedSensor, RecordSink, StepSink, normalize_sensor};
 pub use wire::{
     ChunkShape, ChunkSums, WireError, decode as decode_sums, decode_bytes as decode_sums_bytes,
     encode as encode_sums, encode_bytes as encode_sums_bytes, min_len as min_sums_len,

@@ -5,8 +5,8 @@ use std::io::Read;
 use std::path::{Path, PathBuf};
 
 use super::error::RecordError;
-use super::files::{Found, Keys, Row, fits, infer_layout, step_record};
 use super::names::Quantity;
+use super::rows::{Found, Keys, Row, fits, infer_layout, step_record};
 use super::{Layout, MAX_STEPS, StepSink};
 use crate::input::FileError;
 use crate::userfile;

@@ -6,30 +6,13 @@ use std::collections::HashSet;
 
 use nalgebra::{DMatrix, DVector};
 
-use super::error::{Breakdown, RecordError, SensorShapeError, ShapeError};
+use super::error::{Breakdown, MAX_DOF, RecordError, SensorShapeError, ShapeError};
 use super::{Layout, SensorRecord, StateRecord, StepRecord};
 use crate::linalg::{cholesky_owned, mahalanobis_sq};
 use crate::stats::{Accumulator, RunRecorder, StopCause};
 
-/// Most degrees of freedom one record's NEES or NIS may claim (and at least 1): they count
-/// a filter's state or measurement components. Below 1, the gate's moment-matched
-/// chi-square lost its degrees of freedom to underflow (10⁻³⁰⁰ panicked); above, the
-/// verdict's quantiles take seconds from about 10¹⁵ total degrees of freedom (N runs times
-/// this) and never returned at 10¹⁹, which a mistyped `nees_dof` reached.
-pub(super) const MAX_DOF: f64 = 1e6;
-
 /// `log 2π`, the constant of each measured component's Gaussian density.
 const LN_2PI: f64 = 1.837_877_066_409_345_5;
-
-/// `x` as an error message shows it: as written for everyday sizes, in exponent form when
-/// huge or tiny (`1e300`, not its 301 digits).
-pub fn shown_number(x: f64) -> String {
-    if x == 0.0 || !x.is_finite() || (1e-6..1e16).contains(&x.abs()) {
-        format!("{x}")
-    } else {
-        format!("{x:e}")
-    }
-}
 
 /// One sensor's measurement normalized: its NIS, degrees of freedom and, where the record
 /// gives them, the per-component normalized innovations `ν_j/√S_jj`.

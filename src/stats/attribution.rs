@@ -32,7 +32,8 @@
 
 use serde::Serialize;
 
-use super::{ComponentStat, ConsistencyReport, Verdict, WhitenessTest};
+use super::diagnostics::{ComponentStat, WhitenessTest};
+use super::interval::Verdict;
 
 /// A noise model the evidence blames.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
@@ -200,27 +201,17 @@ pub fn blame(lv: i32, g: i32) -> (Suspect, &'static str) {
     }
 }
 
-/// Read `report`'s components and whiteness for which of Q and R is off (see the module
-/// documentation for the reasoning).
-pub fn diagnose(report: &ConsistencyReport) -> Diagnosis {
-    diagnose_components(&Evidence {
-        states: &report.state_components,
-        measurements: &report.measurement_components,
-        whiteness: &report.whiteness_tests,
-    })
-}
-
-/// What [`diagnose`] reads of a report.
-struct Evidence<'a> {
+/// What [`super::diagnose`] reads of a report.
+pub(super) struct Evidence<'a> {
     /// The state components (empty without truth).
-    states: &'a [ComponentStat],
+    pub(super) states: &'a [ComponentStat],
     /// The measurement components.
-    measurements: &'a [ComponentStat],
+    pub(super) measurements: &'a [ComponentStat],
     /// The measurement components' whiteness tests.
-    whiteness: &'a [WhitenessTest],
+    pub(super) whiteness: &'a [WhitenessTest],
 }
 
-fn diagnose_components(report: &Evidence) -> Diagnosis {
+pub(super) fn diagnose_components(report: &Evidence) -> Diagnosis {
     let mut findings: Vec<Finding> = report
         .measurements
         .iter()

@@ -268,44 +268,6 @@ pub fn whiteness_tests(
         .collect()
 }
 
-/// The gate's tests of `report` as standard normal deviates under consistency, one per
-/// test the gate applies (for the mean gate: the time averages only): a time average or
-/// component `v` with target `d` and interval `[a, b]` at the test level ℓ gives
-/// `z_{1−ℓ/2} (v − d)/(b − d)` above the target and `z_{1−ℓ/2} (v − d)/(d − a)` below it, so
-/// that the interval's ends are ±`z_{1−ℓ/2}`; each whiteness lag gives `√pairs · ρ_l`. A
-/// filter passes the gate with probability about 1 − α when every entry is near 0, and the
-/// sum of squares is what a search must drive down to land where the gate passes.
-pub fn gate_deviates(report: &super::ConsistencyReport) -> Vec<f64> {
-    let z = super::normal_two_sided_quantile(report.statistic_alpha);
-    let scaled = |v: f64, d: f64, iv: &Interval| {
-        let half = if v >= d { iv.upper - d } else { d - iv.lower };
-        if half > 0.0 && v.is_finite() {
-            z * (v - d) / half
-        } else {
-            0.0
-        }
-    };
-    let mut out = Vec::new();
-    for s in report.nees.iter().chain(std::iter::once(&report.nis)) {
-        if s.steps_with_data > 0 {
-            out.push(scaled(s.time_average, s.target, &s.interval));
-        }
-    }
-    if report.gate == super::GateMode::Full {
-        for c in report
-            .state_components
-            .iter()
-            .chain(&report.measurement_components)
-        {
-            if c.samples > 0.0 && c.interval.lower.is_finite() {
-                out.push(scaled(c.value, 1.0, &c.interval));
-            }
-        }
-        out.extend(report.whiteness.iter().map(|w| w.pairs.sqrt() * w.rho));
-    }
-    out
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -10,5 +10,6 @@
 static GLOBAL: mimalloc::MiMalloc = mimalloc::MiMalloc;
 
 mod architecture;
+mod file_graph;
 mod guide;
 mod man;

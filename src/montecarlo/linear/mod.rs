@@ -16,29 +16,12 @@ mod schedule;
 
 use chunk::{Job, run_chunk};
 use schedule::Schedule;
+pub(super) use schedule::{STEADY_STEPS, same_covariance};
 
 use super::{McConfig, RunOptions, run_chunked};
 use crate::filter::{Filter, KalmanFilter};
 use crate::model::LinearGaussianModel;
 use crate::stats::{Accumulator, GateMode};
-
-/// Relative change below which a covariance entry or increment counts as unchanged.
-pub(super) const STEADY_RTOL: f64 = 1e-14;
-
-/// Unchanged steps in a row after which the recursion is in steady state.
-pub(super) const STEADY_STEPS: usize = 3;
-
-/// Whether every entry of `a` equals `b`'s to [`STEADY_RTOL`] relative to the geometric
-/// mean of the two diagonal entries it couples (a unit-free test).
-pub(super) fn same_covariance(a: &DMatrix<f64>, b: &DMatrix<f64>) -> bool {
-    let n = a.nrows();
-    (0..n).all(|i| {
-        (0..n).all(|j| {
-            let scale = (a[(i, i)] * a[(j, j)]).abs().sqrt();
-            (a[(i, j)] - b[(i, j)]).abs() <= STEADY_RTOL * scale
-        })
-    })
-}
 
 /// Run the Monte Carlo test of a linear Kalman filter against a linear-Gaussian truth.
 ///

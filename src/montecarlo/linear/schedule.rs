@@ -5,11 +5,28 @@
 
 use nalgebra::{DMatrix, DVector};
 
-use super::{STEADY_RTOL, STEADY_STEPS, same_covariance};
 use crate::filter::conditioning::check_conditioned;
 use crate::filter::{Filter, FilterError, KalmanFilter};
 use crate::linalg::{cholesky, inverse_cholesky_factor, spd_inverse};
 use crate::stats::{ComponentNullVariance, NeesNullVariance};
+
+/// Relative change below which a covariance entry or increment counts as unchanged.
+const STEADY_RTOL: f64 = 1e-14;
+
+/// Unchanged steps in a row after which the recursion is in steady state.
+pub(in crate::montecarlo) const STEADY_STEPS: usize = 3;
+
+/// Whether every entry of `a` equals `b`'s to [`STEADY_RTOL`] relative to the geometric
+/// mean of the two diagonal entries it couples (a unit-free test).
+pub(in crate::montecarlo) fn same_covariance(a: &DMatrix<f64>, b: &DMatrix<f64>) -> bool {
+    let n = a.nrows();
+    (0..n).all(|i| {
+        (0..n).all(|j| {
+            let scale = (a[(i, i)] * a[(j, j)]).abs().sqrt();
+            (a[(i, j)] - b[(i, j)]).abs() <= STEADY_RTOL * scale
+        })
+    })
+}
 
 /// The data-independent part of the filter, per step.
 pub(super) struct Schedule {

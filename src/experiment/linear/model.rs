@@ -1,18 +1,16 @@
-//! A problem file's linear-Gaussian truth and Kalman filter as an [`Experiment`].
+//! A problem file's linear-Gaussian truth and Kalman filter: what they are, the filter at θ,
+//! the blocks no matrix couples.
 
 #![allow(non_snake_case)]
 
 use nalgebra::{DMatrix, DVector};
 
-use super::{Block, Covariances, Definition, Experiment, ExperimentError, RunOptions};
+use crate::experiment::definition::{Block, Definition};
 use crate::filter::{Estimate, Filter, KalmanFilter, PredictResult, UpdateResult};
 use crate::measurement::Measurement;
 use crate::model::LinearGaussianModel;
-use crate::montecarlo::{
-    self, Engine, McConfig, SharedTrack, expected_accumulator_tracked, models_match,
-};
-use crate::params::{Coef, CovModel, NoiseKind, Target};
-use crate::stats::Accumulator;
+use crate::montecarlo::SharedTrack;
+use crate::params::{Coef, CovModel};
 
 /// The filter's model with Q and R as functions of the parameters.
 #[derive(Debug, Clone)]
@@ -53,7 +51,7 @@ pub struct LinearExperiment {
     /// The truth's moments step by step, built at the first exact scoring that reads them
     /// (a filter whose model is not the truth's) and shared by the later ones: the truth
     /// does not depend on the parameters.
-    track: SharedTrack,
+    pub(super) track: SharedTrack,
 }
 
 impl LinearExperiment {
@@ -80,91 +78,6 @@ impl LinearExperiment {
     }
 }
 
-impl Experiment for LinearExperiment {
-    fn definition(&self) -> &Definition {
-        &self.definition
-    }
-
-    fn replay_filter(&self, theta: &[f64]) -> Option<Box<dyn Filter + '_>> {
-        Some(Box::new(self.filter_at(theta)))
-    }
-
-    fn simulation_truth(&self) -> Option<&dyn crate::model::TruthModel> {
-        Some(&self.truth)
-    }
-
-    fn truth_reuse(&self, _since: crate::montecarlo::TapeUsage) -> super::TruthReuse {
-        super::TruthReuse::Simulated {
-            why: "a linear problem's engine simulates the truth with the filter, the runs batched, which costs less than a replay would".to_string(),
-        }
-    }
-
-    fn linear(&self) -> Option<&LinearExperiment> {
-        Some(self)
-    }
-
-    fn monte_carlo_with(
-        &self,
-        theta: &[f64],
-        mc: &McConfig,
-        run: RunOptions<'_>,
-    ) -> Result<Accumulator, ExperimentError> {
-        let kf = self.filter_at(theta);
-        let map = self.filter.map.as_ref();
-        Ok(match (run.engine, map) {
-            (Engine::Auto | Engine::Linear, _) => {
-                montecarlo::run_linear_with(&self.truth, &kf, map, mc, run)
-            }
-            (Engine::Generic, None) => montecarlo::run_generic_with(&self.truth, &kf, mc, run),
-            (Engine::Generic, Some(map)) => {
-                montecarlo::run_generic_with(&self.truth, &Mapped { kf: &kf, map }, mc, run)
-            }
-        })
-    }
-
-    fn supports(&self, _engine: Engine) -> bool {
-        true
-    }
-
-    fn expected(&self, theta: &[f64], mc: &McConfig) -> Option<Accumulator> {
-        let kf = self.filter_at(theta);
-        let map = self.filter.map.as_ref();
-        // Only the joint moments read the truth's own (the matched recursion needs none).
-        let track = (map.is_some() || !models_match(&self.truth, &kf))
-            .then(|| self.track.get(&self.truth, &kf, map, mc.steps()));
-        Some(
-            expected_accumulator_tracked(&self.truth, &kf, map, mc, track.as_deref())
-                .unwrap_or_else(|e| montecarlo::all_stopped(mc, kf.F.nrows(), kf.H.nrows(), &e)),
-        )
-    }
-
-    fn target(&self, i: usize) -> Option<Target> {
-        Some(if self.filter.q.uses(i) {
-            Target {
-                kind: NoiseKind::Process,
-                components: self.filter.q.touched(i),
-            }
-        } else {
-            Target {
-                kind: NoiseKind::Measurement,
-                components: self.filter.r.touched(i),
-            }
-        })
-    }
-
-    fn blocks(&self) -> Option<Vec<Block>> {
-        let blocks = self.decoupled_blocks();
-        (blocks.len() > 1).then_some(blocks)
-    }
-
-    fn covariances(&self, theta: &[f64]) -> Option<Covariances> {
-        Some(Covariances {
-            Q: self.filter.q.build(theta),
-            R: self.filter.r.build(theta),
-        })
-    }
-}
-
 impl LinearExperiment {
     /// The blocks that no matrix couples, found conservatively: any nonzero entry that
     /// links two components (of the filter's F, P0, H, every Q and R term's basis whether
@@ -172,7 +85,7 @@ impl LinearExperiment {
     /// the truth's states to the filter's) puts them in one block, and a parameter joins
     /// every component its terms touch. A zero that is zero only at some parameter values
     /// never splits a block, because bases are tested, not built matrices.
-    fn decoupled_blocks(&self) -> Vec<Block> {
+    pub(super) fn decoupled_blocks(&self) -> Vec<Block> {
         let n = self.filter.F.nrows();
         let nt = self.truth.F.nrows();
         let m = self.filter.H.nrows();
@@ -280,9 +193,9 @@ impl DisjointSets {
 /// The Kalman filter as the generic engine sees it when it has other states than the truth:
 /// its estimation error is `map · x_true − x̂` (the linear fast path applies the same map to
 /// its batch of runs).
-struct Mapped<'a> {
-    kf: &'a KalmanFilter,
-    map: &'a DMatrix<f64>,
+pub(super) struct Mapped<'a> {
+    pub(super) kf: &'a KalmanFilter,
+    pub(super) map: &'a DMatrix<f64>,
 }
 
 impl Filter for Mapped<'_> {

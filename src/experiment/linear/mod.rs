@@ -1,0 +1,9 @@
+//! A problem file's linear-Gaussian truth and Kalman filter as an [`super::Experiment`]:
+//! the model (`model`) and how it answers the seam (`seam`), apart so that the seam, which
+//! names the linear experiment, and the experiment, which implements the seam, import no
+//! file of each other's.
+
+mod model;
+mod seam;
+
+pub use model::{FilterModel, LinearExperiment};

@@ -6,7 +6,7 @@ use std::process::ExitCode;
 
 use clap_complete::Shell;
 
-use super::AppError;
+use super::error::AppError;
 use crate::commands::OneOf;
 
 #[derive(Debug, clap::Args)]

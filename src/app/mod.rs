@@ -18,13 +18,18 @@
 //! `autotune check problem.toml …` does. Exit codes: 0 consistent, 1 not, 2 bad input.
 
 mod completions;
+mod error;
 mod interrupt;
+mod launch;
 #[cfg(feature = "mpi")]
 mod mpi;
 mod nis;
+mod print;
 
 pub use crate::commands::check::CheckOptions;
 pub use crate::commands::tune::TuneOptions;
+pub use error::AppError;
+pub use launch::main;
 pub use nis::NisArgs;
 
 use std::ffi::OsString;
@@ -38,55 +43,13 @@ use crate::commands::estimate::{EstimateOptions, initial, measured_experiment};
 use crate::commands::init::InitOptions;
 use crate::commands::simulate::SimulateOptions;
 use crate::commands::{self, CommandError};
-use crate::experiment::{Experiment, ExperimentError, RecordsExperiment};
-use crate::input::FileError;
-use crate::output::WriteError;
+use crate::experiment::{Experiment, RecordsExperiment};
 use crate::problem::Problem;
+use crate::report::check_summary;
 use crate::report::progress::{CheckBar, TuneProgress};
-use crate::report::{check_summary, paint_verdicts};
 use crate::stats::Verdict;
 use crate::tune::TuneSettings;
-
-/// Why a command could not do its job (exit code 2). Each renders as one line naming the
-/// file and field, or the flag.
-#[derive(Debug, thiserror::Error)]
-pub enum AppError {
-    /// A command's refusal or failure: a bad input file or flag, an output that could not
-    /// be written, an experiment that could not run.
-    #[error(transparent)]
-    Command(#[from] CommandError),
-    /// Arguments clap refused (its first line, and where to find help).
-    #[error("{0}")]
-    Usage(String),
-    /// Standard output failed (a closed pipe is not reported).
-    #[error(transparent)]
-    Io(#[from] std::io::Error),
-}
-
-impl AppError {
-    /// An error in option `flag`.
-    pub fn flag(flag: &str, message: impl Into<String>) -> AppError {
-        CommandError::option(flag, message).into()
-    }
-}
-
-impl From<FileError> for AppError {
-    fn from(e: FileError) -> Self {
-        CommandError::File(e).into()
-    }
-}
-
-impl From<WriteError> for AppError {
-    fn from(e: WriteError) -> Self {
-        CommandError::Write(e).into()
-    }
-}
-
-impl From<ExperimentError> for AppError {
-    fn from(e: ExperimentError) -> Self {
-        CommandError::Experiment(e).into()
-    }
-}
+use print::{exit_code, finish, print_stdout, write_painted};
 
 /// Tune Kalman filter noise covariances until the filter is statistically consistent.
 #[derive(Debug, Parser)]
@@ -242,37 +205,6 @@ enum ModelCommand {
     /// Search the free Q/R parameters for a consistent filter; write a tuned config and a
     /// report; exit 0 if the tuned filter passes the confirmation, 1 if not.
     Tune(TuneOptions),
-}
-
-/// The `autotune` binary: parse the process's arguments, run, print any error on one line.
-/// Ctrl-C (SIGINT), SIGTERM and SIGHUP stop any external workers, remove their scratch
-/// directories and the temporary files of a write in progress, and exit 128 + the signal's
-/// number (130, 143, 129).
-pub fn main() -> ExitCode {
-    interrupt::install();
-    // Under an MPI launcher the ranks share the work (the cargo feature `mpi`).
-    #[cfg(feature = "mpi")]
-    if crate::cluster::mpi::launched() {
-        return mpi::main(std::env::args_os());
-    }
-    // Without the feature every rank would run the whole command and print it.
-    #[cfg(not(feature = "mpi"))]
-    if let Some(ranks) = launcher_ranks() {
-        return finish(Err(AppError::Usage(format!(
-            "started as one of {ranks} MPI ranks, but this autotune was built without the `mpi` feature (cargo build --release --features mpi; docs/src/cluster.md)"
-        ))));
-    }
-    finish(run(std::env::args_os()))
-}
-
-/// The job's size when an MPI launcher started this process as one of several ranks (Open
-/// MPI's and MPICH's variables).
-#[cfg(not(feature = "mpi"))]
-fn launcher_ranks() -> Option<usize> {
-    ["OMPI_COMM_WORLD_SIZE", "PMI_SIZE"]
-        .iter()
-        .filter_map(|v| std::env::var(v).ok()?.parse::<usize>().ok())
-        .find(|&n| n > 1)
 }
 
 /// `autotune` with these arguments (the first is the program name).
@@ -496,24 +428,6 @@ fn tune(
     Ok(exit_code(run.consistent()))
 }
 
-/// 0 for a pass, 1 for a verdict that fails.
-fn exit_code(pass: bool) -> ExitCode {
-    if pass {
-        ExitCode::SUCCESS
-    } else {
-        ExitCode::from(1)
-    }
-}
-
-/// `text` on `out`, its verdict lines coloured when stdout is a terminal that wants colour.
-fn write_painted(out: &mut dyn std::io::Write, text: &str, pass: bool) -> std::io::Result<()> {
-    if colour_enabled() {
-        out.write_all(paint_verdicts(text, pass).as_bytes())
-    } else {
-        out.write_all(text.as_bytes())
-    }
-}
-
 /// The whole command line for a model defined in Rust: `check` and `tune` with every option
 /// `autotune` has (no problem file: the model is `experiment`; `tune` starts from `tune`'s
 /// settings). Prints any error on one line; returns the exit code (0 consistent, 1 not,
@@ -609,41 +523,6 @@ fn usage_error(e: clap::Error, program: &str) -> Result<ExitCode, AppError> {
         format!("{} {}", first, missing.join(", "))
     };
     Err(AppError::Usage(format!("{first} (see '{program} --help')")))
-}
-
-/// Print on stdout with `f`. A closed pipe (`autotune check … | head`) ends the printing
-/// without an error, so the command still exits with its verdict's code; any other failure
-/// of stdout is an error.
-fn print_stdout(
-    f: impl FnOnce(&mut dyn std::io::Write) -> std::io::Result<()>,
-) -> Result<(), AppError> {
-    use std::io::Write;
-    let mut stdout = std::io::stdout().lock();
-    match f(&mut stdout).and_then(|()| stdout.flush()) {
-        Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe => Ok(()),
-        r => Ok(r?),
-    }
-}
-
-/// Print an error as `error: …` on stderr and map it to exit code 2. A closed stdout pipe
-/// is not an error here: `check` and `tune` print through [`print_stdout`] and keep their
-/// verdict's code, and what else prints (help, `init`, `completions`) has done its work.
-fn finish(result: Result<ExitCode, AppError>) -> ExitCode {
-    match result {
-        Ok(code) => code,
-        Err(AppError::Io(e)) if e.kind() == std::io::ErrorKind::BrokenPipe => ExitCode::SUCCESS,
-        Err(e) => {
-            eprintln!("error: {e}");
-            ExitCode::from(2)
-        }
-    }
-}
-
-/// Whether to colour stdout: only on a terminal, and never when `NO_COLOR` is set to
-/// anything non-empty (<https://no-color.org>).
-fn colour_enabled() -> bool {
-    use std::io::IsTerminal;
-    std::env::var_os("NO_COLOR").is_none_or(|v| v.is_empty()) && std::io::stdout().is_terminal()
 }
 
 #[cfg(test)]

@@ -13,9 +13,9 @@ use std::process::ExitCode;
 
 use clap::Parser;
 
-use super::{
-    AppError, Cli, Command, check, finish, interrupt, run, tune_problem_over, usage_error,
-};
+use super::error::AppError;
+use super::print::finish;
+use super::{Cli, Command, check, interrupt, run, tune_problem_over, usage_error};
 use crate::cluster::mpi::{Mpi, Ranked, World, serve, stop};
 use crate::problem::Problem;
 

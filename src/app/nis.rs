@@ -1,16 +1,16 @@
-//! `nis`: a filter's recorded innovations (a field log) judged without ground truth, once or
-//! live while the log is written.
+//! `nis` on the command line: its arguments, parsed into [`crate::commands::nis`]'s
+//! options; the live status printed each second; the summary or the JSON printed at the end.
 
 use std::path::PathBuf;
 use std::process::ExitCode;
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
-use super::{AppError, print_stdout, write_painted};
+use super::error::AppError;
+use super::print::{print_stdout, write_painted};
 use crate::commands::CommandError;
-use crate::fieldlog::{Follower, NisReport, NisSettings, ReadOptions, Window, analyze};
-use crate::output::{Outputs, check_output_file, check_report_dir};
-use crate::report::nis::html::nis_html;
-use crate::report::nis::{nis_junit_xml, nis_markdown, nis_summary_text};
+use crate::commands::nis::{FollowLimits, NisOptions, follow, nis};
+use crate::fieldlog::{NisSettings, ReadOptions, Status, Window};
+use crate::report::nis::nis_summary_text;
 
 /// The arguments of `nis`.
 #[derive(Debug, Clone, clap::Args)]
@@ -122,75 +122,39 @@ fn seconds(flag: &str, v: Option<f64>) -> Result<Option<Duration>, AppError> {
 
 /// Run `nis`.
 pub fn run(a: NisArgs) -> Result<ExitCode, AppError> {
-    let settings = a.settings()?;
-    let limit = seconds("--for", a.for_seconds)?;
-    let idle = seconds("--idle", a.idle)?;
-    if let Some(path) = &a.junit {
-        check_output_file(path, a.force).map_err(|e| e.of_flag("--junit"))?;
-    }
-    if let Some(dir) = &a.report {
-        check_report_dir(dir, a.force).map_err(|e| e.of_flag("--report"))?;
-    }
-    let report = match &a.follow {
-        Some(path) => follow(path, settings, &a, limit, idle)?,
-        None => analyze(&a.logs, &a.options(), settings)?,
+    let options = NisOptions {
+        logs: a.logs.clone(),
+        read: a.options(),
+        settings: a.settings()?,
+        junit: a.junit.clone(),
+        report: a.report.clone(),
+        force: a.force,
     };
-    finish(&a, &report)
-}
-
-fn follow(
-    path: &std::path::Path,
-    settings: NisSettings,
-    a: &NisArgs,
-    limit: Option<Duration>,
-    idle: Option<Duration>,
-) -> Result<NisReport, AppError> {
-    use std::sync::atomic::Ordering;
-    let mut f = Follower::new(path, settings, a.options())?;
-    super::interrupt::FOLLOWING.store(true, Ordering::SeqCst);
-    let stopped = || super::interrupt::STOP_FOLLOWING.load(Ordering::SeqCst);
-    let start = Instant::now();
-    let mut last_growth = Instant::now();
-    let result = loop {
-        let tick = Instant::now();
-        let before = f.bytes_read();
-        if let Err(e) = f.poll() {
-            break Err(e.into());
-        }
-        if f.bytes_read() > before {
-            last_growth = Instant::now();
-        }
-        if !a.quiet && !a.json {
-            print_stdout(|o| writeln!(o, "{}", f.status()))?;
-        }
-        let done = stopped()
-            || limit.is_some_and(|l| start.elapsed() >= l)
-            || idle.is_some_and(|i| last_growth.elapsed() >= i);
-        if done {
-            break f.finish().map(|()| f.report()).map_err(AppError::from);
-        }
-        // Sleep out the second in slices, so that Ctrl-C ends the follow promptly.
-        while tick.elapsed() < Duration::from_secs(1) && !stopped() {
-            std::thread::sleep(Duration::from_millis(50));
-        }
+    let limits = FollowLimits {
+        limit: seconds("--for", a.for_seconds)?,
+        idle: seconds("--idle", a.idle)?,
     };
-    super::interrupt::FOLLOWING.store(false, Ordering::SeqCst);
-    result
-}
-
-fn finish(a: &NisArgs, report: &NisReport) -> Result<ExitCode, AppError> {
-    let json = crate::output::marked_json(report);
-    let mut outputs = Outputs::replacing(a.force);
-    if let Some(path) = &a.junit {
-        outputs.file(path, nis_junit_xml(report));
-    }
-    if let Some(dir) = &a.report {
-        outputs.report_dir(dir, &nis_html(report), &nis_markdown(report), &json);
-    }
-    outputs.commit()?;
+    let outcome = match &a.follow {
+        Some(path) => {
+            use std::sync::atomic::Ordering;
+            let stopped = || super::interrupt::STOP_FOLLOWING.load(Ordering::SeqCst);
+            let mut status = |s: Status| {
+                if a.quiet || a.json {
+                    return Ok(());
+                }
+                print_stdout(|o| writeln!(o, "{s}"))
+            };
+            super::interrupt::FOLLOWING.store(true, Ordering::SeqCst);
+            let outcome = follow(path, &options, limits, &stopped, &mut status);
+            super::interrupt::FOLLOWING.store(false, Ordering::SeqCst);
+            outcome?
+        }
+        None => nis(&options)?,
+    };
+    let report = &outcome.report;
     print_stdout(|stdout| {
         if a.json {
-            stdout.write_all(json.as_bytes())?;
+            stdout.write_all(outcome.json.as_bytes())?;
             writeln!(stdout)?;
         } else if !a.quiet {
             write_painted(stdout, &nis_summary_text(report), report.verdict.passes())?;

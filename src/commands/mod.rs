@@ -1,5 +1,5 @@
 //! The commands as library functions: what `autotune check`, `tune`, `estimate`,
-//! `simulate` and `init` do, with their options as plain values (the same structs the
+//! `simulate`, `init` and `nis` do, with their options as plain values (the same structs the
 //! command line parses into) and their results returned. The files a command writes are
 //! checked before its work and written together, atomically (`crate::output`), before it
 //! returns; what it prints is rendered by [`crate::report`] from what it returns.
@@ -12,6 +12,7 @@ pub mod check;
 mod error;
 pub mod estimate;
 pub mod init;
+pub mod nis;
 mod options;
 pub mod simulate;
 pub mod tune;

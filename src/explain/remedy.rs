@@ -1,6 +1,6 @@
 //! What a fitted hypothesis says, and what to change: read off the values its trial fit.
 
-use super::Trial;
+use super::explanation::Trial;
 use crate::experiment::{Changed, Hypothesis};
 
 /// A value in a few significant digits.

@@ -1,7 +1,7 @@
 //! The trials: each candidate change fitted by the same search as the noise parameters.
 
+use super::explanation::{Cause, Explanation, Trial, slow_correlation};
 use super::remedy::{fmt_value, read, with_unit};
-use super::{Cause, Explanation, Trial};
 use crate::experiment::{Changed, Experiment, Hypothesis, Hypothesized, ReadThrough, Rebounded};
 use crate::montecarlo::McConfig;
 use crate::tune::certify::WIDEN;
@@ -250,7 +250,7 @@ impl Trials<'_> {
             let corr: Vec<usize> = (0..bounds.len())
                 .filter(|&i| wide.params().params[i].name.starts_with("gm_corr_"))
                 .collect();
-            let slow = super::slow_correlation(self.mc.steps());
+            let slow = slow_correlation(self.mc.steps());
             if corr.iter().all(|&i| t.tuned[i] >= slow) {
                 let mut within = bounds.clone();
                 let half = 1.0 - 2.0 / self.mc.steps().max(2) as f64;

@@ -2,8 +2,8 @@
 
 use nalgebra::{DMatrix, DVector};
 
+use super::kinds::{Added, Hypothesis};
 use super::time::{Input, Steps};
-use super::{Added, Hypothesis};
 use crate::experiment::LinearExperiment;
 use crate::filter::KalmanFilter;
 use crate::linalg::{expm, logm, van_loan};

@@ -4,8 +4,7 @@
 
 use std::collections::HashMap;
 
-use super::report::MeanTest;
-use super::report::SensorReport;
+use super::report::{MeanTest, SensorReport, short};
 use crate::stats::{Finding, Suspect, Verdict, blame};
 
 impl SensorReport {
@@ -452,19 +451,5 @@ fn signed(v: f64) -> String {
         format!("+{}", short(v))
     } else {
         short(v)
-    }
-}
-
-/// A number in 4 significant digits, for the evidence text.
-pub(super) fn short(v: f64) -> String {
-    if v == 0.0 || !v.is_finite() {
-        return format!("{v}");
-    }
-    let a = v.abs();
-    if (1e-3..1e5).contains(&a) {
-        let digits = (3 - a.log10().floor() as i32).clamp(0, 6) as usize;
-        format!("{v:.digits$}")
-    } else {
-        format!("{v:.3e}")
     }
 }

@@ -6,7 +6,7 @@ use std::fmt;
 use std::io::{Read, Seek, SeekFrom};
 use std::path::{Path, PathBuf};
 
-use super::advice::short;
+use super::report::short;
 use super::analysis::NisAnalyzer;
 use super::ingest::{Ingest, Skips};
 use super::report::NisReport;

@@ -4,9 +4,19 @@
 use std::collections::HashMap;
 
 use super::analysis::{NisAnalyzer, SensorInfo, Update};
-use super::text::{MAX_DIM, Row};
 use crate::input::FileError;
 use crate::records::{SensorRecord, normalize_sensor};
+
+/// Largest measurement dimension of a sensor (and degrees of freedom of a precomputed NIS).
+pub(super) const MAX_DIM: usize = 64;
+
+/// What one row says.
+#[derive(Debug, Clone, PartialEq)]
+pub(super) struct Row {
+    pub time: f64,
+    pub sensor: String,
+    pub record: SensorRecord,
+}
 
 /// Skipped rows listed by line number in the notes.
 const LISTED: usize = 5;

@@ -24,12 +24,12 @@ mod px4;
 mod records;
 mod report;
 mod settings;
+mod source;
 mod text;
 mod ulog_walk;
 
 use std::path::{Path, PathBuf};
 
-use serde::Serialize;
 
 pub use analysis::{
     AnalyzerError, Dropped, MAX_SENSORS, NisAnalyzer, SensorInfo, SeriesPoint, Update,
@@ -42,50 +42,9 @@ pub use report::{
     SensorReport, WindowSummary,
 };
 pub use settings::{NisSettings, Window};
+pub use source::{LogSource, ReadOptions};
 
 use crate::input::FileError;
-
-/// How the readers treat what they find.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
-pub struct ReadOptions {
-    /// Skip malformed rows of a CSV / JSON Lines log (and count them) instead of stopping at
-    /// the first.
-    pub skip_bad_rows: bool,
-    /// PX4: keep only updates while `vehicle_land_detected` says the vehicle is in the air.
-    pub in_air: bool,
-    /// PX4: judge the data before the cut of a truncated or damaged log instead of refusing it.
-    pub allow_truncated: bool,
-}
-
-/// A file read, and what its reader noted.
-#[derive(Debug, Clone, Serialize)]
-pub struct LogSource {
-    /// The path as given.
-    pub path: String,
-    /// "csv", "jsonl", "px4-ulog" or "records".
-    pub format: String,
-    /// Rows (lines, ULog messages of the estimator topics, records) read.
-    pub rows: usize,
-    /// Malformed rows skipped (`--skip-bad-rows`).
-    pub skipped_rows: usize,
-    /// What the reader noted, one line each (pairing of PX4 topics, skipped lines, …).
-    pub notes: Vec<String>,
-    /// What a PX4 log says about its estimators (PX4 logs only).
-    pub px4: Option<Px4Info>,
-}
-
-impl LogSource {
-    fn new(path: &Path, format: &str) -> Self {
-        LogSource {
-            path: path.display().to_string(),
-            format: format.to_string(),
-            rows: 0,
-            skipped_rows: 0,
-            notes: Vec::new(),
-            px4: None,
-        }
-    }
-}
 
 /// The kinds of files `autotune nis` reads, by extension (and for CSV / JSON Lines, by
 /// their columns: a `run` and `step` without `sensor` is a records file).

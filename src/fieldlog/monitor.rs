@@ -26,12 +26,13 @@ use std::fmt;
 use nalgebra::{Dim, Matrix, RawStorage};
 
 use super::LogSource;
-use super::advice::short;
+use super::report::short;
 use super::analysis::{MAX_SENSORS, NisAnalyzer};
 use super::ingest::Ingest;
 use super::report::NisReport;
 use super::settings::{NisSettings, Window};
-use super::text::{MAX_DIM, Row, check_sensor, symmetric};
+use super::ingest::{MAX_DIM, Row};
+use super::text::{check_sensor, symmetric};
 use crate::records::SensorRecord;
 use crate::stats::{Finding, Interval, Verdict};
 

@@ -30,7 +30,7 @@ enum LogRecordError {
     /// Degrees of freedom beyond what a sensor of the analyzer may have.
     #[error(
         "run {run}, step {step}: nis_dof {dof} is not a whole number in 1..={}",
-        super::text::MAX_DIM
+        super::ingest::MAX_DIM
     )]
     Dof { run: usize, step: usize, dof: f64 },
     /// An update the analyzer refuses.
@@ -85,7 +85,7 @@ impl StepSink for Sink<'_> {
                 }
                 Err(problem) => return Err(LogRecordError::Shape { run, step, problem }),
             };
-            if n.dof.fract() != 0.0 || n.dof > super::text::MAX_DIM as f64 {
+            if n.dof.fract() != 0.0 || n.dof > super::ingest::MAX_DIM as f64 {
                 return Err(LogRecordError::Dof {
                     run,
                     step,

@@ -14,21 +14,10 @@ use std::path::Path;
 use serde_json::Value;
 
 use super::analysis::NisAnalyzer;
-use super::ingest::{Ingest, Skips};
+use super::ingest::{Ingest, MAX_DIM, Row, Skips};
 use super::{LogSource, ReadOptions};
 use crate::input::FileError;
 use crate::records::{SensorRecord, shown_up_to};
-
-/// Largest measurement dimension of a sensor (and degrees of freedom of a precomputed NIS).
-pub(super) const MAX_DIM: usize = 64;
-
-/// What one row says.
-#[derive(Debug, Clone, PartialEq)]
-pub(super) struct Row {
-    pub time: f64,
-    pub sensor: String,
-    pub record: SensorRecord,
-}
 
 /// Where the cells of a CSV log sit.
 #[derive(Debug, Clone)]

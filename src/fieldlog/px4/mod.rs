@@ -33,6 +33,7 @@
 mod aid_src;
 mod annotate;
 mod channel;
+mod context;
 mod ekf2;
 mod estimator;
 mod info;
@@ -50,35 +51,9 @@ use super::analysis::NisAnalyzer;
 use super::ulog_walk::Ending;
 use super::{LogSource, ReadOptions};
 use crate::input::FileError;
+use context::Ctx;
 use estimator::Flags;
 use read::{AID_SRC, INNOVATIONS, LAND, LEGACY, Read, SELECTOR, VARIANCES};
-
-/// Largest gap between an innovations row and the variances row it is paired with, µs.
-const PAIR_WITHIN_US: u64 = 50_000;
-
-/// Whether the vehicle is in the air at `t` (µs): the latest land-detector row at or
-/// before `t` says not landed; before the first row, on the ground.
-fn in_air(land: &[(u64, bool)], t: u64) -> bool {
-    let i = land.partition_point(|r| r.0 <= t);
-    i > 0 && !land[i - 1].1
-}
-
-/// What the reader knows while it reads one log.
-struct Ctx<'a> {
-    read: &'a Read,
-    options: &'a ReadOptions,
-    land: Vec<(u64, bool)>,
-    origin: u64,
-    rates: BTreeMap<&'static str, f64>,
-    /// No parameter or topic confirms that EKF2 published the innovations.
-    publisher_assumed: bool,
-}
-
-impl Ctx<'_> {
-    fn secs(&self, t: u64) -> f64 {
-        (t as f64 - self.origin as f64) * 1e-6
-    }
-}
 
 /// Takeoffs, landings, primary switches and aiding-source changes, in time order.
 fn events(ctx: &Ctx, instances: &[u8], info: &mut Px4Info) {

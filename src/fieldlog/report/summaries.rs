@@ -108,7 +108,7 @@ pub(super) fn time_warning(s: &SensorSums) -> Option<String> {
             if t == 0.0 {
                 "0".to_string()
             } else {
-                crate::fieldlog::advice::short(t)
+                short(t)
             }
         ));
     }
@@ -249,4 +249,18 @@ pub(super) fn histogram(s: &SensorSums) -> Option<Histogram> {
             .is_none_or(|h| h.counts.len() == HIST_BINS)
     );
     histogram
+}
+
+/// A number in 4 significant digits, for the evidence text.
+pub(in crate::fieldlog) fn short(v: f64) -> String {
+    if v == 0.0 || !v.is_finite() {
+        return format!("{v}");
+    }
+    let a = v.abs();
+    if (1e-3..1e5).contains(&a) {
+        let digits = (3 - a.log10().floor() as i32).clamp(0, 6) as usize;
+        format!("{v:.digits$}")
+    } else {
+        format!("{v:.3e}")
+    }
 }

@@ -6,10 +6,10 @@ use std::fmt;
 use std::io::{Read, Seek, SeekFrom};
 use std::path::{Path, PathBuf};
 
-use super::report::short;
 use super::analysis::NisAnalyzer;
 use super::ingest::{Ingest, Skips};
 use super::report::NisReport;
+use super::report::short;
 use super::settings::NisSettings;
 use super::text::{CsvColumns, csv_text, json_row};
 use super::{LogSource, ReadOptions};

@@ -30,7 +30,6 @@ mod ulog_walk;
 
 use std::path::{Path, PathBuf};
 
-
 pub use analysis::{
     AnalyzerError, Dropped, MAX_SENSORS, NisAnalyzer, SensorInfo, SeriesPoint, Update,
 };

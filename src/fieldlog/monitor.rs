@@ -26,12 +26,12 @@ use std::fmt;
 use nalgebra::{Dim, Matrix, RawStorage};
 
 use super::LogSource;
-use super::report::short;
 use super::analysis::{MAX_SENSORS, NisAnalyzer};
 use super::ingest::Ingest;
-use super::report::NisReport;
-use super::settings::{NisSettings, Window};
 use super::ingest::{MAX_DIM, Row};
+use super::report::NisReport;
+use super::report::short;
+use super::settings::{NisSettings, Window};
 use super::text::{check_sensor, symmetric};
 use crate::records::SensorRecord;
 use crate::stats::{Finding, Interval, Verdict};

@@ -55,12 +55,8 @@ use settings::Spec;
 pub use crate::linalg::wrap_angle;
 pub use filter::CtrvFilter;
 pub use system::CtrvSystem;
+pub use system::{LIDAR, RADAR};
 pub use truth::CtrvTruth;
-
-/// Index of the lidar in the filter's sensor list.
-pub const LIDAR: usize = 0;
-/// Index of the radar in the filter's sensor list.
-pub const RADAR: usize = 1;
 
 /// The filter parameters, in θ order.
 const PARAMS: &[ParamInfo] = &[

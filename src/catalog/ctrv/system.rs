@@ -6,10 +6,14 @@
 
 use nalgebra::{DMatrix, DVector};
 
-use super::{LIDAR, RADAR};
 use crate::filter::unscented;
 use crate::filter::{Jacobian, SystemModel};
 use crate::linalg::wrap_angle;
+
+/// Index of the lidar in the filter's sensor list.
+pub const LIDAR: usize = 0;
+/// Index of the radar in the filter's sensor list.
+pub const RADAR: usize = 1;
 
 /// Below this `|ω T|` (rad) the transition uses its Taylor expansion in `ωT`.
 const SMALL_TURN: f64 = 1e-3;

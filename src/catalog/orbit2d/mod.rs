@@ -50,15 +50,9 @@ use crate::params::NoiseKind;
 
 pub use filter::OrbitEkf;
 pub use settings::{FilterSettings, InitialSettings, Settings, StationSettings, TruthSettings};
+pub use system::{EARTH_RADIUS, EARTH_RATE, MU};
 pub use system::{OrbitSystem, Stations};
 pub use truth::OrbitTruth;
-
-/// Earth's gravitational parameter μ, km³/s².
-pub const MU: f64 = 398_600.441_8;
-/// Earth's equatorial radius, km (the stations' distance from the centre).
-pub const EARTH_RADIUS: f64 = 6378.137;
-/// Earth's rotation rate, rad/s.
-pub const EARTH_RATE: f64 = 7.292_115e-5;
 
 /// The catalog entry.
 pub const ENTRY: CatalogEntry = CatalogEntry {

@@ -8,9 +8,15 @@ use std::f64::consts::PI;
 
 use nalgebra::{DMatrix, DVector, Matrix2, Matrix3x4, Matrix4, Vector2, Vector3, Vector4};
 
-use super::{EARTH_RADIUS, EARTH_RATE, MU};
 use crate::filter::{Jacobian, SystemModel};
 use crate::linalg::wrap_angle;
+
+/// Earth's gravitational parameter μ, km³/s².
+pub const MU: f64 = 398_600.441_8;
+/// Earth's equatorial radius, km (the stations' distance from the centre).
+pub const EARTH_RADIUS: f64 = 6378.137;
+/// Earth's rotation rate, rad/s.
+pub const EARTH_RATE: f64 = 7.292_115e-5;
 
 /// Two-body acceleration −μ r/|r|³, km/s².
 fn gravity(r: &Vector2<f64>) -> Vector2<f64> {

@@ -4,8 +4,8 @@
 use std::path::Path;
 
 use super::channel::{ChannelId, Row, Shape, judge_channel, sort_rows};
-use super::read::{AID_SRC, Topic};
 use super::context::Ctx;
+use super::read::{AID_SRC, Topic};
 use super::{NotJudged, Px4Info, estimator};
 use crate::fieldlog::LogSource;
 use crate::fieldlog::analysis::NisAnalyzer;

@@ -19,8 +19,8 @@
 
 use std::path::Path;
 
-use super::estimator::{self, Flags, Source, Status};
 use super::context::{Ctx, in_air};
+use super::estimator::{self, Flags, Source, Status};
 use super::{NotJudged, Px4Channel, Px4Info, ekf2};
 use crate::fieldlog::analysis::{Dropped, NisAnalyzer, SensorInfo, Update};
 use crate::input::FileError;

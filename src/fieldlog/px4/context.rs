@@ -3,8 +3,8 @@
 
 use std::collections::BTreeMap;
 
-use crate::fieldlog::ReadOptions;
 use super::read::Read;
+use crate::fieldlog::ReadOptions;
 
 /// Largest gap between an innovations row and the variances row it is paired with, µs.
 pub(super) const PAIR_WITHIN_US: u64 = 50_000;

@@ -5,11 +5,11 @@
 use std::collections::HashMap;
 use std::path::Path;
 
+use super::Px4Info;
 use super::channel::{ChannelId, Row, Shape, judge_channel, sort_rows};
+use super::context::{Ctx, PAIR_WITHIN_US};
 use super::estimator::{self, Flags};
 use super::read::{INNOVATIONS, LEGACY, TEST_RATIOS, Topic, VARIANCES};
-use super::Px4Info;
-use super::context::{Ctx, PAIR_WITHIN_US};
 use crate::fieldlog::LogSource;
 use crate::fieldlog::analysis::NisAnalyzer;
 use crate::input::FileError;

@@ -8,8 +8,8 @@ mod summaries;
 mod whiteness;
 
 pub use sensor::{NisReport, NotFused, Overall, SensorReport};
-pub use summaries::{Histogram, NisAverage, SensorPlot, WindowSummary};
 pub(in crate::fieldlog) use summaries::short;
+pub use summaries::{Histogram, NisAverage, SensorPlot, WindowSummary};
 use summaries::{
     binomial_tail, component_stats, gated_interval, histogram, nis_average, time_warning,
 };
@@ -18,11 +18,9 @@ use whiteness::{centred_whiteness, correlation_factor, mean_test, whiteness_stat
 
 use std::collections::HashMap;
 
-
 use crate::fieldlog::analysis::{NisAnalyzer, SensorSums};
 use crate::stats::{
-    Interval, Suspect, Verdict, combine,
-    gate_alpha, normal_two_sided_quantile, whiteness_tests,
+    Interval, Suspect, Verdict, combine, gate_alpha, normal_two_sided_quantile, whiteness_tests,
 };
 
 /// The number of tests a sensor contributes to the family.

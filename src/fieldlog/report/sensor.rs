@@ -10,7 +10,9 @@ use crate::fieldlog::analysis::Dropped;
 use crate::fieldlog::px4::{ParamAdvice, Px4Channel};
 use crate::fieldlog::settings::Window;
 use crate::fieldlog::source::LogSource;
-use crate::stats::{ComponentStat, Finding, Interval, Suspect, Verdict, WhitenessStat, WhitenessTest};
+use crate::stats::{
+    ComponentStat, Finding, Interval, Suspect, Verdict, WhitenessStat, WhitenessTest,
+};
 
 /// Everything `autotune nis` says about one sensor.
 #[derive(Debug, Clone, Serialize)]

@@ -105,11 +105,7 @@ pub(super) fn time_warning(s: &SensorSums) -> Option<String> {
         let t = s.time_min;
         return Some(format!(
             "{name}: all {n} updates have time {}: the time axis and time windows are meaningless",
-            if t == 0.0 {
-                "0".to_string()
-            } else {
-                short(t)
-            }
+            if t == 0.0 { "0".to_string() } else { short(t) }
         ));
     }
     (s.non_increasing > 0).then(|| {

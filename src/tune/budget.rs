@@ -13,20 +13,8 @@ use std::time::Instant;
 
 use rayon::prelude::*;
 
-use super::cost::{Candidate, Cost};
+use super::cost::{Candidate, Cost, Evaluation};
 use super::result::{Observer, Silent};
-
-/// What one evaluation of the cost gives: what the budget books, and what the caller asked
-/// for.
-pub(super) struct Evaluation<T> {
-    /// The value the best point and the history are judged by (J, with the simplex's box
-    /// penalty where the simplex scores).
-    pub j: f64,
-    /// The candidate's filter diverged.
-    pub diverged: bool,
-    /// The caller's value (the score, or a residual vector).
-    pub value: T,
-}
 
 /// An evaluation refused because the budget is spent (see [`Budget::exhausted`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

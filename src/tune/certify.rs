@@ -16,8 +16,8 @@
 
 use rand_xoshiro::SplitMix64;
 use rand_xoshiro::rand_core::{RngCore, SeedableRng};
-use serde::Serialize;
 
+pub use super::result::{Certificate, CertifiedStart};
 use super::{Silent, TuneError, TuneResult, TuneSettings, TuneStatus};
 use crate::experiment::{Experiment, Rebounded};
 use crate::montecarlo::McConfig;
@@ -30,47 +30,6 @@ pub const STARTS: usize = 4;
 pub const RECHECK: usize = 4;
 /// Scores within this fraction of the best (and of 0.1, for a best near 0) agree.
 const AGREE: f64 = 0.02;
-
-/// One start's search in the widened box.
-#[derive(Debug, Clone, Serialize)]
-pub struct CertifiedStart {
-    /// The start (problem order).
-    pub start: Vec<f64>,
-    /// Where its search ended.
-    pub tuned: Vec<f64>,
-    /// The objective there.
-    pub score: f64,
-    /// Fresh seeds its tuned filter passed, of those tried.
-    pub passed: usize,
-    /// Fresh seeds tried.
-    pub seeds: usize,
-    /// How its search ended.
-    pub status: TuneStatus,
-    /// Evaluations its search spent.
-    pub evaluations: usize,
-    /// Evaluations its refinement spent.
-    pub refine_evaluations: usize,
-    /// Its wall-clock time, s.
-    pub seconds: f64,
-}
-
-/// What the certification of a misfit found.
-#[derive(Debug, Clone, Serialize)]
-pub struct Certificate {
-    /// The widened box, (lower, upper) per parameter (fixed ones as they were).
-    pub bounds: Vec<(f64, f64)>,
-    /// Each start's search, the first search's result first.
-    pub starts: Vec<CertifiedStart>,
-    /// Starts whose score agrees with the best one's.
-    pub agreeing: usize,
-    /// Runs of the recheck at the best point.
-    pub recheck_runs: usize,
-    /// Whether the best point passed the gate on the recheck (a misfit at the limit of N
-    /// runs); `None` when no recheck ran (a start fit).
-    pub recheck_passed: Option<bool>,
-    /// Whether the misfit is proven.
-    pub proven: bool,
-}
 
 /// Whether `result` claims a misfit that needs its certificate: it failed its confirmation
 /// after a converged search, or a bound stopped it after its widening.
@@ -159,7 +118,7 @@ pub fn certify(
     }
     let mut runs: Vec<TuneResult> = Vec::with_capacity(STARTS);
     for s in &starts {
-        let r = super::tune(&wide, s, fixed, mc, &quiet, &Silent)?;
+        let r = super::stages::search(&wide, s, fixed, mc, &quiet, &Silent)?;
         // A filter that passes its confirmation fits, whether or not its search had
         // converged when its budget ran out.
         let fits = r.confirmation.holds();

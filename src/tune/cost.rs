@@ -17,7 +17,6 @@
 use std::collections::{HashMap, VecDeque};
 use std::sync::Mutex;
 
-use super::budget::Evaluation;
 use super::objective::Objective;
 use crate::experiment::{Experiment, ExperimentError};
 use crate::montecarlo::McConfig;
@@ -235,6 +234,18 @@ impl<'a> Cost<'a> {
     pub(super) fn near_bound(&self, k: usize, y: &[f64]) -> bool {
         y[k] - self.lo[k] < 0.05 || self.hi[k] - y[k] < 0.05
     }
+}
+
+/// What one evaluation of the cost gives: what the budget books, and what the caller asked
+/// for.
+pub(super) struct Evaluation<T> {
+    /// The value the best point and the history are judged by (J, with the simplex's box
+    /// penalty where the simplex scores).
+    pub j: f64,
+    /// The candidate's filter diverged.
+    pub diverged: bool,
+    /// The caller's value (the score, or a residual vector).
+    pub value: T,
 }
 
 /// A log-point and its score: a point of the global stage, where a local search ended,

@@ -10,7 +10,8 @@
 
 use nalgebra::{DMatrix, DVector};
 
-use super::budget::{Budget, Evaluation, Exhausted};
+use super::budget::{Budget, Exhausted};
+use super::cost::Evaluation;
 use super::cost::{Candidate, Cost, max_abs_diff};
 use crate::params::{NoiseKind, Target};
 use crate::stats::Accumulator;

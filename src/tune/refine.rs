@@ -26,11 +26,10 @@
 
 use nalgebra::{DMatrix, DVector, SymmetricEigen};
 use rayon::prelude::*;
-use serde::Serialize;
 use statrs::distribution::{Binomial, DiscreteCDF};
 
 use super::cost::Cost;
-use super::result::Resolution;
+use super::result::{Confirmation, Resolution};
 use crate::check::judge;
 use crate::experiment::Experiment;
 use crate::montecarlo::McConfig;
@@ -243,44 +242,6 @@ pub(super) fn refine(
 fn too_small_a_step(d: &DMatrix<f64>, step: &DVector<f64>, runs: usize, gate_runs: usize) -> bool {
     let at_n = (d * step).norm() / (runs as f64 / gate_runs as f64).sqrt();
     at_n < MIN_MOVE
-}
-
-/// How the tuned filter fared on fresh seeds.
-#[derive(Debug, Clone, Serialize)]
-pub struct Confirmation {
-    /// The first seed; seed k is `first_seed + k`.
-    pub first_seed: u64,
-    /// Number of fresh seeds K.
-    pub seeds: usize,
-    /// How many passed the gate.
-    pub passed: usize,
-    /// The fewest passes a consistent filter gives with probability at least 99%: the
-    /// lower end of the binomial band of K seeds at a pass rate of 1 − α.
-    pub band_low: usize,
-    /// The experiment is one recorded data set ([`crate::experiment::Experiment::seed_free`]):
-    /// the gate ran once on it, and it must pass.
-    pub recorded: bool,
-}
-
-impl Confirmation {
-    /// Whether the count lies in the band of a consistent filter.
-    pub fn holds(&self) -> bool {
-        self.passed >= self.band_low
-    }
-
-    /// "19 of 20 fresh seeds pass (a consistent filter passes ≥ 16 with 99% probability)".
-    pub fn text(&self) -> String {
-        if self.recorded {
-            let how = if self.passed == 1 { "pass" } else { "fail" };
-            return format!(
-                "the recorded measurements {how} the gate (recorded data, judged as they are: no fresh seeds to confirm on)"
-            );
-        }
-        format!(
-            "{} of {} fresh seeds pass the gate (a consistent filter passes at least {} with 99% probability)",
-            self.passed, self.seeds, self.band_low
-        )
-    }
 }
 
 /// The lowest pass count of K seeds inside the band of a filter that passes each with

@@ -81,6 +81,85 @@ pub struct Silent;
 
 impl Observer for Silent {}
 
+/// How the tuned filter fared on fresh seeds.
+#[derive(Debug, Clone, Serialize)]
+pub struct Confirmation {
+    /// The first seed; seed k is `first_seed + k`.
+    pub first_seed: u64,
+    /// Number of fresh seeds K.
+    pub seeds: usize,
+    /// How many passed the gate.
+    pub passed: usize,
+    /// The fewest passes a consistent filter gives with probability at least 99%: the
+    /// lower end of the binomial band of K seeds at a pass rate of 1 − α.
+    pub band_low: usize,
+    /// The experiment is one recorded data set ([`crate::experiment::Experiment::seed_free`]):
+    /// the gate ran once on it, and it must pass.
+    pub recorded: bool,
+}
+
+impl Confirmation {
+    /// Whether the count lies in the band of a consistent filter.
+    pub fn holds(&self) -> bool {
+        self.passed >= self.band_low
+    }
+
+    /// "19 of 20 fresh seeds pass (a consistent filter passes ≥ 16 with 99% probability)".
+    pub fn text(&self) -> String {
+        if self.recorded {
+            let how = if self.passed == 1 { "pass" } else { "fail" };
+            return format!(
+                "the recorded measurements {how} the gate (recorded data, judged as they are: no fresh seeds to confirm on)"
+            );
+        }
+        format!(
+            "{} of {} fresh seeds pass the gate (a consistent filter passes at least {} with 99% probability)",
+            self.passed, self.seeds, self.band_low
+        )
+    }
+}
+
+/// One start's search in the widened box.
+#[derive(Debug, Clone, Serialize)]
+pub struct CertifiedStart {
+    /// The start (problem order).
+    pub start: Vec<f64>,
+    /// Where its search ended.
+    pub tuned: Vec<f64>,
+    /// The objective there.
+    pub score: f64,
+    /// Fresh seeds its tuned filter passed, of those tried.
+    pub passed: usize,
+    /// Fresh seeds tried.
+    pub seeds: usize,
+    /// How its search ended.
+    pub status: TuneStatus,
+    /// Evaluations its search spent.
+    pub evaluations: usize,
+    /// Evaluations its refinement spent.
+    pub refine_evaluations: usize,
+    /// Its wall-clock time, s.
+    pub seconds: f64,
+}
+
+/// What the certification of a misfit found.
+#[derive(Debug, Clone, Serialize)]
+pub struct Certificate {
+    /// The widened box, (lower, upper) per parameter (fixed ones as they were).
+    pub bounds: Vec<(f64, f64)>,
+    /// Each start's search, the first search's result first.
+    pub starts: Vec<CertifiedStart>,
+    /// Starts whose score agrees with the best one's.
+    pub agreeing: usize,
+    /// Runs of the recheck at the best point.
+    pub recheck_runs: usize,
+    /// Whether the best point passed the gate on the recheck (a misfit at the limit of N
+    /// runs); `None` when no recheck ran (a start fit).
+    pub recheck_passed: Option<bool>,
+    /// Whether the misfit is proven.
+    pub proven: bool,
+}
+
 /// Everything a tuning run found.
 #[derive(Debug, Clone, Serialize)]
 pub struct TuneResult {

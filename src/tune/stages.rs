@@ -9,16 +9,41 @@ use nalgebra::{DMatrix, DVector};
 
 use super::budget::Budget;
 use super::cost::{Candidate, Cost};
-use super::refine::{self, Confirmation, Gate};
+use super::refine::{self, Gate};
+use super::result::Confirmation;
 use super::separable::{self, Part, Searched};
+use super::setup::{bound_flags, default_confirm_seed, exact_scoring};
 use super::{
     Objective, Observer, Plan, Resolution, Scoring, Terms, TuneError, TuneResult, TuneSettings,
-    TuneStatus, Widening, bound_flags, default_confirm_seed, exact_scoring, local,
+    TuneStatus, Widening, local,
 };
 use crate::estimate::{GateRanges, gate_ranges};
 use crate::experiment::Experiment;
 use crate::montecarlo::{McConfig, TapeUsage};
 use crate::stats::{Accumulator, ConsistencyReport, GateMode};
+
+/// One tuning run, its stages in order, without the certification of a misfit (what
+/// [`super::tune`] runs first, and [`super::certify`] from each of its starts).
+pub(super) fn search(
+    model: &dyn Experiment,
+    start: &[f64],
+    fixed: &[bool],
+    mc: &McConfig,
+    settings: &TuneSettings,
+    observer: &dyn Observer,
+) -> Result<TuneResult, TuneError> {
+    let mut run = Tuning::set_up(model, start, fixed, mc, settings, observer)?;
+    let mut found = run.search(observer);
+    run.widen(&mut found, observer);
+    run.failed()?;
+    let refined = run.refine(&found, observer);
+    let confirmed = run.confirm(&refined, observer);
+    let resolution = run.resolution(&found, &refined, &confirmed);
+    let supported = run.supported(&confirmed);
+    run.failed()?;
+    let result = run.result(found, refined, confirmed, resolution, supported);
+    Ok(result)
+}
 
 /// A tuning run's fixed parts, set up before the search: the experiment, the start, the
 /// settings the plan chose, and the cost every stage evaluates through.

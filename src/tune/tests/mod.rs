@@ -17,6 +17,7 @@ pub(crate) use mock::{Mock, settings};
 use std::sync::atomic::Ordering;
 
 use super::*;
+use crate::experiment::ExperimentError;
 
 /// J at which the simplex stops (its `SD_TOLERANCE`); see the module doc.
 const J_STOP: f64 = 1e-10;

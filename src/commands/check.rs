@@ -11,7 +11,7 @@ use crate::input::FileError;
 use crate::montecarlo::{Engine, McConfig, Share};
 use crate::output::{Outputs, check_output_file, check_report_dir, write_file};
 use crate::report::check::html::{check_html, check_markdown};
-use crate::report::tune::tuned::TunedConfig;
+use crate::report::tuned::TunedConfig;
 use crate::report::{CheckOutput, junit_xml};
 use crate::stats::{Accumulator, ConsistencyReport, Verdict};
 

@@ -22,7 +22,7 @@ use crate::report::estimate::{
     EstimateSummary, als_text, estimate_json, ml_text, ranges_json, ranges_text, rests_on,
     start_note,
 };
-use crate::report::tune::tuned::estimated_config_toml;
+use crate::report::tuned::estimated_config_toml;
 
 /// The options of `estimate`.
 #[derive(Debug, Clone, clap::Args)]

@@ -10,10 +10,10 @@ use crate::explain::Explanation;
 use crate::input::FileError;
 use crate::montecarlo::McConfig;
 use crate::output::{Outputs, check_output_file, check_report_dir};
-use crate::report::check::advice::{Recommendation, amend_for_explanation, recommendations};
-use crate::report::check::html::tune_html;
-use crate::report::tune::tuned::{rejected_config_toml, tuned_config_toml};
+use crate::report::advice::{Recommendation, amend_for_explanation, recommendations};
+use crate::report::tune::html::tune_html;
 use crate::report::tune::{TuneReport, tune_markdown};
+use crate::report::tuned::{rejected_config_toml, tuned_config_toml};
 use crate::tune::{
     Observer, TuneError, TuneResult, TuneSettings, TuneSpec, TuneStatus, tune as search,
 };

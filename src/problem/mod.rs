@@ -7,6 +7,7 @@ mod covariance;
 mod external;
 mod linear;
 pub mod spec;
+mod tuned;
 mod validate;
 
 use std::path::{Path, PathBuf};
@@ -25,6 +26,7 @@ use crate::stats::Accumulator;
 use crate::tune::TuneSettings;
 use crate::userfile::read_text;
 pub use spec::ProblemSpec;
+pub use tuned::TunedConfig;
 use validate::{VResult, Validator};
 
 /// Which kind of system a problem file describes: the section that defines it.

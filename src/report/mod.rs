@@ -11,7 +11,9 @@
 //! - [`format`](mod@format), [`html`] and `svg`: numbers, HTML escaping and page heads, and the plot
 //!   primitives.
 
+pub mod advice;
 pub mod check;
+pub(crate) mod consistency;
 pub mod estimate;
 pub mod format;
 pub mod html;
@@ -20,6 +22,8 @@ pub mod nis;
 pub mod progress;
 mod svg;
 pub mod tune;
+pub mod tuned;
 
-pub use check::{CheckOutput, check_summary, gate_text, junit_xml, run_spread_note, summary_text};
+pub use check::{CheckOutput, check_summary, gate_text, junit_xml, summary_text};
+pub use consistency::cells::run_spread_note;
 pub use format::{fmt_fixed, fmt_g, paint_verdicts};

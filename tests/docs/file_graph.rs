@@ -635,3 +635,61 @@ fn the_file_graph_follows_reexports_and_sees_every_kind_of_path() {
         .to_vec();
     assert_eq!(g.circles(), vec![circle]);
 }
+
+/// The file's command folder under `src/report/` (`report/check/html.rs` → `check`).
+fn report_folder(rel: &str) -> Option<&str> {
+    let rest = rel.strip_prefix("report/")?;
+    let (folder, _) = rest.split_once('/')?;
+    Some(folder)
+}
+
+#[test]
+fn every_command_has_its_body_in_commands_and_renders_in_its_own_report_folder() {
+    use clap::CommandFactory;
+    let src = Path::new(env!("CARGO_MANIFEST_DIR")).join("src");
+    // `completions` prints the command line's own completion scripts: it is the command
+    // line's, not a command of the library (app/completions.rs).
+    let commands: Vec<String> = autotune::app::Cli::command()
+        .get_subcommands()
+        .map(|c| c.get_name().to_string())
+        .filter(|n| n != "completions")
+        .collect();
+    assert!(commands.len() >= 7, "{commands:?}");
+    let sources = sources();
+    let mut violations = Vec::new();
+    for c in &commands {
+        // The body: a library function named after the command in commands/ (`merge`, a
+        // check over shards, is `commands::check::merge`).
+        let body = format!("pub fn {c}(");
+        if !sources
+            .iter()
+            .any(|s| s.rel.starts_with("commands/") && s.code.contains(&body))
+        {
+            violations.push(format!("`{c}`: no `{body}…` in src/commands/"));
+        }
+    }
+    for c in ["check", "tune", "nis", "estimate", "init"] {
+        let folder = src.join("report").join(c);
+        if !folder.is_dir() && !src.join("report").join(format!("{c}.rs")).is_file() {
+            violations.push(format!("`{c}` renders, but has no src/report/{c}/"));
+        }
+    }
+    let graph = Graph::of(&sources);
+    for (a, to) in &graph.edges {
+        let Some(mine) = report_folder(a) else {
+            continue;
+        };
+        for (b, why) in to {
+            if let Some(theirs) = report_folder(b)
+                && theirs != mine
+                && commands.iter().any(|c| c == mine)
+                && commands.iter().any(|c| c == theirs)
+            {
+                violations.push(format!(
+                    "{a} (`{mine}`'s rendering) uses {b} (`{theirs}`'s): {why}; what both need belongs in src/report/"
+                ));
+            }
+        }
+    }
+    assert!(violations.is_empty(), "{}", violations.join("\n"));
+}

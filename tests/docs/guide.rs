@@ -560,21 +560,25 @@ fn function_body<'a>(source: &'a str, name: &str) -> &'a str {
 
 /// Where `check` prints its summary: the file and the functions whose formatted lines
 /// (and line fragments) make it up. If the code moves, move these names with it.
-const CHECK_LINES: &[(&str, &[&str])] = &[(
-    "src/report/check/summary.rs",
-    &[
-        "check_summary",
-        "summary_text",
-        "stat_row",
-        "component_lines",
-        "mean_lines",
-        "whiteness_line",
-        "power_notes",
-        "gate_text",
-        "no_data_reason",
-        "run_spread_note",
-    ],
-)];
+const CHECK_LINES: &[(&str, &[&str])] = &[
+    (
+        "src/report/check/summary.rs",
+        &[
+            "check_summary",
+            "summary_text",
+            "stat_row",
+            "component_lines",
+            "mean_lines",
+            "whiteness_line",
+            "power_notes",
+            "gate_text",
+        ],
+    ),
+    (
+        "src/report/consistency/cells.rs",
+        &["no_data_reason", "run_spread_note"],
+    ),
+];
 
 /// Fragments of `check`'s lines that no example in the pages shows, and why. Every other
 /// line and fragment the summary can print appears in a `check` example of the README or

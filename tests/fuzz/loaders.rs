@@ -23,7 +23,7 @@ use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 use autotune::internals::problem::Problem;
-use autotune::report::tune::tuned::TunedConfig;
+use autotune::report::tuned::TunedConfig;
 
 use crate::fuzzing;
 use fuzzing::{Npy, Rng, mutate_bytes, number_spans, settings};

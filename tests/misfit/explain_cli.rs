@@ -107,7 +107,7 @@ fn where_the_filter_cannot_be_changed_no_cause_is_named() {
             .contains("as code, not as matrices")),
         "{ex:#?}"
     );
-    let lines = autotune::report::check::advice::family_finding(&r, &ex)
+    let lines = autotune::report::advice::family_finding(&r, &ex)
         .unwrap()
         .join("\n");
     assert!(lines.contains("not tried ("), "{lines}");

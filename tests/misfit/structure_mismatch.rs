@@ -53,7 +53,7 @@ fn failures_at_best_point(file: &str) -> (usize, Vec<f64>) {
         "{file}: {:#?}",
         explanations.iter().map(|e| e.line()).collect::<Vec<_>>()
     );
-    let finding = autotune::report::check::advice::family_finding(&r, &explanations)
+    let finding = autotune::report::advice::family_finding(&r, &explanations)
         .expect("an inconsistent family is reported")
         .join("\n");
     assert!(
@@ -62,7 +62,7 @@ fn failures_at_best_point(file: &str) -> (usize, Vec<f64>) {
     );
     assert!(finding.contains("components that stay off"), "{finding}");
     assert!(finding.contains("add the state the truth has"), "{finding}");
-    let recs = autotune::report::check::advice::recommendations(&p, &r, &r.before);
+    let recs = autotune::report::advice::recommendations(&p, &r, &r.before);
     for rec in &recs {
         assert!(!rec.advice.contains("not identifiable"), "{}", rec.advice);
         assert!(

@@ -6,7 +6,7 @@ use crate::common;
 
 use autotune::internals::experiment::Experiment;
 use autotune::internals::tune::{Silent, TuneSettings, TuneStatus, tune};
-use autotune::report::check::advice::recommendations;
+use autotune::report::advice::recommendations;
 use common::load;
 
 fn advice_of(name: &str, settings: &TuneSettings) -> (TuneStatus, Vec<(String, String)>) {

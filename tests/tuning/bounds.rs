@@ -11,7 +11,7 @@ use assert_cmd::Command;
 use autotune::internals::experiment::Experiment;
 use autotune::internals::problem::Problem;
 use autotune::internals::tune::{Silent, TuneResult, TuneSettings, TuneStatus, tune};
-use autotune::report::check::advice::recommendations;
+use autotune::report::advice::recommendations;
 
 fn path() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/data/misfit/at_bound.toml")

@@ -263,7 +263,7 @@ fn flat_directions_are_reported_not_given_a_confident_number() {
     // The sum is still right.
     let sum = r.tuned[idx("q_accel")] + r.tuned[idx("q_twin")];
     assert!((sum / 0.5 - 1.0).abs() < EXACT_TOL, "sum {sum}");
-    let recs = autotune::report::check::advice::recommendations(&p, &r, &r.before);
+    let recs = autotune::report::advice::recommendations(&p, &r, &r.before);
     assert!(
         recs[idx("q_twin")].advice.contains("not identifiable"),
         "{}",

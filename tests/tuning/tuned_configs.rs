@@ -5,7 +5,7 @@ use crate::common;
 
 use autotune::internals::check::check;
 use autotune::internals::experiment::Experiment;
-use autotune::report::tune::tuned::TunedConfig;
+use autotune::report::tuned::TunedConfig;
 use common::{load, problem_path};
 use rayon::prelude::*;
 

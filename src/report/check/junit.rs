@@ -2,7 +2,7 @@
 
 use std::fmt::Write;
 
-use crate::report::check::summary::has_data;
+use crate::report::consistency::cells::has_data;
 use crate::report::format::fmt_fixed;
 use crate::report::html::escape;
 use crate::stats::{ConsistencyReport, GateMode, StatisticSummary, Verdict};
@@ -115,7 +115,7 @@ pub fn junit_xml(problem: &str, report: &ConsistencyReport) -> String {
         (
             format!(
                 "{} in {} of {} runs",
-                crate::report::check::summary::stopped_runs(report.verdict),
+                crate::report::consistency::cells::stopped_runs(report.verdict),
                 report.diverged_runs,
                 report.runs
             ),

@@ -1,14 +1,12 @@
 //! `check`'s renderers, which `tune`'s reports share: the human summary, JUnit XML, the HTML
 //! and Markdown pages with their plots, and the per-parameter advice.
 
-pub mod advice;
 pub mod html;
 mod junit;
-mod plots;
 pub mod summary;
 
 pub use junit::junit_xml;
-pub use summary::{check_summary, gate_text, run_spread_note, summary_text};
+pub use summary::{check_summary, gate_text, summary_text};
 
 use serde::Serialize;
 

@@ -1,6 +1,6 @@
 //! The report of a tuning run: Markdown for people, JSON for machines.
 
-pub mod tuned;
+pub mod html;
 
 use std::fmt::Write;
 
@@ -8,8 +8,8 @@ use serde::Serialize;
 
 use crate::experiment::{Experiment, Source};
 use crate::explain::Explanation;
-use crate::report::check::advice::{Recommendation, fmt_evidence};
-use crate::report::check::summary::{StatCells, component_cells};
+use crate::report::advice::{Recommendation, fmt_evidence};
+use crate::report::consistency::cells::{StatCells, component_cells};
 use crate::report::format::{fmt_fixed, fmt_g};
 use crate::stats::{ConsistencyReport, StatisticSummary, Verdict};
 use crate::tune::{TuneResult, TuneStatus};
@@ -96,7 +96,7 @@ pub fn tune_markdown(
         r.after.verdict.label(),
         r.status
     );
-    if let Some(lines) = crate::report::check::advice::family_finding(r, explanations) {
+    if let Some(lines) = crate::report::advice::family_finding(r, explanations) {
         let _ = writeln!(o, "## {}\n", misfit_heading(r));
         for l in lines {
             let _ = writeln!(o, "- {l}");
@@ -233,7 +233,7 @@ pub(crate) fn after_heading(r: &TuneResult) -> &'static str {
 }
 
 /// The heading of the misfit section: no value fits, or a bound had to be widened.
-pub(super) fn misfit_heading(r: &TuneResult) -> &'static str {
+pub(in crate::report) fn misfit_heading(r: &TuneResult) -> &'static str {
     if r.status == TuneStatus::Inconsistent {
         "No consistent value in this family, and why"
     } else if r.status == TuneStatus::Undecided {
@@ -292,7 +292,7 @@ pub fn tune_summary(
             let _ = writeln!(o, "  {line}");
         }
     }
-    if let Some(lines) = crate::report::check::advice::family_finding(result, explanations) {
+    if let Some(lines) = crate::report::advice::family_finding(result, explanations) {
         for l in lines {
             let _ = writeln!(o, "  {l}");
         }

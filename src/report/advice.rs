@@ -471,7 +471,7 @@ fn best_achievable(result: &TuneResult) -> Vec<String> {
         .iter()
         .chain(std::iter::once(&a.nis))
         .map(|s| {
-            let c = crate::report::check::summary::StatCells::of(s);
+            let c = crate::report::consistency::cells::StatCells::of(s);
             format!(
                 "A{} {} (target {}, interval {})",
                 s.name, c.average, c.target, c.interval

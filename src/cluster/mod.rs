@@ -129,3 +129,90 @@ impl SumsShape {
         decode_sums_bytes(bytes, &self.chunk(c)).map(|chunk| chunk.sums)
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use std::path::Path;
+
+    use super::*;
+    use crate::problem::Problem;
+    use crate::tune::tests::Mock;
+
+    fn cv2d() -> Problem {
+        let path = concat!(env!("CARGO_MANIFEST_DIR"), "/problems/cv2d.toml");
+        Problem::load(Path::new(path)).unwrap()
+    }
+
+    #[test]
+    fn three_shares_merged_in_chunk_order_are_the_one_process_sums_bit_for_bit() {
+        let p = cv2d();
+        let e = p.experiment();
+        // 130 runs: chunks of 64, 64 and 2 runs, one for each share.
+        let mc = McConfig::new(130, 25).unwrap().with_seed(7);
+        let theta = e.params().values();
+        let whole = e.monte_carlo(&theta, &mc).unwrap();
+        let mut parts = Vec::new();
+        for i in (0..3).rev() {
+            let share = Share::new(i, 3).unwrap();
+            let own = share_sums(e, &theta, &mc, RunOptions::default(), share).unwrap();
+            assert_eq!(own.iter().map(|(c, _)| *c).collect::<Vec<_>>(), vec![i]);
+            parts.extend(own);
+        }
+        let merged = Share::merge(mc.runs(), empty_sums(e, &mc), parts.clone()).unwrap();
+        assert_eq!(merged, whole);
+        // A chunk missing or twice is refused, not merged.
+        let missing = parts[1..].to_vec();
+        assert!(Share::merge(mc.runs(), empty_sums(e, &mc), missing).is_err());
+        let mut twice = parts.clone();
+        twice.push(parts[0].clone());
+        assert!(Share::merge(mc.runs(), empty_sums(e, &mc), twice).is_err());
+    }
+
+    #[test]
+    fn a_chunk_goes_over_the_wire_bit_for_bit_and_only_with_its_own_shape() {
+        let p = cv2d();
+        let e = p.experiment();
+        let mc = McConfig::new(70, 12).unwrap().with_seed(3);
+        let theta = e.params().values();
+        let shape = SumsShape::of(e, &mc);
+        assert_eq!(shape.chunks(), 2);
+        let parts = share_sums(
+            e,
+            &theta,
+            &mc,
+            RunOptions::default(),
+            Share::new(0, 1).unwrap(),
+        )
+        .unwrap();
+        for (c, sums) in &parts {
+            let bytes = shape.encode(*c, sums);
+            assert_eq!(&shape.decode(*c, &bytes).unwrap(), sums);
+        }
+        // The second chunk holds 6 runs, the first 64: each one's bytes are refused as
+        // the other's.
+        let first = shape.encode(0, &parts[0].1);
+        assert!(shape.decode(1, &first).is_err());
+        let other = SumsShape { n_z: 3, ..shape };
+        assert!(other.decode(0, &first).is_err());
+    }
+
+    #[test]
+    fn an_experiment_that_ignores_its_share_or_does_not_split_is_refused() {
+        // The mock computes every run whatever it is asked: its sums hold no chunk of the
+        // share's, which share_sums says rather than returning the whole as a share.
+        let mock = Mock::new(&[1.0], &[&[1.0]]);
+        let mc = McConfig::new(128, 5).unwrap();
+        let share = Share::new(1, 2).unwrap();
+        let got = share_sums(&mock, &[1.0], &mc, RunOptions::default(), share);
+        assert!(
+            matches!(got, Err(ExperimentError::Unsplit { .. })),
+            "{got:?}"
+        );
+        let recorded = Mock::new(&[1.0], &[&[1.0]]).recorded();
+        let got = share_sums(&recorded, &[1.0], &mc, RunOptions::default(), share);
+        assert!(
+            matches!(got, Err(ExperimentError::Unsplit { .. })),
+            "{got:?}"
+        );
+    }
+}

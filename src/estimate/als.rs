@@ -169,25 +169,44 @@ pub fn estimate_passes(
     lags: usize,
     passes: usize,
 ) -> Result<AlsEstimate, EstimateError> {
-    let mut est = estimate(model, data, start, fixed, lags)?;
-    for _ in 1..passes {
+    let first = estimate(model, data, start, fixed, lags)?;
+    Ok(more_passes(
+        first,
+        passes,
+        |e| &mut e.passes,
         // A parameter held at zero would give a degenerate gain (a filter that stops
         // correcting what that noise drives, with Ā at the edge of stability): the pass
         // that found it stands.
-        if !est.at_zero.is_empty() {
+        |e| !e.at_zero.is_empty(),
+        |e| estimate(model, data, &e.theta, fixed, lags),
+    ))
+}
+
+/// `first` and up to `passes − 1` passes more, each `again` at the estimate before it
+/// (counted in the estimate's `passes_of`), until an estimate `stands` as it is; a pass
+/// that fails leaves the one before it standing (the gain at its estimate could not be
+/// used). The ALS of parameterized terms and of full matrices repeat their passes so.
+pub(crate) fn more_passes<E>(
+    first: E,
+    passes: usize,
+    passes_of: fn(&mut E) -> &mut usize,
+    stands: impl Fn(&E) -> bool,
+    again: impl Fn(&E) -> Result<E, EstimateError>,
+) -> E {
+    let mut est = first;
+    for _ in 1..passes {
+        if stands(&est) {
             break;
         }
-        match estimate(model, data, &est.theta, fixed, lags) {
-            Ok(next) => {
-                let done = est.passes + 1;
+        match again(&est) {
+            Ok(mut next) => {
+                *passes_of(&mut next) = *passes_of(&mut est) + 1;
                 est = next;
-                est.passes = done;
             }
-            // The earlier pass stands when the gain at its estimate cannot be used.
             Err(_) => break,
         }
     }
-    Ok(est)
+    est
 }
 
 /// The fixed-gain filter's innovation autocovariances, and the autocovariances any noise

@@ -19,7 +19,9 @@ use clarabel::solver::{NonnegativeConeT, PSDTriangleConeT, SupportedConeT};
 use nalgebra::DMatrix;
 use serde::Serialize;
 
-use super::als::{AlsModel, Autocovariances, FullMatrix, constrained_ls, identified, rms};
+use super::als::{
+    AlsModel, Autocovariances, FullMatrix, constrained_ls, identified, more_passes, rms,
+};
 use super::{EstimateError, MeasurementRecord};
 use crate::params::{Coef, CovModel};
 
@@ -478,26 +480,20 @@ pub fn estimate_full(
     passes: usize,
 ) -> Result<FullEstimate, EstimateError> {
     let (Q0, R0) = (model.q.build(start), model.r.build(start));
-    let mut est = fit_at_gain(model, data, start, fixed, full, (&Q0, &R0), lags)?;
-    for _ in 1..passes {
-        let boundary = |M: &DMatrix<f64>| {
-            let e = M.symmetric_eigenvalues();
-            e.min() <= 1e-6 * e.max()
-        };
-        let on_edge = !est.at_zero.is_empty()
-            || (est.min_eigenvalue[0].is_some() && boundary(&est.W))
-            || (est.min_eigenvalue[1].is_some() && boundary(&est.R));
-        if on_edge {
-            break;
-        }
-        match fit_at_gain(model, data, start, fixed, full, (&est.Q, &est.R), lags) {
-            Ok(next) => {
-                let done = est.passes + 1;
-                est = next;
-                est.passes = done;
-            }
-            Err(_) => break,
-        }
-    }
-    Ok(est)
+    let first = fit_at_gain(model, data, start, fixed, full, (&Q0, &R0), lags)?;
+    let boundary = |M: &DMatrix<f64>| {
+        let e = M.symmetric_eigenvalues();
+        e.min() <= 1e-6 * e.max()
+    };
+    Ok(more_passes(
+        first,
+        passes,
+        |e| &mut e.passes,
+        |est| {
+            !est.at_zero.is_empty()
+                || (est.min_eigenvalue[0].is_some() && boundary(&est.W))
+                || (est.min_eigenvalue[1].is_some() && boundary(&est.R))
+        },
+        |est| fit_at_gain(model, data, start, fixed, full, (&est.Q, &est.R), lags),
+    ))
 }

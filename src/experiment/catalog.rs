@@ -1,9 +1,10 @@
 //! A problem file's catalog `[model]` as an [`Experiment`].
 
+use super::held::Held;
 use super::{Definition, Experiment, ExperimentError, RunOptions};
 use crate::catalog::{CatalogEntry, CatalogModel};
-use crate::filter::{Corrected, Correction};
-use crate::montecarlo::{self, McConfig, TruthCache};
+use crate::filter::Correction;
+use crate::montecarlo::{McConfig, TruthCache};
 use crate::params::Target;
 use crate::stats::Accumulator;
 
@@ -23,6 +24,15 @@ pub struct CatalogExperiment {
     pub truth_cache: TruthCache,
 }
 
+impl CatalogExperiment {
+    fn held(&self) -> Held<'_, dyn crate::model::TruthModel + '_> {
+        Held {
+            truth: self.model.truth(),
+            cache: &self.truth_cache,
+        }
+    }
+}
+
 impl Experiment for CatalogExperiment {
     fn definition(&self) -> &Definition {
         &self.definition
@@ -34,13 +44,7 @@ impl Experiment for CatalogExperiment {
         mc: &McConfig,
         run: RunOptions<'_>,
     ) -> Result<Accumulator, ExperimentError> {
-        Ok(montecarlo::run_generic_cached(
-            self.model.truth(),
-            &self.model.filter(theta),
-            mc,
-            run,
-            &self.truth_cache,
-        ))
+        self.held().monte_carlo(&self.model.filter(theta), mc, run)
     }
 
     fn monte_carlo_corrected(
@@ -50,15 +54,8 @@ impl Experiment for CatalogExperiment {
         run: RunOptions<'_>,
         correction: &Correction,
     ) -> Option<Result<Accumulator, ExperimentError>> {
-        let filter = self.model.filter(theta);
-        let read = Corrected::new(&filter, correction)?;
-        Some(Ok(montecarlo::run_generic_cached(
-            self.model.truth(),
-            &read,
-            mc,
-            run,
-            &self.truth_cache,
-        )))
+        self.held()
+            .corrected(&self.model.filter(theta), mc, run, correction)
     }
 
     fn replay_filter(&self, theta: &[f64]) -> Option<Box<dyn crate::filter::Filter + '_>> {
@@ -70,7 +67,7 @@ impl Experiment for CatalogExperiment {
     }
 
     fn innovation_scales(&self, theta: &[f64], mc: &McConfig) -> Option<Vec<f64>> {
-        montecarlo::innovation_scales(self.model.truth(), &self.model.filter(theta), mc)
+        self.held().innovation_scales(&self.model.filter(theta), mc)
     }
 
     fn target(&self, i: usize) -> Option<Target> {
@@ -81,11 +78,11 @@ impl Experiment for CatalogExperiment {
     }
 
     fn truth_reuse(&self, since: crate::montecarlo::TapeUsage) -> super::TruthReuse {
-        super::TruthReuse::taped(&self.truth_cache, since)
+        self.held().truth_reuse(since)
     }
 
     fn tape_usage(&self) -> crate::montecarlo::TapeUsage {
-        self.truth_cache.usage()
+        self.held().tape_usage()
     }
 
     fn truth_values(&self) -> Option<Vec<f64>> {

@@ -15,6 +15,7 @@
 mod catalog;
 mod definition;
 mod error;
+mod held;
 mod hypotheses;
 mod linear;
 mod rebounded;

@@ -1,10 +1,11 @@
 //! A Rust user's own truth model and filter family as an [`Experiment`].
 
+use super::held::Held;
 use super::{Covariances, Definition, Experiment, ExperimentError, Info, RunOptions, Source};
 use crate::filter::Filter;
 use crate::input::SettingError;
 use crate::model::TruthModel;
-use crate::montecarlo::{self, McConfig, TruthCache};
+use crate::montecarlo::{McConfig, TruthCache};
 use crate::params::{ParamDef, ParamSpace, Target};
 use crate::stats::Accumulator;
 
@@ -103,6 +104,14 @@ where
             covariances: None,
             truth_values: None,
             replay: None,
+        }
+    }
+
+    /// The truth and its runs' cache, as the filters held as code share them.
+    fn held(&self) -> Held<'_, T> {
+        Held {
+            truth: &self.truth,
+            cache: &self.truth_cache,
         }
     }
 }
@@ -293,13 +302,7 @@ where
         mc: &McConfig,
         run: RunOptions<'_>,
     ) -> Result<Accumulator, ExperimentError> {
-        Ok(montecarlo::run_generic_cached(
-            &self.truth,
-            &(self.build)(theta),
-            mc,
-            run,
-            &self.truth_cache,
-        ))
+        self.held().monte_carlo(&(self.build)(theta), mc, run)
     }
 
     fn target(&self, i: usize) -> Option<Target> {
@@ -313,19 +316,12 @@ where
         run: RunOptions<'_>,
         correction: &crate::filter::Correction,
     ) -> Option<Result<Accumulator, ExperimentError>> {
-        let filter = (self.build)(theta);
-        let read = crate::filter::Corrected::new(&filter, correction)?;
-        Some(Ok(montecarlo::run_generic_cached(
-            &self.truth,
-            &read,
-            mc,
-            run,
-            &self.truth_cache,
-        )))
+        self.held()
+            .corrected(&(self.build)(theta), mc, run, correction)
     }
 
     fn innovation_scales(&self, theta: &[f64], mc: &McConfig) -> Option<Vec<f64>> {
-        montecarlo::innovation_scales(&self.truth, &(self.build)(theta), mc)
+        self.held().innovation_scales(&(self.build)(theta), mc)
     }
 
     fn covariances(&self, theta: &[f64]) -> Option<Covariances> {
@@ -333,11 +329,11 @@ where
     }
 
     fn truth_reuse(&self, since: crate::montecarlo::TapeUsage) -> super::TruthReuse {
-        super::TruthReuse::taped(&self.truth_cache, since)
+        self.held().truth_reuse(since)
     }
 
     fn tape_usage(&self) -> crate::montecarlo::TapeUsage {
-        self.truth_cache.usage()
+        self.held().tape_usage()
     }
 
     fn truth_values(&self) -> Option<Vec<f64>> {

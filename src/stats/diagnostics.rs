@@ -209,24 +209,54 @@ pub(super) fn components(
 }
 
 pub(super) fn whiteness(acc: &Accumulator, names: &[String], z: f64) -> Vec<WhitenessStat> {
+    let sums = LaggedSums {
+        pairs: &acc.white_pairs,
+        ab: &acc.white_ab,
+        a2: &acc.white_a2,
+        b2: &acc.white_b2,
+    };
+    lagged_whiteness(names, acc.lags, &sums, z)
+}
+
+/// The lagged sums behind the whiteness statistics of `m` components over lags `1..=L`: at
+/// index `(l − 1) m + j`, the pairs of component j at lag l and their sums of `u_k u_{k−l}`,
+/// `u_k²` and `u_{k−l}²` (`u = ν_j/√S_jj`). The Monte Carlo sums ([`Accumulator`]) and a
+/// field log's (one run) hold them alike.
+pub(crate) struct LaggedSums<'a> {
+    /// Pairs; a short slice counts no pairs past its end.
+    pub pairs: &'a [f64],
+    /// `Σ u_k u_{k−l}`.
+    pub ab: &'a [f64],
+    /// `Σ u_k²`.
+    pub a2: &'a [f64],
+    /// `Σ u_{k−l}²`.
+    pub b2: &'a [f64],
+}
+
+/// The lagged autocorrelation `ρ = Σ u_k u_{k−l} / √(Σ u_k² Σ u_{k−l}²)` of each of the
+/// components `names`, lag by lag over `1..=lags`, with its band `z/√pairs`; a lag and
+/// component without pairs is left out. The one computation of ρ and its band that
+/// `check`'s gate and `nis` share.
+pub(crate) fn lagged_whiteness(
+    names: &[String],
+    lags: usize,
+    sums: &LaggedSums<'_>,
+    z: f64,
+) -> Vec<WhitenessStat> {
     let m = names.len();
     let mut out = Vec::new();
-    for lag in 1..=acc.lags {
+    for lag in 1..=lags {
         for (j, name) in names.iter().enumerate() {
             let idx = (lag - 1) * m + j;
-            let pairs = acc.white_pairs[idx];
+            let pairs = sums.pairs.get(idx).copied().unwrap_or(0.0);
             if pairs < 1.0 {
                 continue;
             }
-            let den = (acc.white_a2[idx] * acc.white_b2[idx]).sqrt();
+            let den = (sums.a2[idx] * sums.b2[idx]).sqrt();
             out.push(WhitenessStat {
                 component: name.clone(),
                 lag,
-                rho: if den > 0.0 {
-                    acc.white_ab[idx] / den
-                } else {
-                    0.0
-                },
+                rho: if den > 0.0 { sums.ab[idx] / den } else { 0.0 },
                 band: z / pairs.sqrt(),
                 pairs,
             });

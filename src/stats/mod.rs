@@ -28,6 +28,7 @@ mod sums;
 
 pub use attribution::{Diagnosis, Finding, Suspect, blame};
 pub use diagnostics::{ComponentStat, WhitenessStat, WhitenessTest, whiteness_tests};
+pub(crate) use diagnostics::{LaggedSums, lagged_whiteness};
 
 pub use interval::{
     GateMode, Interval, MIN_BATCH_STEPS, MIN_BATCHES, SumVariance, Verdict, batch_spread,

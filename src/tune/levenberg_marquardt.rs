@@ -651,6 +651,47 @@ mod tests {
     }
 
     #[test]
+    fn on_the_noise_floor_a_step_that_gains_under_a_tenth_of_it_ends_the_search() {
+        // Three components off by ±7% that two parameters cannot all remove (J's minimum
+        // (3 · 0.07²)/3 = 0.0049 lies on the floor, CONSISTENT_J = 0.01, above a tenth of
+        // it), with a bend that makes the last steps slow. The mock's Monte Carlo sums are
+        // its exact ones, so a Monte Carlo search is the exact search cut short, where the
+        // floor's rules cut it: its evaluations are the first ones of the exact search's.
+        let solve = |mock: &Mock, exact: bool| {
+            let mut cost = cost(mock, &[false; 2]);
+            cost.exact = exact;
+            let deadline = Instant::now() + Duration::from_secs(3600);
+            let mut b = Budget::new(&cost, 1000, deadline, &Silent);
+            levenberg_marquardt(&mut b, &[0.0, 0.0], None, Equations::Objective).unwrap();
+            b.history()
+        };
+        let floor = CONSISTENT_J;
+        let mock = |bend: f64| {
+            Mock::new(&[0.3, 20.0], &[&[1.0, 0.0], &[0.0, 1.0], &[1.0, 1.0]])
+                .misfit(&[0.07, 0.07, -0.07], usize::MAX)
+                .bent(&[&[bend, 0.0], &[0.0, bend], &[bend, -bend]])
+        };
+        // A step that lands on the floor, then one that gains under a tenth of it: there
+        // the search ends (39 evaluations; the exact search goes on to 60).
+        let (exact, mc) = (solve(&mock(1.0), true), solve(&mock(1.0), false));
+        let n = mc.len();
+        assert_eq!(mc[..], exact[..n]);
+        assert!(n + 10 < exact.len(), "{n} of {}", exact.len());
+        let (before, landed, last) = (mc[n - 3], mc[n - 2], mc[n - 1]);
+        assert!(landed <= floor && before - landed >= 0.1 * floor, "{mc:?}");
+        assert!(last < landed && landed - last < 0.1 * floor, "{mc:?}");
+        // On the floor, the first trial that does not lower the sum ends it too: one trial,
+        // no fresh Jacobian (7 evaluations; the exact search differences afresh and goes on
+        // to 22).
+        let (exact, mc) = (solve(&mock(0.1), true), solve(&mock(0.1), false));
+        let n = mc.len();
+        assert_eq!(mc[..], exact[..n]);
+        assert!(n + 10 < exact.len(), "{n} of {}", exact.len());
+        assert!(mc[n - 1] == mc[n - 2] && mc[n - 2] <= floor, "{mc:?}");
+        assert!(mc[n - 3] - mc[n - 2] >= 0.1 * floor, "{mc:?}");
+    }
+
+    #[test]
     fn a_deep_fit_differences_both_sides_where_the_box_allows() {
         // ln c = 100 d²: a residual quadratic in d, whose slope 2 r / d the central
         // difference gives exactly and the forward one as (2d + H) / (2d) of it.

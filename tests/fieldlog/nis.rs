@@ -234,7 +234,8 @@ fn close(a: f64, b: f64, tol: f64, what: &str) {
 }
 
 /// Every fused channel of every estimator instance, on all four PX4 fixtures: the counts
-/// agree exactly with the pyulog reference, the averages, fractions and autocorrelations to
+/// agree exactly with the pyulog reference, the update rates to 1e-12 relative (one
+/// division of the same integers), the averages, fractions and autocorrelations to
 /// 1e-9 relative (float32 data summed in a different order), and no channel is missing or
 /// extra.
 #[test]
@@ -275,6 +276,13 @@ fn px4_logs_agree_with_the_pyulog_reference() {
                 at("zero innovation")
             );
             assert_eq!(s["outliers"], c["outliers"], "{}", at("outliers"));
+            // The judged updates per second: n updates span n − 1 intervals.
+            close(
+                s["px4"]["update_hz"].as_f64().unwrap(),
+                c["update_hz"].as_f64().unwrap(),
+                1e-12,
+                &at("update rate"),
+            );
             if let Some(m) = c["nis_mean"].as_f64() {
                 close(s["nis"]["mean"].as_f64().unwrap(), m, 1e-9, &at("nis mean"));
                 let t = c["gated_target"].as_f64().unwrap();

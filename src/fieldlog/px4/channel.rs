@@ -21,6 +21,7 @@ use std::path::Path;
 
 use super::context::{Ctx, in_air};
 use super::estimator::{self, Flags, Source, Status};
+use super::read::per_second;
 use super::{NotJudged, Px4Channel, Px4Info, ekf2};
 use crate::fieldlog::analysis::{Dropped, NisAnalyzer, SensorInfo, Update};
 use crate::input::FileError;
@@ -261,14 +262,10 @@ pub(super) fn judge_channel(
     }
     an.drop_rows(i, sorted.dropped);
     let span = match (first, last) {
-        (Some(a), Some(b)) if b > a => b - a,
+        (Some(a), Some(b)) => b - a,
         _ => 0.0,
     };
-    let update_hz = if span > 0.0 {
-        (n.saturating_sub(1)) as f64 / span
-    } else {
-        0.0
-    };
+    let update_hz = per_second(n, span).unwrap_or(0.0);
     info.channels
         .push(channel_view(ctx, id, full, &mut sorted, n, update_hz));
     Ok(())

@@ -4,7 +4,7 @@
 
 use std::collections::BTreeMap;
 
-use super::read::{EKF2_TIMESTAMPS, Read, STATUS, STATUS_FLAGS, Topic};
+use super::read::{EKF2_TIMESTAMPS, Read, STATUS, STATUS_FLAGS, Topic, per_second};
 
 /// The control-status flags EKF2 reports, by their bit in `control_mode_flags` (the names
 /// of `estimator_status_flags`' `cs_*` fields, which follow the same order and go on past
@@ -415,9 +415,9 @@ pub(super) fn version(release: u32) -> String {
 /// The logged rate of each source's own data topic, rows per second, by flag-words.
 pub(super) fn source_rates(read: &Read) -> BTreeMap<&'static str, f64> {
     let rate = |name: &str| {
-        read.sources.get(name).and_then(|&(n, a, b)| {
-            (n > 1 && b > a).then(|| (n - 1) as f64 / ((b - a) as f64 * 1e-6))
-        })
+        read.sources
+            .get(name)
+            .and_then(|&(n, a, b)| per_second(n, b.saturating_sub(a) as f64 * 1e-6))
     };
     let mut out = BTreeMap::new();
     for (words, topics) in [

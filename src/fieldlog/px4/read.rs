@@ -58,15 +58,18 @@ impl Topic {
 
     /// Rows per second over the topic's span (0 for fewer than two rows or no span).
     pub fn rate_hz(&self) -> f64 {
-        let (Some(a), Some(b)) = (self.stamps.iter().min(), self.stamps.iter().max()) else {
+        let (Some(&a), Some(&b)) = (self.stamps.iter().min(), self.stamps.iter().max()) else {
             return 0.0;
         };
-        if b > a && self.stamps.len() > 1 {
-            (self.stamps.len() - 1) as f64 / ((b - a) as f64 * 1e-6)
-        } else {
-            0.0
-        }
+        per_second(self.stamps.len(), b.saturating_sub(a) as f64 * 1e-6).unwrap_or(0.0)
     }
+}
+
+/// The rate of `count` events whose first and last are `span` seconds apart: `count − 1`
+/// intervals over the span (`None` for fewer than two events or no span). Every rate the
+/// PX4 reader reports (a topic's logged rate, a source's, a channel's updates) is this.
+pub(super) fn per_second(count: usize, span: f64) -> Option<f64> {
+    (count > 1 && span > 0.0).then(|| (count - 1) as f64 / span)
 }
 
 /// Everything read from the file.
@@ -321,4 +324,25 @@ fn check_magic(path: &Path) -> Result<u64, FileError> {
         ));
     }
     Ok(u64::from_le_bytes(head[8..16].try_into().expect("8 bytes")))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_rate_counts_the_intervals_between_the_events_not_the_events() {
+        // Eleven rows 0.1 s apart span 1 s: 10 Hz (11 would count a fence's posts).
+        assert_eq!(per_second(11, 1.0), Some(10.0));
+        assert_eq!(per_second(2, 0.25), Some(4.0));
+        assert_eq!(per_second(1, 1.0), None);
+        assert_eq!(per_second(0, 1.0), None);
+        assert_eq!(per_second(5, 0.0), None);
+        let topic = Topic {
+            stamps: (0..=20).map(|k| 1_000_000 + 50_000 * k).collect(),
+            ..Topic::default()
+        };
+        assert_eq!(topic.rate_hz(), 20.0);
+        assert_eq!(Topic::default().rate_hz(), 0.0);
+    }
 }

@@ -5,7 +5,7 @@
 use serde::Serialize;
 
 use crate::fieldlog::analysis::SensorSums;
-use crate::stats::{Verdict, WhitenessStat};
+use crate::stats::{LaggedSums, Verdict, WhitenessStat, lagged_whiteness};
 
 /// The zero-mean test of one component's normalized innovations `u = ν_j/√S_jj` over a
 /// log: a filter that models its sensor's bias has innovations of mean 0.
@@ -228,28 +228,11 @@ pub(super) fn correlation_factor(s: &SensorSums, centred: &[CentredWhiteness]) -
 
 /// The lagged autocorrelations of each component, lag by lag, with their bands `z/√pairs`.
 pub(super) fn whiteness_stats(s: &SensorSums, lags: usize, z: f64) -> Vec<WhitenessStat> {
-    let m = s.info.components.len();
-    let mut whiteness = Vec::new();
-    for lag in 1..=lags {
-        for j in 0..m {
-            let idx = (lag - 1) * m + j;
-            let pairs = s.white_pairs.get(idx).copied().unwrap_or(0.0);
-            if pairs < 1.0 {
-                continue;
-            }
-            let den = (s.white_a2[idx] * s.white_b2[idx]).sqrt();
-            whiteness.push(WhitenessStat {
-                component: s.info.components[j].clone(),
-                lag,
-                rho: if den > 0.0 {
-                    s.white_ab[idx] / den
-                } else {
-                    0.0
-                },
-                band: z / pairs.sqrt(),
-                pairs,
-            });
-        }
-    }
-    whiteness
+    let sums = LaggedSums {
+        pairs: &s.white_pairs,
+        ab: &s.white_ab,
+        a2: &s.white_a2,
+        b2: &s.white_b2,
+    };
+    lagged_whiteness(&s.info.components, lags, &sums, z)
 }

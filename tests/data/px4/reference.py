@@ -199,6 +199,10 @@ def stats(cls, nu32, s32, times, keep_update=None):
         "window_max": num(max(wins)) if wins else None,
         "window_min": num(min(wins)) if wins else None,
     }
+    # Updates per second over the span of the judged updates: n updates span n - 1 gaps.
+    t = [int(times[k]) for k in upd]
+    span = (max(t) - min(t)) * 1e-6 if t else 0.0
+    out["update_hz"] = (len(upd) - 1) / span if len(upd) > 1 and span > 0 else 0.0
     if keep_update is not None:
         out["updates_dropped_landed"] = dropped
     return out

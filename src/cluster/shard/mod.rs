@@ -23,9 +23,9 @@ mod tests {
 
     use super::format::*;
     use super::merge::*;
+    use crate::montecarlo::CHUNK;
     use crate::montecarlo::Share;
     use crate::stats::Accumulator;
-    use crate::montecarlo::CHUNK;
 
     /// A check of 130 runs (three chunks: 64, 64 and 2 runs) of 3 steps, 2 states, 1
     /// measurement component and 1 lag.

@@ -1,9 +1,11 @@
 //! The names most programs need, in one import: `use autotune::prelude::*;`.
 //!
-//! Judging and tuning any [`Experiment`] (a [`Problem`] file, or a model defined in Rust
-//! with [`RustModel`]), and watching a running filter with [`NisMonitor`].
+//! Judging ([`check`], [`check_seeds`]) and tuning ([`Tuner`]) any [`Experiment`] (a
+//! [`Problem`] file, a linear model built with [`LinearExperiment::builder`], or any model
+//! defined in Rust with [`RustModel`]), and watching a running filter with [`NisMonitor`].
 
 pub use crate::{
-    Experiment, McConfig, NisMonitor, NisSettings, Problem, RustModel, Silent, TuneSettings,
-    Verdict, check, tune,
+    Experiment, LinearExperiment, McConfig, NisMonitor, NisSettings, ParamDef, Problem, RustModel,
+    Silent, Target, Truth, Tunable, TuneSettings, Tuner, Verdict, check, check_seeds, cwna_block,
+    dwna_block,
 };

@@ -3,7 +3,7 @@
 use std::path::{Path, PathBuf};
 
 use super::{CommandError, McOverrides, OneOf};
-use crate::check::{CheckProgress, judge};
+use crate::check::{CheckProgress, Truth, judge};
 use crate::cluster::shard::{self, CheckSetup, ShardFile};
 use crate::cluster::share_sums;
 use crate::experiment::{Experiment, RunOptions, Source};
@@ -155,7 +155,12 @@ fn conclude(
     // Records or a worker without states (no ground truth) are judged by their innovations
     // alone, as documented, rather than found inconclusive for want of a NEES.
     let no_states = experiment.state_names().is_empty();
-    let report = judge(experiment, sums, mc, !a.nis_only && !no_states);
+    let report = judge(
+        experiment,
+        sums,
+        mc,
+        Truth::from_use_nees(!a.nis_only && !no_states),
+    );
     let params: Vec<(String, f64)> = experiment
         .params()
         .params

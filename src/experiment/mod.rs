@@ -14,6 +14,7 @@
 
 mod catalog;
 mod definition;
+mod described;
 mod error;
 mod held;
 mod hypotheses;
@@ -29,7 +30,7 @@ pub use error::{
     WorkerError, WorkerFailure, WorkerRole,
 };
 pub use hypotheses::{Added, Changed, Hypothesis, Hypothesized, ReadThrough};
-pub use linear::{FilterModel, LinearExperiment};
+pub use linear::{FilterModel, LinearExperiment, LinearModelBuilder};
 pub use rebounded::Rebounded;
 pub use recorded::RecordsExperiment;
 pub use rust_model::{RustModel, RustModelBuilder};

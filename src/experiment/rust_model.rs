@@ -1,12 +1,13 @@
 //! A Rust user's own truth model and filter family as an [`Experiment`].
 
+use super::described::{Described, check_name, description_setters, param_space};
 use super::held::Held;
-use super::{Covariances, Definition, Experiment, ExperimentError, Info, RunOptions, Source};
+use super::{Covariances, Definition, Experiment, ExperimentError, RunOptions};
 use crate::filter::Filter;
 use crate::input::SettingError;
 use crate::model::TruthModel;
 use crate::montecarlo::{McConfig, TruthCache};
-use crate::params::{ParamDef, ParamSpace, Target};
+use crate::params::{ParamDef, Target};
 use crate::stats::Accumulator;
 
 /// Q and R of the filter at θ, for reports and tuned configs.
@@ -45,7 +46,7 @@ type CovarianceFn = Box<dyn Fn(&[f64]) -> Covariances + Send + Sync>;
 ///     .montecarlo(McConfig::new(50, 100).unwrap())
 ///     .build()
 ///     .unwrap();
-/// let report = autotune::check(&model, &[0.5, 1.0], model.mc(), true).unwrap();
+/// let report = autotune::check(&model, &[0.5, 1.0], model.mc(), autotune::Truth::Known).unwrap();
 /// assert_eq!(report.nees.unwrap().target, 2.0);
 /// ```
 pub struct RustModel<T, B> {
@@ -67,15 +68,10 @@ type ReplayFn = Box<dyn Fn(&[f64]) -> Box<dyn Filter> + Send + Sync>;
 
 /// Collects a [`RustModel`] experiment's parts; [`RustModelBuilder::build`] checks them.
 pub struct RustModelBuilder<T, B> {
-    name: String,
-    description: String,
-    program: Option<String>,
+    described: Described,
     truth: T,
     build: B,
     params: Vec<(ParamDef, Target)>,
-    state_names: Option<Vec<String>>,
-    measurement_names: Option<Vec<String>>,
-    mc: Option<McConfig>,
     covariances: Option<CovarianceFn>,
     truth_values: Option<Vec<f64>>,
     replay: Option<ReplayFn>,
@@ -92,15 +88,10 @@ where
     /// are added).
     pub fn builder(name: &str, truth: T, build: B) -> RustModelBuilder<T, B> {
         RustModelBuilder {
-            name: name.to_string(),
-            description: String::new(),
-            program: None,
+            described: Described::new(name),
             truth,
             build,
             params: Vec::new(),
-            state_names: None,
-            measurement_names: None,
-            mc: None,
             covariances: None,
             truth_values: None,
             replay: None,
@@ -138,40 +129,11 @@ where
         self
     }
 
-    /// One line saying what is modelled.
-    pub fn description(mut self, text: &str) -> Self {
-        self.description = text.to_string();
-        self
-    }
-
-    /// The program's name in reports and in the `<program> check --config` hint (default:
-    /// the running executable's file stem).
-    pub fn program(mut self, name: &str) -> Self {
-        self.program = Some(name.to_string());
-        self
-    }
-
-    /// Names of the filter's state components, n_x (default `x0`, `x1`, …).
-    pub fn states<I: IntoIterator<Item = S>, S: Into<String>>(mut self, names: I) -> Self {
-        self.state_names = Some(names.into_iter().map(Into::into).collect());
-        self
-    }
-
-    /// Names of all sensors' measurement components in sensor order (default `z0`, …).
-    pub fn measurements<I: IntoIterator<Item = S>, S: Into<String>>(mut self, names: I) -> Self {
-        self.measurement_names = Some(names.into_iter().map(Into::into).collect());
-        self
-    }
+    description_setters!();
 
     /// Add a parameter and what it drives; θ follows the order of these calls.
     pub fn param(mut self, def: ParamDef, target: Target) -> Self {
         self.params.push((def, target));
-        self
-    }
-
-    /// The Monte Carlo test (default: 100 runs × 100 steps, seed 0, α = 0.05).
-    pub fn montecarlo(mut self, mc: McConfig) -> Self {
-        self.mc = Some(mc);
         self
     }
 
@@ -193,46 +155,12 @@ where
     /// Check every part and build the experiment. Errors name the setting (`name`,
     /// `params.q_accel.lower`, `states`, `params.r_pos.target`, …).
     pub fn build(self) -> Result<RustModel<T, B>, SettingError> {
-        if self.name.is_empty()
-            || !self
-                .name
-                .chars()
-                .all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '-')
-        {
-            return Err(SettingError::new(
-                "name",
-                format!("'{}' must be letters, digits, _ and - only", self.name),
-            ));
-        }
-        let mut defs = Vec::with_capacity(self.params.len());
-        let mut targets = Vec::with_capacity(self.params.len());
-        for (def, target) in self.params {
-            def.validate()
-                .map_err(|e| e.within(&format!("params.{}", def.name)))?;
-            if defs.iter().any(|d: &ParamDef| d.name == def.name) {
-                return Err(SettingError::new(
-                    format!("params.{}", def.name),
-                    "defined twice",
-                ));
-            }
-            defs.push(def);
-            targets.push(target);
-        }
-        let params = ParamSpace { params: defs };
+        check_name(&self.described.name)?;
+        let (defs, targets): (Vec<ParamDef>, Vec<Target>) = self.params.into_iter().unzip();
+        let params = param_space(defs)?;
         let filter = (self.build)(&params.values());
         let n_x = filter.n_x();
         let n_z: usize = filter.sensor_dims().iter().sum();
-        let names = |given: Option<Vec<String>>, n: usize, prefix: &str, setting: &str| match given
-        {
-            Some(v) if v.len() != n => Err(SettingError::new(
-                setting,
-                format!("{} names for {n} components", v.len()),
-            )),
-            Some(v) => Ok(v),
-            None => Ok((0..n).map(|i| format!("{prefix}{i}")).collect()),
-        };
-        let state_names = names(self.state_names, n_x, "x", "states")?;
-        let measurement_names = names(self.measurement_names, n_z, "z", "measurements")?;
         for (def, t) in params.params.iter().zip(&targets) {
             let n = match t.kind {
                 crate::params::NoiseKind::Process => n_x,
@@ -253,28 +181,9 @@ where
                 format!("{} values for {} parameters", v.len(), params.params.len()),
             ));
         }
-        let program = self.program.unwrap_or_else(|| {
-            std::env::current_exe()
-                .ok()
-                .and_then(|p| p.file_stem().map(|s| s.to_string_lossy().into_owned()))
-                .unwrap_or_else(|| "model".to_string())
-        });
-        let mc = match self.mc {
-            Some(mc) => mc,
-            None => McConfig::new(100, 100)?,
-        };
+        let definition = self.described.definition(params, n_x, n_z)?;
         Ok(RustModel {
-            definition: Definition {
-                info: Info {
-                    name: self.name,
-                    description: self.description,
-                    source: Source::Program { name: program },
-                },
-                params,
-                state_names,
-                measurement_names,
-                mc,
-            },
+            definition,
             truth: self.truth,
             build: self.build,
             targets,

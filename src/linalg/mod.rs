@@ -115,6 +115,48 @@ pub fn psd_factor(m: &DMatrix<f64>) -> Result<DMatrix<f64>, f64> {
     Ok(l)
 }
 
+/// What is wrong with `m` as a covariance (symmetric, finite, positive semidefinite, and
+/// positive definite too when `definite`), as a sentence for an error message; `None` when
+/// nothing is. The problem loader and the Rust builders refuse a matrix with the same words.
+pub fn covariance_defect(m: &DMatrix<f64>, definite: bool) -> Option<String> {
+    if let Some((i, j)) = asymmetry(m) {
+        return Some(format!(
+            "not symmetric: entry [{i}][{j}] = {} but [{j}][{i}] = {}",
+            m[(i, j)],
+            m[(j, i)]
+        ));
+    }
+    if let Some(k) = m.iter().position(|v| !v.is_finite()) {
+        let (i, j) = (k % m.nrows(), k / m.nrows());
+        return Some(format!("entry [{i}][{j}] is {} (overflow)", m[(i, j)]));
+    }
+    // Judge the matrix scaled to unit size, so that huge entries cannot overflow the
+    // eigenvalue computation.
+    let scale = max_abs(m).max(f64::MIN_POSITIVE);
+    let unit = m / scale;
+    let lmin = min_eigenvalue(&unit) * scale;
+    if psd_factor(&unit).is_err() {
+        return Some(format!(
+            "not positive semidefinite (smallest eigenvalue {lmin:.3e})"
+        ));
+    }
+    if definite && !is_positive_definite(m) {
+        // A positive smallest eigenvalue that is still refused is one too small next to
+        // the largest to invert reliably: say so, rather than "not positive definite".
+        let message = if lmin > 0.0 {
+            let lmax = unit.symmetric_eigenvalues().max() * scale;
+            format!(
+                "numerically singular: its smallest eigenvalue {lmin:.3e} is positive, but its condition number {:.3e} is too large to invert reliably",
+                lmax / lmin
+            )
+        } else {
+            format!("not positive definite (smallest eigenvalue {lmin:.3e})")
+        };
+        return Some(message);
+    }
+    None
+}
+
 /// Whether a symmetric matrix is positive definite, judged scale-free: every diagonal
 /// entry positive and the Jacobi-scaled matrix's smallest eigenvalue above 1e-12.
 pub fn is_positive_definite(m: &DMatrix<f64>) -> bool {

@@ -6,7 +6,7 @@ use nalgebra::{DMatrix, DVector};
 
 use super::spec::MatrixSpec;
 use crate::input::FileError;
-use crate::linalg::{asymmetry, min_eigenvalue, psd_factor};
+use crate::linalg::covariance_defect;
 
 /// Validation context: the file errors name.
 pub(super) struct Validator<'a> {
@@ -82,49 +82,10 @@ impl Validator<'_> {
         m: &DMatrix<f64>,
         definite: bool,
     ) -> VResult<()> {
-        if let Some((i, j)) = asymmetry(m) {
-            return self.err(
-                field,
-                format!(
-                    "not symmetric: entry [{i}][{j}] = {} but [{j}][{i}] = {}",
-                    m[(i, j)],
-                    m[(j, i)]
-                ),
-            );
+        match covariance_defect(m, definite) {
+            Some(message) => self.err(field, message),
+            None => Ok(()),
         }
-        if let Some(k) = m.iter().position(|v| !v.is_finite()) {
-            let (i, j) = (k % m.nrows(), k / m.nrows());
-            return self.err(
-                field,
-                format!("entry [{i}][{j}] is {} (overflow)", m[(i, j)]),
-            );
-        }
-        // Judge the matrix scaled to unit size, so that huge entries cannot overflow the
-        // eigenvalue computation.
-        let scale = crate::linalg::max_abs(m).max(f64::MIN_POSITIVE);
-        let unit = m / scale;
-        let lmin = min_eigenvalue(&unit) * scale;
-        if psd_factor(&unit).is_err() {
-            return self.err(
-                field,
-                format!("not positive semidefinite (smallest eigenvalue {lmin:.3e})"),
-            );
-        }
-        if definite && !crate::linalg::is_positive_definite(m) {
-            // A positive smallest eigenvalue that is still refused is one too small next to
-            // the largest to invert reliably: say so, rather than "not positive definite".
-            let message = if lmin > 0.0 {
-                let lmax = unit.symmetric_eigenvalues().max() * scale;
-                format!(
-                    "numerically singular: its smallest eigenvalue {lmin:.3e} is positive, but its condition number {:.3e} is too large to invert reliably",
-                    lmax / lmin
-                )
-            } else {
-                format!("not positive definite (smallest eigenvalue {lmin:.3e})")
-            };
-            return self.err(field, message);
-        }
-        Ok(())
     }
 
     pub(super) fn names(

@@ -182,7 +182,12 @@ pub fn certify(
         .with_runs(recheck_runs)?
         .with_seed(first.confirm_seed.wrapping_add(0x00C0_FFEE));
     let use_nees = settings.scores_nees(!model.state_names().is_empty());
-    let report = crate::check::check(&wide, &runs[best].tuned, &recheck_mc, use_nees)?;
+    let report = crate::check::check(
+        &wide,
+        &runs[best].tuned,
+        &recheck_mc,
+        crate::check::Truth::from_use_nees(use_nees),
+    )?;
     let recheck_passed = report.verdict.passes();
     // An inconclusive recheck is no failure.
     let recheck_failed = !recheck_passed && report.verdict != crate::stats::Verdict::Inconclusive;

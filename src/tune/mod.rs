@@ -28,7 +28,7 @@
 //!   precisely the gate's data pin each parameter down (a sandwich covariance of the
 //!   deviates over the confirmation seeds).
 //! - `stages`: [`tune`] itself, stage by stage: set up, search, widen, refine, confirm,
-//!   resolve, and the status.
+//!   resolve, and the status; `tuner`: the [`Tuner`] a Rust user configures and runs.
 //! - `settings` and `spec`: the validated [`TuneSettings`], and [`TuneSpec`], the same
 //!   settings as a problem file's `[tune]` and the command line's flags give them.
 //!
@@ -54,10 +54,12 @@ mod spec;
 mod stages;
 #[cfg(test)]
 pub(crate) mod tests;
+mod tuner;
 
+pub use crate::check::band_low;
+pub use crate::rng::seed_at;
 pub use error::TuneError;
 pub use objective::{Objective, Terms, Weights};
-pub use refine::{band_low, seed_at};
 pub use result::{
     Certificate, CertifiedStart, Confirmation, Observer, Resolution, Silent, TuneResult,
     TuneStatus, Widening,
@@ -65,6 +67,7 @@ pub use result::{
 pub use settings::{LocalSearch, Plan, Scoring, TuneSettings};
 pub use setup::default_confirm_seed;
 pub use spec::TuneSpec;
+pub use tuner::{Tunable, Tuner};
 
 use crate::experiment::Experiment;
 use crate::montecarlo::McConfig;

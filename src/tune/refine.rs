@@ -26,13 +26,13 @@
 
 use nalgebra::{DMatrix, DVector, SymmetricEigen};
 use rayon::prelude::*;
-use statrs::distribution::{Binomial, DiscreteCDF};
 
 use super::cost::Cost;
 use super::result::{Confirmation, Resolution};
-use crate::check::judge;
+use crate::check::{Truth, band_low, judge};
 use crate::experiment::Experiment;
 use crate::montecarlo::McConfig;
+use crate::rng::seed_at;
 use crate::stats::{ConsistencyReport, gate_deviates};
 
 /// Forward-difference step of the sensitivity, log units (5%).
@@ -45,9 +45,6 @@ const REFINE_STEPS: usize = 4;
 /// A refinement step that would move the gate's deviates at its N by less than this (the
 /// norm of the predicted change, in the deviates' standard deviations) is not taken.
 const MIN_MOVE: f64 = 0.25;
-/// The confirmation's band: a consistent filter's pass count falls below it with
-/// probability at most this.
-const BAND: f64 = 0.01;
 
 /// The gate run at one parameter point.
 pub(super) struct Gate<'a> {
@@ -94,7 +91,7 @@ impl<'a> Gate<'a> {
             self.model,
             &self.cost.monte_carlo(theta, &mc),
             &mc,
-            self.use_nees,
+            Truth::from_use_nees(self.use_nees),
         )
     }
 
@@ -244,18 +241,6 @@ fn too_small_a_step(d: &DMatrix<f64>, step: &DVector<f64>, runs: usize, gate_run
     at_n < MIN_MOVE
 }
 
-/// The lowest pass count of K seeds inside the band of a filter that passes each with
-/// probability `1 − alpha`.
-pub fn band_low(seeds: usize, alpha: f64) -> usize {
-    match Binomial::new(1.0 - alpha, seeds as u64) {
-        // The smallest c with P(X ≤ c) > BAND; a count below it is improbable.
-        Ok(b) => (0..=seeds)
-            .find(|&c| b.cdf(c as u64) > BAND)
-            .unwrap_or(seeds),
-        Err(_) => seeds,
-    }
-}
-
 /// The confirmation: the gate at `theta` on `seeds` fresh seeds from `first` at the
 /// problem's N, or once when the experiment is `recorded` data. Returns the count, the
 /// first seed's report, and each seed's deviates.
@@ -299,12 +284,6 @@ pub(super) fn confirm(
     };
     let report = first_report.unwrap_or_else(|| gate.report(theta, n, first));
     (confirmation, report, deviates)
-}
-
-/// Seed k of a sequence from `first`, kept below 2^63 (TOML stores seeds as signed 64-bit
-/// integers).
-pub fn seed_at(first: u64, k: usize) -> u64 {
-    first.wrapping_add(k as u64) & (u64::MAX >> 1)
 }
 
 /// Per-parameter search-bound flags without a resolution factor: for one recorded data set,
@@ -438,16 +417,6 @@ fn sandwich(d: &DMatrix<f64>, deviates: &[DVector<f64>]) -> Vec<f64> {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn band_of_twenty_seeds_at_five_percent() {
-        // Bin(20, 0.95): P(X ≤ 15) = 0.0026, P(X ≤ 16) = 0.0159, so 16 is the lowest count
-        // inside a 99% band.
-        assert_eq!(band_low(20, 0.05), 16);
-        // Bin(100, 0.95): P(X ≤ 88) = 0.0043, P(X ≤ 89) = 0.0115 (computed with exact
-        // binomial sums in Python).
-        assert_eq!(band_low(100, 0.05), 89);
-    }
 
     #[test]
     fn sandwich_of_a_linear_model_is_its_least_squares_covariance() {

@@ -126,7 +126,7 @@ fn false_alarms(name: &str, seeds: u64) -> u64 {
         .into_par_iter()
         .filter(|s| {
             let mc = p.mc().with_seed(7000 + s);
-            !autotune::internals::check::check(&p, &truth, &mc, true)
+            !autotune::internals::check::check(&p, &truth, &mc, autotune::Truth::Known)
                 .unwrap()
                 .verdict
                 .passes()

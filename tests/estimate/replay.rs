@@ -108,7 +108,8 @@ fn one_recordings_gate_holds_its_level_and_sees_a_wrong_process_noise() {
             .into_par_iter()
             .filter(|&seed| {
                 let replay = FilterReplay::new(&p, record(&p, 1, 500, 5000 + seed)).unwrap();
-                let report = check(&replay, theta, replay.mc(), false).expect("the check runs");
+                let report = check(&replay, theta, replay.mc(), autotune::Truth::Unknown)
+                    .expect("the check runs");
                 !report.verdict.passes()
             })
             .count()
@@ -162,7 +163,8 @@ fn one_recording_with_truth_gets_a_nees_verdict_that_holds_its_level() {
                     .unwrap()
                     .with_reference(states)
                     .expect("the states line up");
-                let report = check(&replay, theta, replay.mc(), true).expect("the check runs");
+                let report = check(&replay, theta, replay.mc(), autotune::Truth::Known)
+                    .expect("the check runs");
                 assert!(report.nees.is_some(), "NEES is judged");
                 !report.verdict.passes()
             })

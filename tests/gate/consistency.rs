@@ -19,7 +19,7 @@ fn truth_noise_passes_on_every_shipped_problem() {
     for name in ["cv1d", "cv2d", "dcmotor"] {
         let p = load(name);
         let theta = truth_values(&p);
-        let r = check(&p, &theta, p.mc(), true).unwrap();
+        let r = check(&p, &theta, p.mc(), autotune::Truth::Known).unwrap();
         assert_eq!(
             r.verdict,
             Verdict::Consistent,
@@ -60,7 +60,7 @@ fn false_alarm_rate_matches_alpha_over_200_seeds() {
     let (mut nees_rej, mut nis_rej, mut gate_rej) = (0u64, 0u64, 0u64);
     for s in 0..seeds {
         let mc = p.mc().with_seed(10_000 + s).with_gate(GateMode::Mean);
-        let r = check(&p, &theta, &mc, true).unwrap();
+        let r = check(&p, &theta, &mc, autotune::Truth::Known).unwrap();
         nees_rej += u64::from(!r.nees.as_ref().unwrap().verdict.passes());
         nis_rej += u64::from(!r.nis.verdict.passes());
         gate_rej += u64::from(!r.verdict.passes());
@@ -89,7 +89,7 @@ fn naive_time_averaged_nees_interval_would_raise_too_many_alarms() {
     // with N·T·n_x degrees of freedom is markedly narrower than the correlation-aware one.
     let p = load("cv2d");
     let theta = truth_values(&p);
-    let r = check(&p, &theta, p.mc(), true).unwrap();
+    let r = check(&p, &theta, p.mc(), autotune::Truth::Known).unwrap();
     let nees = r.nees.unwrap();
     let naive = nees.naive_interval.upper - nees.naive_interval.lower;
     let gate = nees.interval.upper - nees.interval.lower;
@@ -109,7 +109,7 @@ fn mis_scaled_noise_is_caught_with_the_right_direction() {
             ("r_", 100.0, Verdict::Underconfident),
         ] {
             let theta = scaled(&p, &truth, prefix, factor);
-            let r = check(&p, &theta, p.mc(), true).unwrap();
+            let r = check(&p, &theta, p.mc(), autotune::Truth::Known).unwrap();
             assert!(!r.verdict.passes(), "{name}: {prefix}×{factor} passed");
             // The NEES statistic alone must point the right way whatever NIS does.
             assert_eq!(
@@ -192,7 +192,7 @@ fn too_little_data_is_inconclusive_not_a_silent_pass() {
     let mut mc = *p.mc();
     mc = mc.with_runs(1).unwrap();
     mc = mc.with_steps(4).unwrap();
-    let r = check(&p, &theta, &mc, true).unwrap();
+    let r = check(&p, &theta, &mc, autotune::Truth::Known).unwrap();
     assert!(!r.nis.has_power && !r.nis.per_step_has_power);
     assert_eq!(r.verdict, Verdict::Inconclusive);
     let text = autotune::report::summary_text(p.name(), &[], &r);
@@ -203,7 +203,7 @@ fn too_little_data_is_inconclusive_not_a_silent_pass() {
 
     // One run but many steps: the time average has power, single steps do not.
     mc = mc.with_steps(400).unwrap();
-    let r = check(&p, &theta, &mc, true).unwrap();
+    let r = check(&p, &theta, &mc, autotune::Truth::Known).unwrap();
     assert!(r.nis.has_power && !r.nis.per_step_has_power);
     let text = autotune::report::summary_text(p.name(), &[], &r);
     assert!(text.contains("note: per-step ANIS tests"), "{text}");

@@ -22,7 +22,10 @@ fn false_alarms(name: &str, seeds: u64) -> u64 {
     (0..seeds)
         .filter(|s| {
             let mc = p.mc().with_seed(90_000 + s);
-            !check(&p, &truth, &mc, true).unwrap().verdict.passes()
+            !check(&p, &truth, &mc, autotune::Truth::Known)
+                .unwrap()
+                .verdict
+                .passes()
         })
         .count() as u64
 }
@@ -54,7 +57,7 @@ fn the_gate_counts_its_tests_and_corrects_for_them() {
     // moment and a zero mean, issue 22), 2 whiteness tests.
     let p = load("cv2d");
     let truth = truth_values(&p);
-    let r = check(&p, &truth, p.mc(), true).unwrap();
+    let r = check(&p, &truth, p.mc(), autotune::Truth::Known).unwrap();
     assert_eq!(r.gate, GateMode::Full);
     assert_eq!(r.tests, 16);
     // The 6 zero-mean tests share one Šidák slot (Bonferroni within it).
@@ -62,10 +65,16 @@ fn the_gate_counts_its_tests_and_corrects_for_them() {
     assert!((r.mean_alpha - gate_alpha(0.05, 11) / 6.0).abs() < 1e-15);
     assert_eq!(r.whiteness_tests.len(), 2);
     // NIS-only: ANIS, 2 measurement components (twice), 2 whiteness tests.
-    let r = check(&p, &truth, p.mc(), false).unwrap();
+    let r = check(&p, &truth, p.mc(), autotune::Truth::Unknown).unwrap();
     assert_eq!(r.tests, 7);
     // The textbook gate: the two time averages.
-    let r = check(&p, &truth, &p.mc().with_gate(GateMode::Mean), true).unwrap();
+    let r = check(
+        &p,
+        &truth,
+        &p.mc().with_gate(GateMode::Mean),
+        autotune::Truth::Known,
+    )
+    .unwrap();
     assert_eq!(r.tests, 2);
     assert!((r.statistic_alpha - gate_alpha(0.05, 2)).abs() < 1e-15);
 }
@@ -99,8 +108,14 @@ fn regression_issue_11_item_1_a_rejection_in_the_diagnostics_fails_the_gate() {
     let (mut mean_passes, mut full_fails, mut shown) = (0, 0, 0);
     for seed in 0..40 {
         let mc = p.mc().with_seed(seed);
-        let full = check(&p, &theta, &mc, true).unwrap();
-        let mean = check(&p, &theta, &mc.with_gate(GateMode::Mean), true).unwrap();
+        let full = check(&p, &theta, &mc, autotune::Truth::Known).unwrap();
+        let mean = check(
+            &p,
+            &theta,
+            &mc.with_gate(GateMode::Mean),
+            autotune::Truth::Known,
+        )
+        .unwrap();
         mean_passes += usize::from(mean.verdict.passes());
         full_fails += usize::from(!full.verdict.passes());
         // What the summary shows is what the gate decides.
@@ -115,7 +130,7 @@ fn regression_issue_11_item_1_a_rejection_in_the_diagnostics_fails_the_gate() {
         "mean gate passes only {mean_passes} of 40"
     );
     assert_eq!(shown, 40);
-    let full = check(&p, &theta, p.mc(), true).unwrap();
+    let full = check(&p, &theta, p.mc(), autotune::Truth::Known).unwrap();
     let text = autotune::report::summary_text("cv2d", &[], &full);
     assert!(text.contains("gate: full"), "{text}");
     assert!(text.contains("components off"), "{text}");
@@ -127,14 +142,26 @@ fn regression_issue_11_item_6_a_wrong_r_is_blamed_on_r() {
     // too high (ρ₁ < 0), which the table in stats::attribution reads as R too small.
     let p = load("cv2d");
     let truth = truth_values(&p);
-    let r = check(&p, &scaled(&p, &truth, "r_", 0.5), p.mc(), true).unwrap();
+    let r = check(
+        &p,
+        &scaled(&p, &truth, "r_", 0.5),
+        p.mc(),
+        autotune::Truth::Known,
+    )
+    .unwrap();
     assert_eq!(r.diagnosis.suspect, Some(Suspect::R), "{:?}", r.diagnosis);
     let text = autotune::report::summary_text("cv2d", &[], &r);
     assert!(text.contains("points to R"), "{text}");
     assert!(text.contains("increase R"), "{text}");
     assert!(!text.contains("increase Q"), "{text}");
     // And Q × 0.3, R right, is blamed on Q.
-    let r = check(&p, &scaled(&p, &truth, "q_", 0.3), p.mc(), true).unwrap();
+    let r = check(
+        &p,
+        &scaled(&p, &truth, "q_", 0.3),
+        p.mc(),
+        autotune::Truth::Known,
+    )
+    .unwrap();
     assert_eq!(r.diagnosis.suspect, Some(Suspect::Q), "{:?}", r.diagnosis);
     let text = autotune::report::summary_text("cv2d", &[], &r);
     assert!(text.contains("increase Q"), "{text}");
@@ -153,7 +180,7 @@ fn the_mean_gate_is_the_textbook_test() {
             .unwrap()
             .with_seed(3)
             .with_gate(GateMode::Mean),
-        true,
+        autotune::Truth::Known,
     )
     .unwrap();
     assert_eq!(r.verdict, Verdict::Consistent);

@@ -35,7 +35,7 @@ fn check_on(
             progress: None,
             share: None,
         },
-        true,
+        autotune::Truth::Known,
     )
     .unwrap()
 }
@@ -54,7 +54,7 @@ fn cv1d_verdict(p: &Problem, q: f64, engine: Engine, runs: usize) -> Consistency
             progress: None,
             share: None,
         },
-        true,
+        autotune::Truth::Known,
     )
     .unwrap()
 }
@@ -242,7 +242,7 @@ fn a_truth_state_that_overflows_to_infinity_is_a_truth_overflow_not_inconclusive
                 progress: None,
                 share: None,
             },
-            true,
+            autotune::Truth::Known,
         )
         .unwrap();
         assert_eq!(r.verdict, Verdict::TruthOverflow, "{engine:?}");

@@ -74,7 +74,7 @@ fn failures_at_best_point(file: &str) -> (usize, Vec<f64>) {
     let mut failed = 0;
     for seed in 1000..1100 {
         let mc = p.mc().with_seed(seed);
-        let report = check(&p, &r.tuned, &mc, true).unwrap();
+        let report = check(&p, &r.tuned, &mc, autotune::Truth::Known).unwrap();
         assert_eq!(report.diverged_runs, 0, "{file} seed {seed}");
         if report.verdict != Verdict::Consistent {
             failed += 1;

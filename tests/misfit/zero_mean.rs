@@ -80,7 +80,7 @@ fn issue22_zero_mean_tests_keep_false_alarms_in_the_binomial_band_on_every_shipp
                 if catalog {
                     mc = mc.with_runs(50).unwrap();
                 }
-                check(&p, &truth, &mc, true).unwrap()
+                check(&p, &truth, &mc, autotune::Truth::Known).unwrap()
             })
             .collect();
         for r in &reports {
@@ -144,7 +144,10 @@ fn issue22_power_at_ten_percent_q_or_r_stays_full_with_the_zero_mean_tests() {
                 let rejected = (0..10)
                     .filter(|s| {
                         let mc = p.mc().with_seed(221_000 + s);
-                        !check(&p, &theta, &mc, true).unwrap().verdict.passes()
+                        !check(&p, &theta, &mc, autotune::Truth::Known)
+                            .unwrap()
+                            .verdict
+                            .passes()
                     })
                     .count();
                 eprintln!("{name}: {kind:?} × {factor} rejected on {rejected} of 10");
@@ -171,7 +174,7 @@ fn issue22_a_half_sigma_sensor_offset_is_caught_by_the_zero_mean_test() {
     let mut caught = 0;
     for s in 0..100 {
         let mc = p.mc().with_seed(222_000 + s);
-        let r = check(&p, &theta, &mc, true).unwrap();
+        let r = check(&p, &theta, &mc, autotune::Truth::Known).unwrap();
         let x = r
             .state_components
             .iter()
@@ -191,7 +194,7 @@ fn issue22_a_half_sigma_sensor_offset_is_caught_by_the_zero_mean_test() {
         caught >= 99,
         "the offset is caught on only {caught} of 100 seeds"
     );
-    let r = check(&p, &theta, p.mc(), true).unwrap();
+    let r = check(&p, &theta, p.mc(), autotune::Truth::Known).unwrap();
     assert_eq!(
         r.diagnosis.suspect,
         Some(Suspect::Bias),
@@ -221,7 +224,13 @@ fn issue22_a_wrong_r_alone_does_not_say_q_may_be_off_as_well() {
         let theta = scaled(&p, &truth, "r_", factor);
         let mut clean = 0;
         for s in 0..20 {
-            let r = check(&p, &theta, &p.mc().with_seed(223_000 + s), true).unwrap();
+            let r = check(
+                &p,
+                &theta,
+                &p.mc().with_seed(223_000 + s),
+                autotune::Truth::Known,
+            )
+            .unwrap();
             assert!(!r.verdict.passes());
             let head = r.diagnosis.headline().unwrap_or_default();
             clean += usize::from(!head.contains("Q may be off"));
@@ -237,7 +246,13 @@ fn issue22_a_wrong_r_alone_does_not_say_q_may_be_off_as_well() {
     let theta = scaled(&p, &scaled(&p, &truth, "r_", 4.0), "q_", 0.25);
     let mut hedged = 0;
     for s in 0..20 {
-        let r = check(&p, &theta, &p.mc().with_seed(223_100 + s), true).unwrap();
+        let r = check(
+            &p,
+            &theta,
+            &p.mc().with_seed(223_100 + s),
+            autotune::Truth::Known,
+        )
+        .unwrap();
         hedged += usize::from(
             r.diagnosis
                 .headline()
@@ -365,7 +380,7 @@ fn issue22_field_log_bias_is_the_finding() {
 fn issue22_check_json_has_component_means() {
     let p = load("cv2d");
     let truth = truth_values(&p);
-    let r = check(&p, &truth, p.mc(), true).unwrap();
+    let r = check(&p, &truth, p.mc(), autotune::Truth::Known).unwrap();
     let json = serde_json::to_value(&r).unwrap();
     for c in json["state_components"]
         .as_array()

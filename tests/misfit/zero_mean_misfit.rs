@@ -30,7 +30,7 @@ fn zs(kind: Kind) -> Vec<((f64, bool), (f64, bool))> {
         .map(|seed| {
             let d = draw(kind, seed);
             let e = &d.experiment;
-            let r = check(e, &d.truth, e.mc(), true).expect("the check runs");
+            let r = check(e, &d.truth, e.mc(), autotune::Truth::Known).expect("the check runs");
             let m = &r.measurement_components[d.fault_axis];
             let x = &r.state_components[2 * d.fault_axis];
             (

@@ -128,7 +128,8 @@ fn nis_only_tuning_passes_check() {
         // Innovations alone pin dcmotor's voltage noise less sharply: the objective is flat
         // enough there that the simplex stops 3e-3 away (measured); 1e-2 for all three.
         assert_within(&p, &r, 1e-2);
-        let full = autotune::internals::check::check(&p, &r.tuned, p.mc(), true).unwrap();
+        let full = autotune::internals::check::check(&p, &r.tuned, p.mc(), autotune::Truth::Known)
+            .unwrap();
         assert!(full.verdict.passes(), "{name}: {:?}", full.verdict);
     }
 }

@@ -20,7 +20,7 @@ fn passes(name: &str) -> usize {
     (3001..=3100)
         .into_par_iter()
         .filter(|&s| {
-            check(&p, &theta, &p.mc().with_seed(s), true)
+            check(&p, &theta, &p.mc().with_seed(s), autotune::Truth::Known)
                 .unwrap()
                 .verdict
                 .passes()

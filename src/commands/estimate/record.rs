@@ -4,7 +4,7 @@
 
 use std::path::Path;
 
-use crate::check::check;
+use crate::check::{Truth, check};
 use crate::commands::CommandError;
 use crate::estimate::EstimateError;
 use crate::estimate::{
@@ -326,7 +326,7 @@ pub(super) fn supported(
 ) -> (LikelihoodRanges, GateRanges) {
     let likelihood = likelihood_ranges(nll, est, fixed, 0.95);
     let passes = |t: &[f64]| {
-        check(judged, t, judged.mc(), false)
+        check(judged, t, judged.mc(), Truth::Unknown)
             .ok()
             .map(|r| r.verdict.passes())
     };

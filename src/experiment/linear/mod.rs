@@ -1,9 +1,11 @@
-//! A problem file's linear-Gaussian truth and Kalman filter as an [`super::Experiment`]:
-//! the model (`model`) and how it answers the seam (`seam`), apart so that the seam, which
-//! names the linear experiment, and the experiment, which implements the seam, import no
-//! file of each other's.
+//! A linear-Gaussian truth and Kalman filter as an [`super::Experiment`], from a problem
+//! file or built in Rust (`builder`): the model (`model`) and how it answers the seam
+//! (`seam`), apart so that the seam, which names the linear experiment, and the
+//! experiment, which implements the seam, import no file of each other's.
 
+mod builder;
 mod model;
 mod seam;
 
+pub use builder::LinearModelBuilder;
 pub use model::{FilterModel, LinearExperiment};

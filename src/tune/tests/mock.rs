@@ -107,6 +107,12 @@ impl Mock {
         }
     }
 
+    /// The mock whose parameter `i` its definition marks fixed.
+    pub(crate) fn with_fixed(mut self, i: usize) -> Mock {
+        self.definition.params.params[i].fixed = true;
+        self
+    }
+
     /// The mock whose component j is off by the factor `e^{o_j}` at every θ ([`Mock::j`]
     /// then has no zero), in its exact sums and in Monte Carlo calls of fewer than
     /// `below_runs` runs: `usize::MAX` for a misfit at any N, a finite count for one that

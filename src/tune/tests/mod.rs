@@ -753,7 +753,7 @@ fn one_record_is_confirmed_once_and_its_resolution_is_the_bounds_alone() {
     let passes = |i: usize, v: f64| {
         let mut t = r.tuned.clone();
         t[i] = v;
-        crate::check::check(&mock, &t, mock.mc(), true)
+        crate::check::check(&mock, &t, mock.mc(), crate::check::Truth::Known)
             .unwrap()
             .verdict
             .passes()

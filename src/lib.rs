@@ -203,5 +203,35 @@ pub use records::{Layout, SensorLayout, SensorRecord, StateLayout, StateRecord, 
 // Errors of bad input.
 pub use input::{FileError, SettingError};
 
+// The types the items above carry in their fields, results and errors: each nameable, so
+// that a program can store, match and pass on whatever the API hands it.
+pub use estimate::als::AlsEstimate;
+pub use estimate::ml::MlEstimate;
+pub use estimate::{
+    EstimateError, GateRanges, LikelihoodRanges, MeasurementRecord, NotDefinite,
+    Range as EstimateRange, RangeEnd, Sequence,
+};
+pub use experiment::{
+    Ended, FilterModel, Hypothesis, RequestInfo, SeedContractViolation, StartFailure, TruthReuse,
+    Uncontained, WorkerError, WorkerFailure, WorkerRole,
+};
+pub use explain::{Cause, Explanation, Trial};
+pub use external::{ExternalExperiment, WorkerCommand};
+pub use fieldlog::{
+    CentredWhiteness, Dropped, EventKind, Histogram, LogSource, MeanTest, NisAverage, NotFused,
+    NotJudged, Overall, ParamAdvice, Px4Channel, Px4Event, Px4Info, Px4Instance, ReadOptions,
+    SensorPlot, SensorReport, SeriesPoint, Status as FollowStatus, WindowSummary,
+};
+pub use filter::{Correction, CovarianceUpdate};
+pub use model::NotPsd;
+pub use montecarlo::{TapeUsage, TruthCache, TruthTape};
+pub use output::WriteError;
+pub use params::{Coef, CovModel, CovTerm};
+pub use records::{LayoutError, RecordError, SensorShapeError, ShapeError, WireError};
+pub use statespace::LinearGaussian;
+pub use stats::{Finding, GateSpec, StopCause, SumVariance, Suspect, WhitenessTest};
+pub use tune::objective::PerTerm;
+pub use tune::{Certificate, CertifiedStart, Confirmation, Plan, Resolution, Terms, Widening};
+
 // The random number generator of one Monte Carlo run.
 pub use rng::SimRng;

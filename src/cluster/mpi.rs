@@ -71,15 +71,37 @@ pub fn launched() -> bool {
         .any(|v| std::env::var_os(v).is_some())
 }
 
+/// Why MPI could not be started for autotune ([`Mpi::init`]).
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum MpiError {
+    /// This process initialized MPI before.
+    #[error("MPI was initialized already")]
+    Initialized,
+    /// The MPI library gives less thread support than autotune's threads need.
+    #[error("this MPI gives threads {0} support; autotune needs MPI_THREAD_MULTIPLE")]
+    Threading(String),
+}
+
+/// Why a rank's answer does not decode (it is refused, with the rank named).
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+enum AnswerError {
+    #[error("it ends early")]
+    EndsEarly,
+    #[error("a count out of range")]
+    CountOutOfRange,
+    #[error("chunk {0} is beyond the evaluation's runs")]
+    BeyondRuns(usize),
+    #[error(transparent)]
+    Wire(#[from] crate::records::WireError),
+}
+
 impl Mpi {
-    /// Initialize MPI with full thread support; `Err` says why not in words.
-    pub fn init() -> Result<Mpi, String> {
+    /// Initialize MPI with full thread support.
+    pub fn init() -> Result<Mpi, MpiError> {
         let (universe, threading) = mpi::initialize_with_threading(mpi::Threading::Multiple)
-            .ok_or("MPI was initialized already")?;
+            .ok_or(MpiError::Initialized)?;
         if threading != mpi::Threading::Multiple {
-            return Err(format!(
-                "this MPI gives threads {threading:?} support; autotune needs MPI_THREAD_MULTIPLE"
-            ));
+            return Err(MpiError::Threading(format!("{threading:?}")));
         }
         Ok(Mpi {
             world: World(universe.world()),
@@ -320,13 +342,13 @@ fn decode_answer(
     bytes: &[u8],
     mc: &McConfig,
     e: &dyn Experiment,
-) -> Result<Vec<(usize, Accumulator)>, String> {
+) -> Result<Vec<(usize, Accumulator)>, AnswerError> {
     let mut at = 0;
-    fn word(bytes: &[u8], at: &mut usize) -> Result<usize, String> {
-        let b = bytes.get(*at..*at + 8).ok_or("it ends early")?;
+    fn word(bytes: &[u8], at: &mut usize) -> Result<usize, AnswerError> {
+        let b = bytes.get(*at..*at + 8).ok_or(AnswerError::EndsEarly)?;
         *at += 8;
         usize::try_from(u64::from_le_bytes(b.try_into().expect("8 bytes")))
-            .map_err(|_| "a count out of range".to_string())
+            .map_err(|_| AnswerError::CountOutOfRange)
     }
     let shape = SumsShape::of(e, mc);
     let n = word(bytes, &mut at)?;
@@ -336,12 +358,12 @@ fn decode_answer(
         let len = word(bytes, &mut at)?;
         let body = bytes
             .get(at..at.saturating_add(len))
-            .ok_or("it ends early")?;
+            .ok_or(AnswerError::EndsEarly)?;
         at += len;
         if c >= shape.chunks() {
-            return Err(format!("chunk {c} is beyond the evaluation's runs"));
+            return Err(AnswerError::BeyondRuns(c));
         }
-        parts.push((c, shape.decode(c, body).map_err(|e| e.to_string())?));
+        parts.push((c, shape.decode(c, body)?));
     }
     Ok(parts)
 }

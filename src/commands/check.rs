@@ -304,7 +304,7 @@ pub fn merge(
     files: &[PathBuf],
     options: &CheckOptions,
 ) -> Result<(crate::problem::Problem, CheckRun), CommandError> {
-    let refused = |r: shard::MergeRefusal| FileError::new(&r.file, "shard", r.why);
+    let refused = |r: shard::MergeRefusal| FileError::new(&r.file, "shard", r.why.to_string());
     let heads = files
         .iter()
         .map(|f| shard::read_head(f))
@@ -330,7 +330,7 @@ pub fn merge(
     }
     let setup = s
         .setup(&problem)
-        .map_err(|why| FileError::new(&heads[0].path, "settings", why))?;
+        .map_err(|why| FileError::new(&heads[0].path, "settings", why.to_string()))?;
     let options = CheckOptions {
         nis_only: s.nis_only,
         engine: setup.engine,

@@ -218,22 +218,168 @@ pub struct ShardHead {
 
 /// Why a shard file is refused or shard files do not merge: the file and the reason, one
 /// line.
-#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
 #[error("{}: {why}", .file.display())]
 pub struct MergeRefusal {
     /// The file at fault (the second of two that differ).
     pub file: PathBuf,
     /// Why.
-    pub why: String,
+    pub why: MergeProblem,
 }
 
 impl MergeRefusal {
-    pub(super) fn new(file: &Path, why: impl Into<String>) -> Self {
+    pub(super) fn new(file: &Path, why: MergeProblem) -> Self {
         MergeRefusal {
             file: file.to_path_buf(),
-            why: why.into(),
+            why,
         }
     }
+}
+
+/// What is wrong with a shard file, or with shard files together ([`MergeRefusal::why`]).
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum MergeProblem {
+    /// The file cannot be opened as a regular file (the reason in words).
+    #[error("{0}")]
+    Open(String),
+    /// Its size cannot be read.
+    #[error("cannot read: {0}")]
+    Unreadable(String),
+    /// It is larger than a shard file may be, bytes.
+    #[error("larger than the limit of {}", crate::userfile::size_text(*.limit))]
+    TooLarge {
+        /// The limit, bytes.
+        limit: u64,
+    },
+    /// Its head is not a shard file's JSON (the parser's words).
+    #[error("not a shard file: {0}")]
+    NotJson(String),
+    /// Its `format` is not a shard file's.
+    #[error("not a shard file (its 'format' is not \"{FORMAT}\")")]
+    Format,
+    /// Its format version is not the one this autotune reads.
+    #[error("shard format version {} (this autotune reads version {VERSION})", .found.map_or("none".to_string(), |v| v.to_string()))]
+    Version {
+        /// The version it gives, if any.
+        found: Option<u32>,
+    },
+    /// It has no `settings` or no `shard`.
+    #[error("not a shard file: it has no 'settings' or no 'shard'")]
+    Incomplete,
+    /// No shard files were given.
+    #[error("no shard files")]
+    NoFiles,
+    /// A setting differs from the first file's.
+    #[error("its {field} differs from {}'s: shards of different problems or settings do not merge", .first.display())]
+    Differs {
+        /// The setting, as the file names it.
+        field: &'static str,
+        /// The first file.
+        first: PathBuf,
+    },
+    /// It is a share of another count than the first file's.
+    #[error("shard {index}/{count} cannot merge with {}'s shards of {first_count}", .first.display())]
+    OtherCount {
+        /// Its share index.
+        index: usize,
+        /// Its share count.
+        count: usize,
+        /// The first file.
+        first: PathBuf,
+        /// The first file's share count.
+        first_count: usize,
+    },
+    /// Its share index is not below the count.
+    #[error("shard {index}/{count} is not a shard of {count}")]
+    OutOfRange {
+        /// Its share index.
+        index: usize,
+        /// The share count.
+        count: usize,
+    },
+    /// Another file is the same share.
+    #[error("shard {index}/{count} is also {}", .other.display())]
+    Duplicate {
+        /// The share index.
+        index: usize,
+        /// The share count.
+        count: usize,
+        /// The other file.
+        other: PathBuf,
+    },
+    /// No file is this share.
+    #[error("shard {index}/{count} is missing: give every shard's file")]
+    Missing {
+        /// The missing share's index.
+        index: usize,
+        /// The share count.
+        count: usize,
+    },
+    /// Its share cannot be formed (the reason in words).
+    #[error("{0}")]
+    Share(SettingError),
+    /// Its reader thread could not start.
+    #[error("cannot start its reader: {0}")]
+    Reader(String),
+    /// A chunk comes out of its place.
+    #[error("chunk {got} comes where chunk {want} belongs")]
+    OutOfOrder {
+        /// The chunk found.
+        got: usize,
+        /// The chunk that belongs there.
+        want: usize,
+    },
+    /// The file ends before one of its share's chunks.
+    #[error("chunk {0} is missing: the file ends before it")]
+    Truncated(usize),
+    /// A chunk beyond the check's chunks.
+    #[error("chunk {chunk} is not one of the check's {chunks} chunks")]
+    Extra {
+        /// The chunk found.
+        chunk: usize,
+        /// The check's chunk count.
+        chunks: usize,
+    },
+    /// Its reader stopped without a word.
+    #[error("its reader stopped")]
+    Stopped,
+    /// The check has no chunks.
+    #[error("no chunks to merge")]
+    NoChunks,
+    /// Its chunks do not read (the parser's or the decoder's words).
+    #[error("{0}")]
+    Chunks(String),
+}
+
+/// Why a shard file's settings do not describe a check of the problem they name
+/// ([`ShardSettings::setup`]).
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum SetupRefusal {
+    /// The parameters are not the problem's (which are these, in order).
+    #[error("its parameters are not the problem's ({})", .problem.join(", "))]
+    Parameters {
+        /// The problem's parameter names.
+        problem: Vec<String>,
+    },
+    /// A parameter's value is not a finite number.
+    #[error("its settings' params.{0} is not a finite number")]
+    NotFinite(String),
+    /// The sums' dimension is not the problem's.
+    #[error("its settings' {field} is {declared}, but the problem's sums have {actual}")]
+    Dimension {
+        /// `n_x` or `n_z`.
+        field: &'static str,
+        /// What the settings say.
+        declared: usize,
+        /// What the problem has.
+        actual: usize,
+    },
+    /// A setting that does not read (`alpha`, `gate`, `engine`).
+    #[error("its settings' {0} is not valid")]
+    Invalid(&'static str),
+    /// The Monte Carlo settings are refused as `check` refuses them.
+    #[error("its settings: {0}")]
+    Settings(SettingError),
 }
 
 /// A check as its shards' settings describe it, checked against the problem it names (its
@@ -251,20 +397,18 @@ pub struct Setup {
 impl ShardSettings {
     /// The check these settings describe, on `experiment` (the problem they name, read
     /// again): the parameters must be its parameters and finite, the sums' components its
-    /// components, the Monte Carlo settings valid. `Err` says why in words.
-    pub fn setup(&self, experiment: &dyn Experiment) -> Result<Setup, String> {
+    /// components, the Monte Carlo settings valid. `Err` says why.
+    pub fn setup(&self, experiment: &dyn Experiment) -> Result<Setup, SetupRefusal> {
         let s = self;
-        let bad = |field: &str| format!("its settings' {field} is not valid");
         let names = experiment.params().names();
         if !names
             .iter()
             .copied()
             .eq(s.params.iter().map(|(n, _)| n.as_str()))
         {
-            return Err(format!(
-                "its parameters are not the problem's ({})",
-                names.join(", ")
-            ));
+            return Err(SetupRefusal::Parameters {
+                problem: names.iter().map(|n| n.to_string()).collect(),
+            });
         }
         let theta = s
             .params
@@ -272,29 +416,30 @@ impl ShardSettings {
             .map(|(name, v)| {
                 v.get()
                     .filter(|x| x.is_finite())
-                    .ok_or_else(|| format!("its settings' params.{name} is not a finite number"))
+                    .ok_or_else(|| SetupRefusal::NotFinite(name.clone()))
             })
-            .collect::<Result<Vec<f64>, String>>()?;
+            .collect::<Result<Vec<f64>, SetupRefusal>>()?;
         for (field, declared, actual) in [
             ("n_x", s.n_x, experiment.state_names().len()),
             ("n_z", s.n_z, experiment.measurement_names().len()),
         ] {
             if declared != actual {
-                return Err(format!(
-                    "its settings' {field} is {declared}, but the problem's sums have {actual}"
-                ));
+                return Err(SetupRefusal::Dimension {
+                    field,
+                    declared,
+                    actual,
+                });
             }
         }
-        let setting = |e: SettingError| format!("its settings: {e}");
-        let alpha = s.alpha.get().ok_or_else(|| bad("alpha"))?;
-        let gate =
-            <GateMode as clap::ValueEnum>::from_str(&s.gate, false).map_err(|_| bad("gate"))?;
-        let engine =
-            <Engine as clap::ValueEnum>::from_str(&s.engine, false).map_err(|_| bad("engine"))?;
+        let alpha = s.alpha.get().ok_or(SetupRefusal::Invalid("alpha"))?;
+        let gate = <GateMode as clap::ValueEnum>::from_str(&s.gate, false)
+            .map_err(|_| SetupRefusal::Invalid("gate"))?;
+        let engine = <Engine as clap::ValueEnum>::from_str(&s.engine, false)
+            .map_err(|_| SetupRefusal::Invalid("engine"))?;
         let mc = McConfig::new(s.runs, s.steps)
             .and_then(|mc| mc.with_alpha(alpha))
             .and_then(|mc| mc.with_lags(s.lags))
-            .map_err(setting)?
+            .map_err(SetupRefusal::Settings)?
             .with_seed(s.seed)
             .with_gate(gate);
         Ok(Setup { theta, mc, engine })

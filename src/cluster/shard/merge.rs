@@ -8,7 +8,7 @@ use base64::engine::general_purpose::STANDARD;
 use serde::Deserialize;
 
 use super::format::{
-    FORMAT, MAX_FILE, MergeRefusal, ShardHead, ShardIndex, ShardSettings, VERSION,
+    FORMAT, MAX_FILE, MergeProblem, MergeRefusal, ShardHead, ShardIndex, ShardSettings, VERSION,
 };
 use crate::cluster::SumsShape;
 use crate::montecarlo::Share;
@@ -17,19 +17,17 @@ use crate::stats::Accumulator;
 /// Open a shard file to read: a regular file of at most [`MAX_FILE`] bytes (checked on the
 /// opened descriptor), noted as an input of this process.
 fn open(path: &Path) -> Result<(std::fs::File, u64), MergeRefusal> {
-    let file = crate::userfile::open(path).map_err(|e| MergeRefusal::new(path, e.message))?;
+    let file = crate::userfile::open(path)
+        .map_err(|e| MergeRefusal::new(path, MergeProblem::Open(e.message)))?;
     crate::input::note_input(path);
     let len = file
         .metadata()
-        .map_err(|e| MergeRefusal::new(path, format!("cannot read: {e}")))?
+        .map_err(|e| MergeRefusal::new(path, MergeProblem::Unreadable(e.to_string())))?
         .len();
     if len > MAX_FILE {
         return Err(MergeRefusal::new(
             path,
-            format!(
-                "larger than the limit of {}",
-                crate::userfile::size_text(MAX_FILE)
-            ),
+            MergeProblem::TooLarge { limit: MAX_FILE },
         ));
     }
     Ok((file, len))
@@ -48,27 +46,20 @@ pub fn read_head(path: &Path) -> Result<ShardHead, MergeRefusal> {
     let (file, _) = open(path)?;
     let reader = std::io::BufReader::with_capacity(1 << 16, file);
     let head: Head = serde_json::from_reader(reader)
-        .map_err(|e| MergeRefusal::new(path, format!("not a shard file: {e}")))?;
+        .map_err(|e| MergeRefusal::new(path, MergeProblem::NotJson(e.to_string())))?;
     if head.format.as_deref() != Some(FORMAT) {
-        return Err(MergeRefusal::new(
-            path,
-            format!("not a shard file (its 'format' is not \"{FORMAT}\")"),
-        ));
+        return Err(MergeRefusal::new(path, MergeProblem::Format));
     }
     if head.version != Some(VERSION) {
         return Err(MergeRefusal::new(
             path,
-            format!(
-                "shard format version {} (this autotune reads version {VERSION})",
-                head.version.map_or("none".to_string(), |v| v.to_string())
-            ),
+            MergeProblem::Version {
+                found: head.version,
+            },
         ));
     }
     let (Some(settings), Some(shard)) = (head.settings, head.shard) else {
-        return Err(MergeRefusal::new(
-            path,
-            "not a shard file: it has no 'settings' or no 'shard'",
-        ));
+        return Err(MergeRefusal::new(path, MergeProblem::Incomplete));
     };
     Ok(ShardHead {
         path: path.to_path_buf(),
@@ -84,7 +75,7 @@ pub fn plan(heads: &[ShardHead]) -> Result<Vec<&ShardHead>, MergeRefusal> {
     let Some(first) = heads.first() else {
         return Err(MergeRefusal::new(
             Path::new("autotune merge"),
-            "no shard files",
+            MergeProblem::NoFiles,
         ));
     };
     let s = &first.settings;
@@ -93,27 +84,30 @@ pub fn plan(heads: &[ShardHead]) -> Result<Vec<&ShardHead>, MergeRefusal> {
         if let Some(field) = first_difference(s, &h.settings) {
             return Err(MergeRefusal::new(
                 &h.path,
-                format!(
-                    "its {field} differs from {}'s: shards of different problems or settings do not merge",
-                    first.path.display()
-                ),
+                MergeProblem::Differs {
+                    field,
+                    first: first.path.clone(),
+                },
             ));
         }
         if h.shard.count != count {
             return Err(MergeRefusal::new(
                 &h.path,
-                format!(
-                    "shard {}/{} cannot merge with {}'s shards of {count}",
-                    h.shard.index,
-                    h.shard.count,
-                    first.path.display()
-                ),
+                MergeProblem::OtherCount {
+                    index: h.shard.index,
+                    count: h.shard.count,
+                    first: first.path.clone(),
+                    first_count: count,
+                },
             ));
         }
         if h.shard.index >= count {
             return Err(MergeRefusal::new(
                 &h.path,
-                format!("shard {}/{count} is not a shard of {count}", h.shard.index),
+                MergeProblem::OutOfRange {
+                    index: h.shard.index,
+                    count,
+                },
             ));
         }
     }
@@ -124,18 +118,21 @@ pub fn plan(heads: &[ShardHead]) -> Result<Vec<&ShardHead>, MergeRefusal> {
         if w[0].shard.index == w[1].shard.index {
             return Err(MergeRefusal::new(
                 &w[1].path,
-                format!(
-                    "shard {}/{count} is also {}",
-                    w[1].shard.index,
-                    w[0].path.display()
-                ),
+                MergeProblem::Duplicate {
+                    index: w[1].shard.index,
+                    count,
+                    other: w[0].path.clone(),
+                },
             ));
         }
     }
     if let Some(missing) = (0..count).find(|&i| ordered.get(i).is_none_or(|h| h.shard.index != i)) {
         return Err(MergeRefusal::new(
             &first.path,
-            format!("shard {missing}/{count} is missing: give every shard's file"),
+            MergeProblem::Missing {
+                index: missing,
+                count,
+            },
         ));
     }
     Ok(ordered)
@@ -170,12 +167,12 @@ pub fn merge_stream(
         for h in ordered {
             let (tx, rx) = std::sync::mpsc::sync_channel::<Read>(1);
             let share = Share::new(h.shard.index, count)
-                .map_err(|e| MergeRefusal::new(&h.path, e.to_string()))?;
+                .map_err(|e| MergeRefusal::new(&h.path, MergeProblem::Share(e)))?;
             let shape = &shape;
             std::thread::Builder::new()
                 .stack_size(1 << 20)
                 .spawn_scoped(scope, move || stream_chunks(h, share, shape, &tx))
-                .map_err(|e| MergeRefusal::new(&h.path, format!("cannot start its reader: {e}")))?;
+                .map_err(|e| MergeRefusal::new(&h.path, MergeProblem::Reader(e.to_string())))?;
             readers.push((h, rx));
         }
         let mut merged: Option<Accumulator> = None;
@@ -189,14 +186,11 @@ pub fn merge_stream(
                 Ok(Read::Chunk(got, _)) => {
                     return Err(MergeRefusal::new(
                         &h.path,
-                        format!("chunk {got} comes where chunk {c} belongs"),
+                        MergeProblem::OutOfOrder { got, want: c },
                     ));
                 }
                 Ok(Read::End) | Err(_) => {
-                    return Err(MergeRefusal::new(
-                        &h.path,
-                        format!("chunk {c} is missing: the file ends before it"),
-                    ));
+                    return Err(MergeRefusal::new(&h.path, MergeProblem::Truncated(c)));
                 }
                 Ok(Read::Refused(r)) => return Err(r),
             }
@@ -208,15 +202,15 @@ pub fn merge_stream(
                 Ok(Read::Chunk(c, _)) => {
                     return Err(MergeRefusal::new(
                         &h.path,
-                        format!("chunk {c} is not one of the check's {chunks} chunks"),
+                        MergeProblem::Extra { chunk: c, chunks },
                     ));
                 }
                 Err(_) => {
-                    return Err(MergeRefusal::new(&h.path, "its reader stopped"));
+                    return Err(MergeRefusal::new(&h.path, MergeProblem::Stopped));
                 }
             }
         }
-        merged.ok_or_else(|| MergeRefusal::new(&ordered[0].path, "no chunks to merge"))
+        merged.ok_or_else(|| MergeRefusal::new(&ordered[0].path, MergeProblem::NoChunks))
     })
 }
 
@@ -264,7 +258,10 @@ fn stream_chunks(
 ) {
     use serde::de::{self, DeserializeSeed, MapAccess, SeqAccess, Visitor};
     let refuse = |why: String| {
-        let _ = tx.send(Read::Refused(MergeRefusal::new(&h.path, why)));
+        let _ = tx.send(Read::Refused(MergeRefusal::new(
+            &h.path,
+            MergeProblem::Chunks(why),
+        )));
     };
     let file = match open(&h.path) {
         Ok((f, _)) => f,

@@ -12,8 +12,8 @@ mod format;
 mod merge;
 
 pub use format::{
-    CheckSetup, FORMAT, MAX_FILE, MergeRefusal, Number, Setup, ShardChunk, ShardFile, ShardHead,
-    ShardIndex, ShardSettings, VERSION,
+    CheckSetup, FORMAT, MAX_FILE, MergeProblem, MergeRefusal, Number, Setup, SetupRefusal,
+    ShardChunk, ShardFile, ShardHead, ShardIndex, ShardSettings, VERSION,
 };
 pub use merge::{merge_stream, plan, read_head};
 

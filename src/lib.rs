@@ -166,8 +166,8 @@ pub use problem::{Problem, ProblemKind};
 // A model defined in Rust: its truth, its filter, its parameters.
 pub use experiment::{RustModel, RustModelBuilder};
 pub use filter::{
-    Ekf, Estimate, Filter, FilterError, Innovation, KalmanFilter, PredictResult, SystemModel, Ukf,
-    UpdateResult, check_measurement,
+    Ekf, Estimate, Filter, FilterError, Innovation, PredictResult, SystemModel, Ukf, UpdateResult,
+    check_measurement,
 };
 pub use linalg::psd_factor;
 pub use measurement::Measurement;

@@ -4,8 +4,9 @@
 //! [`Problem`] file, a linear model built with [`LinearExperiment::builder`], or any model
 //! defined in Rust with [`RustModel`]), and watching a running filter with [`NisMonitor`].
 
+pub use crate::check::{check, check_seeds};
+pub use crate::params::{cwna_block, dwna_block};
 pub use crate::{
     Experiment, LinearExperiment, McConfig, NisMonitor, NisSettings, ParamDef, Problem, RustModel,
-    Silent, Target, Truth, Tunable, TuneSettings, Tuner, Verdict, check, check_seeds, cwna_block,
-    dwna_block,
+    Silent, Target, Truth, Tunable, TuneSettings, Tuner, Verdict,
 };

@@ -20,7 +20,7 @@ type CovarianceFn = Box<dyn Fn(&[f64]) -> Covariances + Send + Sync>;
 ///
 /// ```
 /// use autotune::{RustModel, Experiment};
-/// use autotune::KalmanFilter;
+/// use autotune::LinearGaussian;
 /// use autotune::LinearGaussianModel;
 /// use autotune::McConfig;
 /// use autotune::{ParamDef, Target, dwna_block};
@@ -33,7 +33,7 @@ type CovarianceFn = Box<dyn Fn(&[f64]) -> Covariances + Send + Sync>;
 ///     f.clone(), h.clone(), dwna_block(1.0) * 0.5, DMatrix::from_element(1, 1, 1.0),
 ///     x0.clone(), p0.clone(),
 /// ).unwrap();
-/// let filter = move |theta: &[f64]| KalmanFilter {
+/// let filter = move |theta: &[f64]| LinearGaussian {
 ///     F: f.clone(), H: h.clone(),
 ///     Q: dwna_block(1.0) * theta[0], R: DMatrix::from_element(1, 1, theta[1]),
 ///     x0: x0.clone(), P0: p0.clone(),

@@ -1,7 +1,7 @@
 //! Issue 37, items 7–10: statements about real PX4 logs that were false. Every test runs on
 //! the two real PX4 logs (tests/data/px4/real, BSD-3-Clause, from PX4's pyulog test data)
 //! or on fixtures of the shape of two more logs of that test data (`support::
-//! px4_fixtures_issue37`: a v1.11 short hop, a v1.6 `ekf2_innovations` log). The fields
+//! px4_shapes`: a v1.11 short hop, a v1.6 `ekf2_innovations` log). The fields
 //! added by the fix are read from the report's JSON, so the tests build on the code before
 //! it too, and fail there.
 use crate::support;
@@ -10,7 +10,7 @@ use std::path::{Path, PathBuf};
 
 use autotune::internals::fieldlog::{NisReport, NisSettings, ReadOptions, analyze};
 use serde_json::Value;
-use support::px4_fixtures_issue37 as fx;
+use support::px4_shapes as fx;
 
 fn real(name: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR"))
@@ -342,7 +342,7 @@ fn a_channels_update_rate_counts_the_intervals_between_its_updates() {
     let (_, v) = judge_bytes(&fx::short_hop_v111(1), false);
     let s = sensor(&v, "ekf0.baro_vpos").unwrap();
     let n = s["updates"].as_u64().unwrap() as f64;
-    let span = (support::px4_fixtures_issue37::HOP_LOG_S * 5.0 - 1.0) / 5.0;
+    let span = (support::px4_shapes::HOP_LOG_S * 5.0 - 1.0) / 5.0;
     let hz = s["px4"]["update_hz"].as_f64().unwrap();
     assert!(
         (hz - (n - 1.0) / span).abs() < 1e-12,

@@ -2,5 +2,5 @@
 #![allow(dead_code)]
 
 pub mod px4_fixtures;
-pub mod px4_fixtures_issue37;
+pub mod px4_shapes;
 pub mod ulog;

@@ -15,6 +15,7 @@ use autotune::internals::experiment::Experiment as _;
 use autotune::internals::filter::Filter;
 use autotune::internals::measurement::Measurement;
 use autotune::internals::problem::Problem;
+use autotune::{HeldAsCode, Structure};
 use criterion::{Criterion, criterion_group, criterion_main};
 use nalgebra::DVector;
 

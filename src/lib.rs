@@ -158,8 +158,8 @@ pub mod internals {
 
 // The seam, and a problem file as one implementation of it.
 pub use experiment::{
-    Block, Covariances, Definition, Experiment, ExperimentError, Info, LinearExperiment,
-    LinearModelBuilder, RunOptions, Source,
+    Block, Covariances, Definition, Experiment, ExperimentError, HeldAsCode, Info,
+    LinearExperiment, LinearModelBuilder, RunOptions, Sampling, Source, Structure,
 };
 pub use problem::{Problem, ProblemKind};
 

@@ -29,7 +29,7 @@ use crate::stats::Accumulator;
 /// `options`' engine and progress), each with its chunk's index, in chunk order.
 ///
 /// Fails as the evaluation fails, and when the experiment does not split into shares
-/// ([`Experiment::splits`]: recorded sums) or computed other chunks than the share's (an
+/// ([`Sampling::splits`]: recorded sums) or computed other chunks than the share's (an
 /// [`Experiment`] implementation that ignores [`RunOptions::share`]).
 pub fn share_sums(
     experiment: &dyn Experiment,

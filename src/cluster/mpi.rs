@@ -129,7 +129,7 @@ pub struct CommStats {
 }
 
 /// An experiment whose evaluations rank 0 shares among the job's ranks; everything else is
-/// the inner experiment's. Recorded sums ([`Experiment::splits`] false) and the altered
+/// the inner experiment's. Recorded sums ([`Sampling::splits`] false) and the altered
 /// experiments of an explanation ([`Experiment::alter`]) are evaluated on rank 0 alone.
 pub struct Ranked<'a> {
     inner: &'a dyn Experiment,
@@ -386,26 +386,11 @@ impl Experiment for Ranked<'_> {
         }
         self.shared(theta, mc, options)
     }
+}
 
+impl crate::experiment::Structure for Ranked<'_> {
     fn supports(&self, engine: Engine) -> bool {
         self.inner.supports(engine)
-    }
-
-    // A hypothesis trial's corrected readings run in this process, whole: the same sums as
-    // one process gives, so a tune's explanations do not depend on the rank count.
-    fn monte_carlo_corrected(
-        &self,
-        theta: &[f64],
-        mc: &McConfig,
-        options: RunOptions<'_>,
-        correction: &crate::filter::Correction,
-    ) -> Option<Result<Accumulator, ExperimentError>> {
-        self.inner
-            .monte_carlo_corrected(theta, mc, options, correction)
-    }
-
-    fn innovation_scales(&self, theta: &[f64], mc: &McConfig) -> Option<Vec<f64>> {
-        self.inner.innovation_scales(theta, mc)
     }
 
     fn expected(&self, theta: &[f64], mc: &McConfig) -> Option<Accumulator> {
@@ -431,7 +416,28 @@ impl Experiment for Ranked<'_> {
     fn linear(&self) -> Option<&LinearExperiment> {
         self.inner.linear()
     }
+}
 
+impl crate::experiment::HeldAsCode for Ranked<'_> {
+    // A hypothesis trial's corrected readings run in this process, whole: the same sums as
+    // one process gives, so a tune's explanations do not depend on the rank count.
+    fn monte_carlo_corrected(
+        &self,
+        theta: &[f64],
+        mc: &McConfig,
+        options: RunOptions<'_>,
+        correction: &crate::filter::Correction,
+    ) -> Option<Result<Accumulator, ExperimentError>> {
+        self.inner
+            .monte_carlo_corrected(theta, mc, options, correction)
+    }
+
+    fn innovation_scales(&self, theta: &[f64], mc: &McConfig) -> Option<Vec<f64>> {
+        self.inner.innovation_scales(theta, mc)
+    }
+}
+
+impl crate::experiment::Sampling for Ranked<'_> {
     fn seed_free(&self) -> bool {
         self.inner.seed_free()
     }

@@ -1,6 +1,7 @@
 //! `simulate`: measurements (and the true states) drawn from a problem's truth, to try
 //! `estimate`, and `check` or `tune` with `--measurements`, on data whose answer is known.
 
+use crate::experiment::{HeldAsCode, Structure};
 use std::path::PathBuf;
 
 use super::CommandError;

@@ -108,7 +108,7 @@ pub struct FilterReplay<'a> {
 
 impl<'a> FilterReplay<'a> {
     /// The filter of `source` over `data`. Refused when `source` has no filter held as code
-    /// ([`Experiment::replay_filter`]), when the record's components differ from its
+    /// ([`HeldAsCode::replay_filter`]), when the record's components differ from its
     /// sensors', or when a sensor's reading is given in part.
     pub fn new(source: &'a dyn Experiment, data: MeasurementRecord) -> Result<Self, ReplayRefusal> {
         let theta = source.params().values();
@@ -346,10 +346,6 @@ impl Experiment for FilterReplay<'_> {
         &self.definition
     }
 
-    fn truth_reuse(&self, _since: crate::montecarlo::TapeUsage) -> crate::experiment::TruthReuse {
-        crate::experiment::TruthReuse::Recorded
-    }
-
     /// The filter at `theta` over every recorded sequence (the seed and the number of runs
     /// of `mc` do not apply: the data are what they are); steps beyond `mc`'s are not read.
     fn monte_carlo_with(
@@ -432,11 +428,9 @@ impl Experiment for FilterReplay<'_> {
         }
         Ok(acc)
     }
+}
 
-    fn seed_free(&self) -> bool {
-        true
-    }
-
+impl crate::experiment::Structure for FilterReplay<'_> {
     fn supports(&self, engine: Engine) -> bool {
         engine != Engine::Linear
     }
@@ -447,5 +441,17 @@ impl Experiment for FilterReplay<'_> {
 
     fn covariances(&self, theta: &[f64]) -> Option<Covariances> {
         self.source.covariances(theta)
+    }
+}
+
+impl crate::experiment::HeldAsCode for FilterReplay<'_> {}
+
+impl crate::experiment::Sampling for FilterReplay<'_> {
+    fn truth_reuse(&self, _since: crate::montecarlo::TapeUsage) -> crate::experiment::TruthReuse {
+        crate::experiment::TruthReuse::Recorded
+    }
+
+    fn seed_free(&self) -> bool {
+        true
     }
 }

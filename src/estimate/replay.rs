@@ -53,10 +53,6 @@ impl Experiment for ReplayExperiment {
         &self.definition
     }
 
-    fn truth_reuse(&self, _since: crate::montecarlo::TapeUsage) -> crate::experiment::TruthReuse {
-        crate::experiment::TruthReuse::Recorded
-    }
-
     /// The filter at `theta` over every recorded sequence (the seed and the number of runs
     /// of `mc` do not apply: the data are what they are); steps beyond `mc`'s are not read.
     fn monte_carlo_with(
@@ -122,11 +118,9 @@ impl Experiment for ReplayExperiment {
         }
         Ok(acc)
     }
+}
 
-    fn seed_free(&self) -> bool {
-        true
-    }
-
+impl crate::experiment::Structure for ReplayExperiment {
     fn supports(&self, engine: Engine) -> bool {
         engine != Engine::Linear
     }
@@ -137,5 +131,17 @@ impl Experiment for ReplayExperiment {
 
     fn covariances(&self, theta: &[f64]) -> Option<Covariances> {
         self.problem.covariances(theta)
+    }
+}
+
+impl crate::experiment::HeldAsCode for ReplayExperiment {}
+
+impl crate::experiment::Sampling for ReplayExperiment {
+    fn truth_reuse(&self, _since: crate::montecarlo::TapeUsage) -> crate::experiment::TruthReuse {
+        crate::experiment::TruthReuse::Recorded
+    }
+
+    fn seed_free(&self) -> bool {
+        true
     }
 }

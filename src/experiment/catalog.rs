@@ -46,7 +46,22 @@ impl Experiment for CatalogExperiment {
     ) -> Result<Accumulator, ExperimentError> {
         self.held().monte_carlo(&self.model.filter(theta), mc, run)
     }
+}
 
+impl crate::experiment::Structure for CatalogExperiment {
+    fn target(&self, i: usize) -> Option<Target> {
+        self.entry.params.get(i).map(|p| Target {
+            kind: p.noise,
+            components: p.components.to_vec(),
+        })
+    }
+
+    fn truth_values(&self) -> Option<Vec<f64>> {
+        Some(self.model.truth_values())
+    }
+}
+
+impl crate::experiment::HeldAsCode for CatalogExperiment {
     fn monte_carlo_corrected(
         &self,
         theta: &[f64],
@@ -69,23 +84,14 @@ impl Experiment for CatalogExperiment {
     fn innovation_scales(&self, theta: &[f64], mc: &McConfig) -> Option<Vec<f64>> {
         self.held().innovation_scales(&self.model.filter(theta), mc)
     }
+}
 
-    fn target(&self, i: usize) -> Option<Target> {
-        self.entry.params.get(i).map(|p| Target {
-            kind: p.noise,
-            components: p.components.to_vec(),
-        })
-    }
-
+impl crate::experiment::Sampling for CatalogExperiment {
     fn truth_reuse(&self, since: crate::montecarlo::TapeUsage) -> super::TruthReuse {
         self.held().truth_reuse(since)
     }
 
     fn tape_usage(&self) -> crate::montecarlo::TapeUsage {
         self.held().tape_usage()
-    }
-
-    fn truth_values(&self) -> Option<Vec<f64>> {
-        Some(self.model.truth_values())
     }
 }

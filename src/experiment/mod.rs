@@ -43,10 +43,22 @@ use crate::stats::Accumulator;
 /// A filter family and the truth it is tested against, seen through what the statistics
 /// need: named parameters θ, component names, and the Monte Carlo sums at θ.
 ///
+/// An implementation writes two methods, [`Experiment::definition`] and
+/// [`Experiment::monte_carlo_with`]; the rest of this trait reads the definition. What an
+/// experiment can offer beyond its sums it opts into through three capability traits, each
+/// with a default for every method (an experiment that offers none writes
+/// `impl Structure for X {}`, `impl HeldAsCode for X {}` and `impl Sampling for X {}`):
+/// - [`Structure`]: what autotune may know of the model (each parameter's target, Q and R at
+///   θ, decoupled blocks, the truth's values, exact expected sums, the linear form);
+/// - [`HeldAsCode`]: the filter and the truth as code (a replay over a recording, a record
+///   drawn from the truth, readings corrected on their way to the filter);
+/// - [`Sampling`]: how the sums are drawn (seed-free recorded sums, shares of chunks, truth
+///   reused between evaluations).
+///
 /// Implementations must honour the engine's reproducibility contract: the same θ, settings
 /// and seed give the same sums on any number of threads (common random numbers: the tuner
 /// evaluates every candidate on the same seed).
-pub trait Experiment: Sync {
+pub trait Experiment: Sync + Structure + HeldAsCode + Sampling {
     /// Name, source, parameters, component names and Monte Carlo test.
     fn definition(&self) -> &Definition;
 
@@ -83,7 +95,7 @@ pub trait Experiment: Sync {
     ///
     /// With a share in `options` ([`RunOptions::share`]), only that share's chunks are
     /// computed and each chunk's sums go to its sink; an experiment that cannot split its
-    /// evaluation ([`Experiment::splits`] is false) may ignore the share.
+    /// evaluation ([`Sampling::splits`] is false) may ignore the share.
     fn monte_carlo_with(
         &self,
         theta: &[f64],
@@ -95,7 +107,11 @@ pub trait Experiment: Sync {
     fn monte_carlo(&self, theta: &[f64], mc: &McConfig) -> Result<Accumulator, ExperimentError> {
         self.monte_carlo_with(theta, mc, RunOptions::default())
     }
+}
 
+/// What autotune may know of an experiment's model beyond its sums ([`Experiment`]'s first
+/// capability): the defaults know nothing.
+pub trait Structure {
     /// Whether the experiment can run on `engine` (all can run [`Engine::Auto`] and
     /// [`Engine::Generic`]; only linear problems have the linear fast path).
     fn supports(&self, engine: Engine) -> bool {
@@ -138,7 +154,11 @@ pub trait Experiment: Sync {
     fn linear(&self) -> Option<&LinearExperiment> {
         None
     }
+}
 
+/// An experiment's filter and truth as code ([`Experiment`]'s second capability): the
+/// defaults hold neither (a worker's, a records file's).
+pub trait HeldAsCode {
     /// The filter at `theta` as code, for a replay over recorded measurements
     /// ([`crate::estimate::FilterReplay`]: `check` and `tune` with `--measurements`, the
     /// likelihood of a record). `None`, the default, where autotune does not hold the filter
@@ -170,11 +190,15 @@ pub trait Experiment: Sync {
 
     /// Each measurement component's innovation standard deviation at `theta` over one
     /// run of `mc` (in the component's units; [`crate::montecarlo::innovation_scales`]),
-    /// where [`Experiment::monte_carlo_corrected`] is offered; `None` otherwise.
+    /// where [`HeldAsCode::monte_carlo_corrected`] is offered; `None` otherwise.
     fn innovation_scales(&self, _theta: &[f64], _mc: &McConfig) -> Option<Vec<f64>> {
         None
     }
+}
 
+/// How an experiment's sums are drawn ([`Experiment`]'s third capability): the defaults
+/// simulate every evaluation afresh, seed by seed, in shares of chunks.
+pub trait Sampling {
     /// Whether an evaluation splits into shares of its chunks ([`RunOptions::share`]), which
     /// the shards and the MPI ranks compute apart: true for every simulated experiment, false
     /// for sums that were recorded whole.
@@ -190,7 +214,7 @@ pub trait Experiment: Sync {
     }
 
     /// Where the truth of an evaluation has come from since `since` (a usage read before
-    /// the evaluations of interest, from [`Experiment::tape_usage`]). The default: the
+    /// the evaluations of interest, from [`Sampling::tape_usage`]). The default: the
     /// experiment simulates its own truth at every evaluation.
     fn truth_reuse(&self, _since: crate::montecarlo::TapeUsage) -> TruthReuse {
         TruthReuse::Simulated {
@@ -198,7 +222,7 @@ pub trait Experiment: Sync {
         }
     }
 
-    /// The truth cache's usage now, for [`Experiment::truth_reuse`]; the default (no
+    /// The truth cache's usage now, for [`Sampling::truth_reuse`]; the default (no
     /// cache) is empty.
     fn tape_usage(&self) -> crate::montecarlo::TapeUsage {
         crate::montecarlo::TapeUsage::default()

@@ -39,22 +39,9 @@ impl Experiment for Rebounded<'_> {
     ) -> Result<Accumulator, ExperimentError> {
         self.inner.monte_carlo_with(theta, mc, options)
     }
+}
 
-    fn monte_carlo_corrected(
-        &self,
-        theta: &[f64],
-        mc: &McConfig,
-        options: RunOptions<'_>,
-        correction: &crate::filter::Correction,
-    ) -> Option<Result<Accumulator, ExperimentError>> {
-        self.inner
-            .monte_carlo_corrected(theta, mc, options, correction)
-    }
-
-    fn innovation_scales(&self, theta: &[f64], mc: &McConfig) -> Option<Vec<f64>> {
-        self.inner.innovation_scales(theta, mc)
-    }
-
+impl crate::experiment::Structure for Rebounded<'_> {
     fn supports(&self, engine: Engine) -> bool {
         self.inner.supports(engine)
     }
@@ -82,7 +69,26 @@ impl Experiment for Rebounded<'_> {
     fn linear(&self) -> Option<&LinearExperiment> {
         self.inner.linear()
     }
+}
 
+impl crate::experiment::HeldAsCode for Rebounded<'_> {
+    fn monte_carlo_corrected(
+        &self,
+        theta: &[f64],
+        mc: &McConfig,
+        options: RunOptions<'_>,
+        correction: &crate::filter::Correction,
+    ) -> Option<Result<Accumulator, ExperimentError>> {
+        self.inner
+            .monte_carlo_corrected(theta, mc, options, correction)
+    }
+
+    fn innovation_scales(&self, theta: &[f64], mc: &McConfig) -> Option<Vec<f64>> {
+        self.inner.innovation_scales(theta, mc)
+    }
+}
+
+impl crate::experiment::Sampling for Rebounded<'_> {
     fn splits(&self) -> bool {
         self.inner.splits()
     }

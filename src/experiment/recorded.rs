@@ -57,10 +57,6 @@ impl Experiment for RecordsExperiment {
         &self.definition
     }
 
-    fn truth_reuse(&self, _since: crate::montecarlo::TapeUsage) -> super::TruthReuse {
-        super::TruthReuse::Recorded
-    }
-
     fn monte_carlo_with(
         &self,
         _theta: &[f64],
@@ -76,6 +72,16 @@ impl Experiment for RecordsExperiment {
             });
         }
         Ok(r.sums.clone())
+    }
+}
+
+impl crate::experiment::Structure for RecordsExperiment {}
+
+impl crate::experiment::HeldAsCode for RecordsExperiment {}
+
+impl crate::experiment::Sampling for RecordsExperiment {
+    fn truth_reuse(&self, _since: crate::montecarlo::TapeUsage) -> super::TruthReuse {
+        super::TruthReuse::Recorded
     }
 
     fn seed_free(&self) -> bool {

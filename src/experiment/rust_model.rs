@@ -63,7 +63,7 @@ pub struct RustModel<T, B> {
 }
 
 /// A filter builder `θ ↦ filter` behind a box, so that the filter can be run over a
-/// recording ([`Experiment::replay_filter`]).
+/// recording ([`HeldAsCode::replay_filter`]).
 type ReplayFn = Box<dyn Fn(&[f64]) -> Box<dyn Filter> + Send + Sync>;
 
 /// Collects a [`RustModel`] experiment's parts; [`RustModelBuilder::build`] checks them.
@@ -213,11 +213,33 @@ where
     ) -> Result<Accumulator, ExperimentError> {
         self.held().monte_carlo(&(self.build)(theta), mc, run)
     }
+}
 
+impl<T, F, B> crate::experiment::Structure for RustModel<T, B>
+where
+    T: TruthModel,
+    F: Filter,
+    B: Fn(&[f64]) -> F + Sync,
+{
     fn target(&self, i: usize) -> Option<Target> {
         self.targets.get(i).cloned()
     }
 
+    fn covariances(&self, theta: &[f64]) -> Option<Covariances> {
+        self.covariances.as_ref().map(|f| f(theta))
+    }
+
+    fn truth_values(&self) -> Option<Vec<f64>> {
+        self.truth_values.clone()
+    }
+}
+
+impl<T, F, B> crate::experiment::HeldAsCode for RustModel<T, B>
+where
+    T: TruthModel,
+    F: Filter,
+    B: Fn(&[f64]) -> F + Sync,
+{
     fn monte_carlo_corrected(
         &self,
         theta: &[f64],
@@ -233,22 +255,6 @@ where
         self.held().innovation_scales(&(self.build)(theta), mc)
     }
 
-    fn covariances(&self, theta: &[f64]) -> Option<Covariances> {
-        self.covariances.as_ref().map(|f| f(theta))
-    }
-
-    fn truth_reuse(&self, since: crate::montecarlo::TapeUsage) -> super::TruthReuse {
-        self.held().truth_reuse(since)
-    }
-
-    fn tape_usage(&self) -> crate::montecarlo::TapeUsage {
-        self.held().tape_usage()
-    }
-
-    fn truth_values(&self) -> Option<Vec<f64>> {
-        self.truth_values.clone()
-    }
-
     /// Where the model was made [`RustModelBuilder::replayable`].
     fn replay_filter(&self, theta: &[f64]) -> Option<Box<dyn Filter + '_>> {
         self.replay
@@ -258,5 +264,20 @@ where
 
     fn simulation_truth(&self) -> Option<&dyn TruthModel> {
         Some(&self.truth)
+    }
+}
+
+impl<T, F, B> crate::experiment::Sampling for RustModel<T, B>
+where
+    T: TruthModel,
+    F: Filter,
+    B: Fn(&[f64]) -> F + Sync,
+{
+    fn truth_reuse(&self, since: crate::montecarlo::TapeUsage) -> super::TruthReuse {
+        self.held().truth_reuse(since)
+    }
+
+    fn tape_usage(&self) -> crate::montecarlo::TapeUsage {
+        self.held().tape_usage()
     }
 }

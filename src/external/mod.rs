@@ -553,15 +553,6 @@ impl Experiment for ExternalExperiment {
         &self.definition
     }
 
-    fn truth_reuse(&self, _since: crate::montecarlo::TapeUsage) -> crate::experiment::TruthReuse {
-        if self.replays.load(Ordering::Relaxed) {
-            return crate::experiment::TruthReuse::Recorded;
-        }
-        crate::experiment::TruthReuse::Simulated {
-            why: "the worker simulates its own truth, and autotune cannot tell whether the parameters it is sent enter it".to_string(),
-        }
-    }
-
     fn monte_carlo_with(
         &self,
         theta: &[f64],
@@ -579,17 +570,32 @@ impl Experiment for ExternalExperiment {
         }
         result
     }
+}
 
+impl crate::experiment::Structure for ExternalExperiment {
     fn truth_values(&self) -> Option<Vec<f64>> {
         self.truth.clone()
+    }
+
+    fn target(&self, i: usize) -> Option<Target> {
+        self.targets.get(i).cloned().flatten()
+    }
+}
+
+impl crate::experiment::HeldAsCode for ExternalExperiment {}
+
+impl crate::experiment::Sampling for ExternalExperiment {
+    fn truth_reuse(&self, _since: crate::montecarlo::TapeUsage) -> crate::experiment::TruthReuse {
+        if self.replays.load(Ordering::Relaxed) {
+            return crate::experiment::TruthReuse::Recorded;
+        }
+        crate::experiment::TruthReuse::Simulated {
+            why: "the worker simulates its own truth, and autotune cannot tell whether the parameters it is sent enter it".to_string(),
+        }
     }
 
     /// Known once the first answer is in: a worker that replays a recording says so.
     fn seed_free(&self) -> bool {
         self.replays.load(Ordering::Relaxed)
-    }
-
-    fn target(&self, i: usize) -> Option<Target> {
-        self.targets.get(i).cloned().flatten()
     }
 }

@@ -67,10 +67,6 @@ impl Experiment for WorkerReplay<'_> {
         &self.definition
     }
 
-    fn truth_reuse(&self, _since: crate::montecarlo::TapeUsage) -> TruthReuse {
-        TruthReuse::Recorded
-    }
-
     /// The worker's filter at `theta` over every sequence of the record (`mc`'s seed and
     /// runs do not apply: the data are what they are).
     fn monte_carlo_with(
@@ -85,16 +81,26 @@ impl Experiment for WorkerReplay<'_> {
             .replay(theta, &self.record, own.runs(), &mc)
             .map(|(acc, _)| acc)
     }
+}
 
-    fn seed_free(&self) -> bool {
-        true
-    }
-
+impl crate::experiment::Structure for WorkerReplay<'_> {
     fn truth_values(&self) -> Option<Vec<f64>> {
         self.worker.truth_values()
     }
 
     fn target(&self, i: usize) -> Option<Target> {
         self.worker.target(i)
+    }
+}
+
+impl crate::experiment::HeldAsCode for WorkerReplay<'_> {}
+
+impl crate::experiment::Sampling for WorkerReplay<'_> {
+    fn truth_reuse(&self, _since: crate::montecarlo::TapeUsage) -> TruthReuse {
+        TruthReuse::Recorded
+    }
+
+    fn seed_free(&self) -> bool {
+        true
     }
 }

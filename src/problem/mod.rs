@@ -161,22 +161,9 @@ impl Experiment for Problem {
     ) -> Result<Accumulator, ExperimentError> {
         self.experiment().monte_carlo_with(theta, mc, run)
     }
+}
 
-    fn monte_carlo_corrected(
-        &self,
-        theta: &[f64],
-        mc: &McConfig,
-        options: RunOptions<'_>,
-        correction: &crate::filter::Correction,
-    ) -> Option<Result<Accumulator, ExperimentError>> {
-        self.experiment()
-            .monte_carlo_corrected(theta, mc, options, correction)
-    }
-
-    fn innovation_scales(&self, theta: &[f64], mc: &McConfig) -> Option<Vec<f64>> {
-        self.experiment().innovation_scales(theta, mc)
-    }
-
+impl crate::experiment::Structure for Problem {
     fn supports(&self, engine: Engine) -> bool {
         self.experiment().supports(engine)
     }
@@ -201,6 +188,37 @@ impl Experiment for Problem {
         self.experiment().blocks()
     }
 
+    fn linear(&self) -> Option<&LinearExperiment> {
+        self.experiment().linear()
+    }
+}
+
+impl crate::experiment::HeldAsCode for Problem {
+    fn monte_carlo_corrected(
+        &self,
+        theta: &[f64],
+        mc: &McConfig,
+        options: RunOptions<'_>,
+        correction: &crate::filter::Correction,
+    ) -> Option<Result<Accumulator, ExperimentError>> {
+        self.experiment()
+            .monte_carlo_corrected(theta, mc, options, correction)
+    }
+
+    fn innovation_scales(&self, theta: &[f64], mc: &McConfig) -> Option<Vec<f64>> {
+        self.experiment().innovation_scales(theta, mc)
+    }
+
+    fn replay_filter(&self, theta: &[f64]) -> Option<Box<dyn crate::filter::Filter + '_>> {
+        self.experiment().replay_filter(theta)
+    }
+
+    fn simulation_truth(&self) -> Option<&dyn crate::model::TruthModel> {
+        self.experiment().simulation_truth()
+    }
+}
+
+impl crate::experiment::Sampling for Problem {
     fn seed_free(&self) -> bool {
         self.experiment().seed_free()
     }
@@ -211,18 +229,6 @@ impl Experiment for Problem {
 
     fn tape_usage(&self) -> crate::montecarlo::TapeUsage {
         self.experiment().tape_usage()
-    }
-
-    fn linear(&self) -> Option<&LinearExperiment> {
-        self.experiment().linear()
-    }
-
-    fn replay_filter(&self, theta: &[f64]) -> Option<Box<dyn crate::filter::Filter + '_>> {
-        self.experiment().replay_filter(theta)
-    }
-
-    fn simulation_truth(&self) -> Option<&dyn crate::model::TruthModel> {
-        self.experiment().simulation_truth()
     }
 }
 

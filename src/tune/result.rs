@@ -93,7 +93,7 @@ pub struct Confirmation {
     /// The fewest passes a consistent filter gives with probability at least 99%: the
     /// lower end of the binomial band of K seeds at a pass rate of 1 − α.
     pub band_low: usize,
-    /// The experiment is one recorded data set ([`crate::experiment::Experiment::seed_free`]):
+    /// The experiment is one recorded data set ([`crate::experiment::Sampling::seed_free`]):
     /// the gate ran once on it, and it must pass.
     pub recorded: bool,
 }
@@ -201,7 +201,7 @@ pub struct TuneResult {
     /// converged search, each followed by one more local search; empty when none was.
     pub widened: Vec<Widening>,
     /// Whether the search ran block by block over the experiment's decoupled blocks
-    /// ([`crate::experiment::Experiment::blocks`]) rather than on the pooled objective.
+    /// ([`crate::experiment::Structure::blocks`]) rather than on the pooled objective.
     pub separable: bool,
     /// Evaluations of the refinement (the gate's sensitivity and the refinement's steps),
     /// beside the search's budget.

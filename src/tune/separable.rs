@@ -5,7 +5,7 @@
 //! averages, so under a misfit in one block (an axis whose model is wrong) the search
 //! lowers J by moving the parameters of other, correct blocks: they compensate the pooled
 //! ANEES/ANIS. When the experiment says which parameters, states and measurements no matrix
-//! couples ([`crate::experiment::Experiment::blocks`]), each block's free parameters are
+//! couples ([`crate::experiment::Structure::blocks`]), each block's free parameters are
 //! searched on that block's statistics alone ([`Objective::restricted`]), the others held
 //! at their start values. A block's statistics do not depend on another block's
 //! parameters, so on a well-specified problem the blocks' optima are the pooled optimum's

@@ -11,6 +11,7 @@
 //! broken gate or a filter ignoring its Q.
 
 use crate::common;
+use autotune::Structure;
 
 use assert_cmd::Command;
 use autotune::internals::experiment::Experiment;

@@ -1,5 +1,6 @@
 //! `autotune init` (starter problem files) and `autotune completions` from the command line.
 
+use autotune::Structure;
 use std::path::Path;
 
 use assert_cmd::Command;

@@ -5,7 +5,10 @@
 use std::path::Path;
 
 use autotune::prelude::*;
-use autotune::{Observer, TuneSpec, TuneStatus};
+use autotune::{
+    Accumulator, Definition, ExperimentError, HeldAsCode, Observer, RunOptions, Sampling,
+    Structure, TuneSpec, TuneStatus,
+};
 use nalgebra::{DMatrix, DVector};
 
 type Result<T = ()> = std::result::Result<T, Box<dyn std::error::Error>>;
@@ -18,6 +21,40 @@ fn the_tour_names_no_internals() {
         !text.contains(&needle),
         "the tour uses the public API alone"
     );
+}
+
+// ANCHOR: experiment
+/// Another program's filter behind the seam: here, one whose sums are cv1d's.
+struct Elsewhere(LinearExperiment);
+
+impl Experiment for Elsewhere {
+    fn definition(&self) -> &Definition {
+        self.0.definition()
+    }
+
+    fn monte_carlo_with(
+        &self,
+        theta: &[f64],
+        mc: &McConfig,
+        options: RunOptions<'_>,
+    ) -> std::result::Result<Accumulator, ExperimentError> {
+        self.0.monte_carlo_with(theta, mc, options)
+    }
+}
+
+// No capabilities: no targets, no exact sums, no filter held as code.
+impl Structure for Elsewhere {}
+impl HeldAsCode for Elsewhere {}
+impl Sampling for Elsewhere {}
+// ANCHOR_END: experiment
+
+#[test]
+fn an_experiment_of_ones_own() -> Result {
+    let model = Elsewhere(cv1d()?);
+    let report = check(&model, &[0.5, 1.0], model.mc(), Truth::Known)?;
+    assert!(report.verdict.passes());
+    assert!(model.target(0).is_none() && model.expected(&[0.5, 1.0], model.mc()).is_none());
+    Ok(())
 }
 
 #[test]

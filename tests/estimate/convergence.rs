@@ -3,6 +3,7 @@
 //! records `estimate` and `simulate` refuse.
 
 use crate::common;
+use autotune::Structure;
 
 use std::path::PathBuf;
 

@@ -1,6 +1,7 @@
 //! Q and R from measurements: maximum likelihood on simulated cv2d records.
 
 use crate::common;
+use autotune::Structure;
 
 use autotune::internals::estimate::{EstimateError, ml, simulate};
 use autotune::internals::experiment::{Experiment, LinearExperiment};

@@ -5,6 +5,7 @@
 //! catalog problem's record.
 
 use crate::common;
+use autotune::{HeldAsCode, Structure};
 
 use assert_cmd::Command;
 use rayon::prelude::*;

@@ -2,6 +2,7 @@
 //! truth's at the rate α predicts, and catches mis-scaled Q and R with the right direction.
 
 use crate::common;
+use autotune::Structure;
 
 use autotune::internals::check::{accumulate, check};
 use autotune::internals::experiment::Experiment;

@@ -6,6 +6,7 @@
 //! [3.946, 4.054] to [3.556, 4.471], and Q ×0.8 and ×1.3 both read "consistent".
 
 use crate::common;
+use autotune::Structure;
 use common::NoMap;
 
 use autotune::internals::experiment::Experiment;

@@ -1,6 +1,7 @@
 //! The exact expected sums agree with a large Monte Carlo run.
 
 use crate::common;
+use autotune::Structure;
 
 use autotune::internals::check::accumulate;
 use autotune::internals::experiment::Experiment;

@@ -9,6 +9,7 @@
 //! problem, not the filter, must change).
 
 use crate::common;
+use autotune::Structure;
 
 use std::path::Path;
 

@@ -2,6 +2,7 @@
 //! Jacobian matches analytic ones.
 
 use crate::common;
+use autotune::Structure;
 
 use autotune::internals::experiment::Experiment;
 use autotune::internals::filter::{

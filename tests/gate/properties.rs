@@ -4,6 +4,7 @@
 //! property test of `stats::sums`, beside the sums.)
 
 use crate::common;
+use autotune::Structure;
 
 use autotune::internals::experiment::Experiment;
 use autotune::internals::filter::{Ekf, Filter, KalmanFilter, LinearSystem, Ukf};

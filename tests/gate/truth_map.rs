@@ -8,6 +8,7 @@
 
 #![allow(non_snake_case)]
 
+use autotune::Structure;
 use std::path::{Path, PathBuf};
 
 use assert_cmd::Command;

@@ -77,11 +77,17 @@ impl Experiment for Opaque<'_> {
     > {
         self.0.monte_carlo_with(theta, mc, options)
     }
+}
 
+impl autotune::Structure for Opaque<'_> {
     fn target(&self, i: usize) -> Option<autotune::internals::params::Target> {
         self.0.target(i)
     }
 }
+
+impl autotune::HeldAsCode for Opaque<'_> {}
+
+impl autotune::Sampling for Opaque<'_> {}
 
 /// Where the filter's model cannot be changed, no cause is named: every hypothesis is
 /// listed as not tried, last, and the finding says no tried change fit.

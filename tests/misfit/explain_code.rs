@@ -14,6 +14,7 @@
 //! states.
 
 use crate::families;
+use autotune::Structure;
 
 use std::time::Instant;
 

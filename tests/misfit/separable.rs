@@ -1,6 +1,6 @@
 //! Issue #22, item 4: under a misfit, the best fit must not move the parameters of axes
 //! that no matrix couples to the wrong one. The tuner searches each decoupled block
-//! (`Experiment::blocks`) on its own statistics.
+//! (`Structure::blocks`) on its own statistics.
 //!
 //! Tolerance of the seed counts: each seed's check "every y/z parameter within its stated
 //! resolution of the truth" is a ~95% statement per parameter for a correct tuner
@@ -9,6 +9,7 @@
 //! pooled search of today's main moves them by far more than their resolution on every seed
 //! (the issue measured ×1.29, ×1.37, ×0.84, ×0.83), which 18 of 20 cannot pass.
 
+use autotune::Structure;
 use std::path::PathBuf;
 
 use autotune::internals::experiment::Experiment;

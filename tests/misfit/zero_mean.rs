@@ -5,6 +5,7 @@
 //! effective-sample-size correction.
 
 use crate::common;
+use autotune::Structure;
 
 use std::path::PathBuf;
 

@@ -1,6 +1,7 @@
 //! The tuner recovers the truth's noise parameters and its result passes the gate.
 
 use crate::common;
+use autotune::Structure;
 
 use autotune::internals::experiment::Experiment;
 use autotune::internals::problem::Problem;

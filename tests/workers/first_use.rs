@@ -8,6 +8,7 @@
 //! fail). The full default tune of the example runs in examples/cpp/ci.sh (.ci/run).
 
 use crate::common;
+use autotune::Structure;
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -112,7 +113,9 @@ impl Experiment for Slow {
         std::thread::sleep(self.delay);
         self.inner.monte_carlo_with(theta, mc, options)
     }
+}
 
+impl autotune::Structure for Slow {
     fn target(&self, i: usize) -> Option<Target> {
         self.inner.target(i)
     }
@@ -121,6 +124,10 @@ impl Experiment for Slow {
         self.inner.truth_values()
     }
 }
+
+impl autotune::HeldAsCode for Slow {}
+
+impl autotune::Sampling for Slow {}
 
 /// cv1d at 40 ms an evaluation with a 12 s budget: the simplex's ~430 evaluations would take
 /// about 17 s and run out (on main: the search stopped on its budget, so no resolution was

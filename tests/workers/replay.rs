@@ -3,6 +3,7 @@
 //! worker whose runs are recordings it replays, which says so and is then not held to the
 //! seed contract.
 
+use autotune::Structure;
 use std::path::{Path, PathBuf};
 
 use crate::common::{self, autotune};

@@ -10,6 +10,7 @@
 //! the bit. The search is cut short (20 runs × 60 steps, 12 evaluations) because equality,
 //! not the quality of the tuning, is under test.
 
+use autotune::{HeldAsCode, Structure};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 

@@ -1,6 +1,7 @@
 //! `estimate`: Q and R estimated from recorded measurements alone, and the pieces `tune`
 //! uses to run on a record (`--measurements`) or to start from an estimate (`--init`).
 
+use crate::experiment::Structure;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 

@@ -2,6 +2,7 @@
 //! problem's own filter replayed over it (`tune --measurements`), a worker's replay, and the
 //! range of values the record supports around an estimate.
 
+use crate::experiment::Structure;
 use std::path::Path;
 
 use crate::check::{Truth, check};

@@ -1,6 +1,7 @@
 //! Where `tune --init` starts: Q and R estimated from a record (given, or simulated from the
 //! problem's truth), the estimate and a line saying where it came from.
 
+use crate::experiment::{HeldAsCode, Structure};
 use std::path::Path;
 use std::time::Instant;
 

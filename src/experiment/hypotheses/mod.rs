@@ -224,7 +224,9 @@ impl Experiment for Hypothesized {
             run,
         ))
     }
+}
 
+impl crate::experiment::Structure for Hypothesized {
     fn supports(&self, engine: Engine) -> bool {
         engine != Engine::Generic
     }
@@ -289,3 +291,7 @@ impl Experiment for Hypothesized {
         Some(blocks)
     }
 }
+
+impl crate::experiment::HeldAsCode for Hypothesized {}
+
+impl crate::experiment::Sampling for Hypothesized {}

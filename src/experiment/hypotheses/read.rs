@@ -26,7 +26,7 @@ pub struct ReadThrough<'a> {
 
 impl<'a> ReadThrough<'a> {
     /// `hypothesis` on `base`, a filter that reads what autotune feeds it, with the
-    /// components' innovation standard deviations `scales` ([`Experiment::innovation_scales`]);
+    /// components' innovation standard deviations `scales` ([`HeldAsCode::innovation_scales`]);
     /// `None` for a hypothesis that changes more than what the filter reads, or scales
     /// that are not one per component.
     pub fn new(base: &'a dyn Experiment, hypothesis: Hypothesis, scales: &[f64]) -> Option<Self> {
@@ -157,13 +157,19 @@ impl Experiment for ReadThrough<'_> {
                 ))
             })
     }
+}
 
+impl crate::experiment::Structure for ReadThrough<'_> {
     fn target(&self, i: usize) -> Option<Target> {
         (i < self.base_params())
             .then(|| self.base.target(i))
             .flatten()
     }
+}
 
+impl crate::experiment::HeldAsCode for ReadThrough<'_> {}
+
+impl crate::experiment::Sampling for ReadThrough<'_> {
     fn truth_reuse(&self, since: TapeUsage) -> TruthReuse {
         self.base.truth_reuse(since)
     }
@@ -178,7 +184,7 @@ mod tests {
     use nalgebra::{DMatrix, DVector};
 
     use super::*;
-    use crate::experiment::RustModel;
+    use crate::experiment::{HeldAsCode, RustModel, Structure};
     use crate::filter::KalmanFilter;
     use crate::model::LinearGaussianModel;
     use crate::params::ParamDef;

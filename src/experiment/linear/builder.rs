@@ -204,7 +204,7 @@ fn covariance(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::experiment::Experiment;
+    use crate::experiment::{Experiment, Structure};
     use crate::params::{NoiseKind, dwna_block};
     use crate::problem::Problem;
 

@@ -13,24 +13,6 @@ impl Experiment for LinearExperiment {
         &self.definition
     }
 
-    fn replay_filter(&self, theta: &[f64]) -> Option<Box<dyn Filter + '_>> {
-        Some(Box::new(self.filter_at(theta)))
-    }
-
-    fn simulation_truth(&self) -> Option<&dyn crate::model::TruthModel> {
-        Some(&self.truth)
-    }
-
-    fn truth_reuse(&self, _since: crate::montecarlo::TapeUsage) -> crate::experiment::TruthReuse {
-        crate::experiment::TruthReuse::Simulated {
-            why: "a linear problem's engine simulates the truth with the filter, the runs batched, which costs less than a replay would".to_string(),
-        }
-    }
-
-    fn linear(&self) -> Option<&LinearExperiment> {
-        Some(self)
-    }
-
     fn monte_carlo_with(
         &self,
         theta: &[f64],
@@ -48,6 +30,12 @@ impl Experiment for LinearExperiment {
                 montecarlo::run_generic_with(&self.truth, &Mapped { kf: &kf, map }, mc, run)
             }
         })
+    }
+}
+
+impl crate::experiment::Structure for LinearExperiment {
+    fn linear(&self) -> Option<&LinearExperiment> {
+        Some(self)
     }
 
     fn supports(&self, _engine: Engine) -> bool {
@@ -90,5 +78,23 @@ impl Experiment for LinearExperiment {
             Q: self.filter.q.build(theta),
             R: self.filter.r.build(theta),
         })
+    }
+}
+
+impl crate::experiment::HeldAsCode for LinearExperiment {
+    fn replay_filter(&self, theta: &[f64]) -> Option<Box<dyn Filter + '_>> {
+        Some(Box::new(self.filter_at(theta)))
+    }
+
+    fn simulation_truth(&self) -> Option<&dyn crate::model::TruthModel> {
+        Some(&self.truth)
+    }
+}
+
+impl crate::experiment::Sampling for LinearExperiment {
+    fn truth_reuse(&self, _since: crate::montecarlo::TapeUsage) -> crate::experiment::TruthReuse {
+        crate::experiment::TruthReuse::Simulated {
+            why: "a linear problem's engine simulates the truth with the filter, the runs batched, which costs less than a replay would".to_string(),
+        }
     }
 }

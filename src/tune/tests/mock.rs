@@ -147,7 +147,7 @@ impl Mock {
         self
     }
 
-    /// The mock as a filter over one recorded data set ([`Experiment::seed_free`]): its
+    /// The mock as a filter over one recorded data set ([`Sampling::seed_free`]): its
     /// sums were always the same for every seed; now it says so.
     pub(crate) fn recorded(mut self) -> Mock {
         self.recorded = true;
@@ -356,17 +356,15 @@ impl Experiment for Mock {
         let offset = self.offset.as_ref().is_some_and(|o| mc.runs() < o.1);
         Ok(self.sums(theta, offset))
     }
+}
 
+impl crate::experiment::Structure for Mock {
     fn expected(&self, theta: &[f64], _mc: &McConfig) -> Option<Accumulator> {
         self.exact.then(|| self.sums(theta, true))
     }
 
     fn blocks(&self) -> Option<Vec<Block>> {
         self.blocks.clone()
-    }
-
-    fn seed_free(&self) -> bool {
-        self.recorded
     }
 
     fn target(&self, i: usize) -> Option<Target> {
@@ -378,6 +376,14 @@ impl Experiment for Mock {
         } else {
             Target::process(&comps)
         })
+    }
+}
+
+impl crate::experiment::HeldAsCode for Mock {}
+
+impl crate::experiment::Sampling for Mock {
+    fn seed_free(&self) -> bool {
+        self.recorded
     }
 }
 

@@ -17,6 +17,8 @@
 //! ([`stop_workers_and_remove_scratch`]).
 
 mod answer;
+mod contract;
+mod fingerprint;
 mod replay;
 mod scratch;
 mod worker;
@@ -26,21 +28,21 @@ pub use replay::WorkerReplay;
 
 pub use scratch::stop_workers_and_remove_scratch;
 
-use std::collections::BTreeMap;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::sync::Mutex;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::Duration;
 
 use crate::experiment::{
-    Definition, Experiment, ExperimentError, RequestInfo, RunOptions, SeedContractViolation,
-    StartFailure, WorkerError, WorkerFailure, WorkerRole,
+    Definition, Experiment, ExperimentError, RequestInfo, RunOptions, StartFailure, WorkerError,
+    WorkerFailure, WorkerRole,
 };
 use crate::montecarlo::{CHUNK, McConfig, Share};
 use crate::params::Target;
-use crate::records::{Layout, RecordError, RecordSink, StepRecord, StepSink, WireError};
+use crate::records::{Layout, RecordSink, WireError};
 use crate::stats::Accumulator;
-use worker::{Reply, Request, Worker};
+use fingerprint::{Fingerprinting, Fingerprints};
+use worker::{Request, Worker};
 
 /// How to run the worker program.
 #[derive(Debug, Clone, PartialEq)]
@@ -382,118 +384,6 @@ impl ExternalExperiment {
             .unwrap_or_else(|p| p.into_inner())
             .clone()
     }
-
-    /// The worker's filter at `theta` replayed over the measurement record at `record` (its
-    /// `sequences` sequences of `steps` steps): the innovations' sums, as `--measurements`
-    /// judges them, and their `−log L` (`None` where the worker's records carry no S, or a
-    /// sequence stopped). One request to one worker, whose runs are the record's sequences;
-    /// it must answer `"replays": true`.
-    pub fn replay(
-        &self,
-        theta: &[f64],
-        record: &Path,
-        sequences: usize,
-        mc: &McConfig,
-    ) -> Result<(Accumulator, Option<f64>), ExperimentError> {
-        if let Some(e) = self.failure() {
-            return Err(e);
-        }
-        let mut pool = self.pool.lock().unwrap_or_else(|p| p.into_inner());
-        // The whole pool, as an evaluation starts it: a later simulation request (a tune
-        // from a start estimated on the record) finds its workers.
-        self.fill(&mut pool)?;
-        let path = serde_json::to_string(&record.to_string_lossy()).expect("a string serializes");
-        let sums_fields = answer::request_fields(&self.layout, mc.lags());
-        let theta = self.theta_json(theta);
-        let req = Request {
-            id: self.next_id.fetch_add(1, Ordering::Relaxed),
-            theta: &theta,
-            seed: mc.seed(),
-            runs: 0..sequences,
-            steps: mc.steps(),
-            lags: mc.lags(),
-            sums_fields: &sums_fields,
-            replay: Some(&path),
-        };
-        let w = &mut pool[0];
-        let mut sink = self.sink(mc, 0..sequences);
-        let answered = w
-            .request(&req, &self.layout, &mut sink, self.command.timeout)
-            .and_then(|reply| match reply {
-                Reply { replays: false, .. } => Err(WorkerFailure::NotReplaying),
-                // Inline records and then sums would count runs twice.
-                Reply { sums: Some(_), .. } if sink.runs() > 0 => {
-                    Err(WorkerFailure::Sums(WireError::AfterRecords))
-                }
-                Reply {
-                    sums: Some(chunk), ..
-                } => Ok((chunk.sums, None)),
-                Reply { sums: None, .. } => {
-                    sink.finish_with_likelihood().map_err(WorkerFailure::from)
-                }
-            });
-        // A replay says nothing of the worker's simulations: `replays` (seed-free runs) is
-        // set by the answers to simulation requests alone.
-        let result = answered.map_err(|failure| self.error(w, &req, failure));
-        if let Err(e) = &result {
-            shut_down(&mut pool);
-            *self.failed.lock().unwrap_or_else(|p| p.into_inner()) = Some(e.clone());
-        }
-        result
-    }
-
-    /// The seed contract on the first chunk, whose runs' fingerprints are `whole`: the
-    /// runs must differ from each other (not all seeded alike), and each run must come back
-    /// bit for bit when asked for again, in two halves, the second half first, from
-    /// another worker than the first chunk's (a fresh process where there is only one):
-    /// noise drawn from a generator shared across runs or requests, or a cache that is not
-    /// a function of (seed, i), then shows.
-    fn check_contract(
-        &self,
-        pool: &mut [Worker],
-        theta: &str,
-        mc: &McConfig,
-        whole: &Fingerprints,
-    ) -> Result<(), ExperimentError> {
-        let first = 0..CHUNK.min(mc.runs());
-        if first.len() < 2 {
-            return Ok(());
-        }
-        let breaks = |violation| ExperimentError::SeedContract {
-            command: self.command.display(),
-            violation,
-        };
-        let mut prints = whole.0.values();
-        if let Some(one) = prints.next()
-            && whole.0.len() == first.len()
-            && prints.all(|p| p == one)
-        {
-            return Err(breaks(SeedContractViolation::AllAlike(first)));
-        }
-        let mid = first.len() / 2;
-        let halves = [mid..first.end, first.start..mid];
-        let mut fresh = None;
-        let (w, from) = if pool.len() > 1 {
-            (&mut pool[1], "worker 2")
-        } else {
-            let w = Worker::start(&self.command.command, &self.command.dir, pool.len())
-                .map_err(|why| self.start_error(true, why))?;
-            (fresh.insert(w), "a fresh worker")
-        };
-        for half in halves {
-            let mut again = Fingerprints::new();
-            self.ask(w, theta, mc, half.clone(), Some(&mut again))?;
-            if let Some(run) = half.clone().find(|i| again.0.get(i) != whole.0.get(i)) {
-                return Err(breaks(SeedContractViolation::NotRepeatable {
-                    run,
-                    again: half,
-                    from,
-                    first,
-                }));
-            }
-        }
-        Ok(())
-    }
 }
 
 /// What every request of an evaluation's wave shares.
@@ -506,32 +396,6 @@ struct Asked<'a> {
     stride: usize,
     /// Chunk 0's runs' fingerprints, when the seed contract is being checked.
     first_prints: &'a Mutex<Option<Fingerprints>>,
-}
-
-/// Fingerprints of runs' records, by run: equal records give equal fingerprints.
-#[derive(Debug, Default)]
-struct Fingerprints(BTreeMap<usize, u64>);
-
-impl Fingerprints {
-    fn new() -> Self {
-        Self::default()
-    }
-}
-
-/// A sink that fingerprints each record (all but its run number) on its way to `sink`.
-struct Fingerprinting<'a> {
-    sink: &'a mut RecordSink,
-    prints: &'a mut Fingerprints,
-}
-
-impl StepSink for Fingerprinting<'_> {
-    type Error = RecordError;
-
-    fn push(&mut self, r: StepRecord) -> Result<(), RecordError> {
-        let print = crate::records::fingerprint(self.prints.0.get(&r.run).copied(), &r);
-        self.prints.0.insert(r.run, print);
-        self.sink.push(r)
-    }
 }
 
 /// Stop every worker of `pool`, together.

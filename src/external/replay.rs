@@ -6,12 +6,78 @@
 
 use std::path::{Path, PathBuf};
 
-use super::ExternalExperiment;
-use crate::experiment::{Definition, Experiment, ExperimentError, RunOptions, TruthReuse};
+use super::worker::{Reply, Request};
+use super::{ExternalExperiment, answer, shut_down};
+use crate::experiment::{
+    Definition, Experiment, ExperimentError, RunOptions, TruthReuse, WorkerFailure,
+};
 use crate::input::SettingError;
 use crate::montecarlo::McConfig;
 use crate::params::Target;
+use crate::records::WireError;
 use crate::stats::Accumulator;
+use std::sync::atomic::Ordering;
+
+impl ExternalExperiment {
+    /// The worker's filter at `theta` replayed over the measurement record at `record` (its
+    /// `sequences` sequences of `steps` steps): the innovations' sums, as `--measurements`
+    /// judges them, and their `−log L` (`None` where the worker's records carry no S, or a
+    /// sequence stopped). One request to one worker, whose runs are the record's sequences;
+    /// it must answer `"replays": true`.
+    pub fn replay(
+        &self,
+        theta: &[f64],
+        record: &Path,
+        sequences: usize,
+        mc: &McConfig,
+    ) -> Result<(Accumulator, Option<f64>), ExperimentError> {
+        if let Some(e) = self.failure() {
+            return Err(e);
+        }
+        let mut pool = self.pool.lock().unwrap_or_else(|p| p.into_inner());
+        // The whole pool, as an evaluation starts it: a later simulation request (a tune
+        // from a start estimated on the record) finds its workers.
+        self.fill(&mut pool)?;
+        let path = serde_json::to_string(&record.to_string_lossy()).expect("a string serializes");
+        let sums_fields = answer::request_fields(&self.layout, mc.lags());
+        let theta = self.theta_json(theta);
+        let req = Request {
+            id: self.next_id.fetch_add(1, Ordering::Relaxed),
+            theta: &theta,
+            seed: mc.seed(),
+            runs: 0..sequences,
+            steps: mc.steps(),
+            lags: mc.lags(),
+            sums_fields: &sums_fields,
+            replay: Some(&path),
+        };
+        let w = &mut pool[0];
+        let mut sink = self.sink(mc, 0..sequences);
+        let answered = w
+            .request(&req, &self.layout, &mut sink, self.command.timeout)
+            .and_then(|reply| match reply {
+                Reply { replays: false, .. } => Err(WorkerFailure::NotReplaying),
+                // Inline records and then sums would count runs twice.
+                Reply { sums: Some(_), .. } if sink.runs() > 0 => {
+                    Err(WorkerFailure::Sums(WireError::AfterRecords))
+                }
+                Reply {
+                    sums: Some(chunk), ..
+                } => Ok((chunk.sums, None)),
+                Reply { sums: None, .. } => {
+                    sink.finish_with_likelihood().map_err(WorkerFailure::from)
+                }
+            });
+        // A replay says nothing of the worker's simulations: `replays` (seed-free runs) is
+        // set by the answers to simulation requests alone.
+        let result = answered.map_err(|failure| self.error(w, &req, failure));
+        if let Err(e) = &result {
+            shut_down(&mut pool);
+            *self.failed.lock().unwrap_or_else(|p| p.into_inner()) = Some(e.clone());
+        }
+        result
+    }
+}
 
 /// The filter of a worker over one measurement record of `sequences` sequences of `steps`
 /// steps each.

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Mutation testing of this submission's change (issue #24): cargo-mutants on the lines of
-# src/explain, src/stats and src/tune that differ from the last landed commit (.ci/mutants-base), each
+# src/ (every folder a change touches, since issue 40) that differ from the last landed commit (.ci/mutants-base), each
 # mutant built with the `mutants` profile and judged by the fast tests .cargo/mutants.toml
 # chooses. Fails when the tests miss a mutant. See docs/src/mutation-testing.md.
 #

@@ -141,6 +141,15 @@ fn check_outputs(a: &CheckOptions) -> Result<(), CommandError> {
     Ok(())
 }
 
+/// What a check judges by: NEES and NIS, unless asked for NIS alone (`nis_only`) or the
+/// experiment has no states. Records or a worker without states (no ground truth) are judged
+/// by their innovations alone, as documented, rather than found inconclusive for want of a
+/// NEES.
+fn judged_by(experiment: &dyn Experiment, nis_only: bool) -> Truth {
+    let no_states = experiment.state_names().is_empty();
+    Truth::from_use_nees(!nis_only && !no_states)
+}
+
 /// The gate on `sums` (the Monte Carlo sums of `experiment` at `theta` under `mc`), and
 /// the JUnit and report files `options` ask for, written together.
 fn conclude(
@@ -152,15 +161,7 @@ fn conclude(
 ) -> Result<CheckRun, CommandError> {
     let a = options;
     let info = experiment.info();
-    // Records or a worker without states (no ground truth) are judged by their innovations
-    // alone, as documented, rather than found inconclusive for want of a NEES.
-    let no_states = experiment.state_names().is_empty();
-    let report = judge(
-        experiment,
-        sums,
-        mc,
-        Truth::from_use_nees(!a.nis_only && !no_states),
-    );
+    let report = judge(experiment, sums, mc, judged_by(experiment, a.nis_only));
     let params: Vec<(String, f64)> = experiment
         .params()
         .params
@@ -197,7 +198,7 @@ fn conclude(
         params,
         mc: *mc,
         json,
-        no_states,
+        no_states: experiment.state_names().is_empty(),
         nis_only: a.nis_only,
     })
 }
@@ -374,5 +375,22 @@ pub fn truth_overflow(experiment: &dyn Experiment, report: &ConsistencyReport) -
             subject: experiment.info().source.label(),
             message,
         },
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::tune::tests::Mock;
+
+    #[test]
+    fn a_check_judges_by_nees_where_there_are_states_and_it_is_not_told_otherwise() {
+        let with_states = Mock::new(&[1.0], &[&[1.0]]);
+        assert_eq!(judged_by(&with_states, false), Truth::Known);
+        assert_eq!(judged_by(&with_states, true), Truth::Unknown);
+        let no_states = Mock::new(&[1.0], &[&[1.0]]).measuring();
+        assert!(no_states.state_names().is_empty());
+        assert_eq!(judged_by(&no_states, false), Truth::Unknown);
+        assert_eq!(judged_by(&no_states, true), Truth::Unknown);
     }
 }

@@ -125,6 +125,69 @@ mod tests {
     }
 
     #[test]
+    fn a_shards_settings_are_checked_against_the_problem_they_name() {
+        use crate::experiment::Experiment;
+        // Mock: one parameter p0, states s0 and s1, one measurement component.
+        let problem = crate::tune::tests::Mock::new(&[1.0], &[&[1.0], &[1.0]]);
+        let mut s = settings();
+        s.params = vec![("p0".into(), Number::of(0.5))];
+        let setup = s.setup(&problem).unwrap();
+        assert_eq!(setup.theta, [0.5]);
+        assert_eq!(
+            (setup.mc.runs(), setup.mc.steps(), setup.mc.seed()),
+            (2 * CHUNK + 2, 3, 7)
+        );
+        assert_eq!(problem.state_names().len(), 2);
+        let refused = |f: &dyn Fn(&mut ShardSettings)| {
+            let mut t = s.clone();
+            f(&mut t);
+            t.setup(&problem).unwrap_err()
+        };
+        assert_eq!(
+            refused(&|t| t.n_x = 3),
+            SetupRefusal::Dimension {
+                field: "n_x",
+                declared: 3,
+                actual: 2
+            }
+        );
+        assert_eq!(
+            refused(&|t| t.n_z = 2),
+            SetupRefusal::Dimension {
+                field: "n_z",
+                declared: 2,
+                actual: 1
+            }
+        );
+        assert_eq!(
+            refused(&|t| t.params[0].0 = "q".into()),
+            SetupRefusal::Parameters {
+                problem: vec!["p0".into()]
+            }
+        );
+        assert_eq!(
+            refused(&|t| t.params[0].1 = Number::of(f64::INFINITY)),
+            SetupRefusal::NotFinite("p0".into())
+        );
+        assert_eq!(
+            refused(&|t| t.gate = "most".into()),
+            SetupRefusal::Invalid("gate")
+        );
+        assert_eq!(
+            refused(&|t| t.engine = "fast".into()),
+            SetupRefusal::Invalid("engine")
+        );
+        assert!(matches!(
+            refused(&|t| t.runs = 0),
+            SetupRefusal::Settings(_)
+        ));
+        assert_eq!(
+            refused(&|t| t.n_x = 3).to_string(),
+            "its settings' n_x is 3, but the problem's sums have 2"
+        );
+    }
+
+    #[test]
     fn a_number_keeps_its_bits() {
         for x in [0.1, -0.0, f64::MIN_POSITIVE / 3.0, 1e308, f64::NAN] {
             assert_eq!(Number::of(x).get().map(f64::to_bits), Some(x.to_bits()));

@@ -4,8 +4,8 @@
 use rand::{Rng, SeedableRng};
 
 use super::budget::Budget;
+use super::choices::LocalSearch;
 use super::cost::{Candidate, max_abs_diff};
-use super::settings::LocalSearch;
 use crate::rng::SimRng;
 
 /// Local starts closer than this in every coordinate (log units, a factor 1.65) would

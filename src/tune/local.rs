@@ -2,11 +2,12 @@
 //! run in which order.
 
 use super::budget::{Budget, Exhausted};
+use super::choices::LocalSearch;
 use super::cost::Candidate;
 use super::global;
 use super::levenberg_marquardt::{CONSISTENT_J, Equations, MATCHED, levenberg_marquardt};
 use super::result::Observer;
-use super::settings::{LocalSearch, TuneSettings};
+use super::settings::TuneSettings;
 use super::simplex::nelder_mead;
 
 /// Initial simplex step of a local search, log units (a factor 2).

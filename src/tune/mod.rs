@@ -38,12 +38,14 @@
 
 mod budget;
 pub mod certify;
+mod choices;
 mod cost;
 mod error;
 mod global;
 mod levenberg_marquardt;
 mod local;
 pub mod objective;
+mod plan;
 mod refine;
 mod result;
 mod separable;
@@ -58,13 +60,15 @@ mod tuner;
 
 pub use crate::check::band_low;
 pub use crate::rng::seed_at;
+pub use choices::{LocalSearch, Scoring};
 pub use error::TuneError;
 pub use objective::{Objective, Terms, Weights};
+pub use plan::Plan;
 pub use result::{
     Certificate, CertifiedStart, Confirmation, Observer, Resolution, Silent, TuneResult,
     TuneStatus, Widening,
 };
-pub use settings::{LocalSearch, Plan, Scoring, TuneSettings};
+pub use settings::TuneSettings;
 pub use setup::default_confirm_seed;
 pub use spec::TuneSpec;
 pub use tuner::{Tunable, Tuner};

@@ -3,8 +3,8 @@
 
 use serde::Serialize;
 
+use super::choices::{LocalSearch, Scoring};
 use super::objective::Terms;
-use super::settings::{LocalSearch, Scoring};
 use crate::stats::ConsistencyReport;
 
 /// How a tuning run ended.

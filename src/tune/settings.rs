@@ -1,7 +1,6 @@
 //! The tuner's settings, checked where they are set.
 
-use serde::Serialize;
-
+use super::choices::{LocalSearch, Scoring};
 use super::objective::Weights;
 use crate::input::{SettingError, at_least, at_most};
 use crate::montecarlo::MAX_RUNS;
@@ -20,72 +19,6 @@ pub const MAX_SECONDS: f64 = 1e9;
 /// more points than it can score would only be built to be thrown away.
 pub const MAX_GLOBAL_POINTS: usize = 1000;
 
-/// How candidates are scored during the search.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, clap::ValueEnum)]
-#[serde(rename_all = "snake_case")]
-pub enum Scoring {
-    /// Exact expectations where the experiment allows them, Monte Carlo otherwise.
-    #[default]
-    Auto,
-    /// Exact expected statistics (a linear filter with the truth's F and H).
-    Exact,
-    /// Monte Carlo with common random numbers.
-    #[value(name = "monte_carlo", alias = "monte-carlo")]
-    MonteCarlo,
-}
-
-/// The local search that refines the global stage's best points.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, clap::ValueEnum)]
-#[serde(rename_all = "snake_case")]
-pub enum LocalSearch {
-    /// Nelder–Mead with a wide simplex (0.7 in log units, a factor 2), restarted with a
-    /// small one to polish. Derivative-free and exploratory: it can leave a shallow local
-    /// minimum. Suits problems with a few free parameters.
-    #[default]
-    #[value(alias = "nelder_mead", alias = "nelder-mead")]
-    Simplex,
-    /// Levenberg–Marquardt on the objective's residual vector (J is a sum of squares) with
-    /// a finite-difference Jacobian: d + 1 evaluations an iteration, converging in a
-    /// handful. Suits many free parameters of an expensive Monte Carlo, where a simplex
-    /// needs hundreds of evaluations; it stays in the basin it starts in, so it relies on
-    /// the global stage and several starts.
-    #[value(
-        name = "gauss_newton",
-        alias = "gauss-newton",
-        alias = "levenberg_marquardt",
-        alias = "levenberg-marquardt"
-    )]
-    GaussNewton,
-}
-
-/// `s` as one of `E`'s names or aliases, or an error for `setting` listing the names.
-fn parse_name<E: clap::ValueEnum>(setting: &str, what: &str, s: &str) -> Result<E, SettingError> {
-    E::from_str(s, false).map_err(|_| {
-        let known: Vec<String> = E::value_variants()
-            .iter()
-            .filter_map(|v| v.to_possible_value().map(|p| p.get_name().to_string()))
-            .collect();
-        SettingError::new(
-            setting,
-            format!("unknown {what} '{s}' (known: {})", known.join(", ")),
-        )
-    })
-}
-
-impl Scoring {
-    /// Parse `auto`, `exact` or `monte_carlo` (also `monte-carlo`).
-    pub fn from_name(s: &str) -> Result<Scoring, SettingError> {
-        parse_name("scoring", "scoring", s)
-    }
-}
-
-impl LocalSearch {
-    /// Parse `simplex` (also `nelder_mead`) or `gauss_newton` (also `levenberg_marquardt`).
-    pub fn from_name(s: &str) -> Result<LocalSearch, SettingError> {
-        parse_name("local", "local search", s)
-    }
-}
-
 /// Search settings. Every value is checked by its setter:
 ///
 /// ```
@@ -100,22 +33,22 @@ impl LocalSearch {
 /// ```
 #[derive(Debug, Clone, PartialEq)]
 pub struct TuneSettings {
-    weights: Weights,
-    nis_only: bool,
-    max_evals: usize,
-    max_seconds: f64,
-    starts: usize,
-    global_points: usize,
-    scoring: Scoring,
-    local: LocalSearch,
-    local_set: bool,
-    confirm_seed: Option<u64>,
-    search_runs: Option<usize>,
-    confirm_seeds: usize,
-    refine_runs: Option<usize>,
-    from_estimate: bool,
-    certify: bool,
-    stop_below: f64,
+    pub(super) weights: Weights,
+    pub(super) nis_only: bool,
+    pub(super) max_evals: usize,
+    pub(super) max_seconds: f64,
+    pub(super) starts: usize,
+    pub(super) global_points: usize,
+    pub(super) scoring: Scoring,
+    pub(super) local: LocalSearch,
+    pub(super) local_set: bool,
+    pub(super) confirm_seed: Option<u64>,
+    pub(super) search_runs: Option<usize>,
+    pub(super) confirm_seeds: usize,
+    pub(super) refine_runs: Option<usize>,
+    pub(super) from_estimate: bool,
+    pub(super) certify: bool,
+    pub(super) stop_below: f64,
 }
 
 impl Default for TuneSettings {
@@ -254,108 +187,6 @@ impl TuneSettings {
     /// [`TuneSettings::with_local`]) rather than left to the tuner.
     pub fn local_is_set(&self) -> bool {
         self.local_set
-    }
-
-    /// Evaluations the search is expected to spend with local search `local` on `dim` free
-    /// parameters: the global stage's 1 + points · d, then per local search about 50 d for
-    /// the simplex (Nelder–Mead and its polish, measured on 2- to 4-parameter problems:
-    /// 386 evaluations for 4 searches in 2-D) and 12 (d + 1) for Gauss–Newton (two
-    /// Levenberg–Marquardt solves of a few iterations of d + 1 evaluations each). The
-    /// simplex runs one more search from the winner. A projection, not a bound.
-    pub fn projected_evaluations(&self, local: LocalSearch, dim: usize) -> usize {
-        let global = if self.from_estimate {
-            0
-        } else {
-            1 + self.global_points.saturating_mul(dim)
-        };
-        let starts = if self.from_estimate { 1 } else { self.starts };
-        let local_evals = match local {
-            LocalSearch::Simplex => (starts + 1).saturating_mul(50 * dim),
-            LocalSearch::GaussNewton => starts.saturating_mul(12 * (dim + 1)),
-        };
-        global.saturating_add(local_evals)
-    }
-
-    /// The search's plan for an experiment whose evaluation takes `seconds_per_eval` s, with
-    /// `dim` free parameters, `targets` when every one of them declares the components it
-    /// drives (so Gauss–Newton can solve the moment equations), and `exact` scoring.
-    ///
-    /// An unset local search is the problem's: Gauss–Newton under Monte Carlo scoring when
-    /// every free parameter declares the components it drives (the moment equations then
-    /// give each parameter its own equation, and each Levenberg–Marquardt iteration costs
-    /// d + 1 evaluations where the simplex takes about 50 d a search: 90 evaluations
-    /// instead of 239 on the catalog's ctrv, to the same values within the search's Monte
-    /// Carlo noise); the simplex otherwise: exact scoring, and Monte Carlo scoring on one
-    /// record (`seed_free`), are noise-free, cheap and want J's own minimum to the last
-    /// digit, and without targets only J's residuals are left. Whatever the method, a plan whose
-    /// projected time exceeds the budget says so, with the budget to set.
-    pub fn plan(
-        &self,
-        dim: usize,
-        targets: bool,
-        exact: bool,
-        seed_free: bool,
-        seconds_per_eval: f64,
-    ) -> Plan {
-        let seconds = |n: usize| n as f64 * seconds_per_eval;
-        let gauss_newton = !self.local_set
-            && self.local == LocalSearch::Simplex
-            && !exact
-            && !seed_free
-            && targets
-            && dim > 0;
-        let local = if gauss_newton {
-            LocalSearch::GaussNewton
-        } else {
-            self.local
-        };
-        let projected = self.projected_evaluations(local, dim);
-        let mut notes = Vec::new();
-        let evals = projected.min(self.max_evals);
-        if dim > 0 && !exact && seconds(evals) > self.max_seconds {
-            // Twice the projection, rounded up to a minute: projections are rough.
-            let want = (2.0 * seconds(projected) / 60.0).ceil() * 60.0;
-            notes.push(format!(
-                "each evaluation takes {}: the search needs ~{projected} evaluations (~{}), more than max_seconds = {}; set --max-seconds {want} (or [tune] max_seconds){}",
-                fmt_seconds(seconds_per_eval),
-                fmt_seconds(seconds(projected)),
-                self.max_seconds,
-                if local == LocalSearch::Simplex && targets {
-                    ", or --local gauss_newton"
-                } else {
-                    ""
-                },
-            ));
-        }
-        Plan {
-            local,
-            projected,
-            notes,
-        }
-    }
-}
-
-/// A search plan: the local search chosen and what it is expected to cost
-/// ([`TuneSettings::plan`]).
-#[derive(Debug, Clone, PartialEq)]
-pub struct Plan {
-    /// The local search to run.
-    pub local: LocalSearch,
-    /// Evaluations the search is expected to take.
-    pub projected: usize,
-    /// One line for each thing the user should know before the search: a method chosen
-    /// for them, a budget that cannot be enough.
-    pub notes: Vec<String>,
-}
-
-/// A duration for a one-line note: `0.31 s`, `95 s`, `12 min`.
-fn fmt_seconds(s: f64) -> String {
-    if s < 10.0 {
-        format!("{s:.2} s")
-    } else if s < 600.0 {
-        format!("{s:.0} s")
-    } else {
-        format!("{:.0} min", s / 60.0)
     }
 }
 

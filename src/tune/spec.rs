@@ -7,7 +7,8 @@
 
 use serde::{Deserialize, Deserializer};
 
-use super::settings::{LocalSearch, Scoring, TuneSettings};
+use super::choices::{LocalSearch, Scoring};
+use super::settings::TuneSettings;
 use crate::input::SettingError;
 
 /// Settings for `autotune tune`, each optional: unset ones keep the value underneath (the

@@ -54,6 +54,7 @@ mod setup;
 mod simplex;
 mod spec;
 mod stages;
+mod terms;
 #[cfg(test)]
 pub(crate) mod tests;
 mod tuner;

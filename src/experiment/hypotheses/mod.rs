@@ -23,6 +23,7 @@
 #![allow(non_snake_case)]
 
 mod build;
+mod filter_at;
 mod kinds;
 mod read;
 mod time;
@@ -188,7 +189,7 @@ impl Hypothesized {
     /// there (a correlation matrix that is not positive definite).
     fn filter_at(&self, theta: &[f64]) -> Option<(KalmanFilter, Option<DMatrix<f64>>)> {
         let n = self.base_params();
-        build::filter(&self.base, &self.prep, &theta[..n], &theta[n..])
+        filter_at::filter(&self.base, &self.prep, &theta[..n], &theta[n..])
     }
 }
 

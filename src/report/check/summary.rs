@@ -2,6 +2,7 @@
 
 use std::fmt::Write;
 
+use crate::check::SeedChecks;
 use crate::report::consistency::cells::{
     StatCells, component_cells, has_data, mean_cells, no_data_reason, run_spread_note, stopped_runs,
 };
@@ -267,5 +268,102 @@ pub fn gate_text(r: &ConsistencyReport) -> String {
             "{what}; {} tests, each at level {:.4} so that a consistent filter fails with probability at most α = {} (Šidák)",
             r.tests, r.statistic_alpha, r.alpha
         )
+    }
+}
+/// What `check` prints after the summary: `--seeds`'s lines ([`seeds_summary`]) where it
+/// judged several seeds; else, where a tuned config (`tuned_config`) failed its one seed,
+/// the note that one seed is one draw ([`one_seed_note`]); else nothing.
+pub fn after_summary(
+    seeds: Option<&SeedChecks>,
+    tuned_config: bool,
+    passes: bool,
+    alpha: f64,
+) -> String {
+    match seeds {
+        Some(seeds) => seeds_summary(seeds),
+        None if tuned_config && !passes => one_seed_note(alpha),
+        None => String::new(),
+    }
+}
+
+/// `check --seeds`'s closing lines: each seed's verdict in a row, the count against the
+/// band of a consistent filter, and the verdict across the seeds.
+pub fn seeds_summary(seeds: &SeedChecks) -> String {
+    let k = seeds.checks.len();
+    let failed: Vec<String> = seeds
+        .checks
+        .iter()
+        .filter(|c| !c.report.verdict.passes())
+        .map(|c| format!("{} ({})", c.seed, c.report.verdict.label()))
+        .collect();
+    let mut out = format!(
+        "seeds: {} of {k} pass the gate; a consistent filter passes at least {} with 99% probability\n",
+        seeds.passed(),
+        seeds.band_low()
+    );
+    if !failed.is_empty() {
+        let _ = writeln!(out, "  failed: {}", failed.join(", "));
+    }
+    let _ = writeln!(
+        out,
+        "verdict across the seeds: {}",
+        if seeds.passes() {
+            "consistent"
+        } else {
+            "not consistent"
+        }
+    );
+    out
+}
+
+/// The note under a tuned config's failed check: one seed is one draw of a random test.
+pub fn one_seed_note(alpha: f64) -> String {
+    format!(
+        "note: this is one seed; a consistent filter fails a check with probability up to α = {alpha}, and a tune confirms its values on several: --seeds 20 judges 20 seeds as the confirmation does\n"
+    )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::check::{Truth, check_seeds};
+    use crate::experiment::Experiment;
+    use crate::tune::tests::Mock;
+
+    /// Mock checks on `k` seeds at θ = `at` (its truth is 1: consistent there, not at 2).
+    fn seeds(at: f64, k: usize) -> SeedChecks {
+        let mock = Mock::new(&[1.0], &[&[1.0]]);
+        check_seeds(&mock, &[at], &mock.mc().with_seed(5), Truth::Known, k).unwrap()
+    }
+
+    #[test]
+    fn several_seeds_close_with_the_count_the_band_and_the_verdict() {
+        let good = seeds(1.0, 5);
+        assert_eq!(
+            after_summary(Some(&good), true, true, 0.05),
+            "seeds: 5 of 5 pass the gate; a consistent filter passes at least 3 with 99% probability\n\
+             verdict across the seeds: consistent\n"
+        );
+        let bad = seeds(2.0, 3);
+        let verdict = bad.checks[0].report.verdict.label();
+        assert_eq!(
+            seeds_summary(&bad),
+            format!(
+                "seeds: 0 of 3 pass the gate; a consistent filter passes at least 2 with 99% probability\n  \
+                 failed: 5 ({verdict}), 6 ({verdict}), 7 ({verdict})\nverdict across the seeds: not consistent\n"
+            )
+        );
+    }
+
+    #[test]
+    fn only_a_tuned_config_that_fails_its_one_seed_gets_the_note() {
+        let note = after_summary(None, true, false, 0.05);
+        assert_eq!(note, one_seed_note(0.05));
+        assert!(
+            note.contains("α = 0.05") && note.contains("--seeds 20"),
+            "{note}"
+        );
+        assert_eq!(after_summary(None, true, true, 0.05), "");
+        assert_eq!(after_summary(None, false, false, 0.05), "");
     }
 }

@@ -5,6 +5,7 @@
 
 mod common;
 
+use autotune::Structure;
 use autotune::internals::estimate::als::{AlsModel, FullMatrix};
 use autotune::internals::estimate::als_full::estimate_full;
 use autotune::internals::estimate::simulate;

@@ -12,20 +12,21 @@
 //! relative standard error exceeds 1 (the data cannot tell θ from e·θ), or whose direction
 //! the Hessian does not curve along, is reported as not identified.
 
-use argmin::core::{CostFunction, Executor, Gradient, State};
+use argmin::core::{Executor, State};
 use argmin::solver::linesearch::BacktrackingLineSearch;
 use argmin::solver::linesearch::condition::ArmijoCondition;
 use argmin::solver::quasinewton::LBFGS;
-use nalgebra::{DMatrix, DVector};
 use serde::Serialize;
+
+mod check;
+mod objective;
+
+use check::Check;
+pub use check::PREDICTED_TOL;
+use objective::{LBFGS_BUDGET, Objective};
 
 use super::{EstimateError, MeasurementRecord};
 use crate::filter::KalmanFilter;
-
-/// Relative step of the differenced gradient, in log space.
-const GRAD_STEP: f64 = 1e-5;
-/// Step of the differenced Hessian, in log space.
-const HESS_STEP: f64 = 1e-3;
 
 /// The maximum-likelihood estimate.
 #[derive(Debug, Clone, Serialize)]
@@ -66,96 +67,6 @@ pub struct MlEstimate {
     /// Free parameters left near zero although the likelihood pulls them up (the search
     /// did not get them out): the estimate is then not converged.
     pub stuck: Vec<usize>,
-}
-
-/// What L-BFGS sees: `−log L` over the free parameters' logs.
-struct Objective<'a> {
-    /// `−log L` at θ (`None` where the filter has no likelihood there).
-    nll: &'a dyn Fn(&[f64]) -> Option<f64>,
-    theta: Vec<f64>,
-    free: Vec<usize>,
-    /// Measured values in the record.
-    scale: f64,
-    evaluations: std::cell::Cell<usize>,
-    /// Evaluations after which the running L-BFGS is stopped ([`LBFGS_BUDGET`] past its
-    /// start).
-    budget_end: std::cell::Cell<usize>,
-}
-
-impl Objective<'_> {
-    fn theta_at(&self, phi: &[f64]) -> Vec<f64> {
-        let mut t = self.theta.clone();
-        for (&i, &p) in self.free.iter().zip(phi) {
-            t[i] = p.exp();
-        }
-        t
-    }
-
-    /// `−log L` per measured value: O(1) whatever the record's length, so that L-BFGS's
-    /// first step (along the gradient, of unit length) stays within a few e-folds.
-    fn value(&self, phi: &[f64]) -> f64 {
-        self.evaluations.set(self.evaluations.get() + 1);
-        if phi.iter().any(|p| p.is_nan() || p.abs() >= 700.0) {
-            return f64::MAX;
-        }
-        (self.nll)(&self.theta_at(phi))
-            .filter(|v| v.is_finite())
-            .map_or(f64::MAX, |v| v / self.scale)
-    }
-
-    /// Central differences; one-sided where one neighbour has no likelihood (a bound the
-    /// filter fails past), and zero where neither has: a gradient is always finite, so the
-    /// search's steps are (an infinite one would make its line search run forever).
-    fn gradient_at(&self, phi: &[f64]) -> Vec<f64> {
-        let mut g = vec![0.0; phi.len()];
-        let mut p = phi.to_vec();
-        let mut centre = None;
-        for i in 0..phi.len() {
-            let h = GRAD_STEP;
-            p[i] = phi[i] + h;
-            let up = self.value(&p);
-            p[i] = phi[i] - h;
-            let down = self.value(&p);
-            p[i] = phi[i];
-            let defined = |v: f64| v < f64::MAX;
-            g[i] = match (defined(up), defined(down)) {
-                (true, true) => (up - down) / (2.0 * h),
-                (false, false) => 0.0,
-                (up_ok, _) => {
-                    let v = *centre.get_or_insert_with(|| self.value(phi));
-                    match (defined(v), up_ok) {
-                        (false, _) => 0.0,
-                        (true, true) => (up - v) / h,
-                        (true, false) => (v - down) / h,
-                    }
-                }
-            };
-        }
-        g
-    }
-}
-
-impl CostFunction for &Objective<'_> {
-    type Param = Vec<f64>;
-    type Output = f64;
-
-    fn cost(&self, p: &Vec<f64>) -> Result<f64, argmin::core::Error> {
-        if self.evaluations.get() >= self.budget_end.get() {
-            return Err(argmin::core::Error::msg(format!(
-                "L-BFGS spent {LBFGS_BUDGET} likelihood evaluations in one run without stopping"
-            )));
-        }
-        Ok(self.value(p))
-    }
-}
-
-impl Gradient for &Objective<'_> {
-    type Param = Vec<f64>;
-    type Gradient = Vec<f64>;
-
-    fn gradient(&self, p: &Vec<f64>) -> Result<Vec<f64>, argmin::core::Error> {
-        Ok(self.gradient_at(p))
-    }
 }
 
 /// Maximize the likelihood of `data` over the parameters not `fixed`, from `start` (all
@@ -371,10 +282,6 @@ impl Search<'_, '_> {
     }
 }
 
-/// Likelihood evaluations one L-BFGS run may spend (a search of a few parameters takes a
-/// few hundred): past it the run stops with an error rather than looping (a line search
-/// that cannot satisfy its condition).
-const LBFGS_BUDGET: usize = 20_000;
 /// A restart that gains less than this (nats) no longer moves: `−log L` of a record of
 /// 10⁵ values is computed to some 1e-11 nats, so this is well above its noise.
 const RESTART_TOL: f64 = 1e-9;
@@ -385,13 +292,6 @@ const MAX_NEWTON: u32 = 20;
 /// Rounds of restarts and Newton steps after the first that did not converge (a parameter
 /// stuck near zero is put back first).
 const MAX_ESCAPES: u32 = 5;
-/// The estimate has converged when the quadratic model of `−log L` predicts less than this
-/// (nats) still to gain: a millionth of a nat is far below anything a likelihood-ratio
-/// test or a standard error can tell.
-pub const PREDICTED_TOL: f64 = 1e-6;
-/// A parameter whose removal (θ_i = 0) changes `−log L` by less than this (nats) is at its
-/// bound: the data cannot tell it from zero, and its log would walk to −∞.
-const AT_BOUND_TOL: f64 = 1e-3;
 
 /// One L-BFGS run from `phi0` with fresh memory: the best point and the iterations taken.
 fn lbfgs(
@@ -415,166 +315,4 @@ fn lbfgs(
     let st = res.state();
     let best = st.get_best_param().cloned().unwrap_or(phi0);
     Ok((best, st.get_iter()))
-}
-
-/// The convergence check at one point: the gradient and the observed information of
-/// `−log L` (nats) in φ over the free parameters not at their bound.
-struct Check {
-    /// Gradient of `−log L` in φ, every free parameter (nats per e-fold).
-    gradient: Vec<f64>,
-    /// Indices (into the free parameters) at their bound.
-    at_bound: Vec<usize>,
-    /// Indices (into the free parameters) near zero whose likelihood pulls them up.
-    stuck: Vec<usize>,
-    /// Indices (into the free parameters) not at their bound.
-    active: Vec<usize>,
-    /// Observed information over `active`.
-    hess: DMatrix<f64>,
-    /// `½ g' H⁻¹ g` over `active` (nats); infinite where H is not positive definite.
-    predicted: f64,
-}
-
-impl Check {
-    fn at(obj: &Objective<'_>, phi: &[f64]) -> Check {
-        let p = phi.len();
-        let base = obj.value(phi);
-        let gradient: Vec<f64> = obj.gradient_at(phi).iter().map(|g| g * obj.scale).collect();
-        // A parameter is at its bound when setting it to zero costs (almost) nothing and
-        // the likelihood does not pull it up.
-        // The pull is the derivative in θ at zero (in φ it vanishes with θ), differenced
-        // over a millionth of the parameter's start value.
-        let mut at_bound = Vec::new();
-        let mut stuck = Vec::new();
-        let nll_at = |k: usize, v: f64| {
-            let mut t = obj.theta_at(phi);
-            t[obj.free[k]] = v;
-            obj.evaluations.set(obj.evaluations.get() + 1);
-            (obj.nll)(&t)
-        };
-        for (k, &g) in gradient.iter().enumerate() {
-            if g < -AT_BOUND_TOL {
-                continue;
-            }
-            let Some(zero) = nll_at(k, 0.0) else {
-                continue;
-            };
-            // Better at zero is no bound either: the point is not the maximum yet.
-            if (zero - base * obj.scale).abs() >= AT_BOUND_TOL {
-                continue;
-            }
-            let eps = 1e-6 * obj.theta[obj.free[k]];
-            match nll_at(k, eps) {
-                Some(v) if v < zero - 1e-11 * (1.0 + zero.abs()) => stuck.push(k),
-                _ => at_bound.push(k),
-            }
-        }
-        let active: Vec<usize> = (0..p).filter(|k| !at_bound.contains(k)).collect();
-        let q = active.len();
-        let mut hess = DMatrix::<f64>::zeros(q, q);
-        let mut at = phi.to_vec();
-        for (c, &j) in active.iter().enumerate() {
-            at[j] = phi[j] + HESS_STEP;
-            let up = obj.gradient_at(&at);
-            at[j] = phi[j] - HESS_STEP;
-            let down = obj.gradient_at(&at);
-            at[j] = phi[j];
-            for (r, &i) in active.iter().enumerate() {
-                hess[(r, c)] = obj.scale * (up[i] - down[i]) / (2.0 * HESS_STEP);
-            }
-        }
-        let hess = (&hess + hess.transpose()) * 0.5;
-        let g = DVector::from_iterator(q, active.iter().map(|&k| gradient[k]));
-        let predicted = match hess.clone().cholesky() {
-            Some(c) => 0.5 * g.dot(&c.solve(&g)),
-            None if q == 0 => 0.0,
-            None => f64::INFINITY,
-        };
-        Check {
-            gradient,
-            at_bound,
-            stuck,
-            active,
-            hess,
-            predicted,
-        }
-    }
-
-    fn converged(&self) -> bool {
-        self.predicted.is_finite() && self.predicted < PREDICTED_TOL && self.stuck.is_empty()
-    }
-
-    /// The Newton step over every free parameter (zero for those at their bound); where H
-    /// is not positive definite, a steepest-descent step of unit length in φ.
-    fn newton_step(&self) -> Option<Vec<f64>> {
-        let q = self.active.len();
-        if q == 0 {
-            return None;
-        }
-        let g = DVector::from_iterator(q, self.active.iter().map(|&k| self.gradient[k]));
-        // Where H is not positive definite (a saddle, or a ridge), the step along each
-        // eigenvector is scaled by |λ| instead (floored), so that it goes downhill and away
-        // from the saddle rather than towards it.
-        let d = match self.hess.clone().cholesky() {
-            Some(c) => -c.solve(&g),
-            None => {
-                let eig = self.hess.clone().symmetric_eigen();
-                let top = eig.eigenvalues.amax();
-                if !(top > 0.0 && top.is_finite()) {
-                    return None;
-                }
-                let mut d = DVector::<f64>::zeros(q);
-                for (i, l) in eig.eigenvalues.iter().enumerate() {
-                    let v = eig.eigenvectors.column(i);
-                    d -= v * (v.dot(&g) / l.abs().max(1e-6 * top));
-                }
-                d
-            }
-        };
-        let mut step = vec![0.0; self.gradient.len()];
-        for (r, &k) in self.active.iter().enumerate() {
-            step[k] = d[r];
-        }
-        step.iter().all(|v| v.is_finite()).then_some(step)
-    }
-
-    /// `√[H⁻¹]_kk` (the relative standard error of θ_k) for each free parameter; `None` at
-    /// the bound, and for a parameter along a direction the information does not curve
-    /// (those are dropped, and the others' errors come from what is left).
-    fn relative_errors(&self) -> Vec<Option<f64>> {
-        let mut out = vec![None; self.gradient.len()];
-        let mut keep: Vec<usize> = (0..self.active.len()).collect();
-        loop {
-            if keep.is_empty() {
-                return out;
-            }
-            let h = self.hess.select_rows(&keep).select_columns(&keep);
-            if let Some(c) = h.clone().cholesky() {
-                let cov = c.inverse();
-                for (r, &a) in keep.iter().enumerate() {
-                    let v = cov[(r, r)];
-                    if v.is_finite() && v > 0.0 {
-                        out[self.active[a]] = Some(v.sqrt());
-                    }
-                }
-                return out;
-            }
-            // Drop the parameter that weighs most in the flattest direction.
-            let eig = h.symmetric_eigen();
-            let (imin, _) =
-                eig.eigenvalues
-                    .iter()
-                    .enumerate()
-                    .fold(
-                        (0, f64::INFINITY),
-                        |b, (i, &v)| if v < b.1 { (i, v) } else { b },
-                    );
-            let v = eig.eigenvectors.column(imin);
-            let (worst, _) =
-                v.iter().enumerate().fold(
-                    (0, -1.0),
-                    |b, (i, &x)| if x.abs() > b.1 { (i, x.abs()) } else { b },
-                );
-            keep.remove(worst);
-        }
-    }
 }

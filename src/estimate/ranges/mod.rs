@@ -19,6 +19,10 @@
 use nalgebra::{DMatrix, DVector};
 use serde::Serialize;
 
+mod gate;
+
+pub use gate::{GateRanges, gate_ranges};
+
 use super::ml::MlEstimate;
 use crate::stats::chi2_inv;
 
@@ -37,11 +41,6 @@ const END_TOL: f64 = 0.01;
 const REFIT_TOL: f64 = 1e-4;
 /// Step of the differenced gradient and curvature, in log θ.
 const DIFF_STEP: f64 = 1e-3;
-/// The gate's range is traced by doubling outwards up to this factor, then halving the
-/// bracket until its ends are within [`GATE_RATIO`].
-const GATE_SPAN: f64 = 1e3;
-/// Ratio of the ends of the gate's last bracket.
-const GATE_RATIO: f64 = 1.02;
 
 /// One end of a range: a value the trace reached, or the farthest it went without reaching
 /// the end (the range extends at least that far).
@@ -83,19 +82,6 @@ pub struct LikelihoodRanges {
     /// (the record excludes what the filter cannot run at).
     pub ranges: Vec<Option<Range>>,
     /// Likelihood evaluations the trace took.
-    pub evaluations: usize,
-}
-
-/// The range along each free parameter (the others at the estimate) over which the record
-/// passes the gate.
-#[derive(Debug, Clone, Serialize)]
-pub struct GateRanges {
-    /// Whether the record passes at the point traced from (the estimate, or the tuned
-    /// values); if not, there are no ranges.
-    pub passes_at_point: bool,
-    /// One per parameter, `None` for a fixed one (and for all when the estimate fails).
-    pub ranges: Vec<Option<Range>>,
-    /// Gate evaluations the trace took.
     pub evaluations: usize,
 }
 
@@ -448,82 +434,10 @@ fn floored(h: &DMatrix<f64>) -> DMatrix<f64> {
     &eig.eigenvectors * DMatrix::from_diagonal(&vals) * eig.eigenvectors.transpose()
 }
 
-/// The range along each free parameter (the others held at `theta`, the estimate) over
-/// which `passes(θ)` holds (`None` where the filter cannot run: a failure), traced by
-/// doubling outwards up to a factor of 10³ and then halving each end's bracket to a ratio
-/// of 1.02.
-pub fn gate_ranges(
-    passes: &dyn Fn(&[f64]) -> Option<bool>,
-    theta: &[f64],
-    fixed: &[bool],
-) -> GateRanges {
-    let mut evaluations = 1;
-    let mut ranges = vec![None; fixed.len()];
-    if passes(theta) != Some(true) {
-        return GateRanges {
-            passes_at_point: false,
-            ranges,
-            evaluations,
-        };
-    }
-    for i in (0..fixed.len()).filter(|&i| !fixed[i]) {
-        let mut end = |up: bool| {
-            let f = if up { 2.0 } else { 0.5 };
-            let mut ok = theta[i];
-            let mut bad = None;
-            // At most ten doublings (10³ is 2^9.97) and sixty halvings: bounded whatever
-            // the numbers (a value that underflows to zero would never end a ratio test).
-            let mut left = 70;
-            while (ok / theta[i]).max(theta[i] / ok) < GATE_SPAN && left > 0 {
-                left -= 1;
-                let trial = ok * f;
-                let mut t = theta.to_vec();
-                t[i] = trial;
-                evaluations += 1;
-                if passes(&t) == Some(true) {
-                    ok = trial;
-                } else {
-                    bad = Some(trial);
-                    break;
-                }
-            }
-            let Some(mut bad) = bad else {
-                return RangeEnd {
-                    value: ok,
-                    reached: false,
-                };
-            };
-            while (bad / ok).max(ok / bad) > GATE_RATIO && left > 0 {
-                left -= 1;
-                let mid = (ok * bad).sqrt();
-                let mut t = theta.to_vec();
-                t[i] = mid;
-                evaluations += 1;
-                if passes(&t) == Some(true) {
-                    ok = mid;
-                } else {
-                    bad = mid;
-                }
-            }
-            RangeEnd {
-                value: ok,
-                reached: true,
-            }
-        };
-        let lower = end(false);
-        let upper = end(true);
-        ranges[i] = Some(Range { lower, upper });
-    }
-    GateRanges {
-        passes_at_point: true,
-        ranges,
-        evaluations,
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
+    use super::gate::GATE_RATIO;
     use crate::estimate::ml::estimate_by;
 
     /// `−log L` of `x` ~ N(0, θ₁) and `y` ~ N(0, θ₁ + θ₂), `n` of each, with sample

@@ -82,7 +82,10 @@ pub fn check_with(
 /// [`check`] on `seeds` independent seeds: `mc`'s own seed first (so the first check is
 /// [`check`]'s), then the seeds after it, as the tuner's confirmation draws them. Where a
 /// single check and a tune disagree, this says whether the disagreement is one unlucky
-/// seed: a consistent filter fails each check with probability at most α.
+/// seed: a consistent filter fails each check with probability at most α. The band needs
+/// a few seeds to decide anything: with one, a failure is inside it (Binomial(1, 0.95)
+/// gives 0 passes 5% of the time); of 20, as the confirmation uses, a consistent filter
+/// passes at least 16 with 99% probability.
 pub fn check_seeds(
     experiment: &dyn Experiment,
     theta: &[f64],

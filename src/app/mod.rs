@@ -45,6 +45,7 @@ use crate::commands::estimate::{initial, measured_experiment};
 use crate::commands::{self, CommandError};
 use crate::experiment::{Experiment, RecordsExperiment};
 use crate::problem::Problem;
+use crate::report::check::summary::after_summary;
 use crate::report::check_summary;
 use crate::report::progress::{CheckBar, TuneProgress};
 use crate::stats::Verdict;
@@ -186,7 +187,14 @@ fn print_check(
             writeln!(stdout)?;
         } else if !o.quiet {
             let name = &experiment.info().name;
-            let text = check_summary(name, &run.params, &run.report, run.no_states, run.nis_only);
+            let mut text =
+                check_summary(name, &run.params, &run.report, run.no_states, run.nis_only);
+            text.push_str(&after_summary(
+                run.seeds.as_ref(),
+                o.config.is_some(),
+                run.passes(),
+                run.mc.alpha(),
+            ));
             write_painted(stdout, &text, run.passes())?;
         }
         Ok(())
@@ -227,6 +235,7 @@ fn merge(a: MergeArgs) -> Result<ExitCode, AppError> {
         engine: Default::default(),
         quiet: a.quiet,
         force: a.force,
+        seeds: None,
     };
     let (problem, run) = commands::check::merge(&a.shards, &o)?;
     print_check(&problem, &o, &run)

@@ -3,7 +3,7 @@
 use std::path::{Path, PathBuf};
 
 use super::{CommandError, McOverrides, OneOf};
-use crate::check::{CheckProgress, Truth, judge};
+use crate::check::{CheckProgress, SeedCheck, SeedChecks, Truth, check_seeds, judge};
 use crate::cluster::shard::{self, CheckSetup, ShardFile};
 use crate::cluster::share_sums;
 use crate::experiment::{Experiment, RunOptions, Source};
@@ -13,6 +13,7 @@ use crate::output::{Outputs, check_output_file, check_report_dir, write_file};
 use crate::report::check::html::{check_html, check_markdown};
 use crate::report::tuned::TunedConfig;
 use crate::report::{CheckOutput, junit_xml};
+use crate::rng::seed_at;
 use crate::stats::{Accumulator, ConsistencyReport, Verdict};
 
 /// The options of `check`.
@@ -46,6 +47,11 @@ pub struct CheckOptions {
     /// carry its mark, are replaced; an input is never replaced).
     #[arg(long)]
     pub force: bool,
+    /// Judge K independent seeds (the configured one and the K − 1 after it) as the tuner's
+    /// confirmation does: exit 0 when as many pass as a consistent filter's would. The
+    /// report, the JSON and the JUnit file are the first seed's.
+    #[arg(long, value_name = "K", value_parser = clap::value_parser!(u32).range(2..=1000))]
+    pub seeds: Option<u32>,
 }
 
 impl CheckOptions {
@@ -73,12 +79,18 @@ pub struct CheckRun {
     /// Judged by NIS alone because `--nis-only` asked for it (or the merged shards' check
     /// did).
     pub nis_only: bool,
+    /// The checks on every seed `--seeds` asked for, the first seed's (`report`) first.
+    pub seeds: Option<SeedChecks>,
 }
 
 impl CheckRun {
-    /// Whether the filter passed the gate (exit code 0).
+    /// Whether the filter passed (exit code 0): the gate on the one seed, or as many seeds
+    /// as a consistent filter's would pass where `--seeds` asked for several.
     pub fn passes(&self) -> bool {
-        self.report.verdict.passes()
+        match &self.seeds {
+            Some(seeds) => seeds.passes(),
+            None => self.report.verdict.passes(),
+        }
     }
 }
 
@@ -101,7 +113,41 @@ pub fn check(
     };
     let sums = experiment.monte_carlo_with(&theta, &mc, run);
     progress.finish();
-    conclude(experiment, options, &theta, &mc, &sums?)
+    let mut run = conclude(experiment, options, &theta, &mc, &sums?)?;
+    if let Some(k) = options.seeds {
+        run.seeds = Some(later_seeds(
+            experiment,
+            options,
+            &theta,
+            &mc,
+            &run.report,
+            k,
+        )?);
+    }
+    Ok(run)
+}
+
+/// The checks on `k` seeds from `mc`'s: the first is `first` (the check just made), the
+/// others the seeds after it, as [`crate::check::check_seeds`] draws them.
+fn later_seeds(
+    experiment: &dyn Experiment,
+    options: &CheckOptions,
+    theta: &[f64],
+    mc: &McConfig,
+    first: &ConsistencyReport,
+    k: u32,
+) -> Result<SeedChecks, CommandError> {
+    let truth = judged_by(experiment, options.nis_only);
+    let next = mc.with_seed(seed_at(mc.seed(), 1));
+    let mut seeds = check_seeds(experiment, theta, &next, truth, k as usize - 1)?;
+    seeds.checks.insert(
+        0,
+        SeedCheck {
+            seed: mc.seed(),
+            report: first.clone(),
+        },
+    );
+    Ok(seeds)
 }
 
 /// The parameter values and Monte Carlo settings `options` ask for on `experiment`, once
@@ -200,6 +246,7 @@ fn conclude(
         json,
         no_states: experiment.state_names().is_empty(),
         nis_only: a.nis_only,
+        seeds: None,
     })
 }
 
@@ -382,6 +429,40 @@ pub fn truth_overflow(experiment: &dyn Experiment, report: &ConsistencyReport) -
 mod tests {
     use super::*;
     use crate::tune::tests::Mock;
+
+    fn options(seeds: Option<u32>) -> CheckOptions {
+        CheckOptions {
+            config: None,
+            mc: McOverrides::default(),
+            nis_only: false,
+            json: false,
+            report: None,
+            junit: None,
+            engine: Engine::Auto,
+            quiet: true,
+            force: false,
+            seeds,
+        }
+    }
+
+    #[test]
+    fn seeds_are_judged_together_from_the_first_checks_seed() {
+        // The mock starts at θ = 1: consistent where its truth is 1, not where it is 2.
+        let good = Mock::new(&[1.0], &[&[1.0]]);
+        let one = check(&good, &options(None), &()).unwrap();
+        assert!(one.seeds.is_none() && one.passes());
+        let run = check(&good, &options(Some(4)), &()).unwrap();
+        let seeds = run.seeds.as_ref().unwrap();
+        let first = good.mc().seed();
+        let got: Vec<u64> = seeds.checks.iter().map(|c| c.seed).collect();
+        assert_eq!(got, [first, first + 1, first + 2, first + 3]);
+        assert_eq!(seeds.checks[0].report.verdict, run.report.verdict);
+        assert!(run.passes());
+        let bad = Mock::new(&[2.0], &[&[1.0]]);
+        let run = check(&bad, &options(Some(4)), &()).unwrap();
+        assert_eq!(run.seeds.as_ref().unwrap().passed(), 0);
+        assert!(!run.passes());
+    }
 
     #[test]
     fn a_check_judges_by_nees_where_there_are_states_and_it_is_not_told_otherwise() {

@@ -436,8 +436,8 @@ fn floored(h: &DMatrix<f64>) -> DMatrix<f64> {
 
 #[cfg(test)]
 mod tests {
-    use super::*;
     use super::gate::GATE_RATIO;
+    use super::*;
     use crate::estimate::ml::estimate_by;
 
     /// `−log L` of `x` ~ N(0, θ₁) and `y` ~ N(0, θ₁ + θ₂), `n` of each, with sample

@@ -12,5 +12,6 @@ static GLOBAL: mimalloc::MiMalloc = mimalloc::MiMalloc;
 mod api_tour;
 mod architecture;
 mod file_graph;
+mod file_size;
 mod guide;
 mod man;

@@ -2,7 +2,9 @@
 //! unit-test module (`#[cfg(test)]`); the files that are themselves test modules (a
 //! `tests.rs` or a file under a `tests/` folder, declared under `#[cfg(test)]`) are tests.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
+
+use super::architecture::rust_files;
 
 /// The most lines a source file may have before its test module.
 const MAX_LINES: usize = 500;
@@ -12,17 +14,6 @@ fn code_lines(text: &str) -> usize {
     text.lines()
         .take_while(|l| !l.starts_with("#[cfg(test)]"))
         .count()
-}
-
-fn rust_files(dir: &Path, out: &mut Vec<PathBuf>) {
-    for entry in std::fs::read_dir(dir).unwrap() {
-        let p = entry.unwrap().path();
-        if p.is_dir() {
-            rust_files(&p, out);
-        } else if p.extension().is_some_and(|e| e == "rs") {
-            out.push(p);
-        }
-    }
 }
 
 /// Whether `file` is a test module itself: `tests.rs`, or under a `tests/` folder.

@@ -388,4 +388,34 @@ mod tests {
         Cli::command().debug_assert();
         ModelCli::command().debug_assert();
     }
+
+    #[test]
+    fn a_check_and_a_merge_answer_with_their_exit_codes() {
+        // The designer's guess of problems/cv1d.toml is inconsistent: exit 1, on 20 runs.
+        let args = [
+            "autotune",
+            "check",
+            "problems/cv1d.toml",
+            "--quiet",
+            "--runs",
+            "20",
+        ];
+        assert_eq!(run(args).unwrap(), ExitCode::from(1));
+        let args = [
+            "autotune",
+            "check",
+            "problems/cv1d.toml",
+            "--quiet",
+            "--runs",
+            "20",
+            "--set",
+            "q_accel=0.5",
+            "--set",
+            "r_pos=1.0",
+        ];
+        assert_eq!(run(args).unwrap(), ExitCode::SUCCESS);
+        // Shards that are not there: a bad input, not a check.
+        let merged = run(["autotune", "merge", "no/such/shard.json", "--quiet"]);
+        assert!(matches!(merged, Err(AppError::Command(_))), "{merged:?}");
+    }
 }

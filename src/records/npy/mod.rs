@@ -295,3 +295,63 @@ impl Row for NpyRow<'_> {
         Ok(None)
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::records::{StateLayout, StateRecord, StepRecord};
+
+    /// Collects the records it is fed.
+    struct Collect(Vec<StepRecord>);
+
+    impl StepSink for Collect {
+        type Error = std::convert::Infallible;
+        fn push(&mut self, r: StepRecord) -> Result<(), Self::Error> {
+            self.0.push(r);
+            Ok(())
+        }
+    }
+
+    #[test]
+    fn arrays_feed_each_run_and_step_as_a_record_numbered_from_the_first_run() {
+        // e of 2 runs × 3 steps × 1 state, P shared by every run (3 steps × 1 × 1).
+        let e: Vec<f64> = (0..6).map(f64::from).collect();
+        let raw = vec![
+            ("e".to_string(), vec![2, 3, 1], e),
+            ("P".to_string(), vec![3, 1, 1], vec![4.0; 3]),
+        ];
+        let layout = Layout {
+            state: Some(StateLayout {
+                dim: 1,
+                components: true,
+            }),
+            sensors: vec![],
+        };
+        let mut sink = Collect(Vec::new());
+        read_numpy_records(Path::new("r.npz"), raw.clone(), &layout, 3, 10, &mut sink).unwrap();
+        let got: Vec<(usize, usize, Vec<f64>)> = sink
+            .0
+            .iter()
+            .map(|r| match &r.state {
+                Some(StateRecord::Raw { e, p }) => {
+                    assert_eq!(p, &[4.0]);
+                    (r.run, r.step, e.clone())
+                }
+                other => panic!("{other:?}"),
+            })
+            .collect();
+        let want: Vec<(usize, usize, Vec<f64>)> = (0..6)
+            .map(|i| (10 + i / 3, i % 3 + 1, vec![i as f64]))
+            .collect();
+        assert_eq!(got, want);
+        // Another step count than the experiment's is refused, naming the file.
+        let mut sink = Collect(Vec::new());
+        let err = read_numpy_records(Path::new("r.npz"), raw, &layout, 4, 0, &mut sink);
+        assert!(
+            err.unwrap_err()
+                .to_string()
+                .contains("3 steps per run, expected 4")
+        );
+        assert!(sink.0.is_empty());
+    }
+}

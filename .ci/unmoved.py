@@ -8,8 +8,8 @@ the tree; each hunk's old side is renumbered to stay in order, which cargo-mutan
 but never reads against a file. Each removed line pays for one added line, so a line
 duplicated by the change still counts once as new.
 
-An added line of brackets alone (`}`, `});`, `)),`) is never new: it holds no operator or
-value to mutate, and the removed lines of a change that moves code between files have too
+An added line of brackets alone (`}`, `});`, `)),`), or a bare `Ok(())`, is never new: it
+holds no operator or value to mutate, and the removed lines of a change that moves code between files have too
 few copies of each to pay for every one, which would mark the moved function that holds it
 as written.
 
@@ -30,7 +30,7 @@ def key(line):
 
 
 def brackets_only(line):
-    return re.fullmatch(r"[(){}\[\];,]+", key(line)) is not None
+    return re.fullmatch(r"(Ok\(\(\)\))?[(){}\[\];,]*", key(line)) is not None and key(line) != ""
 
 
 lines = sys.stdin.read().split("\n")

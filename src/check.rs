@@ -202,18 +202,10 @@ pub fn accumulate(
 mod tests {
     use super::*;
     use crate::experiment::LinearExperiment;
-    use crate::params::{ParamDef, dwna_block};
-    use nalgebra::{DMatrix, DVector};
 
     /// cv1d (q = 0.5, r = 1) on a short test: 50 runs × 40 steps.
     fn cv1d() -> LinearExperiment {
-        LinearExperiment::builder("cv1d")
-            .transition(DMatrix::from_row_slice(2, 2, &[1.0, 1.0, 0.0, 1.0]))
-            .observation(DMatrix::from_row_slice(1, 2, &[1.0, 0.0]))
-            .initial(DVector::zeros(2), DMatrix::identity(2, 2))
-            .truth_noise(dwna_block(1.0) * 0.5, DMatrix::identity(1, 1))
-            .process_noise(ParamDef::new("q", 0.5), dwna_block(1.0))
-            .measurement_noise(ParamDef::new("r", 1.0), DMatrix::identity(1, 1))
+        crate::experiment::cv1d_for_tests()
             .montecarlo(McConfig::new(50, 40).unwrap().with_seed(3))
             .build()
             .unwrap()

@@ -30,6 +30,8 @@ pub use error::{
     WorkerError, WorkerFailure, WorkerRole,
 };
 pub use hypotheses::{Added, Changed, Hypothesis, Hypothesized, ReadThrough};
+#[cfg(test)]
+pub(crate) use linear::cv1d_for_tests;
 pub use linear::{FilterModel, LinearExperiment, LinearModelBuilder};
 pub use rebounded::Rebounded;
 pub use recorded::RecordsExperiment;

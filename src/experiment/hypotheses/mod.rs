@@ -299,22 +299,11 @@ impl crate::experiment::Sampling for Hypothesized {}
 
 #[cfg(test)]
 mod tests {
-    use nalgebra::{DMatrix, DVector};
-
     use super::*;
-    use crate::params::{ParamDef, dwna_block};
 
     #[test]
     fn a_hypothesis_changes_the_part_of_the_filter_it_names() {
-        let base = LinearExperiment::builder("cv1d")
-            .transition(DMatrix::from_row_slice(2, 2, &[1.0, 1.0, 0.0, 1.0]))
-            .observation(DMatrix::from_row_slice(1, 2, &[1.0, 0.0]))
-            .initial(DVector::zeros(2), DMatrix::identity(2, 2))
-            .truth_noise(dwna_block(1.0) * 0.5, DMatrix::identity(1, 1))
-            .process_noise(ParamDef::new("q", 0.5), dwna_block(1.0))
-            .measurement_noise(ParamDef::new("r", 1.0), DMatrix::identity(1, 1))
-            .build()
-            .unwrap();
+        let base = crate::experiment::cv1d_for_tests().build().unwrap();
         let h = Hypothesized::new(&base, Hypothesis::InitialCovariance, &[0.5, 1.0]).unwrap();
         assert_eq!(h.params().names(), ["q", "r", "p0_scale"]);
         let (kf, map) = h.filter_at(&[0.5, 1.0, 3.0]).unwrap();

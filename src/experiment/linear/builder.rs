@@ -165,6 +165,20 @@ impl LinearModelBuilder {
     }
 }
 
+/// The unit tests' constant-velocity model: F = [[1, 1], [0, 1]], H = [1, 0], x0 = 0,
+/// P0 = I, truth q = 0.5 (DWNA) and r = 1, parameters `q` and `r` at those values.
+#[cfg(test)]
+pub(crate) fn cv1d_for_tests() -> LinearModelBuilder {
+    use crate::params::dwna_block;
+    LinearExperiment::builder("cv1d")
+        .transition(DMatrix::from_row_slice(2, 2, &[1.0, 1.0, 0.0, 1.0]))
+        .observation(DMatrix::from_row_slice(1, 2, &[1.0, 0.0]))
+        .initial(DVector::zeros(2), DMatrix::identity(2, 2))
+        .truth_noise(dwna_block(1.0) * 0.5, DMatrix::identity(1, 1))
+        .process_noise(ParamDef::new("q", 0.5), dwna_block(1.0))
+        .measurement_noise(ParamDef::new("r", 1.0), DMatrix::identity(1, 1))
+}
+
 /// `m` is `rows × cols`.
 fn shape(setting: &str, m: &DMatrix<f64>, rows: usize, cols: usize) -> Result<(), SettingError> {
     if m.nrows() != rows || m.ncols() != cols {

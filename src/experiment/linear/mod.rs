@@ -8,4 +8,6 @@ mod model;
 mod seam;
 
 pub use builder::LinearModelBuilder;
+#[cfg(test)]
+pub(crate) use builder::cv1d_for_tests;
 pub use model::{FilterModel, LinearExperiment};

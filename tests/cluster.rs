@@ -288,19 +288,25 @@ fn tune_outputs(dir: &Path, out: &Out) -> Checked {
     }
 }
 
-/// `tune problem` in one process and under `mpirun -np 2` and `-np 3`: the same JSON,
-/// report and tuned config.
+/// `tune problem` in one process (on 1 thread, and on 2) and under `mpirun -np 2` and
+/// `-np 3`: the same JSON, report and tuned config.
 fn tune_one_and_ranks(problem: &str, name: &str) {
     let args = ["tune", problem, "--json", "--report", "report"];
-    let dir = tempfile::tempdir().unwrap();
-    let single = one(dir.path(), &args);
-    assert!(
-        matches!(single.code, Some(0 | 1)),
-        "{name}: {}",
-        single.stderr
-    );
-    let single = tune_outputs(dir.path(), &single);
+    let on_threads = |threads: &str| {
+        let dir = tempfile::tempdir().unwrap();
+        let out = output(
+            Command::cargo_bin("autotune")
+                .unwrap()
+                .args(args)
+                .current_dir(dir.path())
+                .env("RAYON_NUM_THREADS", threads),
+        );
+        assert!(matches!(out.code, Some(0 | 1)), "{name}: {}", out.stderr);
+        tune_outputs(dir.path(), &out)
+    };
+    let single = on_threads("1");
     assert!(!single.junit.is_empty(), "{name}: a tuned config");
+    assert_eq!(on_threads("2"), single, "{name} tuned on 2 threads");
     let Some(bin) = mpi_bin() else { return };
     for ranks in [2, 3] {
         let dir = tempfile::tempdir().unwrap();
@@ -531,14 +537,20 @@ fn rank_pid(bin: &Path, dir: &Path, rank: usize) -> Option<u32> {
 /// A check on 3 ranks whose worker takes 0.5 s a request, `signal` sent to rank `rank`'s
 /// process once its workers run: the job ends within a few seconds; returns its output.
 fn kill_rank(signal: i32, rank: usize) -> Option<Out> {
-    let bin = mpi_bin()?.canonicalize().unwrap();
     if !common_python() {
         return None;
     }
     let dir = tempfile::tempdir().unwrap();
     let p = walk(dir.path(), "slow", 64 * 30);
-    let here = dir.path().canonicalize().unwrap();
-    let mut cmd = mpirun(&bin, 3, dir.path(), &["check", p.to_str().unwrap()], &[]);
+    stop_rank(dir.path(), &["check", p.to_str().unwrap()], signal, rank)
+}
+
+/// `args` on 3 ranks in `dir`, `signal` sent to rank `rank`'s process 1.5 s after it
+/// started: the job ends within a few seconds; returns its output.
+fn stop_rank(dir: &Path, args: &[&str], signal: i32, rank: usize) -> Option<Out> {
+    let bin = mpi_bin()?.canonicalize().unwrap();
+    let here = dir.canonicalize().unwrap();
+    let mut cmd = mpirun(&bin, 3, dir, args, &[]);
     common::with_default_signals(&mut cmd);
     let child = cmd
         .stdout(Stdio::piped())
@@ -587,6 +599,31 @@ fn a_rank_stopped_mid_evaluation_ends_the_job_with_exit_2_naming_it() {
             out.stderr
         );
         assert!(out.stdout.is_empty(), "no verdict: {}", out.stdout);
+    }
+}
+
+#[test]
+fn a_rank_stopped_mid_tune_while_evaluations_are_dealt_by_runs_ends_the_job_with_exit_2() {
+    // ins_gnss's evaluations are one to four chunks: 3 ranks share each one by runs, so
+    // 1.5 s in, every rank is inside an evaluation of a seed set's runs.
+    let problem = repo("problems/ins_gnss.toml");
+    for rank in [1, 2] {
+        let dir = tempfile::tempdir().unwrap();
+        let Some(out) = stop_rank(dir.path(), &["tune", &problem], libc::SIGTERM, rank) else {
+            return;
+        };
+        assert_eq!(out.code, Some(2), "{}", out.stderr);
+        let said = format!("error: rank {rank} of 3: stopped by signal 15");
+        assert!(
+            out.stderr.contains(&said),
+            "expected '{said}' in {}",
+            out.stderr
+        );
+        assert!(out.stdout.is_empty(), "no verdict: {}", out.stdout);
+        assert!(
+            !dir.path().join("tuned").exists(),
+            "nothing written by a job that failed"
+        );
     }
 }
 

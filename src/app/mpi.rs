@@ -16,7 +16,7 @@ use clap::Parser;
 use super::error::AppError;
 use super::print::finish;
 use super::{Cli, Command, check, interrupt, run, tune_problem_over, usage_error};
-use crate::cluster::mpi::{Mpi, Ranked, World, serve, stop};
+use crate::cluster::mpi::{Mpi, Ranked, World, cpu_seconds, serve, stop};
 use crate::problem::Problem;
 
 /// The `autotune` binary under an MPI launcher.
@@ -29,7 +29,11 @@ pub(super) fn main(args: impl IntoIterator<Item = OsString>) -> ExitCode {
     let world = mpi.world();
     let (rank, size) = (world.rank(), world.size());
     if size == 1 {
-        return finish(run(args));
+        let code = finish(run(args));
+        if std::env::var_os("AUTOTUNE_MPI_STATS").is_some() {
+            eprintln!("mpi: rank 0 of 1: {:.3} s of CPU", cpu_seconds());
+        }
+        return code;
     }
     interrupt::set_rank(rank, size);
     let result = ranked(args, world);
@@ -113,23 +117,36 @@ fn share(
     p: &Problem,
     command: impl FnOnce(&Ranked<'_>) -> Result<ExitCode, AppError>,
 ) -> Result<ExitCode, Failure> {
+    let stats = std::env::var_os("AUTOTUNE_MPI_STATS").is_some();
+    let cpu = |rank: usize| {
+        if stats {
+            eprintln!(
+                "mpi: rank {rank} of {}: {:.3} s of CPU",
+                world.size(),
+                cpu_seconds()
+            );
+        }
+    };
     if world.rank() != 0 {
         serve(p, world).map_err(AppError::from)?;
+        cpu(world.rank());
         return Ok(ExitCode::SUCCESS);
     }
     let ranked = Ranked::new(p, world);
     let code = command(&ranked)?;
-    if std::env::var_os("AUTOTUNE_MPI_STATS").is_some() {
+    if stats {
         let s = ranked.stats();
         eprintln!(
-            "mpi: {} ranks, {} shared evaluations, {} request bytes, {} answer bytes, {:.3} s waiting for answers",
+            "mpi: {} ranks, {} shared evaluations ({} by runs), {} request bytes, {} answer bytes, {:.3} s waiting for answers",
             world.size(),
             s.evaluations,
+            s.by_runs,
             s.request_bytes,
             s.answer_bytes,
             s.waiting_s
         );
     }
     stop(world);
+    cpu(0);
     Ok(code)
 }

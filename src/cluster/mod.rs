@@ -21,16 +21,19 @@ pub use crate::montecarlo::{ChunkSink, MergeError, Share, ShareOf};
 use std::sync::{Mutex, PoisonError};
 
 use crate::experiment::{Experiment, ExperimentError};
+use crate::input::SettingError;
 use crate::montecarlo::{CHUNK, McConfig, RunOptions};
 use crate::records::{ChunkShape, ChunkSums, WireError, decode_sums_bytes, encode_sums_bytes};
 use crate::stats::Accumulator;
 
-/// The sums of `share`'s chunks of `experiment`'s evaluation at `theta` under `mc` (with
-/// `options`' engine and progress), each with its chunk's index, in chunk order.
+/// The sums of `share`'s pieces of `experiment`'s evaluation at `theta` under `mc` (with
+/// `options`' engine and progress), each with its index, in order: its chunks' sums, or
+/// for a share dealt by runs ([`Share::runs`]) its runs' own sums.
 ///
-/// Fails as the evaluation fails, and when the experiment does not split into shares
-/// ([`Sampling::splits`]: recorded sums) or computed other chunks than the share's (an
-/// [`Experiment`] implementation that ignores [`RunOptions::share`]).
+/// Fails as the evaluation fails, and when the experiment does not split into such shares
+/// ([`Sampling::splits`]: recorded sums; [`Sampling::splits_runs`]) or computed other
+/// pieces than the share's (an [`Experiment`] implementation that ignores
+/// [`RunOptions::share`]).
 pub fn share_sums(
     experiment: &dyn Experiment,
     theta: &[f64],
@@ -41,7 +44,7 @@ pub fn share_sums(
     let unsplit = || ExperimentError::Unsplit {
         source_label: experiment.info().source.label(),
     };
-    if !experiment.splits() {
+    if !experiment.splits() || (share.by_runs() && !experiment.splits_runs()) {
         return Err(unsplit());
     }
     let parts = Mutex::new(Vec::new());
@@ -58,13 +61,33 @@ pub fn share_sums(
     experiment.monte_carlo_with(theta, mc, options)?;
     let mut parts = parts.into_inner().unwrap_or_else(PoisonError::into_inner);
     parts.sort_by_key(|(c, _)| *c);
-    let own: Vec<usize> = share
-        .chunks(mc.runs().div_ceil(crate::montecarlo::CHUNK))
-        .collect();
+    let own = share.pieces(mc.runs());
     if !parts.iter().map(|(c, _)| *c).eq(own.iter().copied()) {
         return Err(unsplit());
     }
     Ok(parts)
+}
+
+/// Whether K ranks share an evaluation of `runs` runs by runs within every chunk rather
+/// than by chunks: where the experiment allows it (`splits_runs`) and it gives the busiest
+/// rank at least a tenth fewer runs. Dealt by runs, each rank answers its runs' own sums,
+/// 64 times the bytes of its chunks' sums (about 60 kB a run for ins_gnss's 900 steps),
+/// which is why chunks stay the unit wherever they balance: a check of thousands of runs.
+/// Dealt by chunks, the 200 runs of ctrv's search (chunks of 64, 64, 64 and 8 runs) give
+/// rank 0 of 2 ranks 128 runs; dealt by runs, 104.
+pub fn deal_by_runs(runs: usize, ranks: usize, splits_runs: bool) -> bool {
+    let chunks = runs.div_ceil(CHUNK);
+    if !splits_runs || ranks <= 1 || chunks == 0 || chunks >= 4 * ranks {
+        return false;
+    }
+    let busiest = |share: fn(usize, usize) -> Result<Share, SettingError>| {
+        (0..ranks)
+            .filter_map(|k| share(k, ranks).ok())
+            .map(|s| s.runs_of(runs))
+            .max()
+            .unwrap_or(0)
+    };
+    10 * busiest(Share::runs) <= 9 * busiest(Share::new)
 }
 
 /// Fresh sums of the shape of `experiment`'s evaluations under `mc`, to merge chunks into.
@@ -104,8 +127,12 @@ impl SumsShape {
     }
 
     fn chunk(&self, c: usize) -> ChunkShape {
+        self.runs(c * CHUNK..(c * CHUNK + CHUNK).min(self.runs))
+    }
+
+    fn runs(&self, runs: std::ops::Range<usize>) -> ChunkShape {
         ChunkShape {
-            runs: c * CHUNK..(c * CHUNK + CHUNK).min(self.runs),
+            runs,
             steps: self.steps,
             lags: self.lags,
             n_x: self.n_x,
@@ -116,7 +143,22 @@ impl SumsShape {
     /// Chunk `c`'s sums in the sums format (the runs' fingerprints, which only a worker's
     /// seed-contract check reads, as zeros).
     fn encode(&self, c: usize, sums: &Accumulator) -> Vec<u8> {
-        let shape = self.chunk(c);
+        self.encode_as(self.chunk(c), sums)
+    }
+
+    /// Run `r`'s own sums in the sums format.
+    #[cfg_attr(not(feature = "mpi"), allow(dead_code))]
+    fn encode_run(&self, r: usize, sums: &Accumulator) -> Vec<u8> {
+        self.encode_as(self.runs(r..r + 1), sums)
+    }
+
+    /// Run `r`'s own sums from the sums format, checked against a run's shape.
+    #[cfg_attr(not(feature = "mpi"), allow(dead_code))]
+    fn decode_run(&self, r: usize, bytes: &[u8]) -> Result<Accumulator, WireError> {
+        decode_sums_bytes(bytes, &self.runs(r..r + 1)).map(|chunk| chunk.sums)
+    }
+
+    fn encode_as(&self, shape: ChunkShape, sums: &Accumulator) -> Vec<u8> {
         let chunk = ChunkSums {
             sums: sums.clone(),
             prints: vec![0; shape.runs.len()],
@@ -166,6 +208,80 @@ mod tests {
         let mut twice = parts.clone();
         twice.push(parts[0].clone());
         assert!(Share::merge(mc.runs(), empty_sums(e, &mc), twice).is_err());
+    }
+
+    fn ctrv() -> Problem {
+        let path = concat!(env!("CARGO_MANIFEST_DIR"), "/problems/ctrv.toml");
+        Problem::load(Path::new(path)).unwrap()
+    }
+
+    #[test]
+    fn shares_dealt_by_runs_merged_in_run_order_are_the_one_process_sums_bit_for_bit() {
+        let p = ctrv();
+        let e = p.experiment();
+        assert!(e.splits_runs());
+        let theta = e.params().values();
+        // A whole chunk and a part one (64 + 36 runs), on a taped seed set and a fresh one:
+        // the catalog model tapes its truth at a seed set's second evaluation.
+        for seed in [5, 5, 5, 6] {
+            let mc = McConfig::new(100, 20).unwrap().with_seed(seed);
+            let whole = e.monte_carlo(&theta, &mc).unwrap();
+            for count in [2, 3, 7] {
+                let mut parts = Vec::new();
+                for i in (0..count).rev() {
+                    let share = Share::runs(i, count).unwrap();
+                    let own = share_sums(e, &theta, &mc, RunOptions::default(), share).unwrap();
+                    assert_eq!(
+                        own.iter().map(|(r, _)| *r).collect::<Vec<_>>(),
+                        share.pieces(mc.runs())
+                    );
+                    parts.extend(own);
+                }
+                let empty = || empty_sums(e, &mc);
+                let chunks = Share::merge_runs(mc.runs(), empty, parts.clone()).unwrap();
+                let merged = Share::merge(mc.runs(), empty_sums(e, &mc), chunks).unwrap();
+                assert_eq!(merged, whole, "seed {seed}, {count} shares");
+                // A run missing, twice, or beyond the runs is refused.
+                let missing = parts[1..].to_vec();
+                assert!(Share::merge_runs(mc.runs(), empty, missing).is_err());
+                let mut twice = parts.clone();
+                twice.push(parts[0].clone());
+                assert!(Share::merge_runs(mc.runs(), empty, twice).is_err());
+                let mut stray = parts.clone();
+                stray[0].0 = mc.runs();
+                assert!(Share::merge_runs(mc.runs(), empty, stray).is_err());
+            }
+        }
+        // The linear fast path sums a step over a batch of runs: no shares by runs.
+        let linear = cv2d();
+        let l = linear.experiment();
+        assert!(!l.splits_runs());
+        let mc = McConfig::new(64, 5).unwrap();
+        let share = Share::runs(0, 2).unwrap();
+        let got = share_sums(l, &l.params().values(), &mc, RunOptions::default(), share);
+        assert!(
+            matches!(got, Err(ExperimentError::Unsplit { .. })),
+            "{got:?}"
+        );
+    }
+
+    #[test]
+    fn evaluations_are_dealt_by_runs_where_that_gives_the_busiest_rank_a_tenth_fewer() {
+        // One chunk: by runs on any ranks, if the experiment allows.
+        assert!(deal_by_runs(60, 2, true));
+        assert!(deal_by_runs(60, 16, true));
+        assert!(!deal_by_runs(60, 2, false));
+        assert!(!deal_by_runs(60, 1, true));
+        assert!(!deal_by_runs(0, 2, true));
+        // 200 runs (64, 64, 64, 8) on 2 ranks: 128 runs by chunks, 104 by runs.
+        assert!(deal_by_runs(200, 2, true));
+        // 256 runs on 2 ranks balance by chunks (128 each); on 3, 128 against 88.
+        assert!(!deal_by_runs(256, 2, true));
+        assert!(deal_by_runs(256, 3, true));
+        // 800 runs on 2 ranks: 416 by chunks, 400 by runs, under a tenth.
+        assert!(!deal_by_runs(800, 2, true));
+        // At four chunks a rank and more, chunks.
+        assert!(!deal_by_runs(64 * 8 + 1, 2, true));
     }
 
     #[test]

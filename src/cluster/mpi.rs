@@ -1,10 +1,20 @@
 //! The ranks of an MPI job share every evaluation (the cargo feature `mpi`).
 //!
 //! Rank 0 runs the command (the check, the tuner's search) on a [`Ranked`] experiment: each
-//! evaluation is sent to every rank, each rank computes its share of the chunks (chunk `c`
-//! is rank `c mod K`'s) with its own engine and workers, and rank 0 merges all chunks in
-//! chunk order, so every number is the one-process number, bit for bit. The other ranks
-//! [`serve`] until rank 0 says [`stop`].
+//! evaluation is sent to every rank, each rank computes its share with its own engine and
+//! workers, and rank 0 merges all chunks in chunk order, so every number is the
+//! one-process number, bit for bit. The other ranks [`serve`] until rank 0 says [`stop`].
+//!
+//! A share is dealt by chunks (chunk `c` is rank `c mod K`'s) or, for an evaluation of too
+//! few chunks to keep every rank busy, by runs within every chunk ([`Share::runs`], where
+//! the experiment [`Sampling::splits_runs`]): a tune's evaluations are one to four chunks
+//! (a search's 60 runs are one), which ranks dealt chunks could not share. Which way is a
+//! function of the evaluation's run count and K alone ([`deal_by_runs`]); a rank's truth
+//! tape holds every run of a seed set it computed, whichever way they were dealt.
+//!
+//! A rank waiting for a request or an answer probes and sleeps rather than spinning in
+//! MPI's receive, so that a waiting rank takes no CPU (ranks oversubscribing a machine, and
+//! the CPU time per rank the scaling measurements report).
 //!
 //! MPI is initialized with `MPI_THREAD_MULTIPLE`: the tuner evaluates several candidates at
 //! once (its confirmation seeds), each on its own thread; an evaluation's request carries
@@ -16,18 +26,21 @@
 
 use std::sync::Mutex;
 use std::sync::atomic::{AtomicU64, Ordering};
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 use mpi::topology::SimpleCommunicator;
-use mpi::traits::{Communicator, Destination, Source};
+use mpi::traits::{Communicator, Destination, MatchedReceiveVec, Source};
 
-use super::{SumsShape, empty_sums, share_sums};
+mod wire;
+
+use self::wire::{Request, decode_answer, encode_answer};
+use super::{deal_by_runs, empty_sums, share_sums};
 use crate::experiment::{
     Block, Covariances, Definition, Experiment, ExperimentError, LinearExperiment, TruthReuse,
 };
 use crate::montecarlo::{Engine, McConfig, RunOptions, Share, TapeUsage};
 use crate::params::Target;
-use crate::stats::{Accumulator, GateMode};
+use crate::stats::Accumulator;
 
 /// Requests from rank 0 travel with this tag; answers with the request's own.
 const REQUEST: i32 = 1;
@@ -82,19 +95,6 @@ pub enum MpiError {
     Threading(String),
 }
 
-/// Why a rank's answer does not decode (it is refused, with the rank named).
-#[derive(Debug, Clone, PartialEq, thiserror::Error)]
-enum AnswerError {
-    #[error("it ends early")]
-    EndsEarly,
-    #[error("a count out of range")]
-    CountOutOfRange,
-    #[error("chunk {0} is beyond the evaluation's runs")]
-    BeyondRuns(usize),
-    #[error(transparent)]
-    Wire(#[from] crate::records::WireError),
-}
-
 impl Mpi {
     /// Initialize MPI with full thread support.
     pub fn init() -> Result<Mpi, MpiError> {
@@ -120,6 +120,8 @@ impl Mpi {
 pub struct CommStats {
     /// Evaluations shared among the ranks.
     pub evaluations: usize,
+    /// Of them, those dealt by runs within every chunk ([`deal_by_runs`]).
+    pub by_runs: usize,
     /// Bytes sent in requests.
     pub request_bytes: usize,
     /// Bytes received in answers.
@@ -163,11 +165,13 @@ impl<'a> Ranked<'a> {
         let size = self.world.size();
         let id = self.next_id.fetch_add(1, Ordering::Relaxed);
         let tag = FIRST_ANSWER + (id % ANSWER_TAGS) as i32;
+        let by_runs = deal_by_runs(mc.runs(), size, self.inner.splits_runs());
         let request = Request {
             tag,
             theta: theta.to_vec(),
             mc: *mc,
             engine: options.engine,
+            by_runs,
         }
         .encode();
         for r in 1..size {
@@ -176,37 +180,96 @@ impl<'a> Ranked<'a> {
                 .process_at_rank(r as i32)
                 .send_with_tag(&request[..], REQUEST);
         }
-        let own = Share::new(0, size).expect("rank 0 of a job of size >= 1");
+        let own = request_share(0, size, by_runs).expect("rank 0 of a job of size >= 1");
         let mut parts = share_sums(self.inner, theta, mc, options, own)?;
         let waiting = Instant::now();
         let mut answer_bytes = 0;
         for _ in 1..size {
-            let (bytes, status) = self.world.0.any_process().receive_vec_with_tag::<u8>(tag);
-            let rank = status.source_rank() as usize;
+            let (bytes, rank) = receive(self.world, None, tag);
             answer_bytes += bytes.len();
-            let theirs =
-                decode_answer(&bytes, mc, self.inner).map_err(|why| ExperimentError::Rank {
+            let theirs = decode_answer(&bytes, mc, self.inner, by_runs).map_err(|why| {
+                ExperimentError::Rank {
                     rank,
                     ranks: size,
                     message: format!("its answer: {why}"),
-                })?;
+                }
+            })?;
             parts.extend(theirs);
         }
         let waited = waiting.elapsed();
         {
             let mut s = self.stats.lock().unwrap_or_else(|p| p.into_inner());
             s.evaluations += 1;
+            s.by_runs += usize::from(by_runs);
             s.request_bytes += request.len() * (size - 1);
             s.answer_bytes += answer_bytes;
             s.waiting_s += waited.as_secs_f64();
         }
-        Share::merge(mc.runs(), empty_sums(self.inner, mc), parts).map_err(|e| {
-            ExperimentError::Rank {
-                rank: 0,
-                ranks: size,
-                message: format!("the ranks' chunks: {e}"),
-            }
-        })
+        let refused = |e: crate::montecarlo::MergeError| ExperimentError::Rank {
+            rank: 0,
+            ranks: size,
+            message: format!("the ranks' sums: {e}"),
+        };
+        if by_runs {
+            let empty = || empty_sums(self.inner, mc);
+            parts = Share::merge_runs(mc.runs(), empty, parts).map_err(refused)?;
+        }
+        Share::merge(mc.runs(), empty_sums(self.inner, mc), parts).map_err(refused)
+    }
+}
+
+/// Rank `rank`'s share of `size`, dealt by runs or by chunks.
+fn request_share(
+    rank: usize,
+    size: usize,
+    by_runs: bool,
+) -> Result<Share, crate::input::SettingError> {
+    if by_runs {
+        Share::runs(rank, size)
+    } else {
+        Share::new(rank, size)
+    }
+}
+
+/// The longest a waiting rank sleeps between probes: a message waits at most this long to
+/// be received, against evaluations of tens of milliseconds and more.
+const MAX_NAP: Duration = Duration::from_micros(500);
+
+/// The next message tagged `tag` (from rank `from`, or any), and its sender: probed for
+/// with naps that double from 10 µs to [`MAX_NAP`], so that waiting takes no CPU (MPI's
+/// blocking receive spins).
+fn receive(world: &World, from: Option<usize>, tag: i32) -> (Vec<u8>, usize) {
+    let mut nap = Duration::from_micros(10);
+    loop {
+        let found = match from {
+            Some(r) => world
+                .0
+                .process_at_rank(r as i32)
+                .immediate_matched_probe_with_tag(tag),
+            None => world.0.any_process().immediate_matched_probe_with_tag(tag),
+        };
+        if let Some(matched) = found {
+            let (bytes, status) = matched.matched_receive_vec::<u8>();
+            return (bytes, status.source_rank() as usize);
+        }
+        std::thread::sleep(nap);
+        nap = (nap * 2).min(MAX_NAP);
+    }
+}
+
+/// This process's CPU time so far (every thread's, user and system), s.
+pub fn cpu_seconds() -> f64 {
+    let mut t = libc::timespec {
+        tv_sec: 0,
+        tv_nsec: 0,
+    };
+    // SAFETY: clock_gettime writes the timespec it is given; the clock id is a constant
+    // every Linux has.
+    let ok = unsafe { libc::clock_gettime(libc::CLOCK_PROCESS_CPUTIME_ID, &mut t) } == 0;
+    if ok {
+        t.tv_sec as f64 + t.tv_nsec as f64 * 1e-9
+    } else {
+        f64::NAN
     }
 }
 
@@ -226,146 +289,49 @@ pub fn stop(world: &World) {
 /// the caller to print, naming the rank, and exit 2 on: rank 0 is waiting for the answer.
 pub fn serve(experiment: &dyn Experiment, world: &World) -> Result<(), ExperimentError> {
     let (rank, size) = (world.rank(), world.size());
-    let share = Share::new(rank, size).map_err(|e| ExperimentError::Rank {
+    let refused = |message: String| ExperimentError::Rank {
         rank,
         ranks: size,
-        message: e.to_string(),
-    })?;
+        message,
+    };
     loop {
-        let (bytes, _) = world
-            .0
-            .process_at_rank(0)
-            .receive_vec_with_tag::<u8>(REQUEST);
+        let (bytes, _) = receive(world, Some(0), REQUEST);
         if bytes.is_empty() {
             return Ok(());
         }
-        let req = Request::decode(&bytes).ok_or_else(|| ExperimentError::Rank {
-            rank,
-            ranks: size,
-            message: "a request from rank 0 that is not one (another autotune's?)".into(),
+        let req = Request::decode(&bytes).ok_or_else(|| {
+            refused("a request from rank 0 that is not one (another autotune's?)".into())
         })?;
+        let share = request_share(rank, size, req.by_runs).map_err(|e| refused(e.to_string()))?;
         let options = RunOptions {
             engine: req.engine,
             ..RunOptions::default()
         };
         let parts = share_sums(experiment, &req.theta, &req.mc, options, share)?;
-        let answer = encode_answer(&parts, &req.mc, experiment);
-        world
+        let answer = encode_answer(&parts, &req.mc, experiment, req.by_runs);
+        send(world, &answer, req.tag);
+    }
+}
+
+/// `bytes` to rank 0 tagged `tag`, waiting for the send to complete with naps as
+/// [`receive`] does: an answer larger than MPI's eager limit waits for rank 0 to receive
+/// it, which a blocking send would spin through.
+fn send(world: &World, bytes: &[u8], tag: i32) {
+    mpi::request::scope(|scope| {
+        let mut pending = world
             .0
             .process_at_rank(0)
-            .send_with_tag(&answer[..], req.tag);
-    }
-}
-
-/// An evaluation as rank 0 asks for it.
-struct Request {
-    tag: i32,
-    theta: Vec<f64>,
-    mc: McConfig,
-    engine: Engine,
-}
-
-impl Request {
-    fn encode(&self) -> Vec<u8> {
-        let mut out = Vec::new();
-        let mut u = |x: u64| out.extend_from_slice(&x.to_le_bytes());
-        u(self.tag as u64);
-        u(self.theta.len() as u64);
-        for t in &self.theta {
-            u(t.to_bits());
+            .immediate_send_with_tag(scope, bytes, tag);
+        let mut nap = Duration::from_micros(10);
+        loop {
+            match pending.test() {
+                Ok(_) => return,
+                Err(still) => pending = still,
+            }
+            std::thread::sleep(nap);
+            nap = (nap * 2).min(MAX_NAP);
         }
-        let mc = &self.mc;
-        for x in [mc.runs(), mc.steps(), mc.lags()] {
-            u(x as u64);
-        }
-        u(mc.seed());
-        u(mc.alpha().to_bits());
-        u(match mc.gate() {
-            GateMode::Full => 0,
-            GateMode::Mean => 1,
-        });
-        u(match self.engine {
-            Engine::Auto => 0,
-            Engine::Linear => 1,
-            Engine::Generic => 2,
-        });
-        out
-    }
-
-    fn decode(bytes: &[u8]) -> Option<Request> {
-        let mut words = bytes
-            .chunks_exact(8)
-            .map(|b| u64::from_le_bytes(b.try_into().expect("8 bytes")));
-        let mut next = || words.next();
-        let tag = i32::try_from(next()?).ok()?;
-        let n = usize::try_from(next()?).ok()?;
-        let theta = (0..n)
-            .map(|_| next().map(f64::from_bits))
-            .collect::<Option<Vec<f64>>>()?;
-        let (runs, steps, lags) = (next()?, next()?, next()?);
-        let (seed, alpha) = (next()?, f64::from_bits(next()?));
-        let gate = [GateMode::Full, GateMode::Mean]
-            .get(next()? as usize)
-            .copied()?;
-        let engine = [Engine::Auto, Engine::Linear, Engine::Generic]
-            .get(next()? as usize)
-            .copied()?;
-        let mc = McConfig::new(runs, steps)
-            .and_then(|m| m.with_alpha(alpha))
-            .and_then(|m| m.with_lags(lags))
-            .ok()?
-            .with_seed(seed)
-            .with_gate(gate);
-        Some(Request {
-            tag,
-            theta,
-            mc,
-            engine,
-        })
-    }
-}
-
-/// A rank's chunk sums: the count, then each chunk's index, length and sums format bytes.
-fn encode_answer(parts: &[(usize, Accumulator)], mc: &McConfig, e: &dyn Experiment) -> Vec<u8> {
-    let shape = SumsShape::of(e, mc);
-    let mut out = (parts.len() as u64).to_le_bytes().to_vec();
-    for (c, sums) in parts {
-        let bytes = shape.encode(*c, sums);
-        out.extend_from_slice(&(*c as u64).to_le_bytes());
-        out.extend_from_slice(&(bytes.len() as u64).to_le_bytes());
-        out.extend_from_slice(&bytes);
-    }
-    out
-}
-
-fn decode_answer(
-    bytes: &[u8],
-    mc: &McConfig,
-    e: &dyn Experiment,
-) -> Result<Vec<(usize, Accumulator)>, AnswerError> {
-    let mut at = 0;
-    fn word(bytes: &[u8], at: &mut usize) -> Result<usize, AnswerError> {
-        let b = bytes.get(*at..*at + 8).ok_or(AnswerError::EndsEarly)?;
-        *at += 8;
-        usize::try_from(u64::from_le_bytes(b.try_into().expect("8 bytes")))
-            .map_err(|_| AnswerError::CountOutOfRange)
-    }
-    let shape = SumsShape::of(e, mc);
-    let n = word(bytes, &mut at)?;
-    let mut parts = Vec::with_capacity(n.min(1 << 16));
-    for _ in 0..n {
-        let c = word(bytes, &mut at)?;
-        let len = word(bytes, &mut at)?;
-        let body = bytes
-            .get(at..at.saturating_add(len))
-            .ok_or(AnswerError::EndsEarly)?;
-        at += len;
-        if c >= shape.chunks() {
-            return Err(AnswerError::BeyondRuns(c));
-        }
-        parts.push((c, shape.decode(c, body)?));
-    }
-    Ok(parts)
+    });
 }
 
 impl Experiment for Ranked<'_> {
@@ -444,6 +410,10 @@ impl crate::experiment::Sampling for Ranked<'_> {
 
     fn splits(&self) -> bool {
         self.inner.splits()
+    }
+
+    fn splits_runs(&self) -> bool {
+        self.inner.splits_runs()
     }
 
     fn truth_reuse(&self, since: TapeUsage) -> TruthReuse {

@@ -87,6 +87,11 @@ impl crate::experiment::HeldAsCode for CatalogExperiment {
 }
 
 impl crate::experiment::Sampling for CatalogExperiment {
+    // Every evaluation runs the generic engine (`Held::monte_carlo`).
+    fn splits_runs(&self) -> bool {
+        true
+    }
+
     fn truth_reuse(&self, since: crate::montecarlo::TapeUsage) -> super::TruthReuse {
         self.held().truth_reuse(since)
     }

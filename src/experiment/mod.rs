@@ -208,6 +208,16 @@ pub trait Sampling {
         !self.seed_free()
     }
 
+    /// Whether an evaluation also splits into shares of every chunk's runs
+    /// ([`crate::montecarlo::Share::runs`]): true where the engine sums a chunk run after
+    /// run (the generic engine of a model held as code), so that each run's own sums added
+    /// in run order are the chunk's sums bit for bit. False, the default, where a chunk is
+    /// summed otherwise (the linear fast path sums each step over a batch of runs; a worker
+    /// answers a chunk's sums).
+    fn splits_runs(&self) -> bool {
+        false
+    }
+
     /// Whether the sums are the same for every seed: a filter run over one recorded data
     /// set rather than a simulation. The tuner then confirms on that record once instead of
     /// on fresh seeds, and reports no seed-to-seed resolution (it would be zero).

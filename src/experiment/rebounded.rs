@@ -93,6 +93,10 @@ impl crate::experiment::Sampling for Rebounded<'_> {
         self.inner.splits()
     }
 
+    fn splits_runs(&self) -> bool {
+        self.inner.splits_runs()
+    }
+
     fn seed_free(&self) -> bool {
         self.inner.seed_free()
     }

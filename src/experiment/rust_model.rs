@@ -273,6 +273,11 @@ where
     F: Filter,
     B: Fn(&[f64]) -> F + Sync,
 {
+    // Every evaluation runs the generic engine.
+    fn splits_runs(&self) -> bool {
+        true
+    }
+
     fn truth_reuse(&self, since: crate::montecarlo::TapeUsage) -> super::TruthReuse {
         self.held().truth_reuse(since)
     }

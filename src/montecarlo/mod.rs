@@ -93,6 +93,10 @@ where
     let range = |c: usize| c * CHUNK..(c * CHUNK).saturating_add(CHUNK).min(runs);
     let share = options.share.map_or(Share::WHOLE, |s| s.share);
     let mut total = Accumulator::new(mc.steps(), n_x, n_z, mc.lags());
+    if let Some(s) = options.share.filter(|s| s.share.by_runs()) {
+        run_slices(mc, n_x, n_z, s, options.progress, chunk);
+        return total;
+    }
     let mut done = 0;
     // Only the merge order matters for the result, so the wave size may follow the pool.
     let wave = 2 * rayon::current_num_threads().max(1);
@@ -119,6 +123,44 @@ where
         }
     }
     total
+}
+
+/// [`run_chunked`] for a share dealt by runs: each chunk's runs of the share, side by side,
+/// each into sums of its own handed to the share's sink in run order. `chunk` on a range
+/// of one run is that run's own sums; the engines that sum a chunk run after run
+/// ([`crate::experiment::Sampling::splits_runs`]) add those in run order into a chunk's
+/// sums, which is what [`Share::merge_runs`] does with them.
+fn run_slices<G>(
+    mc: &McConfig,
+    n_x: usize,
+    n_z: usize,
+    share: ShareOf<'_>,
+    progress: Progress<'_>,
+    chunk: G,
+) where
+    G: Fn(Range<usize>, &mut Accumulator) + Sync,
+{
+    let runs = mc.runs();
+    let mut done = 0;
+    for c in share.share.chunks(runs.div_ceil(CHUNK)) {
+        let own = share.share.runs_in_chunk(c, runs);
+        let parts: Vec<Accumulator> = own
+            .clone()
+            .into_par_iter()
+            .map(|r| {
+                let mut acc = Accumulator::new(mc.steps(), n_x, n_z, mc.lags());
+                chunk(r..r + 1, &mut acc);
+                acc
+            })
+            .collect();
+        for (r, p) in own.zip(parts) {
+            done += 1;
+            (share.sink)(r, p);
+        }
+        if let Some(report) = progress {
+            report(done);
+        }
+    }
 }
 
 /// An optional callback told the number of runs completed so far (for progress bars).

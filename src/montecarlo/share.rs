@@ -9,21 +9,35 @@ use crate::stats::Accumulator;
 /// Runs per chunk: the unit of parallel work and of summation order.
 pub const CHUNK: usize = 64;
 
-/// Share `index` of `count`: chunk `c` (runs `64 c .. 64 c + 64`) belongs to share
-/// `c mod count`. Dealing chunks round-robin keeps the shares within one chunk of each
-/// other at every N, and a rank's share of the search's N runs and of the refinement's 4 N
-/// runs starts at the same runs (its taped truth serves both).
+/// Share `index` of `count` of an evaluation's runs, dealt one of two ways:
+/// - [`Share::new`], by chunks: chunk `c` (runs `64 c .. 64 c + 64`) belongs to share
+///   `c mod count`. Dealing chunks round-robin keeps the shares within one chunk of each
+///   other at every N, and a rank's share of the search's N runs and of the refinement's
+///   4 N runs starts at the same runs (its taped truth serves both).
+/// - [`Share::runs`], by runs within every chunk: share `i` computes offsets
+///   `⌊n i / count⌋ .. ⌊n (i + 1) / count⌋` of each chunk of `n` runs (64, or fewer in
+///   the last), and hands on each run's own
+///   sums, which the merge adds in run order into the chunk's sums
+///   ([`Share::merge_runs`]): what one process computes, bit for bit, for an engine that
+///   sums a chunk run after run ([`crate::experiment::Sampling::splits_runs`]). An
+///   evaluation of fewer chunks than shares (a search's 60 runs are one chunk) is then
+///   still computed by every share.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Share {
     index: usize,
     count: usize,
+    by_runs: bool,
 }
 
 impl Share {
     /// Every chunk: the one-process evaluation.
-    pub const WHOLE: Share = Share { index: 0, count: 1 };
+    pub const WHOLE: Share = Share {
+        index: 0,
+        count: 1,
+        by_runs: false,
+    };
 
-    /// Share `index` (0-based) of `count`; `index < count`.
+    /// Share `index` (0-based) of `count`, dealt by chunks; `index < count`.
     pub fn new(index: usize, count: usize) -> Result<Share, SettingError> {
         if count == 0 || index >= count {
             return Err(SettingError::new(
@@ -31,7 +45,19 @@ impl Share {
                 format!("{index} of {count}: the index must be below the count"),
             ));
         }
-        Ok(Share { index, count })
+        Ok(Share {
+            index,
+            count,
+            by_runs: false,
+        })
+    }
+
+    /// Share `index` (0-based) of `count`, dealt by runs within every chunk; `index <
+    /// count`.
+    pub fn runs(index: usize, count: usize) -> Result<Share, SettingError> {
+        let mut s = Share::new(index, count)?;
+        s.by_runs = count > 1;
+        Ok(s)
     }
 
     /// This share's index, 0-based.
@@ -49,38 +75,82 @@ impl Share {
         self.count == 1
     }
 
-    /// Whether chunk `c` is this share's.
+    /// Whether the runs of every chunk are dealt ([`Share::runs`]) rather than the chunks.
+    pub fn by_runs(&self) -> bool {
+        self.by_runs
+    }
+
+    /// Whether chunk `c` is this share's, whole or in part.
     pub fn owns_chunk(&self, c: usize) -> bool {
-        c % self.count == self.index
+        self.by_runs || c % self.count == self.index
     }
 
-    /// Whether run `r` is in one of this share's chunks.
-    pub fn owns_run(&self, r: usize) -> bool {
-        self.owns_chunk(r / CHUNK)
+    /// Whether run `r` of an evaluation of `runs` runs is one this share computes.
+    pub fn owns_run(&self, r: usize, runs: usize) -> bool {
+        self.runs_in_chunk(r / CHUNK, runs).contains(&r)
     }
 
-    /// This share's chunks of `chunks`, ascending.
+    /// The runs of chunk `c` of an evaluation of `runs` runs that this share computes
+    /// (empty if none).
+    pub fn runs_in_chunk(&self, c: usize, runs: usize) -> std::ops::Range<usize> {
+        let first = (c * CHUNK).min(runs);
+        let n = (runs - first).min(CHUNK);
+        if !self.owns_chunk(c) {
+            return first..first;
+        }
+        if !self.by_runs {
+            return first..first + n;
+        }
+        first + n * self.index / self.count..first + n * (self.index + 1) / self.count
+    }
+
+    /// This share's chunks of `chunks`, whole or in part, ascending.
     pub fn chunks(&self, chunks: usize) -> impl Iterator<Item = usize> + use<> {
-        (self.index..chunks).step_by(self.count)
+        let (from, step) = if self.by_runs {
+            (0, 1)
+        } else {
+            (self.index, self.count)
+        };
+        (from..chunks).step_by(step)
     }
 
-    /// Runs of `0..runs` that are in this share's chunks.
+    /// What this share hands on for an evaluation of `runs` runs, ascending: its chunks'
+    /// indices when dealt by chunks, its runs' indices when dealt by runs.
+    pub fn pieces(&self, runs: usize) -> Vec<usize> {
+        let chunks = self.chunks(runs.div_ceil(CHUNK));
+        if self.by_runs {
+            chunks.flat_map(|c| self.runs_in_chunk(c, runs)).collect()
+        } else {
+            chunks.collect()
+        }
+    }
+
+    /// Runs of `0..runs` that this share computes.
     pub fn runs_of(&self, runs: usize) -> usize {
         self.chunks(runs.div_ceil(CHUNK))
-            .map(|c| (runs - c * CHUNK).min(CHUNK))
+            .map(|c| self.runs_in_chunk(c, runs).len())
             .sum()
+    }
+
+    /// The first run of `0..runs` this share computes (`runs` if none).
+    pub fn first_run(&self, runs: usize) -> usize {
+        self.chunks(runs.div_ceil(CHUNK))
+            .map(|c| self.runs_in_chunk(c, runs))
+            .find(|r| !r.is_empty())
+            .map_or(runs, |r| r.start)
     }
 }
 
-/// Told each chunk's own sums, with the chunk's index, as a share computes them.
+/// Told each piece's own sums, with the piece's index, as a share computes them: a chunk's
+/// sums and its index, or (a share dealt by runs) a run's sums and its index.
 pub type ChunkSink<'a> = dyn Fn(usize, Accumulator) + Sync + 'a;
 
 /// A share of an evaluation's chunks and where their sums go.
 #[derive(Clone, Copy)]
 pub struct ShareOf<'a> {
-    /// Which chunks.
+    /// Which chunks, or which runs of each.
     pub share: Share,
-    /// Told each of them, in chunk order.
+    /// Told each of them, in order.
     pub sink: &'a ChunkSink<'a>,
 }
 
@@ -104,6 +174,15 @@ pub enum MergeError {
     /// A chunk beyond the evaluation's runs, or of another shape.
     #[error("chunk {0} does not belong to an evaluation of {1} runs")]
     Stray(usize, usize),
+    /// A run's sums are missing.
+    #[error("run {0} is in none of them")]
+    RunMissing(usize),
+    /// A run's sums came twice.
+    #[error("run {0} is in two of them")]
+    RunTwice(usize),
+    /// A run beyond the evaluation's runs, or sums of more than one run.
+    #[error("run {0} does not belong to an evaluation of {1} runs")]
+    RunStray(usize, usize),
 }
 
 impl Share {
@@ -139,6 +218,43 @@ impl Share {
         }
         Ok(empty)
     }
+
+    /// Each chunk's sums of an evaluation of `runs` runs from every run's own sums (any
+    /// order, from any shares dealt by runs): each chunk's runs added in run order into
+    /// fresh sums from `empty`, which is how one process sums a chunk, bit for bit. Every
+    /// run must be there once, with the sums of one run. The chunks, in order, are what
+    /// [`Share::merge`] takes.
+    pub fn merge_runs(
+        runs: usize,
+        empty: impl Fn() -> Accumulator,
+        mut parts: Vec<(usize, Accumulator)>,
+    ) -> Result<Vec<(usize, Accumulator)>, MergeError> {
+        parts.sort_by_key(|(r, _)| *r);
+        let mut chunks: Vec<(usize, Accumulator)> = Vec::with_capacity(runs.div_ceil(CHUNK));
+        let mut next = 0;
+        for (r, p) in &parts {
+            if *r >= runs || p.runs != 1 {
+                return Err(MergeError::RunStray(*r, runs));
+            }
+            if *r < next {
+                return Err(MergeError::RunTwice(*r));
+            }
+            if *r > next {
+                return Err(MergeError::RunMissing(next));
+            }
+            if r % CHUNK == 0 {
+                chunks.push((r / CHUNK, empty()));
+            }
+            if let Some((_, sums)) = chunks.last_mut() {
+                sums.merge(p);
+            }
+            next += 1;
+        }
+        if next < runs {
+            return Err(MergeError::RunMissing(next));
+        }
+        Ok(chunks)
+    }
 }
 
 #[cfg(test)]
@@ -167,6 +283,44 @@ mod tests {
         assert_eq!(total, runs);
         assert_eq!(Share::new(0, 3).unwrap().runs_of(runs), CHUNK + 5);
         assert!(Share::new(3, 3).is_err() && Share::new(0, 0).is_err());
+    }
+
+    #[test]
+    fn shares_by_runs_deal_every_run_once_in_slices_of_each_chunk() {
+        for count in 2..9 {
+            for runs in [0, 1, 5, 60, 64, 100, 200, 257] {
+                let mut seen = vec![0; runs];
+                let mut most = 0;
+                for index in 0..count {
+                    let s = Share::runs(index, count).unwrap();
+                    let pieces = s.pieces(runs);
+                    assert!(pieces.windows(2).all(|w| w[0] < w[1]));
+                    assert_eq!(pieces.len(), s.runs_of(runs));
+                    assert_eq!(pieces.first().copied().unwrap_or(runs), s.first_run(runs));
+                    for r in 0..runs {
+                        assert_eq!(s.owns_run(r, runs), pieces.contains(&r), "run {r}");
+                    }
+                    for r in pieces {
+                        seen[r] += 1;
+                    }
+                    most = most.max(s.runs_of(runs));
+                }
+                assert!(seen.iter().all(|&n| n == 1), "{count} shares of {runs}");
+                // Each chunk's slices differ by at most one run.
+                let chunks = runs.div_ceil(CHUNK);
+                assert!(most <= chunks * CHUNK.div_ceil(count), "{count} of {runs}");
+            }
+        }
+        // Dealt by chunks, a share's runs are whole chunks.
+        let s = Share::new(1, 2).unwrap();
+        assert_eq!(s.runs_in_chunk(1, 100), 64..100);
+        assert_eq!(s.runs_in_chunk(0, 100), 0..0);
+        assert_eq!(s.first_run(100), 64);
+        assert_eq!(s.pieces(200), vec![1, 3]);
+        // By runs, a chunk of 36 runs is sliced 18 and 18 between two shares.
+        let s = Share::runs(1, 2).unwrap();
+        assert_eq!(s.runs_in_chunk(1, 100), 82..100);
+        assert!(!Share::runs(0, 1).unwrap().by_runs());
     }
 
     fn part(runs: usize) -> Accumulator {

@@ -166,14 +166,15 @@ impl TruthSource for Replay<'_> {
     }
 }
 
-/// The truth of runs `0..runs.len()` of one seed set over `steps` steps, those of one share
-/// of the chunks ([`Share`]: the whole, but for a shard or an MPI rank).
+/// The truth of runs of `0..runs.len()` of one seed set over `steps` steps: those of the
+/// shares ([`Share`]) this process computed them for (the whole, but for a shard or an MPI
+/// rank, whose evaluations of one seed set are dealt by chunks or by runs as their run
+/// counts make them, and whose tape holds the union).
 #[derive(Debug)]
 pub struct TruthTape {
     seed: u64,
     steps: usize,
-    share: Share,
-    /// Run i's tape at index i; `None` for the runs of other shares.
+    /// Run i's tape at index i; `None` for the runs no share held computed.
     runs: Vec<Option<RunTape>>,
     bytes: usize,
 }
@@ -196,27 +197,39 @@ impl TruthTape {
         let mut tape = TruthTape {
             seed,
             steps,
-            share,
             runs: Vec::new(),
             bytes: 0,
         };
-        tape.extend(truth, runs);
+        tape.extend(truth, runs, share);
         tape
     }
 
-    /// Simulate the share's runs from `self.runs()` up to `runs`.
-    fn extend<M: TruthModel + ?Sized>(&mut self, truth: &M, runs: usize) {
-        let (seed, steps, share) = (self.seed, self.steps, self.share);
-        let more: Vec<Option<RunTape>> = (self.runs.len()..runs)
-            .into_par_iter()
-            .map(|run| {
-                share
-                    .owns_run(run)
-                    .then(|| RunTape::record(truth, seed, run, steps))
-            })
+    /// Simulate the share's runs of `0..runs` that the tape does not hold yet.
+    fn extend<M: TruthModel + ?Sized>(&mut self, truth: &M, runs: usize, share: Share) {
+        if self.runs.len() < runs {
+            self.runs.resize_with(runs, || None);
+        }
+        let missing: Vec<usize> = (0..runs)
+            .filter(|&r| share.owns_run(r, runs) && self.runs[r].is_none())
             .collect();
-        self.bytes += more.iter().flatten().map(RunTape::bytes).sum::<usize>();
-        self.runs.extend(more);
+        self.record_runs(truth, &missing, runs);
+    }
+
+    /// Simulate and hold runs `which` (below `runs`, none held yet), in parallel.
+    fn record_runs<M: TruthModel + ?Sized>(&mut self, truth: &M, which: &[usize], runs: usize) {
+        let (seed, steps) = (self.seed, self.steps);
+        let which: Vec<usize> = which.iter().copied().filter(|&r| r < runs).collect();
+        if self.runs.len() < runs {
+            self.runs.resize_with(runs, || None);
+        }
+        let more: Vec<RunTape> = which
+            .par_iter()
+            .map(|&run| RunTape::record(truth, seed, run, steps))
+            .collect();
+        self.bytes += more.iter().map(RunTape::bytes).sum::<usize>();
+        for (r, t) in which.into_iter().zip(more) {
+            self.runs[r] = Some(t);
+        }
     }
 
     /// Runs held.
@@ -229,12 +242,12 @@ impl TruthTape {
         self.bytes
     }
 
-    /// Whether this tape replays `mc`'s runs of `share`'s chunks.
+    /// Whether this tape replays `mc`'s runs of `share`.
     pub fn covers(&self, mc: &McConfig, share: Share) -> bool {
         self.seed == mc.seed()
             && self.steps == mc.steps()
-            && self.share == share
             && self.runs.len() >= mc.runs()
+            && (0..mc.runs()).all(|r| !share.owns_run(r, mc.runs()) || self.runs[r].is_some())
     }
 
     /// Run `run`'s tape: one of the share's runs below [`Self::runs`].
@@ -341,7 +354,12 @@ impl TruthCache {
 
     /// The tape of `mc`'s runs if this seed set was evaluated before and its tape fits the
     /// limit, recording (or extending) it now; `None`: simulate as usual. With it, whether
-    /// the tape was there already (the truth is replayed, not simulated).
+    /// the tape was there already (the truth is replayed, not simulated), as one process
+    /// holding every run would have it: a tape of at least `mc`'s runs. A share's runs
+    /// depend on the evaluation's run count when it is dealt by runs (an MPI rank's), so a
+    /// rank may find such a tape without the runs of its share, and tapes them now; the
+    /// count stays one process's, so that what a tune reports does not depend on the
+    /// ranks.
     fn find_or_record<M: TruthModel + ?Sized>(
         &self,
         truth: &M,
@@ -362,7 +380,7 @@ impl TruthCache {
             let shorter = s
                 .tapes
                 .iter()
-                .position(|t| (t.seed, t.steps, t.share) == key)
+                .position(|t| (t.seed, t.steps) == (mc.seed(), mc.steps()))
                 .map(|i| s.tapes.remove(i));
             let full = (mc.seed(), mc.steps(), mc.runs(), share);
             if shorter.is_none() && !s.seen.contains(&full) {
@@ -376,18 +394,24 @@ impl TruthCache {
         };
         // Recorded without the lock: an evaluation running beside this one (the engine is
         // parallel inside) must not wait on it, and a duplicate recording is only work.
+        let long_enough = shorter.as_ref().is_some_and(|t| t.runs.len() >= mc.runs());
         let mut tape = match shorter {
             Some(t) => Arc::try_unwrap(t).unwrap_or_else(|t| TruthTape {
                 seed: t.seed,
                 steps: t.steps,
-                share: t.share,
                 runs: Vec::new(),
                 bytes: 0,
             }),
             // The share's first run tells its size.
             None => {
-                let first = (share.index() * super::CHUNK + 1).min(mc.runs());
-                TruthTape::record_share(truth, mc.seed(), mc.steps(), first, share)
+                let mut tape = TruthTape {
+                    seed: mc.seed(),
+                    steps: mc.steps(),
+                    runs: Vec::new(),
+                    bytes: 0,
+                };
+                tape.record_runs(truth, &[share.first_run(mc.runs())], mc.runs());
+                tape
             }
         };
         let held = tape.runs.iter().flatten().count();
@@ -396,15 +420,16 @@ impl TruthCache {
             self.lock().too_large.push(key);
             return (None, false);
         }
-        tape.extend(truth, mc.runs());
+        tape.extend(truth, mc.runs(), share);
         let tape = Arc::new(tape);
         let mut s = self.lock();
-        s.tapes.retain(|t| (t.seed, t.steps, t.share) != key);
+        s.tapes
+            .retain(|t| (t.seed, t.steps) != (mc.seed(), mc.steps()));
         let mut held: usize = s.tapes.iter().map(|t| t.bytes).sum();
         while held + tape.bytes > self.limit && !s.tapes.is_empty() {
             held -= s.tapes.remove(0).bytes;
         }
         s.tapes.push(Arc::clone(&tape));
-        (Some(tape), false)
+        (Some(tape), long_enough)
     }
 }

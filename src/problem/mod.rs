@@ -223,6 +223,10 @@ impl crate::experiment::Sampling for Problem {
         self.experiment().seed_free()
     }
 
+    fn splits_runs(&self) -> bool {
+        self.experiment().splits_runs()
+    }
+
     fn truth_reuse(&self, since: crate::montecarlo::TapeUsage) -> crate::experiment::TruthReuse {
         self.experiment().truth_reuse(since)
     }

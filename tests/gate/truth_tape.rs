@@ -80,6 +80,57 @@ fn shares_tape_their_own_runs_and_merge_to_the_whole() {
     assert!((ratio - 2.0).abs() < 0.1, "{first} vs {third} bytes");
 }
 
+/// Issue 41: an MPI rank's evaluations of one seed set dealt by runs, at run counts that
+/// slice each chunk differently (the last chunk of 200 runs holds 8, of 800 runs 32), and
+/// by chunks: each share's tape gains the runs it lacks, the runs merged in run order are
+/// the one-process sums bit for bit at every evaluation, and every share counts its tape
+/// usage as the one process does.
+#[test]
+fn shares_dealt_by_runs_tape_the_runs_each_deal_gives_them_and_count_as_one_process() {
+    let (model, mc) = shipped("ctrv");
+    let filter = model.filter(&model.truth_values());
+    let one = TruthCache::default();
+    let caches: Vec<TruthCache> = (0..3).map(|_| TruthCache::default()).collect();
+    for (k, (runs, by_runs)) in [
+        (800, false),
+        (800, false),
+        (200, true),
+        (300, true),
+        (200, true),
+    ]
+    .into_iter()
+    .enumerate()
+    {
+        let mc = mc.with_runs(runs).unwrap();
+        let whole = run_generic_cached(model.truth(), &filter, &mc, Default::default(), &one);
+        let parts = std::sync::Mutex::new(Vec::new());
+        let sink = |c: usize, sums: Accumulator| parts.lock().unwrap().push((c, sums));
+        for (i, cache) in caches.iter().enumerate() {
+            let share = if by_runs {
+                Share::runs(i, 3).unwrap()
+            } else {
+                Share::new(i, 3).unwrap()
+            };
+            let options = RunOptions {
+                share: Some(ShareOf { share, sink: &sink }),
+                ..RunOptions::default()
+            };
+            run_generic_cached(model.truth(), &filter, &mc, options, cache);
+            assert_eq!(cache.usage(), one.usage(), "evaluation {k}, share {i}");
+        }
+        let mut parts = parts.into_inner().unwrap();
+        let empty = || Accumulator::new(mc.steps(), 5, 5, mc.lags());
+        if by_runs {
+            parts = Share::merge_runs(mc.runs(), empty, parts).unwrap();
+        }
+        let merged = Share::merge(mc.runs(), empty(), parts).unwrap();
+        assert_same(&whole, &merged, &format!("evaluation {k} ({runs} runs)"));
+    }
+    // 800, 800 (taped), then 200, 300 and 200 from the tape, one process and shares alike.
+    let usage = one.usage();
+    assert_eq!((usage.simulated, usage.replayed), (2, 3), "{usage:?}");
+}
+
 #[test]
 fn replayed_catalog_truth_gives_the_simulated_sums_bit_for_bit() {
     for name in ["ctrv", "orbit2d", "ins_gnss"] {

@@ -12,6 +12,8 @@
 //!   none). 4 ranks on this 2-core machine share cores, which wall time would measure; the
 //!   busiest rank's CPU time is what a rank would take on a node of its own, short of the
 //!   network.
+//! - `one_process_tune/ctrv/T` and `one_process_tune/ins_gnss/T`: the same tunes in one
+//!   process (no launcher) on T = 1 and 2 threads (`RAYON_NUM_THREADS`), wall time.
 //!
 //! Needs the `autotune` built with `--features mpi` in AUTOTUNE_MPI_BIN, and `mpirun`;
 //! skipped without them. With AUTOTUNE_MPI_STATS set, rank 0 prints the communication of
@@ -133,6 +135,28 @@ fn ranks(c: &mut Criterion) {
                     (0..iters)
                         .map(|_| busiest_rank(&bin, k, dir.path(), &args))
                         .sum()
+                })
+            });
+        }
+    }
+    g.finish();
+    let mut g = c.benchmark_group("one_process_tune");
+    g.sample_size(10);
+    for name in ["ctrv", "ins_gnss"] {
+        let problem = repo(&format!("problems/{name}.toml"));
+        for threads in [1, 2] {
+            let dir = tempfile::tempdir().unwrap();
+            let args = ["tune", problem.to_str().unwrap(), "--quiet"];
+            g.bench_function(format!("{name}/{threads}"), |b| {
+                b.iter(|| {
+                    let status = Command::new(&bin)
+                        .args(args)
+                        .current_dir(dir.path())
+                        .env("RAYON_NUM_THREADS", threads.to_string())
+                        .stdout(Stdio::null())
+                        .status()
+                        .expect("autotune runs");
+                    assert!(status.success(), "{args:?} on {threads} threads: {status}");
                 })
             });
         }

@@ -288,8 +288,8 @@ fn tune_outputs(dir: &Path, out: &Out) -> Checked {
     }
 }
 
-/// `tune problem` in one process (on 1 thread, and on 2) and under `mpirun -np 2` and
-/// `-np 3`: the same JSON, report and tuned config.
+/// `tune problem` in one process (on 1 thread, and on 2) and under `mpirun -np 1`, `-np 2`
+/// and `-np 3`: the same JSON, report and tuned config.
 fn tune_one_and_ranks(problem: &str, name: &str) {
     let args = ["tune", problem, "--json", "--report", "report"];
     let on_threads = |threads: &str| {
@@ -308,7 +308,7 @@ fn tune_one_and_ranks(problem: &str, name: &str) {
     assert!(!single.junit.is_empty(), "{name}: a tuned config");
     assert_eq!(on_threads("2"), single, "{name} tuned on 2 threads");
     let Some(bin) = mpi_bin() else { return };
-    for ranks in [2, 3] {
+    for ranks in [1, 2, 3] {
         let dir = tempfile::tempdir().unwrap();
         let out = output(&mut mpirun(&bin, ranks, dir.path(), &args, &[]));
         assert_eq!(

@@ -137,13 +137,14 @@ fn share(
     if stats {
         let s = ranked.stats();
         eprintln!(
-            "mpi: {} ranks, {} shared evaluations ({} by runs), {} request bytes, {} answer bytes, {:.3} s waiting for answers",
+            "mpi: {} ranks, {} shared evaluations ({} by runs), {} request bytes, {} answer bytes, {:.3} s waiting for answers, {:.3} s merging them",
             world.size(),
             s.evaluations,
             s.by_runs,
             s.request_bytes,
             s.answer_bytes,
-            s.waiting_s
+            s.waiting_s,
+            s.merging_s
         );
     }
     stop(world);

@@ -38,7 +38,7 @@ use super::{deal_by_runs, empty_sums, share_sums};
 use crate::experiment::{
     Block, Covariances, Definition, Experiment, ExperimentError, LinearExperiment, TruthReuse,
 };
-use crate::montecarlo::{Engine, McConfig, RunOptions, Share, TapeUsage};
+use crate::montecarlo::{Engine, McConfig, RunMerge, RunOptions, Share, TapeUsage};
 use crate::params::Target;
 use crate::stats::Accumulator;
 
@@ -128,6 +128,9 @@ pub struct CommStats {
     pub answer_bytes: usize,
     /// Time rank 0 spent waiting for answers after its own share was done, s.
     pub waiting_s: f64,
+    /// Time rank 0 spent decoding the answers and merging every rank's sums, s: work no
+    /// other rank shares.
+    pub merging_s: f64,
 }
 
 /// An experiment whose evaluations rank 0 shares among the job's ranks; everything else is
@@ -181,40 +184,60 @@ impl<'a> Ranked<'a> {
                 .send_with_tag(&request[..], REQUEST);
         }
         let own = request_share(0, size, by_runs).expect("rank 0 of a job of size >= 1");
-        let mut parts = share_sums(self.inner, theta, mc, options, own)?;
-        let waiting = Instant::now();
-        let mut answer_bytes = 0;
-        for _ in 1..size {
-            let (bytes, rank) = receive(self.world, None, tag);
-            answer_bytes += bytes.len();
-            let theirs = decode_answer(&bytes, mc, self.inner, by_runs).map_err(|why| {
-                ExperimentError::Rank {
-                    rank,
-                    ranks: size,
-                    message: format!("its answer: {why}"),
-                }
-            })?;
-            parts.extend(theirs);
-        }
-        let waited = waiting.elapsed();
-        {
-            let mut s = self.stats.lock().unwrap_or_else(|p| p.into_inner());
-            s.evaluations += 1;
-            s.by_runs += usize::from(by_runs);
-            s.request_bytes += request.len() * (size - 1);
-            s.answer_bytes += answer_bytes;
-            s.waiting_s += waited.as_secs_f64();
-        }
-        let refused = |e: crate::montecarlo::MergeError| ExperimentError::Rank {
-            rank: 0,
+        let mine = share_sums(self.inner, theta, mc, options, own)?;
+        let refused = |rank: usize, message: String| ExperimentError::Rank {
+            rank,
             ranks: size,
-            message: format!("the ranks' sums: {e}"),
+            message,
         };
-        if by_runs {
-            let empty = || empty_sums(self.inner, mc);
-            parts = Share::merge_runs(mc.runs(), empty, parts).map_err(refused)?;
+        let merge_error =
+            |e: crate::montecarlo::MergeError| refused(0, format!("the ranks' sums: {e}"));
+        // Dealt by runs, every chunk's runs come rank by rank in rank order, each rank's
+        // in run order: added into the chunks' sums as each answer comes, rank 0 holds the
+        // chunks' sums and one answer. Dealt by chunks, it holds every chunk's sums.
+        let mut by_run = by_runs.then(|| RunMerge::new(mc.runs(), || empty_sums(self.inner, mc)));
+        let mut parts = Vec::new();
+        let (mut waited, mut merging, mut answer_bytes) = (Duration::ZERO, Duration::ZERO, 0);
+        let mut take = |theirs: Vec<(usize, Accumulator)>| -> Result<(), ExperimentError> {
+            match by_run.as_mut() {
+                Some(m) => theirs
+                    .iter()
+                    .try_for_each(|(r, sums)| m.add(*r, sums))
+                    .map_err(merge_error),
+                None => {
+                    parts.extend(theirs);
+                    Ok(())
+                }
+            }
+        };
+        take(mine)?;
+        for rank in 1..size {
+            let waiting = Instant::now();
+            // By runs, in rank order; by chunks, whichever answers first.
+            let (bytes, from) = receive(self.world, by_runs.then_some(rank), tag);
+            let decoding = Instant::now();
+            waited += decoding - waiting;
+            answer_bytes += bytes.len();
+            let theirs = decode_answer(&bytes, mc, self.inner, by_runs)
+                .map_err(|why| refused(from, format!("its answer: {why}")))?;
+            take(theirs)?;
+            merging += decoding.elapsed();
         }
-        Share::merge(mc.runs(), empty_sums(self.inner, mc), parts).map_err(refused)
+        let finishing = Instant::now();
+        if let Some(m) = by_run {
+            parts = m.finish().map_err(merge_error)?;
+        }
+        let merged =
+            Share::merge(mc.runs(), empty_sums(self.inner, mc), parts).map_err(merge_error);
+        merging += finishing.elapsed();
+        let mut s = self.stats.lock().unwrap_or_else(|p| p.into_inner());
+        s.evaluations += 1;
+        s.by_runs += usize::from(by_runs);
+        s.request_bytes += request.len() * (size - 1);
+        s.answer_bytes += answer_bytes;
+        s.waiting_s += waited.as_secs_f64();
+        s.merging_s += merging.as_secs_f64();
+        merged
     }
 }
 

@@ -26,7 +26,7 @@ pub use generic::{
     NULL_VAR_STRIDE, innovation_scales, run_generic, run_generic_cached, run_generic_with,
 };
 pub use linear::{run_linear, run_linear_with};
-pub use share::{CHUNK, ChunkSink, MergeError, Share, ShareOf};
+pub use share::{CHUNK, ChunkSink, MergeError, RunMerge, Share, ShareOf};
 pub use tape::{TapeUsage, TruthCache, TruthTape};
 pub use truth_moments::{SharedTrack, TruthTrack};
 

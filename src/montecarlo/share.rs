@@ -220,9 +220,8 @@ impl Share {
     }
 
     /// Each chunk's sums of an evaluation of `runs` runs from every run's own sums (any
-    /// order, from any shares dealt by runs): each chunk's runs added in run order into
-    /// fresh sums from `empty`, which is how one process sums a chunk, bit for bit. Every
-    /// run must be there once, with the sums of one run. The chunks, in order, are what
+    /// order, from any shares dealt by runs), through a [`RunMerge`] in run order. Every run
+    /// must be there once, with the sums of one run. The chunks, in order, are what
     /// [`Share::merge`] takes.
     pub fn merge_runs(
         runs: usize,
@@ -230,30 +229,71 @@ impl Share {
         mut parts: Vec<(usize, Accumulator)>,
     ) -> Result<Vec<(usize, Accumulator)>, MergeError> {
         parts.sort_by_key(|(r, _)| *r);
-        let mut chunks: Vec<(usize, Accumulator)> = Vec::with_capacity(runs.div_ceil(CHUNK));
-        let mut next = 0;
+        let mut merge = RunMerge::new(runs, empty);
         for (r, p) in &parts {
-            if *r >= runs || p.runs != 1 {
-                return Err(MergeError::RunStray(*r, runs));
-            }
-            if *r < next {
-                return Err(MergeError::RunTwice(*r));
-            }
-            if *r > next {
-                return Err(MergeError::RunMissing(next));
-            }
-            if r % CHUNK == 0 {
-                chunks.push((r / CHUNK, empty()));
-            }
-            if let Some((_, sums)) = chunks.last_mut() {
-                sums.merge(p);
-            }
-            next += 1;
+            merge.add(*r, p)?;
         }
-        if next < runs {
-            return Err(MergeError::RunMissing(next));
+        merge.finish()
+    }
+}
+
+/// Chunk sums built from runs' own sums as they arrive: each run added into its chunk's
+/// sums, which must get its runs in run order (runs of different chunks may interleave).
+/// That is how one process sums a chunk, bit for bit. Shares dealt by runs
+/// ([`Share::runs`]) handed in share by share, in index order, give every chunk its runs in
+/// order: memory is one set of sums a chunk, however many runs arrive.
+#[derive(Debug)]
+pub struct RunMerge {
+    runs: usize,
+    /// Each chunk's sums so far, and its next run.
+    chunks: Vec<(Accumulator, usize)>,
+}
+
+impl RunMerge {
+    /// For an evaluation of `runs` runs; `empty` gives fresh sums of its shape.
+    pub fn new(runs: usize, empty: impl Fn() -> Accumulator) -> Self {
+        RunMerge {
+            runs,
+            chunks: (0..runs.div_ceil(CHUNK))
+                .map(|c| (empty(), c * CHUNK))
+                .collect(),
         }
-        Ok(chunks)
+    }
+
+    /// Run `r`'s own sums `sums`, which must be one run's and the next run of its chunk.
+    pub fn add(&mut self, r: usize, sums: &Accumulator) -> Result<(), MergeError> {
+        let stray = MergeError::RunStray(r, self.runs);
+        let Some((acc, next)) = self.chunks.get_mut(r / CHUNK) else {
+            return Err(stray);
+        };
+        if r >= self.runs || sums.runs != 1 {
+            return Err(stray);
+        }
+        if r < *next {
+            return Err(MergeError::RunTwice(r));
+        }
+        if r > *next {
+            return Err(MergeError::RunMissing(*next));
+        }
+        acc.merge(sums);
+        *next += 1;
+        Ok(())
+    }
+
+    /// Each chunk's sums with its index, in chunk order, once every run was added.
+    pub fn finish(self) -> Result<Vec<(usize, Accumulator)>, MergeError> {
+        let runs = self.runs;
+        self.chunks
+            .into_iter()
+            .enumerate()
+            .map(|(c, (acc, next))| {
+                if next < (c * CHUNK + CHUNK).min(runs) {
+                    Err(MergeError::RunMissing(next))
+                } else {
+                    Ok((c, acc))
+                }
+            })
+            .collect()
     }
 }
 
@@ -321,6 +361,33 @@ mod tests {
         let s = Share::runs(1, 2).unwrap();
         assert_eq!(s.runs_in_chunk(1, 100), 82..100);
         assert!(!Share::runs(0, 1).unwrap().by_runs());
+    }
+
+    #[test]
+    fn a_run_merge_takes_each_chunks_runs_in_run_order_and_every_run_once() {
+        let runs = CHUNK + 3;
+        let empty = || Accumulator::new(2, 1, 1, 1);
+        // Shares by runs, in index order: chunks interleave, each chunk's runs in order.
+        let mut m = RunMerge::new(runs, empty);
+        for i in 0..3 {
+            for r in Share::runs(i, 3).unwrap().pieces(runs) {
+                m.add(r, &part(1)).unwrap();
+            }
+        }
+        let chunks = m.finish().unwrap();
+        assert_eq!(
+            chunks.iter().map(|(c, a)| (*c, a.runs)).collect::<Vec<_>>(),
+            [(0, CHUNK), (1, 3)]
+        );
+        // Out of order within a chunk, twice, beyond the runs, more than one run's sums.
+        let mut m = RunMerge::new(runs, empty);
+        assert_eq!(m.add(1, &part(1)), Err(MergeError::RunMissing(0)));
+        m.add(0, &part(1)).unwrap();
+        assert_eq!(m.add(0, &part(1)), Err(MergeError::RunTwice(0)));
+        assert_eq!(m.add(runs, &part(1)), Err(MergeError::RunStray(runs, runs)));
+        assert_eq!(m.add(1, &part(2)), Err(MergeError::RunStray(1, runs)));
+        // A run never given.
+        assert_eq!(m.finish().unwrap_err(), MergeError::RunMissing(1));
     }
 
     fn part(runs: usize) -> Accumulator {

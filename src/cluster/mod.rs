@@ -265,6 +265,83 @@ mod tests {
         );
     }
 
+    /// One share of `count` dealt by runs of `e`'s evaluation at its values, with the
+    /// progress it reported last.
+    fn by_runs(
+        e: &dyn Experiment,
+        mc: &McConfig,
+        i: usize,
+        count: usize,
+    ) -> (Vec<(usize, Accumulator)>, usize) {
+        let done = Mutex::new(0);
+        let progress = |n: usize| *done.lock().unwrap() = n;
+        let options = RunOptions {
+            progress: Some(&progress),
+            ..RunOptions::default()
+        };
+        let share = Share::runs(i, count).unwrap();
+        let own = share_sums(e, &e.params().values(), mc, options, share).unwrap();
+        let done = *done.lock().unwrap();
+        (own, done)
+    }
+
+    #[test]
+    fn models_held_as_code_split_by_runs_through_every_wrapper_and_report_their_runs_done() {
+        use crate::experiment::{Rebounded, RustModel, Sampling};
+        use crate::filter::KalmanFilter;
+        use crate::model::LinearGaussianModel;
+        use crate::montecarlo::RunMerge;
+        use crate::params::{ParamDef, Target};
+        use nalgebra::{DMatrix, DVector};
+        let (catalog, linear) = (ctrv(), cv2d());
+        assert!(catalog.splits_runs() && !linear.splits_runs());
+        let bounds = vec![(1e-9, 1e9); catalog.params().params.len()];
+        assert!(Rebounded::new(&catalog, &bounds).splits_runs());
+        let bounds = vec![(1e-9, 1e9); linear.params().params.len()];
+        assert!(!Rebounded::new(&linear, &bounds).splits_runs());
+        // A Rust model runs the generic engine: its shares by runs are its sums.
+        let one = DMatrix::identity(1, 1);
+        let truth = LinearGaussianModel::new(
+            one.clone(),
+            one.clone(),
+            &one * 0.1,
+            &one * 2.0,
+            DVector::zeros(1),
+            one.clone(),
+        )
+        .unwrap();
+        let filter = |theta: &[f64]| KalmanFilter {
+            F: DMatrix::identity(1, 1),
+            H: DMatrix::identity(1, 1),
+            Q: DMatrix::identity(1, 1) * 0.1,
+            R: DMatrix::identity(1, 1) * theta[0],
+            x0: DVector::zeros(1),
+            P0: DMatrix::identity(1, 1),
+        };
+        let mc = McConfig::new(70, 15).unwrap().with_seed(4);
+        let model = RustModel::builder("walk", truth, filter)
+            .states(["x"])
+            .measurements(["z"])
+            .param(ParamDef::new("r", 2.0), Target::measurement(&[0]))
+            .montecarlo(mc)
+            .build()
+            .unwrap();
+        let whole = model.monte_carlo(&[2.0], &mc).unwrap();
+        let mut merge = RunMerge::new(mc.runs(), || empty_sums(&model, &mc));
+        for i in 0..2 {
+            let (own, done) = by_runs(&model, &mc, i, 2);
+            assert_eq!(done, Share::runs(i, 2).unwrap().runs_of(mc.runs()));
+            for (r, sums) in &own {
+                merge.add(*r, sums).unwrap();
+            }
+        }
+        let chunks = merge.finish().unwrap();
+        assert_eq!(
+            Share::merge(mc.runs(), empty_sums(&model, &mc), chunks).unwrap(),
+            whole
+        );
+    }
+
     #[test]
     fn evaluations_are_dealt_by_runs_where_that_gives_the_busiest_rank_a_tenth_fewer() {
         // One chunk: by runs on any ranks, if the experiment allows.
@@ -280,7 +357,10 @@ mod tests {
         assert!(deal_by_runs(256, 3, true));
         // 800 runs on 2 ranks: 416 by chunks, 400 by runs, under a tenth.
         assert!(!deal_by_runs(800, 2, true));
-        // At four chunks a rank and more, chunks.
+        // At four chunks a rank and more, chunks: 13 chunks of 64 on 8 ranks are 128 runs
+        // for the busiest by chunks and 104 by runs; 33 on 8 are past four a rank.
+        assert!(deal_by_runs(64 * 13, 8, true));
+        assert!(!deal_by_runs(64 * 32 + 1, 8, true));
         assert!(!deal_by_runs(64 * 8 + 1, 2, true));
     }
 
@@ -310,6 +390,20 @@ mod tests {
         assert!(shape.decode(1, &first).is_err());
         let other = SumsShape { n_z: 3, ..shape };
         assert!(other.decode(0, &first).is_err());
+        // A run's own sums, dealt by runs, go over the wire as that run's alone.
+        let share = Share::runs(1, 2).unwrap();
+        let runs = share_sums(e, &theta, &mc, RunOptions::default(), share);
+        assert!(runs.is_err(), "cv2d's linear path does not split by runs");
+        let q = ctrv();
+        let c = q.experiment();
+        let cshape = SumsShape::of(c, &mc);
+        let (own, _) = by_runs(c, &mc, 1, 2);
+        for (r, sums) in &own {
+            let bytes = cshape.encode_run(*r, sums);
+            assert_eq!(&cshape.decode_run(*r, &bytes).unwrap(), sums);
+            assert!(cshape.decode_run(r + 1, &bytes).is_err());
+            assert!(cshape.decode(0, &bytes).is_err());
+        }
     }
 
     #[test]

@@ -48,10 +48,19 @@ fn busiest_rank(bin: &Path, ranks: usize, dir: &Path, args: &[&str]) -> Duration
         .expect("mpirun runs");
     assert!(out.status.success(), "{args:?} on {ranks} ranks");
     let said = String::from_utf8_lossy(&out.stderr);
+    // Each rank writes its line at once, but search the whole text rather than lines: a
+    // launcher's own messages may still fall between.
     let cpu: Vec<f64> = said
-        .lines()
-        .filter_map(|l| l.strip_prefix("mpi: rank ")?.split(": ").nth(1))
-        .filter_map(|t| t.strip_suffix(" s of CPU")?.parse().ok())
+        .split("mpi: rank ")
+        .skip(1)
+        .filter_map(|t| {
+            t.split(" s of CPU")
+                .next()?
+                .split(": ")
+                .nth(1)?
+                .parse()
+                .ok()
+        })
         .collect();
     assert_eq!(cpu.len(), ranks, "every rank's CPU time: {said}");
     let busiest = cpu.into_iter().fold(0.0_f64, f64::max);

@@ -31,7 +31,7 @@ pub(super) fn main(args: impl IntoIterator<Item = OsString>) -> ExitCode {
     if size == 1 {
         let code = finish(run(args));
         if std::env::var_os("AUTOTUNE_MPI_STATS").is_some() {
-            eprintln!("mpi: rank 0 of 1: {:.3} s of CPU", cpu_seconds());
+            say(format!("mpi: rank 0 of 1: {:.3} s of CPU", cpu_seconds()));
         }
         return code;
     }
@@ -120,11 +120,11 @@ fn share(
     let stats = std::env::var_os("AUTOTUNE_MPI_STATS").is_some();
     let cpu = |rank: usize| {
         if stats {
-            eprintln!(
+            say(format!(
                 "mpi: rank {rank} of {}: {:.3} s of CPU",
                 world.size(),
                 cpu_seconds()
-            );
+            ));
         }
     };
     if world.rank() != 0 {
@@ -136,7 +136,7 @@ fn share(
     let code = command(&ranked)?;
     if stats {
         let s = ranked.stats();
-        eprintln!(
+        say(format!(
             "mpi: {} ranks, {} shared evaluations ({} by runs), {} request bytes, {} answer bytes, {:.3} s waiting for answers, {:.3} s merging them",
             world.size(),
             s.evaluations,
@@ -145,9 +145,16 @@ fn share(
             s.answer_bytes,
             s.waiting_s,
             s.merging_s
-        );
+        ));
     }
     stop(world);
     cpu(0);
     Ok(code)
+}
+
+/// `line` on stderr in one write: the ranks share mpirun's stderr, where a line written in
+/// pieces would interleave with another rank's.
+fn say(line: String) {
+    use std::io::Write;
+    let _ = std::io::stderr().write_all(format!("{line}\n").as_bytes());
 }

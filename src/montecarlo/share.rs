@@ -388,6 +388,12 @@ mod tests {
         assert_eq!(m.add(1, &part(2)), Err(MergeError::RunStray(1, runs)));
         // A run never given.
         assert_eq!(m.finish().unwrap_err(), MergeError::RunMissing(1));
+        // The second chunk short of its end.
+        let mut m = RunMerge::new(runs, empty);
+        for r in 0..CHUNK + 2 {
+            m.add(r, &part(1)).unwrap();
+        }
+        assert_eq!(m.finish().unwrap_err(), MergeError::RunMissing(CHUNK + 2));
     }
 
     fn part(runs: usize) -> Accumulator {

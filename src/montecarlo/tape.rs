@@ -206,9 +206,7 @@ impl TruthTape {
 
     /// Simulate the share's runs of `0..runs` that the tape does not hold yet.
     fn extend<M: TruthModel + ?Sized>(&mut self, truth: &M, runs: usize, share: Share) {
-        if self.runs.len() < runs {
-            self.runs.resize_with(runs, || None);
-        }
+        self.runs.resize_with(self.runs.len().max(runs), || None);
         let missing: Vec<usize> = (0..runs)
             .filter(|&r| share.owns_run(r, runs) && self.runs[r].is_none())
             .collect();
@@ -219,9 +217,7 @@ impl TruthTape {
     fn record_runs<M: TruthModel + ?Sized>(&mut self, truth: &M, which: &[usize], runs: usize) {
         let (seed, steps) = (self.seed, self.steps);
         let which: Vec<usize> = which.iter().copied().filter(|&r| r < runs).collect();
-        if self.runs.len() < runs {
-            self.runs.resize_with(runs, || None);
-        }
+        self.runs.resize_with(self.runs.len().max(runs), || None);
         let more: Vec<RunTape> = which
             .par_iter()
             .map(|&run| RunTape::record(truth, seed, run, steps))
@@ -431,5 +427,59 @@ impl TruthCache {
         }
         s.tapes.push(Arc::clone(&tape));
         (Some(tape), long_enough)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use nalgebra::{DMatrix, DVector};
+
+    use super::*;
+    use crate::model::LinearGaussianModel;
+
+    fn walk() -> LinearGaussianModel {
+        let one = DMatrix::identity(1, 1);
+        LinearGaussianModel::new(
+            one.clone(),
+            one.clone(),
+            &one * 0.1,
+            one.clone(),
+            DVector::zeros(1),
+            one,
+        )
+        .unwrap()
+    }
+
+    #[test]
+    fn a_tape_holds_the_runs_of_the_shares_it_was_given_and_covers_only_those() {
+        let truth = walk();
+        let mc = McConfig::new(100, 5).unwrap().with_seed(3);
+        let (first, second) = (Share::runs(0, 2).unwrap(), Share::runs(1, 2).unwrap());
+        let whole = TruthTape::record(&truth, 3, 5, 100);
+        let mut tape = TruthTape::record_share(&truth, 3, 5, 100, second);
+        assert_eq!(tape.runs(), 100);
+        assert!(tape.covers(&mc, second));
+        assert!(!tape.covers(&mc, first) && !tape.covers(&mc, Share::WHOLE));
+        assert!(!tape.covers(&mc.with_seed(4), second));
+        assert!(!tape.covers(&mc.with_steps(6).unwrap(), second));
+        assert!(!tape.covers(&mc.with_runs(101).unwrap(), second));
+        // Fewer runs, dealt by runs, are other runs of each chunk: not held.
+        assert!(!tape.covers(&mc.with_runs(90).unwrap(), second));
+        let half = tape.bytes();
+        assert!(half > 0 && half < whole.bytes());
+        // The other share's runs join them, each run once: the whole tape's bytes.
+        tape.extend(&truth, 100, first);
+        assert!(tape.covers(&mc, Share::WHOLE) && tape.covers(&mc, first));
+        assert_eq!(tape.bytes(), whole.bytes());
+        tape.extend(&truth, 100, Share::WHOLE);
+        assert_eq!(tape.bytes(), whole.bytes());
+        // More runs than held: the tape grows to them.
+        tape.extend(&truth, 130, second);
+        assert_eq!(tape.runs(), 130);
+        assert!(tape.covers(&mc.with_runs(130).unwrap(), second));
+        // A run at or past the runs asked for is not recorded.
+        let before = tape.bytes();
+        tape.record_runs(&truth, &[130], 130);
+        assert_eq!((tape.runs(), tape.bytes()), (130, before));
     }
 }

@@ -482,4 +482,40 @@ mod tests {
         tape.record_runs(&truth, &[130], 130);
         assert_eq!((tape.runs(), tape.bytes()), (130, before));
     }
+
+    #[test]
+    fn a_cache_tapes_at_the_second_evaluation_and_counts_as_one_process_across_deals() {
+        let truth = walk();
+        let mc = |runs: usize, seed: u64| McConfig::new(runs, 5).unwrap().with_seed(seed);
+        let cache = TruthCache::default();
+        let usage = |c: &TruthCache| (c.usage().simulated, c.usage().replayed);
+        assert!(cache.tape(&truth, &mc(200, 3), Share::WHOLE).is_none());
+        let t = cache.tape(&truth, &mc(200, 3), Share::WHOLE).unwrap();
+        assert!(t.covers(&mc(200, 3), Share::WHOLE));
+        assert!(cache.tape(&truth, &mc(200, 4), Share::WHOLE).is_none());
+        assert!(cache.tape(&truth, &mc(200, 4), Share::WHOLE).is_some());
+        assert_eq!(usage(&cache), (4, 0));
+        // Fewer runs replay; more runs extend the same seed set's tape, the other kept.
+        assert!(cache.tape(&truth, &mc(100, 3), Share::WHOLE).is_some());
+        let t = cache.tape(&truth, &mc(300, 3), Share::WHOLE).unwrap();
+        assert!(t.covers(&mc(300, 3), Share::WHOLE) && t.seed == 3);
+        assert_eq!(usage(&cache), (5, 1));
+        assert!(cache.tape(&truth, &mc(200, 4), Share::WHOLE).is_some());
+        assert_eq!(usage(&cache), (5, 2));
+        let whole = TruthTape::record(&truth, 3, 5, 300).bytes();
+        assert_eq!(
+            cache.bytes(),
+            whole + TruthTape::record(&truth, 4, 5, 200).bytes()
+        );
+        // A rank's share: taped by chunks at 200 runs, then dealt by runs at 100, whose runs
+        // it lacks: taped now, and counted as the one process counts it, replayed.
+        let rank = TruthCache::default();
+        let chunks = Share::new(0, 3).unwrap();
+        rank.tape(&truth, &mc(200, 3), chunks);
+        rank.tape(&truth, &mc(200, 3), chunks);
+        let runs = Share::runs(0, 3).unwrap();
+        let t = rank.tape(&truth, &mc(100, 3), runs).unwrap();
+        assert!(t.covers(&mc(100, 3), runs));
+        assert_eq!(usage(&rank), (2, 1));
+    }
 }

@@ -518,4 +518,17 @@ mod tests {
         assert!(t.covers(&mc(100, 3), runs));
         assert_eq!(usage(&rank), (2, 1));
     }
+
+    #[test]
+    fn a_tape_that_fits_the_limit_exactly_is_kept_and_one_a_byte_over_is_not() {
+        let truth = walk();
+        let mc = McConfig::new(100, 5).unwrap().with_seed(3);
+        let size = TruthTape::record(&truth, 3, 5, 100).bytes();
+        for (limit, kept) in [(size, true), (size - 1, false)] {
+            let cache = TruthCache::with_limit(limit);
+            cache.tape(&truth, &mc, Share::WHOLE);
+            let tape = cache.tape(&truth, &mc, Share::WHOLE);
+            assert_eq!(tape.is_some(), kept, "limit {limit} of {size} bytes");
+        }
+    }
 }

@@ -585,20 +585,26 @@ fn stop_rank(dir: &Path, args: &[&str], signal: i32, rank: usize) -> Option<Out>
     })
 }
 
+/// The job ended with exit 2, a line naming rank `rank` of 3 stopped by SIGTERM, and no
+/// verdict.
+fn stopped_by_sigterm(out: &Out, rank: usize) {
+    assert_eq!(out.code, Some(2), "{}", out.stderr);
+    let said = format!("error: rank {rank} of 3: stopped by signal 15");
+    assert!(
+        out.stderr.contains(&said),
+        "expected '{said}' in {}",
+        out.stderr
+    );
+    assert!(out.stdout.is_empty(), "no verdict: {}", out.stdout);
+}
+
 #[test]
 fn a_rank_stopped_mid_evaluation_ends_the_job_with_exit_2_naming_it() {
     for rank in [1, 0] {
         let Some(out) = kill_rank(libc::SIGTERM, rank) else {
             return;
         };
-        assert_eq!(out.code, Some(2), "{}", out.stderr);
-        let said = format!("error: rank {rank} of 3: stopped by signal 15");
-        assert!(
-            out.stderr.contains(&said),
-            "expected '{said}' in {}",
-            out.stderr
-        );
-        assert!(out.stdout.is_empty(), "no verdict: {}", out.stdout);
+        stopped_by_sigterm(&out, rank);
     }
 }
 
@@ -612,14 +618,7 @@ fn a_rank_stopped_mid_tune_while_evaluations_are_dealt_by_runs_ends_the_job_with
         let Some(out) = stop_rank(dir.path(), &["tune", &problem], libc::SIGTERM, rank) else {
             return;
         };
-        assert_eq!(out.code, Some(2), "{}", out.stderr);
-        let said = format!("error: rank {rank} of 3: stopped by signal 15");
-        assert!(
-            out.stderr.contains(&said),
-            "expected '{said}' in {}",
-            out.stderr
-        );
-        assert!(out.stdout.is_empty(), "no verdict: {}", out.stdout);
+        stopped_by_sigterm(&out, rank);
         assert!(
             !dir.path().join("tuned").exists(),
             "nothing written by a job that failed"

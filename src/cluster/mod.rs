@@ -23,7 +23,7 @@ use std::sync::{Mutex, PoisonError};
 use crate::experiment::{Experiment, ExperimentError};
 use crate::input::SettingError;
 use crate::montecarlo::{CHUNK, McConfig, RunOptions};
-use crate::records::{ChunkShape, ChunkSums, WireError, decode_sums_bytes, encode_sums_bytes};
+use crate::records::{ChunkShape, WireError, decode_sums_bytes, encode_sums_into};
 use crate::stats::Accumulator;
 
 /// The sums of `share`'s pieces of `experiment`'s evaluation at `theta` under `mc` (with
@@ -143,27 +143,34 @@ impl SumsShape {
     /// Chunk `c`'s sums in the sums format (the runs' fingerprints, which only a worker's
     /// seed-contract check reads, as zeros).
     fn encode(&self, c: usize, sums: &Accumulator) -> Vec<u8> {
-        self.encode_as(self.chunk(c), sums)
+        let mut out = Vec::new();
+        self.encode_into(&mut out, c, sums, false);
+        out
+    }
+
+    /// Appends piece `i`'s sums in the sums format to `out`: chunk `i`'s, or with `run`, run
+    /// `i`'s own.
+    fn encode_into(&self, out: &mut Vec<u8>, i: usize, sums: &Accumulator, run: bool) {
+        let shape = if run {
+            self.runs(i..i + 1)
+        } else {
+            self.chunk(i)
+        };
+        encode_sums_into(out, sums, &vec![0; shape.runs.len()], &shape);
     }
 
     /// Run `r`'s own sums in the sums format.
-    #[cfg_attr(not(feature = "mpi"), allow(dead_code))]
+    #[cfg(test)]
     fn encode_run(&self, r: usize, sums: &Accumulator) -> Vec<u8> {
-        self.encode_as(self.runs(r..r + 1), sums)
+        let mut out = Vec::new();
+        self.encode_into(&mut out, r, sums, true);
+        out
     }
 
     /// Run `r`'s own sums from the sums format, checked against a run's shape.
     #[cfg_attr(not(feature = "mpi"), allow(dead_code))]
     fn decode_run(&self, r: usize, bytes: &[u8]) -> Result<Accumulator, WireError> {
         decode_sums_bytes(bytes, &self.runs(r..r + 1)).map(|chunk| chunk.sums)
-    }
-
-    fn encode_as(&self, shape: ChunkShape, sums: &Accumulator) -> Vec<u8> {
-        let chunk = ChunkSums {
-            sums: sums.clone(),
-            prints: vec![0; shape.runs.len()],
-        };
-        encode_sums_bytes(&chunk, &shape)
     }
 
     /// Chunk `c`'s sums from the sums format, checked against its shape.

@@ -88,61 +88,98 @@ pub enum WireError {
     Divergence(usize),
 }
 
+// Each list of fields in wire order, once: as mutable borrows for decoding and as shared
+// ones for encoding (`$borrow` is `&mut` or `&`), so that the two orders cannot differ.
+macro_rules! vectors_of {
+    ($a:ident, $($borrow:tt)+) => {
+    [
+        ("nees_sum", false, $($borrow)+ $a.nees_sum),
+        ("nees_sq", false, $($borrow)+ $a.nees_sq),
+        ("nees_dof", false, $($borrow)+ $a.nees_dof),
+        ("nees_count", true, $($borrow)+ $a.nees_count),
+        ("nis_sum", false, $($borrow)+ $a.nis_sum),
+        ("nis_sq", false, $($borrow)+ $a.nis_sq),
+        ("nis_dof", false, $($borrow)+ $a.nis_dof),
+        ("nis_count", true, $($borrow)+ $a.nis_count),
+        ("state_comp_total", false, $($borrow)+ $a.state_comp_total),
+        ("state_comp_samples", true, $($borrow)+ $a.state_comp_samples),
+        ("state_comp_run_sum", false, $($borrow)+ $a.state_comp_run_sum),
+        ("state_comp_run_sq", false, $($borrow)+ $a.state_comp_run_sq),
+        ("state_comp_null_var", false, $($borrow)+ $a.state_comp_null_var),
+        ("state_mean_total", false, $($borrow)+ $a.state_mean_total),
+        ("state_mean_samples", true, $($borrow)+ $a.state_mean_samples),
+        ("state_mean_run_sq", false, $($borrow)+ $a.state_mean_run_sq),
+        ("state_mean_null_var", false, $($borrow)+ $a.state_mean_null_var),
+        ("meas_mean_total", false, $($borrow)+ $a.meas_mean_total),
+        ("meas_mean_run_sq", false, $($borrow)+ $a.meas_mean_run_sq),
+        ("meas_comp_total", false, $($borrow)+ $a.meas_comp_total),
+        ("meas_comp_samples", true, $($borrow)+ $a.meas_comp_samples),
+        ("meas_comp_run_sum", false, $($borrow)+ $a.meas_comp_run_sum),
+        ("meas_comp_run_sq", false, $($borrow)+ $a.meas_comp_run_sq),
+        ("white_ab", false, $($borrow)+ $a.white_ab),
+        ("white_a2", false, $($borrow)+ $a.white_a2),
+        ("white_b2", false, $($borrow)+ $a.white_b2),
+        ("white_pairs", true, $($borrow)+ $a.white_pairs),
+    ]
+    };
+}
+
+macro_rules! scalars_of {
+    ($a:ident, $($borrow:tt)+) => {
+
+    [
+        ("nees_null_var", $($borrow)+ $a.nees_null_var),
+        ("nees_run_total", $($borrow)+ $a.nees_run_total),
+        ("nees_run_total_sq", $($borrow)+ $a.nees_run_total_sq),
+    ]
+    };
+}
+
+macro_rules! counts_of {
+    ($a:ident, $($borrow:tt)+) => {
+
+    [
+        ("runs", $($borrow)+ $a.runs),
+        ("null_var_runs", $($borrow)+ $a.null_var_runs),
+        ("error_map_missing", $($borrow)+ $a.error_map_missing),
+        ("nees_total_runs", $($borrow)+ $a.nees_total_runs),
+        ("comp_null_var_runs", $($borrow)+ $a.comp_null_var_runs),
+        ("diverged_runs", $($borrow)+ $a.diverged_runs),
+        ("ill_conditioned_runs", $($borrow)+ $a.ill_conditioned_runs),
+        ("truth_overflow_runs", $($borrow)+ $a.truth_overflow_runs),
+    ]
+    };
+}
+
 /// The per-step, component and whiteness vectors, in wire order, with their names (for
 /// errors) and whether they count samples (whole numbers).
 fn vectors(a: &mut Accumulator) -> [(&'static str, bool, &mut Vec<f64>); 27] {
-    [
-        ("nees_sum", false, &mut a.nees_sum),
-        ("nees_sq", false, &mut a.nees_sq),
-        ("nees_dof", false, &mut a.nees_dof),
-        ("nees_count", true, &mut a.nees_count),
-        ("nis_sum", false, &mut a.nis_sum),
-        ("nis_sq", false, &mut a.nis_sq),
-        ("nis_dof", false, &mut a.nis_dof),
-        ("nis_count", true, &mut a.nis_count),
-        ("state_comp_total", false, &mut a.state_comp_total),
-        ("state_comp_samples", true, &mut a.state_comp_samples),
-        ("state_comp_run_sum", false, &mut a.state_comp_run_sum),
-        ("state_comp_run_sq", false, &mut a.state_comp_run_sq),
-        ("state_comp_null_var", false, &mut a.state_comp_null_var),
-        ("state_mean_total", false, &mut a.state_mean_total),
-        ("state_mean_samples", true, &mut a.state_mean_samples),
-        ("state_mean_run_sq", false, &mut a.state_mean_run_sq),
-        ("state_mean_null_var", false, &mut a.state_mean_null_var),
-        ("meas_mean_total", false, &mut a.meas_mean_total),
-        ("meas_mean_run_sq", false, &mut a.meas_mean_run_sq),
-        ("meas_comp_total", false, &mut a.meas_comp_total),
-        ("meas_comp_samples", true, &mut a.meas_comp_samples),
-        ("meas_comp_run_sum", false, &mut a.meas_comp_run_sum),
-        ("meas_comp_run_sq", false, &mut a.meas_comp_run_sq),
-        ("white_ab", false, &mut a.white_ab),
-        ("white_a2", false, &mut a.white_a2),
-        ("white_b2", false, &mut a.white_b2),
-        ("white_pairs", true, &mut a.white_pairs),
-    ]
+    vectors_of!(a, &mut)
+}
+
+/// [`vectors`], to read.
+fn vectors_ref(a: &Accumulator) -> [(&'static str, bool, &Vec<f64>); 27] {
+    vectors_of!(a, &)
 }
 
 /// The scalar sums, in wire order.
 fn scalars(a: &mut Accumulator) -> [(&'static str, &mut f64); 3] {
-    [
-        ("nees_null_var", &mut a.nees_null_var),
-        ("nees_run_total", &mut a.nees_run_total),
-        ("nees_run_total_sq", &mut a.nees_run_total_sq),
-    ]
+    scalars_of!(a, &mut)
+}
+
+/// [`scalars`], to read.
+fn scalars_ref(a: &Accumulator) -> [(&'static str, &f64); 3] {
+    scalars_of!(a, &)
 }
 
 /// The counts of runs, in wire order (`runs` first).
 fn counts(a: &mut Accumulator) -> [(&'static str, &mut usize); 8] {
-    [
-        ("runs", &mut a.runs),
-        ("null_var_runs", &mut a.null_var_runs),
-        ("error_map_missing", &mut a.error_map_missing),
-        ("nees_total_runs", &mut a.nees_total_runs),
-        ("comp_null_var_runs", &mut a.comp_null_var_runs),
-        ("diverged_runs", &mut a.diverged_runs),
-        ("ill_conditioned_runs", &mut a.ill_conditioned_runs),
-        ("truth_overflow_runs", &mut a.truth_overflow_runs),
-    ]
+    counts_of!(a, &mut)
+}
+
+/// [`counts`], to read.
+fn counts_ref(a: &Accumulator) -> [(&'static str, &usize); 8] {
+    counts_of!(a, &)
 }
 
 fn cause_byte(c: StopCause) -> u8 {
@@ -169,8 +206,17 @@ pub fn encode(chunk: &ChunkSums, shape: &ChunkShape) -> String {
 
 /// [`encode`] before base64: the bytes an MPI rank sends.
 pub fn encode_bytes(chunk: &ChunkSums, shape: &ChunkShape) -> Vec<u8> {
-    let mut a = chunk.sums.clone();
     let mut out = Vec::new();
+    encode_into(&mut out, &chunk.sums, &chunk.prints, shape);
+    out
+}
+
+/// Appends the bytes of [`encode_bytes`] for `sums` and the runs' fingerprints `prints` to
+/// `out`, grown once: an MPI rank writes each of its runs' sums into one answer, without
+/// copying a run's sums on the way.
+pub fn encode_into(out: &mut Vec<u8>, sums: &Accumulator, prints: &[u64], shape: &ChunkShape) {
+    // The divergences kept (rare) may grow it again.
+    out.reserve(min_len(shape).unwrap_or(0));
     let u = |out: &mut Vec<u8>, x: usize| out.extend_from_slice(&(x as u64).to_le_bytes());
     out.extend_from_slice(MAGIC);
     for x in [
@@ -181,35 +227,34 @@ pub fn encode_bytes(chunk: &ChunkSums, shape: &ChunkShape) -> Vec<u8> {
         shape.n_x,
         shape.n_z,
     ] {
-        u(&mut out, x);
+        u(out, x);
     }
-    for (_, _, v) in vectors(&mut a) {
+    for (_, _, v) in vectors_ref(sums) {
         for x in v.iter() {
             out.extend_from_slice(&x.to_bits().to_le_bytes());
         }
     }
-    for (_, x) in scalars(&mut a) {
+    for (_, x) in scalars_ref(sums) {
         out.extend_from_slice(&x.to_bits().to_le_bytes());
     }
-    for (_, x) in counts(&mut a) {
-        u(&mut out, *x);
+    for (_, x) in counts_ref(sums) {
+        u(out, *x);
     }
-    for x in &a.meas_comp_runs {
-        u(&mut out, *x);
+    for x in &sums.meas_comp_runs {
+        u(out, *x);
     }
-    u(&mut out, a.divergences.len());
-    for d in &a.divergences {
-        u(&mut out, d.run);
-        u(&mut out, d.step);
+    u(out, sums.divergences.len());
+    for d in &sums.divergences {
+        u(out, d.run);
+        u(out, d.step);
         out.push(cause_byte(d.cause));
         let reason = &d.reason.as_bytes()[..floor_char(&d.reason, MAX_REASON)];
-        u(&mut out, reason.len());
+        u(out, reason.len());
         out.extend_from_slice(reason);
     }
-    for p in &chunk.prints {
+    for p in prints {
         out.extend_from_slice(&p.to_le_bytes());
     }
-    out
 }
 
 /// The largest index ≤ `at` on a character boundary of `s`.
@@ -427,6 +472,18 @@ mod tests {
     fn a_chunk_comes_back_bit_for_bit() {
         let c = filled();
         let back = decode(&encode(&c, &shape()), &shape()).unwrap();
+        assert_eq!(format!("{back:?}"), format!("{c:?}"));
+    }
+
+    #[test]
+    fn sums_appended_to_an_answer_follow_its_bytes_and_decode_alone() {
+        // An MPI answer holds several runs' sums one after another, each written in place.
+        let c = filled();
+        let mut out = b"before".to_vec();
+        encode_into(&mut out, &c.sums, &c.prints, &shape());
+        assert_eq!(&out[..6], b"before");
+        assert_eq!(out[6..], encode_bytes(&c, &shape())[..]);
+        let back = decode_bytes(&out[6..], &shape()).unwrap();
         assert_eq!(format!("{back:?}"), format!("{c:?}"));
     }
 

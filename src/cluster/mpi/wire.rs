@@ -104,14 +104,12 @@ pub(super) fn encode_answer(
     let shape = SumsShape::of(e, mc);
     let mut out = (parts.len() as u64).to_le_bytes().to_vec();
     for (c, sums) in parts {
-        let bytes = if by_runs {
-            shape.encode_run(*c, sums)
-        } else {
-            shape.encode(*c, sums)
-        };
         out.extend_from_slice(&(*c as u64).to_le_bytes());
-        out.extend_from_slice(&(bytes.len() as u64).to_le_bytes());
-        out.extend_from_slice(&bytes);
+        let at = out.len();
+        out.extend_from_slice(&[0; 8]);
+        shape.encode_into(&mut out, *c, sums, by_runs);
+        let len = (out.len() - at - 8) as u64;
+        out[at..at + 8].copy_from_slice(&len.to_le_bytes());
     }
     out
 }

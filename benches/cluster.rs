@@ -14,6 +14,11 @@
 //!   network.
 //! - `one_process_tune/ctrv/T` and `one_process_tune/ins_gnss/T`: the same tunes in one
 //!   process (no launcher) on T = 1 and 2 threads (`RAYON_NUM_THREADS`), wall time.
+//! - `mpi_start/default/K` and `mpi_start/pml_ob1/K`: a job that does nothing but start and
+//!   end (`autotune --version` initializes and finalizes MPI), on 1 and 2 ranks: the start
+//!   t₀ of the model in docs/src/performance.md, with Open MPI choosing its transport and
+//!   with `--mca pml ob1` (shared memory and TCP, what it falls back to on a machine without
+//!   a fabric).
 //!
 //! Needs the `autotune` built with `--features mpi` in AUTOTUNE_MPI_BIN, and `mpirun`;
 //! skipped without them. With AUTOTUNE_MPI_STATS set, rank 0 prints the communication of
@@ -90,11 +95,38 @@ fn mpirun(bin: &Path, ranks: usize, dir: &Path, args: &[&str], stats: bool) -> C
     cmd
 }
 
+/// `mpirun -np ranks` of `bin --version` with the MCA arguments `mca`; panics unless it
+/// exits 0.
+fn start(bin: &Path, ranks: usize, mca: &[&str]) {
+    let status = Command::new("mpirun")
+        .args(["-np", &ranks.to_string(), "--oversubscribe"])
+        .args(mca)
+        .arg(bin)
+        .arg("--version")
+        .env("OMPI_ALLOW_RUN_AS_ROOT", "1")
+        .env("OMPI_ALLOW_RUN_AS_ROOT_CONFIRM", "1")
+        .stdout(Stdio::null())
+        .status()
+        .expect("mpirun runs");
+    assert!(status.success(), "--version on {ranks} ranks: {status}");
+}
+
 fn ranks(c: &mut Criterion) {
     let Some(bin) = std::env::var_os("AUTOTUNE_MPI_BIN").map(PathBuf::from) else {
         eprintln!("skipped: set AUTOTUNE_MPI_BIN to an autotune built with --features mpi");
         return;
     };
+    let mut g = c.benchmark_group("mpi_start");
+    g.sample_size(10);
+    for (name, mca) in [
+        ("default", &[][..]),
+        ("pml_ob1", &["--mca", "pml", "ob1"][..]),
+    ] {
+        for k in [1, 2] {
+            g.bench_function(format!("{name}/{k}"), |b| b.iter(|| start(&bin, k, mca)));
+        }
+    }
+    g.finish();
     let ins = repo("problems/ins_gnss.toml");
     let ins_tuned = repo("tuned/ins_gnss.toml");
     let check = [

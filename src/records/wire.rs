@@ -16,6 +16,8 @@ use crate::stats::{Accumulator, Divergence, StopCause};
 
 /// The first bytes of an encoded chunk: the format and its version.
 const MAGIC: &[u8; 8] = b"ATSUMS2\0";
+/// The packed form's ([`encode_packed_into`]): never read where the plain one is expected.
+const MAGIC_PACKED: &[u8; 8] = b"ATSUMP2\0";
 
 /// Longest divergence reason carried, in bytes (the records path keeps a worker's words
 /// whole, but a reason is shown on one line of a report).
@@ -215,10 +217,58 @@ pub fn encode_bytes(chunk: &ChunkSums, shape: &ChunkShape) -> Vec<u8> {
 /// `out`, grown once: an MPI rank writes each of its runs' sums into one answer, without
 /// copying a run's sums on the way.
 pub fn encode_into(out: &mut Vec<u8>, sums: &Accumulator, prints: &[u64], shape: &ChunkShape) {
-    // The divergences kept (rare) may grow it again.
+    write(out, sums, prints, shape, false);
+}
+
+/// [`encode_into`] in the packed form that MPI ranks of one job send each other: each
+/// vector is sent whole, as the square of the vector before it (a single run's `nees_sq` is
+/// its `nees_sum` squared), or as whole numbers of one or two bytes (counts, degrees of
+/// freedom), whichever gives back its bits exactly. A run's own sums pack to about a third.
+/// Read with [`decode_packed_bytes`]; shard files and workers keep the plain form.
+pub fn encode_packed_into(
+    out: &mut Vec<u8>,
+    sums: &Accumulator,
+    prints: &[u64],
+    shape: &ChunkShape,
+) {
+    write(out, sums, prints, shape, true);
+}
+
+/// How a packed vector is sent: its tag byte, then its values.
+mod packing {
+    /// Every value, 8 bytes each.
+    pub const WHOLE: u8 = 0;
+    /// Nothing: each value is the square of the vector before it, to the bit.
+    pub const SQUARE: u8 = 1;
+    /// Whole numbers in 0..=255, a byte each.
+    pub const BYTES: u8 = 2;
+    /// Whole numbers in 0..=65535, two bytes each.
+    pub const PAIRS: u8 = 3;
+}
+
+/// The packing of `v`, whose predecessor in wire order is `before`: the smallest that gives
+/// back every bit.
+fn packing_of(v: &[f64], before: Option<&Vec<f64>>) -> u8 {
+    let same = |x: f64, y: f64| x.to_bits() == y.to_bits();
+    if let Some(b) = before
+        && b.len() == v.len()
+        && v.iter().zip(b).all(|(&x, &y)| same(x, y * y))
+    {
+        packing::SQUARE
+    } else if v.iter().all(|&x| same(x, f64::from(x as u8))) {
+        packing::BYTES
+    } else if v.iter().all(|&x| same(x, f64::from(x as u16))) {
+        packing::PAIRS
+    } else {
+        packing::WHOLE
+    }
+}
+
+fn write(out: &mut Vec<u8>, sums: &Accumulator, prints: &[u64], shape: &ChunkShape, packed: bool) {
+    // The divergences kept (rare) and a packed form's tags may grow it again.
     out.reserve(min_len(shape).unwrap_or(0));
     let u = |out: &mut Vec<u8>, x: usize| out.extend_from_slice(&(x as u64).to_le_bytes());
-    out.extend_from_slice(MAGIC);
+    out.extend_from_slice(if packed { MAGIC_PACKED } else { MAGIC });
     for x in [
         shape.runs.start,
         shape.runs.end,
@@ -229,9 +279,22 @@ pub fn encode_into(out: &mut Vec<u8>, sums: &Accumulator, prints: &[u64], shape:
     ] {
         u(out, x);
     }
-    for (_, _, v) in vectors_ref(sums) {
-        for x in v.iter() {
-            out.extend_from_slice(&x.to_bits().to_le_bytes());
+    let vs = vectors_ref(sums);
+    for (i, (_, _, v)) in vs.iter().enumerate() {
+        let tag = if packed {
+            let tag = packing_of(v, i.checked_sub(1).map(|b| vs[b].2));
+            out.push(tag);
+            tag
+        } else {
+            packing::WHOLE
+        };
+        for &x in v.iter() {
+            match tag {
+                packing::SQUARE => {}
+                packing::BYTES => out.push(x as u8),
+                packing::PAIRS => out.extend_from_slice(&(x as u16).to_le_bytes()),
+                _ => out.extend_from_slice(&x.to_bits().to_le_bytes()),
+            }
         }
     }
     for (_, x) in scalars_ref(sums) {
@@ -298,7 +361,8 @@ impl Reader<'_> {
         usize::try_from(x)
             .ok()
             .filter(|&x| x <= limit)
-            .ok_or(WireError::Impossible {
+            // Made only when refused: its value is formatted.
+            .ok_or_else(|| WireError::Impossible {
                 what,
                 value: x.to_string(),
             })
@@ -330,11 +394,30 @@ pub fn min_len(want: &ChunkShape) -> Option<usize> {
     words.checked_mul(8)?.checked_add(MAGIC.len())
 }
 
+/// The fewest bytes a packed chunk of shape `want` can have: [`min_len`] without the
+/// vectors, which may take nothing but their 27 tags.
+fn min_packed_len(want: &ChunkShape) -> Option<usize> {
+    let words = (6 + 3 + 8 + 1usize)
+        .checked_add(want.n_z)?
+        .checked_add(want.runs.len())?;
+    words.checked_mul(8)?.checked_add(MAGIC.len() + 27)
+}
+
 /// [`decode`] after base64. Nothing is allocated by a size the bytes do not back: they are
 /// first checked to be at least [`min_len`] of the shape asked for.
 pub fn decode_bytes(bytes: &[u8], want: &ChunkShape) -> Result<ChunkSums, WireError> {
+    read(bytes, want, false)
+}
+
+/// The sums of [`encode_packed_into`]'s bytes, checked as [`decode_bytes`] checks.
+pub fn decode_packed_bytes(bytes: &[u8], want: &ChunkShape) -> Result<ChunkSums, WireError> {
+    read(bytes, want, true)
+}
+
+fn read(bytes: &[u8], want: &ChunkShape, packed: bool) -> Result<ChunkSums, WireError> {
     let mut r = Reader { bytes, at: 0 };
-    if r.take(MAGIC.len()).map_err(|_| WireError::Magic)? != MAGIC {
+    let magic = if packed { MAGIC_PACKED } else { MAGIC };
+    if r.take(magic.len()).map_err(|_| WireError::Magic)? != magic {
         return Err(WireError::Magic);
     }
     let header = [
@@ -355,18 +438,50 @@ pub fn decode_bytes(bytes: &[u8], want: &ChunkShape) -> Result<ChunkSums, WireEr
             });
         }
     }
-    if min_len(want).is_none_or(|least| bytes.len() < least) {
+    // A packed vector may take no bytes at all; either way the sums are allocated by the
+    // shape asked for, not by any size the bytes give.
+    let least = if packed {
+        min_packed_len(want)
+    } else {
+        min_len(want)
+    };
+    if least.is_none_or(|least| bytes.len() < least) {
         return Err(WireError::Truncated(bytes.len()));
     }
     let runs = want.runs.len();
     // Whole counts of samples are at most one per run and step (per lag for whiteness).
     let most = (runs as f64) * (want.steps as f64);
     let mut a = Accumulator::new(want.steps, want.n_x, want.n_z, want.lags);
-    for (what, whole, v) in vectors(&mut a) {
-        for x in v.iter_mut() {
-            *x = r.f64()?;
+    let mut vs = vectors(&mut a);
+    for i in 0..vs.len() {
+        let (before, rest) = vs.split_at_mut(i);
+        let (what, whole, v) = &mut rest[0];
+        let tag = if packed {
+            r.take(1)?[0]
+        } else {
+            packing::WHOLE
+        };
+        let square_of = match (tag, before.last()) {
+            (packing::SQUARE, Some((_, _, b))) if b.len() == v.len() => Some(&**b),
+            (packing::SQUARE, _) | (4.., _) => {
+                return Err(WireError::Impossible {
+                    what,
+                    value: format!("packed as {tag}"),
+                });
+            }
+            _ => None,
+        };
+        for (k, x) in v.iter_mut().enumerate() {
+            *x = match (tag, square_of) {
+                (packing::SQUARE, Some(b)) => b[k] * b[k],
+                (packing::BYTES, _) => f64::from(r.take(1)?[0]),
+                (packing::PAIRS, _) => {
+                    f64::from(u16::from_le_bytes(r.take(2)?.try_into().expect("2 bytes")))
+                }
+                _ => r.f64()?,
+            };
             let possible =
-                x.is_finite() && (!whole || (x.fract() == 0.0 && (0.0..=most).contains(x)));
+                x.is_finite() && (!*whole || (x.fract() == 0.0 && (0.0..=most).contains(x)));
             if !possible {
                 return Err(WireError::Impossible {
                     what,
@@ -512,6 +627,97 @@ mod tests {
             assert!(
                 matches!(e, WireError::Shape { what: w, .. } if w == what),
                 "{e}"
+            );
+        }
+    }
+
+    /// [`filled`] with what a packed form sends small: `nees_sq` the square of `nees_sum`,
+    /// counts under 256 and degrees of freedom under 65536.
+    fn packable() -> ChunkSums {
+        let mut c = filled();
+        let a = &mut c.sums;
+        a.nees_sq = a.nees_sum.iter().map(|x| x * x).collect();
+        a.nees_count = (0..a.nees_count.len()).map(|k| (k % 2) as f64).collect();
+        a.nis_dof = (0..a.nis_dof.len()).map(|k| 300.0 + k as f64).collect();
+        c
+    }
+
+    #[test]
+    fn packed_sums_send_squares_and_small_counts_short_and_come_back_bit_for_bit() {
+        let c = packable();
+        let a = &c.sums;
+        assert_eq!(packing_of(&a.nees_sq, Some(&a.nees_sum)), packing::SQUARE);
+        assert_eq!(packing_of(&a.nees_count, None), packing::BYTES);
+        assert_eq!(packing_of(&a.nis_dof, None), packing::PAIRS);
+        assert_eq!(packing_of(&a.nis_sum, Some(&a.nees_count)), packing::WHOLE);
+        let (mut packed, mut plain) = (Vec::new(), Vec::new());
+        encode_packed_into(&mut packed, a, &c.prints, &shape());
+        encode_into(&mut plain, a, &c.prints, &shape());
+        // Each vector's values take 8 bytes plain, and 0, 1, 2 or 8 packed, after a tag.
+        let vs = vectors_ref(a);
+        let saved: usize = (0..vs.len())
+            .map(|i| {
+                let v = vs[i].2;
+                let size = match packing_of(v, i.checked_sub(1).map(|b| vs[b].2)) {
+                    packing::SQUARE => 0,
+                    packing::BYTES => 1,
+                    packing::PAIRS => 2,
+                    _ => 8,
+                };
+                v.len() * (8 - size)
+            })
+            .sum();
+        assert_eq!(plain.len() + 27 - packed.len(), saved);
+        assert!(saved >= shape().steps * (8 + 7 + 6));
+        let back = decode_packed_bytes(&packed, &shape()).unwrap();
+        assert_eq!(format!("{back:?}"), format!("{c:?}"));
+        // Neither form is read as the other.
+        assert_eq!(
+            decode_bytes(&packed, &shape()).unwrap_err(),
+            WireError::Magic
+        );
+        assert_eq!(
+            decode_packed_bytes(&plain, &shape()).unwrap_err(),
+            WireError::Magic
+        );
+    }
+
+    #[test]
+    fn damaged_packed_sums_are_refused_never_a_panic() {
+        let c = packable();
+        let mut bytes = Vec::new();
+        encode_packed_into(&mut bytes, &c.sums, &c.prints, &shape());
+        for cut in 0..bytes.len() {
+            let e = decode_packed_bytes(&bytes[..cut], &shape()).unwrap_err();
+            assert!(
+                matches!(e, WireError::Truncated(_) | WireError::Magic),
+                "cut at {cut}: {e}"
+            );
+        }
+        for at in 0..bytes.len() {
+            for flip in [0x01u8, 0x80, 0xff] {
+                let mut b = bytes.clone();
+                b[at] ^= flip;
+                let _ = decode_packed_bytes(&b, &shape());
+            }
+        }
+        // The first vector's tag (after the magic and the six sizes): a square with no
+        // vector before it, and a packing that does not exist.
+        let tag = MAGIC_PACKED.len() + 6 * 8;
+        assert_eq!(bytes[tag], packing::WHOLE);
+        for bad in [packing::SQUARE, 4, 0xff] {
+            let mut b = bytes.clone();
+            b[tag] = bad;
+            let e = decode_packed_bytes(&b, &shape()).unwrap_err();
+            assert!(
+                matches!(
+                    e,
+                    WireError::Impossible {
+                        what: "nees_sum",
+                        ..
+                    }
+                ),
+                "{bad}: {e}"
             );
         }
     }

@@ -107,7 +107,7 @@ pub(super) fn encode_answer(
         out.extend_from_slice(&(*c as u64).to_le_bytes());
         let at = out.len();
         out.extend_from_slice(&[0; 8]);
-        shape.encode_into(&mut out, *c, sums, by_runs);
+        shape.encode_packed_into(&mut out, *c, sums, by_runs);
         let len = (out.len() - at - 8) as u64;
         out[at..at + 8].copy_from_slice(&len.to_le_bytes());
     }
@@ -141,13 +141,13 @@ pub(super) fn decode_answer(
             if c >= mc.runs() {
                 return Err(AnswerError::RunBeyondRuns(c));
             }
-            parts.push((c, shape.decode_run(c, body)?));
+            parts.push((c, shape.decode_packed(c, body, true)?));
             continue;
         }
         if c >= shape.chunks() {
             return Err(AnswerError::BeyondRuns(c));
         }
-        parts.push((c, shape.decode(c, body)?));
+        parts.push((c, shape.decode_packed(c, body, false)?));
     }
     Ok(parts)
 }

@@ -8,6 +8,9 @@
 //! an untrusted input like a records file: [`decode`] checks its shapes against the
 //! request, and that its numbers could have come from records (finite, counts whole and
 //! within the runs asked for), before autotune merges it.
+//!
+//! MPI ranks send each other the same sums packed ([`encode_packed_into`]): a vector that
+//! is the square of the one before it, or whole numbers, goes short, to the same bits.
 
 use base64::Engine;
 use base64::engine::general_purpose::STANDARD;
@@ -206,7 +209,7 @@ pub fn encode(chunk: &ChunkSums, shape: &ChunkShape) -> String {
     STANDARD.encode(encode_bytes(chunk, shape))
 }
 
-/// [`encode`] before base64: the bytes an MPI rank sends.
+/// [`encode`] before base64.
 pub fn encode_bytes(chunk: &ChunkSums, shape: &ChunkShape) -> Vec<u8> {
     let mut out = Vec::new();
     encode_into(&mut out, &chunk.sums, &chunk.prints, shape);

@@ -24,8 +24,8 @@ use crate::experiment::{Experiment, ExperimentError};
 use crate::input::SettingError;
 use crate::montecarlo::{CHUNK, McConfig, RunOptions};
 use crate::records::{
-    ChunkShape, WireError, decode_packed_sums_bytes, decode_sums_bytes, encode_packed_sums_into,
-    encode_sums_into,
+    ChunkShape, WireError, decode_packed_sums_bytes_into, decode_sums_bytes,
+    encode_packed_sums_into, encode_sums_into,
 };
 use crate::stats::Accumulator;
 
@@ -176,9 +176,21 @@ impl SumsShape {
 
     /// Piece `i`'s sums from [`SumsShape::encode_packed_into`]'s bytes, checked against its
     /// shape.
-    #[cfg_attr(not(feature = "mpi"), allow(dead_code))]
+    #[cfg(test)]
     fn decode_packed(&self, i: usize, bytes: &[u8], run: bool) -> Result<Accumulator, WireError> {
-        decode_packed_sums_bytes(bytes, &self.piece(i, run)).map(|chunk| chunk.sums)
+        crate::records::decode_packed_sums_bytes(bytes, &self.piece(i, run)).map(|c| c.sums)
+    }
+
+    /// [`SumsShape::decode_packed`] into `into`, keeping its allocations.
+    #[cfg_attr(not(feature = "mpi"), allow(dead_code))]
+    fn decode_packed_into(
+        &self,
+        i: usize,
+        bytes: &[u8],
+        run: bool,
+        into: &mut Accumulator,
+    ) -> Result<(), WireError> {
+        decode_packed_sums_bytes_into(bytes, &self.piece(i, run), into).map(|_| ())
     }
 
     /// Chunk `c`'s sums from the sums format, checked against its shape.

@@ -29,11 +29,11 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::{Duration, Instant};
 
 use mpi::topology::SimpleCommunicator;
-use mpi::traits::{Communicator, Destination, MatchedReceiveVec, Source};
+use mpi::traits::{Communicator, Destination, Equivalence, Source};
 
 mod wire;
 
-use self::wire::{Request, decode_answer, encode_answer};
+use self::wire::{Request, decode_answer_into, encode_answer_into};
 use super::{deal_by_runs, empty_sums, share_sums};
 use crate::experiment::{
     Block, Covariances, Definition, Experiment, ExperimentError, LinearExperiment, TruthReuse,
@@ -141,6 +141,18 @@ pub struct Ranked<'a> {
     world: &'a World,
     next_id: AtomicU64,
     stats: Mutex<CommStats>,
+    /// What answers are received and read into, taken by one evaluation at a time.
+    inbox: Mutex<Inbox>,
+}
+
+/// Rank 0's buffers for the ranks' answers, kept from one evaluation to the next: fresh ones
+/// for each of a tune's thousands of runs would fault in and zero fresh pages.
+#[derive(Default)]
+struct Inbox {
+    /// An answer's bytes.
+    bytes: Vec<u8>,
+    /// Its pieces' indices and sums (the first of them, as many as it has).
+    pieces: Vec<(usize, Accumulator)>,
 }
 
 impl<'a> Ranked<'a> {
@@ -151,6 +163,7 @@ impl<'a> Ranked<'a> {
             world,
             next_id: AtomicU64::new(0),
             stats: Mutex::new(CommStats::default()),
+            inbox: Mutex::new(Inbox::default()),
         }
     }
 
@@ -184,7 +197,7 @@ impl<'a> Ranked<'a> {
                 .send_with_tag(&request[..], REQUEST);
         }
         let own = request_share(0, size, by_runs).expect("rank 0 of a job of size >= 1");
-        let mine = share_sums(self.inner, theta, mc, options, own)?;
+        let mut mine = share_sums(self.inner, theta, mc, options, own)?;
         let refused = |rank: usize, message: String| ExperimentError::Rank {
             rank,
             ranks: size,
@@ -198,31 +211,37 @@ impl<'a> Ranked<'a> {
         let mut by_run = by_runs.then(|| RunMerge::new(mc.runs(), || empty_sums(self.inner, mc)));
         let mut parts = Vec::new();
         let (mut waited, mut merging, mut answer_bytes) = (Duration::ZERO, Duration::ZERO, 0);
-        let mut take = |theirs: Vec<(usize, Accumulator)>| -> Result<(), ExperimentError> {
-            match by_run.as_mut() {
-                Some(m) => theirs
-                    .iter()
-                    .try_for_each(|(r, sums)| m.add(*r, sums))
-                    .map_err(merge_error),
-                None => {
-                    parts.extend(theirs);
-                    Ok(())
+        // Its first `n` pieces: added where dealt by runs, kept where dealt by chunks.
+        let mut take =
+            |theirs: &mut Vec<(usize, Accumulator)>, n: usize| -> Result<(), ExperimentError> {
+                match by_run.as_mut() {
+                    Some(m) => theirs[..n]
+                        .iter()
+                        .try_for_each(|(r, sums)| m.add(*r, sums))
+                        .map_err(merge_error),
+                    None => {
+                        parts.extend(theirs.drain(..n));
+                        Ok(())
+                    }
                 }
-            }
-        };
-        take(mine)?;
+            };
+        let n = mine.len();
+        take(&mut mine, n)?;
+        // Evaluations side by side take turns with one inbox: the second finds it empty.
+        let mut inbox = std::mem::take(&mut *self.inbox.lock().unwrap_or_else(|p| p.into_inner()));
         for rank in 1..size {
             let waiting = Instant::now();
             // By runs, in rank order; by chunks, whichever answers first.
-            let (bytes, from) = receive(self.world, by_runs.then_some(rank), tag);
+            let from = receive(self.world, by_runs.then_some(rank), tag, &mut inbox.bytes);
             let decoding = Instant::now();
             waited += decoding - waiting;
-            answer_bytes += bytes.len();
-            let theirs = decode_answer(&bytes, mc, self.inner, by_runs)
+            answer_bytes += inbox.bytes.len();
+            let n = decode_answer_into(&inbox.bytes, mc, self.inner, by_runs, &mut inbox.pieces)
                 .map_err(|why| refused(from, format!("its answer: {why}")))?;
-            take(theirs)?;
+            take(&mut inbox.pieces, n)?;
             merging += decoding.elapsed();
         }
+        *self.inbox.lock().unwrap_or_else(|p| p.into_inner()) = inbox;
         let finishing = Instant::now();
         if let Some(m) = by_run {
             parts = m.finish().map_err(merge_error)?;
@@ -258,10 +277,11 @@ fn request_share(
 /// be received, against evaluations of tens of milliseconds and more.
 const MAX_NAP: Duration = Duration::from_micros(500);
 
-/// The next message tagged `tag` (from rank `from`, or any), and its sender: probed for
-/// with naps that double from 10 µs to [`MAX_NAP`], so that waiting takes no CPU (MPI's
-/// blocking receive spins).
-fn receive(world: &World, from: Option<usize>, tag: i32) -> (Vec<u8>, usize) {
+/// The next message tagged `tag` (from rank `from`, or any) into `buf` (resized to it), and
+/// its sender: probed for with naps that double from 10 µs to [`MAX_NAP`], so that waiting
+/// takes no CPU (MPI's blocking receive spins). One buffer serves every answer rank 0
+/// receives: a fresh one each time would fault in and zero fresh pages.
+fn receive(world: &World, from: Option<usize>, tag: i32, buf: &mut Vec<u8>) -> usize {
     let mut nap = Duration::from_micros(10);
     loop {
         let found = match from {
@@ -271,9 +291,12 @@ fn receive(world: &World, from: Option<usize>, tag: i32) -> (Vec<u8>, usize) {
                 .immediate_matched_probe_with_tag(tag),
             None => world.0.any_process().immediate_matched_probe_with_tag(tag),
         };
-        if let Some(matched) = found {
-            let (bytes, status) = matched.matched_receive_vec::<u8>();
-            return (bytes, status.source_rank() as usize);
+        if let Some((message, status)) = found {
+            let len = usize::try_from(status.count(u8::equivalent_datatype())).unwrap_or(0);
+            buf.clear();
+            buf.resize(len, 0);
+            let status = message.matched_receive_into(&mut buf[..]);
+            return status.source_rank() as usize;
         }
         std::thread::sleep(nap);
         nap = (nap * 2).min(MAX_NAP);
@@ -317,8 +340,10 @@ pub fn serve(experiment: &dyn Experiment, world: &World) -> Result<(), Experimen
         ranks: size,
         message,
     };
+    // Kept from one evaluation to the next, as rank 0 keeps its inbox.
+    let (mut bytes, mut answer) = (Vec::new(), Vec::new());
     loop {
-        let (bytes, _) = receive(world, Some(0), REQUEST);
+        receive(world, Some(0), REQUEST, &mut bytes);
         if bytes.is_empty() {
             return Ok(());
         }
@@ -331,7 +356,7 @@ pub fn serve(experiment: &dyn Experiment, world: &World) -> Result<(), Experimen
             ..RunOptions::default()
         };
         let parts = share_sums(experiment, &req.theta, &req.mc, options, share)?;
-        let answer = encode_answer(&parts, &req.mc, experiment, req.by_runs);
+        encode_answer_into(&mut answer, &parts, &req.mc, experiment, req.by_runs);
         send(world, &answer, req.tag);
     }
 }

@@ -31,7 +31,8 @@ pub use rows::shown_up_to;
 pub use sink::{NormalizedSensor, RecordSink, StepSink, normalize_sensor};
 pub use wire::{
     ChunkShape, ChunkSums, WireError, decode as decode_sums, decode_bytes as decode_sums_bytes,
-    decode_packed_bytes as decode_packed_sums_bytes, encode as encode_sums,
+    decode_packed_bytes as decode_packed_sums_bytes,
+    decode_packed_bytes_into as decode_packed_sums_bytes_into, encode as encode_sums,
     encode_bytes as encode_sums_bytes, encode_into as encode_sums_into,
     encode_packed_into as encode_packed_sums_into, min_len as min_sums_len,
 };

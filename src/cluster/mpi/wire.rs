@@ -93,33 +93,38 @@ impl Request {
     }
 }
 
-/// A rank's sums: the count, then each piece's index (a chunk's, or a run's when shared by
-/// runs), length and sums format bytes.
-pub(super) fn encode_answer(
+/// A rank's sums into `out` (cleared first, so a rank reuses one buffer for its answers
+/// rather than faulting in fresh pages each evaluation): the count, then each piece's index
+/// (a chunk's, or a run's when shared by runs), length and sums format bytes.
+pub(super) fn encode_answer_into(
+    out: &mut Vec<u8>,
     parts: &[(usize, Accumulator)],
     mc: &McConfig,
     e: &dyn Experiment,
     by_runs: bool,
-) -> Vec<u8> {
+) {
     let shape = SumsShape::of(e, mc);
-    let mut out = (parts.len() as u64).to_le_bytes().to_vec();
+    out.clear();
+    out.extend_from_slice(&(parts.len() as u64).to_le_bytes());
     for (c, sums) in parts {
         out.extend_from_slice(&(*c as u64).to_le_bytes());
         let at = out.len();
         out.extend_from_slice(&[0; 8]);
-        shape.encode_packed_into(&mut out, *c, sums, by_runs);
+        shape.encode_packed_into(out, *c, sums, by_runs);
         let len = (out.len() - at - 8) as u64;
         out[at..at + 8].copy_from_slice(&len.to_le_bytes());
     }
-    out
 }
 
-pub(super) fn decode_answer(
+/// A rank's answer into `pieces`, whose first n entries it fills and whose sums it reuses
+/// (rank 0 reads thousands of runs' sums a tune): n, the answer's count of pieces.
+pub(super) fn decode_answer_into(
     bytes: &[u8],
     mc: &McConfig,
     e: &dyn Experiment,
     by_runs: bool,
-) -> Result<Vec<(usize, Accumulator)>, AnswerError> {
+    pieces: &mut Vec<(usize, Accumulator)>,
+) -> Result<usize, AnswerError> {
     let mut at = 0;
     fn word(bytes: &[u8], at: &mut usize) -> Result<usize, AnswerError> {
         let b = bytes.get(*at..*at + 8).ok_or(AnswerError::EndsEarly)?;
@@ -129,25 +134,25 @@ pub(super) fn decode_answer(
     }
     let shape = SumsShape::of(e, mc);
     let n = word(bytes, &mut at)?;
-    let mut parts = Vec::with_capacity(n.min(1 << 16));
-    for _ in 0..n {
+    for k in 0..n {
         let c = word(bytes, &mut at)?;
         let len = word(bytes, &mut at)?;
         let body = bytes
             .get(at..at.saturating_add(len))
             .ok_or(AnswerError::EndsEarly)?;
         at += len;
-        if by_runs {
-            if c >= mc.runs() {
-                return Err(AnswerError::RunBeyondRuns(c));
-            }
-            parts.push((c, shape.decode_packed(c, body, true)?));
-            continue;
+        if by_runs && c >= mc.runs() {
+            return Err(AnswerError::RunBeyondRuns(c));
         }
-        if c >= shape.chunks() {
+        if !by_runs && c >= shape.chunks() {
             return Err(AnswerError::BeyondRuns(c));
         }
-        parts.push((c, shape.decode_packed(c, body, false)?));
+        if k == pieces.len() {
+            pieces.push((c, shape.empty()));
+        }
+        let (index, sums) = &mut pieces[k];
+        *index = c;
+        shape.decode_packed_into(c, body, by_runs, sums)?;
     }
-    Ok(parts)
+    Ok(n)
 }

@@ -686,7 +686,10 @@ mod tests {
         // (64 × 5).
         let mut big = c.sums.clone();
         big.nees_count[0] = 321.0;
-        assert_eq!(packing_of(&big.nees_count, Some(&big.nees_dof)), packing::PAIRS);
+        assert_eq!(
+            packing_of(&big.nees_count, Some(&big.nees_dof)),
+            packing::PAIRS
+        );
         let e = decode_packed_bytes_into(&bytes(&big), &shape(), &mut into).unwrap_err();
         assert!(e.to_string().contains("nees_count is 321"), "{e}");
     }

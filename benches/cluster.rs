@@ -20,6 +20,10 @@
 //!   with `--mca pml ob1` (shared memory and TCP, what it falls back to on a machine without
 //!   a fabric).
 //!
+//! The checks and tunes run with `--mca pml ob1`, as docs/src/cluster.md advises on a machine
+//! without a fabric (this one): Open MPI's own choice probes for fabrics first and adds
+//! 0.2 s to every job, which `mpi_start` measures.
+//!
 //! Needs the `autotune` built with `--features mpi` in AUTOTUNE_MPI_BIN, and `mpirun`;
 //! skipped without them. With AUTOTUNE_MPI_STATS set, rank 0 prints the communication of
 //! each job (evaluations, bytes, time waiting for answers) on stderr: the numbers of
@@ -83,6 +87,9 @@ fn mpirun(bin: &Path, ranks: usize, dir: &Path, args: &[&str], stats: bool) -> C
         "-np",
         &ranks.to_string(),
         "--oversubscribe",
+        "--mca",
+        "pml",
+        "ob1",
         "-x",
         "RAYON_NUM_THREADS=1",
     ])

@@ -429,7 +429,17 @@ mod tests {
             let mut bytes = Vec::new();
             cshape.encode_packed_into(&mut bytes, *r, sums, true);
             assert_eq!(&cshape.decode_packed(*r, &bytes, true).unwrap(), sums);
+            let mut into = cshape.empty();
+            cshape
+                .decode_packed_into(*r, &bytes, true, &mut into)
+                .unwrap();
+            assert_eq!(&into, sums);
             assert!(cshape.decode_packed(r + 1, &bytes, true).is_err());
+            assert!(
+                cshape
+                    .decode_packed_into(r + 1, &bytes, true, &mut into)
+                    .is_err()
+            );
             assert!(cshape.decode_packed(0, &bytes, false).is_err());
             assert!(cshape.decode(0, &bytes).is_err());
             // A run's own sums pack smaller: its squares are sent as such, its counts and

@@ -599,16 +599,27 @@ mod tests {
             encode_packed_into(&mut out, sums, &c.prints, &shape());
             out
         };
-        let fresh = decode_packed_bytes(&bytes(&c.sums), &shape()).unwrap();
-        let mut into = Accumulator::new(1, 1, 1, 0);
+        let fresh = format!(
+            "{:?}",
+            decode_packed_bytes(&bytes(&c.sums), &shape()).unwrap()
+        );
+        let read = |into: &mut Accumulator| {
+            let prints = decode_packed_bytes_into(&bytes(&c.sums), &shape(), into).unwrap();
+            let sums = into.clone();
+            format!("{:?}", ChunkSums { sums, prints })
+        };
+        // Only its lags differ from the answer's: it is made anew, not read into.
+        let mut into = Accumulator::new(5, 3, 2, 0);
+        assert_eq!(read(&mut into), fresh);
+        let kept = into.nees_sum.as_ptr();
         for first in [bytes(&other), bytes(&c.sums)] {
             decode_packed_bytes_into(&first, &shape(), &mut into).unwrap();
-            let prints = decode_packed_bytes_into(&bytes(&c.sums), &shape(), &mut into).unwrap();
-            let back = ChunkSums {
-                sums: into.clone(),
-                prints,
-            };
-            assert_eq!(format!("{back:?}"), format!("{fresh:?}"));
+            assert_eq!(read(&mut into), fresh);
+            assert_eq!(
+                into.nees_sum.as_ptr(),
+                kept,
+                "sums of the shape keep their vectors"
+            );
         }
         // A whole count sent as two bytes is still held to the runs and steps asked for
         // (64 × 5).

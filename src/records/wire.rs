@@ -17,9 +17,12 @@ use base64::engine::general_purpose::STANDARD;
 
 use crate::stats::{Accumulator, Divergence, StopCause};
 
+mod error;
 mod fields;
+mod packing;
 mod reader;
 
+pub use error::WireError;
 use fields::{counts, counts_ref, scalars, scalars_ref, vectors, vectors_ref};
 use reader::Reader;
 
@@ -54,49 +57,6 @@ pub struct ChunkSums {
     pub sums: Accumulator,
     /// Each run's fingerprint, in run order.
     pub prints: Vec<u64>,
-}
-
-/// Why a sums answer is refused.
-#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
-pub enum WireError {
-    /// Not base64.
-    #[error("'sums' is not base64: {0}")]
-    Base64(String),
-    /// Not this format, or another version of it.
-    #[error("'sums' is not autotune's sums format (version 2): another autotune's worker library?")]
-    Magic,
-    /// It ended early.
-    #[error("'sums' ends early, at byte {0}")]
-    Truncated(usize),
-    /// Sums after inline records of the same request.
-    #[error("'sums' after inline records: answer one or the other")]
-    AfterRecords,
-    /// Bytes after its end.
-    #[error("'sums' has {0} bytes after its end")]
-    Trailing(usize),
-    /// A size differs from the request's.
-    #[error("'sums' {what} is {got}, the request's {want}")]
-    Shape {
-        /// The size.
-        what: &'static str,
-        /// The answer's.
-        got: usize,
-        /// The request's.
-        want: usize,
-    },
-    /// A number no records could give.
-    #[error("'sums' {what} is {value}, which no records give")]
-    Impossible {
-        /// Which sum.
-        what: &'static str,
-        /// Its value, as shown.
-        value: String,
-    },
-    /// A divergence that does not fit the request.
-    #[error(
-        "'sums' divergence {0} is malformed (run outside the request, step outside 1..=T, unknown cause or reason not UTF-8)"
-    )]
-    Divergence(usize),
 }
 
 fn cause_byte(c: StopCause) -> u8 {
@@ -147,18 +107,6 @@ pub fn encode_packed_into(
     shape: &ChunkShape,
 ) {
     write(out, sums, prints, shape, true);
-}
-
-/// How a packed vector is sent: its tag byte, then its values.
-mod packing {
-    /// Every value, 8 bytes each.
-    pub const WHOLE: u8 = 0;
-    /// Nothing: each value is the square of the vector before it, to the bit.
-    pub const SQUARE: u8 = 1;
-    /// Whole numbers in 0..=255, a byte each.
-    pub const BYTES: u8 = 2;
-    /// Whole numbers in 0..=65535, two bytes each.
-    pub const PAIRS: u8 = 3;
 }
 
 /// The packing of `v`, whose predecessor in wire order is `before`: the smallest that gives

@@ -1,6 +1,7 @@
 //! Reading the sums format: every read bounds-checked, a refusal rather than a panic.
 
-use super::{WireError, packing};
+use super::error::WireError;
+use super::packing;
 
 /// Reads the encoded bytes in order, every read checked.
 pub(super) struct Reader<'a> {
